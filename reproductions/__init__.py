@@ -1,0 +1,26 @@
+"""One subpackage per paper. The registries below are all the command line needs."""
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from pipeline.errors import ScenarioError
+from pipeline.scenario import as_str
+
+#: paper id -> module that defines `paper()` returning its Reproduction
+PAPERS = {"savas": "reproductions.savas.reproduction"}
+
+#: scenario family (the `family` key of a user's TOML file) -> module with `from_dict(data)`
+FAMILIES = {"noisy-consensus-filter": "reproductions.savas.reproduction"}
+
+
+def paper(paper_id: str):
+    return importlib.import_module(PAPERS[paper_id]).paper()
+
+
+def family_from_dict(data: dict[str, Any]):
+    family = as_str(data.get("family"), "family", FAMILIES) if "family" in data else None
+    if family is None:
+        raise ScenarioError("family", f"missing (one of {', '.join(FAMILIES)})")
+    body = {k: v for k, v in data.items() if k != "family"}
+    return importlib.import_module(FAMILIES[family]).from_dict(body)

@@ -1,0 +1,109 @@
+"""Stage cache: results keyed by a content hash of the stage's inputs and code.
+
+An entry is one ``.npz`` file of named arrays plus a ``.json`` sidecar holding the
+parameters and the SHA-256 of the npz bytes. Both are written atomically, the sidecar
+last, so an entry without a valid sidecar is simply absent; an entry whose checksum does
+not match is reported, deleted and recomputed, never used.
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import sys
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from .atomic import atomic_write_bytes, atomic_write_text
+from .errors import CacheMiss
+
+
+def canonical_json(obj: Any) -> str:
+    """Stable JSON for hashing: sorted keys, numpy values converted, floats as repr."""
+    return json.dumps(obj, sort_keys=True, default=_jsonable, separators=(",", ":"))
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, (tuple, set, frozenset)):
+        return list(x)
+    if hasattr(x, "__dataclass_fields__"):
+        from dataclasses import asdict
+
+        return asdict(x)
+    raise TypeError(f"cannot hash {type(x).__name__}")
+
+
+def code_fingerprint(modules: Iterable[str]) -> str:
+    """Hash of the source files of the given (imported) modules: a code change invalidates entries."""
+    h = hashlib.sha256()
+    for name in sorted(modules):
+        path = getattr(sys.modules[name], "__file__", None)
+        if path:
+            h.update(name.encode())
+            h.update(Path(path).read_bytes())
+    return h.hexdigest()[:16]
+
+
+class StageCache:
+    """A directory of cached stage results."""
+
+    def __init__(self, root: str | Path, *, read_only: bool = False):
+        self.root = Path(root)
+        self.read_only = read_only
+        self.corrupt_entries: list[str] = []
+
+    def key(self, stage: str, params: dict[str, Any]) -> str:
+        return f"{stage}-{hashlib.sha256(canonical_json(params).encode()).hexdigest()[:24]}"
+
+    def _paths(self, key: str) -> tuple[Path, Path]:
+        return self.root / f"{key}.npz", self.root / f"{key}.json"
+
+    def load(self, stage: str, params: dict[str, Any]) -> dict[str, np.ndarray] | None:
+        key = self.key(stage, params)
+        data_path, meta_path = self._paths(key)
+        if not meta_path.exists() or not data_path.exists():
+            return None
+        try:
+            meta = json.loads(meta_path.read_text())
+            raw = data_path.read_bytes()
+            if hashlib.sha256(raw).hexdigest() != meta["sha256"]:
+                raise ValueError("checksum mismatch")
+            with np.load(io.BytesIO(raw), allow_pickle=False) as npz:
+                return {k: npz[k] for k in npz.files}
+        except (ValueError, KeyError, OSError, json.JSONDecodeError) as exc:
+            self.corrupt_entries.append(f"{key}: {exc}")
+            print(f"dse: cache entry {key} is corrupt ({exc}); recomputing", file=sys.stderr)
+            if not self.read_only:
+                for p in (meta_path, data_path):
+                    p.unlink(missing_ok=True)
+            return None
+
+    def save(self, stage: str, params: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+        if self.read_only:
+            return
+        key = self.key(stage, params)
+        data_path, meta_path = self._paths(key)
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        raw = buf.getvalue()
+        atomic_write_bytes(data_path, raw)
+        atomic_write_text(meta_path, json.dumps({"stage": stage, "params": json.loads(canonical_json(params)),
+                                                 "sha256": hashlib.sha256(raw).hexdigest()}, indent=1))
+
+    def get_or_compute(self, stage: str, params: dict[str, Any],
+                       compute: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+        cached = self.load(stage, params)
+        if cached is not None:
+            return cached
+        if self.read_only:
+            raise CacheMiss(f"stage '{stage}' is not in the cache at {self.root} ({self.key(stage, params)}); "
+                            "run `dse reproduce` first")
+        arrays = compute()
+        self.save(stage, params, arrays)
+        return arrays

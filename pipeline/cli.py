@@ -1,0 +1,150 @@
+"""The `dse` command line: list, reproduce, run, verify.
+
+Input errors print one line naming the field and exit with code 2, before anything is
+written; Ctrl-C exits with 130.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .errors import CacheMiss, OutputError, ScenarioError
+from .reproduction import RunOptions, reverify, run
+from .report import write_summary
+
+
+def _registry():
+    import reproductions
+
+    return reproductions
+
+
+def cmd_list(args) -> int:
+    reg = _registry()
+    for pid in reg.PAPERS:
+        repro = reg.paper(pid)
+        print(f"{pid}: {repro.title}")
+        print(f"  scenarios: {', '.join(repro.scenario_ids())}")
+        for claim in repro.claims():
+            print(f"  {claim.id:<34} {claim.kind:<12} {claim.source}")
+    print("\nscenario families for `dse run FILE.toml` (family = ...):", ", ".join(reg.FAMILIES))
+    return 0
+
+
+def _options(args) -> RunOptions:
+    return RunOptions(seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers)
+
+
+def cmd_reproduce(args) -> int:
+    reg = _registry()
+    unknown = [p for p in args.papers if p not in reg.PAPERS]
+    if unknown:
+        raise ScenarioError("PAPER", f"unknown paper {', '.join(unknown)} (known: {', '.join(reg.PAPERS)})")
+    out_root = Path(args.out)
+    rows = []
+    for pid in args.papers or list(reg.PAPERS):
+        rows.append(run(reg.paper(pid), out_root, _options(args)))
+        r = rows[-1]
+        print(f"{pid}: {r['pass']} pass, {r['fail']} fail, {r['erratum']} erratum, "
+              f"{r['not-checkable']} not checkable ({r['wall_s']:.1f} s) -> {out_root / pid}")
+    print(f"summary: {write_summary(out_root)}")
+    return 0
+
+
+def cmd_run(args) -> int:
+    reg = _registry()
+    from .scenario import load_toml
+
+    data = load_toml(args.file)
+    repro = reg.family_from_dict(data)
+    out_root = Path(args.out)
+    out_dir = out_root / "run" / repro.paper_id
+    r = run(repro, out_root, _options(args), out_dir=out_dir, source=data)
+    print(f"{repro.paper_id}: {r['pass']} pass, {r['fail']} fail, {r['erratum']} erratum, "
+          f"{r['not-checkable']} not checkable ({r['wall_s']:.1f} s) -> {out_dir}")
+    return 0
+
+
+def cmd_verify(args) -> int:
+    reg = _registry()
+    target = Path(args.out_dir)
+    dirs = [target] if (target / "run.json").exists() else sorted(p.parent for p in target.glob("*/run.json"))
+    dirs += [] if (target / "run.json").exists() else sorted(p.parent for p in target.glob("run/*/run.json"))
+    if not dirs:
+        raise OutputError(f"{target} holds no run.json: nothing to verify (run `dse reproduce` first)")
+    status = 0
+    for d in dirs:
+        meta = json.loads((d / "run.json").read_text())
+        repro = reg.family_from_dict(meta["scenario"]) if meta.get("scenario") else reg.paper(meta["paper"])
+        rows, diffs = reverify(repro, Path(meta["out_root"]), d)
+        counts = {s: sum(r["verdict"] == s for r in rows) for s in ("pass", "fail", "erratum", "not-checkable")}
+        print(f"{d}: re-checked {len(rows)} claims from the cache: {counts['pass']} pass, {counts['fail']} fail, "
+              f"{counts['erratum']} erratum, {counts['not-checkable']} not checkable")
+        for line in diffs:
+            print(f"  differs: {line}")
+        status |= bool(diffs)
+    return status
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="dse", description="Reproductions of distributed state estimation papers.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("list", help="papers, scenarios and claims").set_defaults(func=cmd_list)
+
+    def run_flags(p):
+        p.add_argument("--quick", action="store_true", help="fewer trials and coarser grids (for tests)")
+        p.add_argument("--trials", type=_positive_int, default=None, help="Monte Carlo trials per cell")
+        p.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
+        p.add_argument("--out", default="out", help="output root directory (default out/)")
+        p.add_argument("--workers", type=_positive_int, default=2, help="worker processes (default 2)")
+
+    rep = sub.add_parser("reproduce", help="regenerate papers' claims, figures and recordings")
+    rep.add_argument("papers", nargs="*", metavar="PAPER")
+    run_flags(rep)
+    rep.set_defaults(func=cmd_reproduce)
+    user = sub.add_parser("run", help="run a scenario file of a supported family")
+    user.add_argument("file", metavar="FILE.toml")
+    run_flags(user)
+    user.set_defaults(func=cmd_run)
+    ver = sub.add_parser("verify", help="re-check claims from cached results, without simulating")
+    ver.add_argument("out_dir", metavar="OUT_DIR")
+    ver.set_defaults(func=cmd_verify)
+    return parser
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def _nonnegative_int(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a nonnegative integer, got {text}")
+    return value
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except ScenarioError as exc:
+        print(f"dse: error: {exc}", file=sys.stderr)
+        return 2
+    except OutputError as exc:
+        print(f"dse: error: {exc}", file=sys.stderr)
+        return 2
+    except CacheMiss as exc:
+        print(f"dse: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("dse: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,30 @@
+"""Exceptions the command line turns into one clear line and an exit code."""
+
+
+class ScenarioError(ValueError):
+    """Invalid user input, tied to the scenario field that is wrong.
+
+    `field` is a dotted path such as ``graph.kind`` or ``noise.r``; the message always
+    starts with it so that a user can find the line in their TOML file.
+    """
+
+    def __init__(self, field: str, reason: str):
+        self.field = field
+        self.reason = reason
+        super().__init__(f"{field}: {reason}")
+
+
+class OutputError(RuntimeError):
+    """The output directory cannot be used (not writable, not a directory, disk full)."""
+
+
+class CacheMiss(RuntimeError):
+    """A stage result was required from the cache (``dse verify``) but is not there."""
+
+
+class NumericalError(ArithmeticError):
+    """A NaN or inf appeared where a finite number is required; says where."""
+
+    def __init__(self, stage: str, scenario: str, where: str):
+        self.stage, self.scenario, self.where = stage, scenario, where
+        super().__init__(f"non-finite value in stage '{stage}', scenario '{scenario}', {where}")

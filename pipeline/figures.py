@@ -1,0 +1,33 @@
+"""Matplotlib figures written atomically as PNG, one consistent style."""
+from __future__ import annotations
+
+import os
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from .atomic import atomic_path  # noqa: E402
+
+STYLE = {"figure.dpi": 110, "savefig.dpi": 150, "axes.grid": True, "grid.alpha": 0.3, "font.size": 10,
+         "legend.fontsize": 8, "axes.spines.top": False, "axes.spines.right": False}
+
+
+def new_figure(ncols: int = 1, nrows: int = 1, width: float = 6.4, height: float = 4.2):
+    with plt.rc_context(STYLE):
+        fig, axes = plt.subplots(nrows, ncols, figsize=(width * ncols, height * nrows), squeeze=False)
+    return fig, axes
+
+
+def save_figure(fig, path: str | os.PathLike) -> None:
+    with plt.rc_context(STYLE):
+        fig.tight_layout()
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def sequential_colors(n: int, cmap: str = "viridis"):
+    cm = plt.get_cmap(cmap)
+    return [cm(x) for x in ([0.0] if n == 1 else [0.9 * i / (n - 1) for i in range(n)])]

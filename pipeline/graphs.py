@@ -1,0 +1,183 @@
+"""Communication graphs: construction from a scenario, Laplacians, consensus weights.
+
+Nodes are always the integers 0..n-1. Graph kinds: ``line`` (path), ``ring``, ``grid``
+(rows x cols lattice), ``complete``, ``random_geometric`` (unit square, seeded) and
+``edges`` (an explicit undirected edge list).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import networkx as nx
+import numpy as np
+
+from .errors import ScenarioError
+from .scenario import as_float, as_int, as_list, as_str, join, reject_unknown, section
+
+GRAPH_KINDS = ("line", "ring", "grid", "complete", "random_geometric", "edges")
+
+
+@dataclass(frozen=True)
+class GraphSpec:
+    """A declarative undirected graph on nodes 0..n-1."""
+
+    kind: str
+    n: int
+    rows: int = 0
+    cols: int = 0
+    radius: float = 0.0
+    seed: int = 0
+    edges: tuple[tuple[int, int], ...] = ()
+
+    @classmethod
+    def from_dict(cls, data: Any, field: str = "graph", *, require_connected: bool = True) -> "GraphSpec":
+        data = section(data, field)
+        kind = as_str(data.get("kind"), join(field, "kind"), GRAPH_KINDS) if "kind" in data else None
+        if kind is None:
+            raise ScenarioError(join(field, "kind"), f"missing (one of {', '.join(GRAPH_KINDS)})")
+        allowed = {"kind"} | {
+            "line": {"n"}, "ring": {"n"}, "complete": {"n"}, "grid": {"rows", "cols"},
+            "random_geometric": {"n", "radius", "seed"}, "edges": {"n", "edges"},
+        }[kind]
+        reject_unknown(data, allowed, field)
+        for key in allowed - {"kind"}:
+            if key not in data and key != "seed":
+                raise ScenarioError(join(field, key), f"missing (needed for kind '{kind}')")
+        kw: dict[str, Any] = {"kind": kind}
+        if kind == "grid":
+            kw["rows"] = as_int(data["rows"], join(field, "rows"), low=1)
+            kw["cols"] = as_int(data["cols"], join(field, "cols"), low=1)
+            kw["n"] = kw["rows"] * kw["cols"]
+        else:
+            kw["n"] = as_int(data["n"], join(field, "n"), low=1)
+        if kind == "ring" and kw["n"] < 3:
+            raise ScenarioError(join(field, "n"), "a ring needs at least 3 nodes")
+        if kind == "random_geometric":
+            kw["radius"] = as_float(data["radius"], join(field, "radius"), low=0.0, low_open=True)
+            kw["seed"] = as_int(data.get("seed", 0), join(field, "seed"), low=0)
+        if kind == "edges":
+            kw["edges"] = _edge_list(data["edges"], join(field, "edges"), kw["n"])
+        spec = cls(**kw)
+        if require_connected and not nx.is_connected(spec.build()):
+            raise ScenarioError(field, "graph is not connected (the theorems need a connected graph)")
+        return spec
+
+    def build(self) -> nx.Graph:
+        """The networkx graph with integer nodes 0..n-1 (and a 'pos' attribute when natural)."""
+        if self.kind == "line":
+            G = nx.path_graph(self.n)
+        elif self.kind == "ring":
+            G = nx.cycle_graph(self.n)
+        elif self.kind == "complete":
+            G = nx.complete_graph(self.n)
+        elif self.kind == "grid":
+            G = nx.convert_node_labels_to_integers(nx.grid_2d_graph(self.rows, self.cols), ordering="sorted")
+        elif self.kind == "random_geometric":
+            G = nx.random_geometric_graph(self.n, self.radius, seed=self.seed)
+        elif self.kind == "edges":
+            G = nx.Graph()
+            G.add_nodes_from(range(self.n))
+            G.add_edges_from(self.edges)
+        else:  # pragma: no cover - from_dict rejects other kinds
+            raise ValueError(f"unknown graph kind {self.kind!r}")
+        return G
+
+    def positions(self) -> np.ndarray:
+        """Fixed drawing positions (n, 2), deterministic, for figures and recordings."""
+        G = self.build()
+        if self.kind == "line":
+            return np.column_stack([np.arange(self.n, dtype=float), np.zeros(self.n)])
+        if self.kind in ("ring", "complete"):
+            angle = 2 * np.pi * np.arange(self.n) / self.n
+            return np.column_stack([np.cos(angle), np.sin(angle)])
+        if self.kind == "grid":
+            idx = np.arange(self.n)
+            return np.column_stack([idx % self.cols, -(idx // self.cols)]).astype(float)
+        if self.kind == "random_geometric":
+            return np.array([G.nodes[i]["pos"] for i in range(self.n)], dtype=float)
+        pos = nx.spring_layout(G, seed=0)
+        return np.array([pos[i] for i in range(self.n)], dtype=float)
+
+
+def _edge_list(value: Any, field: str, n: int) -> tuple[tuple[int, int], ...]:
+    edges = []
+    for i, e in enumerate(as_list(value, field)):
+        if not (isinstance(e, list) and len(e) == 2):
+            raise ScenarioError(f"{field}[{i}]", "each edge must be a pair [u, v]")
+        u, v = (as_int(x, f"{field}[{i}]", low=0, high=n - 1) for x in e)
+        if u == v:
+            raise ScenarioError(f"{field}[{i}]", f"self-loop at node {u} is not allowed")
+        edges.append((min(u, v), max(u, v)))
+    return tuple(sorted(set(edges)))
+
+
+def laplacian(G: nx.Graph) -> np.ndarray:
+    """Combinatorial Laplacian L = D - A with unit edge weights, nodes in order 0..n-1."""
+    return nx.laplacian_matrix(G, nodelist=range(G.number_of_nodes())).toarray().astype(float)
+
+
+def laplacian_consensus_weights(G: nx.Graph, eps: float) -> np.ndarray:
+    """Q = I - eps L: symmetric and doubly stochastic; nonnegative and primitive iff 0 < eps < 1/d_max."""
+    L = laplacian(G)
+    return np.eye(len(L)) - eps * L
+
+
+def metropolis_weights(G: nx.Graph) -> np.ndarray:
+    """Metropolis-Hastings weights: q_ij = 1/(1 + max(d_i, d_j)) on edges; symmetric, doubly stochastic."""
+    n = G.number_of_nodes()
+    deg = np.array([G.degree(i) for i in range(n)])
+    Q = np.zeros((n, n))
+    for i, j in G.edges():
+        Q[i, j] = Q[j, i] = 1.0 / (1.0 + max(deg[i], deg[j]))
+    Q[np.diag_indices(n)] = 1.0 - Q.sum(axis=1)
+    return Q
+
+
+def max_degree(G: nx.Graph) -> int:
+    return max((d for _, d in G.degree()), default=0)
+
+
+def check_consensus_matrix(Q: np.ndarray, field: str, *, tol: float = 1e-10) -> None:
+    """Raise ScenarioError unless Q is square, nonnegative and doubly stochastic."""
+    if Q.ndim != 2 or Q.shape[0] != Q.shape[1]:
+        raise ScenarioError(field, f"must be square, got shape {Q.shape}")
+    if Q.min() < -tol:
+        raise ScenarioError(field, f"must be nonnegative (min entry {Q.min():.3g})")
+    if np.abs(Q.sum(axis=1) - 1).max() > tol:
+        raise ScenarioError(field, "rows must sum to 1 (row stochastic)")
+    if np.abs(Q.sum(axis=0) - 1).max() > tol:
+        raise ScenarioError(field, "columns must sum to 1 (doubly stochastic)")
+
+
+def consensus_matrix_from_dict(data: Mapping[str, Any], field: str, G: nx.Graph) -> np.ndarray:
+    """Build the consensus matrix of a scenario: ``{weights = "laplacian", eps = 0.4}``,
+    ``{weights = "metropolis"}`` or ``{weights = "matrix", matrix = [[...], ...]}``."""
+    from .scenario import as_matrix
+
+    data = section(data, field)
+    kind = as_str(data.get("weights", "laplacian"), join(field, "weights"), ("laplacian", "metropolis", "matrix"))
+    n = G.number_of_nodes()
+    if kind == "laplacian":
+        reject_unknown(data, {"weights", "eps"}, field)
+        if "eps" not in data:
+            raise ScenarioError(join(field, "eps"), "missing (Laplacian step size)")
+        eps = as_float(data["eps"], join(field, "eps"), low=0.0, low_open=True)
+        dmax = max_degree(G)
+        if dmax and eps >= 1.0 / dmax:
+            raise ScenarioError(join(field, "eps"), f"must be < 1/d_max = {1.0 / dmax:.6g} so that Q is nonnegative and primitive, got {eps}")
+        Q = laplacian_consensus_weights(G, eps)
+    elif kind == "metropolis":
+        reject_unknown(data, {"weights"}, field)
+        Q = metropolis_weights(G)
+    else:
+        reject_unknown(data, {"weights", "matrix"}, field)
+        if "matrix" not in data:
+            raise ScenarioError(join(field, "matrix"), "missing")
+        Q = as_matrix(data["matrix"], join(field, "matrix"), shape=(n, n))
+        off_graph = (np.abs(Q) > 0) & ~(nx.to_numpy_array(G, nodelist=range(n)) > 0) & ~np.eye(n, dtype=bool)
+        if off_graph.any():
+            i, j = map(int, np.argwhere(off_graph)[0])
+            raise ScenarioError(join(field, "matrix"), f"entry [{i}][{j}] is nonzero but ({i},{j}) is not an edge")
+    check_consensus_matrix(Q, join(field, "matrix") if kind == "matrix" else field)
+    return Q

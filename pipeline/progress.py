@@ -1,0 +1,22 @@
+"""Progress bars on stderr (tqdm), silent when stderr is not a terminal unless forced."""
+from __future__ import annotations
+
+import os
+import sys
+from typing import Iterable, TypeVar
+
+from tqdm import tqdm
+
+T = TypeVar("T")
+
+
+def progress_enabled() -> bool:
+    flag = os.environ.get("DSE_PROGRESS")
+    if flag is not None:
+        return flag not in ("0", "", "false", "no")
+    return sys.stderr.isatty()
+
+
+def progress(iterable: Iterable[T], *, desc: str = "", total: int | None = None) -> Iterable[T]:
+    return tqdm(iterable, desc=desc, total=total, disable=not progress_enabled(), leave=False,
+                dynamic_ncols=True, file=sys.stderr)

@@ -1,0 +1,137 @@
+"""Rerun recordings (rerun-sdk pinned exactly; see shared/specs/rerun_and_deps.md).
+
+Conventions (DESIGN.md): timeline ``k`` (sequence) for discrete time and ``t``
+(duration, integer nanoseconds) for continuous time; bulk data with ``send_columns``;
+styling logged once as static. A recording is written to a temporary file and renamed
+into place only once it is complete (footer written), so a final path never holds a
+truncated file.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from .atomic import atomic_path
+
+PALETTE = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
+           (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
+
+
+def color(i: int) -> tuple[int, int, int]:
+    return PALETTE[i % len(PALETTE)]
+
+
+@contextlib.contextmanager
+def recording(path: str | os.PathLike, *, application_id: str, recording_id: str,
+              blueprint: rrb.Blueprint, properties: dict[str, Any] | None = None) -> Iterator[rr.RecordingStream]:
+    """Open a recording that lands at `path` only when the block finishes without error."""
+    with atomic_path(path) as tmp:
+        rec = rr.RecordingStream(application_id, recording_id=recording_id)
+        rec.save(str(tmp), default_blueprint=blueprint)
+        rec.set_log_time_enabled(False)
+        rec.send_recording_name(recording_id)
+        if properties:
+            rec.send_property("provenance", rr.AnyValues(**{k: _property(v) for k, v in properties.items()}))
+        try:
+            yield rec
+        finally:
+            rec.flush()
+            rec.disconnect()
+
+
+def _property(v: Any) -> Any:
+    if isinstance(v, (str, int, float, bool)):
+        return v
+    return str(v)
+
+
+def sequence_index(name: str, values: Sequence[int] | np.ndarray) -> list[rr.TimeColumn]:
+    return [rr.TimeColumn(name, sequence=np.asarray(values, dtype=np.int64))]
+
+
+def duration_index(name: str, nanoseconds: np.ndarray) -> list[rr.TimeColumn]:
+    """Continuous time as integer nanoseconds (a float-seconds array would be truncated)."""
+    return [rr.TimeColumn(name, duration=np.asarray(nanoseconds, dtype=np.int64).astype("timedelta64[ns]"))]
+
+
+def send_series(rec: rr.RecordingStream, entity: str, index: list[rr.TimeColumn], values: np.ndarray, *,
+                names: Sequence[str] | str | None = None, colors: Sequence[tuple[int, int, int]] | None = None,
+                points: bool = False, width: float = 1.5) -> None:
+    """One entity holding T rows of k scalars (k series), styled once as static."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.ndim == 1:
+        values = values[:, None]
+    k = values.shape[1]
+    names = [names] * k if isinstance(names, str) else (list(names) if names is not None else None)
+    colors = list(colors) if colors is not None else [color(i) for i in range(k)]
+    if points:
+        style = rr.SeriesPoints(names=names, colors=colors, markers=["circle"] * k, marker_sizes=[3.0] * k)
+    else:
+        style = rr.SeriesLines(names=names, colors=colors, widths=[width] * k)
+    rec.log(entity, style, static=True)
+    rec.send_columns(entity, indexes=index, columns=rr.Scalars.columns(scalars=values))
+
+
+def log_graph(rec: rr.RecordingStream, entity: str, positions: np.ndarray, edges: Sequence[tuple[int, int]], *,
+              labels: Sequence[str] | None = None, directed: bool = False, colors=None, radii: float = 12.0) -> None:
+    """A fixed graph (static) with nodes at the given positions (drawing units)."""
+    n = len(positions)
+    ids = [str(i) for i in range(n)]
+    rec.log(entity,
+            rr.GraphNodes(ids, positions=np.asarray(positions, float) * 100.0, labels=list(labels or ids),
+                          colors=colors if colors is not None else [color(0)] * n, radii=radii, show_labels=True),
+            rr.GraphEdges([(str(u), str(v)) for u, v in edges],
+                          graph_type=rr.GraphType.Directed if directed else rr.GraphType.Undirected),
+            static=True)
+
+
+def log_markdown(rec: rr.RecordingStream, entity: str, text: str) -> None:
+    rec.log(entity, rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
+
+
+def log_tensor(rec: rr.RecordingStream, entity: str, matrix: np.ndarray, dim_names=("row", "col")) -> None:
+    rec.log(entity, rr.Tensor(np.asarray(matrix, float), dim_names=list(dim_names)), static=True)
+
+
+# -- reading back (tests, `dse verify`) ------------------------------------------------------
+
+def read_scalars(path: str | Path, index: str, content: str = "/**") -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """entity path -> (index values (T,), scalars (T, k)), read with rerun's own reader."""
+    import pyarrow as pa
+
+    parts: dict[str, list] = {}
+    stream = rr.chunk.RrdReader(str(path)).stream().filter(content=content, is_static=False, components="Scalars:scalars")
+    for chunk in stream:
+        parts.setdefault(chunk.entity_path, []).append(chunk.to_record_batch())
+    out = {}
+    for ent, batches in parts.items():
+        table = pa.Table.from_batches(batches).sort_by(index)
+        vals = table.column("Scalars:scalars").combine_chunks()
+        out[ent] = (table.column(index).to_numpy(), vals.flatten().to_numpy().reshape(table.num_rows, -1))
+    return out
+
+
+def read_static(path: str | Path, entity: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for chunk in rr.chunk.RrdReader(str(path)).stream().filter(content=entity, is_static=True):
+        for k, v in chunk.to_record_batch().to_pydict().items():
+            if not k.startswith("rerun.controls"):
+                out[k] = v[-1]
+    return out
+
+
+def blueprint_view_kinds(path: str | Path) -> list[str]:
+    """Class identifiers of the views in the recording's default blueprint."""
+    reader = rr.chunk.RrdReader(str(path))
+    kinds = []
+    for chunk in reader.stream(store=reader.blueprints()[0]):
+        for k, v in chunk.to_record_batch().to_pydict().items():
+            if k.endswith("class_identifier"):
+                kinds.extend(x for row in v if row for x in (row if isinstance(row, list) else [row]))
+    return kinds

@@ -1,0 +1,62 @@
+"""Monte Carlo driver: trials in fixed-size blocks, each block with its own random stream.
+
+Blocks are the unit of determinism: block b of a stream always sees the same random
+numbers, and partial results are combined in block order, so the result is bit-identical
+whatever the memory chunking or the number of workers. Only one block's arrays are alive
+at a time in a worker, which bounds memory.
+"""
+from __future__ import annotations
+
+import os
+import resource
+from concurrent.futures import ProcessPoolExecutor
+from typing import Callable, Iterable, Sequence, TypeVar
+
+import numpy as np
+
+from .progress import progress
+from .seeding import block_seeds
+
+DEFAULT_BLOCK = 50_000
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def trial_blocks(n_trials: int, block: int = DEFAULT_BLOCK) -> list[tuple[int, int]]:
+    """(start, size) of each block covering n_trials trials."""
+    if n_trials <= 0:
+        raise ValueError(f"n_trials must be positive, got {n_trials}")
+    return [(s, min(block, n_trials - s)) for s in range(0, n_trials, block)]
+
+
+def run_blocks(simulate_block: Callable[[int, np.random.Generator], T],
+               combine: Callable[[Sequence[T]], R],
+               n_trials: int, seq: np.random.SeedSequence, block: int = DEFAULT_BLOCK) -> R:
+    """Run `simulate_block(size, rng)` for every block and `combine` the results in order."""
+    blocks = trial_blocks(n_trials, block)
+    seeds = block_seeds(seq, len(blocks))
+    return combine([simulate_block(size, np.random.default_rng(s)) for (_, size), s in zip(blocks, seeds)])
+
+
+def parallel_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, desc: str = "") -> list[R]:
+    """Map `fn` over `items` in `workers` processes (fork), with a progress bar; order kept."""
+    items = list(items)
+    if workers <= 1 or len(items) <= 1:
+        return [fn(x) for x in progress(items, desc=desc)]
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("fork")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        return list(progress(pool.map(fn, items), total=len(items), desc=desc))
+
+
+def default_workers() -> int:
+    return max(1, min(os.cpu_count() or 1, 8))
+
+
+def peak_memory_mib() -> float:
+    """Peak resident memory of this process and its finished children, in MiB."""
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    return max(own, children) / 1024.0

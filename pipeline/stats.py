@@ -1,0 +1,93 @@
+"""Monte Carlo statistics accumulated over blocks of trials.
+
+`ErrorMoments` keeps, for an error array of shape (trials, K, N), the sums needed for
+the per-agent mean, variance (ddof = 1) and their standard errors, and for the trace of
+the error covariance with its standard error, without keeping the trials.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from scipy import stats as sps
+
+
+@dataclass(frozen=True)
+class ErrorMoments:
+    """Sums over trials of e, e², e⁴ per (k, agent) and of s = Σ_i e_i², s² per k."""
+
+    count: int
+    s1: np.ndarray  # (K, N)
+    s2: np.ndarray  # (K, N)
+    s4: np.ndarray  # (K, N)
+    t1: np.ndarray  # (K,)
+    t2: np.ndarray  # (K,)
+
+    @classmethod
+    def of(cls, err: np.ndarray) -> "ErrorMoments":
+        sq = err * err
+        tr = sq.sum(axis=2)
+        return cls(err.shape[0], err.sum(axis=0), sq.sum(axis=0), (sq * sq).sum(axis=0), tr.sum(axis=0), (tr * tr).sum(axis=0))
+
+    @classmethod
+    def combine(cls, parts: Sequence["ErrorMoments"]) -> "ErrorMoments":
+        """Sum in the given order (fixed block order keeps results bit-identical)."""
+        first, *rest = parts
+        out = first
+        for p in rest:
+            out = cls(out.count + p.count, out.s1 + p.s1, out.s2 + p.s2, out.s4 + p.s4, out.t1 + p.t1, out.t2 + p.t2)
+        return out
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {"count": np.array(self.count), "s1": self.s1, "s2": self.s2, "s4": self.s4, "t1": self.t1, "t2": self.t2}
+
+    @classmethod
+    def from_arrays(cls, a: dict[str, np.ndarray]) -> "ErrorMoments":
+        return cls(int(a["count"]), a["s1"], a["s2"], a["s4"], a["t1"], a["t2"])
+
+    # derived statistics -------------------------------------------------------------
+    @property
+    def mean(self) -> np.ndarray:
+        return self.s1 / self.count
+
+    @property
+    def mean_se(self) -> np.ndarray:
+        return np.sqrt(self.variance / self.count)
+
+    @property
+    def variance(self) -> np.ndarray:
+        """Per-agent sample variance, ddof = 1 (the paper's 'var')."""
+        n = self.count
+        return (self.s2 - self.s1 ** 2 / n) / (n - 1)
+
+    @property
+    def mse(self) -> np.ndarray:
+        return self.s2 / self.count
+
+    @property
+    def variance_se(self) -> np.ndarray:
+        """Standard error of the per-agent second moment: sqrt((E e⁴ − (E e²)²)/n)."""
+        n = self.count
+        return np.sqrt(np.maximum(self.s4 / n - (self.s2 / n) ** 2, 0.0) / n)
+
+    @property
+    def trace(self) -> np.ndarray:
+        """Σ_i var(e_i) per k: the estimate of tr P."""
+        return self.variance.sum(axis=1)
+
+    @property
+    def trace_se(self) -> np.ndarray:
+        n = self.count
+        return np.sqrt(np.maximum(self.t2 / n - (self.t1 / n) ** 2, 0.0) / n)
+
+
+def z_for_confidence(confidence: float, n_tests: int = 1) -> float:
+    """Two-sided normal quantile for a family of n_tests checks at the given confidence (Bonferroni)."""
+    alpha = (1.0 - confidence) / n_tests
+    return float(sps.norm.ppf(1.0 - alpha / 2.0))
+
+
+def confidence_of_z(z: float, n_tests: int = 1) -> float:
+    """Family-wise confidence of |Z| <= z over n_tests independent checks (Bonferroni lower bound)."""
+    return float(max(0.0, 1.0 - n_tests * 2.0 * sps.norm.sf(z)))
