@@ -210,15 +210,17 @@ def kalman_filter_batch(F, H, Q, R, x0, P0, zs) -> KalmanRun:
     """Run the Kalman filter on many independent measurement sequences at once.
 
     The gains are computed once by :func:`kalman_covariances`; then, for each time step k,
-    all trials are updated together (trials are the leading axis, states are row vectors,
-    so ``F x`` becomes ``x @ F.T``)::
+    all trials are updated together. States are row vectors with trials on the leading
+    axis, so ``F x`` becomes ``x @ F.T``. The update is written in its affine form::
 
-        x_prior[:, k] = x̂(k|k-1)
-        x̂(k|k)      = x̂(k|k-1) + (z(k) - x̂(k|k-1) Hᵀ) G(k)ᵀ
-        x̂(k+1|k)    = x̂(k|k) Fᵀ
+        x̂(k|k)   = x̂(k|k-1) + G(k) (z(k) - H x̂(k|k-1))      (innovation form)
+                  = (I - G(k) H) x̂(k|k-1) + G(k) z(k)         (what is computed)
+        x̂(k+1|k) = F x̂(k|k)
 
-    There is no Python loop over trials. Per trial and step this matches filterpy's
-    ``KalmanFilter``: record ``(x, P)``, ``update(z[k])``, ``predict()``.
+    because the term ``G(k) z(k)`` does not depend on the recursion and is computed for all
+    steps and trials in a single batched product. There is no Python loop over trials. Per
+    trial and step this is filterpy's ``KalmanFilter`` sequence: record ``(x, P)``,
+    ``update(z[k])``, ``predict()`` (the two agree to rounding, ~1e-15 relative).
 
     Parameters
     ----------
@@ -232,7 +234,9 @@ def kalman_filter_batch(F, H, Q, R, x0, P0, zs) -> KalmanRun:
     Returns
     -------
     KalmanRun
-        ``x_prior`` and ``x_post`` of shape (trials, K, n), and ``cov``.
+        ``x_prior`` and ``x_post`` of shape (trials, K, n), and ``cov``. The two mean arrays
+        are stored time-major (they are transposed views of (K, trials, n) arrays), so the
+        per-step slices ``x_post[:, k]`` used for Monte Carlo statistics are contiguous.
 
     Raises
     ------
@@ -256,16 +260,24 @@ def kalman_filter_batch(F, H, Q, R, x0, P0, zs) -> KalmanRun:
 
     cov = kalman_covariances(F, H, Q, R, P0, n_steps)
 
-    x_prior = np.empty((trials, n_steps, n))
-    x_post = np.empty((trials, n_steps, n))
-    Ft, Ht = F.T, H.T
-    x = np.array(x0, dtype=np.float64)  # a private, writable copy
+    # Time-major work arrays (K, trials, n): every per-step read and write below is then a
+    # contiguous block, and the matrix products run in BLAS. Writing into (trials, K, n)
+    # slices instead costs about as much as all the arithmetic together.
+    gains_t = np.swapaxes(cov.gains, 1, 2)  # G(k)ᵀ, (K, p, n)
+    closed_t = np.swapaxes(np.eye(n) - cov.gains @ H, 1, 2)  # (I - G(k) H)ᵀ, (K, n, n)
+    # G(k) z(k) for all k and trials in one batched product; it becomes x̂(k|k) in place.
+    x_post_t = np.matmul(np.swapaxes(zs, 0, 1), gains_t)
+    x_prior_t = np.empty((n_steps, trials, n))
+    if n_steps:
+        x_prior_t[0] = x0
+    Ft = F.T
     for k in range(n_steps):
-        x_prior[:, k] = x
-        innovation = zs[:, k] - x @ Ht
-        x = x + innovation @ cov.gains[k].T
-        x_post[:, k] = x
-        x = x @ Ft
+        x_post_t[k] += x_prior_t[k] @ closed_t[k]
+        if k + 1 < n_steps:
+            np.matmul(x_post_t[k], Ft, out=x_prior_t[k + 1])
+    # (trials, K, n) views of the time-major arrays: x_prior[:, k] stays contiguous.
+    x_prior = np.swapaxes(x_prior_t, 0, 1)
+    x_post = np.swapaxes(x_post_t, 0, 1)
     return KalmanRun(x_prior=x_prior, x_post=x_post, cov=cov)
 
 

@@ -141,14 +141,15 @@ def statistical(estimate, se, reference, *, confidence: float, trials: int, deta
                            f"family-wise confidence {confidence}); median |z| = {np.median(scores):.2f}. {detail}").strip())
 
 
-def erratum(printed, corrected, reference, *, rtol: float, detail: str = "") -> Verdict:
+def erratum(printed, corrected, reference, *, rtol: float, detail: str = "", corrected_reference=None) -> Verdict:
     """A printed formula against a reference (an independent exact computation).
 
     pass: the printed formula matches; erratum: it does not but the correction does;
-    fail: the correction does not match either.
+    fail: the correction does not match either. `corrected_reference` defaults to
+    `reference` (it differs when the correction is a changed hypothesis, not a formula).
     """
     p_ok = identity(printed, reference, rtol=rtol)
-    c_ok = identity(corrected, reference, rtol=rtol)
+    c_ok = identity(corrected, reference if corrected_reference is None else corrected_reference, rtol=rtol)
     if p_ok.status == PASS:
         status, worst = PASS, p_ok
     elif c_ok.status == PASS:

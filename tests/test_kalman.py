@@ -162,6 +162,8 @@ def test_batch_equals_single_trials_and_broadcast_x0():
         assert_rel_close(one.x_prior[0], run.x_prior[t], 1e-14, "x_prior")
         assert_rel_close(one.x_post[0], run.x_post[t], 1e-14, "x_post")
     assert run.x_prior.dtype == run.cov.P_post.dtype == np.float64
+    # Documented layout: per-step slices over trials are contiguous (time-major storage).
+    assert run.x_prior[:, 3].flags.c_contiguous and run.x_post[:, 3].flags.c_contiguous
     np.testing.assert_array_equal(run.x_prior[:, 0], np.tile(x0, (7, 1)))
 
 

@@ -1,0 +1,640 @@
+"""Exact error covariances of constant-gain consensus filters for a scalar random walk.
+
+Model (a = 1): ``x(k+1) = x(k) + w(k)``, ``w ~ N(0, q)``; agent measurements
+``y(k) = x(k) 1_N + n(k)``, ``n ~ N(0, r I_N)``; ``X_0 ~ N(x_0, sigma0)`` and
+``xhat(0|-1) = x_0 1_N``, so ``P(0|-1) = sigma0 1 1^T``.  Every agent applies the
+constant-gain update ``xhat(k|k) = (1-ell) xhat(k|k-1) + ell y(k)`` and then ``m`` rounds
+of noisy consensus ``z <- Q z + sigma_c u (+ xhat(k|k))``, ``u ~ N(0, I_N)``.
+
+Two filters share one error recursion
+``xtilde(k+1|k) = A xtilde(k|k) + w(k) 1 - g sigma_c sum_{h=1}^m Q^{m-h} u(k+h/m)``:
+
+* plain consensus (``reinjection=False``; two-stage filter, eqs (7)+(9)):
+  ``A = Q^m`` and ``g = 1``;
+* consensus with re-injection of ``xhat(k|k)`` (eqs (11)-(13), (20)):
+  ``A = Qdag = zeta I + (1-zeta)/(m+1) sum_{i=0}^m Q^i`` and ``g = (1-zeta)/(m+1)``.
+
+Hence the one-step predictive recursion (eq. (22) for re-injection)::
+
+    P(k+1|k) = (1-ell)^2 A P(k|k-1) A^T + ell^2 r A A^T + q 1 1^T + g^2 sigma_c^2 S_m,
+    S_m = sum_{j=0}^{m-1} Q^j Q^{jT}.
+
+This module computes that recursion, its unrolled form (23), the steady state (15) three
+ways (Lyapunov solver, truncated series, modal decomposition), the trace formula (16) as
+printed and corrected, the closed-form asymptotic trace of the plain filter and its lower
+bounds, and the round-noise quantities behind the heuristics of the re-injection design.
+All functions are deterministic; equation numbers refer to Savas, Srivastava & Leonard,
+"On distributed linear filtering with noisy communication".
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+import scipy.linalg
+
+__all__ = [
+    "reinjection_matrix",
+    "round_noise_gram",
+    "error_transition_matrix",
+    "communication_noise_gain",
+    "predictive_covariance_sequence",
+    "filtered_covariance",
+    "predictive_covariance_unrolled",
+    "asymptotic_covariance_lyapunov",
+    "asymptotic_covariance_series",
+    "asymptotic_covariance_modal",
+    "asymptotic_trace_from_spectrum",
+    "trace_formula_printed",
+    "trace_formula_corrected",
+    "carli_asymptotic_trace",
+    "carli_trace_lower_bound_asymptotic",
+    "carli_trace_lower_bound",
+    "geometric_gram_sum",
+    "consensus_mode_variance",
+    "averaged_iterates_deviation_norm",
+    "averaged_iterates_deviation_norm_modal",
+    "averaged_round_noise_covariance",
+]
+
+_ROW_SUM_TOL = 1e-10
+_SYMMETRY_TOL = 1e-12
+
+
+# --------------------------------------------------------------------------------------
+# input validation (shared with the simulator and the gain tuning)
+# --------------------------------------------------------------------------------------
+
+
+def _as_consensus_matrix(Q, name: str = "Q") -> np.ndarray:
+    """Return ``Q`` as a float64 square matrix whose rows sum to 1, or raise ValueError."""
+    A = np.asarray(Q, dtype=np.float64)
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] == 0:
+        raise ValueError(f"{name} must be a non-empty square matrix, got shape {A.shape}")
+    if not np.all(np.isfinite(A)):
+        raise ValueError(f"{name} must have finite entries")
+    dev = np.max(np.abs(A.sum(axis=1) - 1.0))
+    if dev > _ROW_SUM_TOL:
+        raise ValueError(f"{name} must be row stochastic (rows summing to 1); max |row sum - 1| = {dev:.3g}")
+    return A
+
+
+def _check_symmetric(Q: np.ndarray, name: str = "Q") -> None:
+    dev = np.max(np.abs(Q - Q.T))
+    if dev > _SYMMETRY_TOL:
+        raise ValueError(
+            f"{name} must be symmetric for the modal/trace formulas (eq. (16) needs a normal Q); "
+            f"max |Q - Q^T| = {dev:.3g}"
+        )
+
+
+def _check_rounds(m, name: str = "m") -> int:
+    if isinstance(m, bool) or not isinstance(m, numbers.Integral):
+        raise ValueError(f"{name} must be an integer number of consensus rounds, got {m!r}")
+    if m < 0:
+        raise ValueError(f"{name} must be >= 0, got {m}")
+    return int(m)
+
+
+def _check_nonneg(value, name: str) -> float:
+    v = float(value)
+    if not np.isfinite(v) or v < 0.0:
+        raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+    return v
+
+
+def _check_ell(ell, name: str = "ell"):
+    """``ell`` in (0, 1] (scalar or array); ``ell = 0`` has no steady state (q 11^T diverges)."""
+    a = np.asarray(ell, dtype=np.float64)
+    if not np.all(np.isfinite(a)) or np.any(a <= 0.0) or np.any(a > 1.0):
+        raise ValueError(f"{name} must lie in (0, 1], got {ell!r}")
+    return float(a) if a.ndim == 0 else a
+
+
+def _check_zeta(zeta, name: str = "zeta"):
+    a = np.asarray(zeta, dtype=np.float64)
+    if not np.all(np.isfinite(a)) or np.any(a < 0.0) or np.any(a > 1.0):
+        raise ValueError(f"{name} must lie in [0, 1], got {zeta!r}")
+    return float(a) if a.ndim == 0 else a
+
+
+def _check_steps(n, name: str) -> int:
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
+        raise ValueError(f"{name} must be a positive integer, got {n!r}")
+    return int(n)
+
+
+# --------------------------------------------------------------------------------------
+# building blocks
+# --------------------------------------------------------------------------------------
+
+
+def reinjection_matrix(Q, m: int, zeta: float) -> np.ndarray:
+    """``Qdag = zeta I + (1-zeta)/(m+1) sum_{i=0}^m Q^i`` (Theorem 1, below eq. (15); eq. (20)).
+
+    ``m = 0`` gives ``Qdag = I`` for every ``zeta`` (no rounds: ``z(k+1|k) = xhat(k|k)``).
+    ``Qdag 1 = 1`` whenever ``Q 1 = 1``.
+    """
+    Q = _as_consensus_matrix(Q)
+    m = _check_rounds(m)
+    zeta = float(_check_zeta(zeta))
+    n = Q.shape[0]
+    acc = np.eye(n)
+    power = np.eye(n)
+    for _ in range(m):
+        power = power @ Q
+        acc = acc + power
+    return zeta * np.eye(n) + ((1.0 - zeta) / (m + 1)) * acc
+
+
+def round_noise_gram(Q, m: int) -> np.ndarray:
+    """``S_m = sum_{j=0}^{m-1} Q^j Q^{jT}`` (the sum in eqs (15), (21)-(23)); ``S_0 = 0``.
+
+    ``sigma_c^2 S_m`` is the covariance of the noise accumulated over ``m`` rounds of (6)/(9)/(12):
+    ``sigma_c sum_{h=1}^m Q^{m-h} u(k+h/m)``.
+    """
+    Q = _as_consensus_matrix(Q)
+    m = _check_rounds(m)
+    n = Q.shape[0]
+    S = np.zeros((n, n))
+    power = np.eye(n)
+    for _ in range(m):
+        S += power @ power.T
+        power = power @ Q
+    return S
+
+
+def error_transition_matrix(Q, m: int, zeta: float, *, reinjection: bool) -> np.ndarray:
+    """``A`` in ``xtilde(k+1|k) = A xtilde(k|k) + ...``: ``Qdag`` (eq. (20)) or ``Q^m`` (eq. (9))."""
+    Q = _as_consensus_matrix(Q)
+    m = _check_rounds(m)
+    if reinjection:
+        return reinjection_matrix(Q, m, zeta)
+    return np.linalg.matrix_power(Q, m)
+
+
+def communication_noise_gain(m: int, zeta: float, *, reinjection: bool) -> float:
+    """``g``: the round noise enters the error as ``-g sigma_c sum Q^{m-h} u``; ``(1-zeta)/(m+1)`` in (20), 1 in (9)."""
+    m = _check_rounds(m)
+    zeta = float(_check_zeta(zeta))
+    return (1.0 - zeta) / (m + 1) if reinjection else 1.0
+
+
+def _recursion_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection):
+    """``A`` and ``B`` with ``P(k+1|k) = (1-ell)^2 A P A^T + B`` (eq. (22) / its plain analogue)."""
+    Q = _as_consensus_matrix(Q)
+    m = _check_rounds(m)
+    ell = float(_check_ell(ell))
+    zeta = float(_check_zeta(zeta))
+    sigma_c = _check_nonneg(sigma_c, "sigma_c")
+    q = _check_nonneg(q, "q")
+    r = _check_nonneg(r, "r")
+    n = Q.shape[0]
+    A = error_transition_matrix(Q, m, zeta, reinjection=reinjection)
+    g = communication_noise_gain(m, zeta, reinjection=reinjection)
+    S = round_noise_gram(Q, m)
+    B = ell**2 * r * (A @ A.T) + q * np.ones((n, n)) + (g * sigma_c) ** 2 * S
+    return Q, A, B, S, g, ell
+
+
+# --------------------------------------------------------------------------------------
+# finite-horizon covariances
+# --------------------------------------------------------------------------------------
+
+
+def predictive_covariance_sequence(
+    Q, *, ell, m, sigma_c, q, r, sigma0, n_steps, reinjection, zeta=1.0
+) -> np.ndarray:
+    """``P(k|k-1)`` for ``k = 0..n_steps-1`` by the one-step recursion (22), shape ``(K, N, N)``.
+
+    ``P(k+1|k) = (1-ell)^2 A P(k|k-1) A^T + ell^2 r A A^T + q 1 1^T + g^2 sigma_c^2 S_m`` with
+    ``P(0|-1) = sigma0 1 1^T``.  With ``reinjection=True``, ``A = Qdag`` and ``g = (1-zeta)/(m+1)``
+    (eq. (22)); with ``reinjection=False``, ``A = Q^m`` and ``g = 1`` (plain noisy consensus,
+    eqs (7)+(9); ``sigma_c = 0`` is the noise-free filter (7)+(8)).  Each step is symmetrised.
+    Entry ``k`` matches ``err_pred[:, k, :]`` of the Monte Carlo simulator.
+    """
+    _, A, B, _, _, ell = _recursion_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection)
+    sigma0 = _check_nonneg(sigma0, "sigma0")
+    K = _check_steps(n_steps, "n_steps")
+    n = A.shape[0]
+    out = np.empty((K, n, n))
+    P = sigma0 * np.ones((n, n))
+    out[0] = P
+    a2 = (1.0 - ell) ** 2
+    for k in range(1, K):
+        P = a2 * (A @ P @ A.T) + B
+        P = 0.5 * (P + P.T)
+        out[k] = P
+    return out
+
+
+def filtered_covariance(P_pred, ell, r) -> np.ndarray:
+    """``P(k|k) = (1-ell)^2 P(k|k-1) + ell^2 r I_N`` (eq. (18)); works on ``(..., N, N)``."""
+    P_pred = np.asarray(P_pred, dtype=np.float64)
+    if P_pred.ndim < 2 or P_pred.shape[-1] != P_pred.shape[-2]:
+        raise ValueError(f"P_pred must have shape (..., N, N), got {P_pred.shape}")
+    ell = float(_check_ell(ell))
+    r = _check_nonneg(r, "r")
+    n = P_pred.shape[-1]
+    return (1.0 - ell) ** 2 * P_pred + ell**2 * r * np.eye(n)
+
+
+def predictive_covariance_unrolled(
+    Q, *, ell, m, sigma_c, q, r, sigma0, n_steps, reinjection, zeta=1.0
+) -> np.ndarray:
+    """``P(k|k-1)``, ``k = 0..n_steps-1``, from the finite-k closed form (23), shape ``(K, N, N)``.
+
+    ``P(k|k-1) = (1-ell)^{2k} A^k P(0|-1) A^{kT} + ell^2 r sum_{i<k} (1-ell)^{2i} A^{i+1} A^{(i+1)T}
+    + q sum_{i<k} (1-ell)^{2i} 1 1^T + g^2 sigma_c^2 sum_{i<k} (1-ell)^{2i} A^i S_m A^{iT}``.
+
+    An independent code path for the recursion (22): it sums explicit matrix powers instead of
+    iterating.  ``A``/``g`` as in :func:`predictive_covariance_sequence`.
+    """
+    Q, A, _, S, g, ell = _recursion_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection)
+    sigma_c = float(sigma_c)
+    r = float(r)
+    q = float(q)
+    sigma0 = _check_nonneg(sigma0, "sigma0")
+    K = _check_steps(n_steps, "n_steps")
+    n = A.shape[0]
+    ones = np.ones((n, n))
+    P0 = sigma0 * ones
+    powers = [np.eye(n)]
+    for _ in range(K):
+        powers.append(powers[-1] @ A)
+    rho = (1.0 - ell) ** 2
+    terms = np.empty((K, n, n))
+    for i in range(K):
+        Ai, Ai1 = powers[i], powers[i + 1]
+        terms[i] = rho**i * (
+            ell**2 * r * (Ai1 @ Ai1.T) + q * ones + (g * sigma_c) ** 2 * (Ai @ S @ Ai.T)
+        )
+    partial = np.concatenate([np.zeros((1, n, n)), np.cumsum(terms, axis=0)[:-1]], axis=0)
+    out = np.empty((K, n, n))
+    for k in range(K):
+        out[k] = rho**k * (powers[k] @ P0 @ powers[k].T) + partial[k]
+    return 0.5 * (out + np.swapaxes(out, -1, -2))
+
+
+# --------------------------------------------------------------------------------------
+# steady state
+# --------------------------------------------------------------------------------------
+
+
+def _check_stable(A: np.ndarray, ell: float) -> None:
+    rho = float(np.max(np.abs(np.linalg.eigvals((1.0 - ell) * A))))
+    if rho >= 1.0:
+        raise ValueError(
+            f"no steady state: spectral radius of (1-ell) A is {rho:.6g} >= 1 "
+            "(Q must be nonnegative so that rho(Qdag) = 1)"
+        )
+
+
+def asymptotic_covariance_lyapunov(
+    Q, *, ell, m, sigma_c, q, r, reinjection, zeta=1.0
+) -> np.ndarray:
+    """``lim P(k|k-1)`` as the solution of ``P = (1-ell)^2 A P A^T + B`` (Theorem 1(i), eq. (15)).
+
+    Solved with :func:`scipy.linalg.solve_discrete_lyapunov` on ``((1-ell) A, B)``; ``A``, ``B`` as
+    in (22) (``A = Qdag`` with re-injection, ``A = Q^m``, ``g = 1`` without).  Requires
+    ``rho((1-ell) A) < 1`` (true for nonnegative stochastic ``Q`` and ``ell`` in (0, 1]).
+    """
+    _, A, B, _, _, ell = _recursion_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection)
+    _check_stable(A, ell)
+    P = scipy.linalg.solve_discrete_lyapunov((1.0 - ell) * A, B)
+    return 0.5 * (P + P.T)
+
+
+def asymptotic_covariance_series(
+    Q, *, ell, m, sigma_c, q, r, reinjection, zeta=1.0, tol=1e-16
+) -> np.ndarray:
+    """Theorem 1(i), eq. (15), as a truncated series.
+
+    ``ell^2 r sum_i (1-ell)^{2i} A^{i+1} A^{(i+1)T} + q/(1-(1-ell)^2) 1 1^T
+    + g^2 sigma_c^2 sum_i (1-ell)^{2i} A^i S_m A^{iT}``, truncated after ``T`` terms with
+    ``(1-ell)^{2T} < tol`` (``T`` about ``18.4/(-ln(1-ell))`` for ``tol = 1e-16``; slow as ``ell -> 0``).
+    """
+    Q, A, _, S, g, ell = _recursion_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection)
+    _check_stable(A, ell)
+    if not (0.0 < tol < 1.0):
+        raise ValueError(f"tol must lie in (0, 1), got {tol!r}")
+    n = A.shape[0]
+    rho = (1.0 - ell) ** 2
+    T = 1 if rho == 0.0 else int(np.ceil(np.log(tol) / np.log(rho))) + 1
+    noise = (g * float(sigma_c)) ** 2 * S
+    lr = ell**2 * float(r)
+    total = np.zeros((n, n))
+    Ai = np.eye(n)
+    weight = 1.0
+    for _ in range(T):
+        Ai1 = Ai @ A
+        total += weight * (lr * (Ai1 @ Ai1.T) + Ai @ noise @ Ai.T)
+        Ai = Ai1
+        weight *= rho
+    total += float(q) / (1.0 - rho) * np.ones((n, n))
+    return 0.5 * (total + total.T)
+
+
+def _power_sum(lam, m: int):
+    """``lam_bar = sum_{n=0}^m lam^n`` by Horner (exact at ``lam = 1``, fine for complex ``lam``)."""
+    lam = np.asarray(lam)
+    acc = np.ones_like(lam)
+    for _ in range(m):
+        acc = 1.0 + lam * acc
+    return acc
+
+
+def geometric_gram_sum(lam, p: int) -> np.ndarray:
+    """``(1 - |lam|^{2p}) / (1 - |lam|^2)``, the limit ``p`` at ``|lam| = 1``; elementwise.
+
+    For ``p >= 0`` this is ``s = sum_{j=0}^{p-1} |lam|^{2j}``, the modal value of ``S_p``
+    (spec's ``s_h``; eq. (16) corrected).  Negative ``p`` is allowed so that the printed (16),
+    which has ``p = m - 1``, can be evaluated verbatim at ``m = 0`` (giving ``-1/lam^2``, and
+    ``-inf`` at ``lam = 0``).  Evaluated as ``expm1(p x)/expm1(x)`` with ``x = 2 ln|lam|``,
+    which is accurate also for ``|lam|`` within rounding of 1.
+    """
+    p = int(p)
+    mag = np.abs(np.asarray(lam))
+    if p == 0:
+        return np.zeros(mag.shape)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        x = 2.0 * np.log(mag)
+        out = np.expm1(p * x) / np.expm1(x)
+    return np.where(x == 0.0, float(p), out)
+
+
+def _symmetric_spectrum(Q: np.ndarray):
+    _check_symmetric(Q)
+    lam, V = np.linalg.eigh(0.5 * (Q + Q.T))
+    return lam, V
+
+
+def asymptotic_covariance_modal(
+    Q, *, ell, m, sigma_c, q, r, reinjection, zeta=1.0
+) -> np.ndarray:
+    """Steady state of (22) by modal decomposition of a symmetric ``Q = V diag(lam) V^T``.
+
+    Per mode ``h``: ``mu_h = zeta + (1-zeta)/(m+1) lam_bar_h`` (re-injection; ``lam_h^m`` without),
+    ``s_h = (1 - lam_h^{2m})/(1 - lam_h^2)`` (``m`` at ``lam_h^2 = 1``),
+    ``b_h = ell^2 r mu_h^2 + g^2 sigma_c^2 s_h + q N [h = 0]`` and ``p_h = b_h/(1 - (1-ell)^2 mu_h^2)``
+    (the per-mode form of Theorem 1(i); eq. (24) corrected).  The ``q 1 1^T`` term is kept
+    as ``q (V^T 1)(V^T 1)^T`` and the Stein equation is solved entrywise in the eigenbasis,
+    which reduces to ``P = V diag(p_h) V^T`` when the unit eigenvalue is simple and stays
+    exact when it is not (disconnected graph).
+    """
+    Q, A, _, _, g, ell = _recursion_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection)
+    _check_stable(A, ell)
+    lam, V = _symmetric_spectrum(Q)
+    m = int(m)
+    zeta = float(zeta)
+    if reinjection:
+        mu = zeta + (1.0 - zeta) / (m + 1) * _power_sum(lam, m)
+    else:
+        mu = lam**m
+    s = geometric_gram_sum(lam, m)
+    ones_modal = V.T @ np.ones(Q.shape[0])
+    Bm = np.diag(ell**2 * float(r) * mu**2 + (g * float(sigma_c)) ** 2 * s) + float(q) * np.outer(
+        ones_modal, ones_modal
+    )
+    Pm = Bm / (1.0 - (1.0 - ell) ** 2 * np.outer(mu, mu))
+    P = V @ Pm @ V.T
+    return 0.5 * (P + P.T)
+
+
+# --------------------------------------------------------------------------------------
+# trace formulas (16)
+# --------------------------------------------------------------------------------------
+
+
+def _split_unit_eigenvalue(eigenvalues) -> np.ndarray:
+    """Drop the eigenvalue nearest 1 (``lam_0 = 1``, handled in closed form); return the rest."""
+    lam = np.asarray(eigenvalues)
+    if lam.ndim != 1 or lam.size == 0:
+        raise ValueError(f"eigenvalues must be a non-empty 1-D array, got shape {lam.shape}")
+    i0 = int(np.argmin(np.abs(lam - 1.0)))
+    if abs(lam[i0] - 1.0) > 1e-8:
+        raise ValueError(f"eigenvalues must contain lambda_0 = 1 (closest is {lam[i0]!r})")
+    return np.delete(lam, i0)
+
+
+def _spectral_trace(lam_rest, n, ell, zeta, m, sigma_c, q, r, printed, with_gradient=False):
+    """Eq. (16) from the non-unit eigenvalues, broadcasting over ``ell`` and ``zeta``.
+
+    No validation (the optimiser probes slightly outside [0, 1] for finite differences).
+    With ``with_gradient`` also returns ``(dJ/dell, dJ/dzeta)`` analytically.
+    """
+    ell = np.asarray(ell, dtype=np.float64)[..., None]
+    zeta = np.asarray(zeta, dtype=np.float64)[..., None]
+    inv = 1.0 / (m + 1)
+    beta = (1.0 - zeta) * inv
+    lam_bar = _power_sum(lam_rest, m)
+    mu = beta * lam_bar + zeta
+    mu2 = np.abs(mu) ** 2
+    a = (1.0 - ell) ** 2
+    one_minus_a = 1.0 - a
+    s = geometric_gram_sum(lam_rest, m - 1 if printed else m)
+    head_num = ell**2 * r + q * n + beta**2 * sigma_c**2 * m
+    head = head_num / one_minus_a
+    den = 1.0 - a * mu2
+    t2 = ell**2 * r * np.sum(mu2 / den, axis=-1, keepdims=True)
+    pref = beta**2 * sigma_c**2
+    with np.errstate(invalid="ignore", over="ignore"):
+        g_sum = np.sum(s / den, axis=-1, keepdims=True)
+        t3 = np.where(pref == 0.0, 0.0, pref * g_sum)
+    J = (head + t2 + t3)[..., 0]
+    if not with_gradient:
+        return J
+    dmu_dzeta = 1.0 - lam_bar * inv
+    dmu2_dzeta = 2.0 * np.real(np.conj(mu) * dmu_dzeta)
+    da_dell = -2.0 * (1.0 - ell)
+    dbeta = -inv
+    den2 = den**2
+    dhead_dell = 2.0 * ell * r / one_minus_a + head_num * da_dell / one_minus_a**2
+    dhead_dzeta = 2.0 * beta * dbeta * sigma_c**2 * m / one_minus_a
+    f_a = np.sum(mu2**2 / den2, axis=-1, keepdims=True)
+    f_mu = np.sum(dmu2_dzeta / den2, axis=-1, keepdims=True)
+    dt2_dell = 2.0 * ell * r * np.sum(mu2 / den, axis=-1, keepdims=True) + ell**2 * r * f_a * da_dell
+    dt2_dzeta = ell**2 * r * f_mu
+    with np.errstate(invalid="ignore", over="ignore"):
+        g_a = np.sum(s * mu2 / den2, axis=-1, keepdims=True)
+        g_mu = np.sum(s * a * dmu2_dzeta / den2, axis=-1, keepdims=True)
+        dt3_dell = np.where(pref == 0.0, 0.0, pref * g_a * da_dell)
+        dpref = 2.0 * beta * dbeta * sigma_c**2
+        dt3_dzeta = np.where(pref == 0.0, 0.0, pref * g_mu) + np.where(dpref == 0.0, 0.0, dpref * g_sum)
+    return J, (dhead_dell + dt2_dell + dt3_dell)[..., 0], (dhead_dzeta + dt2_dzeta + dt3_dzeta)[..., 0]
+
+
+def _as_result(x):
+    x = np.asarray(x)
+    return float(x) if x.ndim == 0 else x
+
+
+def _trace_common(ell, zeta, m, sigma_c, q, r):
+    return (
+        _check_ell(ell),
+        _check_zeta(zeta),
+        _check_rounds(m),
+        _check_nonneg(sigma_c, "sigma_c"),
+        _check_nonneg(q, "q"),
+        _check_nonneg(r, "r"),
+    )
+
+
+def asymptotic_trace_from_spectrum(eigenvalues, *, ell, zeta, m, sigma_c, q, r, printed=False):
+    """Theorem 1(ii), eq. (16), evaluated from the spectrum ``{1, lam_1, ..., lam_{N-1}}`` of ``Q``.
+
+    ``J = (ell^2 r + qN + (1-zeta)^2 sigma_c^2 m/(m+1)^2)/(1-a)
+    + ell^2 r sum_{h>=1} |mu_h|^2/(1 - a|mu_h|^2) + beta^2 sigma_c^2 sum_{h>=1} s_h/(1 - a|mu_h|^2)``
+    with ``a = (1-ell)^2``, ``beta = (1-zeta)/(m+1)``, ``mu_h = beta lam_bar_h + zeta`` and
+    ``lam_bar_h = sum_{n=0}^m lam_h^n``.  ``printed=False``: ``s_h = (1-|lam_h|^{2m})/(1-|lam_h|^2)``
+    (corrected).  ``printed=True``: the paper's ``(1-|lam_h|^{2(m-1)})/(1-|lam_h|^2)``, verbatim.
+    A vanishing prefactor ``beta^2 sigma_c^2`` (``zeta = 1`` or ``sigma_c = 0``) drops the last term
+    even where the printed bracket is infinite.  Eigenvalues may be complex (the paper's
+    absolute values); the formula is exact only for normal ``Q``.  Broadcasts over
+    ``ell`` and ``zeta``.
+    """
+    ell, zeta, m, sigma_c, q, r = _trace_common(ell, zeta, m, sigma_c, q, r)
+    lam = np.asarray(eigenvalues)
+    rest = _split_unit_eigenvalue(lam)
+    return _as_result(_spectral_trace(rest, lam.size, ell, zeta, m, sigma_c, q, r, bool(printed)))
+
+
+def trace_formula_printed(Q, *, ell, zeta, m, sigma_c, q, r):
+    """Eq. (16) exactly as printed (last-term exponent ``2(m-1)``), symmetric ``Q``.
+
+    Not the trace of the steady state for ``m >= 1`` (too small) and pathological at
+    ``m = 0`` (negative bracket ``-1/lam_h^2``, ``-inf`` at ``lam_h = 0``) unless ``zeta = 1``
+    or ``sigma_c = 0``.  Kept verbatim for figure fidelity; see :func:`trace_formula_corrected`.
+    """
+    Q = _as_consensus_matrix(Q)
+    _check_symmetric(Q)
+    return asymptotic_trace_from_spectrum(
+        np.linalg.eigvalsh(Q), ell=ell, zeta=zeta, m=m, sigma_c=sigma_c, q=q, r=r, printed=True
+    )
+
+
+def trace_formula_corrected(Q, *, ell, zeta, m, sigma_c, q, r):
+    """Eq. (16) with the last bracket ``(1 - lam_h^{2m})/(1 - lam_h^2)`` (geometric sum of ``S_m``).
+
+    Equals ``tr lim P(k|k-1)`` of the re-injection filter for symmetric doubly stochastic ``Q``.
+    Broadcasts over ``ell`` and ``zeta``.
+    """
+    Q = _as_consensus_matrix(Q)
+    _check_symmetric(Q)
+    return asymptotic_trace_from_spectrum(
+        np.linalg.eigvalsh(Q), ell=ell, zeta=zeta, m=m, sigma_c=sigma_c, q=q, r=r, printed=False
+    )
+
+
+def _carli_spectral_trace(lam_rest, n, ell, m, sigma_c, q, r, with_gradient=False):
+    ell = np.asarray(ell, dtype=np.float64)[..., None]
+    mu2 = np.abs(lam_rest) ** (2 * m)
+    s = geometric_gram_sum(lam_rest, m)
+    a = (1.0 - ell) ** 2
+    head_num = ell**2 * r + q * n + sigma_c**2 * m
+    den = 1.0 - a * mu2
+    J = head_num / (1.0 - a) + np.sum((ell**2 * r * mu2 + sigma_c**2 * s) / den, axis=-1, keepdims=True)
+    if not with_gradient:
+        return J[..., 0]
+    da = -2.0 * (1.0 - ell)
+    num = ell**2 * r * mu2 + sigma_c**2 * s
+    dJ = (
+        2.0 * ell * r / (1.0 - a)
+        + head_num * da / (1.0 - a) ** 2
+        + np.sum(2.0 * ell * r * mu2 / den + num * mu2 * da / den**2, axis=-1, keepdims=True)
+    )
+    return J[..., 0], dJ[..., 0]
+
+
+def carli_asymptotic_trace(Q, *, ell, m, sigma_c, q, r):
+    """Closed-form ``tr lim P(k|k-1)`` of the plain noisy two-stage filter (7)+(9), symmetric ``Q``.
+
+    ``J_C = (ell^2 r + qN + sigma_c^2 m)/(1-(1-ell)^2)
+    + sum_{h>=1} [ell^2 r lam_h^{2m} + sigma_c^2 (1-lam_h^{2m})/(1-lam_h^2)] / (1 - (1-ell)^2 lam_h^{2m})``
+    (the paper gives no formula; this is (16) with ``Qdag -> Q^m`` and ``beta -> 1``).
+    ``sigma_c = 0`` is the noise-free filter (7)+(8).  Broadcasts over ``ell``.
+    """
+    Q = _as_consensus_matrix(Q)
+    _check_symmetric(Q)
+    ell = _check_ell(ell)
+    m = _check_rounds(m)
+    sigma_c = _check_nonneg(sigma_c, "sigma_c")
+    lam = np.linalg.eigvalsh(Q)
+    rest = _split_unit_eigenvalue(lam)
+    return _as_result(
+        _carli_spectral_trace(rest, lam.size, ell, m, sigma_c, _check_nonneg(q, "q"), _check_nonneg(r, "r"))
+    )
+
+
+def carli_trace_lower_bound_asymptotic(*, ell, m, sigma_c) -> float:
+    """``J_C >= sigma_c^2 m / (ell (2 - ell))``: the consensus mode integrates ``m sigma_c^2`` per step.
+
+    Quantifies §III-B ("not stabilizing"): for fixed ``ell`` the plain filter is bounded in
+    ``k`` but its steady-state trace grows at least linearly in the number of rounds ``m``.
+    """
+    ell = float(_check_ell(ell))
+    m = _check_rounds(m)
+    sigma_c = _check_nonneg(sigma_c, "sigma_c")
+    return sigma_c**2 * m / (ell * (2.0 - ell))
+
+
+def carli_trace_lower_bound(*, ell, m, sigma_c, k: int) -> float:
+    """``tr P_C(k|k-1) >= sigma_c^2 m sum_{i=0}^{k-1} (1-ell)^{2i}`` (finite-``k`` version of the above)."""
+    ell = float(_check_ell(ell))
+    m = _check_rounds(m)
+    sigma_c = _check_nonneg(sigma_c, "sigma_c")
+    if isinstance(k, bool) or not isinstance(k, numbers.Integral) or k < 0:
+        raise ValueError(f"k must be a non-negative integer, got {k!r}")
+    rho = (1.0 - ell) ** 2
+    return sigma_c**2 * m * float(sum(rho**i for i in range(int(k))))
+
+
+# --------------------------------------------------------------------------------------
+# round-noise heuristics of §IV
+# --------------------------------------------------------------------------------------
+
+
+def consensus_mode_variance(Q, m: int) -> float:
+    """``v_0^T S_m v_0`` with ``v_0 = 1/sqrt(N)``: the consensus-mode variance (per ``sigma_c^2``) of ``m``
+    noisy rounds from a deterministic start (§IV, "the dominating component ... is m sigma_c^2").
+
+    Equals ``m`` exactly for doubly stochastic ``Q`` (``Q^T 1 = 1``).
+    """
+    Q = _as_consensus_matrix(Q)
+    S = round_noise_gram(Q, m)
+    v0 = np.ones(Q.shape[0]) / np.sqrt(Q.shape[0])
+    return float(v0 @ S @ v0)
+
+
+def averaged_iterates_deviation_norm(Q, m: int) -> float:
+    """``|| (1/(m+1)) sum_{i=0}^m Q^i - (1/N) 1 1^T ||_2``: how far the mean of ``z(k+1|k)/(m+1)`` (eq. (19))
+    is from the network average of ``xhat(k|k)`` (§IV heuristic)."""
+    Q = _as_consensus_matrix(Q)
+    m = _check_rounds(m)
+    n = Q.shape[0]
+    avg = reinjection_matrix(Q, m, 0.0)
+    return float(np.linalg.norm(avg - np.ones((n, n)) / n, ord=2))
+
+
+def averaged_iterates_deviation_norm_modal(Q, m: int) -> float:
+    """Closed form of :func:`averaged_iterates_deviation_norm` for symmetric ``Q`` with a simple unit
+    eigenvalue: ``max_{h>=1} |1 - lam_h^{m+1}| / ((m+1)(1 - lam_h))`` (``= |lam_bar_h|/(m+1)``), O(1/m)."""
+    Q = _as_consensus_matrix(Q)
+    _check_symmetric(Q)
+    m = _check_rounds(m)
+    rest = _split_unit_eigenvalue(np.linalg.eigvalsh(Q))
+    if rest.size == 0:
+        return 0.0
+    return float(np.max(np.abs(_power_sum(rest, m))) / (m + 1))
+
+
+def averaged_round_noise_covariance(Q, m: int, sigma_c: float) -> np.ndarray:
+    """Covariance ``sigma_c^2 S_m / (m+1)^2`` of the noise part of ``z(k+1|k)/(m+1)`` (eq. (19)).
+
+    Its consensus-mode component is ``m sigma_c^2/(m+1)^2`` (§IV) and its trace
+    ``sigma_c^2 sum_h s_h/(m+1)^2``; both are O(1/m).
+    """
+    sigma_c = _check_nonneg(sigma_c, "sigma_c")
+    m = _check_rounds(m)
+    return sigma_c**2 * round_noise_gram(Q, m) / (m + 1) ** 2

@@ -1,0 +1,231 @@
+"""Monte Carlo simulation of constant-gain consensus filters for a scalar random walk.
+
+Process and sensors (a = 1): ``x(k+1) = x(k) + w(k)`` (eq. (3)), ``y(k) = x(k) 1_N + n(k)``
+(eqs (4)-(5)), ``X_0 ~ N(x0_mean, sigma0)``, ``w ~ N(0, q)``, ``n ~ N(0, r I_N)``.  Each step:
+
+1. record the predictive error ``xtilde(k|k-1) = x(k) 1 - xhat(k|k-1)`` (eq. (10)/(14));
+2. measure ``y(k)`` at the current ``x(k)``;
+3. update ``xhat(k|k) = (1-ell) xhat(k|k-1) + ell y(k)`` (eq. (7) = (11));
+4. run ``m`` rounds of noisy consensus from ``z(k|k) = xhat(k|k)``:
+   ``z <- Q z + sigma_c u`` (eq. (9); plain filter) or
+   ``z <- Q z + sigma_c u + xhat(k|k)`` (eq. (12); re-injection), ``u ~ N(0, I_N)``;
+   then ``xhat(k+1|k) = z`` (plain) or ``zeta xhat(k|k) + (1-zeta) z/(m+1)`` (eq. (13));
+5. propagate ``x(k+1) = x(k) + w(k)``.
+
+Trials live on the leading array axis; the only Python loops are over time steps and
+consensus rounds.  Draw order from ``rng`` (fixed, so a seed reproduces a run): ``X_0``
+(trials,), then per step ``n(k)`` (trials, N), ``u(k + h/m)`` for ``h = 1..m`` (trials, N)
+each, ``w(k)`` (trials,).  The ``u`` draws are made even when ``sigma_c = 0`` so that runs
+differing only in ``sigma_c`` share their process and measurement noise.
+"""
+
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass
+
+import numpy as np
+
+from .consensus_covariance import (
+    _as_consensus_matrix,
+    _check_ell,
+    _check_nonneg,
+    _check_rounds,
+    _check_steps,
+    _check_zeta,
+)
+
+__all__ = ["ConsensusFilterRun", "simulate_consensus_filter"]
+
+# Row blocks small enough that OpenBLAS runs each product single-threaded: one large
+# (trials x N) @ (N x N) product interleaved with RNG calls was measured 3-4x slower
+# (thread wake-up and contention), and erratically so on a loaded machine.
+_BLOCK_ELEMENTS = 1 << 15
+
+
+def _rows_times(z: np.ndarray, QT: np.ndarray, out: np.ndarray, block: int) -> None:
+    """``out = z @ QT`` (each row of ``z`` is one trial's vector, so this applies ``Q`` to it)."""
+    for s in range(0, z.shape[0], block):
+        np.matmul(z[s : s + block], QT, out=out[s : s + block])
+
+
+@dataclass(frozen=True)
+class ConsensusFilterRun:
+    """Result of :func:`simulate_consensus_filter`; ``K = n_steps``, ``N`` agents, ``P = n_paths``.
+
+    Attributes
+    ----------
+    err_pred : (trials, K, N)
+        Predictive errors ``xtilde(k|k-1) = x(k) 1 - xhat(k|k-1)``, ``k = 0..K-1`` (eq. (10)/(14)).
+    err_filt : (trials, K, N)
+        Posterior errors ``xtilde(k|k) = x(k) 1 - xhat(k|k)`` (eq. (14)).
+    x : (P, K)
+        True state ``x(k)`` of the first ``P`` trials.
+    y : (P, K, N)
+        Measurements ``y(k) = x(k) 1 + n(k)`` (eq. (5)).
+    xhat_pred, xhat_filt : (P, K, N)
+        ``xhat(k|k-1)`` and ``xhat(k|k)``.
+    z_rounds : (P, K, m+1, N)
+        Consensus iterates ``z(k + h/m | k)`` for ``h = 0..m`` (``h = 0`` is ``xhat(k|k)``); for the
+        plain filter these are the iterates ``xhat(k + h/m | k)`` of eq. (9).
+    u : (P, K, m, N)
+        Standard normal communication draws ``u(k + h/m)``, ``h = 1..m`` (unscaled by ``sigma_c``).
+    w : (P, K)
+        Process noise ``w(k)`` (variance ``q``; ``x(k+1) = x(k) + w(k)``).
+    n : (P, K, N)
+        Measurement noise ``n(k)`` (variance ``r``).
+    """
+
+    err_pred: np.ndarray
+    err_filt: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    xhat_pred: np.ndarray
+    xhat_filt: np.ndarray
+    z_rounds: np.ndarray
+    u: np.ndarray
+    w: np.ndarray
+    n: np.ndarray
+
+
+def simulate_consensus_filter(
+    Q,
+    *,
+    ell,
+    m,
+    sigma_c,
+    q,
+    r,
+    sigma0,
+    x0_mean,
+    n_steps,
+    n_trials,
+    rng,
+    reinjection,
+    zeta=1.0,
+    n_paths=0,
+) -> ConsensusFilterRun:
+    """Simulate ``n_trials`` independent runs of a two-stage consensus filter for ``n_steps`` steps.
+
+    Parameters
+    ----------
+    Q : (N, N) row-stochastic consensus matrix (the paper assumes doubly stochastic).
+    ell : constant measurement gain in (0, 1] (eq. (7)/(11)).
+    m : number of consensus rounds per step, integer >= 0 (``m = 0``: no communication).
+    sigma_c : communication noise standard deviation (eq. (6)).
+    q, r, sigma0 : variances of ``w``, of each ``n_i`` and of ``X_0``.
+    x0_mean : mean of ``X_0``; ``xhat(0|-1) = x0_mean 1``.
+    n_steps : ``K``, number of steps ``k = 0..K-1`` recorded.
+    n_trials : number of Monte Carlo trials (leading axis).
+    rng : ``numpy.random.Generator``.
+    reinjection : False for the Carli et al. filter (7)+(9) (``sigma_c = 0`` gives (7)+(8));
+        True for the re-injection filter (11)-(13).
+    zeta : convex weight of eq. (13), in [0, 1] (ignored when ``reinjection`` is False).
+    n_paths : number of leading trials whose full sample paths are kept.
+    """
+    Q = _as_consensus_matrix(Q)
+    ell = float(_check_ell(ell))
+    m = _check_rounds(m)
+    zeta = float(_check_zeta(zeta))
+    sigma_c = _check_nonneg(sigma_c, "sigma_c")
+    q = _check_nonneg(q, "q")
+    r = _check_nonneg(r, "r")
+    sigma0 = _check_nonneg(sigma0, "sigma0")
+    x0_mean = float(x0_mean)
+    if not np.isfinite(x0_mean):
+        raise ValueError(f"x0_mean must be finite, got {x0_mean!r}")
+    K = _check_steps(n_steps, "n_steps")
+    R = _check_steps(n_trials, "n_trials")
+    if isinstance(n_paths, bool) or not isinstance(n_paths, numbers.Integral) or not 0 <= n_paths <= R:
+        raise ValueError(f"n_paths must be an integer in [0, n_trials], got {n_paths!r}")
+    P = int(n_paths)
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+    reinjection = bool(reinjection)
+
+    N = Q.shape[0]
+    QT = np.ascontiguousarray(Q.T)
+    sq, sr = np.sqrt(q), np.sqrt(r)
+    keep = (1.0 - zeta) / (m + 1)
+    block = max(256, _BLOCK_ELEMENTS // N)
+
+    err_pred = np.empty((R, K, N))
+    err_filt = np.empty((R, K, N))
+    p_x = np.empty((P, K))
+    p_y = np.empty((P, K, N))
+    p_xp = np.empty((P, K, N))
+    p_xf = np.empty((P, K, N))
+    p_z = np.empty((P, K, m + 1, N))
+    p_u = np.empty((P, K, m, N))
+    p_w = np.empty((P, K))
+    p_n = np.empty((P, K, N))
+
+    x = np.empty(R)
+    rng.standard_normal(out=x)
+    x *= np.sqrt(sigma0)
+    x += x0_mean
+    xp = np.full((R, N), x0_mean)
+    xf = np.empty((R, N))
+    noise = np.empty((R, N))
+    z = np.empty((R, N))
+    znext = np.empty((R, N))
+    w = np.empty(R)
+    xcol = x[:, None]
+
+    for k in range(K):
+        np.subtract(xcol, xp, out=err_pred[:, k, :])
+        rng.standard_normal(out=noise)  # n(k) / sqrt(r)
+        noise *= sr
+        if P:
+            p_x[:, k] = x[:P]
+            p_n[:, k] = noise[:P]
+            p_y[:, k] = xcol[:P] + noise[:P]
+            p_xp[:, k] = xp[:P]
+        # (7)/(11): xf = (1-ell) xp + ell (x 1 + n)
+        noise += xcol
+        np.multiply(noise, ell, out=xf)
+        xp *= 1.0 - ell
+        xf += xp
+        np.subtract(xcol, xf, out=err_filt[:, k, :])
+        z[...] = xf
+        if P:
+            p_xf[:, k] = xf[:P]
+            p_z[:, k, 0] = xf[:P]
+        for h in range(m):
+            _rows_times(z, QT, znext, block)
+            rng.standard_normal(out=noise)  # u(k + (h+1)/m)
+            if P:
+                p_u[:, k, h] = noise[:P]
+            if sigma_c != 0.0:
+                noise *= sigma_c
+                znext += noise
+            if reinjection:
+                znext += xf  # (12): re-inject the stored xhat(k|k), noise-free
+            z, znext = znext, z
+            if P:
+                p_z[:, k, h + 1] = z[:P]
+        if reinjection:
+            # (13): xhat(k+1|k) = zeta xhat(k|k) + (1-zeta) z(k+1|k)/(m+1)
+            np.multiply(z, keep, out=xp)
+            np.multiply(xf, zeta, out=znext)
+            xp += znext
+        else:
+            xp[...] = z
+        rng.standard_normal(out=w)
+        w *= sq
+        if P:
+            p_w[:, k] = w[:P]
+        x += w
+
+    return ConsensusFilterRun(
+        err_pred=err_pred,
+        err_filt=err_filt,
+        x=p_x,
+        y=p_y,
+        xhat_pred=p_xp,
+        xhat_filt=p_xf,
+        z_rounds=p_z,
+        u=p_u,
+        w=p_w,
+        n=p_n,
+    )
