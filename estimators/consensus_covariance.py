@@ -422,47 +422,44 @@ def _spectral_trace(lam_rest, n, ell, zeta, m, sigma_c, q, r, printed, with_grad
     """Eq. (16) from the non-unit eigenvalues, broadcasting over ``ell`` and ``zeta``.
 
     No validation (the optimiser probes slightly outside [0, 1] for finite differences).
-    With ``with_gradient`` also returns ``(dJ/dell, dJ/dzeta)`` analytically.
+    With ``with_gradient`` also returns ``(dJ/dell, dJ/dzeta)`` analytically.  The loop runs
+    over modes so that a (n_ell, n_zeta) grid costs a few passes over 2-D arrays.
     """
-    ell = np.asarray(ell, dtype=np.float64)[..., None]
-    zeta = np.asarray(zeta, dtype=np.float64)[..., None]
+    ell = np.asarray(ell, dtype=np.float64)
+    zeta = np.asarray(zeta, dtype=np.float64)
     inv = 1.0 / (m + 1)
     beta = (1.0 - zeta) * inv
     lam_bar = _power_sum(lam_rest, m)
-    mu = beta * lam_bar + zeta
-    mu2 = np.abs(mu) ** 2
+    s = geometric_gram_sum(lam_rest, m - 1 if printed else m)
     a = (1.0 - ell) ** 2
     one_minus_a = 1.0 - a
-    s = geometric_gram_sum(lam_rest, m - 1 if printed else m)
-    head_num = ell**2 * r + q * n + beta**2 * sigma_c**2 * m
-    head = head_num / one_minus_a
-    den = 1.0 - a * mu2
-    t2 = ell**2 * r * np.sum(mu2 / den, axis=-1, keepdims=True)
+    lr = ell**2 * r
     pref = beta**2 * sigma_c**2
-    with np.errstate(invalid="ignore", over="ignore"):
-        g_sum = np.sum(s / den, axis=-1, keepdims=True)
-        t3 = np.where(pref == 0.0, 0.0, pref * g_sum)
-    J = (head + t2 + t3)[..., 0]
+    head_num = lr + q * n + pref * m
+    J = head_num / one_minus_a
+    if with_gradient:
+        da = -2.0 * (1.0 - ell)
+        dpref = -2.0 * beta * inv * sigma_c**2
+        dJ_dell = 2.0 * ell * r / one_minus_a + head_num * da / one_minus_a**2
+        dJ_dzeta = dpref * m / one_minus_a
+    for h in range(lam_rest.shape[0]):
+        mu = beta * lam_bar[h] + zeta
+        mu2 = np.abs(mu) ** 2 if np.iscomplexobj(mu) else mu * mu
+        den = 1.0 - a * mu2
+        if np.isfinite(s[h]):
+            noise = pref * s[h]
+        else:  # printed (16) at m = 0, lam_h = 0: a vanishing prefactor drops the infinite term
+            with np.errstate(invalid="ignore"):
+                noise = np.where(pref == 0.0, 0.0, pref * s[h])
+        J = J + (lr * mu2 + noise) / den
+        if with_gradient:
+            dmu2 = 2.0 * np.real(np.conj(mu) * (1.0 - lam_bar[h] * inv))
+            num = lr * mu2 + noise
+            dJ_dell = dJ_dell + (2.0 * ell * r * mu2) / den + num * mu2 * da / den**2
+            dJ_dzeta = dJ_dzeta + (lr * dmu2 + dpref * s[h]) / den + num * a * dmu2 / den**2
     if not with_gradient:
         return J
-    dmu_dzeta = 1.0 - lam_bar * inv
-    dmu2_dzeta = 2.0 * np.real(np.conj(mu) * dmu_dzeta)
-    da_dell = -2.0 * (1.0 - ell)
-    dbeta = -inv
-    den2 = den**2
-    dhead_dell = 2.0 * ell * r / one_minus_a + head_num * da_dell / one_minus_a**2
-    dhead_dzeta = 2.0 * beta * dbeta * sigma_c**2 * m / one_minus_a
-    f_a = np.sum(mu2**2 / den2, axis=-1, keepdims=True)
-    f_mu = np.sum(dmu2_dzeta / den2, axis=-1, keepdims=True)
-    dt2_dell = 2.0 * ell * r * np.sum(mu2 / den, axis=-1, keepdims=True) + ell**2 * r * f_a * da_dell
-    dt2_dzeta = ell**2 * r * f_mu
-    with np.errstate(invalid="ignore", over="ignore"):
-        g_a = np.sum(s * mu2 / den2, axis=-1, keepdims=True)
-        g_mu = np.sum(s * a * dmu2_dzeta / den2, axis=-1, keepdims=True)
-        dt3_dell = np.where(pref == 0.0, 0.0, pref * g_a * da_dell)
-        dpref = 2.0 * beta * dbeta * sigma_c**2
-        dt3_dzeta = np.where(pref == 0.0, 0.0, pref * g_mu) + np.where(dpref == 0.0, 0.0, dpref * g_sum)
-    return J, (dhead_dell + dt2_dell + dt3_dell)[..., 0], (dhead_dzeta + dt2_dzeta + dt3_dzeta)[..., 0]
+    return J, dJ_dell, dJ_dzeta
 
 
 def _as_result(x):

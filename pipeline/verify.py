@@ -105,9 +105,10 @@ def identity(measured, reference, *, rtol: float, atol: float = 0.0, detail: str
     worst = int(np.argmax(err - allowed)) if err.size else 0
     ok = bool(np.all(err <= allowed)) and bool(np.all(np.isfinite(m)))
     rel = float(relative_error(m, r).max()) if err.size else 0.0
-    return Verdict(PASS if ok else FAIL, measured=m.flat[worst], reference=r.flat[worst], tolerance=rtol,
+    size = f"max relative error {rel:.3e}" if rtol else f"max absolute error {err.max():.3e}"
+    return Verdict(PASS if ok else FAIL, measured=m.flat[worst], reference=r.flat[worst], tolerance=rtol or atol,
                    margin=float(rtol - rel) if rtol else float(atol - err.max()),
-                   detail=f"max relative error {rel:.3e}. {detail}".strip())
+                   detail=f"{size}. {detail}".strip())
 
 
 def inequality(lower, upper, *, detail: str = "", strict: bool = False) -> Verdict:

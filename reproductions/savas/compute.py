@@ -92,16 +92,16 @@ def compute_bounds(sc: NoisyConsensusScenario, quick: bool) -> dict[str, np.ndar
     grid = gain_grid(sc, quick)
     if sc.symmetric:
         for formula in ("corrected", "printed"):
-            ell, zeta, J, kkt = (np.zeros((S, M + 1)) for _ in range(4))
-            kkt_zeta = np.zeros((S, M + 1))
+            ell, zeta, J, kkt, kkt_zeta, grid_min = (np.zeros((S, M + 1)) for _ in range(6))
             for s, sigma_c in enumerate(sc.sigma_c):
                 for m in range(M + 1):
                     opt = gt.optimal_reinjection_gains(sc.Q, m=m, sigma_c=sigma_c, q=sc.q, r=sc.r,
                                                        formula=formula, grid=grid)
                     ell[s, m], zeta[s, m], J[s, m] = opt.ell, opt.zeta, opt.J
-                    kkt[s, m], kkt_zeta[s, m] = opt.kkt["dJ_dell"], opt.kkt["dJ_dzeta"]
+                    kkt[s, m], kkt_zeta[s, m] = opt.kkt.dJ_dell, opt.kkt.dJ_dzeta
+                    grid_min[s, m] = np.min(opt.grid_J)
             out.update({f"{formula}_ell": ell, f"{formula}_zeta": zeta, f"{formula}_J": J,
-                        f"{formula}_dJ_dell": kkt, f"{formula}_dJ_dzeta": kkt_zeta})
+                        f"{formula}_dJ_dell": kkt, f"{formula}_dJ_dzeta": kkt_zeta, f"{formula}_grid_min": grid_min})
         big = [[gt.optimal_reinjection_gains(sc.Q, m=m, sigma_c=s_c, q=sc.q, r=sc.r, formula="corrected", grid=grid)
                 for m in LARGE_M] for s_c in sc.sigma_c]
         out["large_m"] = np.array(LARGE_M)
@@ -109,8 +109,8 @@ def compute_bounds(sc: NoisyConsensusScenario, quick: bool) -> dict[str, np.ndar
         out["large_m_zeta"] = np.array([[o.zeta for o in row] for row in big])
         out["large_m_J"] = np.array([[o.J for o in row] for row in big])
     carli = [[gt.optimal_carli_gain(sc.Q, m=m, sigma_c=s_c, q=sc.q, r=sc.r) for m in range(M + 1)] for s_c in sc.sigma_c]
-    out["carli_opt_ell"] = np.array([[o[0] for o in row] for row in carli])
-    out["carli_opt_J"] = np.array([[o[1] for o in row] for row in carli])
+    out["carli_opt_ell"] = np.array([[o.ell for o in row] for row in carli])
+    out["carli_opt_J"] = np.array([[o.J for o in row] for row in carli])
     # centralized Kalman filter on all N measurements: the lower bound of every agent
     F, H, Qw, R = np.eye(1), np.ones((sc.n, 1)), np.array([[sc.q]]), sc.r * np.eye(sc.n)
     kf = kal.kalman_covariances(F, H, Qw, R, np.array([[sc.sigma0]]), max(sc.n_steps, LONG_RUN_STEPS))

@@ -1,0 +1,248 @@
+"""Figures (PNG) and Rerun recordings of the noisy-consensus-filter family.
+
+Two recordings per scenario, because a time-series view plots against one timeline:
+``<name>.rrd`` on timeline ``k`` (sample trials, Monte Carlo aggregates against the exact
+recursion and the centralized bound, the graph, the claims) and ``<name>_figures.rrd`` on
+timeline ``m`` (Figs. 1-3: metric and optimal gains against the number of rounds).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+import estimators.consensus_covariance as cc
+from pipeline import record as rec_
+from pipeline.figures import new_figure, save_figure, sequential_colors
+from pipeline.stats import z_for_confidence
+
+from .compute import Results
+
+BAND_CONFIDENCE = 0.95
+
+
+def _metric(res: Results, alg: str):
+    """Exact and Monte Carlo tr P(k_eval) with its SE, arrays (S, M) over σ_c × m."""
+    sc = res.scenario
+    k = sc.eval_step
+    exact, mc, se = (np.zeros((len(sc.sigma_c), len(sc.rounds))) for _ in range(3))
+    for s, s_c in enumerate(sc.sigma_c):
+        for j, m in enumerate(sc.rounds):
+            c = res.cell(alg, m, s_c)
+            mom = res.moments(c)
+            exact[s, j], mc[s, j], se[s, j] = np.trace(res.exact_pred(c)[k]), mom.trace[k], mom.trace_se[k]
+    return exact, mc, se
+
+
+def showcase(res: Results):
+    """The cell shown in the per-trial views: m = 2 (or the largest ≤ 2 > 0), σ_c closest to 1."""
+    sc = res.scenario
+    m = max([m for m in sc.rounds if 0 < m <= 2] or [sc.rounds[-1]])
+    s_c = min(sc.sigma_c, key=lambda s: abs(s - 1.0))
+    return m, s_c
+
+
+# -- figures --------------------------------------------------------------------------------------
+
+def _metric_figure(res: Results, alg: str, title: str, path: Path) -> None:
+    sc = res.scenario
+    exact, mc, se = _metric(res, alg)
+    z = z_for_confidence(BAND_CONFIDENCE)
+    fig, axes = new_figure()
+    ax = axes[0, 0]
+    for s, (s_c, col) in enumerate(zip(sc.sigma_c, sequential_colors(len(sc.sigma_c), "plasma"))):
+        ax.plot(sc.rounds, exact[s], "-", color=col, lw=1.4, label=f"σ_c = {s_c:g}")
+        ax.errorbar(sc.rounds, mc[s], yerr=z * se[s], fmt="o", color=col, ms=3.5, capsize=2)
+    kf = sc.n * res.bounds["kf_prior"][sc.eval_step]
+    ax.axhline(kf, color="k", ls=":", lw=1, label="centralized KF (lower bound)")
+    ax.set_xlabel("consensus rounds m")
+    ax.set_ylabel(f"Σᵢ var(x̃ᵢ({sc.eval_step}|{sc.eval_step - 1}))")
+    ax.set_title(f"{title}\nlines: exact recursion; markers: {res.trials:,} Monte Carlo runs ± {BAND_CONFIDENCE:.0%} CI",
+                 fontsize=9)
+    ax.set_xticks(sc.rounds)
+    ax.legend(ncol=2)
+    save_figure(fig, path)
+
+
+def _gains_figure(res: Results, path: Path) -> None:
+    sc, b = res.scenario, res.bounds
+    ms = np.arange(sc.rounds_max + 1)
+    fig, axes = new_figure(ncols=3, width=4.6)
+    cols = sequential_colors(len(sc.sigma_c), "plasma")
+    for s, s_c in enumerate(sc.sigma_c):
+        for ax, key in zip(axes[0], ("ell", "zeta", "J")):
+            ax.plot(ms, b[f"corrected_{key}"][s], "-o", ms=2.5, color=cols[s], label=f"σ_c = {s_c:g}")
+            if key != "J":
+                ax.plot(ms[1:], b[f"printed_{key}"][s, 1:], "--", lw=1, color=cols[s])
+    for ax, lab in zip(axes[0], ("optimal ℓ*", "optimal ζ*", "J* = tr P∞")):
+        ax.set_xlabel("consensus rounds m")
+        ax.set_ylabel(lab)
+    axes[0, 2].axhline(sc.n * float(b["kf_steady_prior"]), color="k", ls=":", lw=1, label="N P_c⁻ (centralized)")
+    axes[0, 0].set_title("solid: corrected (16); dashed: (16) as printed", fontsize=9)
+    axes[0, 2].legend(ncol=1)
+    save_figure(fig, path)
+
+
+def _trace_over_k_figure(res: Results, path: Path) -> None:
+    sc = res.scenario
+    m, s_c = showcase(res)
+    fig, axes = new_figure()
+    ax = axes[0, 0]
+    ks = np.arange(sc.n_steps)
+    z = z_for_confidence(BAND_CONFIDENCE)
+    for alg, col in (("carli", "tab:red"), ("reinjection", "tab:blue")):
+        c = res.cell(alg, m, s_c)
+        mom = res.moments(c)
+        ax.plot(ks, np.trace(res.exact_pred(c), axis1=1, axis2=2), "-", color=col, label=f"{alg}: exact (22)")
+        ax.fill_between(ks, mom.trace - z * mom.trace_se, mom.trace + z * mom.trace_se, color=col, alpha=0.25,
+                        label=f"{alg}: Monte Carlo {BAND_CONFIDENCE:.0%} band")
+    ax.plot(ks, sc.n * res.bounds["kf_prior"][: sc.n_steps], "k:", label="N · centralized KF")
+    ax.set_xlabel("k")
+    ax.set_ylabel("tr P(k|k−1)")
+    ax.set_title(f"m = {m}, σ_c = {s_c:g}", fontsize=9)
+    ax.legend()
+    save_figure(fig, path)
+
+
+def write_figures(res: Results, out_dir: Path) -> None:
+    figs = out_dir / "figures"
+    _metric_figure(res, "carli", "Fig. 1: two-stage filter (7)+(9) under communication noise, ℓ = "
+                   f"{res.scenario.carli_ell:g}", figs / "fig1.png")
+    if res.scenario.symmetric:
+        _gains_figure(res, figs / "fig2.png")
+    _metric_figure(res, "reinjection", f"Fig. 3: re-injection filter (11)-(13), {res.scenario.reinjection_gains} gains",
+                   figs / "fig3.png")
+    _trace_over_k_figure(res, figs / "trace_over_k.png")
+
+
+# -- recordings -----------------------------------------------------------------------------------
+
+def _claims_markdown(claims: list[dict]) -> str:
+    rows = ["| claim | verdict | measured | reference |", "|---|---|---|---|"]
+    for c in claims:
+        rows.append(f"| `{c['id']}` | **{c['verdict']}** | {json.dumps(c.get('measured'))[:40]} | "
+                    f"{json.dumps(c.get('reference'))[:40]} |")
+    return "\n".join(rows)
+
+
+def _log_claims(rec: rr.RecordingStream, claims: list[dict], summary: str) -> None:
+    rec_.log_markdown(rec, "report", summary + "\n\n" + _claims_markdown(claims))
+    for c in claims:
+        rec_.log_markdown(rec, f"claims/{c['id']}", f"## `{c['id']}`: {c['verdict']}\n\n*{c['source']}*: "
+                          f"{c['statement']}\n\n- measured: {c.get('measured')}\n- reference: {c.get('reference')}\n"
+                          f"- margin: {c.get('margin')}\n\n{c.get('detail', '')}")
+
+
+def _properties(res: Results, prov: dict) -> dict:
+    sc = res.scenario
+    return {"seed": res.seed, "trials": res.trials, "q": sc.q, "r": sc.r, "sigma0": sc.sigma0, "x0_mean": sc.x0_mean,
+            "carli_ell": sc.carli_ell, "gains": sc.reinjection_gains, "graph": sc.graph.kind, "n": sc.n,
+            "versions": json.dumps(prov.get("versions", {})), "git": prov.get("git", "")}
+
+
+def write_trials_recording(res: Results, path: Path, claims: list[dict], prov: dict, summary: str) -> None:
+    sc = res.scenario
+    m, s_c = showcase(res)
+    n = sc.n
+    blueprint = rrb.Blueprint(
+        rrb.Tabs(
+            rrb.Horizontal(
+                rrb.Vertical(rrb.TimeSeriesView(origin="/mc", name="tr P(k|k-1): Monte Carlo vs exact vs centralized",
+                                                contents=["/mc/**", "/bounds/**", "/central/**"]),
+                             rrb.GraphView(origin="/graph", name="communication graph"), row_shares=[2, 1]),
+                rrb.Vertical(*[rrb.TimeSeriesView(origin=f"/nodes/{i}", name=f"agent {i}: estimates and truth",
+                                                  contents=[f"/nodes/{i}/estimate/**", "/truth/**"]) for i in range(min(n, 4))]),
+                column_shares=[3, 2], name="Monte Carlo and trials"),
+            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/nodes/{i}/error", name=f"agent {i}: error") for i in range(min(n, 9))],
+                     name="errors"),
+            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/nodes/{i}/consensus", name=f"agent {i}: consensus iterates")
+                       for i in range(min(n, 9))], name="consensus rounds"),
+            rrb.Horizontal(rrb.TextDocumentView(origin="/report", name="claims"),
+                           rrb.TextDocumentView(origin="/claims", name="claim detail"), name="claims"),
+        ),
+        rrb.TimePanel(timeline="k", expanded=False),
+        collapse_panels=True,
+    )
+    with rec_.recording(path, application_id="dse-savas", recording_id=f"savas-{sc.name}-seed{res.seed}",
+                        blueprint=blueprint, properties=_properties(res, prov)) as rec:
+        rec_.log_graph(rec, "graph", sc.graph.positions(), list(sc.graph.build().edges()),
+                       labels=[f"agent {i}" for i in range(n)])
+        rec_.log_tensor(rec, "graph/Q", sc.Q)
+        ks = np.arange(sc.n_steps)
+        idx = rec_.sequence_index("k", ks)
+        for a, (alg, col) in enumerate((("carli", (214, 39, 40)), ("reinjection", (31, 119, 180)))):
+            c = res.cell(alg, m, s_c)
+            mom, P = res.moments(c), res.exact_pred(c)
+            z = z_for_confidence(BAND_CONFIDENCE)
+            label = f"{alg} m={m} σ_c={s_c:g}"
+            rec_.send_series(rec, f"mc/{alg}/trace", idx, mom.trace, names=f"{label}: Monte Carlo", colors=[col], points=True)
+            rec_.send_series(rec, f"mc/{alg}/band", idx, np.column_stack([mom.trace - z * mom.trace_se, mom.trace + z * mom.trace_se]),
+                             names=[f"{label}: MC {BAND_CONFIDENCE:.0%} low", f"{label}: MC {BAND_CONFIDENCE:.0%} high"],
+                             colors=[col, col], width=0.5)
+            rec_.send_series(rec, f"bounds/{alg}/trace", idx, np.trace(P, axis1=1, axis2=2), names=f"{label}: exact (22)", colors=[col])
+            arr = res.mc[c.label]
+            if "path_x" not in arr:
+                continue
+            rec_.send_series(rec, f"truth/{alg}", idx, arr["path_x"][0], names=f"x(k), {alg} trial 0", colors=[(0, 0, 0)], width=2)
+            rounds_idx = rec_.sequence_index("round", np.arange(sc.n_steps * (m + 1)))
+            for i in range(n):
+                rec_.send_series(rec, f"nodes/{i}/estimate/{alg}", idx, arr["path_xhat_pred"][:, :, i].T,
+                                 names=[f"{alg} x̂(k|k-1) trial {p}" for p in range(arr["path_x"].shape[0])],
+                                 colors=[col] * arr["path_x"].shape[0], width=1.0)
+                err = arr["path_x"] - arr["path_xhat_pred"][:, :, i]
+                rec_.send_series(rec, f"nodes/{i}/error/{alg}", idx, err.T,
+                                 names=[f"{alg} trial {p}" for p in range(err.shape[0])], colors=[col] * err.shape[0], width=1.0)
+                z_rounds = arr["path_z_rounds"][0, :, :, i].reshape(-1)
+                rec_.send_series(rec, f"nodes/{i}/consensus/{alg}", rounds_idx, z_rounds, names=f"{alg} z(k+h/m|k)",
+                                 colors=[col], points=True)
+        rec_.send_series(rec, "central/kf_trace", idx, sc.n * res.bounds["kf_prior"][: sc.n_steps],
+                         names="N · P_KF(k|k-1) (centralized KF)", colors=[(0, 0, 0)])
+        _log_claims(rec, claims, summary)
+
+
+def write_figures_recording(res: Results, path: Path, claims: list[dict], prov: dict, summary: str) -> None:
+    sc, b = res.scenario, res.bounds
+    views = [rrb.TimeSeriesView(origin="/fig1", name="Fig. 1: Carli's filter, tr P(4|3) vs m"),
+             rrb.TimeSeriesView(origin="/fig3", name="Fig. 3: re-injection filter, tr P(4|3) vs m")]
+    if sc.symmetric:
+        views += [rrb.TimeSeriesView(origin="/fig2/ell", name="Fig. 2: optimal ℓ* vs m"),
+                  rrb.TimeSeriesView(origin="/fig2/zeta", name="Fig. 2: optimal ζ* vs m"),
+                  rrb.TimeSeriesView(origin="/fig2/J", name="optimal cost J* vs m")]
+    blueprint = rrb.Blueprint(
+        rrb.Tabs(rrb.Grid(*views, name="figures"),
+                 rrb.Horizontal(rrb.TextDocumentView(origin="/report", name="claims"),
+                                rrb.TextDocumentView(origin="/claims", name="claim detail"), name="claims")),
+        rrb.TimePanel(timeline="m", expanded=False),
+        collapse_panels=True,
+    )
+    cols = [tuple(int(255 * x) for x in c[:3]) for c in sequential_colors(len(sc.sigma_c), "plasma")]
+    names = [f"σ_c = {s:g}" for s in sc.sigma_c]
+    with rec_.recording(path, application_id="dse-savas", recording_id=f"savas-{sc.name}-figures-seed{res.seed}",
+                        blueprint=blueprint, properties=_properties(res, prov)) as rec:
+        idx = rec_.sequence_index("m", sc.rounds)
+        for fig, alg in (("fig1", "carli"), ("fig3", "reinjection")):
+            exact, mc, se = _metric(res, alg)
+            rec_.send_series(rec, f"{fig}/exact", idx, exact.T, names=[f"{n} exact" for n in names], colors=cols)
+            rec_.send_series(rec, f"{fig}/monte_carlo", idx, mc.T, names=[f"{n} Monte Carlo" for n in names], colors=cols, points=True)
+            rec_.send_series(rec, f"{fig}/centralized_kf", idx, np.full(len(sc.rounds), sc.n * b["kf_prior"][sc.eval_step]),
+                             names="centralized KF (lower bound)", colors=[(0, 0, 0)])
+        if sc.symmetric:
+            midx = rec_.sequence_index("m", np.arange(sc.rounds_max + 1))
+            for key in ("ell", "zeta", "J"):
+                rec_.send_series(rec, f"fig2/{key}/corrected", midx, b[f"corrected_{key}"].T,
+                                 names=[f"{n} corrected (16)" for n in names], colors=cols)
+                rec_.send_series(rec, f"fig2/{key}/printed", midx, b[f"printed_{key}"].T,
+                                 names=[f"{n} printed (16)" for n in names], colors=cols, points=True)
+        _log_claims(rec, claims, summary)
+
+
+def write_outputs(res: Results, out_dir: Path, claims: list[dict], prov: dict) -> None:
+    write_figures(res, out_dir)
+    counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable")}
+    summary = (f"# {res.scenario.name}: {counts['pass']} pass, {counts['fail']} fail, {counts['erratum']} erratum, "
+               f"{counts['not-checkable']} not checkable\n\nseed {res.seed}, {res.trials:,} trials per cell")
+    write_trials_recording(res, out_dir / f"{res.scenario.name}.rrd", claims, prov, summary)
+    write_figures_recording(res, out_dir / f"{res.scenario.name}_figures.rrd", claims, prov, summary)
