@@ -49,7 +49,7 @@ def _rows_times(z: np.ndarray, QT: np.ndarray, out: np.ndarray, block: int) -> N
         np.matmul(z[s : s + block], QT, out=out[s : s + block])
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ConsensusFilterRun:
     """Result of :func:`simulate_consensus_filter`; ``K = n_steps``, ``N`` agents, ``P = n_paths``.
 

@@ -78,7 +78,7 @@ def cmd_verify(args) -> int:
     for d in dirs:
         meta = json.loads((d / "run.json").read_text())
         repro = reg.family_from_dict(meta["scenario"]) if meta.get("scenario") else reg.paper(meta["paper"])
-        rows, diffs = reverify(repro, Path(meta["out_root"]), d)
+        rows, diffs = reverify(repro, (d / meta["out_root"]).resolve(), d)
         counts = {s: sum(r["verdict"] == s for r in rows) for s in ("pass", "fail", "erratum", "not-checkable")}
         print(f"{d}: re-checked {len(rows)} claims from the cache: {counts['pass']} pass, {counts['fail']} fail, "
               f"{counts['erratum']} erratum, {counts['not-checkable']} not checkable")

@@ -138,8 +138,9 @@ def max_degree(G: nx.Graph) -> int:
     return max((d for _, d in G.degree()), default=0)
 
 
-def check_consensus_matrix(Q: np.ndarray, field: str, *, tol: float = 1e-10) -> None:
-    """Raise ScenarioError unless Q is square, nonnegative and doubly stochastic."""
+def check_consensus_matrix(Q: np.ndarray, field: str, *, tol: float = 1e-10, primitive: bool = True) -> None:
+    """Raise ScenarioError unless Q is square, nonnegative and doubly stochastic (and, with
+    `primitive`, has a simple unit eigenvalue and all others strictly inside the unit disk)."""
     if Q.ndim != 2 or Q.shape[0] != Q.shape[1]:
         raise ScenarioError(field, f"must be square, got shape {Q.shape}")
     if Q.min() < -tol:
@@ -148,6 +149,11 @@ def check_consensus_matrix(Q: np.ndarray, field: str, *, tol: float = 1e-10) -> 
         raise ScenarioError(field, "rows must sum to 1 (row stochastic)")
     if np.abs(Q.sum(axis=0) - 1).max() > tol:
         raise ScenarioError(field, "columns must sum to 1 (doubly stochastic)")
+    if primitive and len(Q) > 1:
+        second = np.sort(np.abs(np.linalg.eigvals(Q)))[-2]
+        if second > 1 - 1e-9:
+            raise ScenarioError(field, f"must be primitive (consensus needs |λ| < 1 for every eigenvalue but one; "
+                                       f"second largest |λ| = {second:.6g})")
 
 
 def consensus_matrix_from_dict(data: Mapping[str, Any], field: str, G: nx.Graph) -> np.ndarray:

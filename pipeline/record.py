@@ -108,6 +108,8 @@ def read_scalars(path: str | Path, index: str, content: str = "/**") -> dict[str
     parts: dict[str, list] = {}
     stream = rr.chunk.RrdReader(str(path)).stream().filter(content=content, is_static=False, components="Scalars:scalars")
     for chunk in stream:
+        if index not in chunk.timeline_names:
+            continue
         parts.setdefault(chunk.entity_path, []).append(chunk.to_record_batch())
     out = {}
     for ent, batches in parts.items():

@@ -79,7 +79,7 @@ def run(repro: Reproduction, out_root: Path, opts: RunOptions, *, out_dir: Path 
     prov["peak_memory_mib"] = peak_memory_mib()
     write_report(out_dir, paper=repro.paper_id, title=repro.title, claims=rows, provenance=prov, notes=repro.notes())
     atomic_write_text(out_dir / "run.json", json.dumps({"paper": repro.paper_id, "options": asdict(opts),
-                                                         "out_root": os.fspath(out_root), "scenario": source}, indent=1))
+                                                         "out_root": os.path.relpath(out_root, out_dir), "scenario": source}, indent=1))
     return {"paper": repro.paper_id, **verdict_counts(rows), "wall_s": prov["wall_s"]}
 
 

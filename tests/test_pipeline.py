@@ -1,0 +1,227 @@
+"""The shared pipeline machinery: scenario readers, graphs, seeding, statistics, cache, verdicts."""
+import math
+
+import networkx as nx
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from pipeline import graphs, scenario, stats, verify
+from pipeline.atomic import atomic_path
+from pipeline.cache import StageCache
+from pipeline.errors import CacheMiss, ScenarioError
+from pipeline.seeding import block_seeds, stream_seed
+from pipeline.simulate import parallel_map, run_blocks, trial_blocks
+
+
+# -- scenario readers -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("value, reason", [(float("nan"), "finite"), (float("inf"), "finite"), (True, "number"),
+                                           ("1", "number"), (-1.0, ">")])
+def test_as_float_rejects_with_field_name(value, reason):
+    with pytest.raises(ScenarioError) as err:
+        scenario.as_float(value, "model.r", low=0.0, low_open=True)
+    assert str(err.value).startswith("model.r:") and reason in str(err.value)
+
+
+def test_as_matrix_checks_shape_symmetry_and_psd():
+    with pytest.raises(ScenarioError, match=r"^P0: must have shape 2x2"):
+        scenario.as_matrix([[1.0]], "P0", shape=(2, 2))
+    with pytest.raises(ScenarioError, match=r"^P0: must be symmetric"):
+        scenario.as_matrix([[1.0, 2.0], [0.0, 1.0]], "P0", symmetric=True)
+    with pytest.raises(ScenarioError, match=r"^P0: must be positive semidefinite"):
+        scenario.as_matrix([[1.0, 2.0], [2.0, 1.0]], "P0", psd=True)
+    with pytest.raises(ScenarioError, match=r"^P0\[0\]\[1\]: must be finite"):
+        scenario.as_matrix([[1.0, float("nan")], [0.0, 1.0]], "P0")
+    assert np.array_equal(scenario.as_matrix([[2, 1], [1, 2]], "P0", psd=True), [[2.0, 1.0], [1.0, 2.0]])
+
+
+def test_unknown_keys_are_named():
+    with pytest.raises(ScenarioError, match=r"^model\.rr: unknown key"):
+        scenario.reject_unknown({"q": 1, "rr": 2}, {"q", "r"}, "model")
+
+
+def test_load_toml_errors(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_bytes(b"\xff\xfe\x00garbage")
+    with pytest.raises(ScenarioError, match="UTF-8"):
+        scenario.load_toml(bad)
+    bad.write_text("x = [1, 2")
+    with pytest.raises(ScenarioError, match="invalid TOML"):
+        scenario.load_toml(bad)
+    bad.write_text("")
+    with pytest.raises(ScenarioError, match="empty"):
+        scenario.load_toml(bad)
+
+
+# -- graphs -------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("spec", [{"kind": "line", "n": 5}, {"kind": "ring", "n": 6}, {"kind": "complete", "n": 4},
+                                  {"kind": "grid", "rows": 3, "cols": 4},
+                                  {"kind": "random_geometric", "n": 30, "radius": 0.4, "seed": 3},
+                                  {"kind": "edges", "n": 4, "edges": [[0, 1], [1, 2], [2, 3], [3, 0]]}])
+def test_graph_kinds(spec):
+    g = graphs.GraphSpec.from_dict(spec)
+    G = g.build()
+    assert sorted(G.nodes) == list(range(g.n)) and nx.is_connected(G)
+    L = graphs.laplacian(G)
+    np.testing.assert_allclose(L.sum(axis=1), 0, atol=1e-14)
+    assert np.allclose(L, L.T) and np.linalg.eigvalsh(L)[1] > 1e-9  # algebraic connectivity > 0
+    assert g.positions().shape == (g.n, 2)
+    Q = graphs.metropolis_weights(G)
+    graphs.check_consensus_matrix(Q, "Q")
+    eps = 0.9 / graphs.max_degree(G)
+    graphs.check_consensus_matrix(graphs.laplacian_consensus_weights(G, eps), "Q")
+
+
+def test_graph_errors():
+    with pytest.raises(ScenarioError, match=r"^graph: graph is not connected"):
+        graphs.GraphSpec.from_dict({"kind": "edges", "n": 4, "edges": [[0, 1], [2, 3]]})
+    with pytest.raises(ScenarioError, match=r"^graph\.edges\[1\]: self-loop"):
+        graphs.GraphSpec.from_dict({"kind": "edges", "n": 3, "edges": [[0, 1], [2, 2]]})
+    with pytest.raises(ScenarioError, match=r"^graph\.kind: must be one of"):
+        graphs.GraphSpec.from_dict({"kind": "star", "n": 3})
+    with pytest.raises(ScenarioError, match=r"^graph\.radius: missing"):
+        graphs.GraphSpec.from_dict({"kind": "random_geometric", "n": 3})
+    G = nx.path_graph(3)
+    with pytest.raises(ScenarioError, match=r"^consensus\.eps: must be < 1/d_max"):
+        graphs.consensus_matrix_from_dict({"weights": "laplacian", "eps": 0.5}, "consensus", G)
+    with pytest.raises(ScenarioError, match=r"^consensus\.matrix: columns must sum to 1"):
+        graphs.consensus_matrix_from_dict({"weights": "matrix", "matrix": [[0.5, 0.5, 0], [0.5, 0.5, 0], [0, 0.5, 0.5]]},
+                                          "consensus", G)
+    with pytest.raises(ScenarioError, match=r"not an edge"):
+        graphs.consensus_matrix_from_dict({"weights": "matrix", "matrix": [[0.5, 0, 0.5], [0, 1, 0], [0.5, 0, 0.5]]},
+                                          "consensus", G)
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(2, 25), p=st.floats(0.05, 1.0), seed=st.integers(0, 10_000))
+def test_metropolis_weights_property(n, p, seed):
+    G = nx.gnp_random_graph(n, p, seed=seed)
+    if not nx.is_connected(G):
+        return
+    Q = graphs.metropolis_weights(G)
+    np.testing.assert_allclose(Q.sum(axis=0), 1, atol=1e-12)
+    np.testing.assert_allclose(Q.sum(axis=1), 1, atol=1e-12)
+    assert Q.min() >= 0 and np.allclose(Q, Q.T)
+    lam = np.sort(np.abs(np.linalg.eigvalsh(Q)))
+    assert lam[-1] == pytest.approx(1, abs=1e-12) and lam[-2] < 1 - 1e-12  # primitive on a connected graph
+
+
+# -- seeding and blocks ---------------------------------------------------------------------------
+
+def test_streams_are_named_not_ordered():
+    a = np.random.default_rng(stream_seed(7, "carli", 2, 0.5)).standard_normal(4)
+    _ = np.random.default_rng(stream_seed(7, "other")).standard_normal(4)
+    b = np.random.default_rng(stream_seed(7, "carli", 2, 0.5)).standard_normal(4)
+    c = np.random.default_rng(stream_seed(8, "carli", 2, 0.5)).standard_normal(4)
+    d = np.random.default_rng(stream_seed(7, "carli", 2, 1.0)).standard_normal(4)
+    assert np.array_equal(a, b) and not np.allclose(a, c) and not np.allclose(a, d)
+    s1, s2 = block_seeds(stream_seed(1, "x"), 3), block_seeds(stream_seed(1, "x"), 5)
+    assert all(np.array_equal(np.random.default_rng(x).random(3), np.random.default_rng(y).random(3)) for x, y in zip(s1, s2))
+
+
+def test_trial_blocks_cover_exactly():
+    assert trial_blocks(120_001, 50_000) == [(0, 50_000), (50_000, 50_000), (100_000, 20_001)]
+    with pytest.raises(ValueError):
+        trial_blocks(0)
+
+
+def _square_sum(x):
+    return float(np.sum(np.random.default_rng(stream_seed(3, x)).standard_normal(1000) ** 2))
+
+
+def test_parallel_map_matches_serial():
+    assert parallel_map(_square_sum, range(6), workers=2) == parallel_map(_square_sum, range(6), workers=1)
+
+
+# -- statistics -------------------------------------------------------------------------------------
+
+def test_error_moments_combine_matches_direct():
+    rng = np.random.default_rng(0)
+    err = rng.standard_normal((1000, 4, 3)) * [1.0, 2.0, 3.0] + 0.1
+    parts = [stats.ErrorMoments.of(err[i:i + 300]) for i in range(0, 1000, 300)]
+    mom = stats.ErrorMoments.combine(parts)
+    np.testing.assert_allclose(mom.variance, err.var(axis=0, ddof=1), rtol=1e-12)
+    np.testing.assert_allclose(mom.mean, err.mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(mom.trace, err.var(axis=0, ddof=1).sum(axis=1), rtol=1e-12)
+    tr = (err ** 2).sum(axis=2)
+    np.testing.assert_allclose(mom.trace_se, tr.std(axis=0) / np.sqrt(1000), rtol=1e-10)
+
+
+def test_standard_errors_are_calibrated():
+    """The trace SE predicts the spread of the trace estimate over repeated experiments."""
+    rng = np.random.default_rng(1)
+    estimates = [stats.ErrorMoments.of(rng.standard_normal((2000, 1, 3))).trace[0] for _ in range(400)]
+    se = stats.ErrorMoments.of(rng.standard_normal((2000, 1, 3))).trace_se[0]
+    assert np.std(estimates) == pytest.approx(se, rel=0.15)  # 400 repeats: the std is known to ~4%
+
+
+def test_z_for_confidence():
+    assert stats.z_for_confidence(0.95) == pytest.approx(1.959964, abs=1e-6)
+    assert stats.confidence_of_z(stats.z_for_confidence(0.999, 10), 10) == pytest.approx(0.999, abs=1e-12)
+
+
+# -- verdicts -------------------------------------------------------------------------------------------
+
+def test_identity_and_inequality_verdicts():
+    assert verify.identity([1.0, 2.0], [1.0, 2.0 + 1e-13], rtol=1e-12).status == verify.PASS
+    v = verify.identity([1.0, 2.1], [1.0, 2.0], rtol=1e-3)
+    assert v.status == verify.FAIL and v.measured == 2.1 and v.margin < 0
+    v = verify.inequality([1.0, 2.0], [1.5, 2.1])
+    assert v.status == verify.PASS and v.margin == pytest.approx(0.1)
+    assert verify.inequality([1.0], [0.9]).status == verify.FAIL
+    assert verify.inequality([1.0], [1.0], strict=True).status == verify.FAIL
+
+
+def test_statistical_verdict():
+    v = verify.statistical([1.02], [0.01], [1.0], confidence=0.95, trials=100)
+    assert v.status == verify.FAIL and v.margin == pytest.approx(1.959964 - 2.0, abs=1e-5)
+    assert verify.statistical([1.019], [0.01], [1.0], confidence=0.95, trials=100).status == verify.PASS
+
+
+def test_erratum_logic():
+    assert verify.erratum([1.0], [2.0], [2.0], rtol=1e-9).status == verify.ERRATUM
+    assert verify.erratum([2.0], [1.0], [2.0], rtol=1e-9).status == verify.PASS
+    assert verify.erratum([1.0], [1.5], [2.0], rtol=1e-9).status == verify.FAIL
+
+
+def test_claim_that_raises_is_a_failure():
+    claim = verify.Claim("x.y", "eq. (1)", "s", "identity", lambda r: 1 / 0)
+    row = claim.evaluate(None)
+    assert row["verdict"] == "fail" and "ZeroDivisionError" in row["detail"]
+    with pytest.raises(ValueError):
+        verify.Claim("x", "s", "s", "vibes", lambda r: None)
+
+
+# -- atomic writes and the cache -------------------------------------------------------------------
+
+def test_atomic_path_leaves_nothing_on_failure(tmp_path):
+    target = tmp_path / "out.json"
+    with pytest.raises(RuntimeError):
+        with atomic_path(target) as tmp:
+            tmp.write_text("partial")
+            raise RuntimeError("killed")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cache_roundtrip_and_corruption(tmp_path):
+    cache = StageCache(tmp_path)
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return {"a": np.arange(5.0), "b": np.eye(2)}
+
+    params = {"x": 1, "arr": np.array([1.0, 2.0])}
+    first = cache.get_or_compute("stage", params, compute)
+    second = cache.get_or_compute("stage", params, compute)
+    assert len(calls) == 1 and np.array_equal(first["a"], second["a"])
+    npz = next(tmp_path.glob("*.npz"))
+    raw = bytearray(npz.read_bytes())
+    raw[len(raw) // 2] ^= 0xFF
+    npz.write_bytes(bytes(raw))
+    third = cache.get_or_compute("stage", params, compute)
+    assert len(calls) == 2 and np.array_equal(third["b"], np.eye(2)) and cache.corrupt_entries
+    with pytest.raises(CacheMiss):
+        StageCache(tmp_path, read_only=True).get_or_compute("stage", {"x": 2}, compute)
