@@ -5,14 +5,21 @@ written; Ctrl-C exits with 130.
 """
 from __future__ import annotations
 
-import argparse
-import json
-import sys
-from pathlib import Path
+import os
 
-from .errors import CacheMiss, OutputError, ScenarioError
-from .reproduction import RunOptions, reverify, run
-from .report import write_summary
+# The matrices here are tiny (N x N per step over many trials): BLAS threads only contend
+# with the worker processes. Set before numpy is first imported by this program.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from .errors import CacheMiss, OutputError, ScenarioError  # noqa: E402
+from .reproduction import RunOptions, reverify, run  # noqa: E402
+from .report import write_summary  # noqa: E402
 
 
 def _registry():

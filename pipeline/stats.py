@@ -26,9 +26,10 @@ class ErrorMoments:
 
     @classmethod
     def of(cls, err: np.ndarray) -> "ErrorMoments":
-        sq = err * err
+        sq = np.square(err)
         tr = sq.sum(axis=2)
-        return cls(err.shape[0], err.sum(axis=0), sq.sum(axis=0), (sq * sq).sum(axis=0), tr.sum(axis=0), (tr * tr).sum(axis=0))
+        return cls(err.shape[0], err.sum(axis=0), sq.sum(axis=0), np.einsum("tkn,tkn->kn", sq, sq),
+                   tr.sum(axis=0), np.einsum("tk,tk->k", tr, tr))
 
     @classmethod
     def combine(cls, parts: Sequence["ErrorMoments"]) -> "ErrorMoments":
