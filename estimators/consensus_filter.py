@@ -35,19 +35,7 @@ from .consensus_covariance import (
     _check_zeta,
 )
 
-__all__ = ["ConsensusFilterRun", "simulate_consensus_filter"]
-
-# Row blocks small enough that OpenBLAS runs each product single-threaded: one large
-# (trials x N) @ (N x N) product interleaved with RNG calls was measured 3-4x slower
-# (thread wake-up and contention), and erratically so on a loaded machine.
-_BLOCK_ELEMENTS = 1 << 15
-
-
-def _rows_times(z: np.ndarray, QT: np.ndarray, out: np.ndarray, block: int) -> None:
-    """``out = z @ QT`` (each row of ``z`` is one trial's vector, so this applies ``Q`` to it)."""
-    for s in range(0, z.shape[0], block):
-        np.matmul(z[s : s + block], QT, out=out[s : s + block])
-
+__all__ = ["ConsensusFilterRun", "simulate_consensus_filter", "simulate_consensus_filter_configs"]
 
 @dataclass(frozen=True, eq=False)
 class ConsensusFilterRun:
@@ -123,11 +111,51 @@ def simulate_consensus_filter(
     zeta : convex weight of eq. (13), in [0, 1] (ignored when ``reinjection`` is False).
     n_paths : number of leading trials whose full sample paths are kept.
     """
+    run = simulate_consensus_filter_configs(
+        Q, ell=[ell], m=m, sigma_c=[sigma_c], q=q, r=r, sigma0=sigma0, x0_mean=x0_mean, n_steps=n_steps,
+        n_trials=n_trials, rng=rng, reinjection=reinjection, zeta=[zeta], n_paths=n_paths,
+    )
+    return ConsensusFilterRun(
+        err_pred=run.err_pred[:, 0], err_filt=run.err_filt[:, 0], x=run.x, y=run.y,
+        xhat_pred=run.xhat_pred[:, 0], xhat_filt=run.xhat_filt[:, 0], z_rounds=run.z_rounds[:, 0],
+        u=run.u, w=run.w, n=run.n,
+    )
+
+
+def _config_vector(value, name: str, check) -> np.ndarray:
+    arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    if arr.ndim != 1 or arr.size == 0:
+        raise ValueError(f"{name} must be a scalar or a non-empty 1-D sequence, got shape {arr.shape}")
+    for v in arr:
+        check(float(v), name)
+    return arr
+
+
+def simulate_consensus_filter_configs(
+    Q, *, ell, m, sigma_c, q, r, sigma0, x0_mean, n_steps, n_trials, rng, reinjection, zeta=1.0, n_paths=0,
+) -> ConsensusFilterRun:
+    """Several gain / noise configurations of the same filter driven by the same random draws.
+
+    ``ell``, ``sigma_c`` and ``zeta`` are scalars or 1-D sequences broadcast to a common length
+    ``C``. Every configuration sees the same ``X_0``, ``w``, ``n`` and standard-normal ``u`` (the
+    latter scaled by its own ``sigma_c``): common random numbers, so the configurations are
+    each an exact simulation of their filter, and the draws are paid for once. The draw order is
+    the one of :func:`simulate_consensus_filter` (which is this function with ``C = 1``).
+
+    Returns a :class:`ConsensusFilterRun` whose per-configuration fields carry an extra axis 1 of
+    length ``C``: ``err_pred``, ``err_filt`` (trials, C, K, N); ``xhat_pred``, ``xhat_filt``
+    (P, C, K, N); ``z_rounds`` (P, C, K, m+1, N). ``x``, ``y``, ``u``, ``w``, ``n`` are shared.
+    """
     Q = _as_consensus_matrix(Q)
-    ell = float(_check_ell(ell))
+    ell_v = _config_vector(ell, "ell", lambda v, n: _check_ell(v, n))
+    sigma_v = _config_vector(sigma_c, "sigma_c", _check_nonneg)
+    zeta_v = _config_vector(zeta, "zeta", lambda v, n: _check_zeta(v, n))
+    try:
+        ell_v, sigma_v, zeta_v = np.broadcast_arrays(ell_v, sigma_v, zeta_v)
+    except ValueError:
+        raise ValueError(f"ell, sigma_c and zeta must have a common length, got {ell_v.size}, {sigma_v.size}, "
+                         f"{zeta_v.size}") from None
     m = _check_rounds(m)
-    zeta = float(_check_zeta(zeta))
-    sigma_c = _check_nonneg(sigma_c, "sigma_c")
     q = _check_nonneg(q, "q")
     r = _check_nonneg(r, "r")
     sigma0 = _check_nonneg(sigma0, "sigma0")
@@ -144,18 +172,25 @@ def simulate_consensus_filter(
     reinjection = bool(reinjection)
 
     N = Q.shape[0]
-    QT = np.ascontiguousarray(Q.T)
+    C = ell_v.size
     sq, sr = np.sqrt(q), np.sqrt(r)
-    keep = (1.0 - zeta) / (m + 1)
-    block = max(256, _BLOCK_ELEMENTS // N)
+    # Internal layout: trials on the LAST axis, (C, N, R). With N tiny, every broadcast then
+    # runs over long contiguous inner loops (measured several times faster than (R, C, N));
+    # the results are exposed with trials leading, as views.
+    gain = ell_v[:, None, None]
+    retain = (1.0 - ell_v)[:, None, None]
+    keep = ((1.0 - zeta_v) / (m + 1))[:, None, None]
+    zeta_b = zeta_v[:, None, None]
+    sigma_b = sigma_v[:, None, None]
+    noisy = bool(np.any(sigma_v != 0.0))
 
-    err_pred = np.empty((R, K, N))
-    err_filt = np.empty((R, K, N))
+    e_pred = np.empty((C, K, N, R))
+    e_filt = np.empty((C, K, N, R))
     p_x = np.empty((P, K))
     p_y = np.empty((P, K, N))
-    p_xp = np.empty((P, K, N))
-    p_xf = np.empty((P, K, N))
-    p_z = np.empty((P, K, m + 1, N))
+    p_xp = np.empty((P, C, K, N))
+    p_xf = np.empty((P, C, K, N))
+    p_z = np.empty((P, C, K, m + 1, N))
     p_u = np.empty((P, K, m, N))
     p_w = np.empty((P, K))
     p_n = np.empty((P, K, N))
@@ -164,50 +199,53 @@ def simulate_consensus_filter(
     rng.standard_normal(out=x)
     x *= np.sqrt(sigma0)
     x += x0_mean
-    xp = np.full((R, N), x0_mean)
-    xf = np.empty((R, N))
-    noise = np.empty((R, N))
-    z = np.empty((R, N))
-    znext = np.empty((R, N))
+    xp = np.full((C, N, R), x0_mean)
+    xf = np.empty((C, N, R))
+    noise = np.empty((N, R))
+    scaled = np.empty((C, N, R))
+    z = np.empty((C, N, R))
+    znext = np.empty((C, N, R))
     w = np.empty(R)
-    xcol = x[:, None]
+
+    def paths_of(a):  # (C, N, R) -> (P, C, N) for the first P trials
+        return np.moveaxis(a[:, :, :P], 2, 0)
 
     for k in range(K):
-        np.subtract(xcol, xp, out=err_pred[:, k, :])
+        np.subtract(x, xp, out=e_pred[:, k])
         rng.standard_normal(out=noise)  # n(k) / sqrt(r)
         noise *= sr
         if P:
             p_x[:, k] = x[:P]
-            p_n[:, k] = noise[:P]
-            p_y[:, k] = xcol[:P] + noise[:P]
-            p_xp[:, k] = xp[:P]
+            p_n[:, k] = noise[:, :P].T
+            p_y[:, k] = x[:P, None] + noise[:, :P].T
+            p_xp[:, :, k] = paths_of(xp)
         # (7)/(11): xf = (1-ell) xp + ell (x 1 + n)
-        noise += xcol
-        np.multiply(noise, ell, out=xf)
-        xp *= 1.0 - ell
+        noise += x
+        np.multiply(noise, gain, out=xf)
+        xp *= retain
         xf += xp
-        np.subtract(xcol, xf, out=err_filt[:, k, :])
+        np.subtract(x, xf, out=e_filt[:, k])
         z[...] = xf
         if P:
-            p_xf[:, k] = xf[:P]
-            p_z[:, k, 0] = xf[:P]
+            p_xf[:, :, k] = paths_of(xf)
+            p_z[:, :, k, 0] = paths_of(xf)
         for h in range(m):
-            _rows_times(z, QT, znext, block)
-            rng.standard_normal(out=noise)  # u(k + (h+1)/m)
+            np.matmul(Q, z, out=znext)
+            rng.standard_normal(out=noise)  # u(k + (h+1)/m), shared by the configurations
             if P:
-                p_u[:, k, h] = noise[:P]
-            if sigma_c != 0.0:
-                noise *= sigma_c
-                znext += noise
+                p_u[:, k, h] = noise[:, :P].T
+            if noisy:
+                np.multiply(noise, sigma_b, out=scaled)
+                znext += scaled
             if reinjection:
                 znext += xf  # (12): re-inject the stored xhat(k|k), noise-free
             z, znext = znext, z
             if P:
-                p_z[:, k, h + 1] = z[:P]
+                p_z[:, :, k, h + 1] = paths_of(z)
         if reinjection:
             # (13): xhat(k+1|k) = zeta xhat(k|k) + (1-zeta) z(k+1|k)/(m+1)
             np.multiply(z, keep, out=xp)
-            np.multiply(xf, zeta, out=znext)
+            np.multiply(xf, zeta_b, out=znext)
             xp += znext
         else:
             xp[...] = z
@@ -217,6 +255,8 @@ def simulate_consensus_filter(
             p_w[:, k] = w[:P]
         x += w
 
+    err_pred = np.moveaxis(e_pred, 3, 0)  # (R, C, K, N) views of the trials-last arrays
+    err_filt = np.moveaxis(e_filt, 3, 0)
     return ConsensusFilterRun(
         err_pred=err_pred,
         err_filt=err_filt,

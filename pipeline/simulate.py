@@ -18,6 +18,7 @@ from .progress import progress
 from .seeding import block_seeds
 
 DEFAULT_BLOCK = 50_000
+BLOCK_MEMORY_BYTES = 192 * 2**20
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -28,6 +29,16 @@ def trial_blocks(n_trials: int, block: int = DEFAULT_BLOCK) -> list[tuple[int, i
     if n_trials <= 0:
         raise ValueError(f"n_trials must be positive, got {n_trials}")
     return [(s, min(block, n_trials - s)) for s in range(0, n_trials, block)]
+
+
+def block_size(bytes_per_trial: int, *, budget: int = BLOCK_MEMORY_BYTES, largest: int = DEFAULT_BLOCK) -> int:
+    """Trials per block so that one block's arrays stay within `budget` bytes.
+
+    A multiple of 1,000 between 1,000 and `largest`, derived only from the scenario's array
+    shapes: the same scenario always gets the same blocks, hence the same random numbers.
+    """
+    fit = budget // max(int(bytes_per_trial), 1)
+    return int(min(largest, max(1_000, fit // 1_000 * 1_000)))
 
 
 def run_blocks(simulate_block: Callable[[int, np.random.Generator], T],

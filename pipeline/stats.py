@@ -26,10 +26,11 @@ class ErrorMoments:
 
     @classmethod
     def of(cls, err: np.ndarray) -> "ErrorMoments":
+        # einsum runs fast on strided views and needs no BLAS (deterministic whatever the threads)
         sq = np.square(err)
-        tr = sq.sum(axis=2)
-        return cls(err.shape[0], err.sum(axis=0), sq.sum(axis=0), np.einsum("tkn,tkn->kn", sq, sq),
-                   tr.sum(axis=0), np.einsum("tk,tk->k", tr, tr))
+        tr = np.einsum("tkn->tk", sq)
+        return cls(err.shape[0], np.einsum("tkn->kn", err), np.einsum("tkn->kn", sq), np.einsum("tkn,tkn->kn", sq, sq),
+                   np.einsum("tk->k", tr), np.einsum("tk,tk->k", tr, tr))
 
     @classmethod
     def combine(cls, parts: Sequence["ErrorMoments"]) -> "ErrorMoments":

@@ -15,7 +15,7 @@ import estimators.kalman as kal
 from pipeline.cache import StageCache, code_fingerprint
 from pipeline.reproduction import RunOptions
 from pipeline.seeding import stream_seed
-from pipeline.simulate import parallel_map, run_blocks
+from pipeline.simulate import block_size, parallel_map, run_blocks
 from pipeline.stats import ErrorMoments
 
 from .scenario import NoisyConsensusScenario
@@ -152,34 +152,55 @@ def long_run_cell(sc: NoisyConsensusScenario, bounds: dict[str, np.ndarray]) -> 
 
 # -- Monte Carlo ----------------------------------------------------------------------------------
 
-def simulate_cell(sc: NoisyConsensusScenario, seed: int, trials: int, cell: Cell) -> dict[str, np.ndarray]:
-    """All trials of one cell, in seeded blocks; returns moment sums and a few sample paths."""
+def simulate_group(sc: NoisyConsensusScenario, seed: int, trials: int, cells: tuple[Cell, ...]) -> dict[str, np.ndarray]:
+    """All trials of cells that differ only in (σ_c, ℓ, ζ): one run with common random numbers
+    (estimators.consensus_filter.simulate_consensus_filter_configs), in seeded blocks.
+
+    Returns moment sums per cell (keys ``<label>__pred_s1``, ...) and a few sample paths."""
+    first = cells[0]
+    assert all((c.alg, c.m, c.n_steps) == (first.alg, first.m, first.n_steps) for c in cells)
+    C = len(cells)
     paths: dict[str, np.ndarray] = {}
 
     def block(size: int, rng: np.random.Generator):
-        run = cf.simulate_consensus_filter(sc.Q, x0_mean=sc.x0_mean, n_trials=size, rng=rng,
-                                           n_paths=0 if paths else sc.sample_paths, **filter_kwargs(sc, cell))
-        if not paths and sc.sample_paths:
-            for name in ("x", "y", "xhat_pred", "xhat_filt", "z_rounds", "u", "w", "n"):
-                paths[f"path_{name}"] = np.asarray(getattr(run, name))
-            paths["path_err_pred"] = run.err_pred[: sc.sample_paths]
-        return ErrorMoments.of(run.err_pred), ErrorMoments.of(run.err_filt)
+        want_paths = sc.sample_paths if not paths else 0
+        run = cf.simulate_consensus_filter_configs(
+            sc.Q, ell=[c.ell for c in cells], sigma_c=[c.sigma_c for c in cells], zeta=[c.zeta for c in cells],
+            m=first.m, q=sc.q, r=sc.r, sigma0=sc.sigma0, x0_mean=sc.x0_mean, n_steps=first.n_steps, n_trials=size,
+            rng=rng, reinjection=first.alg == "reinjection", n_paths=want_paths)
+        if want_paths:
+            for j, c in enumerate(cells):
+                for name in ("x", "y", "u", "w", "n"):
+                    paths[f"{c.label}__path_{name}"] = np.asarray(getattr(run, name))
+                for name in ("xhat_pred", "xhat_filt", "z_rounds"):
+                    paths[f"{c.label}__path_{name}"] = np.asarray(getattr(run, name)[:, j])
+        return [(ErrorMoments.of(run.err_pred[:, j]), ErrorMoments.of(run.err_filt[:, j])) for j in range(C)]
 
     def combine(parts):
-        pred = ErrorMoments.combine([p for p, _ in parts])
-        filt = ErrorMoments.combine([f for _, f in parts])
-        return pred, filt
+        return [(ErrorMoments.combine([p[j][0] for p in parts]), ErrorMoments.combine([p[j][1] for p in parts]))
+                for j in range(C)]
 
-    pred, filt = run_blocks(block, combine, trials, stream_seed(seed, "mc", cell.alg, cell.m, cell.sigma_c, cell.n_steps))
-    arrays = {f"pred_{k}": v for k, v in pred.arrays().items()}
-    arrays.update({f"filt_{k}": v for k, v in filt.arrays().items()})
-    arrays.update(paths)
+    per_trial = 8 * C * first.n_steps * sc.n * 2 + 8 * 8 * C * sc.n
+    moments = run_blocks(block, combine, trials, stream_seed(seed, "mc", first.alg, first.m, first.n_steps),
+                         block=block_size(per_trial))
+    arrays = dict(paths)
+    for c, (pred, filt) in zip(cells, moments):
+        arrays.update({f"{c.label}__pred_{k}": v for k, v in pred.arrays().items()})
+        arrays.update({f"{c.label}__filt_{k}": v for k, v in filt.arrays().items()})
     return arrays
 
 
-def _cached_cell(cache: StageCache, key: dict[str, Any], sc, seed, trials, cell) -> dict[str, np.ndarray]:
-    return cache.get_or_compute("mc", {**key, "cell": cell.__dict__},
-                                functools.partial(simulate_cell, sc, seed, trials, cell))
+def cell_groups(cells: list[Cell]) -> list[tuple[Cell, ...]]:
+    """Cells grouped by (algorithm, m, horizon), in first-seen order."""
+    groups: dict[tuple, list[Cell]] = {}
+    for c in cells:
+        groups.setdefault((c.alg, c.m, c.n_steps), []).append(c)
+    return [tuple(g) for g in groups.values()]
+
+
+def _cached_group(cache: StageCache, key: dict[str, Any], sc, seed, trials, cells) -> dict[str, np.ndarray]:
+    return cache.get_or_compute("mc", {**key, "cells": [c.__dict__ for c in cells]},
+                                functools.partial(simulate_group, sc, seed, trials, cells))
 
 
 def compute(sc: NoisyConsensusScenario, opts: RunOptions, cache: StageCache) -> Results:
@@ -191,9 +212,12 @@ def compute(sc: NoisyConsensusScenario, opts: RunOptions, cache: StageCache) -> 
     cells = make_cells(sc, bounds)
     long_cell = long_run_cell(sc, bounds)
     mc_key = {**base, "seed": opts.seed, "trials": trials}
-    work = functools.partial(_cached_cell, cache, mc_key, sc, opts.seed, trials)
-    all_cells = cells + [long_cell]
-    outputs = parallel_map(work, all_cells, workers=opts.workers, desc=f"{sc.name}: Monte Carlo cells")
-    return Results(sc, opts.seed, trials, opts.quick, bounds, cells,
-                   {c.label: o for c, o in zip(all_cells, outputs)},
-                   long_cell)
+    work = functools.partial(_cached_group, cache, mc_key, sc, opts.seed, trials)
+    groups = sorted(cell_groups(cells + [long_cell]), key=lambda g: -g[0].m * g[0].n_steps)  # longest first
+    outputs = parallel_map(work, groups, workers=opts.workers, desc=f"{sc.name}: Monte Carlo (algorithm, m) groups")
+    mc: dict[str, dict[str, np.ndarray]] = {}
+    for out in outputs:
+        for key, value in out.items():
+            label, name = key.split("__", 1)
+            mc.setdefault(label, {})[name] = value
+    return Results(sc, opts.seed, trials, opts.quick, bounds, cells, mc, long_cell)

@@ -1,0 +1,363 @@
+"""Gossip interactive Kalman filtering: sensors swap (estimate, covariance) pairs along
+random matchings and each updates what it receives with its own observation.
+
+Model::
+
+    x(t+1) = F x(t) + w(t),        w ~ N(0, Q)
+    y_n(t) = C_n x(t) + v_n(t),    v_n ~ N(0, R_n),  sensor n = 0..N-1
+
+One slot t (Kar & Moura's GIKF, eqs (8)-(12)): draw a matching A(t) (A(0) = I); every sensor
+n takes the *old* state of its partner ->(n, t) (simultaneous swap), updates it with its own
+y_n(t), C_n, R_n and predicts. The covariance recursion is
+
+    P_n(t+1) = f_n(P_{->(n,t)}(t)),   f_n(X) = F X Fᵀ + Q − F X C_nᵀ (C_n X C_nᵀ + R_n)⁻¹ C_n X Fᵀ   (11), (12)
+
+computed in Joseph form and symmetrised, which keeps the well-observed directions accurate
+when ‖X‖ is huge (the textbook form (11) loses ~eps·‖X‖ there). A sensor with C_n = 0 applies
+the Lyapunov map f_0(X) = F X Fᵀ + Q.
+
+Sensors may have different numbers of observation rows m_n: every C_n is padded with zero
+rows (and R_n with a unit diagonal block) to the largest m. A zero row with unit noise carries
+no information, so the padded filter is exactly the original one.
+
+Everything is batched over independent runs on a leading axis: covariances have shape
+(B, N, M, M), partner arrays (B, N). Estimates are not simulated directly: with an unstable F
+x(t) grows like |λ|^t and x − x̂ cancels catastrophically, so the error recursion
+
+    e_n(t+1) = F (e_{->(n,t)}(t) − K (C_n e_{->(n,t)}(t) + v_n(t))) + w(t)
+
+is simulated instead, with w(t) common to all sensors.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+__all__ = ["GossipSystem", "MatchingDistribution", "NodeInitiatedGossip", "riccati_step", "lyapunov_step",
+           "gikf_covariance_step", "gikf_error_step", "covariance_features", "FEATURES"]
+
+
+def _sym(X: np.ndarray) -> np.ndarray:
+    return 0.5 * (X + np.swapaxes(X, -1, -2))
+
+
+@dataclass(frozen=True)
+class GossipSystem:
+    """Signal model and sensors. C: (N, m, M) zero-padded; R: (N, m, m)."""
+
+    F: np.ndarray
+    Q: np.ndarray
+    C: np.ndarray
+    R: np.ndarray
+    P0: np.ndarray
+
+    @classmethod
+    def build(cls, F, Q, C_list: Sequence[np.ndarray], R_list: Sequence[np.ndarray], P0) -> "GossipSystem":
+        F, Q, P0 = (np.asarray(a, float) for a in (F, Q, P0))
+        M = F.shape[0]
+        m = max([1] + [np.atleast_2d(c).shape[0] for c in C_list if np.size(c)])
+        N = len(C_list)
+        C = np.zeros((N, m, M))
+        R = np.tile(np.eye(m), (N, 1, 1))
+        for n, (c, r) in enumerate(zip(C_list, R_list)):
+            if np.size(c) == 0:
+                continue
+            c = np.atleast_2d(np.asarray(c, float))
+            r = np.atleast_2d(np.asarray(r, float))
+            C[n, : c.shape[0]] = c
+            R[n, : c.shape[0], : c.shape[0]] = r
+        return cls(F, Q, C, R, P0)
+
+    @property
+    def N(self) -> int:
+        return self.C.shape[0]
+
+    @property
+    def M(self) -> int:
+        return self.F.shape[0]
+
+    @property
+    def C_all(self) -> np.ndarray:
+        """Stacked observation matrix of all sensors (centralized filter), (N m, M)."""
+        return self.C.reshape(-1, self.M)
+
+    @property
+    def R_all(self) -> np.ndarray:
+        import scipy.linalg
+
+        return scipy.linalg.block_diag(*self.R)
+
+    @property
+    def R_chol(self) -> np.ndarray:
+        return np.linalg.cholesky(self.R)
+
+
+def lyapunov_step(X: np.ndarray, F: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """f_0(X) = F X Fᵀ + Q, eq (70)."""
+    return _sym(F @ X @ F.T + Q)
+
+
+def _gain(X: np.ndarray, C: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """K = X Cᵀ (C X Cᵀ + R)⁻¹, batched; (…, M, m)."""
+    XCt = X @ np.swapaxes(C, -1, -2)
+    S = C @ XCt + R
+    if S.shape[-1] == 1:
+        return XCt / S[..., 0:1, 0:1].reshape(S.shape[:-2] + (1, 1))
+    return np.swapaxes(np.linalg.solve(S, np.swapaxes(XCt, -1, -2)), -1, -2)
+
+
+def riccati_step(X: np.ndarray, C: np.ndarray, R: np.ndarray, F: np.ndarray, Q: np.ndarray,
+                 *, return_gain: bool = False):
+    """f(X) of eq (11) in Joseph form, batched over leading axes (C, R broadcast against X).
+
+    Returns F P⁺ Fᵀ + Q with P⁺ = (I − K C) X (I − K C)ᵀ + K R Kᵀ, symmetrised.
+    """
+    K = _gain(X, C, R)
+    IKC = np.eye(X.shape[-1]) - K @ C
+    Pf = IKC @ X @ np.swapaxes(IKC, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
+    out = _sym(F @ Pf @ F.T + Q)
+    return (out, K) if return_gain else out
+
+
+def riccati_textbook(X, C, R, F, Q):
+    """Eq (11) as printed (short form); used only to show its round-off for huge X."""
+    XCt = X @ np.swapaxes(C, -1, -2)
+    S = C @ XCt + R
+    return F @ X @ F.T + Q - F @ XCt @ np.linalg.solve(S, np.swapaxes(XCt, -1, -2)) @ F.T
+
+
+# -- gossip protocols ------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class MatchingDistribution:
+    """A finite distribution over matchings; with the remaining probability, no communication.
+
+    partners: (K, N) int, partners[k, n] = partner of n in matching k (n itself if unmatched).
+    probs: (K,) with sum ≤ 1. Single-edge gossip is the case where every matching is one edge.
+    """
+
+    partners: np.ndarray
+    probs: np.ndarray
+    label: str = "matchings"
+
+    @classmethod
+    def from_matchings(cls, n: int, matchings: Sequence[Sequence[tuple[int, int]]], probs: Sequence[float],
+                       label: str = "matchings") -> "MatchingDistribution":
+        table = np.tile(np.arange(n), (len(matchings), 1))
+        for k, mt in enumerate(matchings):
+            for i, j in mt:
+                table[k, i], table[k, j] = j, i
+        return cls(table, np.asarray(probs, float), label)
+
+    @classmethod
+    def single_edge(cls, n: int, edges: Sequence[tuple[int, int]], probs: Sequence[float]) -> "MatchingDistribution":
+        return cls.from_matchings(n, [[e] for e in edges], probs, label="single-edge")
+
+    @property
+    def n(self) -> int:
+        return self.partners.shape[1]
+
+    def mean_matrix(self) -> np.ndarray:
+        """Ā = E[A(t)] = Σ_k p_k Π_k + (1 − Σ p) I, eq (6)."""
+        n = self.n
+        Abar = (1.0 - self.probs.sum()) * np.eye(n)
+        for p, row in zip(self.probs, self.partners):
+            Abar[np.arange(n), row] += p
+        return Abar
+
+    def sample(self, size: int, rng: np.random.Generator) -> np.ndarray:
+        """(size, N) partner arrays of i.i.d. matchings."""
+        cum = np.cumsum(self.probs)
+        k = np.searchsorted(cum, rng.random(size), side="right")
+        table = np.vstack([self.partners, np.arange(self.n)[None]])
+        return table[k]
+
+
+@dataclass(frozen=True)
+class NodeInitiatedGossip:
+    """A uniformly random node wakes up and swaps with a uniformly random neighbour."""
+
+    neighbours: tuple[tuple[int, ...], ...]
+    label: str = "node-initiated"
+
+    @property
+    def n(self) -> int:
+        return len(self.neighbours)
+
+    def mean_matrix(self) -> np.ndarray:
+        """Ā_ij = (1/N)(1/d_i + 1/d_j) on edges, rows summing to 1."""
+        n = self.n
+        Abar = np.zeros((n, n))
+        for i, nb in enumerate(self.neighbours):
+            for j in nb:
+                Abar[i, j] += 1.0 / (n * len(nb))
+                Abar[j, i] += 1.0 / (n * len(nb))
+        Abar[np.diag_indices(n)] = 1.0 - Abar.sum(axis=1)
+        return Abar
+
+    def sample(self, size: int, rng: np.random.Generator) -> np.ndarray:
+        n = self.n
+        deg = np.array([len(nb) for nb in self.neighbours])
+        table = np.full((n, max(deg.max(), 1)), -1)
+        for i, nb in enumerate(self.neighbours):
+            table[i, : len(nb)] = nb
+        i = rng.integers(0, n, size)
+        j = table[i, np.minimum((rng.random(size) * deg[i]).astype(np.int64), deg[i] - 1)]
+        out = np.tile(np.arange(n), (size, 1))
+        rows = np.arange(size)
+        ok = j >= 0
+        out[rows[ok], i[ok]] = j[ok]
+        out[rows[ok], j[ok]] = i[ok]
+        return out
+
+
+# -- one GIKF slot ----------------------------------------------------------------------------------
+
+def swap(arr: np.ndarray, partners: np.ndarray) -> np.ndarray:
+    """Simultaneous swap: sensor n receives the old entry of partners[b, n]. arr: (B, N, ...)."""
+    return arr[np.arange(arr.shape[0])[:, None], partners]
+
+
+def gikf_covariance_step(P: np.ndarray, partners: np.ndarray, sys: GossipSystem, *, return_gain: bool = False):
+    """P (B, N, M, M) = P̂_n(t) → P̂_n(t+1) = f_n(P̂_{->(n,t)}(t)), eq (12)."""
+    return riccati_step(swap(P, partners), sys.C, sys.R, sys.F, sys.Q, return_gain=return_gain)
+
+
+def gikf_error_step(e: np.ndarray, partners: np.ndarray, K: np.ndarray, sys: GossipSystem,
+                    w: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Error recursion: e (B, N, M), K (B, N, M, m) from the swapped covariance, w (B, M) common,
+    v (B, N, m) per sensor (already scaled by R_n^½)."""
+    ein = swap(e, partners)
+    innov = np.einsum("nim,bnm->bni", sys.C, ein) + v
+    ef = ein - np.einsum("bnmi,bni->bnm", K, innov)
+    return ef @ sys.F.T + w[:, None, :]
+
+
+# -- scalar functionals of covariance matrices --------------------------------------------------------
+
+FEATURES = ("log_trace", "log_lam_max", "log_lam_min", "log_det")
+
+
+def covariance_features(P: np.ndarray) -> np.ndarray:
+    """(len(FEATURES) + M, …): log tr, log λmax, log λmin, log det, then the diagonal entries."""
+    eig = np.linalg.eigvalsh(P)
+    tiny = np.finfo(float).tiny
+    diag = np.moveaxis(np.diagonal(P, axis1=-2, axis2=-1), -1, 0)
+    return np.concatenate([np.stack([np.log(np.trace(P, axis1=-2, axis2=-1)), np.log(np.maximum(eig[..., -1], tiny)),
+                                     np.log(np.maximum(eig[..., 0], tiny)),
+                                     np.log(np.maximum(eig, tiny)).sum(-1)]), diag])
+
+
+# -- batched GIKF run with on-line statistics -----------------------------------------------------------
+
+QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95, 0.99)
+
+
+def _rel_min_eig(D: np.ndarray, scale: np.ndarray) -> float:
+    """min over the batch of λ_min(D) / max(1, scale): a relative Loewner margin."""
+    return float((np.linalg.eigvalsh(D)[..., 0] / np.maximum(1.0, scale)).min())
+
+
+def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: np.random.Generator, *,
+                  record_times: Sequence[int], P_central: np.ndarray, K_central: np.ndarray,
+                  envelope: np.ndarray, j_grid: np.ndarray, n_paths: int = 3, check_runs: int = 1000,
+                  nees_window: tuple[int, int] = (20, 60), token_steps: int = 20,
+                  nees_level: float = 0.99) -> dict[str, np.ndarray]:
+    """n_runs independent GIKF runs of n_slots slots (covariances and the error recursion).
+
+    P_central (T+1, M, M) and K_central (T, M, N m) are the centralized filter's prior covariances
+    and update gains; envelope (T+1, M, M) is f_0^t(P0). Returns on-line statistics:
+    features of a uniformly random sensor q and of every sensor at record_times, per-(t, n)
+    quantiles of log tr P over runs, exceedance counts of ‖P‖ over j_grid, relative Loewner
+    margins against P_c(t), Q and the envelope, NEES sums, token-chain counts and a few full
+    sample paths (trace per sensor, errors, matchings, centralized error).
+    """
+    from scipy.stats import chi2
+
+    N, M, m = sys.N, sys.M, sys.C.shape[1]
+    B, T = n_runs, n_slots
+    times = sorted(set(int(t) for t in record_times if 0 <= t <= T))
+    q = rng.integers(0, N, B)
+    rows = np.arange(B)
+    P = np.broadcast_to(sys.P0, (B, N, M, M)).copy()
+    e = np.broadcast_to(rng.standard_normal((B, 1, M)) @ np.linalg.cholesky(sys.P0).T, (B, N, M)).copy()
+    e_c = e[:, 0].copy()
+    Lr = sys.R_chol
+    Lq = np.linalg.cholesky(sys.Q)
+    nf = len(FEATURES) + M
+    feat_q = np.full((len(times), nf, B), np.nan)
+    feat_n = np.full((len(times), nf, B, N), np.nan)
+    quant = np.full((T + 1, N, len(QUANTILES)), np.nan)
+    exceed = np.zeros((T + 1, N, len(j_grid)), dtype=np.int64)
+    margins = np.full((T + 1, 3), np.nan)  # vs P_c(t), vs Q (t ≥ 1), envelope − P
+    sp = min(n_paths, B)
+    path_trace = np.full((sp, T + 1, N), np.nan)
+    path_err = np.full((sp, T + 1, N, M), np.nan)
+    path_partners = np.tile(np.arange(N), (sp, T + 1, 1))
+    path_err_c = np.full((sp, T + 1, M), np.nan)
+    nees_thr = chi2.ppf(nees_level, M)
+    nees = np.zeros(4)  # sum of NEES over (runs, sensors, window), count above threshold, n, central sum
+    nees_c = np.zeros(2)  # central count above, n
+    loc = np.tile(np.arange(N), (B, 1))  # token locations p_n(t)
+    trans = np.zeros((N, N), dtype=np.int64)
+    tok0 = np.zeros((token_steps + 1, N), dtype=np.int64)
+    tok0[0, 0] = B
+    overflow = -1
+    cr = min(check_runs, B)
+
+    def record(t: int) -> None:
+        eig = np.linalg.eigvalsh(P)
+        lam_max = eig[..., -1]
+        tr = np.trace(P, axis1=-2, axis2=-1)
+        quant[t] = np.quantile(np.log(tr), QUANTILES, axis=0).T
+        exceed[t] = (lam_max[..., None] >= j_grid).sum(axis=0)
+        scale = lam_max[:cr]
+        margins[t, 0] = _rel_min_eig(P[:cr] - P_central[t], scale)
+        if t >= 1:
+            margins[t, 1] = _rel_min_eig(P[:cr] - sys.Q, scale)
+        margins[t, 2] = _rel_min_eig(envelope[t] - P[:cr], np.linalg.norm(envelope[t], 2))
+        path_trace[:, t] = tr[:sp]
+        path_err[:, t] = e[:sp]
+        path_err_c[:, t] = e_c[:sp]
+        if t in times:
+            i = times.index(t)
+            feat_n[i] = np.moveaxis(covariance_features(P), -1, -1)
+            feat_q[i] = feat_n[i][:, rows, q]
+        if nees_window[0] <= t < nees_window[1]:
+            z = np.einsum("bnm,bnm->bn", e, np.linalg.solve(P, e[..., None])[..., 0])
+            nees[0] += z.sum()
+            nees[1] += (z > nees_thr).sum()
+            nees[2] += z.size
+            zc = e_c @ np.linalg.inv(P_central[t]) * e_c
+            zc = zc.sum(axis=1)
+            nees[3] += zc.sum()
+            nees_c[0] += (zc > nees_thr).sum()
+            nees_c[1] += zc.size
+
+    with np.errstate(over="ignore", invalid="ignore"):
+        record(0)
+        for t in range(T):
+            partners = np.tile(np.arange(N), (B, 1)) if t == 0 else protocol.sample(B, rng)
+            path_partners[:, t] = partners[:sp]
+            new_loc = partners[rows[:, None], loc]
+            trans += np.bincount((loc * N + new_loc).ravel(), minlength=N * N).reshape(N, N) if t > 0 else 0
+            loc = new_loc
+            if t < token_steps:
+                tok0[t + 1] = np.bincount(loc[:, 0], minlength=N)
+            P, K = gikf_covariance_step(P, partners, sys, return_gain=True)
+            w = rng.standard_normal((B, M)) @ Lq.T
+            v = np.einsum("nij,bnj->bni", Lr, rng.standard_normal((B, N, m)))
+            e = gikf_error_step(e, partners, K, sys, w, v)
+            e_c = (e_c - (np.einsum("bi,mi->bm", np.einsum("ij,bj->bi", sys.C_all, e_c) + v.reshape(B, -1),
+                                    K_central[t]))) @ sys.F.T + w
+            if not np.isfinite(P).all():
+                overflow = t + 1
+                break
+            record(t + 1)
+    return {"times": np.array(times), "q": q, "feat_q": feat_q, "feat_n": feat_n, "quantiles": quant,
+            "exceed": exceed, "margins": margins, "path_trace": path_trace, "path_err": path_err,
+            "path_partners": path_partners, "path_err_c": path_err_c, "nees": np.concatenate([nees, nees_c]),
+            "nees_threshold": np.array(nees_thr), "trans": trans, "token0": tok0,
+            "token0_final": np.bincount(loc[:, 0], minlength=N), "overflow": np.array(overflow)}
