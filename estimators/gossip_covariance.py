@@ -25,8 +25,9 @@ MAX_JOINT_DIM = 40     # N·n above which the dense (Nn)²×(Nn)² generator of 
 
 
 def vec(X: np.ndarray) -> np.ndarray:
-    return np.asarray(X).reshape(*X.shape[:-2], -1, order="F") if X.ndim == 2 else \
-        np.swapaxes(X, -1, -2).reshape(*X.shape[:-2], -1)
+    """Column-major vec of the last two axes."""
+    X = np.asarray(X)
+    return np.swapaxes(X, -1, -2).reshape(*X.shape[:-2], -1)
 
 
 def unvec(v: np.ndarray, n: int) -> np.ndarray:

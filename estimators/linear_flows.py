@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Callable, Sequence
 
 import numpy as np
@@ -138,6 +139,20 @@ class BlockDiagonalFlow:
     def block(self) -> int:
         return self.vecs.shape[1]
 
+    @cached_property
+    def _dense(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Block-diagonal eigenvector matrix V (bn, bn), all eigenvalues μ (bn,), G̃ (bn, bn)
+        and 1/(μ_a + μ_b) (0 where the sum vanishes)."""
+        b, n = self.n_blocks, self.block
+        V = np.zeros((b * n, b * n), dtype=complex)
+        for a in range(b):
+            V[a * n:(a + 1) * n, a * n:(a + 1) * n] = self.vecs[a]
+        Gt = self.Gt.transpose(0, 2, 1, 3).reshape(b * n, b * n)
+        mu = self.eigs.reshape(-1)
+        sums = mu[:, None] + mu[None, :]
+        inv = np.where(sums == 0, 0.0, 1.0 / np.where(sums == 0, 1.0, sums))
+        return V, mu, Gt, inv
+
     def transition(self, delta: np.ndarray) -> np.ndarray:
         """e^{A_a δ_k} for every k and block a: (K, b, n, n), real."""
         d = np.asarray(delta, float)[:, None, None]
@@ -145,10 +160,20 @@ class BlockDiagonalFlow:
         return ((self.vecs[None] * E[:, :, None, :]) @ self.inv[None]).real
 
     def noise(self, delta: np.ndarray) -> np.ndarray:
-        """Q(δ_k) for every k: (K, bn, bn), real and symmetric."""
-        K = len(delta)
-        Ph = phi1(self.sums[None], np.asarray(delta, float)[:, None, None, None, None])  # (K, b, b, n, n)
-        X = self.vecs[None, :, None] @ (self.Gt[None] * Ph) @ self.vecs[None, None].transpose(0, 1, 2, 4, 3)
-        b, n = self.n_blocks, self.block
-        Q = X.real.transpose(0, 1, 3, 2, 4).reshape(K, b * n, b * n)
+        """Q(δ_k) for every k: (K, bn, bn), real and symmetric.
+
+        φ(μ_a + μ_b, δ) = (e^{μ_aδ}e^{μ_bδ} − 1)/(μ_a + μ_b), with a 4-term series where
+        |(μ_a + μ_b)δ| < 1e-3 (no cancellation, and exact at a vanishing sum)."""
+        V, mu, Gt, inv = self._dense
+        delta = np.asarray(delta, float)
+        E = np.exp(mu[None] * delta[:, None])                   # (K, bn)
+        Ph = (E[:, :, None] * E[:, None, :] - 1.0) * inv[None]
+        x = (mu[:, None] + mu[None, :])[None] * delta[:, None, None]
+        small = np.abs(x) < 1e-3
+        if small.any():
+            k, i, j = np.nonzero(small)
+            xs = x[k, i, j]
+            Ph[k, i, j] = delta[k] * (1 + xs / 2 + xs * xs / 6 + xs * xs * xs / 24)
+        X = V[None] @ (Gt[None] * Ph) @ V.T[None]
+        Q = X.real
         return (Q + Q.transpose(0, 2, 1)) / 2

@@ -51,7 +51,7 @@ def _metric_figure(res: Results, alg: str, title: str, path: Path) -> None:
     sc = res.scenario
     exact, mc, se = _metric(res, alg)
     z = z_for_confidence(BAND_CONFIDENCE)
-    fig, axes = new_figure()
+    fig, axes = new_figure(width=8.0)
     ax = axes[0, 0]
     for s, (s_c, col) in enumerate(zip(sc.sigma_c, sequential_colors(len(sc.sigma_c), "plasma"))):
         ax.plot(sc.rounds, exact[s], "-", color=col, lw=1.4, label=f"σ_c = {s_c:g}")
@@ -63,7 +63,7 @@ def _metric_figure(res: Results, alg: str, title: str, path: Path) -> None:
     ax.set_title(f"{title}\nlines: exact recursion; markers: {res.trials:,} Monte Carlo runs ± {BAND_CONFIDENCE:.0%} CI",
                  fontsize=9)
     ax.set_xticks(sc.rounds)
-    ax.legend(ncol=2)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     save_figure(fig, path)
 
 
@@ -79,6 +79,7 @@ def _gains_figure(res: Results, path: Path) -> None:
                 ax.plot(ms[1:], b[f"printed_{key}"][s, 1:], "--", lw=1, color=cols[s])
     for ax, lab in zip(axes[0], ("optimal ℓ*", "optimal ζ*", "J* = tr P∞")):
         ax.set_xlabel("consensus rounds m")
+        ax.xaxis.get_major_locator().set_params(integer=True)
         ax.set_ylabel(lab)
     axes[0, 2].axhline(sc.n * float(b["kf_steady_prior"]), color="k", ls=":", lw=1, label="N P_c⁻ (centralized)")
     axes[0, 0].set_title("solid: corrected (16); dashed: (16) as printed", fontsize=9)
@@ -151,15 +152,19 @@ def write_trials_recording(res: Results, path: Path, claims: list[dict], prov: d
         rrb.Tabs(
             rrb.Horizontal(
                 rrb.Vertical(rrb.TimeSeriesView(origin="/mc", name="tr P(k|k-1): Monte Carlo vs exact vs centralized",
-                                                contents=["/mc/**", "/bounds/**", "/central/**"]),
+                                                contents=["/mc/**", "/bounds/**", "/central/**"],
+                                                plot_legend=rrb.PlotLegend(rrb.Corner2D.RightBottom)),
                              rrb.GraphView(origin="/graph", name="communication graph"), row_shares=[2, 1]),
-                rrb.Vertical(*[rrb.TimeSeriesView(origin=f"/nodes/{i}", name=f"agent {i}: estimates and truth",
-                                                  contents=[f"/nodes/{i}/estimate/**", "/truth/**"]) for i in range(min(n, 4))]),
+                rrb.Vertical(*[rrb.TimeSeriesView(origin=f"/nodes/{i}", name=f"agent {i}: estimates (red Carli, blue re-injection) and truth",
+                                                  contents=[f"/nodes/{i}/estimate/**", "/truth/**"],
+                                                  plot_legend=rrb.PlotLegend(visible=False)) for i in range(min(n, 4))]),
                 column_shares=[3, 2], name="Monte Carlo and trials"),
-            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/nodes/{i}/error", name=f"agent {i}: error") for i in range(min(n, 9))],
+            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/nodes/{i}/error", name=f"agent {i}: error x(k) − x̂ᵢ(k|k-1)",
+                                          plot_legend=rrb.PlotLegend(visible=False)) for i in range(min(n, 9))],
                      name="errors"),
-            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/nodes/{i}/consensus", name=f"agent {i}: consensus iterates")
-                       for i in range(min(n, 9))], name="consensus rounds"),
+            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/nodes/{i}/consensus", name=f"agent {i}: consensus iterates (timeline 'round')",
+                                          plot_legend=rrb.PlotLegend(rrb.Corner2D.LeftTop)) for i in range(min(n, 9))],
+                     name="consensus rounds"),
             rrb.Horizontal(rrb.TextDocumentView(origin="/report", name="claims"),
                            rrb.TextDocumentView(origin="/claims", name="claim detail"), name="claims"),
         ),
@@ -186,18 +191,21 @@ def write_trials_recording(res: Results, path: Path, claims: list[dict], prov: d
             arr = res.mc[c.label]
             if "path_x" not in arr:
                 continue
-            rec_.send_series(rec, f"truth/{alg}", idx, arr["path_x"][0], names=f"x(k), {alg} trial 0", colors=[(0, 0, 0)], width=2)
+            if a == 0:  # both filters share the random draws at equal m (compute.simulate_group)
+                rec_.send_series(rec, "truth/x", idx, arr["path_x"].T,
+                                 names=[f"x(k), trial {p}" for p in range(arr["path_x"].shape[0])],
+                                 colors=[(230, 230, 230)] * arr["path_x"].shape[0], width=2.5)
             rounds_idx = rec_.sequence_index("round", np.arange(sc.n_steps * (m + 1)))
+            n_paths = arr["path_x"].shape[0]
             for i in range(n):
                 rec_.send_series(rec, f"nodes/{i}/estimate/{alg}", idx, arr["path_xhat_pred"][:, :, i].T,
-                                 names=[f"{alg} x̂(k|k-1) trial {p}" for p in range(arr["path_x"].shape[0])],
-                                 colors=[col] * arr["path_x"].shape[0], width=1.0)
+                                 names=[f"{alg} x̂(k|k-1), trial {p}" for p in range(n_paths)], colors=[col] * n_paths)
                 err = arr["path_x"] - arr["path_xhat_pred"][:, :, i]
                 rec_.send_series(rec, f"nodes/{i}/error/{alg}", idx, err.T,
-                                 names=[f"{alg} trial {p}" for p in range(err.shape[0])], colors=[col] * err.shape[0], width=1.0)
+                                 names=[f"{alg}, trial {p}" for p in range(n_paths)], colors=[col] * n_paths, width=1.0)
                 z_rounds = arr["path_z_rounds"][0, :, :, i].reshape(-1)
-                rec_.send_series(rec, f"nodes/{i}/consensus/{alg}", rounds_idx, z_rounds, names=f"{alg} z(k+h/m|k)",
-                                 colors=[col], points=True)
+                rec_.send_series(rec, f"nodes/{i}/consensus/{alg}", rounds_idx, z_rounds,
+                                 names=f"{alg} z(k+h/m|k), trial 0", colors=[col], points=True)
         rec_.send_series(rec, "central/kf_trace", idx, sc.n * res.bounds["kf_prior"][: sc.n_steps],
                          names="N · P_KF(k|k-1) (centralized KF)", colors=[(0, 0, 0)])
         _log_claims(rec, claims, summary)
@@ -205,12 +213,16 @@ def write_trials_recording(res: Results, path: Path, claims: list[dict], prov: d
 
 def write_figures_recording(res: Results, path: Path, claims: list[dict], prov: dict, summary: str) -> None:
     sc, b = res.scenario, res.bounds
-    views = [rrb.TimeSeriesView(origin="/fig1", name="Fig. 1: Carli's filter, tr P(4|3) vs m"),
-             rrb.TimeSeriesView(origin="/fig3", name="Fig. 3: re-injection filter, tr P(4|3) vs m")]
+    views = [rrb.TimeSeriesView(origin="/fig1", name="Fig. 1: Carli's filter, tr P(4|3) vs m (lines exact, dots Monte Carlo)",
+                                plot_legend=rrb.PlotLegend(rrb.Corner2D.LeftTop)),
+             rrb.TimeSeriesView(origin="/fig3", name="Fig. 3: re-injection filter, tr P(4|3) vs m (σ_c: dark 0 → yellow max)",
+                                plot_legend=rrb.PlotLegend(visible=False))]
     if sc.symmetric:
-        views += [rrb.TimeSeriesView(origin="/fig2/ell", name="Fig. 2: optimal ℓ* vs m"),
-                  rrb.TimeSeriesView(origin="/fig2/zeta", name="Fig. 2: optimal ζ* vs m"),
-                  rrb.TimeSeriesView(origin="/fig2/J", name="optimal cost J* vs m")]
+        hidden = rrb.PlotLegend(visible=False)
+        views += [rrb.TimeSeriesView(origin="/fig2/ell", name="Fig. 2: optimal ℓ* vs m (lines corrected (16), dots printed)",
+                                     plot_legend=hidden),
+                  rrb.TimeSeriesView(origin="/fig2/zeta", name="Fig. 2: optimal ζ* vs m", plot_legend=hidden),
+                  rrb.TimeSeriesView(origin="/fig2/J", name="optimal cost J* vs m", plot_legend=hidden)]
     blueprint = rrb.Blueprint(
         rrb.Tabs(rrb.Grid(*views, name="figures"),
                  rrb.Horizontal(rrb.TextDocumentView(origin="/report", name="claims"),

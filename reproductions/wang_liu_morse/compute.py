@@ -1,0 +1,305 @@
+"""Stages of the hybrid-observer family: design quantities (ρ, α, q, σ, c_i; cached), one
+exact simulation per run (cached per run, trials on a leading axis), the error-recursion
+matrices of each interval, and a centralized Kalman reference (filterpy)."""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+
+import estimators.hybrid_observer as ho
+import estimators.jointly_observable_design as jd
+from pipeline.cache import StageCache, code_fingerprint
+from pipeline.reproduction import RunOptions
+from pipeline.seeding import stream_seed
+from pipeline.simulate import block_generator, parallel_map
+
+from .scenario import HybridScenario, RunSpec
+
+CODE_MODULES = ("estimators.hybrid_observer", "estimators.jointly_observable_design",
+                "reproductions.wang_liu_morse.compute", "reproductions.wang_liu_morse.scenario")
+LEMMA5_SAMPLES = 20_000
+DT_PLOT = 0.01
+
+
+def observer_design(sc: HybridScenario) -> ho.ObserverDesign:
+    locs = [jd.local_design(sc.A, sc.C[i], rank_tol=sc.rank_tol, L=None if sc.L_given is None else sc.L_given[i])
+            for i in range(sc.m)]
+    if sc.gains == "given":
+        K = tuple(np.asarray(k, float) for k in sc.K_given)
+    else:
+        K = tuple(jd.place_gain(loc.Abar, loc.Cbar, p) for loc, p in zip(locs, sc.poles))
+    return ho.ObserverDesign(sc.A, tuple(sc.C), tuple(l.L for l in locs), tuple(l.Abar for l in locs),
+                             tuple(l.Cbar for l in locs), K, tuple(l.Q for l in locs), np.array([l.P for l in locs]))
+
+
+def central_gain(sc: HybridScenario) -> np.ndarray:
+    """Centralized observer on the stacked outputs: x_c' = (A + K_c C) x_c - K_c y."""
+    Cs = np.vstack(sc.C)
+    return jd.place_gain(sc.A, Cs, sc.central_poles)
+
+
+# -- design stage ----------------------------------------------------------------------------------
+
+def compute_design(sc: HybridScenario, seed: int) -> dict[str, np.ndarray]:
+    d = observer_design(sc)
+    m, n = d.m, d.n
+    out: dict[str, np.ndarray] = {}
+    nA = float(np.linalg.norm(sc.A, 2))
+    out["norm_A"] = np.array(nA)
+    out["norm_eAT"] = np.array(np.linalg.norm(sla.expm(sc.A * sc.T), 2))
+    out["P"] = d.P
+    out["n_i"] = np.array(d.n_i)
+    out["residual_C"] = np.array([np.abs(sc.C[i] - d.Cbar[i] @ d.L[i]).max() for i in range(m)])
+    out["residual_A"] = np.array([np.abs(d.L[i] @ sc.A - d.Abar[i] @ d.L[i]).max() for i in range(m)])
+    out["obs_rank_local"] = np.array([np.linalg.matrix_rank(jd.observability_matrix(d.Abar[i], d.Cbar[i]))
+                                      for i in range(m)])
+    # P_i does not depend on the basis L_i (footnote 3): a random invertible change of basis
+    rng = np.random.default_rng(1234)
+    dev = []
+    for i in range(m):
+        Mi = rng.standard_normal((d.n_i[i], d.n_i[i])) + 3 * np.eye(d.n_i[i])
+        alt = jd.local_design(sc.A, sc.C[i], L=Mi @ d.L[i])
+        dev.append(np.abs(alt.P - d.P[i]).max())
+    out["P_basis_dev"] = np.array(dev)
+    stack = np.vstack([np.eye(n) - d.P[i] for i in range(m)])
+    out["sigma_min_16"] = np.array(np.linalg.svd(stack, compute_uv=False).min())
+    F = [d.F(i) for i in range(m)]
+    out["local_abscissa"] = np.array([jd.spectral_abscissa(Fi) for Fi in F])
+    out["c_i"] = np.array([jd.transient_constant(Fi, sc.lam_bar) for Fi in F])
+    out["Q_mixed"] = np.array(jd.mixed_norm(sla.block_diag(*d.Q), [n] * m, d.n_i))
+    out["Q_2"] = np.array(np.linalg.norm(sla.block_diag(*d.Q), 2))
+    rho = jd.rho_exact(d.P, rng=np.random.default_rng(seed))
+    out["rho"], out["rho_exact"], out["rho_words"] = np.array(rho.rho), np.array(rho.exact), np.array(rho.words)
+    out["rho_worst_word"] = np.array(rho.worst_word)
+    for label, lam in (("", sc.lam), ("_paper", float(sc.paper_values.get("lambda", sc.lam)))):
+        sq = jd.sufficient_q(rho.rho, m, nA, lam, sc.T)
+        out[f"alpha_lemma5{label}"] = np.array(float(sq.alpha_lemma5))
+        out[f"one_minus_alpha_log10{label}"] = np.array(sq.log10_one_minus_alpha)
+        out[f"alpha_printed{label}"] = np.array(float(sq.alpha_printed))
+        out[f"r_lemma5{label}"] = np.array(float(sq.r_lemma5))
+        out[f"r_printed{label}"] = np.array(float(sq.r_printed))
+        for k in ("q_thm22", "q_thm21", "q_minimal", "q_thm22_printed_alpha", "q_minimal_printed_alpha"):
+            out[f"{k}{label}"] = np.array(str(getattr(sq, k)))
+    if m <= 6:
+        sig, worst, vals = jd.sigma_symmetric(d.P)
+        out["sigma"], out["sigma_worst"], out["sigma_graphs"] = np.array(sig), np.array(worst), np.array(len(vals))
+        out["sigma_worst_mask"] = jd.connected_undirected_graphs(m)[worst]
+        for label, lam in (("", sc.lam), ("_paper", float(sc.paper_values.get("lambda", sc.lam)))):
+            out[f"q27{label}"] = np.array(jd.q_symmetric(sig, nA, lam, sc.T))
+            out[f"q27_minimal{label}"] = np.array(jd.q_symmetric_minimal(sig, nA, lam, sc.T))
+    # redundancy (Section 5): joint observability without agent i, strong connectivity without vertex i
+    red_obs = []
+    for i in range(m):
+        O = np.vstack([jd.observability_matrix(sc.A, sc.C[j]) for j in range(m) if j != i])
+        red_obs.append(np.linalg.matrix_rank(O) == n)
+    out["redundant_observable"] = np.array(red_obs)
+    out["redundant_connected"] = np.array([[jd.is_strongly_connected(np.delete(np.delete(G, i, 0), i, 1))
+                                            for i in range(m)] for G in sc.graphs])
+    # Lemma 5: products of N = (m-1)^2+1 steps P(S⊗I) with S flocking matrices of strongly connected graphs
+    N = (m - 1) ** 2 + 1
+    pool = jd.strongly_connected_digraphs(m) if m <= 4 else None
+    if pool is None:
+        gen = block_generator(stream_seed(seed, "lemma5-pool"))
+        cand = gen.random((4000, m, m)) < 0.5
+        cand |= np.eye(m, dtype=bool)[None]
+        pool = np.array([g for g in cand if jd.is_strongly_connected(g)])
+    flock = np.array([jd.flocking_matrix(g) for g in pool])
+    steps = np.einsum("ab,gbc->gac", sla.block_diag(*d.P), np.einsum("gij,ab->giajb", flock, np.eye(n)).reshape(
+        len(pool), m * n, m * n))
+    gen = block_generator(stream_seed(seed, "lemma5"))
+    samples = LEMMA5_SAMPLES
+    idx = gen.integers(0, len(pool), size=(samples, N))
+    # adversarial members: every constant sequence (the slowest mixing graphs repeated)
+    idx[: len(pool)] = np.arange(len(pool))[:, None] if len(pool) <= samples else idx[: len(pool)]
+    prod = steps[idx[:, 0]]
+    for k in range(1, N):
+        prod = steps[idx[:, k]] @ prod
+    norms = jd.mixed_norm(prod, [n] * m, [n] * m)
+    out["lemma5_max"] = np.array(norms.max())
+    out["lemma5_samples"] = np.array(samples)
+    out["lemma5_pool"] = np.array(len(pool))
+    # Lemma 6: random doubly stochastic F with positive diagonal and strongly connected graph
+    gen = block_generator(stream_seed(seed, "lemma6"))
+    vals = []
+    for _ in range(2000):
+        perms = [np.eye(m)[gen.permutation(m)] for _ in range(3)]
+        wts = gen.dirichlet(np.ones(4))
+        Fm = wts[0] * np.eye(m) + sum(w * Pm for w, Pm in zip(wts[1:], perms))
+        if not jd.is_strongly_connected(Fm > 1e-12):
+            continue
+        vals.append(np.linalg.norm(sla.block_diag(*d.P) @ np.kron(Fm, np.eye(n)), 2))
+    out["lemma6_max"] = np.array(max(vals) if vals else np.nan)
+    out["lemma6_count"] = np.array(len(vals))
+    return out
+
+
+# -- runs --------------------------------------------------------------------------------------------
+
+def initial_conditions(sc: HybridScenario, d: ho.ObserverDesign, run: RunSpec, trials: int, seed: int):
+    """Trial 0: the scenario's initial conditions; trials 1..: random (the same for every run)."""
+    B = trials if run.mc else 1
+    nw = sum(d.n_i)
+    x0 = np.empty((B, sc.n))
+    w0 = np.empty((B, nw))
+    xh = np.empty((B, sc.m, sc.n))
+    x0[0], xh[0] = sc.x0, sc.xhat0
+    w0[0] = sc.w0 if sc.w0 is not None else 0.0
+    if B > 1:
+        gen = block_generator(stream_seed(seed, "initial-conditions", B))
+        x0[1:] = sc.ic_scale * gen.standard_normal((B - 1, sc.n))
+        w0[1:] = sc.ic_scale * gen.standard_normal((B - 1, nw))
+        xh[1:] = sc.ic_scale * gen.standard_normal((B - 1, sc.m, sc.n))
+    if run.ideal:
+        w0 = np.concatenate([x0 @ L.T for L in d.L], axis=1)
+    return x0, w0, xh
+
+
+def schedule_for(sc: HybridScenario, run: RunSpec) -> ho.GraphSchedule:
+    return ho.GraphSchedule(sc.graphs, kind=run.switching, fixed=run.graph, T=sc.T, Delta=run.Delta, beta=run.beta,
+                            q=run.q)
+
+
+def simulate_run(sc: HybridScenario, run: RunSpec, trials: int, seed: int) -> dict[str, np.ndarray]:
+    d = observer_design(sc)
+    x0, w0, xh = initial_conditions(sc, d, run, trials, seed)
+    jitter = None
+    if run.timing == "async":
+        gen = block_generator(stream_seed(seed, "jitter", run.name))
+        eps = np.asarray(run.epsilon)
+        jitter = gen.uniform(-1.0, 1.0, size=(run.intervals, sc.m, run.q + 1)) * eps[None, :, None]
+    timing = ho.Timing(sc.T, run.q, run.Delta, run.beta, np.asarray(run.offsets, float), jitter)
+    members = ()
+    if run.leave is not None:
+        lv = run.leave
+        members = (ho.Membership(lv.agent, lv.at, lv.rejoin, lv.policy, xh[:, lv.agent],
+                                 w0[:, d.w_slices[lv.agent]]),)
+    res = ho.simulate(d, timing, schedule_for(sc, run), x0=x0, w0=w0, xhat0=xh, intervals=run.intervals,
+                      dt_plot=DT_PLOT, rule=run.rule, noise_b=sc.noise_b if run.noise else None,
+                      noise_omega=sc.noise_omega, membership=members, central_gain=central_gain(sc))
+    out = res.arrays()
+    out.update(recursion_checks(sc, d, run, res))
+    if jitter is not None:
+        out["jitter"] = jitter
+    if run.noise:
+        out.update(kalman_reference(sc, res))
+    return out
+
+
+def recursion_checks(sc: HybridScenario, d: ho.ObserverDesign, run: RunSpec, res: ho.HybridRun) -> dict[str, np.ndarray]:
+    """Per interval: A(s), B(s), G(s) norms and the residual of (41) / (61') (both signs)."""
+    m, n, S = d.m, d.n, run.intervals
+    B = res.e_post.shape[1]
+    out = {k: np.full(S, np.nan) for k in ("A_mixed", "B_mixed", "G_mixed", "A_2", "B_2", "Phi_max")}
+    out["res_minus"] = np.full((S, B), np.nan)
+    out["res_plus"] = np.full((S, B), np.nan)
+    out["res_scale"] = np.full((S, B), np.nan)
+    offsets = np.asarray(run.offsets, float)
+    for s in range(1, S + 1):
+        if not res.participating[s - 1].all():
+            continue
+        As, Bs, G = ho.error_recursion(d, res.W[s - 1], sc.T, offsets)
+        Phi = ho.transition_products(d.P, res.W[s - 1])
+        out["A_mixed"][s - 1] = jd.mixed_norm(As, [n] * m, [n] * m)
+        out["B_mixed"][s - 1] = jd.mixed_norm(Bs, [n] * m, d.n_i)
+        out["G_mixed"][s - 1] = jd.mixed_norm(G, [n] * m, [n])
+        out["A_2"][s - 1] = np.linalg.norm(As, 2)
+        out["B_2"][s - 1] = np.linalg.norm(Bs, 2)
+        out["Phi_max"][s - 1] = jd.mixed_norm(Phi, [n] * m, [n] * m).max()
+        if run.noise:
+            continue
+        prev = res.e_post[s - 1].reshape(B, m * n)
+        base = prev @ As.T + res.ebar[s - 1] @ Bs.T
+        xg = res.x_nominal[s - 1] @ G.T
+        cur = res.e_post[s].reshape(B, m * n)
+        out["res_minus"][s - 1] = np.abs(cur - (base - xg)).max(axis=1)
+        out["res_plus"][s - 1] = np.abs(cur - (base + xg)).max(axis=1)
+        out["res_scale"][s - 1] = np.maximum.reduce([np.linalg.norm(res.x_event[s], axis=-1).max(axis=-1),
+                                                     np.linalg.norm(res.x_event[s - 1], axis=-1).max(axis=-1),
+                                                     np.abs(res.e_post[s - 1]).reshape(B, -1).max(axis=1),
+                                                     np.ones(B)])
+    return out
+
+
+def kalman_reference(sc: HybridScenario, res: ho.HybridRun) -> dict[str, np.ndarray]:
+    """A centralized Kalman filter (filterpy) on the stacked outputs y = C x sampled every DT_PLOT,
+    trial 0; the harmonic input is modelled as white process noise of the same power."""
+    from filterpy.kalman import KalmanFilter
+
+    Cs = np.vstack(sc.C)
+    n = sc.n
+    kf = KalmanFilter(dim_x=n, dim_z=Cs.shape[0])
+    kf.F = sla.expm(sc.A * DT_PLOT)
+    kf.H = Cs
+    b = sc.noise_b if sc.noise_b is not None else np.zeros(n)
+    kf.Q = 0.5 * np.outer(b, b) * DT_PLOT + 1e-12 * np.eye(n)
+    kf.R = 1e-6 * np.eye(Cs.shape[0])
+    kf.x = np.zeros(n)
+    kf.P = 100.0 * np.eye(n)
+    errs = []
+    for k, x in enumerate(res.x0):
+        if k:
+            kf.predict()
+        kf.update(Cs @ x)
+        errs.append(np.linalg.norm(kf.x - x))
+    return {"kf_err": np.array(errs)}
+
+
+# -- results ----------------------------------------------------------------------------------------
+
+@dataclass
+class Results:
+    scenario: HybridScenario
+    seed: int
+    trials: int
+    quick: bool
+    design: dict[str, np.ndarray]
+    runs: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    is_paper: bool = False
+
+    def run(self, name: str) -> ho.HybridRun:
+        cache = self.__dict__.setdefault("_runs", {})
+        if name not in cache:
+            cache[name] = ho.HybridRun.from_arrays(self.runs[name])
+        return cache[name]
+
+    def spec(self, name: str) -> RunSpec:
+        return next(r for r in self.scenario.runs if r.name == name)
+
+    @property
+    def obs(self) -> ho.ObserverDesign:
+        if "_obs" not in self.__dict__:
+            self.__dict__["_obs"] = observer_design(self.scenario)
+        return self.__dict__["_obs"]
+
+
+@dataclass
+class MultiResults:
+    """The paper reproduction checks two systems: the paper's example and a generic one."""
+
+    parts: dict[str, Results]
+
+    def __getitem__(self, key: str) -> Results:
+        return self.parts[key]
+
+
+def trial_count(sc: HybridScenario, opts: RunOptions) -> int:
+    return opts.trials if opts.trials is not None else (sc.quick_trials if opts.quick else sc.trials)
+
+
+def _cached_run(cache: StageCache, base: dict[str, Any], sc: HybridScenario, seed: int, trials: int,
+                run: RunSpec) -> dict[str, np.ndarray]:
+    return cache.get_or_compute("run", {**base, "run": run.key(), "seed": seed, "trials": trials if run.mc else 1},
+                                functools.partial(simulate_run, sc, run, trials, seed))
+
+
+def compute(sc: HybridScenario, opts: RunOptions, cache: StageCache, *, is_paper: bool = False) -> Results:
+    trials = trial_count(sc, opts)
+    base = {"scenario": sc.key(), "code": code_fingerprint(CODE_MODULES)}
+    design = cache.get_or_compute("design", {**base, "seed": opts.seed}, lambda: compute_design(sc, opts.seed))
+    work = functools.partial(_cached_run, cache, base, sc, opts.seed, trials)
+    outs = parallel_map(work, list(sc.runs), workers=opts.workers, desc=f"{sc.name}: hybrid observer runs")
+    return Results(sc, opts.seed, trials, opts.quick, design, {r.name: o for r, o in zip(sc.runs, outs)}, is_paper)
