@@ -339,8 +339,12 @@ def simulate_event_driven(sys: GossipSystem, rate: float, times: np.ndarray, n_t
         is_event = te < tg
         t_next = np.where(is_event, te, tg)
         delta = t_next - t_cur[r]
-        Phi = flow.transition(delta)                      # (k, N+1, n, n)
-        Q = flow.noise(delta)                             # (k, d, d)
+        if clock_path is not None:                        # one δ for every trial: factor once
+            Phi = np.broadcast_to(flow.transition(delta[:1]), (len(r), N + 1, n, n))
+            Q = np.broadcast_to(flow.noise(delta[:1]), (len(r), d, d))
+        else:
+            Phi = flow.transition(delta)                  # (k, N+1, n, n)
+            Q = flow.noise(delta)                         # (k, d, d)
         # Σ ← Φ Σ Φᵀ + Q, Φ block diagonal
         Phd = np.zeros((len(r), d, d))
         for a in range(N + 1):
@@ -351,8 +355,12 @@ def simulate_event_driven(sys: GossipSystem, rate: float, times: np.ndarray, n_t
         P[r] = Pi + diag_blocks(Q)
         if sample:
             zb = (Phd @ z[r][:, :, None])[:, :, 0]
-            Qc = basis.T @ Q @ basis
-            F = _psd_factor((Qc + Qc.transpose(0, 2, 1)) / 2)
+            if clock_path is not None:
+                Qc = basis.T @ Q[0] @ basis
+                F = np.broadcast_to(_psd_factor(((Qc + Qc.T) / 2)[None])[0], (len(r),) + Qc.shape)
+            else:
+                Qc = basis.T @ Q @ basis
+                F = _psd_factor((Qc + Qc.transpose(0, 2, 1)) / 2)
             xi = (F @ rng.standard_normal((len(r), basis.shape[1], 1)))[:, :, 0] @ basis.T
             z[r] = zb + xi
         t_cur[r] = t_next

@@ -307,6 +307,10 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
     jitter = timing.jitter
     P = d.P
 
+    Pbig = sla.block_diag(*P)
+    eye_n = np.eye(n)
+    ar = np.arange(m)
+
     def run_iterations(s: int) -> None:
         """Interval s (1-based): q iterations of (12)-(13) from data captured at t_i(s-1)."""
         nonlocal violations
@@ -319,40 +323,44 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
         xs = x_event[s - 1]                               # x(t_i(s-1)) per agent
         pi0 = np.where(pp[None, :, None], z - xs, 0.0)
         pi0_max[s - 1] = np.linalg.norm(pi0, axis=-1).max(axis=-1)
-        z0[s - 1, 0] = z[0]
         t0 = event_ns[:, s - 1] / NS
-        for k in range(1, q + 1):
-            dk = jitter[s - 1, :, k - 1] if jitter is not None else np.zeros(m)
-            dk1 = jitter[s - 1, :, k] if jitter is not None else np.zeros(m)
-            tau_prev = t0 + (k - 1) * timing.Delta + dk          # τ_js(k-1)
-            bcast = tau_prev + timing.beta
-            N_send = schedule.at(bcast)                           # graph at each sender's broadcast time
-            Sk = np.zeros((m, m), dtype=bool)
-            for i in range(m):
-                if not pp[i]:
-                    continue
-                Sk[i] = N_send[np.arange(m), i, np.arange(m)] & pp   # j ∈ N_i(τ_js(k-1)+β)
-                Sk[i, i] = True
-                # physical check: j's message lands in i's reception interval [τ_is(k-1), τ_is(k))
-                lo, hi = tau_prev[i], t0[i] + k * timing.Delta + dk1[i]
-                for j in np.nonzero(Sk[i])[0]:
-                    if j != i and not (lo - 1e-12 <= bcast[j] < hi - 1e-12):
-                        violations += 1
-            N_nom = schedule.at((s - 1) * timing.T + (k - 1) * timing.Delta + timing.beta) & pp[None, :]
-            np.fill_diagonal(N_nom, True)
-            N_nom &= pp[:, None] | np.eye(m, dtype=bool)
-            src[s - 1, k - 1], nom[s - 1, k - 1] = Sk, N_nom
-            if rule == "mean":
-                Wk = flocking_matrix(Sk | np.eye(m, dtype=bool))
-            else:
-                Wk = symmetric_weights(Sk | np.eye(m, dtype=bool), m_rule)
-            Wk[~pp] = 0.0
-            Wk[~pp, ~pp] = 1.0
-            Wall[s - 1, k - 1] = Wk
-            zbar = np.einsum("ij,bjn->bin", Wk, z)
-            znew = np.einsum("inl,bil->bin", P, zbar) + Qw
-            z = np.where(pp[None, :, None], znew, z)
-            z0[s - 1, k] = z[0]
+        ks = np.arange(q + 1)
+        delta = jitter[s - 1] if jitter is not None else np.zeros((m, q + 1))      # (m, q+1)
+        tau = t0[:, None] + ks[None, :] * timing.Delta + delta                       # τ_is(k), (m, q+1)
+        bcast = (tau[:, :q] + timing.beta).T                                         # (q, m): j's k-th message
+        N_send = schedule.at(bcast)                                                  # (q, m_sender, m, m)
+        Sk = N_send[:, ar[None, :], ar[:, None], ar[None, :]]                        # [k, i, j] = j ∈ N_i(t_j)
+        Sk &= pp[None, None, :] & pp[None, :, None]
+        Sk |= np.eye(m, dtype=bool)[None]
+        # physical check: j's message lands in i's reception interval [τ_is(k-1), τ_is(k))
+        lo, hi = tau[:, :q].T[:, :, None], tau[:, 1:].T[:, :, None]                 # receiver i
+        arrive = bcast[:, None, :]
+        bad = Sk & ~np.eye(m, dtype=bool)[None] & ~((lo - 1e-12 <= arrive) & (arrive < hi - 1e-12))
+        violations += int(bad.sum())
+        t_nom = (s - 1) * timing.T + (ks[:q]) * timing.Delta + timing.beta
+        N_nom = schedule.at(t_nom) & pp[None, None, :] & pp[None, :, None]
+        N_nom |= np.eye(m, dtype=bool)[None]
+        src[s - 1], nom[s - 1] = Sk, N_nom
+        if rule == "mean":
+            Wk = Sk / Sk.sum(axis=2, keepdims=True)
+        else:
+            Wk = np.array([symmetric_weights(S_, m_rule) for S_ in Sk])
+        Wk[:, ~pp] = 0.0
+        Wk[:, ~pp, ~pp] = 1.0
+        Wall[s - 1] = Wk
+        M = Pbig[None] @ np.einsum("kij,ab->kiajb", Wk, eye_n).reshape(q, m * n, m * n)
+        keep = np.repeat(~pp, n)
+        M[:, keep, :] = 0.0
+        M[:, keep, keep] = 1.0
+        c = np.where(pp[None, :, None], Qw, 0.0).reshape(B, m * n)
+        zf = z.reshape(B, m * n)
+        traj = np.empty((q + 1, m * n))
+        traj[0] = zf[0]
+        for k in range(q):
+            zf = zf @ M[k].T + c
+            traj[k + 1] = zf[0]
+        z = zf.reshape(B, m, n)
+        z0[s - 1] = traj.reshape(q + 1, m, n)
         piq_max[s - 1] = np.linalg.norm(np.where(pp[None, :, None], z - xs, 0.0), axis=-1).max(axis=-1)
         zq[s] = z
 

@@ -184,3 +184,40 @@ def test_paper_quick(tmp_path):
     for fig in ("fig1.png", "fig2.png", "fig3.png"):
         assert (d / "figures" / fig).exists()
     assert (tmp_path / "out" / "summary.md").read_text().count("savas") >= 1
+
+
+NONSYMMETRIC = """
+family = "noisy-consensus-filter"
+name = "nonsym4"
+[graph]
+kind = "complete"
+n = 4
+[consensus]
+weights = "matrix"
+matrix = [[0.5, 0.5, 0.0, 0.0], [0.0, 0.2, 0.8, 0.0], [0.3, 0.0, 0.2, 0.5], [0.2, 0.3, 0.0, 0.5]]
+[model]
+q = 1.0
+r = 10.0
+[sweep]
+rounds = [0, 2]
+sigma_c = [0.0, 1.0]
+n_steps = 5
+eval_step = 3
+[reinjection]
+gains = "fixed"
+ell = 0.3
+zeta = 0.2
+[monte_carlo]
+trials = 3000
+"""
+
+
+def test_nonsymmetric_consensus_matrix_runs_with_modal_claims_not_checkable(tmp_path):
+    (tmp_path / "s.toml").write_text(NONSYMMETRIC)
+    proc = dse("run", "s.toml", "--out", "out", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    claims = {c["id"]: c for c in json.loads((tmp_path / "out/run/nonsym4/report.json").read_text())["claims"]}
+    assert claims["savas.thm1.ii"]["verdict"] == "not-checkable" and "symmetric" in claims["savas.thm1.ii"]["detail"]
+    for cid in ("savas.thm1.i", "savas.mc.trace", "savas.mc.per_agent", "savas.reference.kf_lower_bound"):
+        assert claims[cid]["verdict"] == "pass", cid
+    assert not (tmp_path / "out/run/nonsym4/figures/fig2.png").exists()

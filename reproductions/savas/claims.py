@@ -333,10 +333,12 @@ def check_carli_diverges(res: Results) -> Verdict:
         lo.append(cc.carli_trace_lower_bound(ell=c.ell, m=c.m, sigma_c=c.sigma_c, k=k))
         up.append(np.trace(res.exact_pred(c)[k]))
     m = np.arange(sc.rounds_max + 1)
-    for s, s_c in enumerate(sc.sigma_c):  # re-optimising ℓ cannot save it: J_C* >= σ_c² m
-        lo.extend(s_c ** 2 * m), up.extend(res.bounds["carli_opt_J"][s])
+    grows = []
+    if "carli_opt_J" in res.bounds:  # re-optimising ℓ cannot save it: J_C* >= σ_c² m (symmetric Q)
+        for s, s_c in enumerate(sc.sigma_c):
+            lo.extend(s_c ** 2 * m), up.extend(res.bounds["carli_opt_J"][s])
+        grows = [s_c for s, s_c in enumerate(sc.sigma_c) if s_c > 0 and res.bounds["carli_opt_J"][s, -1] > res.bounds["carli_opt_J"][s, 1]]
     v = inequality(lo, up)
-    grows = [s_c for s, s_c in enumerate(sc.sigma_c) if s_c > 0 and res.bounds["carli_opt_J"][s, -1] > res.bounds["carli_opt_J"][s, 1]]
     return Verdict(v.status, measured=v.measured, reference=v.reference, margin=v.margin,
                    detail=(f"{v.detail} Lower bounds σ_c² m/(ℓ(2−ℓ)), σ_c² m Σ_(i<k)(1−ℓ)^(2i) at k = {sc.eval_step}, "
                            f"and σ_c² m for the re-optimised ℓ: all grow linearly in m. Re-optimised J_C* grows from m = 1 "

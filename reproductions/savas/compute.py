@@ -14,6 +14,7 @@ import estimators.gain_tuning as gt
 import estimators.kalman as kal
 from pipeline.cache import StageCache, code_fingerprint
 from pipeline.reproduction import RunOptions
+from pipeline.progress import progress
 from pipeline.seeding import stream_seed
 from pipeline.simulate import block_size, parallel_map, run_blocks
 from pipeline.stats import ErrorMoments
@@ -93,7 +94,7 @@ def compute_bounds(sc: NoisyConsensusScenario, quick: bool) -> dict[str, np.ndar
     if sc.symmetric:
         for formula in ("corrected", "printed"):
             ell, zeta, J, kkt, kkt_zeta, grid_min = (np.zeros((S, M + 1)) for _ in range(6))
-            for s, sigma_c in enumerate(sc.sigma_c):
+            for s, sigma_c in enumerate(progress(sc.sigma_c, desc=f"{sc.name}: optimal gains, {formula} (16)")):
                 for m in range(M + 1):
                     opt = gt.optimal_reinjection_gains(sc.Q, m=m, sigma_c=sigma_c, q=sc.q, r=sc.r,
                                                        formula=formula, grid=grid)
@@ -108,9 +109,10 @@ def compute_bounds(sc: NoisyConsensusScenario, quick: bool) -> dict[str, np.ndar
         out["large_m_ell"] = np.array([[o.ell for o in row] for row in big])
         out["large_m_zeta"] = np.array([[o.zeta for o in row] for row in big])
         out["large_m_J"] = np.array([[o.J for o in row] for row in big])
-    carli = [[gt.optimal_carli_gain(sc.Q, m=m, sigma_c=s_c, q=sc.q, r=sc.r) for m in range(M + 1)] for s_c in sc.sigma_c]
-    out["carli_opt_ell"] = np.array([[o.ell for o in row] for row in carli])
-    out["carli_opt_J"] = np.array([[o.J for o in row] for row in carli])
+        carli = [[gt.optimal_carli_gain(sc.Q, m=m, sigma_c=s_c, q=sc.q, r=sc.r) for m in range(M + 1)]
+                 for s_c in sc.sigma_c]
+        out["carli_opt_ell"] = np.array([[o.ell for o in row] for row in carli])
+        out["carli_opt_J"] = np.array([[o.J for o in row] for row in carli])
     # centralized Kalman filter on all N measurements: the lower bound of every agent
     F, H, Qw, R = np.eye(1), np.ones((sc.n, 1)), np.array([[sc.q]]), sc.r * np.eye(sc.n)
     kf = kal.kalman_covariances(F, H, Qw, R, np.array([[sc.sigma0]]), max(sc.n_steps, LONG_RUN_STEPS))
