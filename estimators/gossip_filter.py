@@ -323,7 +323,7 @@ def simulate_event_driven(sys: GossipSystem, rate: float, times: np.ndarray, n_t
                 cross[rows, gidx, q] = Sig[rows][:, (a + 1) * n:(a + 2) * n, (b + 1) * n:(b + 2) * n]
 
     store(np.arange(K), 0)
-    min_gap = np.zeros((K, N))
+    min_gap = np.full((K, N), np.inf)
     scale = np.tile(np.linalg.norm(P[0], axis=(1, 2)), (K, 1))
     t_cur = np.zeros(K)
     eptr = np.zeros(K, dtype=np.int64)

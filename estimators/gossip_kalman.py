@@ -342,6 +342,7 @@ def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: n
 
     def record(t: int) -> None:
         tr = np.trace(P, axis1=-2, axis2=-1)
+        quant[t] = np.quantile(np.log(tr), QUANTILES, axis=0).T
         path_trace[:, t] = tr[:sp]
         path_err[:, t] = e[:sp]
         path_err_c[:, t] = e_c[:sp]
@@ -349,7 +350,6 @@ def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: n
             return
         eig = np.linalg.eigvalsh(P)
         lam_max = eig[..., -1]
-        quant[t] = np.quantile(np.log(tr), QUANTILES, axis=0).T
         exceed[t] = (lam_max[..., None] >= j_grid).sum(axis=0)
         scale = lam_max[:cr]
         margins[t, 0] = _rel_min_eig(P[:cr] - P_central[t], scale)
@@ -379,8 +379,8 @@ def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: n
             new_loc = partners[rows[:, None], loc]
             trans += np.bincount((loc * N + new_loc).ravel(), minlength=N * N).reshape(N, N) if t > 0 else 0
             loc = new_loc
-            if t < token_steps:
-                tok0[t + 1] = np.bincount(loc[:, 0], minlength=N)
+            if 1 <= t <= token_steps:
+                tok0[t] = np.bincount(loc[:, 0], minlength=N)  # law of p_0(t) (A(0) = I: p_0(0) = 0)
             P, K = gikf_covariance_step(P, partners, sys, return_gain=True)
             w = rng.standard_normal((B, M)) @ Lq.T
             v = np.einsum("nij,bnj->bni", Lr, rng.standard_normal((B, N, m)))

@@ -418,36 +418,41 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
 
 # -- error recursion (37)-(43), (61') --------------------------------------------------------------
 
+def step_matrices(P: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """M_k = P (W_k ⊗ I_n) for every k; W (q, m, m) -> (q, mn, mn)."""
+    m, n, _ = P.shape
+    q = W.shape[0]
+    Pb = sla.block_diag(*P)
+    return Pb[None] @ np.einsum("kij,ab->kiajb", W, np.eye(n)).reshape(q, m * n, m * n)
+
+
 def transition_products(P: np.ndarray, W: np.ndarray) -> np.ndarray:
     """Φ(k) = P(W_q ⊗ I) ··· P(W_{k+1} ⊗ I) for k = 0..q (40), Φ(q) = I; W (q, m, m). Returns (q+1, mn, mn)."""
     m, n, _ = P.shape
     q = W.shape[0]
-    Pb = sla.block_diag(*P)
+    M = step_matrices(P, W)
     Phi = np.empty((q + 1, m * n, m * n))
     Phi[q] = np.eye(m * n)
     for k in range(q, 0, -1):
-        Phi[k - 1] = Phi[k] @ (Pb @ np.kron(W[k - 1], np.eye(n)))
+        Phi[k - 1] = Phi[k] @ M[k - 1]
     return Phi
 
 
-def error_recursion(d: ObserverDesign, W: np.ndarray, T: float, offsets: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def error_recursion(d: ObserverDesign, W: np.ndarray, T: float, offsets: np.ndarray | None = None,
+                    Phi: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A(s) = e^{ÃT} Φ(0) (42), B(s) = e^{ÃT} Σ_{k=1}^q Φ(k) Q (43), and for event-time offsets
     G(s) = e^{ÃT} Σ_k Φ(k) P Γ(k) with Γ_i(k) = Σ_j W_ij(k) (e^{A t_i0} - e^{A t_j0}) (58), so that
     e(s) = A e(s-1) + B ē(s-1) - G x((s-1)T)  (61, with the sign corrected)."""
     m, n = d.m, d.n
-    Phi = transition_products(d.P, W)
+    Phi = transition_products(d.P, W) if Phi is None else Phi
     eAT = np.kron(np.eye(m), sla.expm(d.A * T))
     Qb = sla.block_diag(*d.Q)
     As = eAT @ Phi[0]
     Bs = eAT @ Phi[1:].sum(axis=0) @ Qb
     G = np.zeros((m * n, n))
     if offsets is not None and np.any(offsets != 0):
-        E = np.array([sla.expm(d.A * t) for t in offsets])
+        E = np.array([sla.expm(d.A * t) for t in offsets])                 # (m, n, n)
+        Gam = E[None] - np.einsum("kij,jab->kiab", W, E)                   # (q, m, n, n), rows of W sum to 1
         Pb = sla.block_diag(*d.P)
-        acc = np.zeros((m * n, n))
-        for k in range(1, W.shape[0] + 1):
-            Gam = np.concatenate([np.einsum("j,jab->ab", W[k - 1, i], E[i][None] - E) for i in range(m)])
-            acc += Phi[k] @ Pb @ Gam
-        G = eAT @ acc
+        G = eAT @ (Phi[1:] @ Pb[None] @ Gam.reshape(W.shape[0], m * n, n)).sum(axis=0)
     return As, Bs, G

@@ -17,7 +17,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from .atomic import atomic_write_bytes, atomic_write_text
-from .errors import CacheMiss
+from .errors import CacheMiss, NumericalError
 
 
 def canonical_json(obj: Any) -> str:
@@ -96,8 +96,11 @@ class StageCache:
         atomic_write_text(meta_path, json.dumps({"stage": stage, "params": json.loads(canonical_json(params)),
                                                  "sha256": hashlib.sha256(raw).hexdigest()}, indent=1))
 
-    def get_or_compute(self, stage: str, params: dict[str, Any],
-                       compute: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    def get_or_compute(self, stage: str, params: dict[str, Any], compute: Callable[[], dict[str, np.ndarray]], *,
+                       scenario: str = "", allow_nonfinite: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+        """Load the entry or compute and store it. A NaN or inf in a computed array (other than
+        those named in `allow_nonfinite`, e.g. a predicted divergence) raises NumericalError
+        naming the stage, the scenario and where, and nothing is stored."""
         cached = self.load(stage, params)
         if cached is not None:
             return cached
@@ -105,5 +108,18 @@ class StageCache:
             raise CacheMiss(f"stage '{stage}' is not in the cache at {self.root} ({self.key(stage, params)}); "
                             "run `dse reproduce` first")
         arrays = compute()
+        check_finite(arrays, stage=stage, scenario=scenario, allow=allow_nonfinite)
         self.save(stage, params, arrays)
         return arrays
+
+
+def check_finite(arrays: dict[str, np.ndarray], *, stage: str, scenario: str, allow: tuple[str, ...] = ()) -> None:
+    """Raise NumericalError at the first non-finite entry (array name and index; the leading
+    index of a time series is its time step)."""
+    for name, arr in arrays.items():
+        if name in allow or not np.issubdtype(np.asarray(arr).dtype, np.inexact):
+            continue
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            where = tuple(int(i) for i in np.argwhere(bad)[0])
+            raise NumericalError(stage, scenario, f"array '{name}' at index {where} (value {np.asarray(arr)[where]})")

@@ -17,7 +17,7 @@ import json  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from .errors import CacheMiss, OutputError, ScenarioError  # noqa: E402
+from .errors import CacheMiss, NumericalError, OutputError, ScenarioError  # noqa: E402
 from .reproduction import RunOptions, reverify, run  # noqa: E402
 from .report import write_summary  # noqa: E402
 
@@ -148,6 +148,9 @@ def main(argv: list[str] | None = None) -> int:
     except CacheMiss as exc:
         print(f"dse: {exc}", file=sys.stderr)
         return 1
+    except NumericalError as exc:
+        print(f"dse: numerical failure: {exc}", file=sys.stderr)
+        return 3
     except KeyboardInterrupt:
         print("dse: interrupted", file=sys.stderr)
         return 130

@@ -65,8 +65,18 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, 
     import multiprocessing
 
     ctx = multiprocessing.get_context("fork")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        return list(progress(pool.map(fn, items), total=len(items), desc=desc))
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+    try:
+        results = list(progress(pool.map(fn, items), total=len(items), desc=desc))
+    except BaseException:
+        # Ctrl-C or a failed task: do not wait for the other tasks; stop the workers now.
+        # Finished tasks are already in the stage cache, so a re-run resumes from there.
+        for proc in list(getattr(pool, "_processes", {}).values()):
+            proc.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
+    return results
 
 
 def default_workers() -> int:

@@ -221,3 +221,40 @@ def test_nonsymmetric_consensus_matrix_runs_with_modal_claims_not_checkable(tmp_
     for cid in ("savas.thm1.i", "savas.mc.trace", "savas.mc.per_agent", "savas.reference.kf_lower_bound"):
         assert claims[cid]["verdict"] == "pass", cid
     assert not (tmp_path / "out/run/nonsym4/figures/fig2.png").exists()
+
+
+def _measured(path):
+    return [c.get("measured") for c in json.loads(path.read_text())["claims"]]
+
+
+def test_workers_do_not_change_numbers(user_run, tmp_path):
+    (tmp_path / "s.toml").write_text(GOOD)
+    proc = dse("run", "s.toml", "--out", "o", "--seed", "3", "--workers", "1", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert _measured(tmp_path / "o/run/ring5/report.json") == _measured(user_run / "run/ring5/report.json")
+
+
+@pytest.mark.parametrize("delay", [0.8, 2.0])
+def test_sigkill_then_resume_gives_the_same_numbers(user_run, tmp_path, delay):
+    import signal
+    import time
+
+    (tmp_path / "s.toml").write_text(GOOD)
+    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0"}
+    proc = subprocess.Popen([*DSE, "run", "s.toml", "--out", "o", "--seed", "3"], cwd=tmp_path, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    time.sleep(delay)
+    os_kill = __import__("os").killpg
+    try:
+        os_kill(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait()
+    out = tmp_path / "o/run/ring5"
+    for path in out.glob("*.json"):  # anything at a final path is complete
+        json.loads(path.read_text())
+    for path in out.glob("*.rrd"):
+        assert subprocess.run([str(RERUN), "rrd", "verify", str(path)], capture_output=True).returncode == 0
+    again = dse("run", "s.toml", "--out", "o", "--seed", "3", cwd=tmp_path)
+    assert again.returncode == 0, again.stderr
+    assert _measured(out / "report.json") == _measured(user_run / "run/ring5/report.json")

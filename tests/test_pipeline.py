@@ -225,3 +225,17 @@ def test_cache_roundtrip_and_corruption(tmp_path):
     assert len(calls) == 2 and np.array_equal(third["b"], np.eye(2)) and cache.corrupt_entries
     with pytest.raises(CacheMiss):
         StageCache(tmp_path, read_only=True).get_or_compute("stage", {"x": 2}, compute)
+
+
+def test_nonfinite_results_are_caught_where_they_appear(tmp_path):
+    from pipeline.errors import NumericalError
+
+    cache = StageCache(tmp_path)
+    series = np.ones((5, 2))
+    series[3, 1] = np.nan
+    with pytest.raises(NumericalError, match=r"stage 'mc', scenario 'demo', array 'trace' at index \(3, 1\)"):
+        cache.get_or_compute("mc", {"a": 1}, lambda: {"trace": series}, scenario="demo")
+    assert list(tmp_path.iterdir()) == []  # nothing stored
+    diverging = np.array([1.0, np.inf])
+    out = cache.get_or_compute("mc", {"a": 2}, lambda: {"J": diverging}, scenario="demo", allow_nonfinite=("J",))
+    assert np.isinf(out["J"][1])

@@ -27,7 +27,7 @@ CODE_MODULES = ("estimators.gossip_kalman", "estimators.switched_riccati", "esti
 J_GRID = np.logspace(0, 12, 49)
 COUPLING_C = 1e6
 PULLBACK_LAW_T = (5, 20, 100)
-PULLBACK_PATH_T = (8, 16, 32, 64, 128)
+PULLBACK_PATH_T = (16, 32, 64, 128, 256)
 WITNESS_MAX_LEN = 6
 STAT_STRIDE = 5
 
@@ -232,7 +232,7 @@ def aux_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_runs: int, 
     pb = sr.pullback(sys_, back, sc.P0, law_T)
     out["pullback_law_T"] = np.array(law_T)
     out["pullback_law"] = np.array([gk.covariance_features(x) for x in pb])
-    path_T = [t for t in PULLBACK_PATH_T if t <= slots]
+    path_T = list(PULLBACK_PATH_T)  # backward paths need not fit in the forward horizon
     back = sr.sample_chain(Abar, 500, max(path_T), rng)
     lo = sr.pullback(sys_, back, np.zeros((M, M)), path_T)
     hi = sr.pullback(sys_, back, COUPLING_C * np.eye(M), path_T)
@@ -268,3 +268,14 @@ def compute(scenarios: list[GossipKalmanScenario], opts: RunOptions, cache: Stag
     work = functools.partial(compute_scenario, opts=opts, cache=cache)
     outs = parallel_map(work, scenarios, workers=opts.workers, desc="gossip-kalman scenarios")
     return Results(opts.seed, opts.quick, {o.name: o for o in outs})
+
+
+def roles(sc: GossipKalmanScenario) -> dict[str, bool]:
+    """Which claims a scenario gets, from its (cheap, deterministic) assumption checks."""
+    sys_ = sc.system()
+    Abar = sc.protocol.build(sc.graph).mean_matrix()
+    chk = wd.check_chain(Abar)
+    d1 = wd.search_witness(sys_, Abar, max_len=WITNESS_MAX_LEN).witness is not None
+    diverges = any(wd.pbh_undetectable(sc.F, sys_.C[list(cls)].reshape(-1, sc.M)) for cls in chk.classes)
+    return {"c1": chk.c1, "d1": d1, "diverges": diverges, "periodic": chk.irreducible and not chk.aperiodic,
+            "tv": chk.c1}

@@ -204,7 +204,7 @@ def cell_groups(cells: list[Cell]) -> list[tuple[Cell, ...]]:
 
 def _cached_group(cache: StageCache, key: dict[str, Any], sc, seed, trials, cells) -> dict[str, np.ndarray]:
     return cache.get_or_compute("mc", {**key, "cells": [c.__dict__ for c in cells]},
-                                functools.partial(simulate_group, sc, seed, trials, cells))
+                                functools.partial(simulate_group, sc, seed, trials, cells), scenario=sc.name)
 
 
 def compute(sc: NoisyConsensusScenario, opts: RunOptions, cache: StageCache) -> Results:
@@ -212,7 +212,7 @@ def compute(sc: NoisyConsensusScenario, opts: RunOptions, cache: StageCache) -> 
     code = code_fingerprint(CODE_MODULES)
     base = {"scenario": sc.key(), "code": code}
     bounds = cache.get_or_compute("bounds", {**base, "grid": gain_grid(sc, opts.quick)},
-                                  lambda: compute_bounds(sc, opts.quick))
+                                  lambda: compute_bounds(sc, opts.quick), scenario=sc.name)
     cells = make_cells(sc, bounds)
     long_cell = long_run_cell(sc, bounds)
     mc_key = {**base, "seed": opts.seed, "trials": trials}

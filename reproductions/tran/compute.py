@@ -302,18 +302,20 @@ def _sde_reducer(sc: CoestimationScenario, P: np.ndarray):
 
 
 def run_stochastic(sc: CoestimationScenario, P: np.ndarray, *, fixed: bool, trials: int, seed: int, t_end: float,
-                   keep: int) -> dict[str, np.ndarray]:
+                   keep: int, h: float | None = None) -> dict[str, np.ndarray]:
     """All trials in seeded blocks of SDE_BLOCK; the first `keep` trials are stored in full."""
     net = coestimation(sc, P)
     noise = noise_model(sc, seed)
-    every = int(round(sc.record_dt / sc.sde_step))
+    h = sc.sde_step if h is None else h
+    every = int(round(sc.record_dt / h))
+    prepared = sim.prepare(net, h, noise)
     kept: list = []
 
     def block(size: int, rng: np.random.Generator):
         k = max(0, keep - sum(len(b["x"]) for b in kept))
         tr = sim.simulate(net, role_law(sc, fixed), input_signal(sc), sc.x0, np.zeros((sc.N, sc.n + sc.p)),
-                          t_end=t_end, h=sc.sde_step, record_every=every, n_trials=size, noise=noise, rng=rng,
-                          keep=k, reducer=_sde_reducer(sc, P))
+                          t_end=t_end, h=h, record_every=every, n_trials=size, noise=noise, rng=rng,
+                          keep=k, reducer=_sde_reducer(sc, P), prepared=prepared)
         if k:
             kept.append({"x": tr.x, "e": tr.e, "g": tr.g})
         return tr
@@ -326,7 +328,7 @@ def run_stochastic(sc: CoestimationScenario, P: np.ndarray, *, fixed: bool, tria
             out[f"kept_{name}"] = np.concatenate([b[name] for b in kept]) if kept else np.zeros((0,))
         return out
 
-    label = "fixed" if fixed else "roles"
+    label = ("fixed" if fixed else "roles", h)
     return run_blocks(block, combine, trials, stream_seed(seed, "tran", "sde", label), block=SDE_BLOCK)
 
 
@@ -354,9 +356,9 @@ def exact_fixed_moments(sc: CoestimationScenario, design, det_fixed, noise: sim.
 
 
 def _sde_job(cache, key, sc, P, trials, seed, t_end, job):
-    name, fixed = job
+    name, fixed, h = job
     return cache.get_or_compute(name, key, lambda: run_stochastic(sc, P, fixed=fixed, trials=trials, seed=seed,
-                                                                   t_end=t_end, keep=sc.runs))
+                                                                   t_end=t_end, keep=sc.runs, h=h))
 
 
 def compute(sc: CoestimationScenario, opts: RunOptions, cache: StageCache) -> Results:
@@ -379,10 +381,11 @@ def compute(sc: CoestimationScenario, opts: RunOptions, cache: StageCache) -> Re
         res.runs[name] = cache.get_or_compute(f"det-{name}", base, job)
     t_sde = sc.quick_t_end if opts.quick else sc.t_end
     sde_key = {**base, "seed": opts.seed, "trials": trials, "t_end": t_sde}
-    sde_jobs = [("sde_roles", False), ("sde_fixed", True)]
+    sde_jobs = [("sde_roles", False, sc.sde_step), ("sde_fixed", True, sc.sde_step),
+                ("sde_fixed_half", True, sc.sde_step / 2)]
     outs = parallel_map(functools.partial(_sde_job, cache, sde_key, sc, P, trials, opts.seed, t_sde), sde_jobs,
                         workers=opts.workers, desc="tran: stochastic Monte Carlo")
-    for (name, _), o in zip(sde_jobs, outs):
+    for (name, _, _), o in zip(sde_jobs, outs):
         res.runs[name] = o
     noise = noise_model(sc, opts.seed)
     res.runs["exact_fixed"] = cache.get_or_compute("exact-fixed", {**base, "seed": opts.seed}, lambda: exact_fixed_moments(

@@ -276,8 +276,9 @@ def scenario_from_dict(data: Any) -> CoestimationScenario:
     runs = as_int(st.get("runs", 5), "stochastic.runs", low=1, high=50)
     trials = as_int(st.get("trials", 200), "stochastic.trials", low=max(runs, 10), high=100_000)
     quick_trials = as_int(st.get("quick_trials", min(trials, 40)), "stochastic.quick_trials", low=max(runs, 10))
-    sde_step = as_float(st.get("step", 0.002), "stochastic.step", low=1e-5, high=0.05)
+    sde_step = as_float(st.get("step", step), "stochastic.step", low=1e-5, high=0.05)
     _multiple(record_dt, sde_step, "simulation.record_dt", "stochastic.step")
+    _multiple(record_dt, sde_step / 2, "simulation.record_dt", "stochastic.step / 2")
     quick_t_end = as_float(st.get("quick_t_end", min(t_end, 20.0)), "stochastic.quick_t_end", low=0.0, low_open=True, high=t_end)
     _multiple(quick_t_end, record_dt, "stochastic.quick_t_end", "simulation.record_dt")
 

@@ -201,8 +201,8 @@ def recursion_checks(sc: HybridScenario, d: ho.ObserverDesign, run: RunSpec, res
     for s in range(1, S + 1):
         if not res.participating[s - 1].all():
             continue
-        As, Bs, G = ho.error_recursion(d, res.W[s - 1], sc.T, offsets)
         Phi = ho.transition_products(d.P, res.W[s - 1])
+        As, Bs, G = ho.error_recursion(d, res.W[s - 1], sc.T, offsets, Phi=Phi)
         out["A_mixed"][s - 1] = jd.mixed_norm(As, [n] * m, [n] * m)
         out["B_mixed"][s - 1] = jd.mixed_norm(Bs, [n] * m, d.n_i)
         out["G_mixed"][s - 1] = jd.mixed_norm(G, [n] * m, [n])
