@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: reproduce test bench clean
+.PHONY: reproduce test bench check-viewer clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,6 +18,14 @@ reproduce: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
+
+# Opens every recording of a quick reproduction in Rerun's own viewer (headless, software
+# Vulkan from Debian's mesa-vulkan-drivers) and checks the views render without errors.
+check-viewer: $(STAMP)
+	@dpkg -s mesa-vulkan-drivers >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq mesa-vulkan-drivers; }
+	rm -rf out/viewer-check
+	$(BIN)/dse reproduce --quick --out out/viewer-check
+	$(BIN)/python -m pipeline.viewer_check out/viewer-check --screenshots out/viewer-check/screenshots
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run --out out

@@ -15,7 +15,7 @@ import estimators.gossip_kalman as gk
 import estimators.kalman as kal
 import estimators.switched_riccati as sr
 import estimators.walk_detectability as wd
-from pipeline.cache import StageCache, code_fingerprint
+from pipeline.cache import StageCache, check_finite, code_fingerprint
 from pipeline.reproduction import RunOptions
 from pipeline.seeding import stream_seed
 from pipeline.simulate import block_generator, parallel_map, run_blocks
@@ -245,22 +245,39 @@ def aux_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_runs: int, 
     return out
 
 
-def _stage(cache: StageCache, key: dict, name: str, fn):
-    return cache.get_or_compute(name, {**key, "stage": name}, fn)
+GIKF_PARTIAL = ("margins", "feat_q", "feat_n", "quantiles", "path_trace", "path_err", "path_err_c")
+
+
+def _stage(cache: StageCache, key: dict, name: str, fn, scenario: str = "", allow: tuple[str, ...] = ()):
+    return cache.get_or_compute(name, {**key, "stage": name}, fn, scenario=scenario, allow_nonfinite=allow)
+
+
+def _checked_gikf(fn, scenario: str):
+    """GIKF stage: NaN marks slots not evaluated (stride) in 'margins' and, after a float overflow
+    (a divergence, reported by the claims with its slot), the unreached slots; anything else
+    non-finite is an error."""
+    def run():
+        out = fn()
+        if int(out["overflow"]) < 0:
+            check_finite({k: v for k, v in out.items() if k != "margins"}, stage="gikf", scenario=scenario)
+        return out
+    return run
 
 
 def compute_scenario(sc: GossipKalmanScenario, opts: RunOptions, cache: StageCache) -> ScenarioResults:
     runs, ref_runs, slots = sizes(sc, opts)
     code = code_fingerprint(CODE_MODULES)
     base = {"scenario": sc.key(), "code": code, "slots": slots}
-    bounds = _stage(cache, base, "bounds", lambda: compute_bounds(sc, slots))
+    bounds = _stage(cache, base, "bounds", lambda: compute_bounds(sc, slots), sc.name, ("beta_multi",))
     mc = {**base, "seed": opts.seed, "runs": runs, "ref_runs": ref_runs}
-    gikf = _stage(cache, mc, "gikf", lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots))
+    gikf = _stage(cache, mc, "gikf", _checked_gikf(lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots), sc.name),
+                  sc.name, GIKF_PARTIAL)
     comparison = (_stage(cache, mc, "gikf_comparison",
-                         lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots, "comparison"))
+                         _checked_gikf(lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots, "comparison"), sc.name),
+                         sc.name, GIKF_PARTIAL)
                   if sc.comparison is not None else None)
-    reference = _stage(cache, mc, "theorem8", lambda: reference_stage(sc, bounds, opts.seed, ref_runs, slots))
-    aux = _stage(cache, mc, "aux", lambda: aux_stage(sc, bounds, opts.seed, ref_runs, slots))
+    reference = _stage(cache, mc, "theorem8", lambda: reference_stage(sc, bounds, opts.seed, ref_runs, slots), sc.name)
+    aux = _stage(cache, mc, "aux", lambda: aux_stage(sc, bounds, opts.seed, ref_runs, slots), sc.name)
     return ScenarioResults(sc, opts.seed, runs, ref_runs, slots, opts.quick, bounds, gikf, reference, aux, comparison)
 
 

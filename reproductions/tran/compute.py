@@ -355,9 +355,10 @@ def exact_fixed_moments(sc: CoestimationScenario, design, det_fixed, noise: sim.
             "h_star": np.array(np.linalg.norm(noise.measurement[:, :, 0], axis=1).max())}
 
 
-def _sde_job(cache, key, sc, P, trials, seed, t_end, job):
+def _sde_job(cache, key, sc, P, trials, seed, t_ends, job):
     name, fixed, h = job
-    return cache.get_or_compute(name, key, lambda: run_stochastic(sc, P, fixed=fixed, trials=trials, seed=seed,
+    t_end = t_ends[name]
+    return cache.get_or_compute(name, {**key, "t_end": t_end}, lambda: run_stochastic(sc, P, fixed=fixed, trials=trials, seed=seed,
                                                                    t_end=t_end, keep=sc.runs, h=h))
 
 
@@ -383,7 +384,9 @@ def compute(sc: CoestimationScenario, opts: RunOptions, cache: StageCache) -> Re
     sde_key = {**base, "seed": opts.seed, "trials": trials, "t_end": t_sde}
     sde_jobs = [("sde_roles", False, sc.sde_step), ("sde_fixed", True, sc.sde_step),
                 ("sde_fixed_half", True, sc.sde_step / 2)]
-    outs = parallel_map(functools.partial(_sde_job, cache, sde_key, sc, P, trials, opts.seed, t_sde), sde_jobs,
+    outs = parallel_map(functools.partial(_sde_job, cache, sde_key, sc, P, trials, opts.seed,
+                                          {"sde_roles": t_sde, "sde_fixed": t_sde,
+                                           "sde_fixed_half": min(t_sde, sc.quick_t_end)}), sde_jobs,
                         workers=opts.workers, desc="tran: stochastic Monte Carlo")
     for (name, _, _), o in zip(sde_jobs, outs):
         res.runs[name] = o

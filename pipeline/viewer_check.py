@@ -1,0 +1,95 @@
+"""Open every recording in Rerun's own viewer, headless, and check what it shows.
+
+The native viewer of the pinned rerun-sdk runs with ``--headless`` on loopback (a software
+Vulkan driver, Debian's ``mesa-vulkan-drivers``, renders it) and is driven through
+``rerun.experimental.ViewerClient``: the check asserts that the blueprint's views are all
+listed, none reports an error, and it saves a screenshot per recording.
+
+    python -m pipeline.viewer_check OUT_DIR [--screenshots DIR]
+
+Exit code 0 when every recording passes, 1 otherwise.
+"""
+from __future__ import annotations
+
+import argparse
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import rerun_cli
+from rerun.experimental import ViewerClient
+
+from .record import blueprint_view_kinds
+
+VIEWER = Path(rerun_cli.__file__).with_name("rerun")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def check_recording(rrd: Path, screenshot: Path | None, *, timeout: float = 60.0, settle: float = 4.0) -> list[str]:
+    """Problems found with one recording (empty list when it renders cleanly)."""
+    port = _free_port()
+    proc = subprocess.Popen([str(VIEWER), "--headless", "--bind", "127.0.0.1", "--port", str(port),
+                             "--window-size", "1600x1000", "--hide-welcome-screen", str(rrd)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    expected = [k for k in blueprint_view_kinds(rrd) if k]
+    try:
+        deadline, state, client = time.monotonic() + timeout, None, None
+        while time.monotonic() < deadline:
+            if proc.poll() is not None:
+                return [f"viewer exited with code {proc.returncode}: {proc.stderr.read().decode()[-400:]}"]
+            try:
+                client = client or ViewerClient.connect(f"rerun+http://127.0.0.1:{port}/proxy")
+                state = client.get_state()
+                if state.views and not state.loading and len(state.views) >= len(expected):
+                    break
+            except Exception:  # not listening yet
+                pass
+            time.sleep(0.5)
+        if state is None or not state.views:
+            return ["viewer listed no views before the timeout"]
+        time.sleep(settle)
+        state = client.get_state()
+        problems = [f"view '{v.name}' ({v.view_class}): {v.reports}" for v in state.views if v.reports]
+        shown = sorted(v.view_class for v in state.views)
+        if shown != sorted(expected):
+            problems.append(f"blueprint has views {sorted(expected)} but the viewer shows {shown}")
+        if screenshot is not None:
+            screenshot.parent.mkdir(parents=True, exist_ok=True)
+            screenshot.write_bytes(client.take_screenshot())
+        return problems
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("out_dir")
+    parser.add_argument("--screenshots", default=None, help="directory for one PNG per recording")
+    args = parser.parse_args(argv)
+    recordings = sorted(p for p in Path(args.out_dir).rglob("*.rrd") if ".cache" not in p.parts)
+    if not recordings:
+        print(f"no recordings under {args.out_dir}", file=sys.stderr)
+        return 1
+    failed = 0
+    for rrd in recordings:
+        shot = Path(args.screenshots) / f"{rrd.parent.name}-{rrd.stem}.png" if args.screenshots else None
+        problems = check_recording(rrd, shot)
+        failed += bool(problems)
+        print(f"{'FAIL' if problems else 'ok  '} {rrd}" + "".join(f"\n     {p}" for p in problems))
+    print(f"{len(recordings) - failed} passed, {failed} failed")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
