@@ -40,10 +40,15 @@ class LmiResult:
 
 
 def _solve(prob) -> str:
+    import warnings
+
     import cvxpy as cp
 
     try:
-        prob.solve(solver=SOLVER)
+        with warnings.catch_warnings():
+            # "Solution may be inaccurate" is reported through the status ("optimal_inaccurate")
+            warnings.simplefilter("ignore", UserWarning)
+            prob.solve(solver=SOLVER)
         return str(prob.status)
     except cp.error.SolverError as exc:
         return f"solver_error: {str(exc).splitlines()[0][:120]}"

@@ -16,6 +16,7 @@ from .errors import ScenarioError
 from .scenario import as_float, as_int, as_list, as_str, join, reject_unknown, section
 
 GRAPH_KINDS = ("line", "ring", "grid", "complete", "random_geometric", "edges")
+MAX_NODES = 10_000
 
 
 @dataclass(frozen=True)
@@ -46,11 +47,13 @@ class GraphSpec:
                 raise ScenarioError(join(field, key), f"missing (needed for kind '{kind}')")
         kw: dict[str, Any] = {"kind": kind}
         if kind == "grid":
-            kw["rows"] = as_int(data["rows"], join(field, "rows"), low=1)
-            kw["cols"] = as_int(data["cols"], join(field, "cols"), low=1)
+            kw["rows"] = as_int(data["rows"], join(field, "rows"), low=1, high=MAX_NODES)
+            kw["cols"] = as_int(data["cols"], join(field, "cols"), low=1, high=MAX_NODES)
             kw["n"] = kw["rows"] * kw["cols"]
+            if kw["n"] > MAX_NODES:
+                raise ScenarioError(field, f"rows x cols = {kw['n']} nodes, more than the supported {MAX_NODES}")
         else:
-            kw["n"] = as_int(data["n"], join(field, "n"), low=1)
+            kw["n"] = as_int(data["n"], join(field, "n"), low=1, high=MAX_NODES)
         if kind == "ring" and kw["n"] < 3:
             raise ScenarioError(join(field, "n"), "a ring needs at least 3 nodes")
         if kind == "random_geometric":

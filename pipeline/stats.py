@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-from scipy import stats as sps
+from statistics import NormalDist
 
 
 @dataclass(frozen=True)
@@ -87,9 +87,9 @@ class ErrorMoments:
 def z_for_confidence(confidence: float, n_tests: int = 1) -> float:
     """Two-sided normal quantile for a family of n_tests checks at the given confidence (Bonferroni)."""
     alpha = (1.0 - confidence) / n_tests
-    return float(sps.norm.ppf(1.0 - alpha / 2.0))
+    return NormalDist().inv_cdf(1.0 - alpha / 2.0)
 
 
 def confidence_of_z(z: float, n_tests: int = 1) -> float:
     """Family-wise confidence of |Z| <= z over n_tests independent checks (Bonferroni lower bound)."""
-    return float(max(0.0, 1.0 - n_tests * 2.0 * sps.norm.sf(z)))
+    return float(max(0.0, 1.0 - n_tests * 2.0 * (1.0 - NormalDist().cdf(z))))

@@ -13,6 +13,9 @@ PAPERS = {"savas": "reproductions.savas.reproduction"}
 #: scenario family (the `family` key of a user's TOML file) -> module with `from_dict(data)`
 FAMILIES = {"noisy-consensus-filter": "reproductions.savas.reproduction"}
 
+#: a valid scenario file of each family (documentation, and the seed of the input fuzz tests)
+FAMILY_EXAMPLES = {"noisy-consensus-filter": "savas/paper.toml"}
+
 
 def paper(paper_id: str):
     return importlib.import_module(PAPERS[paper_id]).paper()

@@ -8,6 +8,7 @@ centralized reference, the Lyapunov envelope and the claims.
 """
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 
@@ -18,6 +19,7 @@ import rerun.blueprint as rrb
 import estimators.gossip_kalman as gk
 from pipeline import record as rec_
 from pipeline.figures import new_figure, save_figure, sequential_colors
+from pipeline.simulate import parallel_map
 
 from .compute import J_GRID, Results, ScenarioResults
 
@@ -271,8 +273,11 @@ def write_recording(r: ScenarioResults, path: Path, claims: list[dict], prov: di
                               f"{c.get('detail', '')}")
 
 
-def write_outputs(res: Results, out_dir: Path, claims: list[dict], prov: dict, paper_id: str) -> None:
-    figs = out_dir / "figures"
-    for r in res.scenarios.values():
-        write_figures(r, figs)
-        write_recording(r, out_dir / f"{r.name}.rrd", claims, prov, paper_id)
+def _write_scenario(r: ScenarioResults, out_dir: Path, claims: list[dict], prov: dict, paper_id: str) -> None:
+    write_figures(r, out_dir / "figures")
+    write_recording(r, out_dir / f"{r.name}.rrd", claims, prov, paper_id)
+
+
+def write_outputs(res: Results, out_dir: Path, claims: list[dict], prov: dict, paper_id: str, workers: int = 1) -> None:
+    work = functools.partial(_write_scenario, out_dir=out_dir, claims=claims, prov=prov, paper_id=paper_id)
+    parallel_map(work, list(res.scenarios.values()), workers=workers, desc="figures and recordings")

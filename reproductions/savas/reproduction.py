@@ -8,10 +8,10 @@ from typing import Any
 from pipeline.cache import StageCache
 from pipeline.reproduction import RunOptions
 
-from . import claims as claims_mod
-from . import compute as compute_mod
-from . import outputs
 from .scenario import NoisyConsensusScenario, paper_scenario
+
+# compute, claims and outputs (scipy, matplotlib, rerun) are imported when first needed, so
+# that validating a scenario file and reporting its errors stays fast.
 
 TITLE = "Savas, Srivastava & Leonard: On distributed linear filtering with noisy communication"
 
@@ -33,15 +33,23 @@ class NoisyConsensusReproduction:
         return [self.scenario.name]
 
     def claims(self):
-        return claims_mod.catalogue(self.is_paper)
+        from . import claims
+
+        return claims.catalogue(self.is_paper)
 
     def trials(self, opts: RunOptions) -> int:
-        return compute_mod.trial_count(self.scenario, opts)
+        from . import compute
 
-    def compute(self, opts: RunOptions, cache: StageCache) -> compute_mod.Results:
-        return compute_mod.compute(self.scenario, opts, cache)
+        return compute.trial_count(self.scenario, opts)
+
+    def compute(self, opts: RunOptions, cache: StageCache):
+        from . import compute
+
+        return compute.compute(self.scenario, opts, cache)
 
     def write_outputs(self, results, out_dir: Path, claims: list[dict], prov: dict) -> None:
+        from . import outputs
+
         outputs.write_outputs(results, out_dir, claims, prov)
 
     def notes(self) -> str:

@@ -1,10 +1,10 @@
 """The seven figures of the spec (§5 "Proposed figures"; the paper's only figure is a schematic).
 
 fig1_network_events.png   F1: sensor network (+ plant) and the edge-event raster of one clock path
-fig2_traces_<s>.png       F2: tr 𝒫_i(t), exact tr E[e_ie_iᵀ](t), Monte Carlo with 95% band, tr P_KB(t), tr S, tr S_true
-fig3_sample_path_<s>.png  F3: one clock path: tr P_i(t; τ) (eq. 14), tr E[e_ie_iᵀ | τ](t), tr 𝒫_i(t)
-fig4_gaps_<s>.png         F4: smallest eigenvalues of 𝒫_i − E[e_ie_iᵀ] and of P_i(t; τ) − E[e_ie_iᵀ | τ]
-fig5_rate_<s>.png         F5: ‖𝒫_i^∞(λ) − S‖_F, explicit B_12(λ), slopes −1 and −1/2, ‖E[e_ie_iᵀ]^∞ − S_true‖_F
+fig2_traces_<s>.png       F2: tr P̄_i(t), exact tr E[e_ie_iᵀ](t), Monte Carlo with 95% band, tr P_KB(t), tr S, tr S_true
+fig3_sample_path_<s>.png  F3: one clock path: tr P_i(t; τ) (eq. 14), tr E[e_ie_iᵀ | τ](t), tr P̄_i(t)
+fig4_gaps_<s>.png         F4: smallest eigenvalues of P̄_i − E[e_ie_iᵀ] and of P_i(t; τ) − E[e_ie_iᵀ | τ]
+fig5_rate_<s>.png         F5: ‖P̄_i^∞(λ) − S‖_F, explicit B_12(λ), slopes −1 and −1/2, ‖E[e_ie_iᵀ]^∞ − S_true‖_F
 fig6_traces_vs_rate_<s>.png  F6: steady-state traces against λ
 fig7_abscissa_<s>.png     F7: spectral abscissae of the generators of (9) and of the exact covariance against λ
 fig_topology.png          S4: topology sweep (paper only)
@@ -76,7 +76,7 @@ def fig2(r: ScenarioResults, path: Path) -> None:
     emc, ese = r.event_moments().trace()
     for i in range(s.N):
         ax = axes[i]
-        ax.plot(t, P[:, i], "C3", lw=1.6, label="tr 𝒫_i(t), bound (9)")
+        ax.plot(t, P[:, i], "C3", lw=1.6, label="tr P̄_i(t), bound (9)")
         if J is not None:
             ax.plot(t, J[:, i], "k", lw=1.2, label="tr E[e_ie_iᵀ] exact (mean covariance ODE)")
         ax.fill_between(t, mc[:, i] - Z95 * se[:, i], mc[:, i] + Z95 * se[:, i], color="C0", alpha=0.3,
@@ -107,7 +107,7 @@ def fig3(r: ScenarioResults, path: Path) -> None:
         ax = axes[i]
         ax.plot(t, P[:, i], "C3", lw=1.2, label="tr P_i(t; τ), eq. (14)")
         ax.plot(t, Sg[:, i], "k", lw=1.2, label="tr E[e_ie_iᵀ | τ](t), exact")
-        ax.plot(t, mean[:, i], "C3--", lw=0.9, label="tr 𝒫_i(t), eq. (9)")
+        ax.plot(t, mean[:, i], "C3--", lw=0.9, label="tr P̄_i(t), eq. (9)")
         mine = [tt for tt, cc in zip(et, ec) if cc >= 0 and i in s.clocks[cc][: (2 if s.mode == "edge" else 1)]]
         ax.vlines(mine, 0, 0.05 * np.nanmax(P[:, i]), color="C0", lw=0.6)
         ax.set_title(f"node {i + 1} ({len(mine)} events)", fontsize=9)
@@ -134,7 +134,7 @@ def fig4(r: ScenarioResults, path: Path) -> None:
         for i in range(s.N):
             ax.plot(t, g[:, i], lw=1, label=f"λ = {lam:g}, node {i + 1}")
     ax.axhline(0, color="k", lw=0.6)
-    ax.set_title("min eig(𝒫_i(t) − E[e_ie_iᵀ](t)) ≥ 0 (Thm III.1.1)", fontsize=9)
+    ax.set_title("min eig(P̄_i(t) − E[e_ie_iᵀ](t)) ≥ 0 (Thm III.1.1)", fontsize=9)
     ax.set_xlabel("t")
     ax.legend(fontsize=6, ncol=2)
     ax = axes[0, 1]
@@ -162,7 +162,7 @@ def fig5(r: ScenarioResults, path: Path) -> None:
         return
     d = np.linalg.norm(b["sweep_bound"] - b["S"], axis=(2, 3))
     for i in range(s.N):
-        ax.loglog(lams, d[:, i], lw=1.2, label=f"‖𝒫_{i + 1}^∞ − S‖_F")
+        ax.loglog(lams, d[:, i], lw=1.2, label=f"‖P̄_{i + 1}^∞ − S‖_F")
     dt = np.linalg.norm(b["sweep_joint"] - b["S_true"], axis=(2, 3)).max(axis=1)
     ax.loglog(lams, dt, "k", lw=1.2, label="max_i ‖E[e_ie_iᵀ]^∞ − S_true‖_F")
     for variant, st in (("faithful", "C3:"), ("tight", "C3-.")):
@@ -191,7 +191,7 @@ def fig6(r: ScenarioResults, path: Path) -> None:
     ax = axes[0, 0]
     lams = b["sweep"]
     for i in range(s.N):
-        ax.semilogx(lams, _tr(b["sweep_bound"][:, i]), f"C{i}", lw=1.2, label=f"tr 𝒫_{i + 1}^∞")
+        ax.semilogx(lams, _tr(b["sweep_bound"][:, i]), f"C{i}", lw=1.2, label=f"tr P̄_{i + 1}^∞")
         ax.semilogx(lams, _tr(b["sweep_joint"][:, i]), f"C{i}--", lw=1.0, label=f"tr E[e_{i + 1}e_{i + 1}ᵀ]^∞")
     if "S" in b:
         ax.axhline(np.trace(b["S"]), color="C3", ls=":", label="tr S")
@@ -233,11 +233,12 @@ def fig_topology(topo: dict, path: Path) -> None:
     lams = topo["lams"]
     for k, name in enumerate(TOPOLOGIES):
         x = lams * float(topo[f"{name}_alpha_fiedler"])
-        axes[0, 0].loglog(x, np.nanmax(topo[f"{name}_d"], axis=1), f"C{k}", label=name)
-        axes[0, 1].semilogx(x, np.nanmean(topo[f"{name}_trace_joint"], axis=1), f"C{k}", label=name)
-    axes[0, 0].set_xlabel("λ α σ_2(𝓛)")
-    axes[0, 0].set_ylabel("max_i ‖𝒫_i^∞ − S‖_F")
-    axes[0, 1].set_xlabel("λ α σ_2(𝓛)")
+        d, tr = topo[f"{name}_d"], topo[f"{name}_trace_joint"]    # NaN rows: below the critical rate
+        axes[0, 0].loglog(x, d.max(axis=1), f"C{k}", label=name)
+        axes[0, 1].semilogx(x, tr.mean(axis=1), f"C{k}", label=name)
+    axes[0, 0].set_xlabel("λ α σ_2(ℒ)")
+    axes[0, 0].set_ylabel("max_i ‖P̄_i^∞ − S‖_F")
+    axes[0, 1].set_xlabel("λ α σ_2(ℒ)")
     axes[0, 1].set_ylabel("mean_i tr E[e_ie_iᵀ]^∞")
     axes[0, 0].legend()
     fig.suptitle(f"S4: S2's plant and sensors on four graphs of 4 nodes {NOTE}", fontsize=9)

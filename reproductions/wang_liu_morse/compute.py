@@ -22,6 +22,8 @@ from .scenario import HybridScenario, RunSpec
 CODE_MODULES = ("estimators.hybrid_observer", "estimators.jointly_observable_design",
                 "reproductions.wang_liu_morse.compute", "reproductions.wang_liu_morse.scenario")
 LEMMA5_SAMPLES = 20_000
+#: arrays in which NaN marks "not applicable" (intervals an agent sat out; identities of runs with an input)
+NOT_APPLICABLE = ("res_minus", "res_plus", "res_scale", "A_mixed", "B_mixed", "G_mixed", "A_2", "B_2", "Phi_max")
 DT_PLOT = 0.01
 
 
@@ -179,7 +181,8 @@ def simulate_run(sc: HybridScenario, run: RunSpec, trials: int, seed: int) -> di
                                  w0[:, d.w_slices[lv.agent]]),)
     res = ho.simulate(d, timing, schedule_for(sc, run), x0=x0, w0=w0, xhat0=xh, intervals=run.intervals,
                       dt_plot=DT_PLOT, rule=run.rule, noise_b=sc.noise_b if run.noise else None,
-                      noise_omega=sc.noise_omega, membership=members, central_gain=central_gain(sc))
+                      noise_omega=sc.noise_omega, membership=members, central_gain=central_gain(sc),
+                      xc0=xh.mean(axis=1))
     out = res.arrays()
     out.update(recursion_checks(sc, d, run, res))
     if jitter is not None:
@@ -293,13 +296,15 @@ def trial_count(sc: HybridScenario, opts: RunOptions) -> int:
 def _cached_run(cache: StageCache, base: dict[str, Any], sc: HybridScenario, seed: int, trials: int,
                 run: RunSpec) -> dict[str, np.ndarray]:
     return cache.get_or_compute("run", {**base, "run": run.key(), "seed": seed, "trials": trials if run.mc else 1},
-                                functools.partial(simulate_run, sc, run, trials, seed))
+                                functools.partial(simulate_run, sc, run, trials, seed), scenario=f"{sc.name}/{run.name}",
+                                allow_nonfinite=NOT_APPLICABLE)
 
 
 def compute(sc: HybridScenario, opts: RunOptions, cache: StageCache, *, is_paper: bool = False) -> Results:
     trials = trial_count(sc, opts)
     base = {"scenario": sc.key(), "code": code_fingerprint(CODE_MODULES)}
-    design = cache.get_or_compute("design", {**base, "seed": opts.seed}, lambda: compute_design(sc, opts.seed))
+    design = cache.get_or_compute("design", {**base, "seed": opts.seed}, lambda: compute_design(sc, opts.seed),
+                                  scenario=sc.name)
     work = functools.partial(_cached_run, cache, base, sc, opts.seed, trials)
     outs = parallel_map(work, list(sc.runs), workers=opts.workers, desc=f"{sc.name}: hybrid observer runs")
     return Results(sc, opts.seed, trials, opts.quick, design, {r.name: o for r, o in zip(sc.runs, outs)}, is_paper)

@@ -1,0 +1,151 @@
+"""The gossip-Kalman reproduction end to end (quick mode): the spec's scenarios E1-E8 through the
+pipeline driver, a user's scenario that is not in the spec (actuators, two-row sensors, a
+user-given matching distribution), invalid scenario files, recordings and figures."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline import record
+from pipeline.errors import ScenarioError
+from pipeline.reproduction import RunOptions, run
+from reproductions.kar_moura.reproduction import from_dict, paper
+
+RERUN = Path(sys.executable).parent / "rerun"
+
+USER = """
+name = "line7"
+description = "not in the spec: 3 states, line of 7, actuators, a two-row sensor type, user-given matchings"
+[model]
+F = [[1.05, 0.2, 0.0], [0.0, 0.95, 0.1], [0.0, 0.0, 1.02]]
+Q = [[0.1, 0.0, 0.0], [0.0, 0.2, 0.0], [0.0, 0.0, 0.1]]
+P0 = [[2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+[sensors]
+types = [0, 2, 1, 2, 0, 2, 1]
+C = [[[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], []]
+R = [[[0.5]], [[1.0, 0.2], [0.2, 0.8]], []]
+[graph]
+kind = "line"
+n = 7
+[protocol]
+kind = "matchings"
+matchings = [[[0, 1], [2, 3], [4, 5]], [[1, 2], [3, 4], [5, 6]]]
+probs = [0.3, 0.3]
+[simulation]
+slots = 120
+runs = 600
+reference_runs = 3000
+quick_runs = 600
+quick_reference_runs = 3000
+quick_slots = 120
+"""
+
+
+@pytest.fixture(scope="module")
+def paper_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("km")
+    summary = run(paper(), out, RunOptions(quick=True, workers=2))
+    doc = json.loads((out / "kar-moura" / "report.json").read_text())
+    return out / "kar-moura", summary, {c["id"]: c for c in doc["claims"]}
+
+
+def test_paper_quick_verdicts(paper_run):
+    d, summary, claims = paper_run
+    assert summary["fail"] == 0, [c["id"] for c in claims.values() if c["verdict"] == "fail"]
+    for cid, c in claims.items():
+        assert c["verdict"] != "fail"
+        if c["verdict"] == "not-checkable":
+            assert c["detail"]
+        if c["kind"] == "statistical" and c["verdict"] == "pass":
+            assert c["trials"] and (c["confidence"] or c["tolerance"] is not None), cid
+    # core claims on E1: weak consensus, domination by the centralized filter, stochastic boundedness
+    for cid in ("thm10-i.weak-consensus.e1", "centralized.domination.e1", "thm10-iii.bounded.e1", "centralized.filterpy.e1",
+                "lemma15.tail-bound.e1", "thm8.initial-law.e1", "rem9.protocol-invariance.e3", "thm10-i.weak-consensus.e2"):
+        assert claims[f"kar-moura.{cid}"]["verdict"] == "pass", cid
+    # the paper's slips the spec documents, as errata with both numbers
+    for cid in ("prop7-ii.pathwise.e1", "lemma14.eq120.e1", "eq134.lifted-chain.e1", "remark3.covering-walk"):
+        row = claims[f"kar-moura.{cid}"]
+        assert row["verdict"] == "erratum" and row["printed"] is not None and row["corrected"] is not None, cid
+
+
+def test_negative_controls_behave_as_predicted(paper_run):
+    _, _, claims = paper_run
+    for name in ("e5", "e6", "e6b"):
+        row = claims[f"kar-moura.negative-control.divergence.{name}"]
+        assert row["verdict"] == "pass" and "PREDICTED DIVERGENCE" in row["statement"]
+        assert abs(row["measured"] - row["reference"]) / row["reference"] < 0.02
+        assert f"kar-moura.thm10-iii.bounded.{name}" not in claims  # no boundedness claim where it is false
+    assert claims["kar-moura.thm26.alternative-a.e5"]["verdict"] == "pass"
+    e7 = claims["kar-moura.thm10-ii.token-domination.e7"]
+    assert e7["verdict"] == "pass" and "PREDICTED FAILURE" in e7["statement"] and e7["measured"] > e7["reference"]
+    assert claims["kar-moura.e7.periodic-orbit.e7"]["verdict"] == "pass"
+    assert claims["kar-moura.assumption.d1.e5"]["measured"] is False
+    assert claims["kar-moura.assumption.c1.e6"]["measured"] is False
+    # the weak-consensus identity holds whatever the hypotheses (spec addendum)
+    for name in ("e5", "e6", "e6b", "e7", "e8"):
+        assert claims[f"kar-moura.thm10-i.weak-consensus.{name}"]["verdict"] == "pass"
+
+
+def test_recordings_and_figures(paper_run):
+    d, _, _ = paper_run
+    for name in ("e1", "e5", "e7"):
+        rrd = d / f"{name}.rrd"
+        proc = subprocess.run([str(RERUN), "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+    scalars = record.read_scalars(d / "e1.rrd", "k")
+    k, tr = scalars["/nodes/0/cov_trace"]
+    assert np.array_equal(k, np.arange(len(k))) and tr.shape[1] == 3 and np.all(tr > 0)
+    kq, q = scalars["/mc/quantiles/3"]
+    assert q.shape[1] == 6 and np.all(np.diff(q, axis=1) >= -1e-12)  # quantiles ordered
+    assert "/central/cov_trace" in scalars and "/mc/mu" in scalars
+    links = record.read_static(d / "e1.rrd", "/links")["GraphEdges:edges"]
+    assert len(links) == 10
+    kinds = record.blueprint_view_kinds(d / "e1.rrd")
+    assert "TimeSeries" in kinds and "Graph" in kinds and "TextDocument" in kinds
+    figs = d / "figures"
+    for f in ("laws_random_sensor_vs_mu_e1.png", "laws_per_sensor_e1.png", "tails_vs_bound_e1.png",
+              "sample_paths_trace_e1.png", "matchings_e1.png", "quantiles_over_runs_e5.png"):
+        assert (figs / f).stat().st_size > 10_000, f
+
+
+def test_user_scenario_not_in_spec(tmp_path):
+    data = tomllib.loads(USER)
+    repro = from_dict(data)
+    summary = run(repro, tmp_path, RunOptions(quick=True, seed=5), out_dir=tmp_path / "run" / "line7")
+    doc = json.loads((tmp_path / "run" / "line7" / "report.json").read_text())
+    v = {c["id"]: c for c in doc["claims"]}
+    assert summary["fail"] == 0, [c["id"] for c in doc["claims"] if c["verdict"] == "fail"]
+    for cid in ("thm10-i.weak-consensus", "centralized.domination", "thm10-iii.bounded", "prop7-ii.pathwise",
+                "lemma14.bound", "lemma15.tail-bound", "assumption.d1", "nees.consistency"):
+        assert v[f"kar-moura.{cid}.line7"]["verdict"] in ("pass", "erratum"), cid
+    assert (tmp_path / "run" / "line7" / "line7.rrd").exists()
+
+
+BAD = [
+    ("F = [[1.05, 0.2, 0.0], [0.0, 0.95, 0.1], [0.0, 0.0, 1.02]]", "F = [[1.05, 0.2], [0.0, 0.95]]", "model.Q: must have shape 2x2"),
+    ("Q = [[0.1, 0.0, 0.0], [0.0, 0.2, 0.0], [0.0, 0.0, 0.1]]", "Q = [[0.1, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.1]]", "model.Q: must be positive definite"),
+    ("types = [0, 2, 1, 2, 0, 2, 1]", "types = [0, 2, 1, 2, 0, 2]", "sensors.types: must have one entry per node"),
+    ("types = [0, 2, 1, 2, 0, 2, 1]", "types = [0, 2, 1, 2, 0, 2, 3]", "sensors.types[6]: must be <= 2"),
+    ("R = [[[0.5]], [[1.0, 0.2], [0.2, 0.8]], []]", "R = [[[-0.5]], [[1.0, 0.2], [0.2, 0.8]], []]", "sensors.R[0]: must be positive"),
+    ("C = [[[1.0, 0.0, 0.0]],", "C = [[[1.0, 0.0]],", "sensors.C[0]: must have 3 columns"),
+    ("probs = [0.3, 0.3]", "probs = [0.6, 0.6]", "protocol.probs: must sum to <= 1"),
+    ("[[0, 1], [2, 3], [4, 5]]", "[[0, 1], [1, 2], [4, 5]]", "protocol.matchings[0][1]: node 1 is matched twice"),
+    ("[[0, 1], [2, 3], [4, 5]]", "[[0, 2], [3, 4]]", "protocol.matchings[0][0]: (0, 2) is not an edge"),
+    ('kind = "matchings"', 'kind = "gossip"', "protocol.kind: must be one of"),
+    ("slots = 120", "slots = 120\nslotz = 3", "simulation.slotz: unknown key"),
+    ("quick_slots = 120", "quick_slots = 500", "simulation.quick_slots: must be <= 120"),
+]
+
+
+@pytest.mark.parametrize("old, new, message", BAD, ids=[m for _, _, m in BAD])
+def test_bad_scenarios_name_the_field(old, new, message):
+    assert old in USER
+    with pytest.raises(ScenarioError) as exc:
+        from_dict(tomllib.loads(USER.replace(old, new, 1)))
+    assert message in str(exc.value), str(exc.value)
