@@ -253,10 +253,15 @@ def _controllable_basis(A: np.ndarray, G: np.ndarray, tol: float = 1e-9) -> np.n
 
 
 def _psd_factor(Q: np.ndarray) -> np.ndarray:
-    """A batch of square roots F with F Fᵀ = Q for (near-)PSD Q: Cholesky, falling back to
-    a clipped eigendecomposition when a covariance is numerically singular."""
+    """A batch of square roots F with F Fᵀ ≈ Q for (near-)PSD Q.
+
+    Cholesky of Q + 1e-13·max(diag Q)·I first (a perturbation below the rounding error of Q
+    itself, which is computed to ~1e-13 relative), falling back to a clipped
+    eigendecomposition when a covariance is numerically singular."""
+    scale = np.max(np.diagonal(Q, axis1=-2, axis2=-1), axis=-1)
+    eye = np.eye(Q.shape[-1])
     try:
-        return np.linalg.cholesky(Q)
+        return np.linalg.cholesky(Q + (1e-13 * scale)[..., None, None] * eye)
     except np.linalg.LinAlgError:
         w, U = np.linalg.eigh(Q)
         return U * np.sqrt(np.clip(w, 0.0, None))[..., None, :]

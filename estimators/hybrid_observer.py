@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 
-from .jointly_observable_design import flocking_matrix, symmetric_weights
+from .jointly_observable_design import symmetric_weights
 
 NS = 1_000_000_000
 
@@ -184,6 +184,13 @@ class HybridRun:
         return cls(**kw, extra={k.removeprefix("extra_"): v for k, v in a.items() if k.startswith("extra_")})
 
 
+def rowwise_matmul(X: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """X @ M with a fixed summation order per row: a trial's numbers do not depend on how many
+    trials run beside it (BLAS blocks differently for different batch sizes), so a run of one
+    trial reproduces trial 0 of a batch bit for bit."""
+    return (X[:, :, None] * M[None]).sum(axis=1)
+
+
 def _generator(d: ObserverDesign, active: np.ndarray, b: np.ndarray | None, omega: float, Kc: np.ndarray | None,
                Cs: np.ndarray) -> np.ndarray:
     """Generator of [x; w_1..w_m; c; s; x_1..x_m; x_c]; inactive agents are frozen."""
@@ -262,7 +269,7 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
 
     # state
     X = np.zeros((B, D))
-    x_start = x0 @ sla.expm(A * (start_ns / NS)).T if (start_ns < 0 and noise_b is None) else x0.copy()
+    x_start = rowwise_matmul(x0, sla.expm(A * (start_ns / NS)).T) if (start_ns < 0 and noise_b is None) else x0.copy()
     X[:, :n] = x_start
     X[:, n:io] = w0
     X[:, io] = math.cos(noise_omega * start_ns / NS)
@@ -319,7 +326,7 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
         Qw = np.zeros((B, m, n))
         for i in range(m):
             if pp[i]:
-                Qw[:, i] = w_start[s][:, W_slices[i]] @ d.Q[i].T
+                Qw[:, i] = rowwise_matmul(w_start[s][:, W_slices[i]], d.Q[i].T)
         xs = x_event[s - 1]                               # x(t_i(s-1)) per agent
         pi0 = np.where(pp[None, :, None], z - xs, 0.0)
         pi0_max[s - 1] = np.linalg.norm(pi0, axis=-1).max(axis=-1)
@@ -354,10 +361,11 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
         M[:, keep, keep] = 1.0
         c = np.where(pp[None, :, None], Qw, 0.0).reshape(B, m * n)
         zf = z.reshape(B, m * n)
+        MT = np.ascontiguousarray(np.swapaxes(M, 1, 2))
         traj = np.empty((q + 1, m * n))
         traj[0] = zf[0]
         for k in range(q):
-            zf = zf @ M[k].T + c
+            zf = rowwise_matmul(zf, MT[k]) + c
             traj[k + 1] = zf[0]
         z = zf.reshape(B, m, n)
         z0[s - 1] = traj.reshape(q + 1, m, n)
@@ -377,7 +385,7 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
     t_prev = start_ns
     for t in times:
         if t > t_prev:
-            X = X @ phi(active_at(t_prev), int(t - t_prev))
+            X = rowwise_matmul(X, phi(active_at(t_prev), int(t - t_prev)))
             t_prev = t
         for i in range(m):
             s = next_s[i]
@@ -386,7 +394,7 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
                 xt = X[:, :n]
                 e_pre[s][:, i] = xi - xt
                 if s >= 1 and part[s - 1, i]:
-                    X[:, io + 2 + i * n: io + 2 + (i + 1) * n] = zq[s][:, i] @ eAT.T
+                    X[:, io + 2 + i * n: io + 2 + (i + 1) * n] = rowwise_matmul(zq[s][:, i], eAT.T)
                 for mb in membership:
                     if mb.agent == i and to_ns(mb.join) == t and mb.policy == "reinit":
                         if mb.x_reinit is not None:
@@ -396,7 +404,7 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
                 e_post[s][:, i] = xhat(X)[:, i] - xt
                 x_event[s][:, i] = xt
                 wi = X[:, n + W_slices[i].start: n + W_slices[i].stop]
-                ebar[s][:, W_slices[i]] = wi - xt @ d.L[i].T
+                ebar[s][:, W_slices[i]] = wi - rowwise_matmul(xt, d.L[i].T)
                 next_s[i] += 1
                 if s < S:
                     capture(i, s)
@@ -439,19 +447,19 @@ def transition_products(P: np.ndarray, W: np.ndarray) -> np.ndarray:
 
 
 def error_recursion(d: ObserverDesign, W: np.ndarray, T: float, offsets: np.ndarray | None = None,
-                    Phi: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    Phi: np.ndarray | None = None, eAT: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A(s) = e^{ÃT} Φ(0) (42), B(s) = e^{ÃT} Σ_{k=1}^q Φ(k) Q (43), and for event-time offsets
     G(s) = e^{ÃT} Σ_k Φ(k) P Γ(k) with Γ_i(k) = Σ_j W_ij(k) (e^{A t_i0} - e^{A t_j0}) (58), so that
     e(s) = A e(s-1) + B ē(s-1) - G x((s-1)T)  (61, with the sign corrected)."""
     m, n = d.m, d.n
     Phi = transition_products(d.P, W) if Phi is None else Phi
-    eAT = np.kron(np.eye(m), sla.expm(d.A * T))
+    eAT = np.kron(np.eye(m), sla.expm(d.A * T) if eAT is None else eAT)
     Qb = sla.block_diag(*d.Q)
     As = eAT @ Phi[0]
     Bs = eAT @ Phi[1:].sum(axis=0) @ Qb
     G = np.zeros((m * n, n))
     if offsets is not None and np.any(offsets != 0):
-        E = np.array([sla.expm(d.A * t) for t in offsets])                 # (m, n, n)
+        E = np.array([sla.expm(d.A * t) if t else np.eye(n) for t in offsets])      # (m, n, n)
         Gam = E[None] - np.einsum("kij,jab->kiab", W, E)                   # (q, m, n, n), rows of W sum to 1
         Pb = sla.block_diag(*d.P)
         G = eAT @ (Phi[1:] @ Pb[None] @ Gam.reshape(W.shape[0], m * n, n)).sum(axis=0)

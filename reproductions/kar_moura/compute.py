@@ -144,9 +144,11 @@ def compute_bounds(sc: GossipKalmanScenario, slots: int) -> dict[str, np.ndarray
         out["kJ"] = ks
         out["beta_single"] = np.array([wd.tail_bound_single(Abar, w, min(slots, k + ell)) if k >= 0 else 1.0 for k in ks])
         small = sc.N ** max(ell - 1, 0) <= 2000
-        out["beta_multi"] = np.array([wd.tail_bound_multi(Abar, windows, min(slots, k + ell)) if (k >= 0 and small) else np.nan
-                                      for k in km])
-        if sc.N ** ell <= 5000:
+        out["beta_multi"] = np.array([(wd.tail_bound_multi(Abar, windows, min(slots, k + ell)) if k >= 0 else 1.0)
+                                      if small else np.nan for k in km])
+        support = (Abar > 1e-12).astype(float)
+        n_windows = float(np.linalg.matrix_power(support, ell - 1).sum())
+        if n_windows <= 5000:
             Z, pi, corr, printed = wd.lifted_chain_stationary(Abar, ell)
             out["lifted_pi"], out["lifted_corrected"], out["lifted_printed"] = pi, corr, printed
     # centralized reference (same P0): our batched filter, filterpy, and the DARE

@@ -27,7 +27,7 @@ CODE_MODULES = ("estimators.gossip_covariance", "estimators.gossip_filter", "est
                 "reproductions.tanwani.compute")
 FILTERPY_STEPS = (0.1, 0.05, 0.02, 0.01, 0.005)
 GRID_BLOCK = 2_500
-EVENT_BLOCK = 250
+EVENT_BLOCK = 1000
 TOPOLOGIES = {"path": {"kind": "line", "n": 4}, "ring": {"kind": "ring", "n": 4},
               "star": {"kind": "edges", "n": 4, "edges": [[0, 1], [0, 2], [0, 3]]}, "complete": {"kind": "complete", "n": 4}}
 

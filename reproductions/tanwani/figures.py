@@ -41,7 +41,7 @@ def fig1(r: ScenarioResults, path: Path) -> None:
     pos = r.scenario.graph.positions()
     fig, axes = new_figure(ncols=2, width=5.2, height=4.0)
     ax = axes[0, 0]
-    plant = np.array([pos[:, 0].mean(), pos[:, 1].max() + 1.2])
+    plant = np.array([pos[:, 0].max() + 1.6, pos[:, 1].mean()])
     for i in range(s.N):
         ax.plot([plant[0], pos[i, 0]], [plant[1], pos[i, 1]], color="0.8", lw=0.8, zorder=0)
     for i, j in s.edges:
@@ -181,7 +181,7 @@ def fig5(r: ScenarioResults, path: Path) -> None:
     ax.set_xlabel("λ")
     ax.set_ylabel("Frobenius distance")
     ax.legend(fontsize=6)
-    ax.set_title(f"Fig. 5: practical convergence (12), {sc.name} {NOTE}", fontsize=9)
+    ax.set_title(f"Fig. 5: practical convergence (12), {sc.name}\n{NOTE}", fontsize=9)
     save_figure(fig, path)
 
 

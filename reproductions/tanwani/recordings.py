@@ -54,6 +54,7 @@ def write_scenario(r: ScenarioResults, res: Results, path: Path, claims: list[di
                                           name=f"node {i + 1}: tr covariance, λ = {lams[0]:g}")
                        for i in range(nodes_shown)], name="mean-square error vs bounds"),
             rrb.Horizontal(rrb.GraphView(origin="/graph", name="sensor network"),
+                           rrb.GraphView(origin="/events/graph", name="edge that rang last (one path)"),
                            rrb.TimeSeriesView(origin="/events", name="edge clock rings (one path)"),
                            name="network and events"),
             rrb.Grid(*[rrb.TimeSeriesView(origin=f"/nodes/{i}", contents=[f"/nodes/{i}/estimate/**", "/truth/**"],
@@ -86,6 +87,16 @@ def write_scenario(r: ScenarioResults, res: Results, path: Path, claims: list[di
                 rec_.send_series(rec, f"events/edge_{i + 1}_{j + 1}", rec_.duration_index("t", _ns(tk)),
                                  np.full(tk.size, float(k + 1)), names=f"edge {i + 1}–{j + 1}",
                                  colors=[rec_.color(k)], points=True)
+        # the same path as a graph whose edge set is, at every time, the edge that rang last
+        t_ev = et[(ec >= 0) & np.isfinite(et)]
+        if t_ev.size:
+            ids = [str(i) for i in range(N)]
+            rec.log("events/graph", rr.GraphNodes(ids, positions=np.asarray(sc.graph.positions(), float) * 100.0,
+                                                  labels=[f"sensor {i + 1}" for i in range(N)], show_labels=True,
+                                                  radii=12.0), static=True)
+            pairs = [(str(s.clocks[c][0]), str(s.clocks[c][1])) for c in ec[(ec >= 0) & np.isfinite(et)]]
+            rec.send_columns("events/graph", indexes=rec_.duration_index("t", _ns(t_ev)),
+                             columns=rr.GraphEdges.columns(edges=pairs).partition([1] * len(pairs)))
         # sample trials of the gridded simulator at the first rate
         z = r.gridded[lams[0]]["sample_z"]                      # (S, T, (N+1)n)
         names = [f"x{a + 1}" for a in range(n)]

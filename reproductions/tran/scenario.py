@@ -109,7 +109,7 @@ class CoestimationScenario:
         return d
 
 
-def _node_type(data: Any, field: str, n: int, p: int, m: int | None) -> NodeType:
+def _node_type(data: Any, field: str, n: int, p: int, m: int | None, key: str) -> NodeType:
     data = section(data, field)
     reject_unknown(data, ("name", "C", "L", "J", "K", "sigma", "eps", "P", "comparison_sigma"), field)
     for key in ("C", "L", "J", "K", "sigma"):
@@ -135,7 +135,7 @@ def _node_type(data: Any, field: str, n: int, p: int, m: int | None) -> NodeType
         if np.linalg.eigvalsh(P).min() <= 0:
             raise ScenarioError(join(field, "P"), "must be positive definite")
     cs = as_float(data.get("comparison_sigma", sigma), join(field, "comparison_sigma"), low=0.0, low_open=True)
-    name = as_str(data.get("name", field), join(field, "name"))
+    name = as_str(data.get("name", key), join(field, "name"))
     return NodeType(name, C, L, J, K, sigma, eps, P, cs)
 
 
@@ -203,11 +203,15 @@ def scenario_from_dict(data: Any) -> CoestimationScenario:
     reject_unknown(nodes, ("positions", "type"), "nodes")
     if "type" not in nodes:
         raise ScenarioError("nodes.type", "missing (one node-type index per node)")
-    types_raw = as_list(data["node_type"], "node_type")
+    types_raw = section(data["node_type"], "node_type")
+    if not types_raw:
+        raise ScenarioError("node_type", "must define at least one node type ([node_type.<name>] tables)")
     types: list[NodeType] = []
-    for k, t in enumerate(types_raw):
-        types.append(_node_type(t, f"node_type[{k}]", n, p, types[0].C.shape[0] if types else None))
-    node_type = as_int_tuple(nodes["type"], "nodes.type", low=0, high=len(types) - 1)
+    for key, t in types_raw.items():
+        types.append(_node_type(t, f"node_type.{key}", n, p, types[0].C.shape[0] if types else None, key))
+    names = list(types_raw)
+    type_list = as_list(nodes["type"], "nodes.type")
+    node_type = tuple(names.index(as_str(v, f"nodes.type[{i}]", names)) for i, v in enumerate(type_list))
     if len(node_type) != N:
         raise ScenarioError("nodes.type", f"must have one entry per node ({N}), got {len(node_type)}")
     if "positions" in nodes:
@@ -224,7 +228,7 @@ def scenario_from_dict(data: Any) -> CoestimationScenario:
     if P_mode == "given":
         for k, t in enumerate(types):
             if t.P is None:
-                raise ScenarioError(f"node_type[{k}].P", "missing (needed for coupling.P = 'given')")
+                raise ScenarioError(f"node_type.{list(types_raw)[k]}.P", "missing (needed for coupling.P = 'given')")
 
     roles = section(data.get("roles", {"mode": "fixed", "active": [1.0] * N}), "roles")
     role_mode = as_str(roles.get("mode", "proximity"), "roles.mode", ("proximity", "fixed"))

@@ -144,8 +144,8 @@ def check_joint_observability(res: MultiResults) -> Verdict:
     out = []
     for name, r in _parts(res):
         smin = float(r.design["sigma_min_16"])
-        out.append((name, inequality(0.0, smin, strict=True,
-                                     detail=f"smallest singular value of [I - P_1; ...; I - P_m] = {smin:.6g} > 0 (16)")))
+        out.append((name, Verdict(PASS if smin > 1e-9 else FAIL, measured=smin, reference=0.0, margin=smin,
+                                  detail=f"smallest singular value of [I - P_1; ...; I - P_m] = {smin:.6g} > 0 (16)")))
     return _combine(out)
 
 
@@ -161,8 +161,8 @@ def check_local_rates(res: MultiResults) -> Verdict:
               f"λ̄ = {r.scenario.lam_bar} (valid: λ < λ̄ <= {slow:.4f}).")
     ok_corrected = abs(slow - 2.0) <= 0.02
     status = ERRATUM if (slow < printed and ok_corrected) else (PASS if slow >= printed else FAIL)
-    return Verdict(status, measured=slow, reference=printed, printed=printed, corrected=2.0, tolerance=0.02,
-                   margin=float(slow - printed), detail=detail)
+    return Verdict(status, measured=printed, reference=slow, printed=printed, corrected=2.0, tolerance=0.02,
+                   margin=float(0.02 - abs(slow - 2.0)), detail=detail)
 
 
 def check_redundancy(res: MultiResults) -> Verdict:
@@ -365,6 +365,26 @@ def check_lemma2(res: MultiResults, timing: str) -> Verdict:
     return _combine(out)
 
 
+def check_lemma1(res: MultiResults) -> Verdict:
+    """Windows 𝓘_s(k) = [sT + (k-1)Δ + β - ε, sT + (k-1)Δ + β + ε] are disjoint and inside [sT, (s+1)T)."""
+    out = []
+    for name, r in _parts(res):
+        for run in r.scenario.runs:
+            if run.timing not in ("async", "offset") or hypotheses_async(run):
+                continue
+            eps = max(run.epsilon)
+            centres = np.arange(run.q) * run.Delta + run.beta
+            gaps = np.concatenate([[centres[0] - eps], (centres[1:] - eps) - (centres[:-1] + eps),
+                                   [r.scenario.T - (centres[-1] + eps)]])
+            v = inequality(np.zeros_like(gaps), gaps, detail=f"smallest gap {gaps.min():.3g} between consecutive windows "
+                                                              f"(and the interval ends), ε = {eps:g}, β = {run.beta:g}, "
+                                                              f"Δ = {run.Delta:g}, q = {run.q}")
+            if gaps[-1] <= 0 or gaps[1:-1].min(initial=1) <= 0:
+                v = Verdict(FAIL, measured=float(gaps.min()), reference=0.0, detail=v.detail)
+            out.append((f"{name}/{run.name}", v))
+    return _combine(out)
+
+
 def check_async_equals_sync(res: MultiResults) -> Verdict:
     out = []
     for name, r in _parts(res):
@@ -412,12 +432,15 @@ def check_eq45_49(res: MultiResults) -> Verdict:
             if run.rule != "mean":
                 continue
             ok = ~np.isnan(a["B_mixed"])
+            okp = ~np.isnan(a["Phi_max"])
             bnd = constants(r, run)["b"]
-            lo = np.concatenate([a["B_mixed"][ok], a["Phi_max"][ok]])
-            up = np.concatenate([np.full(ok.sum(), bnd), np.ones(ok.sum())])
+            lo = np.concatenate([a["B_mixed"][ok], a["Phi_max"][okp]])
+            up = np.concatenate([np.full(ok.sum(), bnd), np.ones(okp.sum())])
             out.append((f"{name}/{run.name}", inequality(lo, up + 1e-12,
                                                          detail=f"max |B(s)| = {a['B_mixed'][ok].max():.4g} <= q e^(||A||T)|Q| "
-                                                                f"= {bnd:.4g}; max |Φ_s(k)| = {a['Phi_max'][ok].max():.12f} <= 1")))
+                                                                f"= {bnd:.4g} over {ok.sum()} intervals; max |Φ_s(k)| = "
+                                                                f"{a['Phi_max'][okp].max():.12f} <= 1 over all k of the first "
+                                                                f"{okp.sum()} intervals (tolerance 1e-12)")))
     return _combine(out)
 
 
@@ -472,8 +495,10 @@ def check_event_bound(res: MultiResults, timing: str, sym: bool = False) -> Verd
                 continue
             lhs, rhs = event_bound(r, run.name, sym)
             ratio = float((lhs / rhs).max())
-            v = inequality(lhs, rhs, detail=f"max measured/bound = {ratio:.3g} over {lhs.size} (s, trial) pairs "
-                                            f"(d = {constants(r, run)['d_sym' if sym else 'd']:.4g})")
+            floor = roundoff_floor(r, run.name)[1:]
+            v = inequality(lhs, rhs + floor, detail=f"max measured/bound = {ratio:.3g} over {lhs.size} (s, trial) pairs "
+                                                    f"(d = {constants(r, run)['d_sym' if sym else 'd']:.4g}); errors below "
+                                                    f"{ROUNDOFF:g} eps ||x|| count as round-off")
             out.append((f"{name}/{run.name}", Verdict(v.status, v.measured, v.reference, margin=v.margin,
                                                       trials=lhs.shape[1], detail=v.detail)))
     return _combine(out)
@@ -689,6 +714,8 @@ def check_fig5(res: MultiResults) -> Verdict:
     base_late = base.err[_window(base, end_t - 1, end_t + 1e-9), 0].max()
     no_impact = diff <= 1e-2 * scale
     brief = peak > 10 * pre and late < 1e-3 * peak
+    qd = [x for x in r.design["vertex_loss_q"].tolist() if x]
+    qstar = max(int(x) for x in qd) if qd else None
     return Verdict(PASS if (no_impact and brief) else FAIL, measured=float(diff / scale), reference=1e-2,
                    margin=float(1e-2 - diff / scale),
                    detail=f"loss of agent {ag + 1} at t = {t_out:g}: the other agents' errors on [{t_out:g}, {t_in:g}) differ "
@@ -697,7 +724,28 @@ def check_fig5(res: MultiResults) -> Verdict:
                           f"[{t_in - 1:g}, {t_in:g}) = {pre:.3g}, max error of all on [{t_in:g}, {t_in + 3:g}) = {peak:.3g} "
                           f"(the re-initialised agent's w_i(t) - L_i x(t) is as large as at t = 0), on the last interval "
                           f"{late:.3g} (without the leave: {base_late:.3g}): a disturbance that decays at the local "
-                          "observers' rate. The paper makes no claim about re-joining (Section 5).")
+                          "observers' rate. Section 5's design for losing one agent: ρ_d = "
+                          f"{np.round(r.design['vertex_loss_rho'], 6).tolist()}, q* = max q_d = {qstar} (q = "
+                          f"{spec.q} here). The paper makes no claim about re-joining (Section 5).")
+
+
+def check_key_point(res: MultiResults) -> Verdict:
+    """Demonstrated on the generic system (unstable: eig 0.3, 0.1 ± 0.8j); the universal statement is not checkable."""
+    r = next((r for _, r in _parts(res, "theory") if np.max(np.linalg.eigvals(r.scenario.A).real) > 0), None)
+    if r is None:
+        return not_checkable("no scenario with an unstable A")
+    dz = r.design
+    t, xn, ee, em = dz["kp_t"], dz["kp_xnorm"], dz["kp_err_exact"], dz["kp_err_mismatch"]
+    half = t >= t[-1] / 2
+    grow = float(np.polyfit(t[half], np.log(em[half]), 1)[0])
+    unstable = float(np.max(np.linalg.eigvals(r.scenario.A).real))
+    ratio = float(em[-1] / xn[-1])
+    detail = (f"{r.scenario.name}: centralized Kalman filter (filterpy) on all outputs, model A + δE with ||δE|| = "
+              f"{float(dz['kp_size']):g}: the error grows at rate {grow:.4f} (largest Re eig(A) = {unstable:.4f}), "
+              f"||e||/||x|| -> {ratio:.3g} at t = {t[-1]:g}; with the exact model the error is {ee[-1]:.3g}. The "
+              "universal statement (all estimators) is not checkable; this is one demonstration.")
+    ok = grow > 0.5 * unstable and ee[-1] < 1e-3 * em[-1]
+    return Verdict(PASS if ok else FAIL, measured=grow, reference=unstable, margin=grow - 0.5 * unstable, detail=detail)
 
 
 def check_central(res: MultiResults) -> Verdict:
@@ -712,9 +760,11 @@ def check_central(res: MultiResults) -> Verdict:
         sel = (t >= 1.0)
         rate, first, stop = fit_rate(t[sel], ce[sel], fl[sel], skip=0)
         design = -max(r.scenario.central_poles)
-        out.append((name, inequality(design * 0.99, rate,
-                                     detail=f"centralized observer on the stacked outputs (poles {list(r.scenario.central_poles)})"
-                                            f": fitted error decay rate {rate:.4f} vs its slowest pole {design}")))
+        out.append((name, Verdict(PASS if rate >= 0.99 * design else FAIL, measured=rate, reference=design,
+                                  tolerance=0.01, margin=rate - 0.99 * design,
+                                  detail=f"centralized observer on the stacked outputs (poles {list(r.scenario.central_poles)}"
+                                         f"): fitted error decay rate {rate:.4f} vs its slowest pole {design} (1% allowed "
+                                         f"for the transient of the faster poles), t >= 1 until round-off")))
     return _combine(out)
 
 
@@ -758,6 +808,8 @@ def catalogue(parts: list[str]) -> list[Claim]:
     add("lemma3", "source_sets", "Lemmas 1, 3, (36)", "asynchronous under (10) with N(t) constant on the windows (23): "
         "S_is(k) = N_i((s-1)T+(k-1)Δ+β) and every message lands in its reception interval", "identity",
         lambda r: check_lemma2(r, "async"))
+    add("lemma1", "windows", "Lemma 1, (23)", "under (10) the q windows 𝓘_s(k) are disjoint and lie in [sT, (s+1)T)",
+        "inequality", check_lemma1)
     add("thm2", "async_equals_sync", "Theorem 2, Lemma 3", "under Theorem 2's hypotheses the asynchronous observer "
         "produces the synchronous iterates exactly", "identity", check_async_equals_sync)
     add("lemma4", "eq44", "Lemma 4, (44)", "|A(s)| <= e^(-λT) when q satisfies (22)", "inequality",
@@ -794,8 +846,7 @@ def catalogue(parts: list[str]) -> list[Claim]:
         add("sec6", "fig5_leave_join", "Sec. 6, Fig. 5", "the loss of agent 4 at t = 5 has no visible impact; its "
             "re-emergence at t = 7 briefly affects performance", "qualitative", check_fig5)
         add("sec4", "key_point_mismatch", "Sec. 4", "with an unstable A and a model mismatch every open-loop estimator "
-            "(including Kalman filters) diverges", "qualitative",
-            lambda r: not_checkable("a universal statement about all estimators; not demonstrated in this reproduction"))
+            "(including Kalman filters) diverges", "qualitative", check_key_point)
         add("remarks", "not_tight", "Sec. 2.2, 7", "α^p is not likely tight; strong connectivity is stronger than "
             "necessary; re-joining is not covered", "qualitative",
             lambda r: not_checkable("opinions and conjectures (spec §3.2 remarks); the measured |A(s)| values "

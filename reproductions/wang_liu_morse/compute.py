@@ -25,6 +25,7 @@ LEMMA5_SAMPLES = 20_000
 #: arrays in which NaN marks "not applicable" (intervals an agent sat out; identities of runs with an input)
 NOT_APPLICABLE = ("res_minus", "res_plus", "res_scale", "A_mixed", "B_mixed", "G_mixed", "A_2", "B_2", "Phi_max")
 DT_PLOT = 0.01
+PHI_INTERVALS = 4
 
 
 def observer_design(sc: HybridScenario) -> ho.ObserverDesign:
@@ -136,7 +137,59 @@ def compute_design(sc: HybridScenario, seed: int) -> dict[str, np.ndarray]:
         vals.append(np.linalg.norm(sla.block_diag(*d.P) @ np.kron(Fm, np.eye(n)), 2))
     out["lemma6_max"] = np.array(max(vals) if vals else np.nan)
     out["lemma6_count"] = np.array(len(vals))
+    # Section 5, vertex loss: ρ_d and q_d of (22) for every d = m minus one agent; q* = max
+    rho_d, q_d, ok_d = [], [], []
+    lam_p = float(sc.paper_values.get("lambda", sc.lam))
+    for i in range(m):
+        keep = [j for j in range(m) if j != i]
+        O = np.vstack([jd.observability_matrix(sc.A, sc.C[j]) for j in keep])
+        ok = np.linalg.matrix_rank(O) == n and m - 1 >= 2     # connectivity: `redundant_connected`, per graph
+        ok_d.append(ok)
+        if ok:
+            rd = jd.rho_exact(d.P[keep]).rho
+            rho_d.append(rd)
+            q_d.append(str(jd.sufficient_q(rd, m - 1, nA, lam_p, sc.T).q_thm22))
+        else:
+            rho_d.append(np.nan)
+            q_d.append("")
+    out["vertex_loss_ok"], out["vertex_loss_q"] = np.array(ok_d), np.array(q_d)
+    out["vertex_loss_rho"] = np.nan_to_num(np.array(rho_d), nan=-1.0)
+    out.update(model_mismatch(sc, seed))
     return out
+
+
+def model_mismatch(sc: HybridScenario, seed: int, steps: int = 2000, dt: float = 0.01, size: float = 1e-3
+                   ) -> dict[str, np.ndarray]:
+    """Section 4's key point: a centralized Kalman filter (filterpy) on all outputs, with the model
+    A + δE (||δE|| = size) instead of A, against the same filter with the exact model; noise-free
+    plant. Trajectories of ||x||, and of the error for both filters."""
+    from filterpy.kalman import KalmanFilter
+
+    n = sc.n
+    Cs = np.vstack(sc.C)
+    gen = block_generator(stream_seed(seed, "model-mismatch"))
+    E = gen.standard_normal((n, n))
+    E *= size / np.linalg.norm(E, 2)
+    Phi = sla.expm(sc.A * dt)
+    x = np.empty((steps, n))
+    x[0] = sc.x0
+    for k in range(1, steps):
+        x[k] = Phi @ x[k - 1]
+    errs = {}
+    for label, Ahat in (("exact", sc.A), ("mismatch", sc.A + E)):
+        kf = KalmanFilter(dim_x=n, dim_z=Cs.shape[0])
+        kf.F, kf.H = sla.expm(Ahat * dt), Cs
+        kf.Q, kf.R = 1e-6 * np.eye(n), 1e-4 * np.eye(Cs.shape[0])
+        kf.x, kf.P = np.zeros(n), np.eye(n)
+        e = np.empty(steps)
+        for k in range(steps):
+            if k:
+                kf.predict()
+            kf.update(Cs @ x[k])
+            e[k] = np.linalg.norm(kf.x - x[k])
+        errs[label] = e
+    return {"kp_t": np.arange(steps) * dt, "kp_xnorm": np.linalg.norm(x, axis=1), "kp_err_exact": errs["exact"],
+            "kp_err_mismatch": errs["mismatch"], "kp_size": np.array(size)}
 
 
 # -- runs --------------------------------------------------------------------------------------------
@@ -201,17 +254,19 @@ def recursion_checks(sc: HybridScenario, d: ho.ObserverDesign, run: RunSpec, res
     out["res_plus"] = np.full((S, B), np.nan)
     out["res_scale"] = np.full((S, B), np.nan)
     offsets = np.asarray(run.offsets, float)
+    eAT = sla.expm(sc.A * sc.T)
     for s in range(1, S + 1):
         if not res.participating[s - 1].all():
             continue
         Phi = ho.transition_products(d.P, res.W[s - 1])
-        As, Bs, G = ho.error_recursion(d, res.W[s - 1], sc.T, offsets, Phi=Phi)
+        As, Bs, G = ho.error_recursion(d, res.W[s - 1], sc.T, offsets, Phi=Phi, eAT=eAT)
         out["A_mixed"][s - 1] = jd.mixed_norm(As, [n] * m, [n] * m)
         out["B_mixed"][s - 1] = jd.mixed_norm(Bs, [n] * m, d.n_i)
         out["G_mixed"][s - 1] = jd.mixed_norm(G, [n] * m, [n])
         out["A_2"][s - 1] = np.linalg.norm(As, 2)
         out["B_2"][s - 1] = np.linalg.norm(Bs, 2)
-        out["Phi_max"][s - 1] = jd.mixed_norm(Phi, [n] * m, [n] * m).max()
+        if s <= PHI_INTERVALS:      # (49) on the first intervals: q+1 mixed norms each
+            out["Phi_max"][s - 1] = jd.mixed_norm(Phi, [n] * m, [n] * m).max()
         if run.noise:
             continue
         prev = res.e_post[s - 1].reshape(B, m * n)

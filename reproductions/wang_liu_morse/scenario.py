@@ -329,7 +329,7 @@ def parse_runs(value: Any, *, m: int, T: float, q_design: int, q_label: str, gra
     if value is None:
         value = [{"name": "sync", "timing": "sync", "monte_carlo": True},
                  {"name": "ideal", "timing": "sync", "ideal": True, "monte_carlo": True},
-                 {"name": "async", "timing": "async", "reference_run": "sync"}]
+                 {"name": "async", "timing": "async", "reference_run": "sync", "monte_carlo": True}]
         if symmetric:
             value.append({"name": "symmetric", "timing": "sync", "rule": "symmetric", "q": "symmetric",
                           "monte_carlo": True})

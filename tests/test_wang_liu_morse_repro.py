@@ -1,0 +1,180 @@
+"""The hybrid-observer reproduction end to end: the paper in quick mode (verdicts, figures,
+recordings read back), a user's scenario with design quantities checked against independent
+computations, and scenario validation (one ScenarioError naming the field)."""
+from __future__ import annotations
+
+import copy
+import json
+import math
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.linalg as sla
+
+from pipeline import record
+from pipeline.errors import ScenarioError
+from pipeline.reproduction import RunOptions, reverify, run
+from reproductions.wang_liu_morse.reproduction import from_dict, paper
+
+RERUN = Path(sys.executable).parent / "rerun"
+PKG = Path(__file__).resolve().parent.parent / "reproductions" / "wang_liu_morse"
+
+USER = """
+name = "two_agents"
+[system]
+A = [[-0.2, 0.3], [0.0, 0.1]]
+C = [[[1.0, -1.0]], [[0.0, 1.0]]]
+[design]
+T = 0.5
+q = "theory"
+lambda = 0.8
+lambda_bar = 1.2
+[graphs]
+neighbors = [[[2], [1]]]
+[initial]
+x0 = [1.0, -2.0]
+xhat0 = [[0.0, 0.0], [0.5, 0.5]]
+[monte_carlo]
+trials = 8
+quick_trials = 8
+[[runs]]
+name = "sync"
+intervals = 40
+monte_carlo = true
+[[runs]]
+name = "ideal"
+ideal = true
+intervals = 6
+monte_carlo = true
+[[runs]]
+name = "async"
+timing = "async"
+epsilon = [0.001, 0.002]
+beta = 0.004
+Delta = 0.04
+intervals = 40
+monte_carlo = true
+reference_run = "sync"
+"""
+
+
+@pytest.fixture(scope="module")
+def paper_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("wlm")
+    summary = run(paper(), out, RunOptions(quick=True, trials=8))
+    return out / "wang-liu-morse", summary
+
+
+def _verdicts(d: Path) -> dict[str, dict]:
+    return {c["id"]: c for c in json.loads((d / "report.json").read_text())["claims"]}
+
+
+def test_paper_verdicts(paper_run):
+    d, summary = paper_run
+    v = _verdicts(d)
+    P = "wang-liu-morse."
+    for claim in ("eq41.error_recursion", "thm1.event_bound", "thm1.rate", "thm2.async_equals_sync", "lemma4.eq44",
+                  "lemma2.source_sets", "lemma3.source_sets", "eq17.rho", "eq26.sigma", "sec6.rate", "sec6.eq44_q50",
+                  "sec3.symmetric_case", "lemma8.eq62", "sec4.eq63", "sec6.fig5_leave_join", "sec6.reduced_models"):
+        assert v[P + claim]["verdict"] == "pass", (claim, v[P + claim]["detail"][:500])
+    for claim in ("thm1.continuous_bound", "eq61.offset_recursion", "sec6.local_rates", "eq18.alpha"):
+        row = v[P + claim]
+        assert row["verdict"] == "erratum" and row["printed"] is not None and row["corrected"] is not None, claim
+    assert v[P + "thm1.continuous_bound"]["printed"] > 1 >= v[P + "thm1.continuous_bound"]["corrected"]
+    # the paper's own example fails its sufficient conditions, with the spec's numbers
+    assert v[P + "sec6.q_eq22"]["verdict"] == "fail" and v[P + "sec6.q_eq22"]["reference"] == 3_507_081
+    assert v[P + "sec6.q_eq27"]["reference"] == 57
+    assert v[P + "eq41.error_recursion"]["measured"] < 1e-13
+    assert summary["fail"] == 2 and summary["erratum"] == 4
+
+
+def test_paper_outputs(paper_run):
+    d, _ = paper_run
+    for fig in ("fig1_timing", "fig2_graphs", "fig3", "fig4", "fig5", "theorem1_bounds_paper", "theorem1_bounds_generic",
+                "decay_rates", "A_norms"):
+        assert (d / "figures" / f"{fig}.png").stat().st_size > 10_000, fig
+    design = json.loads((d / "design.json").read_text())
+    assert design["paper"]["q_thm22_paper"] == 3_507_081 and design["generic"]["rho_exact"] is True
+    rrd = d / "paper_sync.rrd"
+    for f in (rrd, d / "paper_fig5_leave_join.rrd", d / "generic_async.rrd"):
+        proc = subprocess.run([str(RERUN), "rrd", "verify", str(f)], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+    sc = record.read_scalars(rrd, "t")
+    t, err = sc["/nodes/1/error"]
+    assert t.dtype.kind == "m" and np.array_equal(t.astype(np.int64)[:3], [0, 10_000_000, 20_000_000])
+    assert np.isfinite(sc["/nodes/1/log10_error"][1]).all()
+    ti, it = sc["/nodes/2/iterates"]
+    assert len(ti) == 25 * 51                                    # S intervals × (q + 1) iterates
+    tb, before = sc["/nodes/3/reset/before"]
+    ta, after = sc["/nodes/3/reset/after"]
+    assert np.array_equal(tb, ta) and (before[1:] != after[1:]).all()   # the discontinuity at each reset
+    kinds = record.blueprint_view_kinds(rrd)
+    assert "TimeSeries" in kinds and "Graph" in kinds and "TextDocument" in kinds
+
+
+def test_user_scenario_against_independent_design(tmp_path):
+    data = tomllib.loads(USER)
+    repro = from_dict(copy.deepcopy(data))
+    summary = run(repro, tmp_path, RunOptions(seed=5))
+    d = tmp_path / "two_agents"
+    v = _verdicts(d)
+    for claim in ("eq41.error_recursion", "thm1.event_bound", "thm2.async_equals_sync", "lemma4.eq44", "thm1.rate",
+                  "eq17.rho", "lemma3.source_sets"):
+        assert v["wang-liu-morse." + claim]["verdict"] == "pass", claim
+    assert "wang-liu-morse.sec6.q_eq22" not in v
+    design = json.loads((d / "design.json").read_text())["scenario"]
+    # independent: for m = 2, ρ = ||P_1 P_2|| = cos of the angle between the unobservable lines
+    A = np.array(data["system"]["A"])
+    C1, C2 = (np.array(c, float) for c in data["system"]["C"])
+    k1 = sla.null_space(np.vstack([C1, C1 @ A]))                          # ker O_i (unobservable lines)
+    k2 = sla.null_space(np.vstack([C2, C2 @ A]))
+    rho = abs(float(k1[:, 0] @ k2[:, 0]))
+    assert design["rho"] == pytest.approx(rho, rel=1e-12)
+    alpha = (1 + rho) / 2
+    r = (0.8 + np.linalg.norm(A, 2)) * 0.5 / math.log(1 / alpha)
+    assert design["q_thm22"] == 2 * math.ceil(r) + 1 == design["q_runs"]["sync"]
+    assert design["alpha_lemma5"] == pytest.approx(alpha, rel=1e-12) == design["alpha_printed"]
+    assert summary["fail"] == 0
+    rows, diffs = reverify(from_dict(copy.deepcopy(data)), tmp_path, d)   # claims again, from the cache only
+    assert diffs == [] and len(rows) == len(v)
+    for f in ("sync.rrd", "ideal.rrd", "async.rrd"):
+        proc = subprocess.run([str(RERUN), "rrd", "verify", str(d / f)], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+
+
+BAD = [
+    (lambda s: s["system"].update(C=[[[1.0, -1.0]], [[2.0, -2.0]]]), "system.C: (C, A) is not jointly observable"),
+    (lambda s: s["system"].update(C=[[[1.0, -1.0]], [[0.0, 0.0]]]), "system.C[1]: is zero"),
+    (lambda s: s["graphs"].update(neighbors=[[[2], []]]), "graphs.neighbors[0]: graph is not strongly connected"),
+    (lambda s: s["graphs"].update(neighbors=[[[2], [3]]]), "graphs.neighbors[0][1]: must be <= 2"),
+    (lambda s: s["design"].update(**{"lambda": 1.5}), "design.lambda: must be < lambda_bar"),
+    (lambda s: s["design"].update(poles=[[-0.5], [-2.0]]), "design.lambda_bar: agent 1's local observer"),
+    (lambda s: s["design"].update(qq=3), "design.qq: unknown key"),
+    (lambda s: s["system"].update(A=[[1.0, 2.0, 3.0], [0.0, 1.0, 0.0]]), "system.A: must be square"),
+    (lambda s: s["runs"][2].update(Delta=0.3), "runs[2].Delta: q Δ + ε"),
+    (lambda s: s["runs"][0].update(timing="offset", offsets=[0.0, -0.6]), "runs[0].offsets: the spread"),
+    (lambda s: s["runs"][0].update(leave={"agent": 2, "at": 1.2, "rejoin": 2.0}), "runs[0].leave.at: must be an event time"),
+    (lambda s: s["runs"][2].update(reference_run="nope"), "runs[2].reference_run: must name an earlier run"),
+    (lambda s: s["initial"].update(x0=[1.0]), "initial.x0: must have n = 2 entries"),
+]
+
+
+@pytest.mark.parametrize("mutate, message", BAD, ids=[m for _, m in BAD])
+def test_bad_scenarios(mutate, message):
+    data = tomllib.loads(USER)
+    mutate(data)
+    with pytest.raises(ScenarioError) as exc:
+        from_dict(data)
+    assert message in str(exc.value), str(exc.value)
+
+
+def test_paper_theory_q_is_refused_with_its_value():
+    data = tomllib.loads((PKG / "paper.toml").read_text())
+    data.pop("family")
+    data["design"]["q"] = "theory"
+    with pytest.raises(ScenarioError, match=r"design.q: the theory q is \d+"):
+        from_dict(data)
