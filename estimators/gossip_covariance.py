@@ -112,8 +112,13 @@ def joint_steady(sys: GossipSystem, rate: float) -> np.ndarray | None:
     return None if p is None else unvec(p, sys.N * sys.n)
 
 
-def critical_rate_joint(sys: GossipSystem) -> float:
-    return critical_parameter(lambda lam: spectral_abscissa(joint_generator(sys, lam)[0]))
+def critical_rate_joint(sys: GossipSystem, upper: float | None = None) -> float:
+    """λ_crit of the exact mean covariance; `upper` (e.g. λ_crit of (9), which is never smaller:
+    𝒫_i ⪰ E[e_ie_iᵀ]) narrows the bisection."""
+    f = lambda lam: spectral_abscissa(joint_generator(sys, lam)[0])
+    if upper is not None and math.isfinite(upper) and upper > 0 and f(upper * (1 + 1e-9)) < 0:
+        return critical_parameter(f, start=upper * (1 + 1e-9))
+    return critical_parameter(f)
 
 
 def diagonal_blocks(S: np.ndarray, N: int, n: int) -> np.ndarray:

@@ -333,6 +333,7 @@ def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: n
     nees_thr = chi2.ppf(nees_level, M)
     nees = np.zeros(4)  # sum of NEES over (runs, sensors, window), count above threshold, n, central sum
     nees_c = np.zeros(2)  # central count above, n
+    nees_run = np.zeros((4, B))  # per run: NEES sum and exceedances (sensors), NEES sum and exceedances (central)
     loc = np.tile(np.arange(N), (B, 1))  # token locations p_n(t)
     trans = np.zeros((N, N), dtype=np.int64)
     tok0 = np.zeros((token_steps + 1, N), dtype=np.int64)
@@ -370,6 +371,10 @@ def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: n
             nees[3] += zc.sum()
             nees_c[0] += (zc > nees_thr).sum()
             nees_c[1] += zc.size
+            nees_run[0] += z.sum(axis=1)
+            nees_run[1] += (z > nees_thr).sum(axis=1)
+            nees_run[2] += zc
+            nees_run[3] += zc > nees_thr
 
     with np.errstate(over="ignore", invalid="ignore"):
         record(0)
@@ -393,6 +398,6 @@ def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: n
             record(t + 1)
     return {"times": np.array(times), "q": q, "feat_q": feat_q, "feat_n": feat_n, "quantiles": quant,
             "exceed": exceed, "margins": margins, "path_trace": path_trace, "path_err": path_err,
-            "path_partners": path_partners, "path_err_c": path_err_c, "nees": np.concatenate([nees, nees_c]),
+            "path_partners": path_partners, "path_err_c": path_err_c, "nees": np.concatenate([nees, nees_c]), "nees_run": nees_run,
             "nees_threshold": np.array(nees_thr), "trans": trans, "token0": tok0,
             "token0_final": np.bincount(loc[:, 0], minlength=N), "overflow": np.array(overflow)}

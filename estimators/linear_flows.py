@@ -52,7 +52,8 @@ def affine_steady_state(M: np.ndarray, g: np.ndarray) -> np.ndarray | None:
     return np.linalg.solve(M, -g)
 
 
-def critical_parameter(abscissa: Callable[[float], float], *, upper: float = 1e9, rtol: float = 1e-10) -> float:
+def critical_parameter(abscissa: Callable[[float], float], *, upper: float = 1e9, rtol: float = 1e-10,
+                       start: float | None = None) -> float:
     """inf{λ ≥ 0 : abscissa(λ) < 0} for an abscissa that decreases through zero once.
 
     Returns 0.0 when abscissa(0) < 0, and also when abscissa(0) == 0 up to rounding while
@@ -61,7 +62,7 @@ def critical_parameter(abscissa: Callable[[float], float], *, upper: float = 1e9
     """
     if abscissa(0.0) < 0:
         return 0.0
-    lo, hi = 0.0, 1e-3
+    lo, hi = 0.0, (start if start is not None else 1e-3)      # `start`: a known stable value
     while abscissa(hi) >= 0:
         lo, hi = hi, hi * 4
         if hi > upper:
@@ -124,11 +125,15 @@ class BlockDiagonalFlow:
         eigs, vecs = zip(*(np.linalg.eig(np.asarray(Ab, float)) for Ab in blocks))
         vecs = np.array(vecs, dtype=complex)
         eigs = np.array(eigs, dtype=complex)
+        with np.errstate(all="ignore"):
+            cond = float(max(np.linalg.cond(v) for v in vecs))
+        if not cond < 1e8:     # (nearly) defective: report it, do not invert
+            zero = np.zeros((b, b, n, n), dtype=complex)
+            return cls(vecs, vecs, eigs, zero, zero, math.inf)
         inv = np.linalg.inv(vecs)
         Gb = np.asarray(G, float).reshape(b, n, b, n).transpose(0, 2, 1, 3)
         Gt = inv[:, None] @ Gb @ inv[None, :].transpose(0, 1, 3, 2)
         sums = eigs[:, None, :, None] + eigs[None, :, None, :]
-        cond = float(max(np.linalg.cond(v) for v in vecs))
         return cls(vecs, inv, eigs, Gt, sums, cond)
 
     @property
@@ -177,3 +182,50 @@ class BlockDiagonalFlow:
         X = V[None] @ (Gt[None] * Ph) @ V.T[None]
         Q = X.real
         return (Q + Q.transpose(0, 2, 1)) / 2
+
+
+@dataclass(frozen=True)
+class DenseFlow:
+    """The same interface as `BlockDiagonalFlow` for blocks that are not diagonalisable
+    (e.g. a double integrator): every δ gets its own Van Loan block exponential (batched
+    scipy expm of the (2bn × 2bn) matrix). Exact, but much slower per trial."""
+
+    blocks: tuple
+    G: np.ndarray
+
+    @classmethod
+    def of(cls, blocks: Sequence[np.ndarray], G: np.ndarray) -> "DenseFlow":
+        return cls(tuple(np.asarray(b, float) for b in blocks), np.asarray(G, float))
+
+    @property
+    def n_blocks(self) -> int:
+        return len(self.blocks)
+
+    @property
+    def block(self) -> int:
+        return self.blocks[0].shape[0]
+
+    @cached_property
+    def _generator(self) -> np.ndarray:
+        A = sla.block_diag(*self.blocks)
+        d = len(A)
+        C = np.zeros((2 * d, 2 * d))
+        C[:d, :d] = -A
+        C[:d, d:] = self.G
+        C[d:, d:] = A.T
+        return C
+
+    def _both(self, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        d = self._generator.shape[0] // 2
+        E = sla.expm(self._generator[None] * np.asarray(delta, float)[:, None, None])
+        Phi = E[:, d:, d:].transpose(0, 2, 1)
+        Q = Phi @ E[:, :d, d:]
+        return Phi, (Q + Q.transpose(0, 2, 1)) / 2
+
+    def transition(self, delta: np.ndarray) -> np.ndarray:
+        Phi, _ = self._both(delta)
+        b, n = self.n_blocks, self.block
+        return np.stack([Phi[:, a * n:(a + 1) * n, a * n:(a + 1) * n] for a in range(b)], axis=1)
+
+    def noise(self, delta: np.ndarray) -> np.ndarray:
+        return self._both(delta)[1]

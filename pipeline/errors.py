@@ -13,6 +13,9 @@ class ScenarioError(ValueError):
         self.reason = reason
         super().__init__(f"{field}: {reason}")
 
+    def __reduce__(self):  # raised in a worker process, it must survive pickling
+        return (ScenarioError, (self.field, self.reason))
+
 
 class OutputError(RuntimeError):
     """The output directory cannot be used (not writable, not a directory, disk full)."""
@@ -28,3 +31,6 @@ class NumericalError(ArithmeticError):
     def __init__(self, stage: str, scenario: str, where: str):
         self.stage, self.scenario, self.where = stage, scenario, where
         super().__init__(f"non-finite value in stage '{stage}', scenario '{scenario}', {where}")
+
+    def __reduce__(self):  # raised in a worker process, it must survive pickling
+        return (NumericalError, (self.stage, self.scenario, self.where))

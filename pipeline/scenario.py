@@ -16,6 +16,10 @@ import numpy as np
 
 from .errors import ScenarioError
 
+#: No scenario number is larger than this in magnitude: beyond it squares and sums of
+#: squares overflow float64, and no physical or statistical quantity here needs it.
+MAX_MAGNITUDE = 1e100
+
 
 def load_toml(path: str | Path) -> dict[str, Any]:
     """Parse a TOML scenario file; any read or syntax problem is a ScenarioError."""
@@ -69,6 +73,8 @@ def as_float(value: Any, field: str, *, low=None, high=None, low_open=False, hig
     x = float(value)
     if not math.isfinite(x):
         raise ScenarioError(field, f"must be finite, got {x}")
+    if abs(x) > MAX_MAGNITUDE:
+        raise ScenarioError(field, f"magnitude must be at most {MAX_MAGNITUDE:g}, got {x:g}")
     _check_range(x, field, low, high, low_open, high_open)
     return x
 
@@ -120,6 +126,6 @@ def as_matrix(value: Any, field: str, *, shape: tuple[int, int] | None = None,
         raise ScenarioError(field, f"must have shape {shape[0]}x{shape[1]}, got {M.shape[0]}x{M.shape[1]}")
     if (symmetric or psd) and (M.shape[0] != M.shape[1] or not np.allclose(M, M.T, atol=tol, rtol=0)):
         raise ScenarioError(field, "must be symmetric")
-    if psd and np.linalg.eigvalsh((M + M.T) / 2).min() < -tol:
+    if psd and np.linalg.eigvalsh(M / 2 + M.T / 2).min() < -tol:
         raise ScenarioError(field, "must be positive semidefinite")
     return M

@@ -239,3 +239,14 @@ def test_nonfinite_results_are_caught_where_they_appear(tmp_path):
     diverging = np.array([1.0, np.inf])
     out = cache.get_or_compute("mc", {"a": 2}, lambda: {"J": diverging}, scenario="demo", allow_nonfinite=("J",))
     assert np.isinf(out["J"][1])
+
+
+def test_errors_survive_pickling():
+    import pickle
+
+    from pipeline.errors import NumericalError
+
+    e = pickle.loads(pickle.dumps(NumericalError("mc", "demo", "array 'x' at index (1,)")))
+    assert (e.stage, e.scenario, e.where) == ("mc", "demo", "array 'x' at index (1,)") and "stage 'mc'" in str(e)
+    s = pickle.loads(pickle.dumps(ScenarioError("model.r", "must be > 0")))
+    assert str(s) == "model.r: must be > 0"

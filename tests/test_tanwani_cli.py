@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,6 @@ import pytest
 from pipeline import record
 from pipeline.errors import ScenarioError
 from pipeline.reproduction import RunOptions, run
-from pipeline.scenario import load_toml
 from reproductions.tanwani import reproduction as R
 from reproductions.tanwani.scenario import FilterNetworkScenario
 
@@ -85,15 +85,15 @@ NOT_HURWITZ = DIVERGING.replace('name = "below-critical"', 'name = "abar-unstabl
     "L = [[3.0]]", "L = [[0.2]]")
 
 
-def _user(text):
-    data = load_toml_text(text)
-    return R.from_dict({k: v for k, v in data.items() if k != "family"})
-
-
-def load_toml_text(text, tmp=Path("/tmp")):
-    import tomllib
-
+def load_toml_text(text):
     return tomllib.loads(text)
+
+
+def _user(text):
+    """What `dse run FILE.toml` does once the family is registered: parse, drop `family`, from_dict."""
+    data = load_toml_text(text)
+    assert data.pop("family") == "random-comm-filter"
+    return R.from_dict(data)
 
 
 @pytest.fixture(scope="module")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.linalg as sla
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
@@ -51,12 +52,11 @@ def test_batched_van_loan_equals_block_exponential(seed, delta):
     b, n = int(rng.integers(1, 4)), int(rng.integers(1, 4))
     blocks = [rng.normal(size=(n, n)) for _ in range(b)]
     if seed % 3 == 0:
-        blocks[0] = np.zeros((n, n)) + np.diag(np.arange(n) * 0.5) * 0   # eigenvalue sums that vanish exactly
+        blocks[0] = np.zeros((n, n))                                   # eigenvalue sums that vanish exactly
     F = rng.normal(size=(b * n, b * n))
     G = F @ F.T
     flow = BlockDiagonalFlow.of(blocks, G)
-    Phi, Q = van_loan(np.kron(np.eye(b), np.zeros((n, n))) + __import__("scipy.linalg", fromlist=["x"]).block_diag(*blocks),
-                      G, delta)
+    Phi, Q = van_loan(sla.block_diag(*blocks), G, delta)
     Pb = flow.transition(np.array([delta, 0.0]))
     Qb = flow.noise(np.array([delta, 0.0]))
     for a in range(b):
@@ -135,7 +135,7 @@ def test_joint_generator_is_d1(seed):
     X = X + X.T
     M, g = gc.joint_generator(s, lam)
     lhs = gc.unvec(M @ gc.vec(X) + g, D)
-    Ab = __import__("scipy.linalg", fromlist=["x"]).block_diag(*s.Ai)
+    Ab = sla.block_diag(*s.Ai)
     Ln = np.kron(s.laplacian, np.eye(s.n))
     F = Ab - lam * s.alpha * Ln
     rhs = F @ X + X @ F.T + s.joint_noise[s.n:, s.n:]
@@ -158,7 +158,6 @@ def test_bound_dominates_exact_mean_covariance(seed, mode):
     gap = np.linalg.eigvalsh(P - J)[..., 0] / np.maximum(1, np.linalg.norm(P, axis=(2, 3)))
     assert gap.min() >= -1e-9
     if seed % 2:
-        import scipy.linalg as sla
         Pkb = kb.kalman_bucy_riccati(s.A, s.B, np.vstack(s.H), sla.block_diag(*s.V), s.P0, 0.1, 30)
         low = np.linalg.eigvalsh(J - Pkb[:, None])[..., 0] / np.maximum(1, np.linalg.norm(J, axis=(2, 3)))
         assert low.min() >= -1e-9
@@ -240,7 +239,6 @@ def test_gridded_simulator_matches_exact_mean_covariance():
 @given(st.integers(0, 10_000))
 def test_kalman_bucy_against_scipy_control_and_ode(seed):
     import control as ct
-    import scipy.linalg as sla
 
     s = random_system(seed, kb_gains=True)
     Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
@@ -258,8 +256,6 @@ def test_kalman_bucy_against_scipy_control_and_ode(seed):
 
 
 def test_filterpy_converges_to_kalman_bucy_at_rate_h():
-    import scipy.linalg as sla
-
     s = random_system(4, kb_gains=True)
     Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
     P, _ = kb.kalman_bucy_steady(s.A, s.B, Hs, Vs)
@@ -271,3 +267,22 @@ def test_filterpy_converges_to_kalman_bucy_at_rate_h():
         errs.append(np.linalg.norm(prior[-1] - P))
     ratios = np.array(errs[:-1]) / np.array(errs[1:])
     assert np.all((ratios > 1.7) & (ratios < 2.3))                 # first order in h
+
+
+def test_defective_plant_uses_the_dense_flow():
+    """A double integrator (not diagonalisable): the event-driven simulator stays exact."""
+    A = np.array([[0.0, 1.0], [0.0, 0.0]])
+    B = np.array([[0.0], [1.0]])
+    H = (np.array([[1.0, 0.0]]), np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]]))
+    V = (np.eye(1), 2 * np.eye(1), 0.5 * np.eye(1))
+    L, _ = gf.kalman_bucy_split_gains(A, B, H, V)
+    s = gf.GossipSystem(A, B, H, V, L, ((0, 1), (1, 2)), 0.5)
+    times = np.linspace(0, 1.5, 4)
+    run = gf.simulate_event_driven(s, 2.0, times, 1500, np.random.default_rng(2))
+    for p in range(2):
+        t, c = run.event_times[p], run.event_clocks[p]
+        P, Sig = gc.path_bound_and_covariance(s, t[c >= 0], c[c >= 0], times)
+        np.testing.assert_allclose(run.sigma[p], gc.diagonal_blocks(Sig, s.N, s.n), atol=1e-9 * max(1, np.abs(Sig).max()))
+    z = _conditional_z(run, s)
+    assert z.max() <= z_for_confidence(0.999, z.size)
+    assert (run.min_gap / np.maximum(1, run.scale)).min() >= -1e-9

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
-from scipy.linalg import expm, solve_continuous_lyapunov
+from scipy.linalg import expm
 
 import estimators.common_lyapunov as cl
 import estimators.input_state_coestimation as ce

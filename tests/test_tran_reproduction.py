@@ -114,6 +114,11 @@ def test_user_scenario_with_infeasible_lmi_is_reported(tmp_path):
     from reproductions.tran.compute import Results
     verdict = check_lmi_feasible(Results(repro.scenario, 0, 10, True, design))
     assert verdict.status == "fail" and status in verdict.detail
+    # the whole pipeline still runs and reports
+    summary = run(repro, tmp_path, RunOptions(quick=True, workers=1), out_dir=tmp_path / "run" / "bad")
+    doc = json.loads((tmp_path / "run" / "bad" / "report.json").read_text())
+    row = next(c for c in doc["claims"] if c["id"] == "tran.step_i.lmi_feasible")
+    assert row["verdict"] == "fail" and status in row["detail"] and summary["fail"] >= 1
 
 
 def edit(data, path, value):
@@ -138,7 +143,7 @@ BAD = [
     (("node_type", "pos", "sigma"), -0.1, "node_type.pos.sigma: must be >"),
     (("node_type", "pos", "P"), [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]], "node_type.pos.P: must be positive definite"),
     (("nodes", "type"), ["pos", "vel", "acc", "pos", "vel"], "nodes.type[2]: must be one of"),
-    (("nodes", "type"), [0, 1], "nodes.type: must have one entry per node"),
+    (("nodes", "type"), ["pos", "vel"], "nodes.type: must have one entry per node"),
     (("coupling", "alpha"), 0.0, "coupling.alpha: must be >"),
     (("coupling", "P"), "given", "node_type.pos.P: missing"),
     (("roles", "beta"), KeyError, "roles.beta: missing"),

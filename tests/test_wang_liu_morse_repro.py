@@ -178,3 +178,17 @@ def test_paper_theory_q_is_refused_with_its_value():
     data["design"]["q"] = "theory"
     with pytest.raises(ScenarioError, match=r"design.q: the theory q is \d+"):
         from_dict(data)
+
+
+def test_cli_rejects_a_bad_file_with_one_line(tmp_path):
+    """`dse run FILE.toml` (the family registered as the lead will do): exit 2, one line naming the field."""
+    data = USER.replace("C = [[[1.0, -1.0]], [[0.0, 1.0]]]", "C = [[[1.0, -1.0]], [[2.0, -2.0]]]")
+    (tmp_path / "s.toml").write_text('family = "hybrid-observer"\n' + data)
+    code = ("import sys, reproductions; reproductions.FAMILIES['hybrid-observer'] = "
+            "'reproductions.wang_liu_morse.reproduction'; from pipeline.cli import main; sys.exit(main(sys.argv[1:]))")
+    root = Path(__file__).resolve().parent.parent
+    proc = subprocess.run([sys.executable, "-c", code, "run", "s.toml", "--out", "out"], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=300, env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0"})
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1 and "system.C: (C, A) is not jointly observable" in lines[0]
+    assert not (tmp_path / "out").exists()

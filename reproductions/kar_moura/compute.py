@@ -234,7 +234,9 @@ def aux_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_runs: int, 
     pb = sr.pullback(sys_, back, sc.P0, law_T)
     out["pullback_law_T"] = np.array(law_T)
     out["pullback_law"] = np.array([gk.covariance_features(x) for x in pb])
-    path_T = list(PULLBACK_PATH_T)  # backward paths need not fit in the forward horizon
+    # backward paths need not fit in the forward horizon, but a predicted divergence must stay in float64
+    rate = float(bounds["divergence_rate"].max())
+    path_T = [t for t in PULLBACK_PATH_T if rate <= 0 or t * rate < FLOAT_LOG_BUDGET] or [8, 16, 32]
     back = sr.sample_chain(Abar, 500, max(path_T), rng)
     lo = sr.pullback(sys_, back, np.zeros((M, M)), path_T)
     hi = sr.pullback(sys_, back, COUPLING_C * np.eye(M), path_T)
@@ -266,8 +268,27 @@ def _checked_gikf(fn, scenario: str):
     return run
 
 
+FLOAT_LOG_BUDGET = 600.0  # log of the largest covariance entry we let a predicted divergence reach (float64: ~709)
+
+
+def divergence_rate(sc: GossipKalmanScenario) -> float:
+    """Largest predicted growth rate 2 log|λ| of log tr P over the classes of Ā that cannot detect λ (0: none)."""
+    sys_ = sc.system()
+    chk = wd.check_chain(sc.protocol.build(sc.graph).mean_matrix())
+    rates = [2 * np.log(max(abs(b) for b in bad)) for cls in chk.classes
+             if (bad := wd.pbh_undetectable(sc.F, sys_.C[list(cls)].reshape(-1, sc.M)))]
+    return float(max(rates, default=0.0))
+
+
+def horizon(sc: GossipKalmanScenario, slots: int) -> int:
+    """A predicted divergence is simulated only as long as it stays inside float64: slots ≤ 600 / rate."""
+    rate = divergence_rate(sc)
+    return slots if rate <= 0 else int(min(slots, max(10, FLOAT_LOG_BUDGET // rate)))
+
+
 def compute_scenario(sc: GossipKalmanScenario, opts: RunOptions, cache: StageCache) -> ScenarioResults:
     runs, ref_runs, slots = sizes(sc, opts)
+    slots = horizon(sc, slots)
     code = code_fingerprint(CODE_MODULES)
     base = {"scenario": sc.key(), "code": code, "slots": slots}
     bounds = _stage(cache, base, "bounds", lambda: compute_bounds(sc, slots), sc.name, ("beta_multi",))

@@ -44,6 +44,8 @@ class ProtocolSpec:
         if kind is None:
             raise ScenarioError(join(field, "kind"), f"missing (one of {', '.join(PROTOCOLS)})")
         edges = {(min(u, v), max(u, v)) for u, v in graph.build().edges()}
+        if not edges:
+            raise ScenarioError(join(field, "kind"), "the graph has no edges: there is nothing to gossip over")
         if kind == "single-edge":
             reject_unknown(data, ("kind", "edge_prob"), field)
             if "edge_prob" not in data:

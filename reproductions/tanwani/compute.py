@@ -6,13 +6,14 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
+import scipy.linalg as sla
 
 import estimators.gossip_covariance as gc
 import estimators.gossip_filter as gf
 import estimators.kalman_bucy as kb
+from estimators.linear_flows import van_loan
 from pipeline.cache import StageCache, code_fingerprint
 from pipeline.graphs import GraphSpec
 from pipeline.matrix_moments import MatrixMoments
@@ -84,11 +85,16 @@ def joint_ok(sys: gf.GossipSystem) -> bool:
 
 # -- bounds ----------------------------------------------------------------------------------------
 
-def compute_bounds(sc: FilterNetworkScenario) -> dict[str, np.ndarray]:
+QUICK_SWEEP_POINTS = 15
+QUICK_TOPOLOGY_POINTS = 8
+
+
+def compute_bounds(sc: FilterNetworkScenario, quick: bool = False) -> dict[str, np.ndarray]:
+    """Everything deterministic of one scenario (quick: a coarser λ sweep)."""
     s = sc.system
     N, n = s.N, s.n
     out: dict[str, np.ndarray] = {}
-    Hs, Vs = np.vstack(s.H), __import__("scipy.linalg", fromlist=["block_diag"]).block_diag(*s.V)
+    Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
     T = sc.n_outputs
     try:
         P_kb, K_kb = kb.kalman_bucy_steady(s.A, s.B, Hs, Vs)
@@ -102,19 +108,19 @@ def compute_bounds(sc: FilterNetworkScenario) -> dict[str, np.ndarray]:
             out[f"joint_t_{r}"] = gc.joint_transient(s, lam, sc.output_step, T)
     out["crit_bound"] = np.array(gc.critical_rate_bound(s))
     if joint_ok(s):
-        out["crit_joint"] = np.array(gc.critical_rate_joint(s))
+        out["crit_joint"] = np.array(gc.critical_rate_joint(s, upper=float(out["crit_bound"])))
     abar = float(np.max(np.linalg.eigvals(s.Abar).real))
     out["abar_abscissa"] = np.array(abar)
     if abar < 0:
         out["S"], out["R"] = gc.lyapunov_S(s), gc.lyapunov_R(s.Abar)
         out["S_true"] = gc.lyapunov_S_true(s)
     lo, hi, pts = sc.sweep
+    pts = min(pts, QUICK_SWEEP_POINTS) if quick else pts
     lams = np.geomspace(lo, hi, pts)
     extra = []
     if abar < 0:
         for variant in ("faithful", "tight"):
-            eb = gc.explicit_bound(s, variant)
-            c = eb
+            c = eb = gc.explicit_bound(s, variant)
             out[f"explicit_{variant}"] = np.array([c.C0, c.C1, c.C2, c.C3, c.a1, c.a2, c.sigma_G, c.sigma1_R, c.sigman_R,
                                                    c.kappa, c.fiedler, c.S_norm, c.threshold])
             if math.isfinite(eb.threshold) and eb.threshold > 0:
@@ -141,13 +147,11 @@ def compute_bounds(sc: FilterNetworkScenario) -> dict[str, np.ndarray]:
             out[f"sweep_explicit_{variant}"] = np.array([eb.value(l) for l in lams])
     # filterpy on the sampled model, several sampling steps, run to steady state
     pri, post, dare = [], [], []
-    import scipy.linalg as sla
-
     for h in FILTERPY_STEPS:
         steps = int(round(min(30.0, 40.0 / max(1e-3, -min(abar, -1e-3))) / h))
         prior, posterior = kb.discretised_kalman_covariances(s.A, s.B, Hs, Vs, s.P0, h, min(steps, 6000))
         pri.append(prior[-1]), post.append(posterior[-1])
-        F, Qd = __import__("estimators.linear_flows", fromlist=["van_loan"]).van_loan(s.A, s.B @ s.B.T, h)
+        F, Qd = van_loan(s.A, s.B @ s.B.T, h)
         dare.append(sla.solve_discrete_are(F.T, Hs.T, Qd, Vs / h))
     out["filterpy_h"], out["filterpy_prior"], out["filterpy_post"], out["dare_prior"] = (
         np.array(FILTERPY_STEPS), np.array(pri), np.array(post), np.array(dare))
@@ -246,9 +250,9 @@ def simulate_frozen(sc: FilterNetworkScenario, seed: int, trials: int) -> dict[s
     return {**mom.arrays("e_"), **keep, "path_times": path[0], "path_clocks": path[1]}
 
 
-def compute_topology(sc: FilterNetworkScenario) -> dict[str, np.ndarray]:
+def compute_topology(sc: FilterNetworkScenario, quick: bool = False) -> dict[str, np.ndarray]:
     """S4: S2's plant and sensors on the path, ring, star and complete graphs of 4 nodes."""
-    lams = np.geomspace(0.3, 1e4, 20)
+    lams = np.geomspace(0.3, 1e4, QUICK_TOPOLOGY_POINTS if quick else 20)
     out: dict[str, np.ndarray] = {"lams": lams}
     for name, g in TOPOLOGIES.items():
         s = with_graph(sc, GraphSpec.from_dict(g), name)
@@ -256,14 +260,18 @@ def compute_topology(sc: FilterNetworkScenario) -> dict[str, np.ndarray]:
         out[f"{name}_alpha_fiedler"] = np.array(s.alpha * fied)
         S = gc.lyapunov_S(s)
         d, tr = np.full((len(lams), s.N), np.nan), np.full((len(lams), s.N), np.nan)
+        gap = np.full(len(lams), np.nan)
         for k, lam in enumerate(lams):
             P = gc.bound_steady(s, lam)
             if P is not None:
                 d[k] = np.linalg.norm(P - S, axis=(1, 2))
             Jm = gc.joint_steady(s, lam)
             if Jm is not None:
-                tr[k] = np.trace(gc.diagonal_blocks(Jm, s.N, s.n), axis1=1, axis2=2)
-        out[f"{name}_d"], out[f"{name}_trace_joint"] = d, tr
+                Jd = gc.diagonal_blocks(Jm, s.N, s.n)
+                tr[k] = np.trace(Jd, axis1=1, axis2=2)
+                if P is not None:
+                    gap[k] = np.linalg.eigvalsh(P - Jd)[:, 0].min()
+        out[f"{name}_d"], out[f"{name}_trace_joint"], out[f"{name}_gap"] = d, tr, gap
         out[f"{name}_crit_bound"] = np.array(gc.critical_rate_bound(s))
     return out
 
@@ -280,7 +288,7 @@ def _nonfinite_allowed(stage: str, sc: FilterNetworkScenario) -> tuple[str, ...]
     if stage == "event":
         return ("sample_event_times", "spacing")
     if stage == "topology":
-        return tuple(f"{g}_{k}" for g in TOPOLOGIES for k in ("d", "trace_joint", "crit_bound"))
+        return tuple(f"{g}_{k}" for g in TOPOLOGIES for k in ("d", "trace_joint", "crit_bound", "gap"))
     return ()
 
 
@@ -296,7 +304,8 @@ def compute(scenarios: list[FilterNetworkScenario], opts: RunOptions, cache: Sta
         trials, ev_trials = trial_counts(sc, opts)
         base = {"scenario": sc.key(), "code": code}
         mc = {**base, "seed": opts.seed}
-        items.append((cache, "bounds", base, functools.partial(compute_bounds, sc), sc))
+        items.append((cache, "bounds", {**base, "quick": opts.quick}, functools.partial(compute_bounds, sc, opts.quick),
+                      sc))
         index.append((sc.name, "bounds", None))
         for rate in sc.rates:
             items.append((cache, "gridded", {**mc, "trials": trials, "rate": rate, "samples": sc.sample_trials},
@@ -310,7 +319,8 @@ def compute(scenarios: list[FilterNetworkScenario], opts: RunOptions, cache: Sta
         index.append((sc.name, "frozen", None))
     if is_paper:
         s2 = next(sc for sc in scenarios if sc.name == "s2")
-        items.append((cache, "topology", {"scenario": s2.key(), "code": code}, functools.partial(compute_topology, s2),
+        items.append((cache, "topology", {"scenario": s2.key(), "code": code, "quick": opts.quick},
+                      functools.partial(compute_topology, s2, opts.quick),
                       s2))
         index.append(("s2", "topology", None))
     # the longest stages first, so that two workers finish together

@@ -43,7 +43,7 @@ class RandomCommReproduction:
         return [sc.name for sc in self.scenarios]
 
     def claims(self):
-        return claims_mod.catalogue(self.paper_id, self.scenario_ids(), self.main)
+        return claims_mod.catalogue(self.paper_id, self.scenario_ids(), self.main, paper=self.is_paper)
 
     def trials(self, opts: RunOptions) -> int:
         return max(compute_mod.trial_counts(sc, opts)[0] for sc in self.scenarios)

@@ -25,8 +25,8 @@ import numpy as np
 from estimators.gossip_filter import MODES, GossipSystem, kalman_bucy_split_gains
 from pipeline.errors import ScenarioError
 from pipeline.graphs import GraphSpec
-from pipeline.scenario import (as_float, as_float_tuple, as_int, as_list, as_matrix, as_str, join, load_toml,
-                               reject_unknown, section)
+from pipeline.scenario import (as_float, as_float_tuple, as_int, as_list, as_matrix, as_str, load_toml, reject_unknown,
+                               section)
 
 SECTIONS = ("name", "title", "system", "sensors", "graph", "communication", "gains", "simulation")
 GAIN_RULES = ("kalman-bucy-split", "given")

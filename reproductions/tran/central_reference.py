@@ -68,7 +68,8 @@ def run_kalman(sc, t: np.ndarray, x: np.ndarray, g: np.ndarray, *, noise=None, r
 def central_kalman(sc, det_run: dict, sde_run: dict, noise) -> dict[str, np.ndarray]:
     stride = int(round(sc.kf_dt / sc.record_dt))
     det = run_kalman(sc, det_run["t"][::stride], det_run["x"][::stride], det_run["g"][::stride])
-    out = {"det_t": det["t"], "det_s": det["s"]}
+    every = run_kalman(sc, det_run["t"][::stride], det_run["x"][::stride], np.ones_like(det_run["g"][::stride]))
+    out = {"det_t": det["t"], "det_s": det["s"], "det_all_s": every["s"]}
     if sde_run["kept_x"].size:
         rng = np.random.default_rng(stream_seed(0, "tran", "central-kf-noise"))
         st = run_kalman(sc, sde_run["t"][::stride], sde_run["kept_x"][0, ::stride], sde_run["kept_g"][0, ::stride],

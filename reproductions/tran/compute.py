@@ -135,7 +135,12 @@ def compute_design(sc: CoestimationScenario, quick: bool) -> dict[str, np.ndarra
     if sc.P_mode == "given":
         P_types = out["P_given"]
     elif sc.P_mode == "lmi":
-        P_types = P_lmi
+        # an infeasible (28)-(29) leaves no valid H = P⁻¹: run with P = I for that type so that the run and
+        # every claim still report (tran.step_i.lmi_feasible fails with the solver status), never crash
+        usable = np.array([np.all(np.isfinite(Pt)) and m > 0 and np.linalg.eigvalsh(Pt).min() > 1e-9 * np.trace(Pt)
+                           for Pt, m in zip(P_lmi, margin)])
+        P_types = np.where(usable[:, None, None], np.nan_to_num(P_lmi), np.eye(q)[None])
+        out["P_lmi_fallback"] = ~usable
     else:
         P_types = None
     if P_types is not None:
@@ -237,8 +242,8 @@ def _node(sc: CoestimationScenario, i: int):
 
 
 def _thm31_vertex_check(sc, P, eps, max_nodes: int) -> float:
-    import itertools
-
+    """max over g ∈ {0,1}^N of λ_max(S(g)ᵀP + PS(g) + Q̄_ε), with S(g) built explicitly (the coupling part
+    −α(H(L⊗I))ᵀP − αPH(L⊗I) is formed as a product, not through the identity PH = I)."""
     N, q = sc.N, sc.n + sc.p
     if N > max_nodes:
         return float("nan")
@@ -250,13 +255,7 @@ def _thm31_vertex_check(sc, P, eps, max_nodes: int) -> float:
     blocks = [[(lambda A_: A_.T @ P[i] + P[i] @ A_)(ce.error_matrix(sc.A, sc.B, G["C"][i], G["L"][i], G["J"][i],
                                                                    G["sigma"][i], G["K"][i], g)) for g in (0.0, 1.0)]
               for i in range(N)]
-    worst = -np.inf
-    for gs in itertools.product((0, 1), repeat=N):
-        M = base.copy()
-        for i, gi in enumerate(gs):
-            M[i * q:(i + 1) * q, i * q:(i + 1) * q] += blocks[i][gi]
-        worst = max(worst, np.linalg.eigvalsh(M)[-1])
-    return float(worst)
+    return lb.vertex_eigen_extremes((base + base.T) / 2, blocks)[2]
 
 
 # -- networks and simulations ---------------------------------------------------------------------

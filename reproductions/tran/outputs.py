@@ -95,7 +95,7 @@ def _plane_figure(res: Results, run: dict, title: str, path: Path) -> None:
     save_figure(fig, path)
 
 
-def _draw_network(ax, res: Results, g: np.ndarray | None = None) -> None:
+def _draw_network(ax, res: Results, g: np.ndarray | None = None, tag_active: bool = True) -> None:
     import matplotlib.patches as mpatches
 
     sc = res.scenario
@@ -109,7 +109,7 @@ def _draw_network(ax, res: Results, g: np.ndarray | None = None) -> None:
         marker = "o" if sc.node_type[i] == 0 else "s"
         ax.scatter(*pos[i], s=60 + 200 * active_frac[i], marker=marker, c=[[0.85, 0.2, 0.1, 0.3 + 0.7 * active_frac[i]]],
                    edgecolors="k", zorder=3)
-        tag = " AN" if g is not None and np.any(g[:, i] > 0.5) else ""
+        tag = " AN" if tag_active and g is not None and np.any(g[:, i] > 0.5) else ""
         ax.annotate(f"{i + 1}{tag}", pos[i], xytext=(5, 5), textcoords="offset points", fontsize=7)
 
 
@@ -118,12 +118,14 @@ def _graph_figure(res: Results, path: Path) -> None:
     fig, axes = new_figure(width=6.4, height=5.4)
     ax = axes[0, 0]
     run = res.runs["coest"]
-    _draw_network(ax, res, run["g"])
+    _draw_network(ax, res, run["g"], tag_active=False)
     a, b = sc.position_states
     ax.plot(run["x"][:, a], run["x"][:, b], "k--", lw=1, label="target path (Ex. 5.1)")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_title("Fig. 2 (reconstructed): graph, sensing discs; marker size = active fraction; "
-                 "circles = type 0, squares = type 1; AN = ever active", fontsize=8)
+    ax.set_xlabel(_state_label(a, sc.n))
+    ax.set_ylabel(_state_label(b, sc.n))
+    ax.set_title("Fig. 2 (reconstructed): communication graph and sensing discs\nmarker size and opacity = fraction of "
+                 f"time active in Ex. 5.1; circles = {sc.types[0].name}, squares = other types", fontsize=8)
     ax.legend(fontsize=7)
     save_figure(fig, path)
 

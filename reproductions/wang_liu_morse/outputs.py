@@ -194,23 +194,26 @@ def _decay_figure(res: MultiResults, path: Path) -> None:
 
 
 def _anorm_figure(res: MultiResults, path: Path) -> None:
-    fig, axes = new_figure()
-    ax = axes[0, 0]
-    k = 0
-    for name, r in res.parts.items():
+    import matplotlib.pyplot as plt
+
+    parts = list(res.parts.items())
+    fig, axes = new_figure(ncols=len(parts), width=5.4)
+    cmap = plt.get_cmap("tab20")
+    for ax, (name, r) in zip(axes[0], parts):
+        k = 0
         for s in r.scenario.runs:
             a = r.runs[s.name]
             key = "A_2" if s.rule == "symmetric" else "A_mixed"
             v = a[key]
             if np.all(np.isnan(v)) or s.noise:
                 continue
-            ax.semilogy(np.arange(1, len(v) + 1), np.maximum(v, TINY), ".-", ms=3, color=_mpl(k),
-                        label=f"{name}/{s.name} ({'||·||₂' if key == 'A_2' else '|·|'}, q = {s.q})")
+            ax.semilogy(np.arange(1, len(v) + 1), np.maximum(v, TINY), marker=".", ms=3, lw=1, color=cmap(k % 20),
+                        ls="-" if k < 10 else "--", label=f"{s.name} ({'||·||₂' if key == 'A_2' else '|·|'}, q = {s.q})")
             k += 1
-        ax.axhline(math.exp(-r.scenario.lam * r.scenario.T), ls="--", lw=1, color="k")
-    ax.set_xlabel("event interval s")
-    ax.set_title("|A(s)| per interval vs e^(-λT) (dashed): Lemma 4 (44) and (54)", fontsize=9)
-    ax.legend(fontsize=6, ncol=2)
+        ax.axhline(math.exp(-r.scenario.lam * r.scenario.T), ls="--", lw=1.2, color="k", label="e^(-λT)")
+        ax.set_xlabel("event interval s")
+        ax.set_title(f"{name}: |A(s)| per interval, Lemma 4 (44) and (54)", fontsize=9)
+        ax.legend(fontsize=6, ncol=2)
     save_figure(fig, path)
 
 
