@@ -22,8 +22,10 @@ import time
 from pathlib import Path
 
 from .bench_kalman import bench_kalman
+from .bench_kar_moura import bench_kar_moura
 from .bench_record import bench_record
 from .bench_savas import bench_fig1, bench_filter
+from .bench_wang_liu_morse import bench_hybrid
 
 
 def bench_reproduce(paper: str, repeats: int = 2) -> dict:
@@ -68,8 +70,10 @@ def main() -> None:
         "centralized Kalman filter: batched vs filterpy loop (µs per trial-step)": bench_kalman(repeats=args.repeats),
         "noisy-consensus filter: batched vs per-trial loop (µs per trial-node-step)": bench_filter(args.repeats),
         "Fig. 1 Monte Carlo at the paper's scale": [bench_fig1(1), bench_fig1(2)],
+        "gossip interactive Kalman filter (kar-moura)": bench_kar_moura(),
+        "hybrid observer (wang-liu-morse)": bench_hybrid(),
         "rerun write throughput": [bench_record()],
-        "full reproduction": [bench_reproduce("savas")],
+        "full reproduction": [bench_reproduce(p) for p in ("savas", "kar-moura", "wang-liu-morse")],
     }
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
