@@ -10,17 +10,20 @@ from pipeline.scenario import as_str
 #: paper id -> module that defines `paper()` returning its Reproduction
 PAPERS = {"savas": "reproductions.savas.reproduction",
           "kar-moura": "reproductions.kar_moura.reproduction",
-          "wang-liu-morse": "reproductions.wang_liu_morse.reproduction"}
+          "wang-liu-morse": "reproductions.wang_liu_morse.reproduction",
+          "tran": "reproductions.tran.reproduction"}
 
 #: scenario family (the `family` key of a user's TOML file) -> module with `from_dict(data)`
 FAMILIES = {"noisy-consensus-filter": "reproductions.savas.reproduction",
             "gossip-kalman": "reproductions.kar_moura.reproduction",
-            "hybrid-observer": "reproductions.wang_liu_morse.reproduction"}
+            "hybrid-observer": "reproductions.wang_liu_morse.reproduction",
+            "coestimation": "reproductions.tran.reproduction"}
 
 #: a valid scenario file of each family (documentation, and the seed of the input fuzz tests)
 FAMILY_EXAMPLES = {"noisy-consensus-filter": "savas/paper.toml",
                    "gossip-kalman": "kar_moura/scenarios/e1.toml",
-                   "hybrid-observer": "wang_liu_morse/generic.toml"}
+                   "hybrid-observer": "wang_liu_morse/generic.toml",
+                   "coestimation": "tran/paper.toml"}
 
 
 def paper(paper_id: str):

@@ -1,0 +1,267 @@
+"""Simulation of a process and a network of role-weighted observers, batched over trials.
+
+State u = [x; e_1; …; e_N] on a leading trial axis (R, D). The stiff constant part (the
+process, the local drifts and the graph coupling α Γ (L ⊗ I), whose eigenvalues reach
+−2850 in the 12-node example) is integrated exactly with φ-functions; the role-weighted
+output injection g_i [L_i; J_i] C_i (x − x̂_i) and the input forcing B w(t) are the
+explicit part:
+
+* deterministic: ETD2RK (second order);
+* stochastic, dx = (A x + B w) dt + G_v dW_v and y_i dt = C_i x dt + H_i dS_i (41): the
+  drift step is ETD2RK and the noise increment over the step is sampled from its exact
+  covariance through the linear part, ∫ e^{M(h−s)} b dW(s) (`noise_factors`), so the
+  variance of the stiff coupling modes is kept, plus a first-order correction for the
+  role-weighted injection acting on the noise within the step (without it E{zᵀPz} came out
+  +8% high at h = 5 ms against the exact moments; with it the bias is below 0.3%); the
+  observer increment of node i is g_i [L_i; J_i] (C_i (x − x̂_i) dt + H_i dS_i), i.e.
+  continuous white measurement noise. The role weight g multiplying the noise is taken at
+  the start of the step (Itô).
+
+Roles: either fixed g ∈ [0, 1]^N or a proximity law ġ_i = β (a_i(t) − g_i) with
+a_i = 1{‖(x_{k1}, x_{k2}) − c_i‖ ≤ r} (Sec. 5: g = e^{−βt} on leaving, 1 − e^{−βt} on
+entering, t the time since the switch). The role ODE is solved exactly over each step, with
+the crossing instant inside the step located by linear interpolation of the distance.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .exponential_integrators import phi_functions
+from .input_state_coestimation import NetworkObserver
+
+
+@dataclass(frozen=True)
+class SinusoidalInput:
+    """w_k(t) = offset_k + Σ_j amplitude_kj sin(frequency_kj t + phase_kj); arrays (p,), (p, J)."""
+
+    offset: np.ndarray
+    amplitude: np.ndarray
+    frequency: np.ndarray
+    phase: np.ndarray
+
+    def __call__(self, t) -> np.ndarray:
+        t = np.asarray(t, float)[..., None, None]
+        return self.offset + (self.amplitude * np.sin(self.frequency * t + self.phase)).sum(-1)
+
+    def rate(self, t) -> np.ndarray:
+        t = np.asarray(t, float)[..., None, None]
+        return (self.amplitude * self.frequency * np.cos(self.frequency * t + self.phase)).sum(-1)
+
+    def sup_norms(self, t_end: float, samples: int = 200_001) -> tuple[float, float]:
+        """(sup‖w‖₂, sup‖ẇ‖₂) on [0, max(t_end, longest period)] by dense sampling."""
+        periods = 2 * np.pi / np.where(self.frequency > 0, self.frequency, np.inf)
+        span = max(t_end, float(np.max(periods, initial=0.0)))
+        t = np.linspace(0.0, span, samples)
+        return float(np.linalg.norm(self(t), axis=-1).max()), float(np.linalg.norm(self.rate(t), axis=-1).max())
+
+
+@dataclass(frozen=True)
+class FixedRoles:
+    g: np.ndarray  # (N,)
+
+    def initial(self, pos: np.ndarray) -> np.ndarray:
+        return np.broadcast_to(self.g, (pos.shape[0], len(self.g))).astype(float).copy()
+
+    def advance(self, g, pos0, pos1, h):
+        return g
+
+
+@dataclass(frozen=True)
+class ProximityRoles:
+    """Sensing discs of radius r at centres (N, 2); positions are x[position_states]."""
+
+    centers: np.ndarray
+    radius: float
+    beta: float
+    position_states: tuple[int, int] = (0, 2)
+    g0: np.ndarray | None = None  # None: g_i(0) = a_i(0)
+
+    def distance(self, pos: np.ndarray) -> np.ndarray:
+        """‖pos − c_i‖ − r: pos (R, 2) -> (R, N); ≤ 0 inside the disc."""
+        return np.linalg.norm(pos[:, None, :] - self.centers[None], axis=-1) - self.radius
+
+    def indicator(self, pos: np.ndarray) -> np.ndarray:
+        return (self.distance(pos) <= 0).astype(float)
+
+    def initial(self, pos: np.ndarray) -> np.ndarray:
+        if self.g0 is not None:
+            return np.broadcast_to(self.g0, (pos.shape[0], len(self.centers))).astype(float).copy()
+        return self.indicator(pos)
+
+    def advance(self, g, pos0, pos1, h):
+        """Exact solution of ġ = β (a − g) over [t, t+h] with a switching at the interpolated crossing."""
+        d0, d1 = self.distance(pos0), self.distance(pos1)
+        a0, a1 = (d0 <= 0).astype(float), (d1 <= 0).astype(float)
+        cross = a0 != a1
+        theta = np.where(cross, d0 / np.where(cross, d0 - d1, 1.0), 1.0).clip(0.0, 1.0)
+        mid = a0 + (g - a0) * np.exp(-self.beta * theta * h)
+        return a1 + (mid - a1) * np.exp(-self.beta * (1.0 - theta) * h)
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Process noise G_v (n, k_v) and measurement noise intensities H (N, m, k_s)."""
+
+    process: np.ndarray
+    measurement: np.ndarray
+
+
+def noise_factors(M: np.ndarray, net: NetworkObserver, noise: NoiseModel, h: float, rel_tol: float = 1e-12):
+    """Low-rank square roots of the exact one-step noise covariances Q_c = ∫_0^h e^{Ms} b_c b_cᵀ e^{Mᵀs} ds.
+
+    Columns b_c: each process-noise column [G_v; 0] (weight 1) and, per node i and measurement
+    channel k, [0; …; [L_i; J_i] H_i[:, k]; …; 0] (weight g_i). Noise enters as Σ_c weight_c F_c ξ_c
+    with F_c F_cᵀ = Q_c. Integrating the noise exactly through the stiff linear part matters: a
+    kick e^{Mh} b ΔW would lose the variance of modes with |λ| h ≳ 1 (the graph-coupling modes).
+    Returns (factors (K, D), scale_of (K,)): scale 0 means 1, scale 1 + i means g_i.
+    """
+    from scipy.linalg import expm
+
+    n, N, q = net.n, net.N, net.q
+    D = M.shape[0]
+    cols, scales = [], []
+    for c in range(noise.process.shape[1]):
+        b = np.zeros(D)
+        b[:n] = noise.process[:, c]
+        cols.append(b)
+        scales.append(0)
+    LJH = np.einsum("iqm,imk->iqk", net.LJ, noise.measurement)
+    for i in range(N):
+        for k in range(LJH.shape[2]):
+            b = np.zeros(D)
+            b[n + i * q:n + (i + 1) * q] = LJH[i, :, k]
+            cols.append(b)
+            scales.append(1 + i)
+    big = np.zeros((2 * D, 2 * D))
+    big[:D, :D], big[D:, D:] = -M * h, M.T * h
+    rows, scale_of = [], []
+    for b, sc in zip(cols, scales):
+        big[:D, D:] = np.outer(b, b) * h
+        X = expm(big)
+        Phi = X[D:, D:].T
+        Q = Phi @ X[:D, D:]
+        lam, U = np.linalg.eigh((Q + Q.T) / 2)
+        keep = lam > rel_tol * max(lam.max(), 1e-300)
+        for j in np.flatnonzero(keep):
+            rows.append(np.sqrt(lam[j]) * U[:, j])
+            scale_of.append(sc)
+    return np.array(rows), np.array(scale_of)
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """Step operators that depend only on (network, h, noise): φ-functions and noise factors."""
+
+    h: float
+    phi: tuple
+    factors: np.ndarray | None
+    scale_of: np.ndarray | None
+
+
+def prepare(net: NetworkObserver, h: float, noise: NoiseModel | None = None) -> Prepared:
+    M = net.augmented_drift()
+    factors, scale_of = noise_factors(M, net, noise, h) if noise is not None else (None, None)
+    return Prepared(h, phi_functions(M, h), factors, scale_of)
+
+
+@dataclass
+class Trajectory:
+    """Samples every `record_every` steps: t (T,), w (T, p), and per kept trial x (K, T, n),
+    e (K, T, N, q), g (K, T, N); `reduced[name]` (T, R, ...) from the reducer over all trials."""
+
+    t: np.ndarray
+    w: np.ndarray
+    x: np.ndarray
+    e: np.ndarray
+    g: np.ndarray
+    reduced: dict
+
+
+def simulate(net: NetworkObserver, roles, signal: SinusoidalInput, x0, e0, *, t_end: float, h: float,
+             record_every: int, n_trials: int = 1, noise: NoiseModel | None = None,
+             rng: np.random.Generator | None = None, keep: int | None = None,
+             reducer: Callable[..., dict] | None = None, prepared: "Prepared | None" = None) -> Trajectory:
+    """Integrate process + observers from (x0, e0) (e0 (N, q)) over [0, t_end] with step h.
+
+    Deterministic (noise None): ETD2RK. Stochastic: noise increment then ETD2RK, all
+    `n_trials` trials at once. `keep` trials (default all) are stored in full; `reducer(t, x, w,
+    e, g)` is applied to every trial at each recorded time.
+    """
+    n, N, q = net.n, net.N, net.q
+    steps = int(round(t_end / h))
+    if abs(steps * h - t_end) > 1e-9 * max(1.0, t_end):
+        raise ValueError(f"t_end = {t_end} is not a multiple of h = {h}")
+    if steps % record_every:
+        raise ValueError("the number of steps must be a multiple of record_every")
+    if noise is not None and rng is None:
+        raise ValueError("a stochastic simulation needs rng")
+    R = n_trials
+    keep = R if keep is None else min(keep, R)
+    prepared = prepared if prepared is not None else prepare(net, h, noise)
+    if prepared.h != h:
+        raise ValueError("prepared operators were built for another step")
+    E, Phi1, Phi2 = prepared.phi
+    ET, P1T, P2T = E.T.copy(), Phi1.T.copy(), Phi2.T.copy()
+    P2xx = Phi2[:n, :n].copy()
+    D = n + N * q
+    u = np.tile(np.concatenate([np.asarray(x0, float), np.asarray(e0, float).reshape(-1)]), (R, 1))
+    ps = list(getattr(roles, "position_states", (0,)))  # fixed roles ignore positions
+    g = roles.initial(u[:, ps])
+    if noise is not None:
+        factors, scale_of = prepared.factors, prepared.scale_of
+
+    # the injection Σ_i g_i [L_i; J_i] C_i (x − x̂_i) as one constant matrix, masked by g per row block
+    LJC = np.einsum("iqm,imn->iqn", net.LJ, net.C)
+    Minj = np.zeros((N * q, D))
+    for i in range(N):
+        Minj[i * q:(i + 1) * q, :n] = LJC[i]
+        Minj[i * q:(i + 1) * q, n + i * q:n + i * q + n] = -LJC[i]
+    MinjT = Minj.T.copy()
+
+    def drift_part(uu, gg, f):
+        out = np.empty_like(uu)
+        out[:, :n] = f
+        out[:, n:] = uu @ MinjT * np.repeat(gg, q, axis=1)
+        return out
+
+    n_rec = steps // record_every + 1
+    t_rec = np.arange(n_rec) * record_every * h
+    xs, es, gs = np.empty((keep, n_rec, n)), np.empty((keep, n_rec, N, q)), np.empty((keep, n_rec, N))
+    reduced: dict[str, list] = {}
+
+    def record(k_rec, t):
+        xs[:, k_rec], es[:, k_rec], gs[:, k_rec] = u[:keep, :n], u[:keep, n:].reshape(keep, N, q), g[:keep]
+        if reducer is not None:
+            for name, val in reducer(t, u[:, :n], signal(t), u[:, n:].reshape(R, N, q), g).items():
+                reduced.setdefault(name, []).append(val)
+
+    B = net.B
+    f_now = signal(0.0) @ B.T
+    for k in range(steps):
+        t = k * h
+        if k % record_every == 0:
+            record(k // record_every, t)
+        f_next = signal(t + h) @ B.T
+        x_before = u[:, ps]
+        N0 = drift_part(u, g, f_now)
+        a = u @ ET + h * (N0 @ P1T)
+        x1 = a[:, :n] + h * (f_next - f_now) @ P2xx.T
+        g1 = roles.advance(g, x_before, x1[:, ps], h)
+        Na = drift_part(a, g1, f_next)
+        u = a + h * ((Na - N0) @ P2T)
+        if noise is not None:
+            xi = rng.standard_normal((R, len(scale_of)))
+            amp = np.concatenate([np.ones((R, 1)), g], axis=1)[:, scale_of]
+            kick = (xi * amp) @ factors
+            # the injection acts on the noise during the step (on average for half of it): first-order correction
+            kick[:, n:] += 0.5 * h * (kick @ MinjT) * np.repeat(g, q, axis=1)
+            u = u + kick
+        g = g1
+        f_now = f_next
+    record(n_rec - 1, steps * h)
+    if not np.all(np.isfinite(u)):
+        raise FloatingPointError("the simulation produced non-finite values")
+    return Trajectory(t_rec, signal(t_rec), xs, es, gs, {k: np.stack(v) for k, v in reduced.items()})

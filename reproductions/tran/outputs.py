@@ -1,0 +1,403 @@
+"""Figures (PNG) and the Rerun recording of the coestimation family.
+
+Figures 2-11 of the paper (Fig. 2 reconstructed), plus roles, bounds and Monte Carlo
+figures. One recording `<scenario>.rrd` on timeline `t` (duration): the graph at fixed
+positions with each node's role g_i(t) as colour and size, the target and each node's
+estimate in the plane, states and inputs against truth, errors against the bounds, the
+stochastic Monte Carlo against (46) and the exact moments, the LMI results and the claims.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+import estimators.lyapunov_bounds as lb
+from pipeline import record as rec_
+from pipeline.figures import new_figure, save_figure, sequential_colors
+from pipeline.stats import z_for_confidence
+
+from .claims import _sde_constants, errors, lyapunov_values
+from .compute import Results
+
+STATE_LABELS = ("x₁ (x position)", "x₂ (x velocity)", "x₃ (y position)", "x₄ (y velocity)")
+FRAME_DT = 0.1  # seconds between recorded network/plane frames
+
+
+def _state_label(k: int, n: int) -> str:
+    return STATE_LABELS[k] if n == 4 else f"x{k + 1}"
+
+
+def _node_colors(N: int):
+    return sequential_colors(N, "tab20") if N <= 20 else sequential_colors(N, "viridis")
+
+
+# -- figures ----------------------------------------------------------------------------------
+
+def _states_figure(res: Results, run: dict, title: str, path: Path, states=None, band=None) -> None:
+    sc = res.scenario
+    states = list(range(sc.n)) if states is None else states
+    cols = _node_colors(sc.N)
+    ncols = 2 if len(states) > 1 else 1
+    nrows = int(np.ceil(len(states) / ncols))
+    fig, axes = new_figure(ncols=ncols, nrows=nrows, width=5.2, height=3.2)
+    for a, k in enumerate(states):
+        ax = axes.flat[a]
+        if band is not None:
+            ax.fill_between(run["t"], band[0][:, k], band[1][:, k], color="tab:orange", alpha=0.45, lw=0.6,
+                            edgecolor="tab:orange", zorder=5, label=f"true state, min/max over {band[2]} runs")
+        for i in range(sc.N):
+            ax.plot(run["t"], run["e"][:, i, k], color=cols[i], lw=0.8, label=f"node {i + 1}" if a == 0 else None)
+        ax.plot(run["t"], run["x"][:, k], "k--", lw=1.4, label="true" if a == 0 else None)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel(_state_label(k, sc.n))
+    for ax in axes.flat[len(states):]:
+        ax.set_visible(False)
+    axes.flat[0].legend(ncol=5, fontsize=5, loc="best", framealpha=0.6)
+    fig.suptitle(title, fontsize=9)
+    save_figure(fig, path)
+
+
+def _inputs_figure(res: Results, run: dict, title: str, path: Path) -> None:
+    sc = res.scenario
+    cols = _node_colors(sc.N)
+    fig, axes = new_figure(ncols=sc.p, width=5.2, height=3.4)
+    for k in range(sc.p):
+        ax = axes[0, k]
+        for i in range(sc.N):
+            ax.plot(run["t"], run["e"][:, i, sc.n + k], color=cols[i], lw=0.8, label=f"node {i + 1}" if k == 0 else None)
+        ax.plot(run["t"], run["w"][:, k], "k--", lw=1.4, label="true" if k == 0 else None)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel(f"w{k + 1}")
+    axes[0, 0].legend(ncol=4, fontsize=6)
+    fig.suptitle(title, fontsize=9)
+    save_figure(fig, path)
+
+
+def _plane_figure(res: Results, run: dict, title: str, path: Path) -> None:
+    sc = res.scenario
+    a, b = sc.position_states
+    cols = _node_colors(sc.N)
+    fig, axes = new_figure(width=6.4, height=5.4)
+    ax = axes[0, 0]
+    _draw_network(ax, res, run["g"])
+    for i in range(sc.N):
+        ax.plot(run["e"][:, i, a], run["e"][:, i, b], color=cols[i], lw=0.8)
+    ax.plot(run["x"][:, a], run["x"][:, b], "k--", lw=1.6, label="true trajectory")
+    ax.set_xlabel(_state_label(a, sc.n))
+    ax.set_ylabel(_state_label(b, sc.n))
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.legend(fontsize=7, loc="lower left")
+    ax.set_title(title, fontsize=9)
+    save_figure(fig, path)
+
+
+def _draw_network(ax, res: Results, g: np.ndarray | None = None, tag_active: bool = True) -> None:
+    import matplotlib.patches as mpatches
+
+    sc = res.scenario
+    pos = sc.positions
+    for u, v in sc.graph.build().edges():
+        ax.plot(pos[[u, v], 0], pos[[u, v], 1], color="0.75", lw=0.8, zorder=1)
+    active_frac = g.mean(0) if g is not None else np.zeros(sc.N)
+    for i in range(sc.N):
+        if sc.role_mode == "proximity":
+            ax.add_patch(mpatches.Circle(pos[i], sc.radius, fill=False, color="0.85", lw=0.5, zorder=0))
+        marker = "o" if sc.node_type[i] == 0 else "s"
+        ax.scatter(*pos[i], s=60 + 200 * active_frac[i], marker=marker, c=[[0.85, 0.2, 0.1, 0.3 + 0.7 * active_frac[i]]],
+                   edgecolors="k", zorder=3)
+        tag = " AN" if tag_active and g is not None and np.any(g[:, i] > 0.5) else ""
+        ax.annotate(f"{i + 1}{tag}", pos[i], xytext=(5, 5), textcoords="offset points", fontsize=7)
+
+
+def _graph_figure(res: Results, path: Path) -> None:
+    sc = res.scenario
+    fig, axes = new_figure(width=6.4, height=5.4)
+    ax = axes[0, 0]
+    run = res.runs["coest"]
+    _draw_network(ax, res, run["g"], tag_active=False)
+    a, b = sc.position_states
+    ax.plot(run["x"][:, a], run["x"][:, b], "k--", lw=1, label="target path (Ex. 5.1)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel(_state_label(a, sc.n))
+    ax.set_ylabel(_state_label(b, sc.n))
+    ax.set_title("Fig. 2 (reconstructed): communication graph and sensing discs\nmarker size and opacity = fraction of "
+                 f"time active in Ex. 5.1; circles = {sc.types[0].name}, squares = other types", fontsize=8)
+    ax.legend(fontsize=7)
+    save_figure(fig, path)
+
+
+def _roles_figure(res: Results, path: Path) -> None:
+    sc = res.scenario
+    run = res.runs["coest"]
+    cols = _node_colors(sc.N)
+    fig, axes = new_figure(nrows=2, width=9, height=2.6)
+    for i in range(sc.N):
+        axes[0, 0].plot(run["t"], run["g"][:, i], color=cols[i], lw=1, label=f"node {i + 1}")
+    axes[0, 0].set_ylabel("g_i(t)")
+    axes[0, 0].legend(ncol=6, fontsize=6)
+    axes[1, 0].plot(run["t"], (run["g"] > 0.5).sum(1), "k-")
+    axes[1, 0].set_ylabel("# active (g > 1/2)")
+    axes[1, 0].set_xlabel("t (s)")
+    save_figure(fig, path)
+
+
+def _bounds_figure(res: Results, path: Path) -> None:
+    d = res.design
+    fig, axes = new_figure(ncols=2, width=5.4, height=4)
+    for ax, run, label, bounds in (
+            (axes[0, 0], "coest", "time-varying roles (Ex. 5.1)",
+             [("(18), single ε", d["bound18_single"]), ("(18), per-node ε_i", d["bound18_pernode"]),
+              ("(18), certified ε_i", d["bound18_certified"]), ("(18), vertex q*", d["bound18_qstar"])]),
+            (axes[0, 1], "fixed", "fixed roles (Thm 2.1)", [("(18), Q̄ = Q + 2αL⊗I", d["fixed_bound18"])])):
+        z = errors(res, run)
+        t = res.runs[run]["t"]
+        ax.semilogy(t, np.linalg.norm(z.reshape(len(z), -1), axis=1), "k-", label="‖z(t)‖")
+        for (name, val), col in zip(bounds, sequential_colors(len(bounds), "plasma")):
+            if np.isfinite(float(val)):
+                ax.axhline(float(val), color=col, ls="--", label=f"{name} = {float(val):.3g}")
+        ax.set_xlabel("t (s)")
+        ax.set_title(label, fontsize=9)
+        ax.legend(fontsize=7)
+    save_figure(fig, path)
+
+
+def _mc_figure(res: Results, path: Path) -> None:
+    fig, axes = new_figure(ncols=2, width=5.4, height=4)
+    z = z_for_confidence(0.95)
+    for ax, run, fixed in ((axes[0, 0], "sde_fixed", True), (axes[0, 1], "sde_roles", False)):
+        r = res.runs[run]
+        V = r["red_V"]
+        m, se = V.mean(1), V.std(1, ddof=1) / np.sqrt(V.shape[1])
+        ax.semilogy(r["t"], m, "b-", label=f"Monte Carlo mean ({V.shape[1]} trials)")
+        ax.fill_between(r["t"], np.maximum(m - z * se, 1e-3), m + z * se, color="b", alpha=0.25, label="95% CI")
+        if fixed:
+            ex = res.runs["exact_fixed"]
+            ax.semilogy(ex["t"], ex["EV"], "k--", lw=1, label="exact moments")
+        c = _sde_constants(res, fixed=fixed)
+        ax.semilogy(r["t"], lb.mean_square_bound(r["t"], m[0], c["kappa"], c["eta"]), "r:", label="bound (46)")
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("E{zᵀPz}")
+        ax.set_title("fixed roles" if fixed else "time-varying roles (Ex. 5.2)", fontsize=9)
+        ax.legend(fontsize=7)
+    save_figure(fig, path)
+
+
+def _stochastic_run(res: Results, k: int = 0) -> dict:
+    r = res.runs["sde_roles"]
+    return {"t": r["t"], "w": r["w"], "x": r["kept_x"][k], "e": r["kept_e"][k], "g": r["kept_g"][k]}
+
+
+def write_figures(res: Results, out_dir: Path) -> None:
+    figs = out_dir / "figures"
+    sc = res.scenario
+    co = res.runs["coest"]
+    _graph_figure(res, figs / "fig2.png")
+    _states_figure(res, co, "Fig. 3: coestimation (22)-(23), x̂_i(t); dashed: true x(t)", figs / "fig3.png")
+    _inputs_figure(res, co, "Fig. 4: coestimation, ŵ_i(t); dashed: true w(t)", figs / "fig4.png")
+    _plane_figure(res, co, "Fig. 5: coestimation, position estimates; AN = active nodes", figs / "fig5.png")
+    if "comparison" in res.runs:
+        cp = res.runs["comparison"]
+        _states_figure(res, cp, "Fig. 6: estimation architecture (36)-(37), x̂_i(t)", figs / "fig6.png")
+        _inputs_figure(res, cp, "Fig. 7: estimation architecture (36)-(37), ŵ_i(t)", figs / "fig7.png")
+        _plane_figure(res, cp, "Fig. 8: estimation architecture, position estimates", figs / "fig8.png")
+    r = res.runs["sde_roles"]
+    if r["kept_x"].size:
+        run0 = _stochastic_run(res)
+        band = (r["kept_x"].min(0), r["kept_x"].max(0), r["kept_x"].shape[0])
+        a, b = sc.position_states
+        others = [k for k in range(sc.n) if k not in (a, b)]
+        _states_figure(res, run0, "Fig. 9: Ex. 5.2 (stochastic), run 0; shaded: true-state envelope over the runs",
+                       figs / "fig9.png", states=[a, b], band=band)
+        _states_figure(res, run0, "Fig. 10: Ex. 5.2, run 0, the other states; shaded: envelope over the runs",
+                       figs / "fig10.png", states=others or [a], band=band)
+        _inputs_figure(res, run0, "Fig. 11: Ex. 5.2, run 0, ŵ_i(t); dashed: true w(t)", figs / "fig11.png")
+    _roles_figure(res, figs / "roles.png")
+    _bounds_figure(res, figs / "bounds.png")
+    _mc_figure(res, figs / "mean_square.png")
+
+
+# -- recording --------------------------------------------------------------------------------
+
+def _rgb(c) -> tuple[int, int, int]:
+    return tuple(int(255 * x) for x in c[:3])
+
+
+def lmi_markdown(res: Results) -> str:
+    d, sc = res.design, res.scenario
+    lines = ["# LMI results", "", "## (28)-(29): coestimation, per node type", "",
+             "| type | ε | Clarabel status | normalised margin t* | verified max eig at P* | printed P: max eig g=0 | g=1 |",
+             "|---|---|---|---|---|---|---|"]
+    for t, ty in enumerate(sc.types):
+        pg = d["given_sweep"][t] if "given_sweep" in d else None
+        lines.append(f"| {ty.name} | {ty.eps:g} | {d['lmi_status'][t]} | {float(d['lmi_margin'][t]):.4g} | "
+                     f"{float(d['lmi_verified'][t]):.4g} | {'' if pg is None else f'{pg[0]:.4g}'} | "
+                     f"{'' if pg is None else f'{pg[-1]:.4g}'} |")
+    lines += ["", "## (38)-(39): the comparison architecture", "",
+              "| type | σ (paper) | status | t* | smallest feasible σ | σ_b used | status | t* |", "|---|---|---|---|---|---|---|---|"]
+    for t, ty in enumerate(sc.types):
+        lines.append(f"| {ty.name} | {ty.sigma:g} | {d['comp_status'][t]} | {float(d['comp_margin'][t]):.4g} | "
+                     f"{float(d['comp_sigma_min'][t]):.4g} | {ty.comparison_sigma:g} | {d['comp_status_b'][t]} | "
+                     f"{float(d['comp_margin_b'][t]):.4g} |")
+    lines += ["", "## Bounds", "", f"- w̄ = {float(d['wbar']):.6g} (sup‖w‖ = {float(d['w_sup']):.6g}, sup‖ẇ‖ = "
+              f"{float(d['wdot_sup']):.6g}); φ̄ = {float(d['phibar']):.6g} (tight {float(d['phibar_tight']):.6g})",
+              f"- λ_min(P) = {float(d['lamP_min']):.5g}, λ_max(P) = {float(d['lamP_max']):.5g}",
+              f"- (18) single ε: {float(d['bound18_single']):.4g}; per-node ε_i: {float(d['bound18_pernode']):.4g}; "
+              f"certified: {float(d['bound18_certified']):.4g}; vertex q* ({float(d['qstar']):.4g}): "
+              f"{float(d['bound18_qstar']):.4g}",
+              f"- fixed roles: λ_min(Q̄) = {float(d['fixed_qbar_min']):.4g}, (18) = {float(d['fixed_bound18']):.4g}",
+              f"- max Re λ(S) at g ≡ 0 / g ≡ 1: {float(d['S_max_real'][0]):.4g} / {float(d['S_max_real'][1]):.4g}; "
+              f"min Re λ: {d['S_min_real'].round(1).tolist()}"]
+    return "\n".join(lines)
+
+
+def _claims_markdown(claims: list[dict], header: str) -> str:
+    rows = [header, "", "| claim | verdict | measured | reference |", "|---|---|---|---|"]
+    for c in claims:
+        rows.append(f"| `{c['id']}` | **{c['verdict']}** | {json.dumps(c.get('measured'))[:40]} | "
+                    f"{json.dumps(c.get('reference'))[:40]} |")
+    return "\n".join(rows)
+
+
+def write_recording(res: Results, path: Path, claims: list[dict], prov: dict) -> None:
+    sc, d = res.scenario, res.design
+    n, p, N = sc.n, sc.p, sc.N
+    co = res.runs["coest"]
+    t_ns = np.round(co["t"] * 1e9).astype(np.int64)
+    idx = rec_.duration_index("t", t_ns)
+    cols = [_rgb(c) for c in _node_colors(N)]
+    a, b = sc.position_states
+    blueprint = rrb.Blueprint(
+        rrb.Tabs(
+            rrb.Horizontal(
+                rrb.Vertical(rrb.GraphView(origin="/graph", name="graph: node size/colour = role g_i(t)"),
+                             rrb.TimeSeriesView(origin="/roles", name="roles g_i(t)"), row_shares=[3, 2]),
+                rrb.Spatial2DView(origin="/plane", name="target (black) and node estimates in the plane"),
+                column_shares=[2, 3], name="network"),
+            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/states/x{k + 1}", name=f"{_state_label(k, n)}: nodes vs truth")
+                       for k in range(n)],
+                     *[rrb.TimeSeriesView(origin=f"/states/w{k + 1}", name=f"w{k + 1}: nodes vs truth") for k in range(p)],
+                     grid_columns=2, name="estimates (Figs. 3-4)"),
+            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/comparison/x{k + 1}", name=f"comparison arch.: {_state_label(k, n)}")
+                       for k in range(n)], grid_columns=2, name="comparison (Figs. 6-7)"),
+            rrb.Grid(rrb.TimeSeriesView(origin="/bounds/roles", name="‖z(t)‖ vs (18) variants (log)"),
+                     rrb.TimeSeriesView(origin="/bounds/fixed", name="fixed roles: ‖z‖ vs (18)"),
+                     rrb.TimeSeriesView(origin="/mc", name="E{zᵀPz}: Monte Carlo, exact, (46)"),
+                     rrb.TimeSeriesView(origin="/errors", name="mean node errors: coestimation, comparison, central KF"),
+                     name="errors and bounds"),
+            rrb.Horizontal(rrb.TextDocumentView(origin="/lmi", name="LMI results"),
+                           rrb.TextDocumentView(origin="/report", name="claims"),
+                           rrb.TextDocumentView(origin="/claims", name="claim detail"), name="LMIs and claims"),
+        ),
+        rrb.TimePanel(timeline="t", expanded=False),
+        collapse_panels=True,
+    )
+    props = {"seed": res.seed, "trials": res.trials, "alpha": sc.alpha, "beta": sc.beta, "radius": sc.radius,
+             "N": N, "P_mode": sc.P_mode, "versions": json.dumps(prov.get("versions", {})), "git": prov.get("git", "")}
+    with rec_.recording(path, application_id="dse-tran", recording_id=f"tran-{sc.name}-seed{res.seed}",
+                        blueprint=blueprint, properties=props) as rec:
+        # graph: static edges, per-frame node colours/sizes from g_i(t)
+        frames = np.arange(0, len(co["t"]), max(1, int(round(FRAME_DT / sc.record_dt))))
+        ids = [str(i) for i in range(N)]
+        rec.log("graph", rr.GraphEdges([(str(u), str(v)) for u, v in sc.graph.build().edges()],
+                                       graph_type=rr.GraphType.Undirected), static=True)
+        rec.log("plane/target_path", rr.LineStrips2D([co["x"][:, [a, b]]], colors=[(0, 0, 0)], radii=0.02), static=True)
+        if sc.role_mode == "proximity":
+            circ = np.linspace(0, 2 * np.pi, 60)
+            rec.log("plane/sensing_discs", rr.LineStrips2D([sc.positions[i] + sc.radius * np.c_[np.cos(circ), np.sin(circ)]
+                                                             for i in range(N)], colors=[(200, 200, 200)], radii=0.01),
+                    static=True)
+        for k in frames:
+            g = co["g"][k]
+            rec.set_time("t", duration=np.timedelta64(int(t_ns[k]), "ns"))
+            node_cols = [(int(60 + 195 * gi), int(120 * (1 - gi)), int(200 * (1 - gi))) for gi in g]
+            rec.log("graph", rr.GraphNodes(ids, positions=sc.positions * 100.0, colors=node_cols, radii=(8 + 14 * g).tolist(),
+                                           labels=[f"{i + 1}{'·A' if g[i] > 0.5 else ''}" for i in range(N)],
+                                           show_labels=True))
+            rec.log("plane/nodes", rr.Points2D(sc.positions, colors=node_cols, radii=(0.08 + 0.17 * g).tolist(),
+                                               labels=[str(i + 1) for i in range(N)]))
+            rec.log("plane/target", rr.Points2D(co["x"][k:k + 1, [a, b]], colors=[(0, 0, 0)], radii=0.12))
+            rec.log("plane/estimates", rr.Points2D(co["e"][k, :, [a, b]].T, colors=cols, radii=0.07))
+        rec_.send_series(rec, "roles", idx, co["g"], names=[f"g_{i + 1}" for i in range(N)], colors=cols)
+        rec_.send_series(rec, "roles/n_active", idx, (co["g"] > 0.5).sum(1), names="# active", colors=[(0, 0, 0)], width=2)
+        # truth and per-node estimates (by state, and by node)
+        names = [f"node {i + 1}" for i in range(N)]
+        for k in range(n):
+            rec_.send_series(rec, f"states/x{k + 1}/nodes", idx, co["e"][:, :, k], names=names, colors=cols, width=1)
+            rec_.send_series(rec, f"states/x{k + 1}/truth", idx, co["x"][:, k], names="true", colors=[(0, 0, 0)], width=2.5)
+            rec_.send_series(rec, f"truth/x{k + 1}", idx, co["x"][:, k], names=f"x{k + 1}", colors=[(0, 0, 0)])
+        for k in range(p):
+            rec_.send_series(rec, f"states/w{k + 1}/nodes", idx, co["e"][:, :, n + k], names=names, colors=cols, width=1)
+            rec_.send_series(rec, f"states/w{k + 1}/truth", idx, co["w"][:, k], names="true", colors=[(0, 0, 0)], width=2.5)
+            rec_.send_series(rec, f"truth/w{k + 1}", idx, co["w"][:, k], names=f"w{k + 1}", colors=[(0, 0, 0)])
+        z = errors(res, "coest")
+        for i in range(N):
+            rec_.send_series(rec, f"nodes/{i}/estimate", idx, co["e"][:, i],
+                             names=[f"x̂{k + 1}" for k in range(n)] + [f"ŵ{k + 1}" for k in range(p)])
+            rec_.send_series(rec, f"nodes/{i}/error", idx, np.c_[np.linalg.norm(z[:, i, :n], axis=1),
+                                                                  np.linalg.norm(z[:, i, n:], axis=1)],
+                             names=["‖x̃_i‖", "‖w̃_i‖"])
+        if "comparison" in res.runs:
+            cp = res.runs["comparison"]
+            for k in range(n):
+                rec_.send_series(rec, f"comparison/x{k + 1}/nodes", idx, cp["e"][:, :, k], names=names, colors=cols, width=1)
+                rec_.send_series(rec, f"comparison/x{k + 1}/truth", idx, cp["x"][:, k], names="true", colors=[(0, 0, 0)],
+                                 width=2.5)
+            zc = errors(res, "comparison")
+            rec_.send_series(rec, "errors/comparison", idx, np.c_[np.linalg.norm(zc[..., :n], axis=-1).mean(1),
+                                                                  np.linalg.norm(zc[..., n:], axis=-1).mean(1)],
+                             names=["comparison mean ‖x̃‖", "comparison mean ‖w̃‖"], colors=[(214, 39, 40), (255, 152, 150)])
+        rec_.send_series(rec, "errors/coestimation", idx, np.c_[np.linalg.norm(z[..., :n], axis=-1).mean(1),
+                                                                np.linalg.norm(z[..., n:], axis=-1).mean(1)],
+                         names=["coestimation mean ‖x̃‖", "coestimation mean ‖w̃‖"], colors=[(31, 119, 180), (174, 199, 232)])
+        c = res.runs["central"]
+        kidx = rec_.duration_index("t", np.round(c["det_t"] * 1e9).astype(np.int64))
+        stride = int(round(sc.kf_dt / sc.record_dt))
+        truth = np.c_[co["x"], co["w"]][::stride]
+        rec_.send_series(rec, "central/estimate", kidx, c["det_s"], names=[f"KF x̂{k + 1}" for k in range(n)] +
+                         [f"KF ŵ{k + 1}" for k in range(p)])
+        rec_.send_series(rec, "errors/central_kf", kidx, np.c_[np.linalg.norm(c["det_s"][:, :n] - truth[:, :n], axis=1),
+                                                                np.linalg.norm(c["det_s"][:, n:] - truth[:, n:], axis=1)],
+                         names=["central KF ‖x̃‖", "central KF ‖w̃‖"], colors=[(0, 0, 0), (127, 127, 127)])
+        # bounds
+        nz = np.linalg.norm(z.reshape(len(z), -1), axis=1)
+        rec_.send_series(rec, "bounds/roles/norm_z", idx, nz, names="‖z(t)‖", colors=[(0, 0, 0)], width=2)
+        for name in ("single", "pernode", "certified", "qstar"):
+            val = float(d[f"bound18_{name}"])
+            if np.isfinite(val):
+                rec_.send_series(rec, f"bounds/roles/bound18_{name}", idx, np.full(len(nz), val), names=f"(18) {name}")
+        zf = errors(res, "fixed")
+        rec_.send_series(rec, "bounds/fixed/norm_z", idx, np.linalg.norm(zf.reshape(len(zf), -1), axis=1), names="‖z(t)‖",
+                         colors=[(0, 0, 0)], width=2)
+        rec_.send_series(rec, "bounds/fixed/bound18", idx, np.full(len(zf), float(d["fixed_bound18"])), names="(18)")
+        rec_.send_series(rec, "bounds/roles/V", idx, lyapunov_values(res, z), names="V = zᵀPz", colors=[(44, 160, 44)])
+        # Monte Carlo
+        for run, fixed in (("sde_fixed", True), ("sde_roles", False)):
+            r = res.runs[run]
+            sidx = rec_.duration_index("t", np.round(r["t"] * 1e9).astype(np.int64))
+            V = r["red_V"]
+            m, se = V.mean(1), V.std(1, ddof=1) / np.sqrt(V.shape[1])
+            zc95 = z_for_confidence(0.95)
+            rec_.send_series(rec, f"mc/{run}/mean_V", sidx, np.c_[m, m - zc95 * se, m + zc95 * se],
+                             names=[f"{run}: mean V", f"{run}: 95% low", f"{run}: 95% high"])
+            cst = _sde_constants(res, fixed=fixed)
+            rec_.send_series(rec, f"mc/{run}/bound46", sidx, lb.mean_square_bound(r["t"], m[0], cst["kappa"], cst["eta"]),
+                             names=f"{run}: (46)")
+        ex = res.runs["exact_fixed"]
+        rec_.send_series(rec, "mc/sde_fixed/exact", rec_.duration_index("t", np.round(ex["t"] * 1e9).astype(np.int64)),
+                         ex["EV"], names="fixed roles: exact E{V}", colors=[(0, 0, 0)])
+        rec_.log_markdown(rec, "lmi", lmi_markdown(res))
+        counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable")}
+        rec_.log_markdown(rec, "report", _claims_markdown(claims, f"# {sc.name}: {counts}"))
+        for cl in claims:
+            rec_.log_markdown(rec, f"claims/{cl['id']}", f"## `{cl['id']}`: {cl['verdict']}\n\n*{cl['source']}*: "
+                              f"{cl['statement']}\n\n- measured: {cl.get('measured')}\n- reference: {cl.get('reference')}\n"
+                              f"- margin: {cl.get('margin')}\n\n{cl.get('detail', '')}")
+
+
+def write_outputs(res: Results, out_dir: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:
+    write_figures(res, out_dir)
+    write_recording(res, out_dir / f"{res.scenario.name}.rrd", claims, prov)
