@@ -80,15 +80,26 @@ def send_series(rec: rr.RecordingStream, entity: str, index: list[rr.TimeColumn]
 
 def log_graph(rec: rr.RecordingStream, entity: str, positions: np.ndarray, edges: Sequence[tuple[int, int]], *,
               labels: Sequence[str] | None = None, directed: bool = False, colors=None, radii: float = 12.0) -> None:
-    """A fixed graph (static) with nodes at the given positions (drawing units)."""
+    """A fixed graph (static) with nodes at the given positions (any units: rescaled so that
+    the closest two nodes are 160 px apart and their labels do not overlap)."""
     n = len(positions)
     ids = [str(i) for i in range(n)]
     rec.log(entity,
-            rr.GraphNodes(ids, positions=np.asarray(positions, float) * 100.0, labels=list(labels or ids),
+            rr.GraphNodes(ids, positions=display_positions(positions), labels=list(labels or ids),
                           colors=colors if colors is not None else [color(0)] * n, radii=radii, show_labels=True),
             rr.GraphEdges([(str(u), str(v)) for u, v in edges],
                           graph_type=rr.GraphType.Directed if directed else rr.GraphType.Undirected),
             static=True)
+
+
+def display_positions(positions: np.ndarray, spacing: float = 160.0) -> np.ndarray:
+    """Positions scaled so that the closest pair of nodes is `spacing` pixels apart."""
+    pos = np.asarray(positions, float)
+    if len(pos) < 2:
+        return pos
+    d = np.sqrt(((pos[:, None, :] - pos[None, :, :]) ** 2).sum(-1))
+    closest = d[~np.eye(len(pos), dtype=bool)].min()
+    return pos * (spacing / closest) if closest > 0 else pos
 
 
 def log_markdown(rec: rr.RecordingStream, entity: str, text: str) -> None:

@@ -219,7 +219,7 @@ def write_recording(r: ScenarioResults, path: Path, claims: list[dict], prov: di
                              rrb.GraphView(origin="/links", name="allowed links (graph)"),
                              rrb.TextDocumentView(origin="/report", name="claims"), row_shares=[3, 2, 2]),
                 rrb.Vertical(rrb.TimeSeriesView(origin="/nodes", name="tr P̂_n(t), sample run 0, every sensor",
-                                                contents=["/nodes/*/cov_trace/**", "/central/cov_trace"]),
+                                                contents=[f"/nodes/{n}/cov_trace/**" for n in range(N)] + ["/central/cov_trace"]),
                              rrb.TimeSeriesView(origin="/mc", name="log10 tr P̂: median over runs per sensor, μ_t quantiles",
                                                 contents=["/mc/median/**", "/mc/mu/**"]), row_shares=[1, 1]),
                 column_shares=[2, 3], name="overview"),
@@ -248,7 +248,7 @@ def write_recording(r: ScenarioResults, path: Path, claims: list[dict], prov: di
         labels = [f"s{n} (type {sc.types[n]})" for n in range(N)]
         colors = [rec_.color(t) for t in sc.types]
         # nodes static, the active matching per slot (static edges would override the per-slot ones)
-        rec.log("graph", rr.GraphNodes(ids, positions=pos * 100.0, labels=labels, colors=colors, radii=12.0,
+        rec.log("graph", rr.GraphNodes(ids, positions=rec_.display_positions(pos), labels=labels, colors=colors, radii=12.0,
                                        show_labels=True), static=True)
         rec_.log_graph(rec, "links", pos, edges, labels=labels, colors=colors)
         partners = g["path_partners"][0][:T1]

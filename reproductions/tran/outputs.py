@@ -314,7 +314,7 @@ def write_recording(res: Results, path: Path, claims: list[dict], prov: dict) ->
             g = co["g"][k]
             rec.set_time("t", duration=np.timedelta64(int(t_ns[k]), "ns"))
             node_cols = [(int(60 + 195 * gi), int(120 * (1 - gi)), int(200 * (1 - gi))) for gi in g]
-            rec.log("graph", rr.GraphNodes(ids, positions=sc.positions * 100.0, colors=node_cols, radii=(8 + 14 * g).tolist(),
+            rec.log("graph", rr.GraphNodes(ids, positions=rec_.display_positions(sc.positions), colors=node_cols, radii=(8 + 14 * g).tolist(),
                                            labels=[f"{i + 1}{'·A' if g[i] > 0.5 else ''}" for i in range(N)],
                                            show_labels=True))
             rec.log("plane/nodes", rr.Points2D(sc.positions, colors=node_cols, radii=(0.08 + 0.17 * g).tolist(),

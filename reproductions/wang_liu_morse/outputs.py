@@ -292,8 +292,8 @@ def write_run_recording(r: Results, run_name: str, path: Path, claims: list[dict
                                               contents=[f"/nodes/{i + 1}/estimate/**", "/truth/**"])
                            for i in range(min(m, 6))]),
                 rrb.Vertical(rrb.TimeSeriesView(origin="/", name="log10 errors, bounds",
-                                                contents=["/nodes/*/log10_error/**", "/bounds/log10/**",
-                                                          "/central/log10/**", "/mc/log10/**"]),
+                                                contents=[f"/nodes/{i + 1}/log10_error/**" for i in range(m)]
+                                                + ["/bounds/log10/**", "/central/log10/**", "/mc/log10/**"]),
                              rrb.GraphView(origin="/graph", name="neighbour graph N(t)"), row_shares=[2, 1]),
                 column_shares=[3, 2], name="estimates"),
             rrb.Grid(*[rrb.TimeSeriesView(origin=f"/nodes/{i + 1}", name=f"agent {i + 1}: errors at resets",
