@@ -1,5 +1,8 @@
-"""Stages of the noisy-consensus-filter family: bounds (exact, cached) and Monte Carlo
-(one cache entry per (algorithm, m, σ_c) cell, so an interrupted run resumes per cell)."""
+"""Stages of the noisy-consensus-filter family: bounds (exact, cached) and Monte Carlo.
+
+Monte Carlo cells (algorithm, m, σ_c) are simulated in groups that share (algorithm, m):
+one run drives every σ_c with the same random draws (common random numbers), and each
+group is one cache entry, so an interrupted run resumes group by group."""
 from __future__ import annotations
 
 import functools
