@@ -258,3 +258,19 @@ def test_sigkill_then_resume_gives_the_same_numbers(user_run, tmp_path, delay):
     again = dse("run", "s.toml", "--out", "o", "--seed", "3", cwd=tmp_path)
     assert again.returncode == 0, again.stderr
     assert _measured(out / "report.json") == _measured(user_run / "run/ring5/report.json")
+
+
+def test_ctrl_c_stops_cleanly_with_130(tmp_path):
+    import signal
+    import time
+
+    (tmp_path / "s.toml").write_text(GOOD.replace("trials = 4000", "trials = 2000000"))
+    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0"}
+    proc = subprocess.Popen([*DSE, "run", "s.toml", "--out", "o"], cwd=tmp_path, env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    time.sleep(3.0)
+    __import__("os").killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "dse: interrupted" and "Traceback" not in err
+    assert not (tmp_path / "o/run/ring5/report.json").exists()
