@@ -308,7 +308,7 @@ def write_run_recording(r: Results, run_name: str, path: Path, claims: list[dict
         rrb.TimePanel(timeline="t", expanded=False),
         collapse_panels=True,
     )
-    props = {"seed": r.seed, "trials": int(run.err.shape[1]), "system": sc.name, "run": run_name, "q": spec.q,
+    props = {"seed": r.seed, "trials": int(run.err.shape[1]), "system": sc.name, "run": run_name, "q": float(spec.q),
              "T": sc.T, "timing": spec.timing, "switching": spec.switching, "rule": spec.rule,
              "versions": json.dumps(prov.get("versions", {})), "git": prov.get("git", "")}
     with rec_.recording(path, application_id="dse-wang-liu-morse", recording_id=f"wlm-{sc.name}-{run_name}-seed{r.seed}",
