@@ -8,19 +8,22 @@ from pipeline.errors import ScenarioError
 from pipeline.scenario import as_str
 
 #: paper id -> module that defines `paper()` returning its Reproduction
-PAPERS = {"savas": "reproductions.savas.reproduction",
+PAPERS = {"tanwani": "reproductions.tanwani.reproduction",
+          "savas": "reproductions.savas.reproduction",
           "kar-moura": "reproductions.kar_moura.reproduction",
           "wang-liu-morse": "reproductions.wang_liu_morse.reproduction",
           "tran": "reproductions.tran.reproduction"}
 
 #: scenario family (the `family` key of a user's TOML file) -> module with `from_dict(data)`
-FAMILIES = {"noisy-consensus-filter": "reproductions.savas.reproduction",
+FAMILIES = {"random-comm-filter": "reproductions.tanwani.reproduction",
+            "noisy-consensus-filter": "reproductions.savas.reproduction",
             "gossip-kalman": "reproductions.kar_moura.reproduction",
             "hybrid-observer": "reproductions.wang_liu_morse.reproduction",
             "coestimation": "reproductions.tran.reproduction"}
 
 #: a valid scenario file of each family (documentation, and the seed of the input fuzz tests)
-FAMILY_EXAMPLES = {"noisy-consensus-filter": "savas/paper.toml",
+FAMILY_EXAMPLES = {"random-comm-filter": "tanwani/example.toml",
+                   "noisy-consensus-filter": "savas/paper.toml",
                    "gossip-kalman": "kar_moura/scenarios/e1.toml",
                    "hybrid-observer": "wang_liu_morse/generic.toml",
                    "coestimation": "tran/paper.toml"}
