@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import resource
-from concurrent.futures import ProcessPoolExecutor
+import signal
 from typing import Callable, Iterable, Sequence, TypeVar
 
 import numpy as np
@@ -57,25 +57,31 @@ def block_generator(seed: np.random.SeedSequence) -> np.random.Generator:
     return np.random.Generator(np.random.SFC64(seed))
 
 
+def _ignore_sigint() -> None:
+    """Workers leave Ctrl-C to the parent, which stops them (no traceback per worker)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def parallel_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, desc: str = "") -> list[R]:
-    """Map `fn` over `items` in `workers` processes (fork), with a progress bar; order kept."""
+    """Map `fn` over `items` in `workers` processes (fork), with a progress bar; order kept.
+
+    On Ctrl-C or a failed task the workers are terminated at once; tasks already finished
+    have stored their results in the stage cache, so a re-run resumes from there.
+    """
     items = list(items)
     if workers <= 1 or len(items) <= 1:
         return [fn(x) for x in progress(items, desc=desc)]
     import multiprocessing
 
-    ctx = multiprocessing.get_context("fork")
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+    pool = multiprocessing.get_context("fork").Pool(processes=min(workers, len(items)), initializer=_ignore_sigint)
     try:
-        results = list(progress(pool.map(fn, items), total=len(items), desc=desc))
+        results = list(progress(pool.imap(fn, items), total=len(items), desc=desc))
     except BaseException:
-        # Ctrl-C or a failed task: do not wait for the other tasks; stop the workers now.
-        # Finished tasks are already in the stage cache, so a re-run resumes from there.
-        for proc in list(getattr(pool, "_processes", {}).values()):
-            proc.terminate()
-        pool.shutdown(wait=False, cancel_futures=True)
+        pool.terminate()
+        pool.join()
         raise
-    pool.shutdown()
+    pool.close()
+    pool.join()
     return results
 
 
