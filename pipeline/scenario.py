@@ -129,3 +129,17 @@ def as_matrix(value: Any, field: str, *, shape: tuple[int, int] | None = None,
     if psd and np.linalg.eigvalsh(M / 2 + M.T / 2).min() < -tol:
         raise ScenarioError(field, "must be positive semidefinite")
     return M
+
+
+def scenario_root(data: Any, *, allowed: Iterable[str], required: Iterable[str]) -> tuple[Mapping[str, Any], str]:
+    """The top level of a family's scenario: a table with only `allowed` keys, every
+    `required` section present, and a `name` usable as a file name (default "scenario")."""
+    data = section(data, "scenario")
+    reject_unknown(data, allowed)
+    for key in required:
+        if key not in data:
+            raise ScenarioError(key, "missing section")
+    name = as_str(data.get("name", "scenario"), "name")
+    if not name or not all(c.isalnum() or c in "-_" for c in name):
+        raise ScenarioError("name", f"must be a non-empty identifier of letters, digits, '-' and '_', got '{name}'")
+    return data, name

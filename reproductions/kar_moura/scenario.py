@@ -11,7 +11,7 @@ import numpy as np
 from estimators.gossip_kalman import GossipSystem, MatchingDistribution, NodeInitiatedGossip
 from pipeline.errors import ScenarioError
 from pipeline.graphs import GraphSpec
-from pipeline.scenario import (as_float, as_int, as_int_tuple, as_list, as_matrix, as_str, join, load_toml,
+from pipeline.scenario import (scenario_root, as_float, as_int, as_int_tuple, as_list, as_matrix, as_str, join, load_toml,
                                reject_unknown, section)
 
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
@@ -134,14 +134,7 @@ class GossipKalmanScenario:
 
     @classmethod
     def from_dict(cls, data: Any) -> "GossipKalmanScenario":
-        data = section(data, "scenario")
-        reject_unknown(data, SECTIONS)
-        for required in ("model", "sensors", "graph", "protocol"):
-            if required not in data:
-                raise ScenarioError(required, "missing section")
-        name = as_str(data.get("name", "scenario"), "name")
-        if not name or not all(c.isalnum() or c in "-_" for c in name):
-            raise ScenarioError("name", f"must be a non-empty identifier of letters, digits, '-' and '_', got '{name}'")
+        data, name = scenario_root(data, allowed=SECTIONS, required=("model", "sensors", "graph", "protocol"))
         description = as_str(data.get("description", ""), "description")
 
         model = section(data["model"], "model")

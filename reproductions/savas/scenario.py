@@ -10,7 +10,7 @@ import numpy as np
 
 from pipeline.errors import ScenarioError
 from pipeline.graphs import GraphSpec, consensus_matrix_from_dict
-from pipeline.scenario import (as_float, as_float_tuple, as_int, as_int_tuple, as_str, join, load_toml,
+from pipeline.scenario import (scenario_root, as_float, as_float_tuple, as_int, as_int_tuple, as_str, load_toml,
                                reject_unknown, section)
 
 GAIN_CHOICES = ("optimal-corrected", "optimal-printed", "fixed")
@@ -56,14 +56,7 @@ class NoisyConsensusScenario:
 
     @classmethod
     def from_dict(cls, data: Any) -> "NoisyConsensusScenario":
-        data = section(data, "scenario")
-        reject_unknown(data, SECTIONS)
-        for required in ("graph", "model", "sweep"):
-            if required not in data:
-                raise ScenarioError(required, "missing section")
-        name = as_str(data.get("name", "scenario"), "name")
-        if not name or not all(c.isalnum() or c in "-_" for c in name):
-            raise ScenarioError("name", f"must be a non-empty identifier of letters, digits, '-' and '_', got '{name}'")
+        data, name = scenario_root(data, allowed=SECTIONS, required=("graph", "model", "sweep"))
         graph = GraphSpec.from_dict(data["graph"], "graph")
         Q = consensus_matrix_from_dict(data.get("consensus", {"weights": "metropolis"}), "consensus", graph.build())
 

@@ -25,7 +25,7 @@ import numpy as np
 from estimators.gossip_filter import MODES, GossipSystem, kalman_bucy_split_gains
 from pipeline.errors import ScenarioError
 from pipeline.graphs import GraphSpec
-from pipeline.scenario import (as_float, as_float_tuple, as_int, as_list, as_matrix, as_str, load_toml, reject_unknown,
+from pipeline.scenario import (scenario_root, as_float, as_float_tuple, as_int, as_list, as_matrix, as_str, load_toml, reject_unknown,
                                section)
 
 SECTIONS = ("name", "title", "system", "sensors", "graph", "communication", "gains", "simulation")
@@ -72,14 +72,7 @@ class FilterNetworkScenario:
 
     @classmethod
     def from_dict(cls, data: Any) -> "FilterNetworkScenario":
-        data = section(data, "scenario")
-        reject_unknown(data, SECTIONS)
-        for required in ("system", "sensors", "graph"):
-            if required not in data:
-                raise ScenarioError(required, "missing section")
-        name = as_str(data.get("name", "scenario"), "name")
-        if not name or not all(c.isalnum() or c in "-_" for c in name):
-            raise ScenarioError("name", f"must be a non-empty identifier of letters, digits, '-' and '_', got '{name}'")
+        data, name = scenario_root(data, allowed=SECTIONS, required=("system", "sensors", "graph"))
         title = as_str(data.get("title", name), "title")
 
         sysd = section(data["system"], "system")

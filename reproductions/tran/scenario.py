@@ -11,7 +11,7 @@ import numpy as np
 
 from pipeline.errors import ScenarioError
 from pipeline.graphs import GraphSpec, laplacian
-from pipeline.scenario import (as_float, as_int, as_int_tuple, as_list, as_matrix, as_str, join, load_toml,
+from pipeline.scenario import (scenario_root, as_float, as_int, as_int_tuple, as_list, as_matrix, as_str, join, load_toml,
                                reject_unknown, section)
 
 SECTIONS = ("name", "process", "input", "graph", "nodes", "node_type", "coupling", "roles", "fixed_roles",
@@ -146,20 +146,8 @@ def _binary_vector(value: Any, field: str, N: int) -> tuple[float, ...]:
     return v
 
 
-def _name(data) -> str:
-    name = as_str(data.get("name", "scenario"), "name")
-    if not name or not all(c.isalnum() or c in "-_" for c in name):
-        raise ScenarioError("name", f"must be a non-empty identifier of letters, digits, '-' and '_', got '{name}'")
-    return name
-
-
 def scenario_from_dict(data: Any) -> CoestimationScenario:
-    data = section(data, "scenario")
-    reject_unknown(data, SECTIONS)
-    for required in ("process", "input", "graph", "nodes", "node_type", "coupling"):
-        if required not in data:
-            raise ScenarioError(required, "missing section")
-    name = _name(data)
+    data, name = scenario_root(data, allowed=SECTIONS, required=("process", "input", "graph", "nodes", "node_type", "coupling"))
 
     proc = section(data["process"], "process")
     reject_unknown(proc, ("A", "B", "x0"), "process")

@@ -14,7 +14,7 @@ import numpy as np
 
 import estimators.jointly_observable_design as jd
 from pipeline.errors import ScenarioError
-from pipeline.scenario import (as_float, as_float_tuple, as_int, as_list, as_matrix, as_str, join, load_toml,
+from pipeline.scenario import (scenario_root, as_float, as_float_tuple, as_int, as_list, as_matrix, as_str, join, load_toml,
                                reject_unknown, section)
 
 SECTIONS = ("name", "system", "design", "graphs", "initial", "monte_carlo", "noise", "runs", "paper_values")
@@ -112,14 +112,7 @@ class HybridScenario:
 
     @classmethod
     def from_dict(cls, data: Any) -> "HybridScenario":
-        data = section(data, "scenario")
-        reject_unknown(data, SECTIONS)
-        for required in ("system", "design", "graphs", "initial"):
-            if required not in data:
-                raise ScenarioError(required, "missing section")
-        name = as_str(data.get("name", "scenario"), "name")
-        if not name or not all(c.isalnum() or c in "-_" for c in name):
-            raise ScenarioError("name", f"must be a non-empty identifier of letters, digits, '-' and '_', got '{name}'")
+        data, name = scenario_root(data, allowed=SECTIONS, required=("system", "design", "graphs", "initial"))
 
         # -- system -----------------------------------------------------------------------------
         sysd = section(data["system"], "system")
