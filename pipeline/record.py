@@ -106,6 +106,26 @@ def log_markdown(rec: rr.RecordingStream, entity: str, text: str) -> None:
     rec.log(entity, rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
 
 
+def _short(value, width: int) -> str:
+    import json
+
+    return json.dumps(value, ensure_ascii=False, default=str)[:width]
+
+
+def log_claims(rec: rr.RecordingStream, claims: Sequence[dict], header: str, *,
+               details: Sequence[dict] | None = None, width: int = 40) -> None:
+    """`/report`: `header` and a table of `claims` (verdict, measured, reference, margin);
+    `/claims/<id>`: each claim of `details` (default: `claims`) in full."""
+    rows = [header, "", "| claim | verdict | measured | reference | margin |", "|---|---|---|---|---|"]
+    rows += [f"| `{c['id']}` | **{c['verdict']}** | {_short(c.get('measured'), width)} | "
+             f"{_short(c.get('reference'), width)} | {_short(c.get('margin'), 16)} |" for c in claims]
+    log_markdown(rec, "report", "\n".join(rows))
+    for c in claims if details is None else details:
+        log_markdown(rec, f"claims/{c['id']}", f"## `{c['id']}`: {c['verdict']}\n\n*{c['source']}*: {c['statement']}\n\n"
+                     f"- measured: {c.get('measured')}\n- reference: {c.get('reference')}\n- margin: {c.get('margin')}"
+                     f"\n\n{c.get('detail', '')}")
+
+
 def log_tensor(rec: rr.RecordingStream, entity: str, matrix: np.ndarray, dim_names=("row", "col")) -> None:
     rec.log(entity, rr.Tensor(np.asarray(matrix, float), dim_names=list(dim_names)), static=True)
 

@@ -199,15 +199,6 @@ def write_figures(r: ScenarioResults, figs: Path) -> None:
 
 # -- recordings ----------------------------------------------------------------------------------------
 
-def _claims_markdown(claims: list[dict], name: str) -> str:
-    rows = ["| claim | verdict | measured | reference |", "|---|---|---|---|"]
-    for c in claims:
-        if c["id"].endswith(f".{name}") or c["id"].count(".") == 2:
-            rows.append(f"| `{c['id']}` | **{c['verdict']}** | {json.dumps(c.get('measured'))[:40]} | "
-                        f"{json.dumps(c.get('reference'))[:40]} |")
-    return "\n".join(rows)
-
-
 def write_recording(r: ScenarioResults, path: Path, claims: list[dict], prov: dict, paper_id: str) -> None:
     sc, g, b = r.scenario, r.gikf, r.bounds
     N, M = sc.N, sc.M
@@ -287,11 +278,8 @@ def write_recording(r: ScenarioResults, path: Path, claims: list[dict], prov: di
         summary = (f"# {sc.name}: {counts['pass']} pass, {counts['fail']} fail, {counts['erratum']} erratum, "
                    f"{counts['not-checkable']} not checkable\n\n{sc.description}\n\nseed {r.seed}, {r.runs:,} GIKF runs, "
                    f"{r.reference_runs:,} Theorem-8 runs, {r.slots} slots")
-        rec_.log_markdown(rec, "report", summary + "\n\n" + _claims_markdown(own, sc.name))
-        for c in own:
-            rec_.log_markdown(rec, f"claims/{c['id']}", f"## `{c['id']}`: {c['verdict']}\n\n*{c['source']}*: {c['statement']}\n\n"
-                              f"- measured: {c.get('measured')}\n- reference: {c.get('reference')}\n- margin: {c.get('margin')}\n\n"
-                              f"{c.get('detail', '')}")
+        table = [c for c in own if c["id"].endswith(f".{sc.name}") or c["id"].count(".") == 2]
+        rec_.log_claims(rec, table, summary, details=own)
 
 
 def _write_scenario(r: ScenarioResults, out_dir: Path, claims: list[dict], prov: dict, paper_id: str) -> None:

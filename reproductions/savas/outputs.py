@@ -11,10 +11,8 @@ import json
 from pathlib import Path
 
 import numpy as np
-import rerun as rr
 import rerun.blueprint as rrb
 
-import estimators.consensus_covariance as cc
 from pipeline import record as rec_
 from pipeline.figures import new_figure, save_figure, sequential_colors
 from pipeline.stats import z_for_confidence
@@ -121,22 +119,6 @@ def write_figures(res: Results, out_dir: Path) -> None:
 
 # -- recordings -----------------------------------------------------------------------------------
 
-def _claims_markdown(claims: list[dict]) -> str:
-    rows = ["| claim | verdict | measured | reference |", "|---|---|---|---|"]
-    for c in claims:
-        rows.append(f"| `{c['id']}` | **{c['verdict']}** | {json.dumps(c.get('measured'))[:40]} | "
-                    f"{json.dumps(c.get('reference'))[:40]} |")
-    return "\n".join(rows)
-
-
-def _log_claims(rec: rr.RecordingStream, claims: list[dict], summary: str) -> None:
-    rec_.log_markdown(rec, "report", summary + "\n\n" + _claims_markdown(claims))
-    for c in claims:
-        rec_.log_markdown(rec, f"claims/{c['id']}", f"## `{c['id']}`: {c['verdict']}\n\n*{c['source']}*: "
-                          f"{c['statement']}\n\n- measured: {c.get('measured')}\n- reference: {c.get('reference')}\n"
-                          f"- margin: {c.get('margin')}\n\n{c.get('detail', '')}")
-
-
 def _properties(res: Results, prov: dict) -> dict:
     sc = res.scenario
     return {"seed": res.seed, "trials": res.trials, "q": sc.q, "r": sc.r, "sigma0": sc.sigma0, "x0_mean": sc.x0_mean,
@@ -208,7 +190,7 @@ def write_trials_recording(res: Results, path: Path, claims: list[dict], prov: d
                                  names=f"{alg} z(k+h/m|k), trial 0", colors=[col], points=True)
         rec_.send_series(rec, "central/kf_trace", idx, sc.n * res.bounds["kf_prior"][: sc.n_steps],
                          names="N · P_KF(k|k-1) (centralized KF)", colors=[(0, 0, 0)])
-        _log_claims(rec, claims, summary)
+        rec_.log_claims(rec, claims, summary)
 
 
 def write_figures_recording(res: Results, path: Path, claims: list[dict], prov: dict, summary: str) -> None:
@@ -248,7 +230,7 @@ def write_figures_recording(res: Results, path: Path, claims: list[dict], prov: 
                                  names=[f"{n} corrected (16)" for n in names], colors=cols)
                 rec_.send_series(rec, f"fig2/{key}/printed", midx, b[f"printed_{key}"].T,
                                  names=[f"{n} printed (16)" for n in names], colors=cols, points=True)
-        _log_claims(rec, claims, summary)
+        rec_.log_claims(rec, claims, summary)
 
 
 def write_outputs(res: Results, out_dir: Path, claims: list[dict], prov: dict) -> None:

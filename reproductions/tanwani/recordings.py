@@ -32,15 +32,6 @@ def _lam_tag(lam: float) -> str:
     return f"lam{lam:g}".replace(".", "p")
 
 
-def _claims_md(claims: list[dict], name: str) -> str:
-    rows = ["| claim | verdict | measured | reference | margin |", "|---|---|---|---|---|"]
-    for c in claims:
-        if c["id"].endswith(f".{name}") or c["id"].count(".") == 2:
-            rows.append(f"| `{c['id']}` | **{c['verdict']}** | {json.dumps(c.get('measured'))[:24]} | "
-                        f"{json.dumps(c.get('reference'))[:24]} | {json.dumps(c.get('margin'))[:16]} |")
-    return "\n".join(rows)
-
-
 def write_scenario(r: ScenarioResults, res: Results, path: Path, claims: list[dict], prov: dict) -> None:
     sc, s, b = r.scenario, r.sys, r.bounds
     N, n = s.N, s.n
@@ -137,13 +128,10 @@ def write_scenario(r: ScenarioResults, res: Results, path: Path, claims: list[di
                              names=["tr P_i(t; τ) (14)", "tr E[e_ie_iᵀ | τ] exact", "tr 𝒫_i(t) (9)"],
                              colors=[(214, 39, 40), (0, 0, 0), (255, 152, 150)])
         counts = {v: sum(c["verdict"] == v for c in claims) for v in ("pass", "fail", "erratum", "not-checkable")}
-        rec_.log_markdown(rec, "report", f"# {sc.title}\n\nScenario proposed by the spec (the paper has no numerical "
-                          f"example). All claims of the run: {counts}.\n\n" + _claims_md(claims, sc.name))
-        for c in claims:
-            if c["id"].endswith(f".{sc.name}"):
-                rec_.log_markdown(rec, f"claims/{c['id']}", f"## `{c['id']}`: {c['verdict']}\n\n*{c['source']}*: "
-                                  f"{c['statement']}\n\n- measured: {c.get('measured')}\n- reference: "
-                                  f"{c.get('reference')}\n- margin: {c.get('margin')}\n\n{c.get('detail', '')}")
+        table = [c for c in claims if c["id"].endswith(f".{sc.name}") or c["id"].count(".") == 2]
+        rec_.log_claims(rec, table, f"# {sc.title}\n\nScenario proposed by the spec (the paper has no numerical "
+                        f"example). All claims of the run: {counts}.", width=24,
+                        details=[c for c in claims if c["id"].endswith(f".{sc.name}")])
 
 
 def write_recordings(res: Results, out_dir: Path, claims: list[dict], prov: dict) -> None:

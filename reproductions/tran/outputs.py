@@ -254,14 +254,6 @@ def lmi_markdown(res: Results) -> str:
     return "\n".join(lines)
 
 
-def _claims_markdown(claims: list[dict], header: str) -> str:
-    rows = [header, "", "| claim | verdict | measured | reference |", "|---|---|---|---|"]
-    for c in claims:
-        rows.append(f"| `{c['id']}` | **{c['verdict']}** | {json.dumps(c.get('measured'))[:40]} | "
-                    f"{json.dumps(c.get('reference'))[:40]} |")
-    return "\n".join(rows)
-
-
 def write_recording(res: Results, path: Path, claims: list[dict], prov: dict) -> None:
     sc, d = res.scenario, res.design
     n, p, N = sc.n, sc.p, sc.N
@@ -391,11 +383,7 @@ def write_recording(res: Results, path: Path, claims: list[dict], prov: dict) ->
                          ex["EV"], names="fixed roles: exact E{V}", colors=[(0, 0, 0)])
         rec_.log_markdown(rec, "lmi", lmi_markdown(res))
         counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable")}
-        rec_.log_markdown(rec, "report", _claims_markdown(claims, f"# {sc.name}: {counts}"))
-        for cl in claims:
-            rec_.log_markdown(rec, f"claims/{cl['id']}", f"## `{cl['id']}`: {cl['verdict']}\n\n*{cl['source']}*: "
-                              f"{cl['statement']}\n\n- measured: {cl.get('measured')}\n- reference: {cl.get('reference')}\n"
-                              f"- margin: {cl.get('margin')}\n\n{cl.get('detail', '')}")
+        rec_.log_claims(rec, claims, f"# {sc.name}: {counts}")
 
 
 def write_outputs(res: Results, out_dir: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:

@@ -266,14 +266,6 @@ def design_summary(r: Results) -> dict:
 
 # -- recordings -------------------------------------------------------------------------------------
 
-def _claims_md(claims: list[dict]) -> str:
-    rows = ["| claim | verdict | measured | reference |", "|---|---|---|---|"]
-    for c in claims:
-        rows.append(f"| `{c['id']}` | **{c['verdict']}** | {json.dumps(c.get('measured'))[:30]} | "
-                    f"{json.dumps(c.get('reference'))[:30]} |")
-    return "\n".join(rows)
-
-
 def _edges(N: np.ndarray) -> list[tuple[str, str]]:
     m = len(N)
     return [(str(j + 1), str(i + 1)) for i in range(m) for j in range(m) if i != j and N[i, j]]
@@ -396,11 +388,7 @@ def write_run_recording(r: Results, run_name: str, path: Path, claims: list[dict
             ev = rec_.duration_index("t", run.event_ns[i])
             rec.send_columns(f"events/reset/{i + 1}", indexes=ev,
                              columns=rr.TextLog.columns(text=[f"agent {i + 1}: event s = {s}" for s in range(len(run.event_ns[i]))]))
-        rec_.log_markdown(rec, "report", summary + "\n\n" + _claims_md(claims))
-        for c in claims:
-            rec_.log_markdown(rec, f"claims/{c['id']}", f"## `{c['id']}`: {c['verdict']}\n\n*{c['source']}*: {c['statement']}"
-                              f"\n\n- measured: {c.get('measured')}\n- reference: {c.get('reference')}\n- margin: "
-                              f"{c.get('margin')}\n\n{c.get('detail', '')}")
+        rec_.log_claims(rec, claims, summary, width=30)
 
 
 def write_outputs(res: MultiResults, out_dir: Path, claims: list[dict], prov: dict, *, paper: bool) -> None:
