@@ -18,9 +18,14 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from .atomic import atomic_path
+from .viewer_glyphs import viewer_text
 
 PALETTE = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
            (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
+
+
+def _texts(values):
+    return None if values is None else [viewer_text(str(v)) for v in values]
 
 
 def color(i: int) -> tuple[int, int, int]:
@@ -35,7 +40,7 @@ def recording(path: str | os.PathLike, *, application_id: str, recording_id: str
         rec = rr.RecordingStream(application_id, recording_id=recording_id)
         rec.save(str(tmp), default_blueprint=blueprint)
         rec.set_log_time_enabled(False)
-        rec.send_recording_name(recording_id)
+        rec.send_recording_name(viewer_text(recording_id))
         if properties:
             rec.send_property("provenance", rr.AnyValues(**{k: _property(v) for k, v in properties.items()}))
         try:
@@ -68,7 +73,7 @@ def send_series(rec: rr.RecordingStream, entity: str, index: list[rr.TimeColumn]
     if values.ndim == 1:
         values = values[:, None]
     k = values.shape[1]
-    names = [names] * k if isinstance(names, str) else (list(names) if names is not None else None)
+    names = _texts([names] * k if isinstance(names, str) else names)
     colors = list(colors) if colors is not None else [color(i) for i in range(k)]
     if points:
         style = rr.SeriesPoints(names=names, colors=colors, markers=["circle"] * k, marker_sizes=[3.0] * k)
@@ -85,7 +90,7 @@ def log_graph(rec: rr.RecordingStream, entity: str, positions: np.ndarray, edges
     n = len(positions)
     ids = [str(i) for i in range(n)]
     rec.log(entity,
-            rr.GraphNodes(ids, positions=display_positions(positions), labels=list(labels or ids),
+            rr.GraphNodes(ids, positions=display_positions(positions), labels=_texts(labels or ids),
                           colors=colors if colors is not None else [color(0)] * n, radii=radii, show_labels=True),
             rr.GraphEdges([(str(u), str(v)) for u, v in edges],
                           graph_type=rr.GraphType.Directed if directed else rr.GraphType.Undirected),
@@ -103,7 +108,7 @@ def display_positions(positions: np.ndarray, spacing: float = 160.0) -> np.ndarr
 
 
 def log_markdown(rec: rr.RecordingStream, entity: str, text: str) -> None:
-    rec.log(entity, rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
+    rec.log(entity, rr.TextDocument(viewer_text(text), media_type=rr.MediaType.MARKDOWN), static=True)
 
 
 def _short(value, width: int) -> str:

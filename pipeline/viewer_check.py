@@ -22,6 +22,7 @@ import rerun_cli
 from rerun.experimental import ViewerClient
 
 from .record import blueprint_view_kinds
+from .viewer_glyphs import drawable
 
 VIEWER = Path(rerun_cli.__file__).with_name("rerun")
 
@@ -32,8 +33,60 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _strings(value):
+    if isinstance(value, str):
+        yield value
+    elif isinstance(value, (list, tuple)):
+        for v in value:
+            yield from _strings(v)
+    elif isinstance(value, dict):
+        for v in value.values():
+            yield from _strings(v)
+
+
+def undrawable_text(rrd: Path) -> list[str]:
+    """Every character, in any string of the recording or its blueprint (view names, series
+    names, labels, documents), that the viewer's font cannot draw: the viewer would panic
+    when that text comes on screen, even in a tab that is not open at first."""
+    import rerun as rr
+
+    reader = rr.chunk.RrdReader(str(rrd))
+    found: dict[str, str] = {}
+    for store in [None, *reader.blueprints()]:
+        for chunk in reader.stream() if store is None else reader.stream(store=store):
+            for column, values in chunk.to_record_batch().to_pydict().items():
+                for text in _strings(values):
+                    for ch in text:
+                        if not ch.isascii() and ch not in found and not drawable(ch) and ch not in "\n\t":
+                            found[ch] = f"{chunk.entity_path} {column}: {text[:60]!r}"
+    return [f"undrawable character {ch!r} (U+{ord(ch):04X}) in {where}" for ch, where in found.items()]
+
+
+def embedded_font_coverage() -> set[int]:
+    """Code points of the Inter font embedded in the viewer binary (needs fontTools)."""
+    import io
+    import re
+
+    from fontTools.ttLib import TTFont
+
+    data = VIEWER.read_bytes()
+    for m in re.finditer(rb"\x00\x01\x00\x00\x00[\x08-\x20]", data):
+        if not re.fullmatch(rb"[A-Za-z/ ]{4}", data[m.start() + 12:m.start() + 16]):
+            continue
+        try:
+            font = TTFont(io.BytesIO(data[m.start():m.start() + 4_000_000]), lazy=True)
+            if "Inter" in (font["name"].getDebugName(1) or ""):
+                return set(font.getBestCmap())
+        except Exception:  # not a font at this offset
+            continue
+    raise RuntimeError(f"no Inter font found in {VIEWER}")
+
+
 def check_recording(rrd: Path, screenshot: Path | None, *, timeout: float = 60.0, settle: float = 4.0) -> list[str]:
     """Problems found with one recording (empty list when it renders cleanly)."""
+    glyphs = undrawable_text(rrd)
+    if glyphs:
+        return glyphs
     port = _free_port()
     proc = subprocess.Popen([str(VIEWER), "--headless", "--bind", "127.0.0.1", "--port", str(port),
                              "--window-size", "1600x1000", "--hide-welcome-screen", str(rrd)],
@@ -43,7 +96,9 @@ def check_recording(rrd: Path, screenshot: Path | None, *, timeout: float = 60.0
         deadline, state, client = time.monotonic() + timeout, None, None
         while time.monotonic() < deadline:
             if proc.poll() is not None:
-                return [f"viewer exited with code {proc.returncode}: {proc.stderr.read().decode()[-400:]}"]
+                err = proc.stderr.read().decode(errors="replace")
+                panic = [line for line in err.splitlines() if "panicked" in line]
+                return [f"viewer exited with code {proc.returncode}: {(panic or [err[-400:]])[0]}"]
             try:
                 client = client or ViewerClient.connect(f"rerun+http://127.0.0.1:{port}/proxy")
                 state = client.get_state()

@@ -250,3 +250,19 @@ def test_errors_survive_pickling():
     assert (e.stage, e.scenario, e.where) == ("mc", "demo", "array 'x' at index (1,)") and "stage 'mc'" in str(e)
     s = pickle.loads(pickle.dumps(ScenarioError("model.r", "must be > 0")))
     assert str(s) == "model.r: must be > 0"
+
+
+def test_viewer_text_replaces_glyphs_the_viewer_cannot_draw():
+    from pipeline.record import viewer_text
+
+    assert viewer_text("tr 𝒫_i ≤ 𝓛 x̂ σ_c ℓ") == "tr P_i ≤ L x̂ σ_c ℓ"  # drawable characters are kept
+    assert viewer_text("Pᵀ, x ∈ S, L⊗I") == "P^T, x  in  S, L(x)I"
+    assert viewer_text("plain") == "plain" and viewer_text("🙂") == "?"
+
+
+def test_shipped_glyph_ranges_match_the_viewer_font():
+    from pipeline.viewer_check import embedded_font_coverage
+    from pipeline.viewer_glyphs import INTER_RANGES
+
+    shipped = {c for a, b in INTER_RANGES for c in range(a, b + 1)}
+    assert shipped == embedded_font_coverage()

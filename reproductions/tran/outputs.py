@@ -277,7 +277,7 @@ def write_recording(res: Results, path: Path, claims: list[dict], prov: dict) ->
                        for k in range(n)], grid_columns=2, name="comparison (Figs. 6-7)"),
             rrb.Grid(rrb.TimeSeriesView(origin="/bounds/roles", name="‖z(t)‖ vs (18) variants (log)"),
                      rrb.TimeSeriesView(origin="/bounds/fixed", name="fixed roles: ‖z‖ vs (18)"),
-                     rrb.TimeSeriesView(origin="/mc", name="E{zᵀPz}: Monte Carlo, exact, (46)"),
+                     rrb.TimeSeriesView(origin="/mc", name="E{z^T P z}: Monte Carlo, exact, (46)"),
                      rrb.TimeSeriesView(origin="/errors", name="mean node errors: coestimation, comparison, central KF"),
                      name="errors and bounds"),
             rrb.Horizontal(rrb.TextDocumentView(origin="/lmi", name="LMI results"),
