@@ -24,6 +24,13 @@ PALETTE = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 1
            (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
 
 
+def on_dark(rgb) -> tuple[int, int, int]:
+    """The viewer draws on a dark background: near-black series (the usual colour of a
+    reference curve in a matplotlib figure) become light grey instead of invisible."""
+    r, g, b = (int(x) for x in rgb[:3])
+    return (220, 220, 220) if 0.2126 * r + 0.7152 * g + 0.0722 * b < 40 else (r, g, b)
+
+
 def _texts(values):
     return None if values is None else [viewer_text(str(v)) for v in values]
 
@@ -74,7 +81,7 @@ def send_series(rec: rr.RecordingStream, entity: str, index: list[rr.TimeColumn]
         values = values[:, None]
     k = values.shape[1]
     names = _texts([names] * k if isinstance(names, str) else names)
-    colors = list(colors) if colors is not None else [color(i) for i in range(k)]
+    colors = [on_dark(c) for c in colors] if colors is not None else [color(i) for i in range(k)]
     if points:
         style = rr.SeriesPoints(names=names, colors=colors, markers=["circle"] * k, marker_sizes=[3.0] * k)
     else:
