@@ -7,7 +7,6 @@ at a time in a worker, which bounds memory.
 """
 from __future__ import annotations
 
-import os
 import resource
 import signal
 from typing import Callable, Iterable, Sequence, TypeVar
@@ -83,10 +82,6 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, 
     pool.close()
     pool.join()
     return results
-
-
-def default_workers() -> int:
-    return max(1, min(os.cpu_count() or 1, 8))
 
 
 def peak_memory_mib() -> float:

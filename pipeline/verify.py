@@ -15,7 +15,6 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .stats import confidence_of_z
 
 PASS, FAIL, ERRATUM, NOT_CHECKABLE = "pass", "fail", "erratum", "not-checkable"
 STATUSES = (PASS, FAIL, ERRATUM, NOT_CHECKABLE)
@@ -166,7 +165,3 @@ def erratum(printed, corrected, reference, *, rtol: float, detail: str = "", cor
 
 def not_checkable(reason: str) -> Verdict:
     return Verdict(NOT_CHECKABLE, detail=reason)
-
-
-def z_confidence(z: float, n_tests: int = 1) -> float:
-    return confidence_of_z(z, n_tests)
