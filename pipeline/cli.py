@@ -1,4 +1,4 @@
-"""The `dse` command line: list, reproduce, run, verify.
+"""The `dse` command line: list, reproduce, run, verify, sweep.
 
 Input errors print one line naming the field and exit with code 2, before anything is
 written; Ctrl-C exits with 130.
@@ -95,6 +95,18 @@ def cmd_verify(args) -> int:
     return status
 
 
+def cmd_sweep(args) -> int:
+    from .sweep import run_sweep
+    from .sweep_spec import load_sweep
+
+    spec = load_sweep(args.file)
+    r = run_sweep(spec, Path(args.out), scheduler=args.scheduler, workers=args.workers, retries=args.retries,
+                  fresh=args.fresh)
+    print(f"sweep {r['name']}: {r['points']} points ({r['ran']} run, {r['reused']} reused, {r['failed']} failed, "
+          f"{r['numerical_errors']} numerical failures) in {r['wall_s']:.1f} s -> {r['out_dir']}")
+    return 1 if r["failed"] else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="dse", description="Reproductions of distributed state estimation papers.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -118,6 +130,17 @@ def build_parser() -> argparse.ArgumentParser:
     ver = sub.add_parser("verify", help="re-check claims from cached results, without simulating")
     ver.add_argument("out_dir", metavar="OUT_DIR")
     ver.set_defaults(func=cmd_verify)
+    swp = sub.add_parser("sweep", help="run a scenario family over a grid or random sample of fields, on Dask")
+    swp.add_argument("file", metavar="SWEEP.toml")
+    swp.add_argument("--out", default="out", help="output root directory; results go to OUT/sweep/NAME/ (default out/)")
+    swp.add_argument("--scheduler", default="auto",
+                     help="auto (default: in process for a tiny sweep, else a local Dask cluster), inline, local, "
+                          "or the address of a running Dask scheduler, e.g. tcp://HOST:8786")
+    swp.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1,
+                     help="worker processes of the local cluster (default: one per core)")
+    swp.add_argument("--retries", type=_nonnegative_int, default=2, help="retries of a failed task (default 2)")
+    swp.add_argument("--fresh", action="store_true", help="recompute every point, ignoring points already done")
+    swp.set_defaults(func=cmd_sweep)
     return parser
 
 

@@ -39,3 +39,16 @@ def family_from_dict(data: dict[str, Any]):
         raise ScenarioError("family", f"missing (one of {', '.join(FAMILIES)})")
     body = {k: v for k, v in data.items() if k != "family"}
     return importlib.import_module(FAMILIES[family]).from_dict(body)
+
+
+def family_metrics(family: str, results: Any) -> dict[str, float]:
+    """A family's summary metrics of one run (for `dse sweep`): `metrics(results)` of the
+    family's `metrics` module next to its reproduction, or none when it has no such module."""
+    name = FAMILIES[family].rsplit(".", 1)[0] + ".metrics"
+    try:
+        module = importlib.import_module(name)
+    except ModuleNotFoundError as exc:
+        if exc.name != name:
+            raise
+        return {}
+    return module.metrics(results)

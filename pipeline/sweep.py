@@ -1,0 +1,261 @@
+"""`dse sweep`: run every point of a sweep as one task, in process or on a Dask cluster.
+
+Each point is a full `dse run` of its scenario without figures or recordings: compute,
+then every claim's verdict, the verdict counts and the family's summary metrics. A point's
+result depends only on its task (scenario, seed, quick, trials) and the code, never on
+where it ran, so the gathered table is the same with one worker, two, or a remote cluster.
+
+Finished points are stored one file each under ``OUT/sweep/<name>/points/`` (keyed by a
+hash of the task and the code), so a sweep that was interrupted, or lost tasks, resumes
+where it stopped. A task that raises is retried (Dask's `retries`); a worker that dies is
+replaced and its tasks rescheduled by the Dask scheduler.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import socket
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from .atomic import atomic_write_text
+from .cache import StageCache, canonical_json, code_fingerprint
+from .errors import NumericalError, ScenarioError
+from .progress import progress_enabled
+from .sweep_spec import Point, SweepSpec
+
+#: environment of every worker: one BLAS thread (the tasks are the parallelism), no inner bars
+WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "DSE_PROGRESS": "0"}
+PROJECT_PACKAGES = ("estimators", "pipeline", "reproductions")
+#: claim fields kept per point (statement and source are the same at every point: kept once)
+POINT_CLAIM_FIELDS = ("id", "kind", "verdict", "measured", "reference", "tolerance", "margin", "confidence",
+                      "trials", "printed", "corrected", "detail")
+
+
+@dataclass(frozen=True)
+class Task:
+    """What one point computes; its key names its result file and its Dask task."""
+
+    point: Point
+    scenario: dict[str, Any]
+    quick: bool
+    trials: int | None
+    key: str
+
+    def payload(self) -> dict[str, Any]:
+        return {"scenario": self.scenario, "seed": self.point.seed, "quick": self.quick, "trials": self.trials}
+
+
+def _registry():
+    import reproductions
+
+    return reproductions
+
+
+def build_tasks(spec: SweepSpec) -> list[Task]:
+    """Every point's task, each scenario validated by its family before anything runs."""
+    reg = _registry()
+    fingerprint = code_fingerprint(m for m in list(sys.modules) if m.split(".")[0] in PROJECT_PACKAGES)
+    tasks = []
+    for point in spec.points():
+        scenario = spec.scenario(point)
+        try:
+            reg.family_from_dict(scenario)
+        except ScenarioError as exc:
+            where = ", ".join(f"{k} = {json.dumps(v)}" for k, v in point.values.items()) or "the base scenario"
+            raise ScenarioError(exc.field, f"{exc.reason} (at the point {where})") from None
+        payload = {"scenario": scenario, "seed": point.seed, "quick": spec.quick, "trials": spec.trials}
+        key = hashlib.sha256((canonical_json(payload) + fingerprint).encode()).hexdigest()[:24]
+        tasks.append(Task(point, scenario, spec.quick, spec.trials, key))
+    # the fingerprint must cover the family and metric modules the tasks import: recompute once they are loaded
+    if fingerprint != code_fingerprint(m for m in list(sys.modules) if m.split(".")[0] in PROJECT_PACKAGES):
+        return build_tasks(spec)
+    return tasks
+
+
+def run_point(payload: dict[str, Any]) -> dict[str, Any]:
+    """One point: compute in a throw-away stage cache, check every claim, summarise.
+
+    A numerical failure (a NaN or inf where the family needs a finite number) is a result of
+    the point, not an error of the task: it is reported in the row and not retried.
+    """
+    from .reproduction import RunOptions
+
+    reg = _registry()
+    start = time.perf_counter()
+    repro = reg.family_from_dict(payload["scenario"])
+    opts = RunOptions(seed=payload["seed"], trials=payload["trials"], quick=payload["quick"], workers=1)
+    where = {"host": socket.gethostname(), "pid": os.getpid()}
+    with tempfile.TemporaryDirectory(prefix="dse-point-") as tmp:
+        try:
+            results = repro.compute(opts, StageCache(tmp))
+        except NumericalError as exc:
+            return {"status": "numerical-error", "error": str(exc), "claims": [], "metrics": {},
+                    "wall_s": time.perf_counter() - start, **where}
+    rows = [claim.evaluate(results) for claim in repro.claims()]
+    metrics = reg.family_metrics(payload["scenario"]["family"], results)
+    return {"status": "ok", "error": "", "metrics": {k: float(v) for k, v in metrics.items()},
+            "claims": [{k: r.get(k) for k in POINT_CLAIM_FIELDS} | {"statement": r["statement"], "source": r["source"]}
+                       for r in rows],
+            "wall_s": time.perf_counter() - start, **where}
+
+
+class PointStore:
+    """One JSON file per finished point, written atomically."""
+
+    def __init__(self, root: Path):
+        self.root = root
+        root.mkdir(parents=True, exist_ok=True)
+
+    def _path(self, key: str) -> Path:
+        return self.root / f"{key}.json"
+
+    def load(self, key: str) -> dict[str, Any] | None:
+        try:
+            return json.loads(self._path(key).read_text())
+        except (OSError, json.JSONDecodeError):
+            return None
+
+    def save(self, key: str, result: dict[str, Any]) -> None:
+        atomic_write_text(self._path(key), json.dumps(result, default=str))
+
+
+def choose_scheduler(scheduler: str, pending: int, workers: int) -> str:
+    """`auto`: in process for tiny sweeps (at most one pending point, or one worker), else a
+    local Dask cluster. Anything else is taken as given."""
+    if scheduler != "auto":
+        return scheduler
+    return "inline" if pending <= 1 or workers <= 1 else "local"
+
+
+def execute(tasks: list[Task], *, scheduler: str, workers: int, retries: int,
+            on_result: Callable[[Task, dict[str, Any]], None], log: Callable[[str], None] = print) -> dict[str, str]:
+    """Run `tasks`; hand each result to `on_result` as it arrives. Returns {key: error} of tasks
+    that still failed after `retries` retries."""
+    if not tasks:
+        return {}
+    if scheduler == "inline":
+        return _execute_inline(tasks, retries, on_result)
+    return _execute_dask(tasks, scheduler, workers, retries, on_result, log)
+
+
+def _bar(total: int, initial: int = 0):
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=initial, desc="sweep points", unit="pt", disable=not progress_enabled(),
+                dynamic_ncols=True, file=sys.stderr)
+
+
+def _execute_inline(tasks, retries, on_result) -> dict[str, str]:
+    failures = {}
+    saved = {k: os.environ.get(k) for k in ("DSE_PROGRESS",)}
+    os.environ["DSE_PROGRESS"] = "0"  # one bar: the sweep's
+    try:
+        with _bar(len(tasks)) as bar:
+            for task in tasks:
+                for attempt in range(retries + 1):
+                    try:
+                        on_result(task, run_point(task.payload()))
+                        break
+                    except (KeyboardInterrupt, ScenarioError):
+                        raise
+                    except Exception as exc:  # noqa: BLE001 - retried, then reported per point
+                        if attempt == retries:
+                            failures[task.key] = f"{type(exc).__name__}: {exc}"
+                bar.update()
+    finally:
+        for k, v in saved.items():
+            os.environ.pop(k) if v is None else os.environ.__setitem__(k, v)
+    return failures
+
+
+def _execute_dask(tasks, scheduler, workers, retries, on_result, log) -> dict[str, str]:
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    if scheduler == "local":
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR, env=WORKER_ENV)
+        client = Client(cluster)
+    else:
+        cluster = None
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise ScenarioError("--scheduler", f"cannot reach the Dask scheduler at {scheduler} ({exc})") from None
+    failures = {}
+    try:
+        where = "local cluster" if cluster else scheduler
+        n_workers = len(client.scheduler_info().get("workers", {}))
+        log(f"dask: {where} with {n_workers} worker(s); dashboard {client.dashboard_link}")
+        owner, futures = {}, []
+        for task in tasks:
+            futures.append(client.submit(run_point, task.payload(), key=f"dse-point-{task.key}", retries=retries))
+            owner[futures[-1].key] = task
+        with _bar(len(tasks)) as bar:
+            for fut in as_completed(futures):
+                task = owner[fut.key]
+                if fut.status == "finished":
+                    on_result(task, fut.result())
+                else:
+                    exc = fut.exception()
+                    failures[task.key] = f"{type(exc).__name__}: {exc}"
+                fut.release()
+                bar.update()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return failures
+
+
+
+def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", workers: int = 2, retries: int = 2,
+              fresh: bool = False, log: Callable[[str], None] = print) -> dict[str, Any]:
+    """Run the points not yet done, then write results.parquet, claims.parquet, the figure,
+    the recording and sweep.json under OUT/sweep/<name>/. Returns a summary."""
+    from . import sweep_outputs as so
+    from .reproduction import check_output_dir
+
+    out_dir = out_root / "sweep" / spec.name
+    check_output_dir(out_dir)
+    start = time.perf_counter()
+    tasks = build_tasks(spec)
+    store = PointStore(out_dir / "points")
+    results = {} if fresh else {t.key: r for t in tasks if (r := store.load(t.key)) is not None}
+    pending = [t for t in tasks if t.key not in results]
+    mode = choose_scheduler(scheduler, len(pending), workers)
+    if results:
+        log(f"sweep {spec.name}: {len(results)} of {len(tasks)} points already done; running the other {len(pending)}")
+
+    def keep(task: Task, result: dict[str, Any]) -> None:
+        store.save(task.key, result)
+        results[task.key] = result
+
+    failures = execute(pending, scheduler=mode, workers=workers, retries=retries, on_result=keep, log=log)
+    done = [t for t in tasks if t.key in results]
+    frame = so.results_frame(spec, [t.point for t in done], [results[t.key] for t in done])
+    claims = so.claims_frame([t.point for t in done], [results[t.key] for t in done])
+    so.write_parquet(frame, out_dir / "results.parquet")
+    so.write_parquet(claims, out_dir / "claims.parquet")
+    summary_md = so.summary_markdown(spec, frame, claims, failures)
+    if len(frame):
+        plan = so.plot_plan(spec, frame)
+        so.write_figure(spec, frame, plan, out_dir / "sweep.png")
+        so.write_recording(spec, frame, plan, summary_md, out_dir / "sweep.rrd")
+    atomic_write_text(out_dir / "summary.md", summary_md + "\n")
+    meta = {"name": spec.name, "family": spec.family, "sweep": spec.source, "scheduler": mode, "workers": workers,
+            "points": [{"point": t.point.index, "key": t.key, "values": t.point.values, "replicate": t.point.replicate,
+                        "seed": t.point.seed, **({"wall_s": results[t.key]["wall_s"], "host": results[t.key]["host"],
+                                                  "pid": results[t.key]["pid"]} if t.key in results else
+                                                 {"failed": failures.get(t.key, "not run")})} for t in tasks],
+            "failures": failures, "wall_s": time.perf_counter() - start}
+    atomic_write_text(out_dir / "sweep.json", json.dumps(meta, indent=1, default=str))
+    return {"name": spec.name, "points": len(tasks), "ran": len(pending) - len(failures), "reused": len(tasks) - len(pending),
+            "failed": len(failures), "numerical_errors": int((frame["status"] != "ok").sum()) if len(frame) else 0,
+            "wall_s": meta["wall_s"], "out_dir": out_dir, "scheduler": mode}

@@ -1,0 +1,275 @@
+"""A sweep's outputs: the results table (Parquet), a figure and a recording.
+
+`results.parquet` holds one row per point: the varied values, replicate and seed, the
+run's status, verdict counts, the family's summary metrics (``metric:<name>``) and, for
+every claim, its verdict, margin, measured and reference numbers (``claim:<id>:<field>``).
+`claims.parquet` holds one row per (point, claim) with every field of the verdict, the
+detail text included. Neither holds wall times or host names, so both are identical
+wherever the points ran; those go to `sweep.json`.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+import rerun as rr
+import rerun.blueprint as rrb
+
+from . import record
+from .atomic import atomic_path
+from .figures import new_figure, save_figure, sequential_colors
+from .sweep_spec import SweepSpec
+
+STATUS_COUNTS = ("pass", "fail", "erratum", "not-checkable")
+CLAIM_COLUMNS = ("verdict", "margin", "measured", "reference")
+MAX_PLOTTED_METRICS = 6
+
+
+def number(x: Any) -> float:
+    """A claim's headline number as a float (NaN when it is not one number)."""
+    if isinstance(x, bool):
+        return float(x)
+    if isinstance(x, (int, float)):
+        return float(x)
+    if isinstance(x, str):
+        try:
+            return float(x)  # "inf", "-inf", "nan" as written by the verdict rows
+        except ValueError:
+            return math.nan
+    return math.nan
+
+
+def cell(value: Any) -> Any:
+    """A varied value as a table cell: scalars as they are, anything else as canonical JSON."""
+    if isinstance(value, (bool, int, float, str)):
+        return value
+    return json.dumps(value, sort_keys=True)
+
+
+def plot_value(value: Any) -> float | None:
+    """The number a varied value is plotted at: a number, or a list holding one number."""
+    while isinstance(value, list) and len(value) == 1:
+        value = value[0]
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    return None
+
+
+def results_frame(spec: SweepSpec, points: Sequence, results: Sequence[dict[str, Any]]) -> pd.DataFrame:
+    """One row per point, in point order (see the module docstring for the columns)."""
+    rows = []
+    for point, res in zip(points, results):
+        row: dict[str, Any] = {"point": point.index, "replicate": point.replicate, "seed": point.seed}
+        row.update({f: cell(point.values[f]) for f in spec.fields})
+        row["status"], row["error"] = res["status"], res["error"]
+        for s in STATUS_COUNTS:
+            row[s] = sum(c["verdict"] == s for c in res["claims"])
+        row.update({f"metric:{k}": v for k, v in sorted(res["metrics"].items())})
+        for c in res["claims"]:
+            row[f"claim:{c['id']}:verdict"] = c["verdict"]
+            for k in CLAIM_COLUMNS[1:]:
+                row[f"claim:{c['id']}:{k}"] = number(c.get(k))
+        rows.append(row)
+    frame = pd.DataFrame(rows)
+    for col in frame.columns:  # a column mixing strings and numbers is stored as strings
+        kinds = {type(v) for v in frame[col] if v is not None and not (isinstance(v, float) and math.isnan(v))}
+        if str in kinds and len(kinds) > 1:
+            frame[col] = frame[col].map(lambda v: None if v is None else str(v))
+    return frame
+
+
+def claims_frame(points: Sequence, results: Sequence[dict[str, Any]]) -> pd.DataFrame:
+    """One row per (point, claim) with every field of the verdict."""
+    rows = []
+    for point, res in zip(points, results):
+        for c in res["claims"]:
+            rows.append({"point": point.index, "claim": c["id"], "kind": c["kind"], "verdict": c["verdict"],
+                         "measured": number(c.get("measured")), "reference": number(c.get("reference")),
+                         "margin": number(c.get("margin")), "tolerance": number(c.get("tolerance")),
+                         "confidence": number(c.get("confidence")), "trials": number(c.get("trials")),
+                         "measured_json": json.dumps(c.get("measured"), default=str),
+                         "reference_json": json.dumps(c.get("reference"), default=str),
+                         "printed_json": json.dumps(c.get("printed"), default=str),
+                         "corrected_json": json.dumps(c.get("corrected"), default=str),
+                         "detail": str(c.get("detail") or "")})
+    columns = ["point", "claim", "kind", "verdict", "measured", "reference", "margin", "tolerance", "confidence",
+               "trials", "measured_json", "reference_json", "printed_json", "corrected_json", "detail"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def write_parquet(frame: pd.DataFrame, path: Path) -> None:
+    with atomic_path(path) as tmp:
+        frame.to_parquet(tmp, index=False, engine="pyarrow", compression="zstd")
+
+
+# -- what is plotted ---------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class PlotPlan:
+    """x: the varied field on the horizontal axis (None: the point index); groups: one curve per
+    combination of the other grid fields; metrics: the columns plotted."""
+
+    x: str | None
+    x_label: str
+    groups: list[tuple[str, np.ndarray]]
+    metrics: list[str]
+    scatter: bool
+
+
+def plot_plan(spec: SweepSpec, frame: pd.DataFrame) -> PlotPlan:
+    numeric = [f for f in spec.fields if all(plot_value(v) is not None for v in _raw(spec, frame, f))]
+    x = spec.plot_x or next((f for f in spec.grid if f in numeric), None) or (numeric[0] if numeric else None)
+    if x is not None and x not in numeric:
+        x = None
+    others = [f for f in spec.grid if f != x]
+    if others:
+        labels = frame[others].astype(str).agg(", ".join, axis=1) if len(others) > 1 else frame[others[0]].astype(str)
+        names = [", ".join(f"{f}={v}" for f, v in zip(others, key.split(", "))) if len(others) > 1 else f"{others[0]}={key}"
+                 for key in dict.fromkeys(labels)]
+        groups = [(name, (labels == key).to_numpy()) for name, key in zip(names, dict.fromkeys(labels))]
+    else:
+        groups = [("all points", np.ones(len(frame), bool))]
+    available = [c.removeprefix("metric:") for c in frame.columns if c.startswith("metric:")]
+    wanted = list(spec.plot_metrics) if spec.plot_metrics else available[:MAX_PLOTTED_METRICS]
+    missing = [m for m in wanted if m not in available]
+    if missing:
+        raise ValueError(f"plot.metrics names {', '.join(missing)}, not a metric of this family "
+                         f"(available: {', '.join(available) or 'none'})")
+    metrics = [f"metric:{m}" for m in wanted] + ["pass fraction"]
+    return PlotPlan(x=x, x_label=x or "point", groups=groups, metrics=metrics, scatter=x in spec.random)
+
+
+def _raw(spec: SweepSpec, frame: pd.DataFrame, field: str) -> list[Any]:
+    return [json.loads(v) if isinstance(v, str) and v[:1] in "[{" else v for v in frame[field]] if field in frame else []
+
+
+def x_values(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan) -> np.ndarray:
+    if plan.x is None:
+        return frame["point"].to_numpy(float)
+    return np.array([plot_value(v) for v in _raw(spec, frame, plan.x)], float)
+
+
+def metric_values(frame: pd.DataFrame, metric: str) -> np.ndarray:
+    if metric == "pass fraction":
+        total = frame[list(STATUS_COUNTS)].sum(axis=1).to_numpy(float)
+        return np.where(total > 0, frame["pass"].to_numpy(float) / np.maximum(total, 1), np.nan)
+    return frame[metric].to_numpy(float)
+
+
+def summarise(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Median, min and max of y over the points that share an x (replicates, random samples)."""
+    xs = np.unique(x[np.isfinite(x)])
+    med, lo, hi = (np.full(len(xs), np.nan) for _ in range(3))
+    for i, v in enumerate(xs):
+        ys = y[(x == v) & np.isfinite(y)]
+        if ys.size:
+            med[i], lo[i], hi[i] = np.median(ys), ys.min(), ys.max()
+    return xs, med, lo, hi
+
+
+def write_figure(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan, path: Path) -> None:
+    n = len(plan.metrics)
+    ncols = min(n, 3)
+    fig, axes = new_figure(ncols=ncols, nrows=math.ceil(n / ncols), width=4.6, height=3.4)
+    colors = sequential_colors(len(plan.groups))
+    x = x_values(spec, frame, plan)
+    for ax, metric in zip(axes.flat, plan.metrics):
+        y = metric_values(frame, metric)
+        for (name, mask), colour in zip(plan.groups, colors):
+            if plan.scatter:
+                ax.plot(x[mask], y[mask], "o", ms=3, color=colour, label=name)
+                continue
+            xs, med, lo, hi = summarise(x[mask], y[mask])
+            ax.plot(xs, med, "o-", ms=3, color=colour, label=name)
+            if spec.replicates > 1 or spec.random:
+                ax.fill_between(xs, lo, hi, color=colour, alpha=0.2, lw=0)
+        ax.set_xlabel(plan.x_label)
+        ax.set_ylabel(metric.removeprefix("metric:"))
+        if spec.log_x:
+            ax.set_xscale("log")
+        if metric != "pass fraction" and np.all(y[np.isfinite(y)] > 0) and _spans_decades(y):
+            ax.set_yscale("log")
+    for ax in list(axes.flat)[n:]:
+        ax.set_visible(False)
+    if len(plan.groups) > 1:
+        axes.flat[0].legend(loc="best")
+    band = " (lines: median over replicates, band: min to max)" if (spec.replicates > 1 or spec.random) and not plan.scatter else ""
+    fig.suptitle(f"sweep {spec.name}: {spec.family}, {len(frame)} points{band}", fontsize=10)
+    save_figure(fig, path)
+
+
+def _spans_decades(y: np.ndarray) -> bool:
+    y = y[np.isfinite(y)]
+    return y.size > 1 and y.max() / y.min() > 100
+
+
+# -- recording ---------------------------------------------------------------------------------------------
+
+def x_timeline(spec: SweepSpec, plan: PlotPlan, xs: np.ndarray) -> tuple[str, int]:
+    """A sequence timeline for the x axis: the values themselves when they are integers, else
+    the values times 10^d (or log10 of them, for log_x) rounded, keeping their spacing."""
+    if plan.x is None:
+        return "point", 0
+    base = np.log10(xs) if spec.log_x else xs
+    name = f"log10({plan.x})" if spec.log_x else plan.x
+    for d in range(0, 7):
+        if np.allclose(base * 10**d, np.round(base * 10**d), rtol=0, atol=1e-9 * 10**d):
+            return (name, d) if d == 0 else (f"{name} (x{10**d:g})", d)
+    return f"{name} (x1e6)", 6
+
+
+def write_recording(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan, summary_md: str, path: Path) -> None:
+    x = x_values(spec, frame, plan)
+    finite = x[np.isfinite(x)]
+    timeline, digits = x_timeline(spec, plan, finite if finite.size else np.zeros(1))
+    views = [rrb.TimeSeriesView(origin=f"/metrics/{_entity(m)}", name=f"{m.removeprefix('metric:')} vs {plan.x_label}",
+                                plot_legend=rrb.PlotLegend(rrb.Corner2D.RightBottom, visible=len(plan.groups) > 1))
+             for m in plan.metrics]
+    blueprint = rrb.Blueprint(
+        rrb.Tabs(rrb.Grid(*views, name="metrics"), rrb.TextDocumentView(origin="/sweep", name="sweep")),
+        rrb.TimePanel(timeline=timeline, expanded=False), collapse_panels=True)
+    with record.recording(path, application_id="dse-sweep", recording_id=f"sweep-{spec.name}", blueprint=blueprint,
+                          properties={"family": spec.family, "points": len(frame), "seed": spec.seed,
+                                      "x": plan.x_label, "timeline": timeline}) as rec:
+        record.log_markdown(rec, "sweep", summary_md)
+        for metric in plan.metrics:
+            y = metric_values(frame, metric)
+            for g, ((name, mask), colour) in enumerate(zip(plan.groups, record.PALETTE * 100)):
+                if plan.scatter:
+                    xs, ys = x[mask], y[mask]
+                    order = np.argsort(xs, kind="stable")
+                    xs, ys = xs[order], ys[order]
+                else:
+                    xs, ys, _, _ = summarise(x[mask], y[mask])
+                keep = np.isfinite(xs) & np.isfinite(ys)
+                if not keep.any():
+                    continue
+                ticks = np.round((np.log10(xs[keep]) if spec.log_x and plan.x else xs[keep]) * 10**digits)
+                record.send_series(rec, f"metrics/{_entity(metric)}/g{g}", record.sequence_index(timeline, ticks.astype(np.int64)),
+                                   ys[keep], names=name, colors=[colour], points=plan.scatter)
+
+
+def _entity(metric: str) -> str:
+    return "".join(c if c.isalnum() or c in "_-" else "_" for c in metric.removeprefix("metric:"))
+
+
+def summary_markdown(spec: SweepSpec, frame: pd.DataFrame, claims: pd.DataFrame, failures: dict[str, str]) -> str:
+    """The sweep at a glance: what varied, and how often each claim got each verdict."""
+    lines = [f"# sweep `{spec.name}`", "", spec.description, "",
+             f"- family: `{spec.family}`; {len(frame)} points ({spec.replicates} replicate(s) each); root seed {spec.seed}",
+             f"- varied: {', '.join(f'`{f}`' for f in spec.fields) or 'nothing (replicates only)'}",
+             f"- fixed overrides: {', '.join(f'`{k}` = {json.dumps(v)}' for k, v in spec.fixed.items()) or 'none'}",
+             f"- points with a numerical failure: {int((frame['status'] != 'ok').sum())}"
+             if "status" in frame else "", f"- tasks that failed: {len(failures)}" if failures else "", ""]
+    if len(claims):
+        table = claims.pivot_table(index="claim", columns="verdict", values="point", aggfunc="count", fill_value=0)
+        cols = [s for s in STATUS_COUNTS if s in table.columns]
+        lines += ["## verdicts per claim (number of points)", "", "| claim | " + " | ".join(cols) + " |",
+                  "|---|" + "---|" * len(cols)]
+        lines += [f"| `{cid}` | " + " | ".join(str(int(table.loc[cid, c])) for c in cols) + " |" for cid in table.index]
+    return "\n".join(line for line in lines if line is not None)
