@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .atomic import atomic_write_text
-from .cache import StageCache, canonical_json, code_fingerprint
+from .cache import StageCache, canonical_json
 from .errors import NumericalError, ScenarioError
 from .progress import progress_enabled
 from .sweep_spec import Point, SweepSpec
@@ -58,10 +58,24 @@ def _registry():
     return reproductions
 
 
+def project_fingerprint() -> str:
+    """Hash of every source file of the project's packages: any code change makes the stored
+    points stale (a point's result may depend on any estimator, claim or pipeline module)."""
+    import importlib
+
+    h = hashlib.sha256()
+    for package in PROJECT_PACKAGES:
+        root = Path(importlib.import_module(package).__file__).parent
+        for path in sorted(root.rglob("*.py")):
+            h.update(str(path.relative_to(root.parent)).encode())
+            h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def build_tasks(spec: SweepSpec) -> list[Task]:
     """Every point's task, each scenario validated by its family before anything runs."""
     reg = _registry()
-    fingerprint = code_fingerprint(m for m in list(sys.modules) if m.split(".")[0] in PROJECT_PACKAGES)
+    fingerprint = project_fingerprint()
     tasks = []
     for point in spec.points():
         scenario = spec.scenario(point)
@@ -73,9 +87,6 @@ def build_tasks(spec: SweepSpec) -> list[Task]:
         payload = {"scenario": scenario, "seed": point.seed, "quick": spec.quick, "trials": spec.trials}
         key = hashlib.sha256((canonical_json(payload) + fingerprint).encode()).hexdigest()[:24]
         tasks.append(Task(point, scenario, spec.quick, spec.trials, key))
-    # the fingerprint must cover the family and metric modules the tasks import: recompute once they are loaded
-    if fingerprint != code_fingerprint(m for m in list(sys.modules) if m.split(".")[0] in PROJECT_PACKAGES):
-        return build_tasks(spec)
     return tasks
 
 
@@ -126,23 +137,29 @@ class PointStore:
         atomic_write_text(self._path(key), json.dumps(result, default=str))
 
 
+SCHEDULERS = ("auto", "inline", "local")
+
+
 def choose_scheduler(scheduler: str, pending: int, workers: int) -> str:
     """`auto`: in process for tiny sweeps (at most one pending point, or one worker), else a
-    local Dask cluster. Anything else is taken as given."""
+    local Dask cluster; `inline`, `local` or a scheduler address (``tcp://HOST:PORT``) as given."""
+    if scheduler not in SCHEDULERS and "://" not in scheduler:
+        raise ScenarioError("--scheduler", f"must be auto, inline, local or an address such as tcp://HOST:8786, got {scheduler!r}")
     if scheduler != "auto":
         return scheduler
     return "inline" if pending <= 1 or workers <= 1 else "local"
 
 
 def execute(tasks: list[Task], *, scheduler: str, workers: int, retries: int,
-            on_result: Callable[[Task, dict[str, Any]], None], log: Callable[[str], None] = print) -> dict[str, str]:
-    """Run `tasks`; hand each result to `on_result` as it arrives. Returns {key: error} of tasks
-    that still failed after `retries` retries."""
+            on_result: Callable[[Task, dict[str, Any]], None], log: Callable[[str], None] = print,
+            fn: Callable[[dict[str, Any]], dict[str, Any]] = run_point) -> dict[str, str]:
+    """Run `fn` (default `run_point`) on every task's payload; hand each result to `on_result`
+    as it arrives. Returns {key: error} of the tasks that still failed after `retries` retries."""
     if not tasks:
         return {}
     if scheduler == "inline":
-        return _execute_inline(tasks, retries, on_result)
-    return _execute_dask(tasks, scheduler, workers, retries, on_result, log)
+        return _execute_inline(tasks, retries, on_result, fn)
+    return _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn)
 
 
 def _bar(total: int, initial: int = 0):
@@ -152,7 +169,7 @@ def _bar(total: int, initial: int = 0):
                 dynamic_ncols=True, file=sys.stderr)
 
 
-def _execute_inline(tasks, retries, on_result) -> dict[str, str]:
+def _execute_inline(tasks, retries, on_result, fn) -> dict[str, str]:
     failures = {}
     saved = {k: os.environ.get(k) for k in ("DSE_PROGRESS",)}
     os.environ["DSE_PROGRESS"] = "0"  # one bar: the sweep's
@@ -161,7 +178,7 @@ def _execute_inline(tasks, retries, on_result) -> dict[str, str]:
             for task in tasks:
                 for attempt in range(retries + 1):
                     try:
-                        on_result(task, run_point(task.payload()))
+                        on_result(task, fn(task.payload()))
                         break
                     except (KeyboardInterrupt, ScenarioError):
                         raise
@@ -175,7 +192,7 @@ def _execute_inline(tasks, retries, on_result) -> dict[str, str]:
     return failures
 
 
-def _execute_dask(tasks, scheduler, workers, retries, on_result, log) -> dict[str, str]:
+def _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn) -> dict[str, str]:
     from dask.distributed import Client, LocalCluster, as_completed
 
     if scheduler == "local":
@@ -195,7 +212,7 @@ def _execute_dask(tasks, scheduler, workers, retries, on_result, log) -> dict[st
         log(f"dask: {where} with {n_workers} worker(s); dashboard {client.dashboard_link}")
         owner, futures = {}, []
         for task in tasks:
-            futures.append(client.submit(run_point, task.payload(), key=f"dse-point-{task.key}", retries=retries))
+            futures.append(client.submit(fn, task.payload(), key=f"dse-point-{task.key}", retries=retries))
             owner[futures[-1].key] = task
         with _bar(len(tasks)) as bar:
             for fut in as_completed(futures):
@@ -222,6 +239,7 @@ def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", worke
     from . import sweep_outputs as so
     from .reproduction import check_output_dir
 
+    choose_scheduler(scheduler, 0, workers)  # a bad --scheduler fails before anything runs
     out_dir = out_root / "sweep" / spec.name
     check_output_dir(out_dir)
     start = time.perf_counter()

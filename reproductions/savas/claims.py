@@ -25,6 +25,16 @@ def _sym_required(res: Results) -> Verdict | None:
     return None if res.scenario.symmetric else not_checkable("needs a symmetric Q (eq. (16) is a modal formula)")
 
 
+def _m_trend_required(res: Results, *, m_min: int, least_sigma_c: float | None) -> Verdict | None:
+    """A trend in m needs two or more values m >= m_min (and, if given, some σ_c > least_sigma_c)."""
+    sc = res.scenario
+    if sum(m >= m_min for m in sc.rounds) < 2:
+        return not_checkable(f"a trend in m needs two or more m >= {m_min}; the scenario has m in {list(sc.rounds)}")
+    if least_sigma_c is not None and max(sc.sigma_c) <= least_sigma_c:
+        return not_checkable(f"needs σ_c > {least_sigma_c:g}; the scenario has σ_c in {list(sc.sigma_c)}")
+    return None
+
+
 def _alg_cells(res: Results, alg: str, m_min: int = 0) -> list[Cell]:
     return [c for c in res.cells if c.alg == alg and c.m >= m_min]
 
@@ -376,6 +386,8 @@ def carli_thresholds(res: Results) -> np.ndarray:
 
 
 def check_fig1_increase(res: Results) -> Verdict:
+    if (na := _m_trend_required(res, m_min=1, least_sigma_c=0.0)) is not None:
+        return na
     sc = res.scenario
     thr = carli_thresholds(res)
     tr = _eval_traces(res, "carli")
@@ -469,6 +481,8 @@ def check_zeta_to_zero(res: Results) -> Verdict:
 
 
 def check_fig3_decreasing(res: Results) -> Verdict:
+    if (na := _m_trend_required(res, m_min=0, least_sigma_c=None)) is not None:
+        return na
     tr = _eval_traces(res, "reinjection")
     d = np.diff(tr, axis=1)
     ok = bool(np.all(d < 0))
