@@ -1,0 +1,35 @@
+"""The spec's reference numbers apply only to the spec's own scenarios: a scenario that keeps a
+spec name but changes the system (as a sweep point does) gets `not-checkable`, not a crash."""
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from pipeline.scenario import load_toml
+from reproductions.tanwani.claims import _spec_differences
+from reproductions.tanwani.scenario import FilterNetworkScenario
+
+SCENARIOS = Path(__file__).resolve().parents[1] / "reproductions" / "tanwani" / "scenarios"
+
+
+def _results(data: dict) -> SimpleNamespace:
+    return SimpleNamespace(scenario=FilterNetworkScenario.from_dict({k: v for k, v in data.items() if k != "family"}))
+
+
+@pytest.mark.parametrize("name", ["s1a", "s1b", "s1c", "s2", "s3"])
+def test_shipped_spec_scenarios_match_themselves(name):
+    assert _spec_differences(_results(load_toml(SCENARIOS / f"{name}.toml")), name) == ([], True)
+
+
+def test_changed_system_or_clock_is_detected():
+    s2 = load_toml(SCENARIOS / "s2.toml")
+    changed = copy.deepcopy(s2)
+    changed["communication"]["alpha"] = 0.3
+    changed["graph"]["kind"] = "line"
+    assert _spec_differences(_results(changed), "s2") == (["edges", "alpha"], True)
+    slower = copy.deepcopy(s2)
+    slower["communication"]["rates"] = [0.5]
+    assert _spec_differences(_results(slower), "s2") == ([], False)
