@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: reproduce test bench check-viewer clean
+.PHONY: reproduce sweeps test bench check-viewer clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -15,6 +15,10 @@ $(STAMP): pyproject.toml
 
 reproduce: $(STAMP)
 	$(BIN)/dse reproduce --out out
+
+# The shipped example sweeps (reproductions/sweeps/*.toml), each on a local Dask cluster.
+sweeps: $(STAMP)
+	for f in reproductions/sweeps/*.toml; do $(BIN)/dse sweep $$f --out out || exit 1; done
 
 test: $(STAMP)
 	$(BIN)/python -m pytest

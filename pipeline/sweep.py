@@ -264,6 +264,10 @@ def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", worke
     summary_md = so.summary_markdown(spec, frame, claims, failures)
     if len(frame):
         plan = so.plot_plan(spec, frame)
+        if plan.unknown_metrics:
+            log(f"sweep {spec.name}: plot.metrics names {', '.join(plan.unknown_metrics)}, not metrics of this family "
+                f"(it has: {', '.join(c.removeprefix('metric:') for c in frame.columns if c.startswith('metric:'))}); "
+                "plotting the others")
         so.write_figure(spec, frame, plan, out_dir / "sweep.png")
         so.write_recording(spec, frame, plan, summary_md, out_dir / "sweep.rrd")
     atomic_write_text(out_dir / "summary.md", summary_md + "\n")

@@ -119,6 +119,7 @@ class PlotPlan:
     groups: list[tuple[str, np.ndarray]]
     metrics: list[str]
     scatter: bool
+    unknown_metrics: list[str]
 
 
 def plot_plan(spec: SweepSpec, frame: pd.DataFrame) -> PlotPlan:
@@ -126,7 +127,7 @@ def plot_plan(spec: SweepSpec, frame: pd.DataFrame) -> PlotPlan:
     x = spec.plot_x or next((f for f in spec.grid if f in numeric), None) or (numeric[0] if numeric else None)
     if x is not None and x not in numeric:
         x = None
-    others = [f for f in spec.grid if f != x]
+    others = [f for f in spec.grid if f != x and len(spec.grid[f]) > 1]
     if others:
         labels = frame[others].astype(str).agg(", ".join, axis=1) if len(others) > 1 else frame[others[0]].astype(str)
         names = [", ".join(f"{f}={v}" for f, v in zip(others, key.split(", "))) if len(others) > 1 else f"{others[0]}={key}"
@@ -136,12 +137,9 @@ def plot_plan(spec: SweepSpec, frame: pd.DataFrame) -> PlotPlan:
         groups = [("all points", np.ones(len(frame), bool))]
     available = [c.removeprefix("metric:") for c in frame.columns if c.startswith("metric:")]
     wanted = list(spec.plot_metrics) if spec.plot_metrics else available[:MAX_PLOTTED_METRICS]
-    missing = [m for m in wanted if m not in available]
-    if missing:
-        raise ValueError(f"plot.metrics names {', '.join(missing)}, not a metric of this family "
-                         f"(available: {', '.join(available) or 'none'})")
-    metrics = [f"metric:{m}" for m in wanted] + ["pass fraction"]
-    return PlotPlan(x=x, x_label=x or "point", groups=groups, metrics=metrics, scatter=x in spec.random)
+    metrics = [f"metric:{m}" for m in wanted if m in available] + ["pass fraction"]
+    return PlotPlan(x=x, x_label=x or "point", groups=groups, metrics=metrics, scatter=x in spec.random,
+                    unknown_metrics=[m for m in wanted if m not in available])
 
 
 def _raw(spec: SweepSpec, frame: pd.DataFrame, field: str) -> list[Any]:
@@ -211,14 +209,17 @@ def _spans_decades(y: np.ndarray) -> bool:
 # -- recording ---------------------------------------------------------------------------------------------
 
 def x_timeline(spec: SweepSpec, plan: PlotPlan, xs: np.ndarray) -> tuple[str, int]:
-    """A sequence timeline for the x axis: the values themselves when they are integers, else
-    the values times 10^d (or log10 of them, for log_x) rounded, keeping their spacing."""
+    """A sequence timeline for the x axis (rerun's x axis is a timeline): the values themselves
+    when they are integers, else the values (log10 of them, for log_x) times the smallest 10^d
+    that keeps every distinct value distinct and their spacing to 1 %."""
     if plan.x is None:
         return "point", 0
-    base = np.log10(xs) if spec.log_x else xs
+    base = np.unique(np.log10(xs) if spec.log_x else xs)
     name = f"log10({plan.x})" if spec.log_x else plan.x
+    gap = float(np.diff(base).min()) if base.size > 1 else 1.0
     for d in range(0, 7):
-        if np.allclose(base * 10**d, np.round(base * 10**d), rtol=0, atol=1e-9 * 10**d):
+        ticks = np.round(base * 10**d)
+        if np.all(np.abs(ticks - base * 10**d) <= 0.01 * gap * 10**d) and len(np.unique(ticks)) == base.size:
             return (name, d) if d == 0 else (f"{name} (x{10**d:g})", d)
     return f"{name} (x1e6)", 6
 
@@ -227,12 +228,15 @@ def write_recording(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan, summar
     x = x_values(spec, frame, plan)
     finite = x[np.isfinite(x)]
     timeline, digits = x_timeline(spec, plan, finite if finite.size else np.zeros(1))
+    whole = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(),
+                                                  end=rrb.TimeRangeBoundary.infinite()))
     views = [rrb.TimeSeriesView(origin=f"/metrics/{_entity(m)}", name=f"{m.removeprefix('metric:')} vs {plan.x_label}",
+                                axis_x=whole,
                                 plot_legend=rrb.PlotLegend(rrb.Corner2D.RightBottom, visible=len(plan.groups) > 1))
              for m in plan.metrics]
     blueprint = rrb.Blueprint(
         rrb.Tabs(rrb.Grid(*views, name="metrics"), rrb.TextDocumentView(origin="/sweep", name="sweep")),
-        rrb.TimePanel(timeline=timeline, expanded=False), collapse_panels=True)
+        rrb.TimePanel(timeline=timeline, expanded=False, play_state="following"), collapse_panels=True)
     with record.recording(path, application_id="dse-sweep", recording_id=f"sweep-{spec.name}", blueprint=blueprint,
                           properties={"family": spec.family, "points": len(frame), "seed": spec.seed,
                                       "x": plan.x_label, "timeline": timeline}) as rec:

@@ -318,3 +318,12 @@ def test_cli_sweep_errors_exit_2_with_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--scheduler" in err[0]
     assert not (tmp_path / "o" / "sweep").exists()
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "reproductions" / "sweeps").glob("*.toml")), ids=lambda p: p.stem)
+def test_shipped_sweeps_are_valid_at_every_point(path):
+    from pipeline.sweep_spec import load_sweep
+
+    spec = load_sweep(path)
+    tasks = sw.build_tasks(spec)  # every point's scenario is validated by its family
+    assert len(tasks) == len(spec.points()) >= 10 and len({t.key for t in tasks}) == len(tasks)
