@@ -197,7 +197,7 @@ def _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn) -> dic
 
     if scheduler == "local":
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR, env=WORKER_ENV)
+                               dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL, env=WORKER_ENV)
         client = Client(cluster)
     else:
         cluster = None
