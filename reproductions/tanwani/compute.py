@@ -186,6 +186,11 @@ def simulate_event_rate(sc: FilterNetworkScenario, seed: int, trials: int) -> di
     rate = sc.main_rate
     times = sc.output_times
     samples: dict[str, np.ndarray] = {}
+    # the silent clock path (no ring): a deterministic shift for the power sums of the per-path
+    # Σ(t; τ) and P(t; τ) below, so that their skewness is formed without cancellation
+    silent = gf.simulate_event_driven(s, rate, times, 1, np.random.default_rng(0), sample=False,
+                                      clock_path=(np.zeros(0), np.zeros(0, dtype=np.int64)))
+    sig_c, p_c = silent.sigma[0], silent.pbound[0]
 
     def block(size, rng):
         run = gf.simulate_event_driven(s, rate, times, size, rng)
@@ -210,14 +215,18 @@ def simulate_event_rate(sc: FilterNetworkScenario, seed: int, trials: int) -> di
         dg = np.diagonal(run.sigma, axis1=-2, axis2=-1)
         cond_var = run.sigma ** 2 + dg[..., :, None] * dg[..., None, :]
         resid = e[..., :, None] * e[..., None, :] - run.sigma
+        ds, dp = run.sigma - sig_c, run.pbound - p_c
         return {"mom": MatrixMoments.of(e), "sig1": run.sigma.sum(0), "sig2": (run.sigma ** 2).sum(0),
-                "p1": run.pbound.sum(0), "p2": (run.pbound ** 2).sum(0), "min_gap": run.min_gap.min(),
+                "p1": run.pbound.sum(0), "p2": (run.pbound ** 2).sum(0),
+                "sigd1": ds.sum(0), "sigd2": (ds ** 2).sum(0), "sigd3": (ds ** 3).sum(0),
+                "pd1": dp.sum(0), "pd2": (dp ** 2).sum(0), "pd3": (dp ** 3).sum(0), "min_gap": run.min_gap.min(),
                 "min_rel_gap": rel.min(), "c1": counts.sum(0), "c2": (counts ** 2).sum(0), "spacing": min_spacing,
                 "resid": resid.sum(0), "cond_var": cond_var.sum(0), "n": size}
 
     def combine(parts):
         out = {"mom": MatrixMoments.combine([p["mom"] for p in parts])}
-        for key in ("sig1", "sig2", "p1", "p2", "c1", "c2", "resid", "cond_var", "n"):
+        for key in ("sig1", "sig2", "p1", "p2", "sigd1", "sigd2", "sigd3", "pd1", "pd2", "pd3", "c1", "c2", "resid",
+                    "cond_var", "n"):
             out[key] = sum(p[key] for p in parts)
         out["min_gap"] = min(p["min_gap"] for p in parts)
         out["min_rel_gap"] = min(p["min_rel_gap"] for p in parts)
@@ -227,7 +236,7 @@ def simulate_event_rate(sc: FilterNetworkScenario, seed: int, trials: int) -> di
     res = run_blocks(block, combine, trials, stream_seed(seed, "event", sc.name, rate), EVENT_BLOCK)
     arrays = res.pop("mom").arrays("e_")
     arrays.update({k: np.asarray(v) for k, v in res.items()})
-    arrays.update(samples)
+    arrays.update(samples, sig_c=sig_c, p_c=p_c)
     return arrays
 
 
