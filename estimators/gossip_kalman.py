@@ -35,7 +35,8 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["GossipSystem", "MatchingDistribution", "NodeInitiatedGossip", "riccati_step", "lyapunov_step",
+__all__ = ["GossipSystem", "MatchingDistribution", "NodeInitiatedGossip", "GreedyMatchingGossip", "riccati_step",
+           "lyapunov_step",
            "gikf_covariance_step", "gikf_error_step", "covariance_features", "FEATURES"]
 
 
@@ -105,6 +106,13 @@ def _gain(X: np.ndarray, C: np.ndarray, R: np.ndarray) -> np.ndarray:
     S = C @ XCt + R
     if S.shape[-1] == 1:
         return XCt / S[..., 0:1, 0:1].reshape(S.shape[:-2] + (1, 1))
+    if S.shape[-1] == 2:
+        # 2 x 2 innovation covariance: explicit inverse (S ≻ 0 since R ≻ 0); batched LAPACK solves of
+        # tiny systems cost ~0.4 µs each, this a few ns
+        a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]
+        det = a * d - b * c
+        Sinv = np.stack([np.stack([d, -b], -1), np.stack([-c, a], -1)], -2) / det[..., None, None]
+        return XCt @ Sinv
     return np.swapaxes(np.linalg.solve(S, np.swapaxes(XCt, -1, -2)), -1, -2)
 
 
@@ -244,6 +252,216 @@ class NodeInitiatedGossip:
         out[rows[ok], i[ok]] = j[ok]
         out[rows[ok], j[ok]] = i[ok]
         return out
+
+
+@dataclass(frozen=True)
+class GreedyMatchingGossip:
+    """Random greedy maximal matching with link failures (spec §2, protocol P4; graph-matching
+    style [6]): every edge gets an i.i.d. U(0, 1) priority, the edges are scanned in priority order
+    and an edge is added when both its endpoints are still free; then every chosen edge is kept
+    independently with probability p_link (the others fail: their endpoints stay unmatched).
+
+    Ā = E[A(t)] (eq (6)) has no closed form. `exact_mean_matrix` computes it exactly for small
+    graphs from the recursion "the lowest-priority remaining edge is uniform among the remaining
+    edges; delete its endpoints; the rest is again a uniform order" (components are independent);
+    `estimate_mean_matrix` is the Monte Carlo estimate with its standard error. For larger graphs
+    drive the Theorem-8 chain by an independent copy of the protocol instead (spec §5, sampler S3),
+    which needs no Ā at all.
+    """
+
+    n_nodes: int
+    edges: tuple[tuple[int, int], ...]
+    p_link: float
+    label: str = "greedy-matching"
+
+    def __post_init__(self):
+        if not 0.0 < self.p_link <= 1.0:
+            raise ValueError(f"p_link must be in (0, 1], got {self.p_link}")
+        if not self.edges:
+            raise ValueError("the graph has no edges")
+
+    @property
+    def n(self) -> int:
+        return self.n_nodes
+
+    @property
+    def _ends(self) -> tuple[np.ndarray, np.ndarray]:
+        e = np.asarray(self.edges, dtype=np.int64)
+        return e[:, 0], e[:, 1]
+
+    def greedy_chosen(self, priority: np.ndarray) -> np.ndarray:
+        """(B, E) bool: the greedy maximal matching for each row of priorities (B, E): the edges
+        are scanned in increasing priority and added when both endpoints are free.
+
+        The scan is a loop over the E positions of the order, vectorised over the batch: the flat
+        indices of both endpoints of the k-th edge of every row are precomputed, so each position
+        costs two gathers and two scatters of the free flags (the indices of one position are
+        distinct, so the scatters need no masking: an endpoint that was free stays free iff the other
+        endpoint was already taken)."""
+        B, E = priority.shape
+        N = self.n_nodes
+        u, v = self._ends
+        order = np.ascontiguousarray(np.argsort(priority, axis=1).T)   # (E, B): k-th edge of every row
+        base = np.arange(B) * N
+        fa = u[order] + base                                       # flat (row, endpoint) indices
+        fb = v[order] + base
+        free = np.ones(B * N, bool)
+        taken = np.empty((E, B), bool)
+        for k in range(E):
+            a, b = fa[k], fb[k]
+            ga, gb = free[a], free[b]
+            ok = ga & gb
+            free[a] = ga & ~gb
+            free[b] = gb & ~ga
+            taken[k] = ok
+        chosen = np.empty((B, E), bool)
+        chosen[np.arange(B)[None, :], order] = taken
+        return chosen
+
+    def sample(self, size: int, rng: np.random.Generator) -> np.ndarray:
+        """(size, N) partner arrays of i.i.d. matchings."""
+        E = len(self.edges)
+        chosen = self.greedy_chosen(rng.random((size, E)))
+        b, k = np.nonzero(chosen)
+        if self.p_link < 1.0:  # each chosen link works independently with probability p_link
+            works = rng.random(len(b)) < self.p_link
+            b, k = b[works], k[works]
+        u, v = self._ends
+        out = np.tile(np.arange(self.n_nodes), (size, 1))
+        out[b, u[k]] = v[k]
+        out[b, v[k]] = u[k]
+        return out
+
+    # -- exact law (small graphs) -----------------------------------------------------------------
+
+    def _components(self, remaining: frozenset) -> list[frozenset]:
+        """Split a set of edge indices into groups connected through shared nodes."""
+        left = set(remaining)
+        out = []
+        while left:
+            k = left.pop()
+            comp, nodes, grew = {k}, set(self.edges[k]), True
+            while grew:
+                grew = False
+                for j in list(left):
+                    a, b = self.edges[j]
+                    if a in nodes or b in nodes:
+                        left.discard(j)
+                        comp.add(j)
+                        nodes |= {a, b}
+                        grew = True
+            out.append(frozenset(comp))
+        return out
+
+    def _after(self, remaining: frozenset, k: int) -> frozenset:
+        a, b = self.edges[k]
+        return frozenset(j for j in remaining if not ({a, b} & set(self.edges[j])))
+
+    def exact_inclusion(self, max_states: int = 20_000, max_edges: int = 40) -> np.ndarray | None:
+        """P(edge k is in the greedy matching) before link failures, exactly; None if the graph has
+        more than max_edges edges or the recursion would visit more than max_states edge sets."""
+        E = len(self.edges)
+        if E > max_edges:
+            return None
+        memo: dict[frozenset, np.ndarray] = {}
+
+        def incl(comp: frozenset) -> np.ndarray:
+            if comp in memo:
+                return memo[comp]
+            if len(memo) >= max_states:
+                raise OverflowError
+            acc = np.zeros(E)
+            for k in comp:
+                acc[k] += 1.0
+                for sub in self._components(self._after(comp, k)):
+                    acc += incl(sub)
+            memo[comp] = acc / len(comp)
+            return memo[comp]
+
+        try:
+            return sum((incl(c) for c in self._components(frozenset(range(E)))), np.zeros(E))
+        except OverflowError:
+            return None
+
+    def exact_mean_matrix(self, max_states: int = 20_000, max_edges: int = 40) -> np.ndarray | None:
+        """Ā exactly: Ā_ij = p_link P((i, j) chosen), Ā_ii = 1 − Σ_j Ā_ij; None if too large."""
+        inc = self.exact_inclusion(max_states, max_edges)
+        if inc is None:
+            return None
+        Abar = np.zeros((self.n_nodes, self.n_nodes))
+        u, v = self._ends
+        Abar[u, v] = Abar[v, u] = self.p_link * inc
+        Abar[np.diag_indices(self.n_nodes)] = 1.0 - Abar.sum(axis=1)
+        return Abar
+
+    def mean_matrix(self) -> np.ndarray:
+        """The exact Ā (eq (6)); raises ValueError when the graph is too large for the recursion."""
+        A = self.exact_mean_matrix()
+        if A is None:
+            raise ValueError(f"no exact Ā for greedy matching on {len(self.edges)} edges: use estimate_mean_matrix, "
+                             f"or drive the chain by the protocol (switched_riccati.sample_protocol_chain)")
+        return A
+
+    def exact_matching_law(self) -> dict[tuple[int, ...], float]:
+        """Law of the final matching (after link failures) as {sorted edge indices: probability};
+        enumerates every greedy outcome, so only for small graphs (tests)."""
+        memo: dict[frozenset, dict[frozenset, float]] = {}
+
+        def law(rem: frozenset) -> dict[frozenset, float]:
+            if not rem:
+                return {frozenset(): 1.0}
+            if rem in memo:
+                return memo[rem]
+            out: dict[frozenset, float] = {}
+            for k in rem:
+                for m, p in law(self._after(rem, k)).items():
+                    key = m | {k}
+                    out[key] = out.get(key, 0.0) + p / len(rem)
+            memo[rem] = out
+            return out
+
+        final: dict[tuple[int, ...], float] = {}
+        q = self.p_link
+        for m, p in law(frozenset(range(len(self.edges)))).items():
+            ms = sorted(m)
+            for mask in range(1 << len(ms)):
+                kept = tuple(k for i, k in enumerate(ms) if mask >> i & 1)
+                w = q ** len(kept) * (1 - q) ** (len(ms) - len(kept))
+                if w > 0:
+                    final[kept] = final.get(kept, 0.0) + p * w
+        return final
+
+    def estimate_mean_matrix(self, draws: int, rng: np.random.Generator, chunk: int = 50_000) -> tuple[np.ndarray, np.ndarray]:
+        """Monte Carlo Ā from `draws` matchings and the standard error of each entry."""
+        N = self.n_nodes
+        counts = np.zeros((N, N))
+        done = 0
+        while done < draws:
+            b = min(chunk, draws - done)
+            p = self.sample(b, rng)
+            counts += np.bincount((np.arange(N) * N + p).ravel(), minlength=N * N).reshape(N, N)
+            done += b
+        Abar = counts / draws
+        Abar = 0.5 * (Abar + Abar.T)   # symmetric by construction of the counts; removes nothing but round-off
+        se = np.sqrt(Abar * (1 - Abar) / draws)
+        return Abar, se
+
+    def support_matrix(self) -> np.ndarray:
+        """A symmetric doubly stochastic matrix with Ā's support (edges, and the diagonal when
+        p_link < 1: a chosen link fails with positive probability). For the structural checks
+        (C.1, D.1 search) without estimating Ā."""
+        N = self.n_nodes
+        u, v = self._ends
+        deg = np.bincount(np.concatenate([u, v]), minlength=N)
+        S = np.zeros((N, N))
+        S[u, v] = S[v, u] = 1.0 / (2 * max(deg.max(), 1))
+        S[np.diag_indices(N)] = 1.0 - S.sum(axis=1)
+        if self.p_link >= 1.0:
+            # without failures a node may never be left unmatched (even ring: Ā_nn = 0, periodic):
+            # use Ā itself, exact when small, else estimated from 20,000 draws (support only)
+            A = self.exact_mean_matrix()
+            return A if A is not None else self.estimate_mean_matrix(20_000, np.random.default_rng(0))[0]
+        return S
 
 
 # -- one GIKF slot ----------------------------------------------------------------------------------

@@ -5,7 +5,10 @@
 With C.1 (Ā irreducible, aperiodic), Q ≻ 0 and D.1 the law of P̃(t) converges to the invariant
 measure μ^Ā from any initial law (Theorem 8). The samplers below are
 
-* forward replicas (S1): independent chains, keep P̃(T);
+* forward replicas (S1): independent chains, keep P̃(T); the chain is drawn from Ā
+  (`sample_chain`) or, when Ā is not known exactly, by an independent copy of the gossip
+  protocol (S3, `sample_protocol_chain`): p̃(t+1) = ->(p̃(t)) under a fresh matching, which is
+  exactly a Ā-chain whatever the protocol;
 * the pull-back (S2): f_{ω₋₁} ∘ … ∘ f_{ω₋T}(X) along one backward path, which converges
   pathwise to the random equilibrium u(ω) (Theorem 26(b));
 * a forward coupling diagnostic: the same switching from 0 and from c I, whose relative gap
@@ -23,7 +26,7 @@ import numpy as np
 
 from .gossip_kalman import GossipSystem, covariance_features, riccati_step
 
-__all__ = ["sample_chain", "switched_riccati", "pullback", "coupling_gap", "exact_small_t_law"]
+__all__ = ["sample_chain", "sample_protocol_chain", "switched_riccati", "pullback", "coupling_gap", "exact_small_t_law"]
 
 
 def sample_chain(Abar: np.ndarray, size: int, steps: int, rng: np.random.Generator,
@@ -38,6 +41,22 @@ def sample_chain(Abar: np.ndarray, size: int, steps: int, rng: np.random.Generat
         path[:, t] = p
         u = rng.random(size)
         p = (cum[p] <= u[:, None]).sum(axis=1)
+    return path
+
+
+def sample_protocol_chain(protocol, size: int, steps: int, rng: np.random.Generator,
+                          start: np.ndarray | int | None = None) -> np.ndarray:
+    """(size, steps) states of a Ā-chain driven by the protocol itself (spec §5, sampler S3):
+    p̃(t+1) = partner of p̃(t) in a fresh matching A' ~ D. P(p̃(t+1) = l | p̃(t) = k) = E[A'_kl] = Ā_kl
+    exactly, so no estimate of Ā enters (spec §11 P9). Start uniform unless given."""
+    n = protocol.n
+    path = np.empty((size, steps), dtype=np.int64)
+    p = rng.integers(0, n, size) if start is None else np.broadcast_to(np.asarray(start), (size,)).copy()
+    rows = np.arange(size)
+    for t in range(steps):
+        path[:, t] = p
+        if t + 1 < steps:
+            p = protocol.sample(size, rng)[rows, p]
     return path
 
 

@@ -30,6 +30,48 @@ PULLBACK_LAW_T = (5, 20, 100)
 PULLBACK_PATH_T = (16, 32, 64, 128, 256)
 WITNESS_MAX_LEN = 6
 STAT_STRIDE = 5
+ABAR_DRAWS = 200_000  # Monte Carlo Ā when no exact form is feasible (greedy matching on a large graph)
+
+
+def mean_adjacency(sc: GossipKalmanScenario) -> tuple[np.ndarray, np.ndarray, bool, int]:
+    """(Ā, standard error of each entry, exact?, draws). Closed forms for single-edge, node-initiated
+    and user-given matchings; the greedy-matching protocol (P4) is exact on small graphs (recursion
+    over edge sets) and a Monte Carlo estimate otherwise. Where Ā is estimated, the Theorem-8
+    chains are driven by the protocol itself (sampler S3) and the claims that need the exact Ā are
+    not checked (spec §11 P9)."""
+    protocol = sc.protocol.build(sc.graph)
+    zero = np.zeros((sc.N, sc.N))
+    if isinstance(protocol, gk.GreedyMatchingGossip):
+        exact = _exact_greedy_mean(protocol)
+        if exact is None:
+            rng = block_generator(stream_seed(0, sc.name, "abar-estimate"))
+            A, se = protocol.estimate_mean_matrix(ABAR_DRAWS, rng)
+            return A, se, False, ABAR_DRAWS
+        return exact, zero, True, 0
+    return protocol.mean_matrix(), zero, True, 0
+
+
+@functools.lru_cache(maxsize=16)
+def _exact_greedy_mean(protocol: gk.GreedyMatchingGossip) -> np.ndarray | None:
+    return protocol.exact_mean_matrix()
+
+
+def support_matrix(sc: GossipKalmanScenario) -> np.ndarray:
+    """A matrix with Ā's support (exact Ā where it is cheap): enough for C.1's structure and D.1."""
+    protocol = sc.protocol.build(sc.graph)
+    if isinstance(protocol, gk.GreedyMatchingGossip):
+        return protocol.support_matrix()
+    return protocol.mean_matrix()
+
+
+def chain_sampler(sc: GossipKalmanScenario, bounds: dict):
+    """sample(size, steps, rng, start=None) -> (size, steps) Ā-chain paths: from Ā (S1) when it is
+    exact, else driven by an independent copy of the protocol (S3)."""
+    if bool(bounds["Abar_exact"]):
+        Abar = bounds["Abar"]
+        return lambda size, steps, rng, start=None: sr.sample_chain(Abar, size, steps, rng, start=start)
+    protocol = sc.protocol.build(sc.graph)
+    return lambda size, steps, rng, start=None: sr.sample_protocol_chain(protocol, size, steps, rng, start=start)
 
 
 @dataclass
@@ -94,10 +136,14 @@ def record_times(sc: GossipKalmanScenario, slots: int) -> list[int]:
 
 def compute_bounds(sc: GossipKalmanScenario, slots: int) -> dict[str, np.ndarray]:
     sys_ = sc.system()
-    protocol = sc.protocol.build(sc.graph)
-    Abar = protocol.mean_matrix()
+    Abar, Abar_se, Abar_exact, Abar_draws = mean_adjacency(sc)
     chk = wd.check_chain(Abar)
-    out: dict[str, Any] = {"Abar": Abar, "irreducible": chk.irreducible, "aperiodic": chk.aperiodic, "c1": chk.c1,
+    if not Abar_exact:  # C.1's structure from the exact support (an estimate can miss a rare entry)
+        s_chk = wd.check_chain(support_matrix(sc))
+        chk = wd.ChainCheck(s_chk.irreducible, s_chk.aperiodic, s_chk.n_classes, s_chk.classes, chk.unit_multiplicity,
+                            chk.slem, chk.min_eig)
+    out: dict[str, Any] = {"Abar": Abar, "Abar_se": Abar_se, "Abar_exact": Abar_exact, "Abar_draws": Abar_draws,
+                           "irreducible": chk.irreducible, "aperiodic": chk.aperiodic, "c1": chk.c1,
                            "n_classes": chk.n_classes, "unit_multiplicity": chk.unit_multiplicity, "slem": chk.slem,
                            "min_eig_Abar": chk.min_eig, "tv": wd.tv_to_uniform(Abar, 200)}
     labels = np.zeros(sc.N, dtype=np.int64)
@@ -115,7 +161,7 @@ def compute_bounds(sc: GossipKalmanScenario, slots: int) -> dict[str, np.ndarray
         bad = wd.pbh_undetectable(F, sys_.C[list(cls)].reshape(-1, sc.M))
         class_rate[list(cls)] = 2 * np.log(max(abs(b) for b in bad)) if bad else 0.0
     out["divergence_rate"] = class_rate  # predicted growth rate of log tr P per slot (0: no prediction)
-    search = wd.search_witness(sys_, Abar, max_len=WITNESS_MAX_LEN)
+    search = wd.search_witness(sys_, Abar if Abar_exact else support_matrix(sc), max_len=WITNESS_MAX_LEN)
     out["d1"] = search.witness is not None
     out["d1_covering"] = search.witness is not None and chk.irreducible
     out["witness"] = np.array(search.witness if search.witness else [], dtype=np.int64)
@@ -142,13 +188,15 @@ def compute_bounds(sc: GossipKalmanScenario, slots: int) -> dict[str, np.ndarray
         km = np.array([wd.k_of_J(out["alpha"], a0_multi, out["qnorm"], J) for J in J_GRID])
         ell = len(w)
         out["kJ"] = ks
-        out["beta_single"] = np.array([wd.tail_bound_single(Abar, w, min(slots, k + ell)) if k >= 0 else 1.0 for k in ks])
-        small = sc.N ** max(ell - 1, 0) <= 2000
+        # β needs the exact Ā (an estimated Ā gives an estimated bound): NaN marks "not computed"
+        out["beta_single"] = np.array([(wd.tail_bound_single(Abar, w, min(slots, k + ell)) if k >= 0 else 1.0)
+                                       if Abar_exact else np.nan for k in ks])
+        small = sc.N ** max(ell - 1, 0) <= 2000 and Abar_exact
         out["beta_multi"] = np.array([(wd.tail_bound_multi(Abar, windows, min(slots, k + ell)) if k >= 0 else 1.0)
                                       if small else np.nan for k in km])
         support = (Abar > 1e-12).astype(float)
         n_windows = float(np.linalg.matrix_power(support, ell - 1).sum())
-        if n_windows <= 5000:
+        if n_windows <= 5000 and Abar_exact:
             Z, pi, corr, printed = wd.lifted_chain_stationary(Abar, ell)
             out["lifted_pi"], out["lifted_corrected"], out["lifted_printed"] = pi, corr, printed
     # centralized reference (same P0): our batched filter, filterpy, and the DARE
@@ -202,7 +250,7 @@ def reference_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_runs:
     """Theorem-8 process from P0 (sampler S1) with its last switch at each record time."""
     sys_ = sc.system()
     rng = block_generator(stream_seed(seed, sc.name, "theorem8"))
-    path = sr.sample_chain(bounds["Abar"], ref_runs, slots, rng)
+    path = chain_sampler(sc, bounds)(ref_runs, slots, rng)
     out = sr.switched_riccati(sys_, path, sc.P0, record_times(sc, slots), keep_final=True)
     return out
 
@@ -210,7 +258,7 @@ def reference_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_runs:
 def aux_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_runs: int, slots: int) -> dict[str, np.ndarray]:
     """Other initial laws (R5), tokens from fixed sensors (R8), coupling (burn-in), pull-back (R18/R19)."""
     sys_ = sc.system()
-    Abar = bounds["Abar"]
+    chain = chain_sampler(sc, bounds)
     M = sc.M
     times = record_times(sc, slots)
     half = max(ref_runs // 2, 100)
@@ -219,25 +267,25 @@ def aux_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_runs: int, 
     inits = {"zero": np.zeros((M, M)), "huge": 1e6 * np.eye(M),
              "wishart": wishart(df=M + 2, scale=np.eye(M)).rvs(size=half, random_state=rng.integers(2**31)).reshape(half, M, M)}
     for label, X0 in inits.items():
-        path = sr.sample_chain(Abar, half, slots, rng)
+        path = chain(half, slots, rng)
         out[f"init_{label}"] = sr.switched_riccati(sys_, path, X0, [slots])["features"][0]
     for n in sorted({0, min(1, sc.N - 1)}):
-        path = sr.sample_chain(Abar, half, slots, rng, start=n)
+        path = chain(half, slots, rng, start=n)
         r = sr.switched_riccati(sys_, path, sc.P0, times)
         out[f"token{n}"] = r["features"]
     cpl_times = [t for t in (10, 20, 40, 80, 160, 320) if t <= slots]
-    path = sr.sample_chain(Abar, min(2000, ref_runs), slots, rng)
+    path = chain(min(2000, ref_runs), slots, rng)
     out["coupling_times"] = np.array(cpl_times)
     out["coupling"] = sr.coupling_gap(sys_, path, COUPLING_C, cpl_times)
     law_T = [t for t in PULLBACK_LAW_T if t <= slots]
-    back = sr.sample_chain(Abar, half, max(law_T), rng)
+    back = chain(half, max(law_T), rng)  # Ā symmetric: the reversed stationary chain is again a Ā-chain
     pb = sr.pullback(sys_, back, sc.P0, law_T)
     out["pullback_law_T"] = np.array(law_T)
     out["pullback_law"] = np.array([gk.covariance_features(x) for x in pb])
     # backward paths need not fit in the forward horizon, but a predicted divergence must stay in float64
     rate = float(bounds["divergence_rate"].max())
     path_T = [t for t in PULLBACK_PATH_T if rate <= 0 or t * rate < FLOAT_LOG_BUDGET] or [8, 16, 32]
-    back = sr.sample_chain(Abar, 500, max(path_T), rng)
+    back = chain(500, max(path_T), rng)
     lo = sr.pullback(sys_, back, np.zeros((M, M)), path_T)
     hi = sr.pullback(sys_, back, COUPLING_C * np.eye(M), path_T)
     out["pullback_path_T"] = np.array(path_T)
@@ -274,7 +322,7 @@ FLOAT_LOG_BUDGET = 600.0  # log of the largest covariance entry we let a predict
 def divergence_rate(sc: GossipKalmanScenario) -> float:
     """Largest predicted growth rate 2 log|λ| of log tr P over the classes of Ā that cannot detect λ (0: none)."""
     sys_ = sc.system()
-    chk = wd.check_chain(sc.protocol.build(sc.graph).mean_matrix())
+    chk = wd.check_chain(support_matrix(sc))
     rates = [2 * np.log(max(abs(b) for b in bad)) for cls in chk.classes
              if (bad := wd.pbh_undetectable(sc.F, sys_.C[list(cls)].reshape(-1, sc.M)))]
     return float(max(rates, default=0.0))
@@ -291,7 +339,7 @@ def compute_scenario(sc: GossipKalmanScenario, opts: RunOptions, cache: StageCac
     slots = horizon(sc, slots)
     code = code_fingerprint(CODE_MODULES)
     base = {"scenario": sc.key(), "code": code, "slots": slots}
-    bounds = _stage(cache, base, "bounds", lambda: compute_bounds(sc, slots), sc.name, ("beta_multi",))
+    bounds = _stage(cache, base, "bounds", lambda: compute_bounds(sc, slots), sc.name, ("beta_multi", "beta_single"))
     mc = {**base, "seed": opts.seed, "runs": runs, "ref_runs": ref_runs}
     gikf = _stage(cache, mc, "gikf", _checked_gikf(lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots), sc.name),
                   sc.name, GIKF_PARTIAL)
@@ -313,7 +361,7 @@ def compute(scenarios: list[GossipKalmanScenario], opts: RunOptions, cache: Stag
 def roles(sc: GossipKalmanScenario) -> dict[str, bool]:
     """Which claims a scenario gets, from its (cheap, deterministic) assumption checks."""
     sys_ = sc.system()
-    Abar = sc.protocol.build(sc.graph).mean_matrix()
+    Abar = support_matrix(sc)
     chk = wd.check_chain(Abar)
     d1 = wd.search_witness(sys_, Abar, max_len=WITNESS_MAX_LEN).witness is not None
     diverges = any(wd.pbh_undetectable(sc.F, sys_.C[list(cls)].reshape(-1, sc.M)) for cls in chk.classes)

@@ -8,24 +8,37 @@ from typing import Any
 
 import numpy as np
 
-from estimators.gossip_kalman import GossipSystem, MatchingDistribution, NodeInitiatedGossip
+from estimators.gossip_kalman import GossipSystem, GreedyMatchingGossip, MatchingDistribution, NodeInitiatedGossip
 from pipeline.errors import ScenarioError
 from pipeline.graphs import GraphSpec
 from pipeline.scenario import (scenario_root, as_float, as_int, as_int_tuple, as_list, as_matrix, as_str, join, load_toml,
                                reject_unknown, section)
 
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
-PAPER_SCENARIOS = ("e1", "e2", "e3", "e5", "e6", "e6b", "e7", "e8")
-PROTOCOLS = ("single-edge", "node-initiated", "matchings")
+PAPER_SCENARIOS = ("e1", "e2", "e3", "e5", "e6", "e6b", "e7", "e8", "e9")
+PROTOCOLS = ("single-edge", "node-initiated", "matchings", "greedy-matching")
 SECTIONS = ("name", "description", "model", "sensors", "graph", "protocol", "comparison_protocol", "simulation", "expect")
 
 
 @dataclass(frozen=True)
 class ProtocolSpec:
+    """[protocol] (and [comparison_protocol]) of a scenario file; `kind` is one of
+
+    * "single-edge" (edge_prob): each graph edge is the only swap of the slot with probability
+      edge_prob (edge_prob × number of edges ≤ 1), spec P1;
+    * "node-initiated": a uniform node wakes up and swaps with a uniform neighbour, spec P2;
+    * "matchings" (matchings, probs): a user-given distribution over matchings, the rest of the
+      probability is "no communication" (spec P3 is a case);
+    * "greedy-matching" (p_link ∈ (0, 1]): random greedy maximal matching, each chosen link then
+      works with probability p_link, spec P4. Ā is exact on small graphs (≤ 40 edges), otherwise a
+      Monte Carlo estimate, and the Theorem-8 chains are driven by the protocol itself (S3).
+    """
+
     kind: str
     edge_prob: float = 0.0
     matchings: tuple[tuple[tuple[int, int], ...], ...] = ()
     probs: tuple[float, ...] = ()
+    p_link: float = 1.0
 
     def build(self, graph: GraphSpec):
         n = graph.n
@@ -35,6 +48,8 @@ class ProtocolSpec:
         if self.kind == "node-initiated":
             G = graph.build()
             return NodeInitiatedGossip(tuple(tuple(sorted(G.neighbors(i))) for i in range(n)))
+        if self.kind == "greedy-matching":
+            return GreedyMatchingGossip(n, tuple(edges), self.p_link)
         return MatchingDistribution.from_matchings(n, self.matchings, self.probs)
 
     @classmethod
@@ -61,6 +76,12 @@ class ProtocolSpec:
             if lonely:
                 raise ScenarioError(field, f"node-initiated gossip needs every node to have a neighbour (node {lonely[0]} has none)")
             return cls(kind)
+        if kind == "greedy-matching":
+            reject_unknown(data, ("kind", "p_link"), field)
+            if "p_link" not in data:
+                raise ScenarioError(join(field, "p_link"), "missing (probability that a chosen link works)")
+            p = as_float(data["p_link"], join(field, "p_link"), low=0.0, low_open=True, high=1.0)
+            return cls(kind, p_link=p)
         reject_unknown(data, ("kind", "matchings", "probs"), field)
         for key in ("matchings", "probs"):
             if key not in data:
