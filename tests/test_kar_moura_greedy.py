@@ -194,3 +194,24 @@ def test_greedy_protocol_from_a_scenario_file(tmp_path):
     # small graph: Ā exact, so the checks that need it run (token chain against Ā, Lemma 15)
     for cid in ("prop6.token-chain", "thm10-i.weak-consensus", "eq74.comparison", "assumption.c1"):
         assert claims[f"kar-moura.{cid}.greedy6"]["verdict"] == "pass", cid
+
+
+def test_sensor_pattern_repeats_over_the_nodes():
+    """`sensors.pattern` (for network-size sweeps) equals writing the repeated `types` out."""
+    import copy
+
+    from pipeline.errors import ScenarioError
+    from pipeline.scenario import load_toml
+    from reproductions.kar_moura.scenario import GossipKalmanScenario
+
+    from reproductions.kar_moura.scenario import SCENARIO_DIR
+
+    base = {k: v for k, v in load_toml(SCENARIO_DIR / "e1.toml").items() if k != "family"}
+    by_pattern = copy.deepcopy(base)
+    del by_pattern["sensors"]["types"]
+    by_pattern["sensors"]["pattern"] = [0, 1]
+    assert GossipKalmanScenario.from_dict(by_pattern).types == GossipKalmanScenario.from_dict(base).types
+    both = copy.deepcopy(base)
+    both["sensors"]["pattern"] = [0]
+    with pytest.raises(ScenarioError, match="sensors.types"):
+        GossipKalmanScenario.from_dict(both)

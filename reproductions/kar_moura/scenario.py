@@ -174,8 +174,11 @@ class GossipKalmanScenario:
         P0 = as_matrix(model.get("P0", np.eye(M).tolist()), "model.P0", shape=(M, M), psd=True)
 
         sensors = section(data["sensors"], "sensors")
-        reject_unknown(sensors, ("types", "C", "R"), "sensors")
-        for key in ("types", "C", "R"):
+        reject_unknown(sensors, ("types", "pattern", "C", "R"), "sensors")
+        if ("types" in sensors) == ("pattern" in sensors):
+            raise ScenarioError("sensors.types", "give exactly one of `types` (one sensor type per node) or `pattern` "
+                                "(sensor types repeated over the nodes in order)")
+        for key in ("C", "R"):
             if key not in sensors:
                 raise ScenarioError(f"sensors.{key}", "missing")
         C_raw = as_list(sensors["C"], "sensors.C")
@@ -200,7 +203,11 @@ class GossipKalmanScenario:
             R_types.append(Rk)
 
         graph = GraphSpec.from_dict(data["graph"], "graph", require_connected=False)
-        types = as_int_tuple(sensors["types"], "sensors.types", low=0, high=len(C_types) - 1)
+        if "pattern" in sensors:  # e.g. [0, 1] on 200 nodes: types 0, 1, 0, 1, ... (network-size sweeps)
+            pattern = as_int_tuple(sensors["pattern"], "sensors.pattern", low=0, high=len(C_types) - 1)
+            types = tuple(pattern[i % len(pattern)] for i in range(graph.n))
+        else:
+            types = as_int_tuple(sensors["types"], "sensors.types", low=0, high=len(C_types) - 1)
         if len(types) != graph.n:
             raise ScenarioError("sensors.types", f"must have one entry per node ({graph.n}), got {len(types)}")
         protocol = ProtocolSpec.from_dict(data["protocol"], "protocol", graph)
