@@ -109,14 +109,35 @@ def write_parquet(frame: pd.DataFrame, path: Path) -> None:
 
 # -- what is plotted ---------------------------------------------------------------------------------------
 
+LINE_STYLES = ("-", "--", ":", "-.")
+
+
+@dataclass(frozen=True)
+class Group:
+    """The points of one curve: `name` for legends, `colour` indexes the values of the first
+    other grid field, `style` the combinations of the remaining ones."""
+
+    colour_label: str
+    style_label: str
+    mask: np.ndarray
+    colour: int
+    style: int
+
+    @property
+    def name(self) -> str:
+        return ", ".join(x for x in (self.colour_label, self.style_label) if x)
+
+
 @dataclass(frozen=True)
 class PlotPlan:
     """x: the varied field on the horizontal axis (None: the point index); groups: one curve per
-    combination of the other grid fields; metrics: the columns plotted."""
+    combination of the other grid fields (colour: the first of them, line style: the rest);
+    metrics: the columns plotted."""
 
     x: str | None
     x_label: str
-    groups: list[tuple[str, np.ndarray]]
+    others: list[str]
+    groups: list[Group]
     metrics: list[str]
     scatter: bool
     unknown_metrics: list[str]
@@ -128,17 +149,21 @@ def plot_plan(spec: SweepSpec, frame: pd.DataFrame) -> PlotPlan:
     if x is not None and x not in numeric:
         x = None
     others = [f for f in spec.grid if f != x and len(spec.grid[f]) > 1]
+    groups = []
     if others:
-        labels = frame[others].astype(str).agg(", ".join, axis=1) if len(others) > 1 else frame[others[0]].astype(str)
-        names = [", ".join(f"{f}={v}" for f, v in zip(others, key.split(", "))) if len(others) > 1 else f"{others[0]}={key}"
-                 for key in dict.fromkeys(labels)]
-        groups = [(name, (labels == key).to_numpy()) for name, key in zip(names, dict.fromkeys(labels))]
+        first = (others[0] + "=" + frame[others[0]].astype(str)).to_numpy()
+        rest = np.array(["; ".join(f"{f}={row[f]}" for f in others[1:]) for _, row in frame[others[1:]].astype(str).iterrows()]
+                        if len(others) > 1 else [""] * len(frame), dtype=object)
+        colour_of = {v: i for i, v in enumerate(dict.fromkeys(first))}
+        style_of = {v: i for i, v in enumerate(dict.fromkeys(rest))}
+        for a, b in dict.fromkeys(zip(first, rest)):
+            groups.append(Group(a, b, (first == a) & (rest == b), colour_of[a], style_of[b]))
     else:
-        groups = [("all points", np.ones(len(frame), bool))]
+        groups = [Group("all points", "", np.ones(len(frame), bool), 0, 0)]
     available = [c.removeprefix("metric:") for c in frame.columns if c.startswith("metric:")]
     wanted = list(spec.plot_metrics) if spec.plot_metrics else available[:MAX_PLOTTED_METRICS]
     metrics = [f"metric:{m}" for m in wanted if m in available] + ["pass fraction"]
-    return PlotPlan(x=x, x_label=x or "point", groups=groups, metrics=metrics, scatter=x in spec.random,
+    return PlotPlan(x=x, x_label=x or "point", others=others, groups=groups, metrics=metrics, scatter=x in spec.random,
                     unknown_metrics=[m for m in wanted if m not in available])
 
 
@@ -174,16 +199,17 @@ def write_figure(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan, path: Pat
     n = len(plan.metrics)
     ncols = min(n, 3)
     fig, axes = new_figure(ncols=ncols, nrows=math.ceil(n / ncols), width=4.6, height=3.4)
-    colors = sequential_colors(len(plan.groups))
+    colors = sequential_colors(max(g.colour for g in plan.groups) + 1)
     x = x_values(spec, frame, plan)
     for ax, metric in zip(axes.flat, plan.metrics):
         y = metric_values(frame, metric)
-        for (name, mask), colour in zip(plan.groups, colors):
+        for g in plan.groups:
+            colour, style = colors[g.colour], LINE_STYLES[g.style % len(LINE_STYLES)]
             if plan.scatter:
-                ax.plot(x[mask], y[mask], "o", ms=3, color=colour, label=name)
+                ax.plot(x[g.mask], y[g.mask], "o", ms=3, color=colour)
                 continue
-            xs, med, lo, hi = summarise(x[mask], y[mask])
-            ax.plot(xs, med, "o-", ms=3, color=colour, label=name)
+            xs, med, lo, hi = summarise(x[g.mask], y[g.mask])
+            ax.plot(xs, med, marker="o", ls=style, ms=3, color=colour)
             if spec.replicates > 1 or spec.random:
                 ax.fill_between(xs, lo, hi, color=colour, alpha=0.2, lw=0)
         ax.set_xlabel(plan.x_label)
@@ -194,11 +220,25 @@ def write_figure(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan, path: Pat
             ax.set_yscale("log")
     for ax in list(axes.flat)[n:]:
         ax.set_visible(False)
-    if len(plan.groups) > 1:
-        axes.flat[0].legend(loc="best")
+    _legends(plan, axes, colors)
     band = " (lines: median over replicates, band: min to max)" if (spec.replicates > 1 or spec.random) and not plan.scatter else ""
     fig.suptitle(f"sweep {spec.name}: {spec.family}, {len(frame)} points{band}", fontsize=10)
     save_figure(fig, path)
+
+
+def _legends(plan: PlotPlan, axes, colors) -> None:
+    """Colour key (first other field) on the first panel, line-style key (the rest) on the second."""
+    from matplotlib.lines import Line2D
+
+    if not plan.others:
+        return
+    firsts = {g.colour: g.colour_label for g in plan.groups}
+    axes.flat[0].legend([Line2D([], [], color=colors[i], marker="o", ms=3) for i in sorted(firsts)],
+                        [firsts[i] for i in sorted(firsts)], loc="best", fontsize=7)
+    if len(plan.others) > 1 and len(axes.flat) > 1:
+        rests = {g.style: g.style_label for g in plan.groups}
+        axes.flat[1].legend([Line2D([], [], color="0.3", ls=LINE_STYLES[i % len(LINE_STYLES)]) for i in sorted(rests)],
+                            [rests[i] for i in sorted(rests)], loc="best", fontsize=7)
 
 
 def _spans_decades(y: np.ndarray) -> bool:
@@ -243,7 +283,8 @@ def write_recording(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan, summar
         record.log_markdown(rec, "sweep", summary_md)
         for metric in plan.metrics:
             y = metric_values(frame, metric)
-            for g, ((name, mask), colour) in enumerate(zip(plan.groups, record.PALETTE * 100)):
+            for g, group in enumerate(plan.groups):
+                name, mask, colour = group.name, group.mask, record.color(g)
                 if plan.scatter:
                     xs, ys = x[mask], y[mask]
                     order = np.argsort(xs, kind="stable")

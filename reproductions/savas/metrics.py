@@ -2,8 +2,9 @@
 
 For each filter (Carli's fixed gain, re-injection) and each (m, σ_c) cell of the scenario:
 the exact tr P(k|k-1) of (22) at the evaluation step and its Monte Carlo estimate; and the
-centralized Kalman filter's N·P(k|k-1), the lower bound of every distributed filter. A
-scenario with a single cell (the usual sweep point) gets unsuffixed names.
+centralized Kalman filter's N·P(k|k-1), the lower bound of every distributed filter; each also
+per agent (``_per_agent``: divided by N), to compare networks of different sizes. A scenario
+with a single cell (the usual sweep point) gets unsuffixed names.
 """
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ def metrics(res: Results) -> dict[str, float]:
     sc = res.scenario
     single = len(sc.sigma_c) == 1 and len(sc.rounds) == 1
     out = {"kf_trP": float(sc.n * res.bounds["kf_prior"][sc.eval_step])}
+    out["kf_trP_per_agent"] = out["kf_trP"] / sc.n
     for alg in ("carli", "reinjection"):
         exact, mc, _ = _metric(res, alg)
         for s, s_c in enumerate(sc.sigma_c):
@@ -22,4 +24,5 @@ def metrics(res: Results) -> dict[str, float]:
                 suffix = "" if single else f"_m{m}_sc{s_c:g}"
                 out[f"{alg}_trP_exact{suffix}"] = float(exact[s, j])
                 out[f"{alg}_trP_mc{suffix}"] = float(mc[s, j])
+                out[f"{alg}_trP_exact_per_agent{suffix}"] = float(exact[s, j]) / sc.n
     return out
