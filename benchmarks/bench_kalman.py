@@ -195,3 +195,22 @@ def format_table(rows: list[dict]) -> str:
 
 if __name__ == "__main__":
     print(format_table(bench_kalman()))
+
+
+def bench_kalman_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
+    """:func:`bench_kalman` in the side-by-side row format (µs per trial-step; one node: the
+    centralized filter), at one batch size (quick) or two."""
+    from .common import estimator_row
+
+    sizes = ((20_000, 200),) if quick else ((20_000, 2_000), (200_000, 2_000))
+    rows = []
+    for trials, fp_trials in sizes:
+        for r in bench_kalman(repeats=repeats, batched_trials=trials, filterpy_trials=fp_trials):
+            rows.append(estimator_row(
+                f"centralized Kalman: {r['name']}", f"n={r['n']}, p={r['p']}, {trials:,} trials", nodes=1, state_dim=r["n"],
+                trials=trials, steps=r["steps"], batched=(r["batched_us_per_trial_step"], r["batched_spread"]),
+                loop=(r["filterpy_us_per_trial_step"], r["filterpy_spread"]), loop_what="filterpy KalmanFilter loop",
+                loop_trials=fp_trials, unit="µs/trial-step", target=">= 200x filterpy",
+                met=r["filterpy_us_per_trial_step"] / r["batched_us_per_trial_step"] >= 200,
+                note=f"max |Δx̂| vs filterpy {r['max_abs_diff']:.1e}"))
+    return rows

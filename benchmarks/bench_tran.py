@@ -56,7 +56,73 @@ def bench_stochastic(trials: int = 100, t_end: float = 4.0) -> dict:
             "us_per_trial_step": wall / (trials * steps) * 1e6}
 
 
+def bench_stochastic_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
+    """Side-by-side rows: µs per trial-node-step of the stochastic coestimation simulator
+    (role switching, Euler-Maruyama noise on the exact ETD2RK drift), batched trials vs one
+    trial per call."""
+    from .common import estimator_row, timed
+
+    sc = paper_scenario()
+    P = np.stack([sc.types[t].P for t in sc.node_type])
+    t_end = 1.0 if quick else 4.0
+    steps = int(round(t_end / sc.sde_step))
+    net = compute.coestimation(sc, P)
+    noise = compute.noise_model(sc, 0)
+    prepared = sim.prepare(net, sc.sde_step, noise)          # once per reproduction stage: not timed
+    every = int(round(sc.record_dt / sc.sde_step))
+    roles, signal, reducer = compute.role_law(sc, False), compute.input_signal(sc), compute._sde_reducer(sc, P)
+    e0 = np.zeros((sc.N, sc.n + sc.p))
+    rows = []
+    for trials in ((compute.SDE_BLOCK,) if quick else (compute.SDE_BLOCK, 10 * compute.SDE_BLOCK)):
+        loop_trials = 2 if quick else 5
+        rng = np.random.Generator(np.random.SFC64(0))
+        run = lambda k: sim.simulate(net, roles, signal, sc.x0, e0, t_end=t_end, h=sc.sde_step,  # noqa: E731
+                                     record_every=every, n_trials=k, noise=noise, rng=rng, keep=0, reducer=reducer,
+                                     prepared=prepared)
+        batched = timed(lambda: run(trials), repeats, per=trials * steps * sc.N, warmup=True)
+        loop = timed(lambda: [run(1) for _ in range(loop_trials)], repeats, per=loop_trials * steps * sc.N)
+        rows.append(estimator_row(f"coestimation SDE (tran), role switching, h={sc.sde_step:g}",
+                                  f"N={sc.N}, n+p={sc.n + sc.p}, {trials:,} trials, t≤{t_end:g}", nodes=sc.N,
+                                  state_dim=sc.n + sc.p, trials=trials, steps=steps, batched=batched, loop=loop,
+                                  loop_what="same simulator, 1 trial per call", loop_trials=loop_trials,
+                                  target="<= 0.3 µs", met=batched[0] <= 0.3,
+                                  note="simulate(): ETD2RK + exact noise factors (124 normals/trial-step) + reducer every 2 steps"))
+    return rows
+
+
+def bench_lmis(repeats: int = 3) -> list[dict]:
+    """The design LMIs (28)-(29) (cvxpy + the default SDP solver) and the whole design stage."""
+    from estimators import common_lyapunov as cl
+
+    from .common import bound_row, timed
+
+    sc = paper_scenario()
+    rows = []
+    for t in range(len(sc.types)):
+        v = compute.vertices(sc, t)
+        r = cl.common_lyapunov(v, sc.types[t].eps)
+        rows.append(bound_row(f"tran LMIs (28)-(29), node type {t} ({len(v)} vertices, {v[0].shape[0]}x{v[0].shape[0]})",
+                              fast=timed(lambda: cl.common_lyapunov(v, sc.types[t].eps), repeats, per=1e3),
+                              fast_what="cvxpy common Lyapunov LMI", note=f"status {r.status}"))
+    rows.append(bound_row("tran design stage (all LMIs, sweeps, vertex checks), quick", fast=timed(
+        lambda: compute.compute_design(sc, True), 1, per=1e3), fast_what="compute_design(quick=True)"))
+    return rows
+
+
+def bench_deterministic_rows(t_end: float = 10.0) -> list[dict]:
+    from .common import bound_row
+
+    rows = bench_deterministic(t_end)
+    ref = rows[0]
+    return [bound_row(f"tran deterministic error system, t ≤ {t_end:g}", fast=(1e3 * r["wall_s"], (1e3 * r["wall_s"],) * 2),
+                      fast_what=r["name"], naive=(1e3 * ref["wall_s"], (1e3 * ref["wall_s"],) * 2), naive_what=ref["name"],
+                      max_diff=r["max_err"], note="max_rel_diff: max abs error vs Radau; one run each")
+            for r in rows[1:]]
+
+
 if __name__ == "__main__":
+    for row in bench_stochastic_rows(True, 1) + bench_lmis(1):
+        print(row)
     for row in bench_deterministic():
         print(row)
     print(bench_stochastic())

@@ -2,6 +2,7 @@
 iteration, and the exhaustive ρ enumeration. Measurements, not tests."""
 from __future__ import annotations
 
+import dataclasses
 import statistics
 import time
 
@@ -50,6 +51,49 @@ def bench_hybrid(trials: int = 256, repeats: int = 3) -> list[dict]:
     return rows
 
 
+def bench_hybrid_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
+    """Side-by-side rows: µs per trial-node-iteration (one iteration = one of the q estimator
+    updates of an interval; nodes = the m agents), batched trials vs one trial per call."""
+    from .common import estimator_row, timed
+
+    rows = []
+    sizes = [(paper_scenario(), None, (64,) if quick else (64, 1024))]
+    if not quick:   # generic: q = 786 iterations per interval; 8 of its 80 intervals keep the run short
+        sizes.append((generic_scenario(), 8, (256,)))
+    for sc, intervals, trial_sizes in sizes:
+        run = next(r for r in sc.runs if r.name == "sync")
+        if intervals is not None:
+            run = dataclasses.replace(run, intervals=intervals)
+        d = compute.observer_design(sc)
+        for trials in trial_sizes:
+            rng = np.random.default_rng(0)
+            x0 = rng.standard_normal((trials, sc.n))
+            w0 = rng.standard_normal((trials, sum(d.n_i)))
+            xh = rng.standard_normal((trials, sc.m, sc.n))
+            steps = run.q * run.intervals
+            per = steps * sc.m
+            batched = timed(lambda: _simulate(sc, run, x0, w0, xh), repeats, per=per * trials, warmup=True)
+            loop_trials = 2 if quick else 4
+            loop = timed(lambda: [_simulate(sc, run, x0[b:b + 1], w0[b:b + 1], xh[b:b + 1]) for b in range(loop_trials)],
+                         repeats, per=per * loop_trials)
+            rows.append(estimator_row(f"hybrid observer {sc.name}/sync, q={run.q}, {run.intervals} intervals",
+                                      f"m={sc.m}, n={sc.n}, {trials:,} trials", nodes=sc.m, state_dim=sc.n, trials=trials,
+                                      steps=steps, batched=batched, loop=loop, loop_what="same simulator, 1 trial per call",
+                                      loop_trials=loop_trials, unit="µs/trial-node-iteration",
+                                      note="hybrid: continuous flow + q discrete iterations per interval"))
+    return rows
+
+
+def bench_rho(repeats: int = 3) -> dict:
+    from .common import bound_row, timed
+
+    P = compute.observer_design(paper_scenario()).P
+    words = jd.rho_exact(P).words
+    t = timed(lambda: jd.rho_exact(P), repeats, per=1e3)
+    return bound_row(f"wang-liu-morse ρ by exhaustive enumeration, m = 4 ({words} minimal complete words)", fast=t,
+                     fast_what="batched word products")
+
+
 if __name__ == "__main__":
-    for row in bench_hybrid():
+    for row in bench_hybrid_rows(True, 1) + [bench_rho(1)]:
         print(row)

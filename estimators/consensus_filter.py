@@ -13,7 +13,7 @@ Process and sensors (a = 1): ``x(k+1) = x(k) + w(k)`` (eq. (3)), ``y(k) = x(k) 1
 5. propagate ``x(k+1) = x(k) + w(k)``.
 
 Trials live on the leading array axis; the only Python loops are over time steps and
-consensus rounds.  Draw order from ``rng`` (fixed, so a seed reproduces a run): ``X_0``
+consensus rounds (the rounds in closed form, z(m) = A xhat(k|k) + sigma_c b(m), see the loop).  Draw order from ``rng`` (fixed, so a seed reproduces a run): ``X_0``
 (trials,), then per step ``n(k)`` (trials, N), ``u(k + h/m)`` for ``h = 1..m`` (trials, N)
 each, ``w(k)`` (trials,).  The ``u`` draws are made even when ``sigma_c = 0`` so that runs
 differing only in ``sigma_c`` share their process and measurement noise.
@@ -133,6 +133,7 @@ def _config_vector(value, name: str, check) -> np.ndarray:
 
 def simulate_consensus_filter_configs(
     Q, *, ell, m, sigma_c, q, r, sigma0, x0_mean, n_steps, n_trials, rng, reinjection, zeta=1.0, n_paths=0,
+    buffers: dict | None = None,
 ) -> ConsensusFilterRun:
     """Several gain / noise configurations of the same filter driven by the same random draws.
 
@@ -145,6 +146,12 @@ def simulate_consensus_filter_configs(
     Returns a :class:`ConsensusFilterRun` whose per-configuration fields carry an extra axis 1 of
     length ``C``: ``err_pred``, ``err_filt`` (trials, C, K, N); ``xhat_pred``, ``xhat_filt``
     (P, C, K, N); ``z_rounds`` (P, C, K, m+1, N). ``x``, ``y``, ``u``, ``w``, ``n`` are shared.
+
+    ``buffers``: an optional dict kept by a caller that simulates block after block and is done
+    with a block's ``err_pred`` / ``err_filt`` before it asks for the next one. Those two arrays
+    (the bulk of the memory) are then reused between calls of the same shape instead of being
+    allocated anew: a fresh allocation of that size is mapped from the OS and pays a page fault
+    on first touch, measured ~2 ns per element here, as much as the normal draws of the step.
     """
     Q = _as_consensus_matrix(Q)
     ell_v = _config_vector(ell, "ell", lambda v, n: _check_ell(v, n))
@@ -184,8 +191,13 @@ def simulate_consensus_filter_configs(
     sigma_b = sigma_v[:, None, None]
     noisy = bool(np.any(sigma_v != 0.0))
 
-    e_pred = np.empty((C, K, N, R))
-    e_filt = np.empty((C, K, N, R))
+    if buffers is not None and buffers.get("shape") == (C, K, N, R):
+        e_pred, e_filt = buffers["e_pred"], buffers["e_filt"]
+    else:
+        e_pred = np.empty((C, K, N, R))
+        e_filt = np.empty((C, K, N, R))
+        if buffers is not None:
+            buffers.update(shape=(C, K, N, R), e_pred=e_pred, e_filt=e_filt)
     p_x = np.empty((P, K))
     p_y = np.empty((P, K, N))
     p_xp = np.empty((P, C, K, N))
@@ -204,8 +216,21 @@ def simulate_consensus_filter_configs(
     noise = np.empty((N, R))
     scaled = np.empty((C, N, R))
     z = np.empty((C, N, R))
-    znext = np.empty((C, N, R))
     w = np.empty(R)
+    # The m consensus rounds in closed form. z(h) = Q z(h-1) + sigma_c u(h) (+ xhat(k|k) with
+    # re-injection, eq. (12)) from z(0) = xhat(k|k) is linear, so z(m) = A xhat(k|k) + sigma_c b(m)
+    # with A = Q^m (eq. (9)) or sum_{j<=m} Q^j (eq. (12)) precomputed, and b(h) = Q b(h-1) + u(h),
+    # b(0) = 0, the noise part, which every configuration shares: the rounds cost one (N, R)
+    # product per round instead of one (C, N, R) product, scaling and sum (same draws, same
+    # results up to rounding). The rounds of the first P trials are also run one by one, for the
+    # kept paths.
+    A = np.eye(N)
+    power = np.eye(N)
+    for _ in range(m):
+        power = Q @ power
+        A = A + power if reinjection else power
+    b = np.zeros((N, R))
+    bnext = np.empty((N, R))
 
     def paths_of(a):  # (C, N, R) -> (P, C, N) for the first P trials
         return np.moveaxis(a[:, :, :P], 2, 0)
@@ -225,28 +250,32 @@ def simulate_consensus_filter_configs(
         xp *= retain
         xf += xp
         np.subtract(x, xf, out=e_filt[:, k])
-        z[...] = xf
         if P:
             p_xf[:, :, k] = paths_of(xf)
             p_z[:, :, k, 0] = paths_of(xf)
+            zp = xf[:, :, :P].copy()
+        b[...] = 0.0
         for h in range(m):
-            np.matmul(Q, z, out=znext)
             rng.standard_normal(out=noise)  # u(k + (h+1)/m), shared by the configurations
+            np.matmul(Q, b, out=bnext)
+            bnext += noise
+            b, bnext = bnext, b
             if P:
                 p_u[:, k, h] = noise[:, :P].T
+                zp = Q @ zp + sigma_b * noise[:, :P] + (xf[:, :, :P] if reinjection else 0.0)
+                p_z[:, :, k, h + 1] = np.moveaxis(zp, 2, 0)
+        if m:
+            np.matmul(A, xf, out=z)
             if noisy:
-                np.multiply(noise, sigma_b, out=scaled)
-                znext += scaled
-            if reinjection:
-                znext += xf  # (12): re-inject the stored xhat(k|k), noise-free
-            z, znext = znext, z
-            if P:
-                p_z[:, :, k, h + 1] = paths_of(z)
+                np.multiply(b, sigma_b, out=scaled)
+                z += scaled
+        else:
+            z[...] = xf
         if reinjection:
             # (13): xhat(k+1|k) = zeta xhat(k|k) + (1-zeta) z(k+1|k)/(m+1)
             np.multiply(z, keep, out=xp)
-            np.multiply(xf, zeta_b, out=znext)
-            xp += znext
+            np.multiply(xf, zeta_b, out=scaled)
+            xp += scaled
         else:
             xp[...] = z
         rng.standard_normal(out=w)

@@ -179,7 +179,11 @@ def block_diag(blocks) -> np.ndarray:
 
 def errors_from_estimates(x, w, e, n: int) -> np.ndarray:
     """z_i = [x − x̂_i; ŵ_i − w] (5)-(6): x (..., n), w (..., p), e (..., N, q) -> (..., N, q)."""
-    return np.concatenate([x[..., None, :] - e[..., :n], e[..., n:] - w[..., None, :]], axis=-1)
+    x, w, e = (np.asarray(a, float) for a in (x, w, e))
+    z = np.empty(np.broadcast_shapes(x.shape[:-1] + (1, n), e[..., :n].shape)[:-1] + (e.shape[-1],))
+    np.subtract(x[..., None, :], e[..., :n], out=z[..., :n])
+    np.subtract(e[..., n:], w[..., None, :], out=z[..., n:])
+    return z
 
 
 def input_forcing(K, sigma, w, wdot) -> np.ndarray:

@@ -221,10 +221,15 @@ def simulate(net: NetworkObserver, roles, signal: SinusoidalInput, x0, e0, *, t_
         Minj[i * q:(i + 1) * q, n + i * q:n + i * q + n] = -LJC[i]
     MinjT = Minj.T.copy()
 
-    def drift_part(uu, gg, f):
+    def injection(uu, gq):
+        out = uu @ MinjT
+        out *= gq
+        return out
+
+    def drift_part(uu, gq, f):
         out = np.empty_like(uu)
         out[:, :n] = f
-        out[:, n:] = uu @ MinjT * np.repeat(gg, q, axis=1)
+        out[:, n:] = injection(uu, gq)
         return out
 
     n_rec = steps // record_every + 1
@@ -239,28 +244,35 @@ def simulate(net: NetworkObserver, roles, signal: SinusoidalInput, x0, e0, *, t_
                 reduced.setdefault(name, []).append(val)
 
     B = net.B
-    f_now = signal(0.0) @ B.T
+    # the input forcing at every step time, at once (the same values as one call per step)
+    f_all = signal(np.arange(steps + 1) * h) @ B.T
+    gq = np.repeat(g, q, axis=1)
+    amp = np.ones((R, N + 1))
     for k in range(steps):
         t = k * h
         if k % record_every == 0:
             record(k // record_every, t)
-        f_next = signal(t + h) @ B.T
+        f_now, f_next = f_all[k], f_all[k + 1]
         x_before = u[:, ps]
-        N0 = drift_part(u, g, f_now)
-        a = u @ ET + h * (N0 @ P1T)
+        N0 = drift_part(u, gq, f_now)
+        a = u @ ET
+        a += h * (N0 @ P1T)
         x1 = a[:, :n] + h * (f_next - f_now) @ P2xx.T
         g1 = roles.advance(g, x_before, x1[:, ps], h)
-        Na = drift_part(a, g1, f_next)
-        u = a + h * ((Na - N0) @ P2T)
+        gq1 = gq if g1 is g else np.repeat(g1, q, axis=1)
+        Na = drift_part(a, gq1, f_next)
+        Na -= N0
+        u = a
+        u += h * (Na @ P2T)
         if noise is not None:
             xi = rng.standard_normal((R, len(scale_of)))
-            amp = np.concatenate([np.ones((R, 1)), g], axis=1)[:, scale_of]
-            kick = (xi * amp) @ factors
+            amp[:, 1:] = g
+            xi *= amp[:, scale_of]
+            kick = xi @ factors
             # the injection acts on the noise during the step (on average for half of it): first-order correction
-            kick[:, n:] += 0.5 * h * (kick @ MinjT) * np.repeat(g, q, axis=1)
-            u = u + kick
-        g = g1
-        f_now = f_next
+            kick[:, n:] += 0.5 * h * injection(kick, gq)
+            u += kick
+        g, gq = g1, gq1
     record(n_rec - 1, steps * h)
     if not np.all(np.isfinite(u)):
         raise FloatingPointError("the simulation produced non-finite values")

@@ -9,6 +9,7 @@ truncated file.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 from pathlib import Path
 from typing import Any, Iterator, Sequence
@@ -82,12 +83,22 @@ def send_series(rec: rr.RecordingStream, entity: str, index: list[rr.TimeColumn]
     k = values.shape[1]
     names = _texts([names] * k if isinstance(names, str) else names)
     colors = [on_dark(c) for c in colors] if colors is not None else [color(i) for i in range(k)]
-    if points:
-        style = rr.SeriesPoints(names=names, colors=colors, markers=["circle"] * k, marker_sizes=[3.0] * k)
-    else:
-        style = rr.SeriesLines(names=names, colors=colors, widths=[width] * k)
+    style = _series_style(k, None if names is None else tuple(names), tuple(tuple(c) for c in colors), bool(points),
+                          float(width))
     rec.log(entity, style, static=True)
     rec.send_columns(entity, indexes=index, columns=rr.Scalars.columns(scalars=values))
+
+
+@functools.lru_cache(maxsize=512)
+def _series_style(k: int, names: tuple[str, ...] | None, colors: tuple[tuple[int, ...], ...], points: bool,
+                  width: float) -> rr.SeriesLines | rr.SeriesPoints:
+    """The static style of a `send_series` entity. Built once per distinct style: building the
+    archetype (colour conversion to arrow) was ~30% of the cost of writing a short series."""
+    names_l = None if names is None else list(names)
+    colors_l = [tuple(c) for c in colors]
+    if points:
+        return rr.SeriesPoints(names=names_l, colors=colors_l, markers=["circle"] * k, marker_sizes=[3.0] * k)
+    return rr.SeriesLines(names=names_l, colors=colors_l, widths=[width] * k)
 
 
 def log_graph(rec: rr.RecordingStream, entity: str, positions: np.ndarray, edges: Sequence[tuple[int, int]], *,

@@ -166,13 +166,14 @@ def simulate_group(sc: NoisyConsensusScenario, seed: int, trials: int, cells: tu
     assert all((c.alg, c.m, c.n_steps) == (first.alg, first.m, first.n_steps) for c in cells)
     C = len(cells)
     paths: dict[str, np.ndarray] = {}
+    buffers: dict = {}   # error arrays reused block to block (each block's moments are taken before the next)
 
     def block(size: int, rng: np.random.Generator):
         want_paths = sc.sample_paths if not paths else 0
         run = cf.simulate_consensus_filter_configs(
             sc.Q, ell=[c.ell for c in cells], sigma_c=[c.sigma_c for c in cells], zeta=[c.zeta for c in cells],
             m=first.m, q=sc.q, r=sc.r, sigma0=sc.sigma0, x0_mean=sc.x0_mean, n_steps=first.n_steps, n_trials=size,
-            rng=rng, reinjection=first.alg == "reinjection", n_paths=want_paths)
+            rng=rng, reinjection=first.alg == "reinjection", n_paths=want_paths, buffers=buffers)
         if want_paths:
             for j, c in enumerate(cells):
                 for name in ("x", "y", "u", "w", "n"):
