@@ -16,11 +16,14 @@ from pathlib import Path
 SWEEP = Path(__file__).with_name("sweep_scaling.toml")
 
 
-def _run(scheduler: str, workers: int) -> dict:
+def _run(scheduler: str, workers: int, points: int) -> dict:
     out = Path(tempfile.mkdtemp(prefix="dse-bench-sweep-"))
     try:
+        sweep = out / "sweep.toml"
+        text = SWEEP.read_text().replace('base = "../reproductions/', f'base = "{SWEEP.parent.parent}/reproductions/')
+        sweep.write_text(text.replace("samples = 1000", f"samples = {points}"))
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "pipeline.cli", "sweep", str(SWEEP), "--out", str(out),
+        subprocess.run([sys.executable, "-m", "pipeline.cli", "sweep", str(sweep), "--out", str(out),
                         "--scheduler", scheduler, "--workers", str(workers)], check=True, capture_output=True,
                        env={**os.environ, "DSE_PROGRESS": "0"})
         wall = time.perf_counter() - t0
@@ -32,8 +35,8 @@ def _run(scheduler: str, workers: int) -> dict:
         shutil.rmtree(out, ignore_errors=True)
 
 
-def bench_sweep_scaling() -> list[dict]:
-    rows = [_run("inline", 1), _run("local", 1), _run("local", 2)]
+def bench_sweep_scaling(points: int = 1000) -> list[dict]:
+    rows = [_run("inline", 1, points), _run("local", 1, points), _run("local", 2, points)]
     rows[-1]["speedup_vs_1_worker"] = rows[1]["wall_s"] / rows[2]["wall_s"]
     return rows
 

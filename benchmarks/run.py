@@ -6,7 +6,8 @@ Sections (``--only`` takes their keys): ``floor`` (what the machine allows: norm
 bandwidth), ``estimators`` (every estimator, batched vs a per-trial loop, µs per trial-node-step),
 ``bounds`` (the deterministic computations against a naive version), ``scale`` (Monte Carlo
 stages at the papers' scale), ``record`` (rerun write throughput), ``reproduce`` (wall time and
-peak memory of `dse reproduce` per paper, cold and warm cache). ``--quick``: fewer repeats and
+peak memory of `dse reproduce` per paper, cold and warm cache), ``sweep`` (a 1,000-point `dse sweep`
+in process and on a local Dask cluster with 1 and 2 workers). ``--quick``: fewer repeats and
 sizes, quick reproductions only (a smoke test of the whole harness, a few minutes).
 
 Every figure is a median over repeats with its (min, max). Benchmarks are measurements, not
@@ -33,9 +34,10 @@ from typing import Callable  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from .bench_sweep import bench_sweep_scaling  # noqa: E402
 from .common import bound_row, estimator_row, spread, timed  # noqa: E402
 
-SECTIONS = ("floor", "estimators", "bounds", "scale", "record", "reproduce")
+SECTIONS = ("floor", "estimators", "bounds", "scale", "record", "reproduce", "sweep")
 TITLES = {
     "floor": "What the machine allows (floors behind the per-step targets)",
     "estimators": "Estimators side by side: batched vs a straightforward per-trial loop",
@@ -43,6 +45,7 @@ TITLES = {
     "scale": "Monte Carlo stages at the papers' scale",
     "record": "Rerun write throughput (project helpers, `pipeline.record.send_series`)",
     "reproduce": "`dse reproduce PAPER`: wall time and peak memory, cold and warm cache",
+    "sweep": "`dse sweep` scaling: the same 1,000-point sweep in process and on 1 and 2 Dask workers",
 }
 
 
@@ -259,9 +262,10 @@ def main(argv: list[str] | None = None) -> int:
                    "bounds": lambda: bench_bounds(args.quick, repeats),
                    "scale": lambda: bench_scale(args.quick, repeats),
                    "reproduce": lambda: bench_reproductions(args.quick, repeats, replay_dir),
-                   "record": lambda: bench_records(args.quick, repeats, replay_dir)}
+                   "record": lambda: bench_records(args.quick, repeats, replay_dir),
+                   "sweep": lambda: bench_sweep_scaling(points=100 if args.quick else 1000)}
         # reproduce before record: the recording replay uses the reproductions' recordings
-        for key in sorted(only, key=lambda s: ("floor", "estimators", "bounds", "scale", "reproduce", "record").index(s)):
+        for key in sorted(only, key=lambda s: ("floor", "estimators", "bounds", "scale", "reproduce", "record", "sweep").index(s)):
             print(f"[bench] {key} ...", file=sys.stderr, flush=True)
             t0 = time.perf_counter()
             try:
@@ -321,6 +325,10 @@ def _targets(results: dict[str, list[dict]]) -> list[str]:
         elif r.get("mode") == "default":
             lines.append(f"| peak memory, reproduce {r['paper']}: {r['target']} | {_fmt(r['peak_tree_rss_mib'])} MiB "
                          f"(tree), {_fmt(r['max_process_rss_mib'])} MiB (one process) | {_fmt(r['met'])} |")
+    for r in results.get("sweep", []):
+        if "speedup_vs_1_worker" in r:
+            lines.append(f"| dse sweep, {r['points']} points: 2 workers close to half the wall time of 1 | "
+                         f"speed-up {_fmt(r['speedup_vs_1_worker'])} | {'yes' if r['speedup_vs_1_worker'] >= 1.7 else '**no**'} |")
     return lines + [""]
 
 

@@ -12,6 +12,7 @@ replaced and its tasks rescheduled by the Dask scheduler.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
@@ -22,7 +23,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 from .atomic import atomic_write_text
 from .cache import StageCache, canonical_json
@@ -33,9 +34,9 @@ from .sweep_spec import Point, SweepSpec
 #: environment of every worker: one BLAS thread (the tasks are the parallelism), no inner bars
 WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "DSE_PROGRESS": "0"}
 PROJECT_PACKAGES = ("estimators", "pipeline", "reproductions")
-#: claim fields kept per point (statement and source are the same at every point: kept once)
-POINT_CLAIM_FIELDS = ("id", "kind", "verdict", "measured", "reference", "tolerance", "margin", "confidence",
-                      "trials", "printed", "corrected", "detail")
+#: the fields of a claim's row kept per point (all of them but none of the report's layout)
+POINT_CLAIM_FIELDS = ("id", "source", "statement", "kind", "verdict", "measured", "reference", "tolerance", "margin",
+                      "confidence", "trials", "printed", "corrected", "detail")
 
 
 @dataclass(frozen=True)
@@ -112,8 +113,7 @@ def run_point(payload: dict[str, Any]) -> dict[str, Any]:
     rows = [claim.evaluate(results) for claim in repro.claims()]
     metrics = reg.family_metrics(payload["scenario"]["family"], results)
     return {"status": "ok", "error": "", "metrics": {k: float(v) for k, v in metrics.items()},
-            "claims": [{k: r.get(k) for k in POINT_CLAIM_FIELDS} | {"statement": r["statement"], "source": r["source"]}
-                       for r in rows],
+            "claims": [{k: r.get(k) for k in POINT_CLAIM_FIELDS} for r in rows],
             "wall_s": time.perf_counter() - start, **where}
 
 
@@ -144,7 +144,8 @@ def choose_scheduler(scheduler: str, pending: int, workers: int) -> str:
     """`auto`: in process for tiny sweeps (at most one pending point, or one worker), else a
     local Dask cluster; `inline`, `local` or a scheduler address (``tcp://HOST:PORT``) as given."""
     if scheduler not in SCHEDULERS and "://" not in scheduler:
-        raise ScenarioError("--scheduler", f"must be auto, inline, local or an address such as tcp://HOST:8786, got {scheduler!r}")
+        raise ScenarioError("--scheduler", "must be auto, inline, local or an address such as tcp://HOST:8786, "
+                                           f"got {scheduler!r}")
     if scheduler != "auto":
         return scheduler
     return "inline" if pending <= 1 or workers <= 1 else "local"
@@ -162,33 +163,41 @@ def execute(tasks: list[Task], *, scheduler: str, workers: int, retries: int,
     return _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn)
 
 
-def _bar(total: int, initial: int = 0):
+def _bar(total: int):
     from tqdm import tqdm
 
-    return tqdm(total=total, initial=initial, desc="sweep points", unit="pt", disable=not progress_enabled(),
+    return tqdm(total=total, desc="sweep points", unit="pt", disable=not progress_enabled(),
                 dynamic_ncols=True, file=sys.stderr)
+
+
+@contextlib.contextmanager
+def _inner_bars_off() -> Iterator[None]:
+    """The points' own stage bars stay quiet while the sweep's bar runs in this process."""
+    saved = os.environ.get("DSE_PROGRESS")
+    os.environ["DSE_PROGRESS"] = "0"
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop("DSE_PROGRESS", None)
+        else:
+            os.environ["DSE_PROGRESS"] = saved
 
 
 def _execute_inline(tasks, retries, on_result, fn) -> dict[str, str]:
     failures = {}
-    saved = {k: os.environ.get(k) for k in ("DSE_PROGRESS",)}
-    os.environ["DSE_PROGRESS"] = "0"  # one bar: the sweep's
-    try:
-        with _bar(len(tasks)) as bar:
-            for task in tasks:
-                for attempt in range(retries + 1):
-                    try:
-                        on_result(task, fn(task.payload()))
-                        break
-                    except (KeyboardInterrupt, ScenarioError):
-                        raise
-                    except Exception as exc:  # noqa: BLE001 - retried, then reported per point
-                        if attempt == retries:
-                            failures[task.key] = f"{type(exc).__name__}: {exc}"
-                bar.update()
-    finally:
-        for k, v in saved.items():
-            os.environ.pop(k) if v is None else os.environ.__setitem__(k, v)
+    with _bar(len(tasks)) as bar, _inner_bars_off():
+        for task in tasks:
+            for attempt in range(retries + 1):
+                try:
+                    on_result(task, fn(task.payload()))
+                    break
+                except (KeyboardInterrupt, ScenarioError):
+                    raise
+                except Exception as exc:  # noqa: BLE001 - retried, then reported per point
+                    if attempt == retries:
+                        failures[task.key] = f"{type(exc).__name__}: {exc}"
+            bar.update()
     return failures
 
 
@@ -231,6 +240,14 @@ def _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn) -> dic
     return failures
 
 
+def _point_meta(task: Task, result: dict[str, Any] | None, failure: str | None) -> dict[str, Any]:
+    """A point in sweep.json: what it varied, its seed, and where and how long it ran (or why not)."""
+    meta = {"point": task.point.index, "key": task.key, "values": task.point.values,
+            "replicate": task.point.replicate, "seed": task.point.seed}
+    if result is None:
+        return meta | {"failed": failure or "not run"}
+    return meta | {k: result[k] for k in ("wall_s", "host", "pid")}
+
 
 def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", workers: int = 2, retries: int = 2,
               fresh: bool = False, log: Callable[[str], None] = print) -> dict[str, Any]:
@@ -272,12 +289,10 @@ def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", worke
         so.write_recording(spec, frame, plan, summary_md, out_dir / "sweep.rrd")
     atomic_write_text(out_dir / "summary.md", summary_md + "\n")
     meta = {"name": spec.name, "family": spec.family, "sweep": spec.source, "scheduler": mode, "workers": workers,
-            "points": [{"point": t.point.index, "key": t.key, "values": t.point.values, "replicate": t.point.replicate,
-                        "seed": t.point.seed, **({"wall_s": results[t.key]["wall_s"], "host": results[t.key]["host"],
-                                                  "pid": results[t.key]["pid"]} if t.key in results else
-                                                 {"failed": failures.get(t.key, "not run")})} for t in tasks],
+            "points": [_point_meta(t, results.get(t.key), failures.get(t.key)) for t in tasks],
             "failures": failures, "wall_s": time.perf_counter() - start}
     atomic_write_text(out_dir / "sweep.json", json.dumps(meta, indent=1, default=str))
-    return {"name": spec.name, "points": len(tasks), "ran": len(pending) - len(failures), "reused": len(tasks) - len(pending),
-            "failed": len(failures), "numerical_errors": int((frame["status"] != "ok").sum()) if len(frame) else 0,
+    return {"name": spec.name, "points": len(tasks), "ran": len(pending) - len(failures),
+            "reused": len(tasks) - len(pending), "failed": len(failures),
+            "numerical_errors": int((frame["status"] != "ok").sum()) if len(frame) else 0,
             "wall_s": meta["wall_s"], "out_dir": out_dir, "scheduler": mode}

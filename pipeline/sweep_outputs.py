@@ -3,8 +3,8 @@
 `results.parquet` holds one row per point: the varied values, replicate and seed, the
 run's status, verdict counts, the family's summary metrics (``metric:<name>``) and, for
 every claim, its verdict, margin, measured and reference numbers (``claim:<id>:<field>``).
-`claims.parquet` holds one row per (point, claim) with every field of the verdict, the
-detail text included. Neither holds wall times or host names, so both are identical
+`claims.parquet` holds one row per (point, claim) with the claim's source and statement and
+every field of its verdict, the detail text included. Neither holds wall times or host names, so both are identical
 wherever the points ran; those go to `sweep.json`.
 """
 from __future__ import annotations
@@ -88,7 +88,8 @@ def claims_frame(points: Sequence, results: Sequence[dict[str, Any]]) -> pd.Data
     rows = []
     for point, res in zip(points, results):
         for c in res["claims"]:
-            rows.append({"point": point.index, "claim": c["id"], "kind": c["kind"], "verdict": c["verdict"],
+            rows.append({"point": point.index, "claim": c["id"], "source": c.get("source", ""),
+                         "statement": c.get("statement", ""), "kind": c["kind"], "verdict": c["verdict"],
                          "measured": number(c.get("measured")), "reference": number(c.get("reference")),
                          "margin": number(c.get("margin")), "tolerance": number(c.get("tolerance")),
                          "confidence": number(c.get("confidence")), "trials": number(c.get("trials")),
@@ -97,8 +98,9 @@ def claims_frame(points: Sequence, results: Sequence[dict[str, Any]]) -> pd.Data
                          "printed_json": json.dumps(c.get("printed"), default=str),
                          "corrected_json": json.dumps(c.get("corrected"), default=str),
                          "detail": str(c.get("detail") or "")})
-    columns = ["point", "claim", "kind", "verdict", "measured", "reference", "margin", "tolerance", "confidence",
-               "trials", "measured_json", "reference_json", "printed_json", "corrected_json", "detail"]
+    columns = ["point", "claim", "source", "statement", "kind", "verdict", "measured", "reference", "margin",
+               "tolerance", "confidence", "trials", "measured_json", "reference_json", "printed_json", "corrected_json",
+               "detail"]
     return pd.DataFrame(rows, columns=columns)
 
 

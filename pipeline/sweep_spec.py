@@ -65,6 +65,8 @@ class Point:
 
 @dataclass(frozen=True)
 class SweepSpec:
+    """A parsed sweep file (see the module docstring); `source` is the file's table as read."""
+
     name: str
     description: str
     base: dict[str, Any]
