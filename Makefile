@@ -15,6 +15,7 @@ $(STAMP): pyproject.toml
 
 reproduce: $(STAMP)
 	$(BIN)/dse reproduce --out out
+	$(MAKE) --no-print-directory sweeps
 
 # The shipped example sweeps (reproductions/sweeps/*.toml), each on a local Dask cluster.
 sweeps: $(STAMP)
