@@ -24,12 +24,13 @@ sweeps: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest
 
-# Opens every recording of a quick reproduction in Rerun's own viewer (headless, software
+# Opens every recording of a quick reproduction and of one example sweep in Rerun's own viewer (headless, software
 # Vulkan from Debian's mesa-vulkan-drivers) and checks the views render without errors.
 check-viewer: $(STAMP)
 	@dpkg -s mesa-vulkan-drivers >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq mesa-vulkan-drivers; }
 	rm -rf out/viewer-check
 	$(BIN)/dse reproduce --quick --out out/viewer-check
+	$(BIN)/dse sweep reproductions/sweeps/savas_noise_rounds_size.toml --out out/viewer-check
 	$(BIN)/python -m pipeline.viewer_check out/viewer-check --screenshots out/viewer-check/screenshots
 
 bench: $(STAMP)

@@ -28,6 +28,8 @@ from .sweep_spec import SweepSpec
 STATUS_COUNTS = ("pass", "fail", "erratum", "not-checkable")
 CLAIM_COLUMNS = ("verdict", "margin", "measured", "reference")
 MAX_PLOTTED_METRICS = 6
+#: more curves than this and the viewer's legend would cover the plot: the names show on hover
+MAX_LEGEND_ENTRIES = 8
 
 
 def number(x: Any) -> float:
@@ -272,10 +274,11 @@ def write_recording(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan, summar
     timeline, digits = x_timeline(spec, plan, finite if finite.size else np.zeros(1))
     whole = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(),
                                                   end=rrb.TimeRangeBoundary.infinite()))
+    legend = rrb.PlotLegend(rrb.Corner2D.RightBottom, visible=1 < len(plan.groups) <= MAX_LEGEND_ENTRIES)
     views = [rrb.TimeSeriesView(origin=f"/metrics/{_entity(m)}", name=f"{m.removeprefix('metric:')} vs {plan.x_label}",
-                                axis_x=whole,
-                                plot_legend=rrb.PlotLegend(rrb.Corner2D.RightBottom, visible=len(plan.groups) > 1))
+                                axis_x=whole, plot_legend=legend)
              for m in plan.metrics]
+    colours = _group_colours(plan)
     blueprint = rrb.Blueprint(
         rrb.Tabs(rrb.Grid(*views, name="metrics"), rrb.TextDocumentView(origin="/sweep", name="sweep")),
         rrb.TimePanel(timeline=timeline, expanded=False, play_state="following"), collapse_panels=True)
@@ -286,7 +289,7 @@ def write_recording(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan, summar
         for metric in plan.metrics:
             y = metric_values(frame, metric)
             for g, group in enumerate(plan.groups):
-                name, mask, colour = group.name, group.mask, record.color(g)
+                name, mask, colour = group.name, group.mask, colours[g]
                 if plan.scatter:
                     xs, ys = x[mask], y[mask]
                     order = np.argsort(xs, kind="stable")
@@ -299,6 +302,18 @@ def write_recording(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan, summar
                 ticks = np.round((np.log10(xs[keep]) if spec.log_x and plan.x else xs[keep]) * 10**digits)
                 record.send_series(rec, f"metrics/{_entity(metric)}/g{g}", record.sequence_index(timeline, ticks.astype(np.int64)),
                                    ys[keep], names=name, colors=[colour], points=plan.scatter)
+
+
+def _group_colours(plan: PlotPlan) -> list[tuple[int, int, int]]:
+    """As in the figure, one hue per value of the first other grid field (the viewer's palette, which
+    reads on its dark background); the combinations of the rest (line styles in the figure) are
+    lighter shades of it (the viewer has no line styles)."""
+    shades = max(g.style for g in plan.groups) + 1
+    out = []
+    for g in plan.groups:
+        lighten = 0.6 * g.style / max(shades - 1, 1)
+        out.append(tuple(int(round((1 - lighten) * c + lighten * 255)) for c in record.color(g.colour)))
+    return out
 
 
 def _entity(metric: str) -> str:
