@@ -17,7 +17,6 @@ from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
-import rerun as rr
 import rerun.blueprint as rrb
 
 from . import record

@@ -9,7 +9,7 @@ with a single cell (the usual sweep point) gets unsuffixed names.
 from __future__ import annotations
 
 from .compute import Results
-from .outputs import _metric
+from .outputs import eval_trace_table
 
 
 def metrics(res: Results) -> dict[str, float]:
@@ -18,7 +18,7 @@ def metrics(res: Results) -> dict[str, float]:
     out = {"kf_trP": float(sc.n * res.bounds["kf_prior"][sc.eval_step])}
     out["kf_trP_per_agent"] = out["kf_trP"] / sc.n
     for alg in ("carli", "reinjection"):
-        exact, mc, _ = _metric(res, alg)
+        exact, mc, _ = eval_trace_table(res, alg)
         for s, s_c in enumerate(sc.sigma_c):
             for j, m in enumerate(sc.rounds):
                 suffix = "" if single else f"_m{m}_sc{s_c:g}"

@@ -22,7 +22,7 @@ from .compute import Results
 BAND_CONFIDENCE = 0.95
 
 
-def _metric(res: Results, alg: str):
+def eval_trace_table(res: Results, alg: str):
     """Exact and Monte Carlo tr P(k_eval) with its SE, arrays (S, M) over σ_c × m."""
     sc = res.scenario
     k = sc.eval_step
@@ -47,7 +47,7 @@ def showcase(res: Results):
 
 def _metric_figure(res: Results, alg: str, title: str, path: Path) -> None:
     sc = res.scenario
-    exact, mc, se = _metric(res, alg)
+    exact, mc, se = eval_trace_table(res, alg)
     z = z_for_confidence(BAND_CONFIDENCE)
     fig, axes = new_figure(width=8.0)
     ax = axes[0, 0]
@@ -218,7 +218,7 @@ def write_figures_recording(res: Results, path: Path, claims: list[dict], prov: 
                         blueprint=blueprint, properties=_properties(res, prov)) as rec:
         idx = rec_.sequence_index("m", sc.rounds)
         for fig, alg in (("fig1", "carli"), ("fig3", "reinjection")):
-            exact, mc, se = _metric(res, alg)
+            exact, mc, se = eval_trace_table(res, alg)
             rec_.send_series(rec, f"{fig}/exact", idx, exact.T, names=[f"{n} exact" for n in names], colors=cols)
             rec_.send_series(rec, f"{fig}/monte_carlo", idx, mc.T, names=[f"{n} Monte Carlo" for n in names], colors=cols, points=True)
             rec_.send_series(rec, f"{fig}/centralized_kf", idx, np.full(len(sc.rounds), sc.n * b["kf_prior"][sc.eval_step]),
