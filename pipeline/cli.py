@@ -1,7 +1,14 @@
 """The `dse` command line: list, reproduce, run, verify, sweep.
 
-Input errors print one line naming the field and exit with code 2, before anything is
-written; Ctrl-C exits with 130.
+Exit codes (also in `dse --help` and the README):
+
+  0    done (with --strict: and no claim is `fail` or `error`)
+  1    --strict and some claim is `fail` or `error`; `dse verify` found differences;
+       a sweep has points that failed
+  2    invalid input or unusable output: one line naming the field or the path, nothing written
+  3    numerical failure of the run (a NaN or inf where a finite number is required)
+  130  interrupted (Ctrl-C, SIGINT)
+  143  terminated (SIGTERM)
 """
 from __future__ import annotations
 
@@ -19,7 +26,23 @@ from pathlib import Path  # noqa: E402
 
 from .errors import CacheMiss, NumericalError, OutputError, ScenarioError  # noqa: E402
 from .reproduction import RunOptions, reverify, run  # noqa: E402
-from .report import write_summary  # noqa: E402
+from .report import counts_line, verdict_counts, write_summary  # noqa: E402
+
+EXIT_CODES = """exit codes:
+  0    done (with --strict: and no claim is fail or error)
+  1    --strict and some claim is fail or error; dse verify found differences; a sweep has failed points
+  2    invalid input or unusable output (one line naming the field or path; nothing written)
+  3    numerical failure of the run (a NaN or inf where a finite number is required)
+  130  interrupted (SIGINT, Ctrl-C)
+  143  terminated (SIGTERM)"""
+
+
+class Terminated(BaseException):
+    """SIGTERM, turned into an exception so that the run unwinds like on Ctrl-C."""
+
+
+def _strict_status(args, rows: list[dict]) -> int:
+    return 1 if getattr(args, "strict", False) and any(r["fail"] or r["error"] for r in rows) else 0
 
 
 def _registry():
@@ -54,10 +77,9 @@ def cmd_reproduce(args) -> int:
     for pid in args.papers or list(reg.PAPERS):
         rows.append(run(reg.paper(pid), out_root, _options(args)))
         r = rows[-1]
-        print(f"{pid}: {r['pass']} pass, {r['fail']} fail, {r['erratum']} erratum, "
-              f"{r['not-checkable']} not checkable ({r['wall_s']:.1f} s) -> {out_root / pid}")
+        print(f"{pid}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_root / pid}")
     print(f"summary: {write_summary(out_root)}")
-    return 0
+    return _strict_status(args, rows)
 
 
 def cmd_run(args) -> int:
@@ -69,9 +91,8 @@ def cmd_run(args) -> int:
     out_root = Path(args.out)
     out_dir = out_root / "run" / repro.paper_id
     r = run(repro, out_root, _options(args), out_dir=out_dir, source=data)
-    print(f"{repro.paper_id}: {r['pass']} pass, {r['fail']} fail, {r['erratum']} erratum, "
-          f"{r['not-checkable']} not checkable ({r['wall_s']:.1f} s) -> {out_dir}")
-    return 0
+    print(f"{repro.paper_id}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_dir}")
+    return _strict_status(args, [r])
 
 
 def cmd_verify(args) -> int:
@@ -86,12 +107,11 @@ def cmd_verify(args) -> int:
         meta = json.loads((d / "run.json").read_text())
         repro = reg.family_from_dict(meta["scenario"]) if meta.get("scenario") else reg.paper(meta["paper"])
         rows, diffs = reverify(repro, (d / meta["out_root"]).resolve(), d)
-        counts = {s: sum(r["verdict"] == s for r in rows) for s in ("pass", "fail", "erratum", "not-checkable")}
-        print(f"{d}: re-checked {len(rows)} claims from the cache: {counts['pass']} pass, {counts['fail']} fail, "
-              f"{counts['erratum']} erratum, {counts['not-checkable']} not checkable")
+        counts = verdict_counts(rows)
+        print(f"{d}: re-checked {len(rows)} claims from the cache: {counts_line(counts)}")
         for line in diffs:
             print(f"  differs: {line}")
-        status |= bool(diffs)
+        status |= bool(diffs) or _strict_status(args, [counts])
     return status
 
 
@@ -108,7 +128,8 @@ def cmd_sweep(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="dse", description="Reproductions of distributed state estimation papers.")
+    parser = argparse.ArgumentParser(prog="dse", description="Reproductions of distributed state estimation papers.",
+                                     epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="papers, scenarios and claims").set_defaults(func=cmd_list)
 
@@ -118,19 +139,27 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
         p.add_argument("--out", default="out", help="output root directory (default out/)")
         p.add_argument("--workers", type=_positive_int, default=2, help="worker processes (default 2)")
+        strict_flag(p)
 
-    rep = sub.add_parser("reproduce", help="regenerate papers' claims, figures and recordings")
+    def strict_flag(p):
+        p.add_argument("--strict", action="store_true", help="exit 1 when any claim is fail or error (for CI)")
+
+    def sub_parser(name, **kw):
+        return sub.add_parser(name, epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter, **kw)
+
+    rep = sub_parser("reproduce", help="regenerate papers' claims, figures and recordings")
     rep.add_argument("papers", nargs="*", metavar="PAPER")
     run_flags(rep)
     rep.set_defaults(func=cmd_reproduce)
-    user = sub.add_parser("run", help="run a scenario file of a supported family")
+    user = sub_parser("run", help="run a scenario file of a supported family")
     user.add_argument("file", metavar="FILE.toml")
     run_flags(user)
     user.set_defaults(func=cmd_run)
-    ver = sub.add_parser("verify", help="re-check claims from cached results, without simulating")
+    ver = sub_parser("verify", help="re-check claims from cached results, without simulating")
     ver.add_argument("out_dir", metavar="OUT_DIR")
+    strict_flag(ver)
     ver.set_defaults(func=cmd_verify)
-    swp = sub.add_parser("sweep", help="run a scenario family over a grid or random sample of fields, on Dask")
+    swp = sub_parser("sweep", help="run a scenario family over a grid or random sample of fields, on Dask")
     swp.add_argument("file", metavar="SWEEP.toml")
     swp.add_argument("--out", default="out", help="output root directory; results go to OUT/sweep/NAME/ (default out/)")
     swp.add_argument("--scheduler", default="auto",
@@ -158,8 +187,15 @@ def _nonnegative_int(text: str) -> int:
     return value
 
 
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    import signal
+
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return args.func(args)
     except ScenarioError as exc:
@@ -177,6 +213,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("dse: interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print("dse: terminated", file=sys.stderr)
+        return 143
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

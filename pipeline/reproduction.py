@@ -20,7 +20,7 @@ from .errors import OutputError
 from .provenance import provenance
 from .report import verdict_counts, write_report
 from .simulate import peak_memory_mib
-from .verify import Claim
+from .verify import Claim, Evaluation, Hypothesis, evaluate
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,11 @@ class Reproduction(Protocol):
     def scenario_ids(self) -> list[str]: ...
 
     def claims(self) -> Sequence[Claim]: ...
+
+    def hypotheses(self) -> Sequence[Hypothesis]: ...
+
+    #: True for the paper's own reproduction: claims of scope "paper-example" are evaluated
+    is_paper: bool
 
     def compute(self, opts: RunOptions, cache: StageCache) -> Any: ...
 
@@ -72,22 +77,28 @@ def run(repro: Reproduction, out_root: Path, opts: RunOptions, *, out_dir: Path 
     check_output_dir(out_dir)
     start = time.perf_counter()
     results = repro.compute(opts, cache_for(out_root, repro.paper_id))
-    rows = [claim.evaluate(results) for claim in repro.claims()]
+    ev = evaluate_claims(repro, results)
     prov = provenance(seed=opts.seed, trials=repro.trials(opts), quick=opts.quick, workers=opts.workers)
-    repro.write_outputs(results, out_dir, rows, prov)
+    repro.write_outputs(results, out_dir, ev.claims, prov)
     prov["wall_s"] = time.perf_counter() - start
     prov["peak_memory_mib"] = peak_memory_mib()
-    write_report(out_dir, paper=repro.paper_id, title=repro.title, claims=rows, provenance=prov, notes=repro.notes())
+    write_report(out_dir, paper=repro.paper_id, title=repro.title, evaluation=ev, provenance=prov, notes=repro.notes())
     atomic_write_text(out_dir / "run.json", json.dumps({"paper": repro.paper_id, "options": asdict(opts),
                                                          "out_root": os.path.relpath(out_root, out_dir), "scenario": source}, indent=1))
-    return {"paper": repro.paper_id, **verdict_counts(rows), "wall_s": prov["wall_s"]}
+    return {"paper": repro.paper_id, **verdict_counts(ev.claims), "wall_s": prov["wall_s"]}
+
+
+def evaluate_claims(repro: Reproduction, results: Any, **confidence) -> Evaluation:
+    """The hypotheses and claims of one computed run (the paper's own example claims only in
+    the paper's reproduction); `confidence`: see `pipeline.verify.evaluate`."""
+    return evaluate(repro.claims(), repro.hypotheses(), results, paper_run=repro.is_paper, **confidence)
 
 
 def reverify(repro: Reproduction, out_root: Path, out_dir: Path) -> tuple[list[dict], list[str]]:
     """Re-check every claim from cached stage results only; list differences from report.json."""
     opts = RunOptions(**json.loads((out_dir / "run.json").read_text())["options"])
     results = repro.compute(opts, cache_for(out_root, repro.paper_id, read_only=True))
-    rows = [claim.evaluate(results) for claim in repro.claims()]
+    rows = evaluate_claims(repro, results).claims
     stored = {r["id"]: r["verdict"] for r in json.loads((out_dir / "report.json").read_text())["claims"]}
     diffs = [f"{r['id']}: report says {stored.get(r['id'])}, re-check gives {r['verdict']}"
              for r in rows if stored.get(r["id"]) != r["verdict"]]

@@ -93,3 +93,44 @@ def z_for_confidence(confidence: float, n_tests: int = 1) -> float:
 def confidence_of_z(z: float, n_tests: int = 1) -> float:
     """Family-wise confidence of |Z| <= z over n_tests independent checks (Bonferroni lower bound)."""
     return float(max(0.0, 1.0 - n_tests * 2.0 * (1.0 - NormalDist().cdf(z))))
+
+
+# -- tests whose level holds at the sample size used ---------------------------------------------------
+
+def chi2_two_sided_p(statistic, dof) -> np.ndarray:
+    """Two-sided p-value of an exact χ²(dof) statistic: 2·min(F, 1 − F), capped at 1.
+
+    Exact when the statistic is a sum of `dof` squared independent standard normals, e.g.
+    Σ_k (uᵀe_k)²/(uᵀΣu) over k = 1..n Gaussian errors e_k ~ N(0, Σ) with Σ known.
+    """
+    from scipy.stats import chi2
+
+    s, d = np.asarray(statistic, float), np.asarray(dof, float)
+    return np.minimum(1.0, 2.0 * np.minimum(chi2.cdf(s, d), chi2.sf(s, d)))
+
+
+def normal_two_sided_p(z) -> np.ndarray:
+    """Two-sided p-value of a standard normal statistic."""
+    from scipy.special import ndtr
+
+    return 2.0 * ndtr(-np.abs(np.asarray(z, float)))
+
+
+def clopper_pearson(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Exact (conservative) binomial confidence interval for a proportion."""
+    from scipy.stats import beta
+
+    a = 1.0 - confidence
+    lo = 0.0 if successes == 0 else float(beta.ppf(a / 2, successes, n - successes + 1))
+    hi = 1.0 if successes == n else float(beta.ppf(1 - a / 2, successes + 1, n - successes))
+    return lo, hi
+
+
+def effective_sample_size(values, axis: int = 0) -> np.ndarray:
+    """(Σx)²/Σx² of nonnegative values along `axis`: the number of equally weighted samples
+    that carry the same information about the mean. Far below the count when a few samples
+    dominate (heavy tails): a normal approximation of the sample mean is then not to be
+    trusted, whatever its estimated standard error says."""
+    x = np.abs(np.asarray(values, float))
+    s1, s2 = x.sum(axis=axis), np.square(x).sum(axis=axis)
+    return np.where(s2 > 0, s1 ** 2 / np.where(s2 > 0, s2, 1.0), x.shape[axis])

@@ -97,7 +97,7 @@ def run_point(payload: dict[str, Any]) -> dict[str, Any]:
     A numerical failure (a NaN or inf where the family needs a finite number) is a result of
     the point, not an error of the task: it is reported in the row and not retried.
     """
-    from .reproduction import RunOptions
+    from .reproduction import RunOptions, evaluate_claims
 
     reg = _registry()
     start = time.perf_counter()
@@ -110,7 +110,7 @@ def run_point(payload: dict[str, Any]) -> dict[str, Any]:
         except NumericalError as exc:
             return {"status": "numerical-error", "error": str(exc), "claims": [], "metrics": {},
                     "wall_s": time.perf_counter() - start, **where}
-    rows = [claim.evaluate(results) for claim in repro.claims()]
+    rows = evaluate_claims(repro, results).claims
     metrics = reg.family_metrics(payload["scenario"]["family"], results)
     return {"status": "ok", "error": "", "metrics": {k: float(v) for k, v in metrics.items()},
             "claims": [{k: r.get(k) for k in POINT_CLAIM_FIELDS} for r in rows],

@@ -29,6 +29,19 @@ FAMILY_EXAMPLES = {"random-comm-filter": "tanwani/example.toml",
                    "coestimation": "tran/paper.toml"}
 
 
+#: scenario family -> module with `EDGES` (names of edge cases) and `generate(seed, edge=None) -> dict`:
+#: random valid scenarios, small enough for a quick run, for the property tests and the calibration benchmark
+FAMILY_GENERATORS = {"random-comm-filter": "reproductions.tanwani.generators",
+                     "noisy-consensus-filter": "reproductions.savas.generators",
+                     "gossip-kalman": "reproductions.kar_moura.generators",
+                     "hybrid-observer": "reproductions.wang_liu_morse.generators",
+                     "coestimation": "reproductions.tran.generators"}
+
+
+def generator(family: str):
+    return importlib.import_module(FAMILY_GENERATORS[family])
+
+
 def paper(paper_id: str):
     return importlib.import_module(PAPERS[paper_id]).paper()
 

@@ -186,12 +186,69 @@ def test_erratum_logic():
     assert verify.erratum([1.0], [1.5], [2.0], rtol=1e-9).status == verify.FAIL
 
 
-def test_claim_that_raises_is_a_failure():
+def test_claim_that_raises_is_an_error_not_a_failure():
     claim = verify.Claim("x.y", "eq. (1)", "s", "identity", lambda r: 1 / 0)
     row = claim.evaluate(None)
-    assert row["verdict"] == "fail" and "ZeroDivisionError" in row["detail"]
+    assert row["verdict"] == "error" and "ZeroDivisionError" in row["detail"]
     with pytest.raises(ValueError):
         verify.Claim("x", "s", "s", "vibes", lambda r: None)
+    with pytest.raises(ValueError):
+        verify.Claim("x", "s", "s", "identity", lambda r: None, scope="elsewhere")
+
+
+def test_hypotheses_gate_conclusions_and_scope_filters_paper_claims():
+    hyps = [verify.Hypothesis("h.ok", "holds", lambda r: verify.Holds(True, 0.5, 1.0)),
+            verify.Hypothesis("h.no", "does not hold", lambda r: verify.Holds(False, 2.0, 1.0, "2 > 1")),
+            verify.Hypothesis("h.undecided", "cannot be decided", lambda r: verify.Holds(None, detail="NaN")),
+            verify.Hypothesis("h.broken", "raises", lambda r: [][1])]
+    failing = lambda r: verify.Verdict(verify.FAIL, measured=2.0, reference=1.0)
+    claims = [verify.Claim("c.ok", "s", "s", "inequality", failing, hypotheses=("h.ok",)),
+              verify.Claim("c.no", "s", "s", "inequality", failing, hypotheses=("h.ok", "h.no")),
+              verify.Claim("c.undecided", "s", "s", "inequality", failing, hypotheses=("h.undecided",)),
+              verify.Claim("c.broken", "s", "s", "inequality", failing, hypotheses=("h.broken",)),
+              verify.Claim("c.unknown", "s", "s", "inequality", failing, hypotheses=("h.missing",)),
+              verify.Claim("c.paper", "s", "s", "inequality", failing, scope="paper-example")]
+    ev = verify.evaluate(claims, hyps, None, paper_run=False)
+    got = {r["id"]: r["verdict"] for r in ev.claims}
+    assert got == {"c.ok": "fail", "c.no": "not-checkable", "c.undecided": "not-checkable", "c.broken": "error",
+                   "c.unknown": "error"}
+    assert "h.no does not hold" in ev.claims[1]["detail"] and "counterexample" in ev.claims[0]["detail"]
+    assert ev.omitted_paper_example == 1 and [h["holds"] for h in ev.hypotheses] == [True, False, None, None]
+    assert ev.hypotheses[3]["error"].startswith("IndexError")
+    assert {r["id"] for r in verify.evaluate(claims, hyps, None, paper_run=True).claims} >= {"c.paper"}
+
+
+def test_nan_is_never_a_failure():
+    assert verify.identity([np.nan], [1.0], rtol=1e-9).status == verify.NOT_CHECKABLE
+    assert verify.inequality([1.0], [np.inf]).status == verify.NOT_CHECKABLE
+    assert verify.statistical([1.0], [np.nan], [1.0], trials=100).status == verify.NOT_CHECKABLE
+    claim = verify.Claim("x", "s", "s", "identity", lambda r: verify.Verdict(verify.FAIL, measured=float("nan")))
+    assert claim.evaluate(None)["verdict"] == verify.NOT_CHECKABLE
+
+
+def test_family_wise_confidence_is_shared_by_the_statistical_claims():
+    seen = []
+
+    def check(r):
+        seen.append(verify.claim_confidence())
+        return verify.statistical([0.0], [1.0], [0.0], trials=100)
+
+    claims = [verify.Claim(f"s{i}", "s", "s", "statistical", check) for i in range(4)]
+    ev = verify.evaluate(claims, [], None, paper_run=True, family_confidence=0.99)
+    assert seen == [pytest.approx(1 - 0.01 / 4)] * 4 and ev.statistics["statistical_claims"] == 4
+    assert verify.statistical([0.0], [1.0], [0.0], trials=5, min_trials=10).status == verify.NOT_CHECKABLE
+
+
+def test_exact_tests_keep_their_level():
+    from pipeline import stats
+
+    rng = np.random.default_rng(0)
+    n, reps = 20, 20000   # a small sample: the χ² law is exact at any n
+    p = stats.chi2_two_sided_p(np.square(rng.standard_normal((reps, n))).sum(1), n)
+    lo, hi = stats.clopper_pearson(int((p < 0.05).sum()), reps, 0.999)
+    assert lo <= 0.05 <= hi
+    assert stats.effective_sample_size(np.ones(50)) == pytest.approx(50)
+    assert stats.effective_sample_size(np.r_[1e6, np.ones(50)]) < 1.001
 
 
 # -- atomic writes and the cache -------------------------------------------------------------------

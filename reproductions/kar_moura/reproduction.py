@@ -50,6 +50,9 @@ class GossipKalmanReproduction:
     def claims(self):
         return claims_mod.catalogue(self._roles, self.is_paper)
 
+    def hypotheses(self):
+        return []
+
     def trials(self, opts: RunOptions) -> int:
         return compute_mod.sizes(self.scenarios[0], opts)[0]
 

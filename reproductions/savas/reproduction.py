@@ -37,6 +37,9 @@ class NoisyConsensusReproduction:
 
         return claims.catalogue(self.is_paper)
 
+    def hypotheses(self):
+        return []
+
     def trials(self, opts: RunOptions) -> int:
         from . import compute
 

@@ -46,6 +46,9 @@ class RandomCommReproduction:
     def claims(self):
         return claims_mod.catalogue(self.paper_id, self.scenario_ids(), self.main, paper=self.is_paper)
 
+    def hypotheses(self):
+        return []
+
     def trials(self, opts: RunOptions) -> int:
         return max(compute_mod.trial_counts(sc, opts)[0] for sc in self.scenarios)
 

@@ -59,6 +59,9 @@ class CoestimationReproduction:
     def claims(self):
         return claims_mod.catalogue(self.is_paper)
 
+    def hypotheses(self):
+        return []
+
     def trials(self, opts: RunOptions) -> int:
         return compute_mod.trial_count(self.scenario, opts)
 

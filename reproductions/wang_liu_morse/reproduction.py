@@ -47,6 +47,9 @@ class HybridObserverReproduction:
     def claims(self):
         return claims_mod.catalogue(list(self.scenarios))
 
+    def hypotheses(self):
+        return []
+
     def trials(self, opts: RunOptions) -> int:
         return max(compute_mod.trial_count(sc, opts) for sc in self.scenarios.values())
 
