@@ -7,7 +7,9 @@ bandwidth), ``estimators`` (every estimator, batched vs a per-trial loop, µs pe
 ``bounds`` (the deterministic computations against a naive version), ``scale`` (Monte Carlo
 stages at the papers' scale), ``record`` (rerun write throughput), ``reproduce`` (wall time and
 peak memory of `dse reproduce` per paper, cold and warm cache), ``sweep`` (a 1,000-point `dse sweep`
-in process and on a local Dask cluster with 1 and 2 workers). ``--quick``: fewer repeats and
+in process and on a local Dask cluster with 1 and 2 workers), ``calibration`` (every statistical
+claim on 200 random valid scenarios per family: observed false-fail rate at α = 0.05 with its
+exact interval, and fails at the report's own confidence). ``--quick``: fewer repeats and
 sizes, quick reproductions only (a smoke test of the whole harness, a few minutes).
 
 Every figure is a median over repeats with its (min, max). Benchmarks are measurements, not
@@ -34,10 +36,11 @@ from typing import Callable  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from .bench_calibration import bench_calibration  # noqa: E402
 from .bench_sweep import bench_sweep_scaling  # noqa: E402
 from .common import bound_row, estimator_row, spread, timed  # noqa: E402
 
-SECTIONS = ("floor", "estimators", "bounds", "scale", "record", "reproduce", "sweep")
+SECTIONS = ("floor", "estimators", "bounds", "scale", "record", "reproduce", "sweep", "calibration")
 TITLES = {
     "floor": "What the machine allows (floors behind the per-step targets)",
     "estimators": "Estimators side by side: batched vs a straightforward per-trial loop",
@@ -46,6 +49,7 @@ TITLES = {
     "record": "Rerun write throughput (project helpers, `pipeline.record.send_series`)",
     "reproduce": "`dse reproduce PAPER`: wall time and peak memory, cold and warm cache",
     "sweep": "`dse sweep` scaling: the same 1,000-point sweep in process and on 1 and 2 Dask workers",
+    "calibration": "Statistical claims on random valid scenarios (quick sample sizes): false-fail rate at α = 0.05",
 }
 
 
@@ -263,9 +267,11 @@ def main(argv: list[str] | None = None) -> int:
                    "scale": lambda: bench_scale(args.quick, repeats),
                    "reproduce": lambda: bench_reproductions(args.quick, repeats, replay_dir),
                    "record": lambda: bench_records(args.quick, repeats, replay_dir),
-                   "sweep": lambda: bench_sweep_scaling(points=100 if args.quick else 1000)}
+                   "sweep": lambda: bench_sweep_scaling(points=100 if args.quick else 1000),
+                   "calibration": lambda: bench_calibration(seeds=20 if args.quick else 200)}
         # reproduce before record: the recording replay uses the reproductions' recordings
-        for key in sorted(only, key=lambda s: ("floor", "estimators", "bounds", "scale", "reproduce", "record", "sweep").index(s)):
+        order = ("floor", "estimators", "bounds", "scale", "reproduce", "record", "sweep", "calibration")
+        for key in sorted(only, key=order.index):
             print(f"[bench] {key} ...", file=sys.stderr, flush=True)
             t0 = time.perf_counter()
             try:
@@ -329,6 +335,13 @@ def _targets(results: dict[str, list[dict]]) -> list[str]:
         if "speedup_vs_1_worker" in r:
             lines.append(f"| dse sweep, {r['points']} points: 2 workers close to half the wall time of 1 | "
                          f"speed-up {_fmt(r['speedup_vs_1_worker'])} | {'yes' if r['speedup_vs_1_worker'] >= 1.7 else '**no**'} |")
+    calib = [r for r in results.get("calibration", []) if "tested" in r]
+    if calib:
+        bad = [r for r in calib if not r["calibrated"]]
+        worst = max(calib, key=lambda r: r["rate"] if r["tested"] else -1)
+        lines.append(f"| statistical claims keep their level on random valid scenarios (no 95 % interval of the false-fail "
+                     f"rate wholly above 0.05; {len(calib)} claims) | worst {worst['claim']}: {_fmt(worst['rate'])} "
+                     f"| {'yes' if not bad else '**no** (' + ', '.join(r['claim'] for r in bad[:5]) + ')'} |")
     return lines + [""]
 
 

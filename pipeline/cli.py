@@ -53,13 +53,51 @@ def _registry():
 
 def cmd_list(args) -> int:
     reg = _registry()
+    wanted = set(args.which)
+    known = set(reg.PAPERS) | set(reg.FAMILIES)
+    if wanted - known:
+        raise ScenarioError("PAPER", f"unknown paper or family {', '.join(sorted(wanted - known))} "
+                                     f"(papers: {', '.join(reg.PAPERS)}; families: {', '.join(reg.FAMILIES)})")
+    family_of = {module: family for family, module in reg.FAMILIES.items()}
     for pid in reg.PAPERS:
+        family = family_of.get(reg.PAPERS[pid], "")
+        if wanted and not wanted & {pid, family}:
+            continue
         repro = reg.paper(pid)
-        print(f"{pid}: {repro.title}")
+        print(f"{pid} (family {family}): {repro.title}")
         print(f"  scenarios: {', '.join(repro.scenario_ids())}")
+        for h in repro.hypotheses():
+            print(f"  hypothesis {h.id}: {h.statement}")
         for claim in repro.claims():
-            print(f"  {claim.id:<34} {claim.kind:<12} {claim.source}")
-    print("\nscenario families for `dse run FILE.toml` (family = ...):", ", ".join(reg.FAMILIES))
+            scope = " [paper example]" if claim.scope == "paper-example" else ""
+            print(f"  {claim.id:<40} {claim.kind:<12} {claim.source}{scope}")
+    if not wanted:
+        print("\nscenario families for `dse run FILE.toml` (family = ...):", ", ".join(reg.FAMILIES))
+    return 0
+
+
+def cmd_check(args) -> int:
+    from . import api
+
+    result = api.check(args.file, seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers)
+    repro = result.reproduction
+    print(f"{args.file}: valid scenario '{repro.paper_id}' ({repro.title})")
+    print("hypotheses:")
+    for h in result.hypotheses:
+        mark = "error" if h["error"] else {True: "holds", False: "FAILS", None: "undecided"}[h["holds"]]
+        print(f"  {mark:<9} {h['id']}: {h['statement']}; value {h['value']}, threshold {h['threshold']}. {h['detail']}")
+    print("design quantities:")
+    import pandas as pd
+
+    with pd.option_context("display.max_rows", 40, "display.width", 160, "display.precision", 10):
+        for name in result.tables:
+            frame = result.tables[name]
+            print(f"  [{name}] {len(frame)} rows: one per {result.tables.specs[name].row}")
+            if len(frame) <= 40:
+                print("    " + frame.to_string(index=False).replace("\n", "\n    "))
+    est = result.estimate
+    print(f"estimate: about {est['seconds']:.3g} s and {est['peak_memory_mib']:.0f} MiB peak memory "
+          f"({est.get('detail', '')})")
     return 0
 
 
@@ -131,7 +169,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="dse", description="Reproductions of distributed state estimation papers.",
                                      epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
-    sub.add_parser("list", help="papers, scenarios and claims").set_defaults(func=cmd_list)
+    lst = sub.add_parser("list", help="papers, scenarios, hypotheses and claims")
+    lst.add_argument("which", nargs="*", metavar="PAPER|FAMILY", help="only these papers or scenario families")
+    lst.set_defaults(func=cmd_list)
 
     def run_flags(p):
         p.add_argument("--quick", action="store_true", help="fewer trials and coarser grids (for tests)")
@@ -155,6 +195,14 @@ def build_parser() -> argparse.ArgumentParser:
     user.add_argument("file", metavar="FILE.toml")
     run_flags(user)
     user.set_defaults(func=cmd_run)
+    chk = sub_parser("check", help="validate a scenario; print its hypotheses, design quantities and the run's "
+                                   "estimated time and memory, without simulating")
+    chk.add_argument("file", metavar="FILE.toml")
+    chk.add_argument("--quick", action="store_true", help="estimate for a --quick run")
+    chk.add_argument("--trials", type=_positive_int, default=None, help="estimate for this many trials per cell")
+    chk.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
+    chk.add_argument("--workers", type=_positive_int, default=2, help="worker processes (default 2)")
+    chk.set_defaults(func=cmd_check)
     ver = sub_parser("verify", help="re-check claims from cached results, without simulating")
     ver.add_argument("out_dir", metavar="OUT_DIR")
     strict_flag(ver)

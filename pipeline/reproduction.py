@@ -8,18 +8,13 @@ verify and writes the report; it knows nothing of any one paper.
 from __future__ import annotations
 
 import json
-import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, Sequence
 
-from .atomic import atomic_write_text
 from .cache import StageCache
 from .errors import OutputError
-from .provenance import provenance
-from .report import verdict_counts, write_report
-from .simulate import peak_memory_mib
 from .verify import Claim, Evaluation, Hypothesis, evaluate
 
 
@@ -72,34 +67,56 @@ def cache_for(out_root: Path, paper_id: str, *, read_only: bool = False) -> Stag
 
 def run(repro: Reproduction, out_root: Path, opts: RunOptions, *, out_dir: Path | None = None,
         source: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Compute, verify, write figures, recordings and the report; return the summary counts."""
+    """Compute, verify, write tables, figures, recordings and the report; return the summary counts."""
+    from .api import execute
+
     out_dir = out_dir or out_root / repro.paper_id
-    check_output_dir(out_dir)
+    check_output_dir(out_root)
+    result = execute(repro, opts, cache_dir=cache_for(out_root, repro.paper_id).root, source=source)
     start = time.perf_counter()
-    results = repro.compute(opts, cache_for(out_root, repro.paper_id))
-    ev = evaluate_claims(repro, results)
-    prov = provenance(seed=opts.seed, trials=repro.trials(opts), quick=opts.quick, workers=opts.workers)
-    repro.write_outputs(results, out_dir, ev.claims, prov)
-    prov["wall_s"] = time.perf_counter() - start
-    prov["peak_memory_mib"] = peak_memory_mib()
-    write_report(out_dir, paper=repro.paper_id, title=repro.title, evaluation=ev, provenance=prov, notes=repro.notes())
-    atomic_write_text(out_dir / "run.json", json.dumps({"paper": repro.paper_id, "options": asdict(opts),
-                                                         "out_root": os.path.relpath(out_root, out_dir), "scenario": source}, indent=1))
-    return {"paper": repro.paper_id, **verdict_counts(ev.claims), "wall_s": prov["wall_s"]}
+    result.write(out_dir, out_root=out_root)
+    return {"paper": repro.paper_id, **result.counts, "wall_s": result.provenance["compute_s"] + time.perf_counter() - start}
 
 
 def evaluate_claims(repro: Reproduction, results: Any, **confidence) -> Evaluation:
     """The hypotheses and claims of one computed run (the paper's own example claims only in
     the paper's reproduction); `confidence`: see `pipeline.verify.evaluate`."""
-    return evaluate(repro.claims(), repro.hypotheses(), results, paper_run=repro.is_paper, **confidence)
+    design_of = getattr(repro, "design_of", None)
+    return evaluate(repro.claims(), repro.hypotheses(), results, paper_run=repro.is_paper,
+                    design=design_of(results) if design_of is not None else None, **confidence)
+
+
+#: relative tolerance of `dse verify` on re-computed numbers: the cached stage results are the same
+#: bits, so a claim's numbers differ only if the checking code changed (or BLAS reorders a sum)
+REVERIFY_RTOL = 1e-9
 
 
 def reverify(repro: Reproduction, out_root: Path, out_dir: Path) -> tuple[list[dict], list[str]]:
-    """Re-check every claim from cached stage results only; list differences from report.json."""
+    """Re-check every claim from cached stage results only; list every difference from report.json
+    in verdict, measured, reference or margin (numbers within REVERIFY_RTOL)."""
     opts = RunOptions(**json.loads((out_dir / "run.json").read_text())["options"])
     results = repro.compute(opts, cache_for(out_root, repro.paper_id, read_only=True))
     rows = evaluate_claims(repro, results).claims
-    stored = {r["id"]: r["verdict"] for r in json.loads((out_dir / "report.json").read_text())["claims"]}
-    diffs = [f"{r['id']}: report says {stored.get(r['id'])}, re-check gives {r['verdict']}"
-             for r in rows if stored.get(r["id"]) != r["verdict"]]
+    stored = {r["id"]: r for r in json.loads((out_dir / "report.json").read_text())["claims"]}
+    diffs = []
+    for r in rows:
+        old = stored.pop(r["id"], None)
+        if old is None:
+            diffs.append(f"{r['id']}: not in report.json (re-check gives {r['verdict']})")
+            continue
+        if old["verdict"] != r["verdict"]:
+            diffs.append(f"{r['id']}: report says {old['verdict']}, re-check gives {r['verdict']}")
+        for key in ("measured", "reference", "margin"):
+            if not same_number(old.get(key), r.get(key)):
+                diffs.append(f"{r['id']}: {key} {old.get(key)!r} in report.json, {r.get(key)!r} re-checked")
+    diffs += [f"{cid}: in report.json, not re-checked" for cid in stored]
     return rows, diffs
+
+
+def same_number(a: Any, b: Any, rtol: float = REVERIFY_RTOL) -> bool:
+    """Equal numbers (within rtol), lists of them elementwise, anything else by equality."""
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(same_number(x, y, rtol) for x, y in zip(a, b))
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+        return a == b or abs(a - b) <= rtol * max(abs(a), abs(b))
+    return a == b

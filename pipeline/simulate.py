@@ -57,8 +57,10 @@ def block_generator(seed: np.random.SeedSequence) -> np.random.Generator:
 
 
 def _ignore_sigint() -> None:
-    """Workers leave Ctrl-C to the parent, which stops them (no traceback per worker)."""
+    """Workers leave Ctrl-C to the parent, which stops them (no traceback per worker), and die
+    at once on SIGTERM (the parent's handler, inherited through fork, would unwind them)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def parallel_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, desc: str = "") -> list[R]:

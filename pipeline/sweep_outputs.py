@@ -23,8 +23,9 @@ from . import record
 from .atomic import atomic_path
 from .figures import new_figure, save_figure, sequential_colors
 from .sweep_spec import SweepSpec
+from .verify import STATUSES
 
-STATUS_COUNTS = ("pass", "fail", "erratum", "not-checkable")
+STATUS_COUNTS = STATUSES
 CLAIM_COLUMNS = ("verdict", "margin", "measured", "reference")
 MAX_PLOTTED_METRICS = 6
 #: more curves than this and the viewer's legend would cover the plot: the names show on hover

@@ -94,7 +94,9 @@ class Holds:
 
 @dataclass(frozen=True)
 class Hypothesis:
-    """A condition some claims rest on. `check(results) -> Holds`."""
+    """A condition some claims rest on. `check(design) -> Holds`, where `design` is the run's
+    deterministic design stage when the family has one (`Reproduction.design_of(results)`),
+    so that `dse check` can evaluate it without simulating; else the run's results."""
 
     id: str
     statement: str
@@ -174,12 +176,16 @@ class Evaluation:
 
 
 def evaluate(claims: Sequence[Claim], hypotheses: Sequence[Hypothesis], results: Any, *, paper_run: bool,
-             family_confidence: float = FAMILY_CONFIDENCE, per_claim_confidence: float | None = None) -> Evaluation:
+             family_confidence: float = FAMILY_CONFIDENCE, per_claim_confidence: float | None = None,
+             design: Any = None) -> Evaluation:
     """Hypotheses first, then every claim in scope, with a shared family-wise confidence.
+
+    Hypotheses are evaluated on `design` when given (the run's deterministic design stage,
+    which `dse check` computes without simulating), else on `results`.
 
     `per_claim_confidence` replaces the Bonferroni share (the calibration benchmark runs
     every statistical claim at one fixed level to measure its false-fail rate)."""
-    hyp_rows = [h.evaluate(results) for h in hypotheses]
+    hyp_rows = [h.evaluate(results if design is None else design) for h in hypotheses]
     by_id = {r["id"]: r for r in hyp_rows}
     if len(by_id) != len(hyp_rows):
         raise ValueError("duplicate hypothesis ids")

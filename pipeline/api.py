@@ -1,0 +1,259 @@
+"""The Python entry point: load a scenario, run it, read hypotheses, claims and tables.
+
+    import dse                                   # the same functions as pipeline.api
+    run = dse.run("ring8.toml", trials=5000, seed=1)      # or a dict, or dse.paper("savas")
+    run.counts                                   # {'pass': 30, 'fail': 0, ...}
+    run.hypotheses                               # DataFrame: id, statement, holds, value, threshold, detail
+    run.claims                                   # DataFrame: id, verdict, measured, reference, margin, ...
+    run.tables["nodes"]                          # DataFrame; run.tables.describe("nodes") gives units
+    run.write("out/run/ring8")                   # report, tables, figures, recordings (only when asked)
+
+Nothing is written unless `write` is called or a `cache_dir` is given (the stage cache
+that lets a later run resume). The `dse` command line is a thin layer over these functions.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from .atomic import atomic_write_text
+from .cache import StageCache
+from .errors import OutputError
+from .provenance import provenance
+from .reproduction import Reproduction, RunOptions, evaluate_claims
+from .report import verdict_counts, write_report
+from .simulate import peak_memory_mib
+from .tables import Tables, spec
+from .verify import Evaluation
+
+
+def load(source: str | os.PathLike | Mapping[str, Any]) -> Reproduction:
+    """A validated scenario of a supported family, from a TOML file or a dict with `family`.
+
+    Raises `ScenarioError` (one line naming the field) on invalid input."""
+    import reproductions
+
+    from .scenario import load_toml
+
+    data = dict(source) if isinstance(source, Mapping) else load_toml(source)
+    return reproductions.family_from_dict(data)
+
+
+def paper(paper_id: str) -> Reproduction:
+    """A paper's own reproduction (`dse list` shows the ids)."""
+    import reproductions
+
+    from .errors import ScenarioError
+
+    if paper_id not in reproductions.PAPERS:
+        raise ScenarioError("PAPER", f"unknown paper {paper_id} (known: {', '.join(reproductions.PAPERS)})")
+    return reproductions.paper(paper_id)
+
+
+@dataclass
+class Run:
+    """A computed and checked run. DataFrames are built on first access."""
+
+    reproduction: Reproduction
+    options: RunOptions
+    results: Any = field(repr=False)
+    evaluation: Evaluation = field(repr=False)
+    tables: Tables = field(repr=False)
+    provenance: dict[str, Any] = field(repr=False)
+    source: dict[str, Any] | None = field(default=None, repr=False)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return verdict_counts(self.evaluation.claims)
+
+    @property
+    def claims(self):
+        return self.tables["claims"]
+
+    @property
+    def hypotheses(self):
+        return self.tables["hypotheses"]
+
+    def write(self, out_dir: str | os.PathLike, *, out_root: str | os.PathLike | None = None) -> Path:
+        """Write report.json/md, tables/, figures and recordings into `out_dir`, replacing what a
+        previous run left there in one step (a fresh directory renamed into place)."""
+        out_dir = Path(out_dir)
+        staging = _staging_dir(out_dir)
+        try:
+            start = time.perf_counter()
+            self.tables.write(staging / "tables")
+            self.reproduction.write_outputs(self.results, staging, self.evaluation.claims, self.provenance)
+            write_s = time.perf_counter() - start
+            prov = {**self.provenance, "write_s": write_s, "wall_s": self.provenance["compute_s"] + write_s,
+                    "peak_memory_mib": peak_memory_mib()}
+            write_report(staging, paper=self.reproduction.paper_id, title=self.reproduction.title,
+                         evaluation=self.evaluation, provenance=prov, notes=self.reproduction.notes())
+            root = Path(out_root) if out_root is not None else None
+            atomic_write_text(staging / "run.json", json.dumps({
+                "paper": self.reproduction.paper_id, "options": asdict(self.options),
+                "out_root": os.path.relpath(root, out_dir) if root is not None else None,
+                "scenario": self.source}, indent=1))
+            _replace_dir(staging, out_dir)
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+        return out_dir
+
+
+def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLike | None = None,
+            source: dict[str, Any] | None = None) -> Run:
+    """Compute (through the stage cache when `cache_dir` is given), verify and tabulate."""
+    start = time.perf_counter()
+    if cache_dir is None:
+        with tempfile.TemporaryDirectory(prefix="dse-cache-") as tmp:
+            results = repro.compute(opts, StageCache(Path(tmp)))
+    else:
+        results = repro.compute(opts, StageCache(Path(cache_dir)))
+    ev = evaluate_claims(repro, results)
+    tables = evaluation_tables(ev)
+    family_tables = getattr(repro, "tables", None)
+    if family_tables is not None:
+        for table_spec, frame in family_tables(results):
+            tables.add(table_spec, frame)
+    prov = provenance(seed=opts.seed, trials=repro.trials(opts), quick=opts.quick, workers=opts.workers)
+    prov["compute_s"] = time.perf_counter() - start
+    prov["wall_s"] = prov["compute_s"]
+    prov["peak_memory_mib"] = peak_memory_mib()
+    return Run(repro, opts, results, ev, tables, prov, source)
+
+
+def run(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,
+        quick: bool = False, workers: int = 1, cache_dir: str | os.PathLike | None = None) -> Run:
+    """Load (unless given a reproduction), compute, verify and tabulate one scenario."""
+    if isinstance(source, (str, os.PathLike, Mapping)):
+        data = dict(source) if isinstance(source, Mapping) else None
+        repro = load(source)
+        if data is None:
+            from .scenario import load_toml
+
+            data = load_toml(source)
+    else:
+        repro, data = source, None
+    return execute(repro, RunOptions(seed=seed, trials=trials, quick=quick, workers=workers), cache_dir=cache_dir,
+                   source=data)
+
+
+# -- the tables every run has ---------------------------------------------------------------------------
+
+HYPOTHESES = spec("hypotheses", "hypothesis a claim of this run rests on", [
+    ("id", "", "hypothesis id"), ("statement", "", "what must hold"),
+    ("holds", "", "true / false; empty when it could not be decided"),
+    ("value", "as stated", "the number that decides it (JSON when not a single number)"),
+    ("threshold", "as stated", "what the value is compared with (JSON when not a single number)"),
+    ("detail", "", "how it was decided"), ("error", "", "non-empty when the check raised (a defect of ours)")])
+
+CLAIMS = spec("claims", "claim of the paper checked on this run", [
+    ("id", "", "claim id"), ("source", "", "where the paper states it"), ("statement", "", "the claim"),
+    ("kind", "", "identity, inequality, statistical or qualitative"),
+    ("scope", "", "family (any scenario) or paper-example"),
+    ("hypotheses", "", "ids of the hypotheses the conclusion rests on, comma-separated"),
+    ("verdict", "", "pass, fail, erratum, not-checkable or error"),
+    ("measured", "as stated", "the headline measured number (worst case); NaN when not a single number"),
+    ("reference", "as stated", "what it is compared with; NaN when not a single number"),
+    ("tolerance", "as stated", "the tolerance or threshold the check derived"),
+    ("margin", "as stated", "slack left (positive: holds); for statistical checks the z or log10 p budget left"),
+    ("confidence", "1", "confidence of a statistical check (its share of the report's family-wise confidence)"),
+    ("trials", "1", "Monte Carlo trials behind a statistical check"),
+    ("printed", "as stated", "for an erratum: what the printed statement gives"),
+    ("corrected", "as stated", "for an erratum: what the documented correction gives"),
+    ("measured_json", "", "the measured value as JSON when it is not a single number"),
+    ("reference_json", "", "the reference value as JSON when it is not a single number"),
+    ("detail", "", "how the check was done and what it found")])
+
+
+def _scalar(x: Any) -> float:
+    if isinstance(x, bool):
+        return float(x)
+    if isinstance(x, (int, float)):
+        return float(x)
+    if isinstance(x, str) and x in ("nan", "inf", "-inf"):
+        return float(x)
+    return float("nan")
+
+
+def _json(x: Any) -> str:
+    return "" if x is None or isinstance(x, (int, float)) else json.dumps(x, ensure_ascii=False)
+
+
+def evaluation_tables(ev: Evaluation) -> Tables:
+    import pandas as pd
+
+    t = Tables()
+    t.add(HYPOTHESES, pd.DataFrame([{
+        "id": h["id"], "statement": h["statement"], "holds": h["holds"],
+        "value": _scalar(h["value"]) if not isinstance(h["value"], (list, dict)) else float("nan"),
+        "threshold": _scalar(h["threshold"]) if not isinstance(h["threshold"], (list, dict)) else float("nan"),
+        "detail": h["detail"] + (f" value = {_json(h['value'])}" if isinstance(h["value"], (list, dict)) else ""),
+        "error": h["error"]} for h in ev.hypotheses], columns=HYPOTHESES.column_names).astype({"holds": "boolean"}))
+    t.add(CLAIMS, pd.DataFrame([{
+        "id": r["id"], "source": r["source"], "statement": r["statement"], "kind": r["kind"], "scope": r["scope"],
+        "hypotheses": ",".join(r["hypotheses"]), "verdict": r["verdict"],
+        "measured": _scalar(r.get("measured")), "reference": _scalar(r.get("reference")),
+        "tolerance": _scalar(r.get("tolerance")), "margin": _scalar(r.get("margin")),
+        "confidence": _scalar(r.get("confidence")), "trials": _scalar(r.get("trials")),
+        "printed": _scalar(r.get("printed")), "corrected": _scalar(r.get("corrected")),
+        "measured_json": _json(r.get("measured")), "reference_json": _json(r.get("reference")),
+        "detail": r.get("detail", "")} for r in ev.claims], columns=CLAIMS.column_names))
+    return t
+
+
+# -- output directories replaced in one step ---------------------------------------------------------------
+
+def _staging_dir(out_dir: Path) -> Path:
+    try:
+        out_dir.parent.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.staging-", dir=out_dir.parent))
+    except OSError as exc:
+        raise OutputError(f"output directory {out_dir.parent} is not usable: {exc.strerror or exc}") from None
+
+
+def _replace_dir(staging: Path, out_dir: Path) -> None:
+    """Move `staging` to `out_dir`; a previous `out_dir` is moved aside first and then removed,
+    so that at no moment does `out_dir` hold a mix of two runs."""
+    old = None
+    if out_dir.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
+        os.replace(out_dir, old / "x")
+    os.replace(staging, out_dir)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+# -- `dse check`: hypotheses, design quantities and the cost of a run, without simulating -----------------
+
+@dataclass
+class Check:
+    """What `check` found: the hypotheses (rows as in report.json), the design tables, and the
+    estimated wall time (s) and peak memory (MiB) of the run with these options."""
+
+    reproduction: Reproduction
+    options: RunOptions
+    hypotheses: list[dict[str, Any]]
+    tables: Tables
+    estimate: dict[str, Any]
+
+
+def check(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,
+          quick: bool = False, workers: int = 1) -> Check:
+    """Validate a scenario and compute only its deterministic design stage (no Monte Carlo).
+
+    A family provides `design(opts)` (the quantities its hypotheses and bounds are made of),
+    `design_tables(design)` and `estimate(opts)`; its hypotheses are evaluated on the design."""
+    repro = load(source) if isinstance(source, (str, os.PathLike, Mapping)) else source
+    opts = RunOptions(seed=seed, trials=trials, quick=quick, workers=workers)
+    design = repro.design(opts)
+    hyps = [h.evaluate(design) for h in repro.hypotheses()]
+    tables = Tables()
+    for table_spec, frame in repro.design_tables(design):
+        tables.add(table_spec, frame)
+    return Check(repro, opts, hyps, tables, repro.estimate(opts))
