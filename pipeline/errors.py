@@ -1,4 +1,12 @@
 """Exceptions the command line turns into one clear line and an exit code."""
+import unicodedata
+
+
+def printable(text: str) -> str:
+    """`text` with control, format (bidirectional overrides, zero-width) and unassigned
+    characters escaped as \\uXXXX, so that a message echoing user input stays one honest line."""
+    return "".join(f"\\u{ord(c):04x}" if unicodedata.category(c) in ("Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp")
+                   else c for c in str(text))
 
 
 class ScenarioError(ValueError):
@@ -9,9 +17,9 @@ class ScenarioError(ValueError):
     """
 
     def __init__(self, field: str, reason: str):
-        self.field = field
-        self.reason = reason
-        super().__init__(f"{field}: {reason}")
+        self.field = printable(field)
+        self.reason = printable(reason)
+        super().__init__(f"{self.field}: {self.reason}")
 
     def __reduce__(self):  # raised in a worker process, it must survive pickling
         return (ScenarioError, (self.field, self.reason))

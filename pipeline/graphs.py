@@ -7,11 +7,13 @@ Nodes are always the integers 0..n-1. Graph kinds: ``line`` (path), ``ring``, ``
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Literal, Mapping
 
 import networkx as nx
 import numpy as np
+from pydantic import model_validator
 
+from .declare import Real, Section, key
 from .errors import ScenarioError
 from .scenario import as_float, as_int, as_list, as_str, join, reject_unknown, section
 
@@ -190,3 +192,74 @@ def consensus_matrix_from_dict(data: Mapping[str, Any], field: str, G: nx.Graph)
             raise ScenarioError(join(field, "matrix"), f"entry [{i}][{j}] is nonzero but ({i},{j}) is not an edge")
     check_consensus_matrix(Q, join(field, "matrix") if kind == "matrix" else field)
     return Q
+
+
+# -- the [graph] and [consensus] tables, declared once for every family ------------------------------------
+
+class GraphSection(Section):
+    """The communication graph on nodes 0..n-1. Edges are undirected; self-loops and repeated
+    edges (also reversed, [1, 0] after [0, 1]) are rejected; whether a disconnected graph is
+    accepted is up to the family (see its `connected` rule)."""
+
+    kind: Literal[GRAPH_KINDS] = key(doc="line (path), ring, grid (rows x cols lattice), complete, "  # type: ignore[valid-type]
+                                         "random_geometric (unit square, seeded) or edges (an explicit list)")
+    n: int | None = key(None, doc="number of nodes (every kind but grid)", ge=1, le=MAX_NODES,
+                        constraint="required unless kind = grid; a ring needs n >= 3")
+    rows: int | None = key(None, doc="lattice rows (kind = grid)", ge=1, le=MAX_NODES)
+    cols: int | None = key(None, doc="lattice columns (kind = grid)", ge=1, le=MAX_NODES,
+                           constraint=f"rows x cols <= {MAX_NODES}")
+    radius: Real | None = key(None, doc="connection radius in the unit square (kind = random_geometric)", gt=0,
+                              unit="unit-square lengths")
+    seed: int | None = key(None, doc="seed of the random node positions (kind = random_geometric; default 0)", ge=0)
+    edges: list[list[int]] | None = key(None, doc="undirected edges as pairs [u, v] of node indices (kind = edges)")
+
+    @model_validator(mode="after")
+    def _kind_rules(self):
+        needs = {"line": {"n"}, "ring": {"n"}, "complete": {"n"}, "grid": {"rows", "cols"},
+                 "random_geometric": {"n", "radius"}, "edges": {"n", "edges"}}[self.kind]
+        optional = {"seed"} if self.kind == "random_geometric" else set()
+        for name in ("n", "rows", "cols", "radius", "seed", "edges"):
+            given = getattr(self, name) is not None
+            if name in needs and not given:
+                raise ScenarioError(name, f"missing (needed for kind '{self.kind}')")
+            if given and name not in needs | optional:
+                raise ScenarioError(name, f"not a key of kind '{self.kind}'")
+        if self.kind == "ring" and self.n < 3:
+            raise ScenarioError("n", "a ring needs at least 3 nodes")
+        if self.kind == "grid" and self.rows * self.cols > MAX_NODES:
+            raise ScenarioError("rows", f"rows x cols = {self.rows * self.cols} nodes, more than the supported {MAX_NODES}")
+        if self.kind == "edges":
+            seen: dict[tuple[int, int], int] = {}
+            for i, e in enumerate(self.edges):
+                if len(e) != 2:
+                    raise ScenarioError(f"edges[{i}]", "each edge must be a pair [u, v]")
+                u, v = e
+                if not (0 <= u < self.n and 0 <= v < self.n):
+                    raise ScenarioError(f"edges[{i}]", f"node indices must be in 0..{self.n - 1}, got {e}")
+                if u == v:
+                    raise ScenarioError(f"edges[{i}]", f"self-loop at node {u} is not allowed")
+                pair = (min(u, v), max(u, v))
+                if pair in seen:
+                    raise ScenarioError(f"edges[{i}]", f"repeats edge {list(self.edges[seen[pair]])} (edges[{seen[pair]}]); "
+                                                        "edges are undirected and listed once")
+                seen[pair] = i
+        return self
+
+    def spec(self) -> GraphSpec:
+        if self.kind == "grid":
+            return GraphSpec("grid", self.rows * self.cols, rows=self.rows, cols=self.cols)
+        return GraphSpec(self.kind, self.n, radius=self.radius or 0.0, seed=self.seed or 0,
+                         edges=tuple(sorted((min(u, v), max(u, v)) for u, v in self.edges or ())))
+
+
+def graph_from_section(section: Any, field: str = "graph", *, connected: bool = True, min_nodes: int = 2) -> GraphSpec:
+    """The graph of a declared `[graph]` table, with the project's one policy for degenerate
+    networks: at least `min_nodes` nodes, and connected unless the family states that a
+    disconnected network is meaningful for it (then connectivity is a hypothesis it reports)."""
+    spec = section.spec()
+    if spec.n < min_nodes:
+        raise ScenarioError(join(field, "n"), f"a network needs at least {min_nodes} nodes, got {spec.n}")
+    if connected and not nx.is_connected(spec.build()):
+        raise ScenarioError(field, "graph is not connected (the theorems need a connected graph)")
+    return spec
+

@@ -1,0 +1,20 @@
+"""docs/scenarios.md is generated from the declared keys and must match them."""
+from pipeline import scenario_docs
+
+
+def test_scenarios_page_matches_the_declarations():
+    assert scenario_docs.PAGE.read_text() == scenario_docs.page(), \
+        "docs/scenarios.md is out of date: run `.venv/bin/python -m pipeline.scenario_docs`"
+
+
+def test_every_key_is_documented():
+    import importlib
+
+    import reproductions
+    from pipeline.declare import reference_rows
+
+    for family, module in reproductions.FAMILIES.items():
+        model = importlib.import_module(module).SCENARIO_MODEL
+        for path, rows, _ in reference_rows(model):
+            for row in rows:
+                assert row["meaning"].strip(), f"{family}: key {path}.{row['key']} has no meaning"
