@@ -19,8 +19,8 @@ POLICY = """## Rules common to every family
 - A scenario file is TOML with `family = "<family>"` and an optional `name` (letters, digits,
   `-` and `_`, at most 64 characters; it names the output directory `OUT/run/<name>/`).
 - Unknown keys are errors (a typo never falls back to a default). Numbers must be finite and of
-  magnitude at most 1e100; integers are not accepted where a number must be an integer and a
-  float is given, and strings are never converted to numbers.
+  magnitude at most 1e100; where an integer is required a float is rejected (write 3, not 3.0);
+  strings are never converted to numbers.
 - Graphs: nodes are 0..n-1; edges are undirected and listed once; self-loops and repeated edges
   (also reversed) are rejected. A network has at least 2 nodes. A family whose theorems need a
   connected graph rejects a disconnected one; a family for which a disconnected network is
