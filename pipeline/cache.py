@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import shutil
 import sys
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -72,16 +73,17 @@ class StageCache:
         try:
             meta = json.loads(meta_path.read_text())
             raw = data_path.read_bytes()
-            if hashlib.sha256(raw).hexdigest() != meta["sha256"]:
+            if not isinstance(meta, dict) or hashlib.sha256(raw).hexdigest() != meta.get("sha256"):
                 raise ValueError("checksum mismatch")
             with np.load(io.BytesIO(raw), allow_pickle=False) as npz:
                 return {k: npz[k] for k in npz.files}
-        except (ValueError, KeyError, OSError, json.JSONDecodeError) as exc:
-            self.corrupt_entries.append(f"{key}: {exc}")
-            print(f"dse: cache entry {key} is corrupt ({exc}); recomputing", file=sys.stderr)
+        except Exception as exc:  # any damage to an entry (truncated, edited, replaced by a directory) means: recompute
+            reason = f"{type(exc).__name__}: {exc}" if not isinstance(exc, ValueError) else str(exc)
+            self.corrupt_entries.append(f"{key}: {reason}")
+            print(f"dse: cache entry {key} is damaged ({reason}); recomputing", file=sys.stderr)
             if not self.read_only:
                 for p in (meta_path, data_path):
-                    p.unlink(missing_ok=True)
+                    remove_path(p)
             return None
 
     def save(self, stage: str, params: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
@@ -92,6 +94,9 @@ class StageCache:
         buf = io.BytesIO()
         np.savez(buf, **arrays)
         raw = buf.getvalue()
+        for p in (data_path, meta_path):
+            if p.is_dir():
+                remove_path(p)
         atomic_write_bytes(data_path, raw)
         atomic_write_text(meta_path, json.dumps({"stage": stage, "params": json.loads(canonical_json(params)),
                                                  "sha256": hashlib.sha256(raw).hexdigest()}, indent=1))
@@ -111,6 +116,14 @@ class StageCache:
         check_finite(arrays, stage=stage, scenario=scenario, allow=allow_nonfinite)
         self.save(stage, params, arrays)
         return arrays
+
+
+def remove_path(path: Path) -> None:
+    """Remove a file or a directory tree at `path`, if any."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
 
 
 def check_finite(arrays: dict[str, np.ndarray], *, stage: str, scenario: str, allow: tuple[str, ...] = ()) -> None:

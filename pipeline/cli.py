@@ -26,6 +26,7 @@ from pathlib import Path  # noqa: E402
 
 from .errors import CacheMiss, NumericalError, OutputError, ScenarioError  # noqa: E402
 from .reproduction import RunOptions, reverify, run  # noqa: E402
+from .outlock import output_lock  # noqa: E402
 from .report import counts_line, verdict_counts, write_summary  # noqa: E402
 
 EXIT_CODES = """exit codes:
@@ -112,11 +113,12 @@ def cmd_reproduce(args) -> int:
         raise ScenarioError("PAPER", f"unknown paper {', '.join(unknown)} (known: {', '.join(reg.PAPERS)})")
     out_root = Path(args.out)
     rows = []
-    for pid in args.papers or list(reg.PAPERS):
-        rows.append(run(reg.paper(pid), out_root, _options(args)))
-        r = rows[-1]
-        print(f"{pid}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_root / pid}")
-    print(f"summary: {write_summary(out_root)}")
+    with output_lock(out_root):
+        for pid in args.papers or list(reg.PAPERS):
+            rows.append(run(reg.paper(pid), out_root, _options(args)))
+            r = rows[-1]
+            print(f"{pid}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_root / pid}")
+        print(f"summary: {write_summary(out_root)}")
     return _strict_status(args, rows)
 
 
@@ -128,7 +130,8 @@ def cmd_run(args) -> int:
     repro = reg.family_from_dict(data)
     out_root = Path(args.out)
     out_dir = out_root / "run" / repro.paper_id
-    r = run(repro, out_root, _options(args), out_dir=out_dir, source=data)
+    with output_lock(out_root):
+        r = run(repro, out_root, _options(args), out_dir=out_dir, source=data)
     print(f"{repro.paper_id}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_dir}")
     return _strict_status(args, [r])
 
@@ -158,15 +161,23 @@ def cmd_sweep(args) -> int:
     from .sweep_spec import load_sweep
 
     spec = load_sweep(args.file)
-    r = run_sweep(spec, Path(args.out), scheduler=args.scheduler, workers=args.workers, retries=args.retries,
-                  fresh=args.fresh)
+    with output_lock(Path(args.out)):
+        r = run_sweep(spec, Path(args.out), scheduler=args.scheduler, workers=args.workers, retries=args.retries,
+                      fresh=args.fresh)
     print(f"sweep {r['name']}: {r['points']} points ({r['ran']} run, {r['reused']} reused, {r['failed']} failed, "
           f"{r['numerical_errors']} numerical failures) in {r['wall_s']:.1f} s -> {r['out_dir']}")
     return 1 if r["failed"] else 0
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """Usage errors in one line (the full usage is one `--help` away), exit code 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="dse", description="Reproductions of distributed state estimation papers.",
+    parser = OneLineParser(prog="dse", description="Reproductions of distributed state estimation papers.",
                                      epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
     lst = sub.add_parser("list", help="papers, scenarios, hypotheses and claims")
@@ -221,18 +232,38 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+MAX_COUNT = 10**12
+
+
+def _count(text: str, low: int) -> int:
+    """An integer option: 5000, 5_000 or 5e3 (a float that is a whole number); one clear message otherwise."""
+    try:
+        value = int(text.replace("_", ""))
+    except ValueError:
+        try:
+            number = float(text)
+        except ValueError:
+            number = float("nan")
+        if not (number == number and abs(number) < float("inf") and number == int(number)):
+            raise argparse.ArgumentTypeError(f"must be a whole number (e.g. 5000 or 5e3), got {text!r}") from None
+        value = int(number)
+    if value < low:
+        raise argparse.ArgumentTypeError(f"must be >= {low}, got {text}")
+    if value > MAX_COUNT:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_COUNT:.0e}, got {text}")
     return value
+
+
+def _positive_int(text: str) -> int:
+    return _count(text, 1)
 
 
 def _nonnegative_int(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a nonnegative integer, got {text}")
-    return value
+    return _count(text, 0)
+
+
+_positive_int.__name__ = "positive integer"  # argparse names the type in its messages
+_nonnegative_int.__name__ = "nonnegative integer"
 
 
 def _on_sigterm(signum, frame):
@@ -258,6 +289,10 @@ def main(argv: list[str] | None = None) -> int:
     except NumericalError as exc:
         print(f"dse: numerical failure: {exc}", file=sys.stderr)
         return 3
+    except OSError as exc:  # disk full, permissions, a file replaced under us: one line, like any input fault
+        where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
+        print(f"dse: error: cannot use the file system ({exc.strerror or exc}){where}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("dse: interrupted", file=sys.stderr)
         return 130

@@ -21,13 +21,33 @@ from .errors import ScenarioError
 MAX_MAGNITUDE = 1e100
 
 
+#: A scenario or sweep file is at most this large (the largest shipped one is a few kB).
+MAX_FILE_BYTES = 1 << 20
+
+
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Parse a TOML scenario file; any read or syntax problem is a ScenarioError."""
+    """Parse a TOML scenario file; any read or syntax problem is a ScenarioError.
+
+    Only a regular file of at most MAX_FILE_BYTES is read (a device such as /dev/zero, a
+    FIFO or a directory is refused before reading, so nothing can hang or fill memory)."""
+    import os
+    import stat
+
     path = Path(path)
     try:
-        raw = path.read_bytes()
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode):
+            kind = "a directory" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode) else \
+                "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else "not a regular file"
+            raise ScenarioError(str(path), f"is {kind}, not a scenario file")
+        if st.st_size > MAX_FILE_BYTES:
+            raise ScenarioError(str(path), f"is {st.st_size:,} bytes; a scenario file is at most {MAX_FILE_BYTES:,}")
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_FILE_BYTES + 1)
+        if len(raw) > MAX_FILE_BYTES:
+            raise ScenarioError(str(path), f"is larger than {MAX_FILE_BYTES:,} bytes")
     except OSError as exc:
-        raise ScenarioError(str(path), f"cannot read file ({exc.strerror})") from None
+        raise ScenarioError(str(path), f"cannot read file ({exc.strerror or exc})") from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
