@@ -41,7 +41,8 @@ __all__ = [
 
 ELL_BOUNDS = (1e-6, 1.0)
 ZETA_BOUNDS = (0.0, 1.0)
-_FD_STEP = 1e-6
+#: central-difference steps: relative to ell (its scale; the cost grows like 1/ell as ell -> 0), absolute in zeta
+_FD_STEP = 1e-5
 _BOUND_TOL = 1e-9
 
 
@@ -133,10 +134,13 @@ def _projected(g: float, x: float, lo: float, hi: float) -> float:
 
 
 def _kkt(fun, ell: float, zeta: float | None) -> KKTResiduals:
-    h = _FD_STEP
+    """Central differences with steps ``1e-5 ell`` and ``1e-5``: the error relative to the gradient's
+    scale ``J/ell`` is about ``(1e-5)^2`` (truncation) plus ``eps/1e-5`` (rounding), near 1e-10."""
+    h = _FD_STEP * ell
     d_ell = float((fun(ell + h, zeta) - fun(ell - h, zeta)) / (2.0 * h))
     if zeta is None:
         return KKTResiduals(d_ell, 0.0, (_projected(d_ell, ell, *ELL_BOUNDS), 0.0))
+    h = _FD_STEP
     d_zeta = float((fun(ell, zeta + h) - fun(ell, zeta - h)) / (2.0 * h))
     return KKTResiduals(
         d_ell,

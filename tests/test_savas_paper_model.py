@@ -1,5 +1,6 @@
-"""The paper's reference numbers apply to the paper's model only: a scenario that keeps the name
-"paper" but changes the network (a sweep point) gets the structural checks, not a crash."""
+"""The paper's reference numbers are claims of scope "paper-example": the paper's reproduction
+evaluates them, a user's scenario (even one with the paper's content, as a sweep point has) never
+does, and the family's structural checks run on any network."""
 from __future__ import annotations
 
 import copy
@@ -7,24 +8,33 @@ from pathlib import Path
 from types import SimpleNamespace
 
 from pipeline.scenario import load_toml
-from reproductions.savas.claims import _paper_model, check_Q
+from reproductions.savas.claims import catalogue, check_Q
+from reproductions.savas.reproduction import from_dict, paper
 from reproductions.savas.scenario import NoisyConsensusScenario
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _res(data: dict) -> SimpleNamespace:
-    return SimpleNamespace(scenario=NoisyConsensusScenario.from_dict({k: v for k, v in data.items() if k != "family"}))
+def _paper_data() -> dict:
+    return {k: v for k, v in load_toml(ROOT / "reproductions" / "savas" / "paper.toml").items() if k != "family"}
 
 
-def test_paper_model_is_recognised_by_content_not_by_name():
-    paper = load_toml(ROOT / "reproductions" / "savas" / "paper.toml")
-    assert _paper_model(_res(paper))
-    bigger = copy.deepcopy(paper)
+def test_reference_tables_are_paper_example_claims():
+    scopes = {c.id: c.scope for c in catalogue()}
+    for cid in ("savas.fig1.values", "savas.fig2.values", "savas.fig3.values", "savas.model.Q_example",
+                "savas.fig2.zeta_nonmonotone", "savas.fig2.ell_increasing", "savas.thm1.ii.hypothesis"):
+        assert scopes[cid] == "paper-example", cid
+    assert scopes["savas.thm1.ii"] == scopes["savas.mc.trace"] == "family"
+
+
+def test_only_the_papers_reproduction_is_a_paper_run():
+    assert paper().is_paper
+    assert not from_dict(_paper_data()).is_paper
+    assert "Reconstructions" not in from_dict(_paper_data()).notes()
+
+
+def test_structural_Q_check_runs_on_any_network():
+    bigger = copy.deepcopy(_paper_data())
     bigger["graph"]["n"] = 5
-    assert not _paper_model(_res(bigger))
-    noisier = copy.deepcopy(paper)
-    noisier["model"]["r"] = 4.0
-    assert not _paper_model(_res(noisier))
-    verdict = check_Q(_res(bigger))
+    verdict = check_Q(SimpleNamespace(scenario=NoisyConsensusScenario.from_dict(bigger)))
     assert verdict.status == "pass" and "second largest" in verdict.detail
