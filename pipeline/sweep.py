@@ -17,6 +17,7 @@ import hashlib
 import json
 import logging
 import os
+import shutil
 import socket
 import sys
 import tempfile
@@ -48,9 +49,11 @@ class Task:
     quick: bool
     trials: int | None
     key: str
+    tables: tuple[str, ...] | None = None
 
     def payload(self) -> dict[str, Any]:
-        return {"scenario": self.scenario, "seed": self.point.seed, "quick": self.quick, "trials": self.trials}
+        return {"scenario": self.scenario, "seed": self.point.seed, "quick": self.quick, "trials": self.trials,
+                "tables": self.tables}
 
 
 def _registry():
@@ -73,68 +76,126 @@ def project_fingerprint() -> str:
     return h.hexdigest()[:16]
 
 
-def build_tasks(spec: SweepSpec) -> list[Task]:
-    """Every point's task, each scenario validated by its family before anything runs."""
+def build_tasks(spec: SweepSpec, log: Callable[[str], None] | None = None) -> list[Task]:
+    """Every point's task, each scenario validated by its family before anything runs (with a
+    progress line every few seconds for large sweeps)."""
     reg = _registry()
     fingerprint = project_fingerprint()
     tasks = []
-    for point in spec.points():
+    points = spec.points()
+    started = last = time.perf_counter()
+    for point in points:
+        now = time.perf_counter()
+        if log is not None and now - last > 3.0:
+            done = len(tasks)
+            log(f"sweep {spec.name}: validated {done:,} of {len(points):,} points "
+                f"(about {(now - started) / done * (len(points) - done):.0f} s left)")
+            last = now
         scenario = spec.scenario(point)
         try:
             reg.family_from_dict(scenario)
         except ScenarioError as exc:
             where = ", ".join(f"{k} = {json.dumps(v)}" for k, v in point.values.items()) or "the base scenario"
             raise ScenarioError(exc.field, f"{exc.reason} (at the point {where})") from None
-        payload = {"scenario": scenario, "seed": point.seed, "quick": spec.quick, "trials": spec.trials}
+        payload = {"scenario": scenario, "seed": point.seed, "quick": spec.quick, "trials": spec.trials,
+                   "tables": spec.tables}
         key = hashlib.sha256((canonical_json(payload) + fingerprint).encode()).hexdigest()[:24]
-        tasks.append(Task(point, scenario, spec.quick, spec.trials, key))
+        tasks.append(Task(point, scenario, spec.quick, spec.trials, key, spec.tables))
     return tasks
 
 
 def run_point(payload: dict[str, Any]) -> dict[str, Any]:
-    """One point: compute in a throw-away stage cache, check every claim, summarise.
+    """One point: compute in a throw-away stage cache, check every claim, tabulate, summarise.
 
     A numerical failure (a NaN or inf where the family needs a finite number) is a result of
     the point, not an error of the task: it is reported in the row and not retried.
     """
-    from .reproduction import RunOptions, evaluate_claims
+    from .api import execute
+    from .reproduction import RunOptions
 
     reg = _registry()
     start = time.perf_counter()
     repro = reg.family_from_dict(payload["scenario"])
     opts = RunOptions(seed=payload["seed"], trials=payload["trials"], quick=payload["quick"], workers=1)
     where = {"host": socket.gethostname(), "pid": os.getpid()}
-    with tempfile.TemporaryDirectory(prefix="dse-point-") as tmp:
-        try:
-            results = repro.compute(opts, StageCache(tmp))
-        except NumericalError as exc:
-            return {"status": "numerical-error", "error": str(exc), "claims": [], "metrics": {},
-                    "wall_s": time.perf_counter() - start, **where}
-    rows = evaluate_claims(repro, results).claims
-    metrics = reg.family_metrics(payload["scenario"]["family"], results)
+    try:
+        run = execute(repro, opts)
+    except NumericalError as exc:
+        return {"status": "numerical-error", "error": str(exc), "claims": [], "metrics": {}, "tables": {},
+                "wall_s": time.perf_counter() - start, **where}
+    metrics = reg.family_metrics(payload["scenario"]["family"], run.results)
+    wanted = payload.get("tables")
+    tables = {name: run.tables[name] for name in run.tables if wanted is None or name in wanted}
     return {"status": "ok", "error": "", "metrics": {k: float(v) for k, v in metrics.items()},
-            "claims": [{k: r.get(k) for k in POINT_CLAIM_FIELDS} for r in rows],
+            "claims": [{k: r.get(k) for k in POINT_CLAIM_FIELDS} for r in run.evaluation.claims],
+            "tables": tables, "table_docs": {name: run.tables.specs[name] for name in tables},
             "wall_s": time.perf_counter() - start, **where}
 
 
 class PointStore:
-    """One JSON file per finished point, written atomically."""
+    """One directory per finished point: `result.json` (the point's verdicts and metrics, with a
+    checksum of itself and of every table file) and `tables/<name>.parquet`. A damaged, edited or
+    incomplete point is detected by its checksums and recomputed."""
 
     def __init__(self, root: Path):
         self.root = root
-        root.mkdir(parents=True, exist_ok=True)
 
-    def _path(self, key: str) -> Path:
-        return self.root / f"{key}.json"
+    def _dir(self, key: str) -> Path:
+        return self.root / key
 
     def load(self, key: str) -> dict[str, Any] | None:
+        d = self._dir(key)
         try:
-            return json.loads(self._path(key).read_text())
-        except (OSError, json.JSONDecodeError):
+            doc = json.loads((d / "result.json").read_text())
+            body = doc["result"]
+            if hashlib.sha256(canonical_json(body).encode()).hexdigest() != doc["sha256"]:
+                raise ValueError("checksum mismatch")
+            tables = {}
+            for name, digest in doc["tables"].items():
+                raw = (d / "tables" / f"{name}.parquet").read_bytes()
+                if hashlib.sha256(raw).hexdigest() != digest:
+                    raise ValueError(f"table {name}: checksum mismatch")
+                tables[name] = raw
+            return {**body, "table_files": {n: d / "tables" / f"{n}.parquet" for n in tables}}
+        except FileNotFoundError:
+            return None
+        except Exception as exc:  # damaged in any way: recompute the point
+            if d.exists():
+                print(f"dse: stored sweep point {key} is damaged ({type(exc).__name__}: {exc}); recomputing",
+                      file=sys.stderr)
+                shutil.rmtree(d, ignore_errors=True)
             return None
 
-    def save(self, key: str, result: dict[str, Any]) -> None:
-        atomic_write_text(self._path(key), json.dumps(result, default=str))
+    def save(self, key: str, result: dict[str, Any]) -> dict[str, Any]:
+        """Store a point (tables as Parquet); returns the result as `load` would give it."""
+        from .atomic import atomic_path
+        from .tables import _write_parquet
+
+        d = self._dir(key)
+        staging = Path(tempfile.mkdtemp(prefix=f".{key}.staging-", dir=_mkdir(self.root)))
+        try:
+            (staging / "tables").mkdir()
+            digests = {}
+            for name, frame in result.get("tables", {}).items():
+                path = staging / "tables" / f"{name}.parquet"
+                _write_parquet(result["table_docs"][name], frame, path)
+                digests[name] = hashlib.sha256(path.read_bytes()).hexdigest()
+            body = json.loads(json.dumps({k: v for k, v in result.items() if k not in ("tables", "table_docs")},
+                                         default=str))
+            with atomic_path(staging / "result.json") as tmp:
+                tmp.write_text(json.dumps({"sha256": hashlib.sha256(canonical_json(body).encode()).hexdigest(),
+                                           "tables": digests, "result": body}))
+            if d.exists():
+                shutil.rmtree(d)
+            os.replace(staging, d)
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+        return {**body, "table_files": {n: d / "tables" / f"{n}.parquet" for n in digests}}
+
+
+def _mkdir(path: Path) -> Path:
+    path.mkdir(parents=True, exist_ok=True)
+    return path
 
 
 SCHEDULERS = ("auto", "inline", "local")
@@ -153,14 +214,14 @@ def choose_scheduler(scheduler: str, pending: int, workers: int) -> str:
 
 def execute(tasks: list[Task], *, scheduler: str, workers: int, retries: int,
             on_result: Callable[[Task, dict[str, Any]], None], log: Callable[[str], None] = print,
-            fn: Callable[[dict[str, Any]], dict[str, Any]] = run_point) -> dict[str, str]:
+            fn: Callable[[dict[str, Any]], dict[str, Any]] = run_point, worker_timeout: float = 60.0) -> dict[str, str]:
     """Run `fn` (default `run_point`) on every task's payload; hand each result to `on_result`
     as it arrives. Returns {key: error} of the tasks that still failed after `retries` retries."""
     if not tasks:
         return {}
     if scheduler == "inline":
         return _execute_inline(tasks, retries, on_result, fn)
-    return _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn)
+    return _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn, worker_timeout)
 
 
 def _bar(total: int):
@@ -201,7 +262,7 @@ def _execute_inline(tasks, retries, on_result, fn) -> dict[str, str]:
     return failures
 
 
-def _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn) -> dict[str, str]:
+def _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn, worker_timeout) -> dict[str, str]:
     from dask.distributed import Client, LocalCluster, as_completed
 
     if scheduler == "local":
@@ -218,6 +279,14 @@ def _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn) -> dic
     try:
         where = "local cluster" if cluster else scheduler
         n_workers = len(client.scheduler_info().get("workers", {}))
+        if n_workers == 0:
+            log(f"dask: {where} has no worker yet; waiting up to {worker_timeout:g} s for one")
+            try:
+                client.wait_for_workers(1, timeout=worker_timeout)
+            except (TimeoutError, OSError):
+                raise ScenarioError("--scheduler", f"no worker joined the Dask scheduler at {scheduler} within "
+                                                   f"{worker_timeout:g} s (start workers with `dask worker {scheduler}`)") from None
+            n_workers = len(client.scheduler_info().get("workers", {}))
         log(f"dask: {where} with {n_workers} worker(s); dashboard {client.dashboard_link}")
         owner, futures = {}, []
         for task in tasks:
@@ -249,19 +318,25 @@ def _point_meta(task: Task, result: dict[str, Any] | None, failure: str | None) 
     return meta | {k: result[k] for k in ("wall_s", "host", "pid")}
 
 
+def points_dir(out_root: Path, name: str) -> Path:
+    """Where a sweep's finished points are kept between runs (a cache: safe to delete)."""
+    return out_root / ".cache" / "sweeps" / name / "points"
+
+
 def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", workers: int = 2, retries: int = 2,
-              fresh: bool = False, log: Callable[[str], None] = print) -> dict[str, Any]:
-    """Run the points not yet done, then write results.parquet, claims.parquet, the figure,
-    the recording and sweep.json under OUT/sweep/<name>/. Returns a summary."""
-    from . import sweep_outputs as so
+              fresh: bool = False, log: Callable[[str], None] = print, worker_timeout: float = 60.0) -> dict[str, Any]:
+    """Run the points not yet done, then write results.parquet, claims.parquet, tables/, the figure,
+    the recording, summary.md and sweep.json as one set: built beside OUT/sweep/<name>/ and renamed
+    into place, so the directory never mixes two runs and an invalid sweep leaves nothing."""
+    from .api import _replace_dir, _staging_dir
     from .reproduction import check_output_dir
 
     choose_scheduler(scheduler, 0, workers)  # a bad --scheduler fails before anything runs
+    check_output_dir(out_root)
     out_dir = out_root / "sweep" / spec.name
-    check_output_dir(out_dir)
     start = time.perf_counter()
-    tasks = build_tasks(spec)
-    store = PointStore(out_dir / "points")
+    tasks = build_tasks(spec, log=log)
+    store = PointStore(points_dir(out_root, spec.name))
     results = {} if fresh else {t.key: r for t in tasks if (r := store.load(t.key)) is not None}
     pending = [t for t in tasks if t.key not in results]
     mode = choose_scheduler(scheduler, len(pending), workers)
@@ -269,15 +344,36 @@ def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", worke
         log(f"sweep {spec.name}: {len(results)} of {len(tasks)} points already done; running the other {len(pending)}")
 
     def keep(task: Task, result: dict[str, Any]) -> None:
-        store.save(task.key, result)
-        results[task.key] = result
+        results[task.key] = store.save(task.key, result)
 
-    failures = execute(pending, scheduler=mode, workers=workers, retries=retries, on_result=keep, log=log)
+    failures = execute(pending, scheduler=mode, workers=workers, retries=retries, on_result=keep, log=log,
+                       worker_timeout=worker_timeout)
     done = [t for t in tasks if t.key in results]
+    staging = _staging_dir(out_dir)
+    try:
+        wall = write_sweep_outputs(spec, staging, done, results, failures, log)
+        meta = {"name": spec.name, "family": spec.family, "sweep": spec.source, "scheduler": mode, "workers": workers,
+                "points": [_point_meta(t, results.get(t.key), failures.get(t.key)) for t in tasks],
+                "failures": failures, "wall_s": time.perf_counter() - start}
+        atomic_write_text(staging / "sweep.json", json.dumps(meta, indent=1, default=str))
+        _replace_dir(staging, out_dir)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return {"name": spec.name, "points": len(tasks), "ran": len(pending) - len(failures),
+            "reused": len(tasks) - len(pending), "failed": len(failures), "numerical_errors": wall["numerical_errors"],
+            "wall_s": meta["wall_s"], "out_dir": out_dir, "scheduler": mode}
+
+
+def write_sweep_outputs(spec: SweepSpec, out_dir: Path, done: list[Task], results: dict[str, dict[str, Any]],
+                        failures: dict[str, str], log: Callable[[str], None]) -> dict[str, Any]:
+    """The sweep's tables, summary, figure and recording, written into `out_dir`."""
+    from . import sweep_outputs as so
+
     frame = so.results_frame(spec, [t.point for t in done], [results[t.key] for t in done])
     claims = so.claims_frame([t.point for t in done], [results[t.key] for t in done])
     so.write_parquet(frame, out_dir / "results.parquet")
     so.write_parquet(claims, out_dir / "claims.parquet")
+    so.write_point_tables(spec, [t.point for t in done], [results[t.key] for t in done], out_dir / "tables")
     summary_md = so.summary_markdown(spec, frame, claims, failures)
     if len(frame):
         plan = so.plot_plan(spec, frame)
@@ -288,11 +384,4 @@ def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", worke
         so.write_figure(spec, frame, plan, out_dir / "sweep.png")
         so.write_recording(spec, frame, plan, summary_md, out_dir / "sweep.rrd")
     atomic_write_text(out_dir / "summary.md", summary_md + "\n")
-    meta = {"name": spec.name, "family": spec.family, "sweep": spec.source, "scheduler": mode, "workers": workers,
-            "points": [_point_meta(t, results.get(t.key), failures.get(t.key)) for t in tasks],
-            "failures": failures, "wall_s": time.perf_counter() - start}
-    atomic_write_text(out_dir / "sweep.json", json.dumps(meta, indent=1, default=str))
-    return {"name": spec.name, "points": len(tasks), "ran": len(pending) - len(failures),
-            "reused": len(tasks) - len(pending), "failed": len(failures),
-            "numerical_errors": int((frame["status"] != "ok").sum()) if len(frame) else 0,
-            "wall_s": meta["wall_s"], "out_dir": out_dir, "scheduler": mode}
+    return {"numerical_errors": int((frame["status"] != "ok").sum()) if len(frame) else 0}

@@ -335,3 +335,31 @@ def summary_markdown(spec: SweepSpec, frame: pd.DataFrame, claims: pd.DataFrame,
                   "|---|" + "---|" * len(cols)]
         lines += [f"| `{cid}` | " + " | ".join(str(int(table.loc[cid, c])) for c in cols) + " |" for cid in table.index]
     return "\n".join(line for line in lines if line is not None)
+
+
+def write_point_tables(spec: SweepSpec, points: Sequence, results: Sequence[dict[str, Any]], directory: Path) -> None:
+    """Each table of the points, stacked: `point` and the varied values first, then the table's own
+    columns (with their units and definitions), in point order."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    names = list(dict.fromkeys(n for r in results for n in r.get("table_files", {})))
+    for name in names:
+        parts, schema = [], None
+        for point, res in zip(points, results):
+            path = res.get("table_files", {}).get(name)
+            if path is None:
+                continue
+            t = pq.read_table(path)
+            schema = schema or t.schema
+            front = {"point": pa.array([point.index] * t.num_rows, pa.int64())}
+            front.update({f: pa.array([json.dumps(cell(point.values[f])) if not isinstance(cell(point.values[f]), str)
+                                       else cell(point.values[f])] * t.num_rows, pa.string()) for f in spec.fields})
+            parts.append(pa.Table.from_arrays([*front.values(), *t.columns],
+                                              schema=pa.schema([pa.field(k, v.type, metadata={
+                                                  "unit": "", "definition": "sweep point" if k == "point" else
+                                                  f"value of the varied field {k} (JSON)"}) for k, v in front.items()]
+                                                               + list(t.schema))))
+        if parts:
+            with atomic_path(directory / f"{name}.parquet") as tmp:
+                pq.write_table(pa.concat_tables(parts, promote_options="permissive"), tmp, compression="zstd")

@@ -8,6 +8,8 @@ A sweep file (TOML) names a base scenario of any family and the scenario fields 
     replicates = 2                     # independent seeds per parameter point
     quick = false                      # RunOptions.quick of every point
     trials = 5000                      # optional RunOptions.trials of every point
+    tables = ["nodes", "claims"]       # optional: the point tables gathered in OUT/sweep/<name>/tables/
+                                       # (default: every table of every point; [] for none)
 
     [set]                              # fixed overrides applied to every point
     "monte_carlo.trials" = 5000
@@ -49,7 +51,7 @@ from .scenario import as_float, as_int, as_list, as_str, load_toml, reject_unkno
 #: the largest sweep accepted (each point is one task and one result file)
 MAX_POINTS = 100_000
 DISTRIBUTIONS = ("uniform", "log_uniform", "integers", "choice")
-TOP_LEVEL = ("name", "description", "base", "scenario", "seed", "replicates", "quick", "trials",
+TOP_LEVEL = ("name", "description", "base", "scenario", "seed", "replicates", "quick", "trials", "tables",
              "set", "grid", "random", "plot")
 
 
@@ -81,6 +83,7 @@ class SweepSpec:
     plot_x: str | None
     log_x: bool
     plot_metrics: tuple[str, ...] | None
+    tables: tuple[str, ...] | None = None
     source: dict[str, Any] = field(repr=False, compare=False, default_factory=dict)
 
     @property
@@ -204,6 +207,8 @@ def parse_sweep(data: Mapping[str, Any], *, base_dir: Path) -> SweepSpec:
     if not isinstance(quick, bool):
         raise ScenarioError("quick", f"must be true or false, got {quick!r}")
     trials = None if data.get("trials") is None else as_int(data["trials"], "trials", low=1, high=10**9)
+    tables = None if "tables" not in data else tuple(
+        as_str(t, f"tables[{i}]") for i, t in enumerate(as_list(data["tables"], "tables", min_len=0)))
     fixed = _flatten(section(data["set"], "set") if "set" in data else {}, "", lambda v: False)
     grid = _grid(data)
     random, samples = _random(data)
@@ -223,7 +228,8 @@ def parse_sweep(data: Mapping[str, Any], *, base_dir: Path) -> SweepSpec:
         as_str(m, f"plot.metrics[{i}]") for i, m in enumerate(as_list(plot["metrics"], "plot.metrics")))
     spec = SweepSpec(name=name, description=str(data.get("description", "")), base=base, seed=seed,
                      replicates=replicates, quick=quick, trials=trials, fixed=fixed, grid=grid, random=random,
-                     samples=samples, plot_x=plot_x, log_x=log_x, plot_metrics=metrics, source=dict(data))
+                     samples=samples, plot_x=plot_x, log_x=log_x, plot_metrics=metrics, tables=tables,
+                     source=dict(data))
     for path, value in fixed.items():  # check the overrides' paths once, before any point runs
         set_field(copy.deepcopy(base), path, value)
     return spec

@@ -73,7 +73,7 @@ def test_a_point_that_its_family_rejects_is_named_before_anything_runs(tmp_path)
     spec = spec_of(tiny(grid={"communication.rates": [[1.0], [-2.0]]}))
     with pytest.raises(ScenarioError, match=r"at the point communication.rates = \[-2.0\]"):
         sw.run_sweep(spec, tmp_path, scheduler="inline")
-    assert not (tmp_path / "sweep" / "tiny" / "points").exists() or not any((tmp_path / "sweep" / "tiny" / "points").iterdir())
+    assert not (tmp_path / "sweep").exists() and not sw.points_dir(tmp_path, "tiny").exists()
 
 
 def test_set_field_follows_tables_and_list_indices():
@@ -154,7 +154,7 @@ def test_inline_sweep_writes_table_figure_and_recording(inline_run):
     claims = pd.read_parquet(d / "claims.parquet")
     verdict_cols = [c for c in frame.columns if c.endswith(":verdict")]
     assert len(claims) == 4 * len(verdict_cols)
-    assert (frame[["pass", "fail", "erratum", "not-checkable"]].sum(axis=1) == len(verdict_cols)).all()
+    assert (frame[["pass", "fail", "erratum", "not-checkable", "error"]].sum(axis=1) == len(verdict_cols)).all()
     assert (d / "sweep.png").stat().st_size > 10_000
     from pipeline.record import blueprint_view_kinds, read_scalars
 
@@ -184,11 +184,11 @@ def test_interrupted_sweep_resumes_with_the_points_not_done(inline_run, tmp_path
 
     spec = spec_of(tiny())
     tasks = sw.build_tasks(spec)
-    store = sw.PointStore(tmp_path / "sweep" / "tiny" / "points")
+    store = sw.PointStore(sw.points_dir(tmp_path, "tiny"))
     with pytest.raises(KeyboardInterrupt):
         sw.execute(tasks, scheduler="inline", workers=1, retries=0, fn=interrupt_after_two,
                    on_result=lambda t, r: store.save(t.key, r))
-    assert len(list(store.root.glob("*.json"))) == 2
+    assert len(list(store.root.glob("*/result.json"))) == 2
     summary = sw.run_sweep(spec, tmp_path, scheduler="inline", log=lambda s: None)
     assert (summary["reused"], summary["ran"]) == (2, 2)
     assert _read(tmp_path) == _read(inline_run[0])
