@@ -13,6 +13,7 @@ that lets a later run resume). The `dse` command line is a thin layer over these
 """
 from __future__ import annotations
 
+import inspect
 import json
 import os
 import shutil
@@ -88,7 +89,11 @@ class Run:
         try:
             start = time.perf_counter()
             self.tables.write(staging / "tables")
-            self.reproduction.write_outputs(self.results, staging, self.evaluation.claims, self.provenance)
+            write_outputs = self.reproduction.write_outputs
+            if "tables" in inspect.signature(write_outputs).parameters:  # figures and recordings drawn from the tables
+                write_outputs(self.results, staging, self.evaluation.claims, self.provenance, tables=self.tables)
+            else:
+                write_outputs(self.results, staging, self.evaluation.claims, self.provenance)
             write_s = time.perf_counter() - start
             prov = {**self.provenance, "write_s": write_s, "wall_s": self.provenance["compute_s"] + write_s,
                     "peak_memory_mib": peak_memory_mib()}

@@ -103,7 +103,8 @@ def cmd_check(args) -> int:
 
 
 def _options(args) -> RunOptions:
-    return RunOptions(seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers)
+    return RunOptions(seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers,
+                      max_memory_mib=getattr(args, "max_memory", None))
 
 
 def cmd_reproduce(args) -> int:
@@ -190,6 +191,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
         p.add_argument("--out", default="out", help="output root directory (default out/)")
         p.add_argument("--workers", type=_positive_int, default=2, help="worker processes (default 2)")
+        p.add_argument("--max-memory", type=_memory_mib, default=None, metavar="SIZE",
+                       help="memory budget of the run, e.g. 4G or 800M (default: half of this machine's memory); "
+                            "Monte Carlo streams within it, results do not depend on it")
         strict_flag(p)
 
     def strict_flag(p):
@@ -260,6 +264,19 @@ def _positive_int(text: str) -> int:
 
 def _nonnegative_int(text: str) -> int:
     return _count(text, 0)
+
+
+def _memory_mib(text: str) -> float:
+    """A memory size: 800M, 4G, 4GiB or a number of MiB."""
+    t = text.strip().upper().removesuffix("IB").removesuffix("B")
+    scale = {"K": 1 / 1024, "M": 1.0, "G": 1024.0, "T": 1024.0**2}.get(t[-1:], None)
+    try:
+        value = float(t[:-1] if scale else t) * (scale or 1.0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a size such as 800M or 4G, got {text!r}") from None
+    if not value >= 256:
+        raise argparse.ArgumentTypeError(f"must be at least 256M, got {text}")
+    return value
 
 
 _positive_int.__name__ = "positive integer"  # argparse names the type in its messages

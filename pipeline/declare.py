@@ -254,3 +254,49 @@ def reference_markdown(title: str, model: type[Section], intro: str = "") -> str
             lines.append("| " + " | ".join(c.replace("|", "\\|").replace("\n", " ") for c in cells) + " |")
         lines.append("")
     return "\n".join(lines)
+
+
+# -- matrices: one policy for every family -----------------------------------------------------------------
+
+#: a covariance must be symmetric to this fraction of its largest entry (then it is symmetrised exactly)
+SYMMETRY_RTOL = 1e-10
+#: ... and positive semidefinite to the same fraction: its smallest eigenvalue >= −PSD_RTOL·max|entry|
+PSD_RTOL = 1e-10
+#: a positive definite one has its smallest eigenvalue > DEFINITE_RTOL·max|entry|
+DEFINITE_RTOL = 1e-12
+
+
+def matrix(rows: Any, field: str, *, shape: tuple[int | None, int | None] | None = None):
+    """A real matrix from a list of equal-length rows (already typed by the section as
+    `Matrix`); `shape` entries of None are free. Raises ScenarioError naming `field`."""
+    import numpy as np
+
+    if not rows or any(len(r) != len(rows[0]) for r in rows) or not rows[0]:
+        raise ScenarioError(field, "rows must be non-empty and of equal length")
+    M = np.array(rows, dtype=float)
+    if shape is not None:
+        want = tuple(M.shape[i] if s is None else s for i, s in enumerate(shape))
+        if M.shape != want:
+            raise ScenarioError(field, f"must have shape {want[0]}x{want[1]}, got {M.shape[0]}x{M.shape[1]}")
+    return M
+
+
+def covariance(rows: Any, field: str, *, n: int | None = None, definite: bool = False):
+    """A covariance matrix under the project's one policy: square (n x n when given), symmetric to
+    SYMMETRY_RTOL (then symmetrised exactly), positive semidefinite to PSD_RTOL, or positive
+    definite (smallest eigenvalue > DEFINITE_RTOL·max|entry|) when `definite`."""
+    import numpy as np
+
+    M = matrix(rows, field, shape=(n, n) if n is not None else None)
+    if M.shape[0] != M.shape[1]:
+        raise ScenarioError(field, f"must be square, got {M.shape[0]}x{M.shape[1]}")
+    scale = float(np.abs(M).max())
+    if np.abs(M - M.T).max() > SYMMETRY_RTOL * scale:
+        raise ScenarioError(field, f"must be symmetric (largest asymmetry {np.abs(M - M.T).max():.3g})")
+    M = (M + M.T) / 2
+    low = float(np.linalg.eigvalsh(M).min()) if scale > 0 else 0.0
+    if definite and not low > DEFINITE_RTOL * scale:
+        raise ScenarioError(field, f"must be positive definite (smallest eigenvalue {low:.3g})")
+    if low < -PSD_RTOL * scale:
+        raise ScenarioError(field, f"must be positive semidefinite (smallest eigenvalue {low:.3g})")
+    return M

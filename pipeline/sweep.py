@@ -123,13 +123,24 @@ def run_point(payload: dict[str, Any]) -> dict[str, Any]:
     except NumericalError as exc:
         return {"status": "numerical-error", "error": str(exc), "claims": [], "metrics": {}, "tables": {},
                 "wall_s": time.perf_counter() - start, **where}
-    metrics = reg.family_metrics(payload["scenario"]["family"], run.results)
+    metrics = (network_metrics(run.tables["metrics"]) if "metrics" in run.tables
+               else reg.family_metrics(payload["scenario"]["family"], run.results))
     wanted = payload.get("tables")
     tables = {name: run.tables[name] for name in run.tables if wanted is None or name in wanted}
     return {"status": "ok", "error": "", "metrics": {k: float(v) for k, v in metrics.items()},
             "claims": [{k: r.get(k) for k in POINT_CLAIM_FIELDS} for r in run.evaluation.claims],
             "tables": tables, "table_docs": {name: run.tables.specs[name] for name in tables},
             "wall_s": time.perf_counter() - start, **where}
+
+
+def network_metrics(frame) -> dict[str, float]:
+    """The scalar summary of a point for the sweep's results table and plot: each metric of the
+    family's tidy `metrics` table that has exactly one network-wide row (node empty). Metrics per
+    node or per cell stay in the stacked `tables/metrics.parquet`."""
+    network = frame[frame["node"].isna()] if "node" in frame else frame
+    counts = network["metric"].value_counts()
+    single = network[network["metric"].isin(counts[counts == 1].index)]
+    return {str(m): float(v) for m, v in zip(single["metric"], single["value"])}
 
 
 class PointStore:
