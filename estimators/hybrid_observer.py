@@ -105,6 +105,27 @@ class GraphSchedule:
     def at(self, t) -> np.ndarray:
         return self.graphs[self.index_at(t)]
 
+    def switch_times(self, t_end: float) -> np.ndarray:
+        """The instants in (0, t_end] at which N(t) changes (right-continuous: the new graph
+        holds from the instant on), sorted."""
+        if self.kind == "fixed" or len(self.graphs) < 2:
+            return np.empty(0)
+        S = int(math.floor(t_end / self.T + 1e-12))
+        starts = self.T * np.arange(1, S + 1)
+        if self.kind == "alternate_interval":
+            return starts
+        if self.kind == "alternate_iteration":
+            j = np.arange(1, self.q)
+            inner = (self.T * np.arange(S + 1))[:, None] + (self.beta - self.Delta / 2 + j * self.Delta)[None, :]
+            inner = inner[(inner > 0) & (inner <= t_end)]
+            return np.unique(np.concatenate([starts, inner.ravel()]))
+        if self.kind == "sequence":
+            idx = np.asarray(self.indices, int)
+            t = np.asarray(self.times, float)
+            change = np.nonzero(idx[1:] != idx[:-1])[0] + 1
+            return t[change][(t[change] > 0) & (t[change] <= t_end)]
+        raise ValueError(f"unknown schedule kind {self.kind!r}")
+
 
 @dataclass(frozen=True)
 class Timing:

@@ -11,6 +11,7 @@ Conventions: agents 0..m-1; a neighbour mask N[i, j] = True iff j is a neighbour
 """
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from dataclasses import dataclass
@@ -43,12 +44,57 @@ def row_space_basis(O: np.ndarray, rank_tol: float) -> tuple[np.ndarray, np.ndar
 
 
 @dataclass(frozen=True)
+class ObservableBasis:
+    """Orthonormal rows spanning the observable row space of (C, A) (= the row space of the
+    observability matrix). `gap`: the smallest singular value the rank decisions accepted,
+    relative to its step's scale (||C|| for the rows of C, ||A|| after); `discarded`: the
+    largest one they rejected, on the same scale (~ eps when the rank is clear). The rows are
+    A-invariant (ker A-invariant) to within `discarded`·||A|| plus round-off."""
+
+    rows: np.ndarray
+    gap: float
+    discarded: float
+
+
+def observable_basis(A: np.ndarray, C: np.ndarray, rank_tol: float = 1e-9) -> ObservableBasis:
+    """Row space of [C; CA; ...; CA^(n-1)] by an orthogonal Krylov iteration: start from an
+    orthonormal basis R of the rows of C, add the part of R A orthogonal to R, repeat until
+    nothing new appears. Each step multiplies an orthonormal R by A once, so the rank
+    decisions compare singular values with rank_tol·||A|| (or rank_tol·||C||) instead of with
+    the largest singular value of a matrix holding A^(n-1) (badly scaled for ||A|| far from 1)."""
+    A, C = np.asarray(A, float), np.asarray(C, float)
+    n = A.shape[0]
+    _, sv, Vt = np.linalg.svd(C, full_matrices=False)
+    top = max(sv[0] if sv.size else 0.0, 1e-300)
+    keep = sv > rank_tol * top
+    R = Vt[keep]
+    gap = float(sv[keep][-1] / top) if keep.any() else 0.0
+    discarded = float(sv[~keep].max() / top) if (~keep).any() else 0.0
+    scale = max(float(np.linalg.norm(A, 2)), 1e-300)
+    while 0 < R.shape[0] < n:
+        X = R @ A
+        for _ in range(2):                         # project out span(R) twice (re-orthogonalisation)
+            X = X - (X @ R.T) @ R
+        _, sx, Vx = np.linalg.svd(X, full_matrices=False)
+        new = sx > rank_tol * scale
+        if (~new).any():
+            discarded = max(discarded, float(sx[~new].max() / scale))
+        if not new.any():
+            break
+        gap = min(gap, float(sx[new][-1] / scale))
+        R = np.vstack([R, Vx[new]])
+        R = np.linalg.qr(R.T)[0].T                 # keep the rows exactly orthonormal
+    return ObservableBasis(R, gap, discarded)
+
+
+@dataclass(frozen=True)
 class LocalDesign:
     """The design objects of one agent (§2 of the construction).
 
     L (n_i x n): full row rank, ker L = unobservable space of (C_i, A).
     Abar (n_i x n_i), Cbar (s_i x n_i): the unique solutions of L A = Abar L, C_i = Cbar L.
     Q (n x n_i) = L'(L L')^{-1};  P (n x n) = I - Q L, the orthogonal projection onto ker L.
+    `condition`: κ(L) (1 for the orthonormal default); `gap`: see `ObservableBasis`.
     """
 
     L: np.ndarray
@@ -56,38 +102,62 @@ class LocalDesign:
     Cbar: np.ndarray
     Q: np.ndarray
     P: np.ndarray
-    singular_values: np.ndarray
+    condition: float
+    gap: float
 
     @property
     def n_i(self) -> int:
         return self.L.shape[0]
 
 
+def pseudo_inverse_rows(L: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Q = L'(L L')^{-1} and P = I - Q L for a full-row-rank L, without forming (L L')^{-1}:
+    with L' = U R (thin QR), Q = U R^{-T} (a triangular solve) and P = I - U U' (depends on the
+    orthonormal U only, so its accuracy does not degrade with κ(L) beyond the QR's own).
+    Also κ(L) = κ(R)."""
+    U, Rm = np.linalg.qr(np.asarray(L, float).T)
+    Q = sla.solve_triangular(Rm, U.T).T            # (R^{-1} U')' = U R^{-T}
+    sv = np.linalg.svd(Rm, compute_uv=False)
+    return Q, np.eye(L.shape[1]) - U @ U.T, float(sv[0] / sv[-1])
+
+
 def local_design(A: np.ndarray, C: np.ndarray, *, rank_tol: float = 1e-9, L: np.ndarray | None = None) -> LocalDesign:
     """L_i (orthonormal rows of the observable row space unless given), Ā_i, C̄_i, Q_i, P_i."""
-    O = observability_matrix(A, C)
-    basis, sv = row_space_basis(O, rank_tol)
-    if L is None:
-        L = basis
-    L = np.asarray(L, float)
-    Q = L.T @ np.linalg.inv(L @ L.T)
+    basis = observable_basis(A, C, rank_tol)
+    L = basis.rows if L is None else np.asarray(L, float)
+    Q, P, cond = pseudo_inverse_rows(L)
     Abar = L @ A @ Q              # unique solution of L A = Abar L when ker L is A-invariant
     Cbar = np.asarray(C, float) @ Q
-    P = np.eye(A.shape[0]) - Q @ L
-    return LocalDesign(L, Abar, Cbar, Q, P, sv)
+    return LocalDesign(L, Abar, Cbar, Q, P, cond, basis.gap)
 
 
 def same_kernel(L: np.ndarray, A: np.ndarray, C: np.ndarray, rank_tol: float = 1e-9) -> bool:
-    """True iff L has full row rank and ker L = ker O(C, A)."""
-    basis, _ = row_space_basis(observability_matrix(A, C), rank_tol)
-    if np.linalg.matrix_rank(L) != L.shape[0] or L.shape[0] != basis.shape[0]:
+    """True iff L has full row rank and ker L = ker O(C, A) (the row spaces agree: the rows of
+    L lie in the observable row space, to rank_tol relative to ||L||)."""
+    L = np.asarray(L, float)
+    basis = observable_basis(A, C, rank_tol).rows
+    if L.ndim != 2 or L.shape[1] != basis.shape[1] or L.shape[0] != basis.shape[0]:
         return False
-    return np.linalg.matrix_rank(np.vstack([L, basis]), tol=rank_tol * 10 * max(1.0, np.abs(L).max())) == basis.shape[0]
+    sv = np.linalg.svd(L, compute_uv=False)
+    if sv[-1] <= rank_tol * sv[0]:
+        return False
+    outside = L - (L @ basis.T) @ basis
+    return bool(np.linalg.norm(outside, 2) <= rank_tol * sv[0])
 
 
 def place_gain(Abar: np.ndarray, Cbar: np.ndarray, poles) -> np.ndarray:
     """K with eig(Ā + K C̄) = poles (note the + sign of (3))."""
     return -place_poles(Abar.T, Cbar.T, np.asarray(poles)).gain_matrix.T
+
+
+def stacked_gain(A: np.ndarray, C: np.ndarray, poles, rank_tol: float = 1e-9) -> np.ndarray:
+    """K with eig(A + K C) = poles for a C whose rows may be dependent (agents sharing outputs):
+    the poles are placed for the orthonormal rows V_r' of C = U S V' (rank r), and K = K_r S_r^-1 U_r',
+    so that K C = K_r V_r'."""
+    U, sv, Vt = np.linalg.svd(np.asarray(C, float), full_matrices=False)
+    r = int(np.sum(sv > rank_tol * max(sv[0], 1e-300)))
+    K_r = place_gain(A, Vt[:r], poles)
+    return K_r @ (U[:, :r] / sv[:r]).T
 
 
 def spectral_abscissa(F: np.ndarray) -> float:
@@ -103,11 +173,14 @@ def transient_constant(F: np.ndarray, rate: float, *, horizon: float | None = No
     horizon = horizon if horizon is not None else (min(200.0, 60.0 / gap) if gap > 1e-9 else 200.0)
     G = F + rate * np.eye(len(F))
     h = horizon / (samples - 1)
-    step = sla.expm(G * h)
     E = np.empty((samples, *F.shape))
     E[0] = np.eye(len(F))
-    for k in range(1, samples):
-        E[k] = E[k - 1] @ step
+    step, filled = sla.expm(G * h), 1
+    while filled < samples:                      # E[k] = step^k by doubling: E[f:2f] = E[0:f] step^f
+        take = min(filled, samples - filled)
+        E[filled:filled + take] = E[:take] @ step
+        step = step @ step
+        filled += take
     vals = spectral_norm(E)
     k = int(np.argmax(vals))
     best = float(vals[k])
@@ -140,10 +213,31 @@ def is_strongly_connected(N: np.ndarray) -> bool:
     return bool(reach.all())
 
 
+def strongly_connected_batch(N: np.ndarray) -> np.ndarray:
+    """`is_strongly_connected` for a stack of masks (..., m, m): boolean per mask."""
+    N = np.asarray(N, bool)
+    m = N.shape[-1]
+    reach = (N | np.eye(m, dtype=bool)).astype(np.int64)
+    for _ in range(max(1, int(math.ceil(math.log2(max(m, 2)))) + 1)):
+        reach = ((reach @ reach) > 0).astype(np.int64)
+    return reach.astype(bool).all(axis=(-2, -1))
+
+
 def flocking_matrix(N: np.ndarray) -> np.ndarray:
     """F[i, j] = 1/|N_i| for j ∈ N_i (straight averaging (13)); row stochastic."""
     Nf = N.astype(float)
     return Nf / Nf.sum(axis=1, keepdims=True)
+
+
+def symmetric_weights_batch(N: np.ndarray, m_design: int | None = None) -> np.ndarray:
+    """`symmetric_weights` for a stack of masks (..., m, m)."""
+    N = np.asarray(N, bool)
+    m = N.shape[-1] if m_design is None else m_design
+    W = N.astype(float) / (m + 1)
+    idx = np.arange(N.shape[-1])
+    W[..., idx, idx] = 0.0
+    W[..., idx, idx] = 1.0 - W.sum(axis=-1)
+    return W
 
 
 def symmetric_weights(N: np.ndarray, m_design: int | None = None) -> np.ndarray:
@@ -155,32 +249,43 @@ def symmetric_weights(N: np.ndarray, m_design: int | None = None) -> np.ndarray:
     return W
 
 
+def _masks_from_bits(m: int, pairs: list[tuple[int, int]], symmetric: bool) -> np.ndarray:
+    """Every neighbour mask (self-arcs on) whose off-diagonal arcs are a subset of `pairs`."""
+    bits = np.arange(1 << len(pairs))
+    on = ((bits[:, None] >> np.arange(len(pairs))[None, :]) & 1).astype(bool)
+    N = np.zeros((len(bits), m, m), dtype=bool)
+    N[:, np.arange(m), np.arange(m)] = True
+    for b, (i, j) in enumerate(pairs):
+        N[:, i, j] = on[:, b]
+        if symmetric:
+            N[:, j, i] = on[:, b]
+    return N
+
+
+@functools.lru_cache(maxsize=8)
+def _strongly_connected_digraphs(m: int) -> np.ndarray:
+    N = _masks_from_bits(m, [(i, j) for i in range(m) for j in range(m) if i != j], symmetric=False)
+    out = N[strongly_connected_batch(N)]
+    out.flags.writeable = False
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def _connected_undirected_graphs(m: int) -> np.ndarray:
+    N = _masks_from_bits(m, list(itertools.combinations(range(m), 2)), symmetric=True)
+    out = N[strongly_connected_batch(N)]
+    out.flags.writeable = False
+    return out
+
+
 def strongly_connected_digraphs(m: int) -> np.ndarray:
     """All strongly connected digraphs with self-arcs on m labelled vertices, (count, m, m) masks."""
-    off = [(i, j) for i in range(m) for j in range(m) if i != j]
-    out = []
-    for bits in range(1 << len(off)):
-        N = np.eye(m, dtype=bool)
-        for b, (i, j) in enumerate(off):
-            if bits >> b & 1:
-                N[i, j] = True
-        if is_strongly_connected(N):
-            out.append(N)
-    return np.array(out)
+    return _strongly_connected_digraphs(m).copy()
 
 
 def connected_undirected_graphs(m: int) -> np.ndarray:
     """All connected simple undirected graphs on m labelled vertices as symmetric masks with self-arcs."""
-    pairs = list(itertools.combinations(range(m), 2))
-    out = []
-    for bits in range(1 << len(pairs)):
-        N = np.eye(m, dtype=bool)
-        for b, (i, j) in enumerate(pairs):
-            if bits >> b & 1:
-                N[i, j] = N[j, i] = True
-        if is_strongly_connected(N):
-            out.append(N)
-    return np.array(out)
+    return _connected_undirected_graphs(m).copy()
 
 
 # -- norms --------------------------------------------------------------------------------------
@@ -207,98 +312,130 @@ def mixed_norm(M: np.ndarray, row_sizes, col_sizes) -> float | np.ndarray:
 
 @dataclass(frozen=True)
 class RhoResult:
+    """ρ of (17). `rho` is the largest norm found (ρ itself when `exact`); `upper` a proven
+    upper bound (= rho when exact): every product not evaluated extends a prefix whose norm
+    is at most `upper`. `words`: products evaluated; `worst_word`: the word attaining `rho`."""
+
     rho: float
     exact: bool
     words: int
     worst_word: tuple[int, ...]
+    upper: float = float("nan")
 
 
-def rho_exact(P_blocks: np.ndarray, *, max_words: int = 3_000_000, rng: np.random.Generator | None = None,
-              samples: int = 200_000) -> RhoResult:
-    """ρ = max ||P_{i1} ··· P_{iN}|| over products of N = (m-1)^2 + 1 factors containing every P_i (17).
+def range_bases(P_blocks: np.ndarray) -> list[np.ndarray]:
+    """Orthonormal bases U_i of the ranges of orthogonal projections P_i (eigenvalues ~ 1)."""
+    out = []
+    for P in np.asarray(P_blocks, float):
+        w, V = np.linalg.eigh((P + P.T) / 2)
+        out.append(V[:, w > 0.5])
+    return out
 
-    P_i² = P_i, so the set equals the repeat-free words of length <= N containing all letters;
-    appending a factor never increases the norm (||W P_a|| <= ||W||), so only the words that
-    become complete at their last letter need evaluating. Exhaustive (exact) when their number
-    is below `max_words`; otherwise random complete words give a lower estimate (exact=False).
+
+def rho_exact(P_blocks: np.ndarray, *, max_states: int = 2_000_000) -> RhoResult:
+    """ρ = max ||P_{i1} ··· P_{iN}|| over products of N = (m-1)² + 1 factors containing every
+    P_i (17), by an exact branch and bound (`_rho_search`).
+
+    Agents with identical projections (sensors sharing C_i) are merged first: with k distinct
+    projections, the products are those of words over the k classes of length <= N - (m - k)
+    containing every class (each class occurrence can be expanded into its agents' letters in
+    a row, which leaves the product unchanged since P² = P, and that costs m - k letters).
     """
     P = np.asarray(P_blocks, float)
     m = len(P)
-    N = (m - 1) ** 2 + 1
-    full = (1 << m) - 1
+    reps: list[int] = []                             # one agent per distinct projection
+    cls: list[int] = []                              # the class of every agent
+    for i in range(m):
+        same = [c for c, r in enumerate(reps) if np.array_equal(P[r], P[i])]
+        cls.append(same[0] if same else len(reps))
+        if not same:
+            reps.append(i)
+    k = len(reps)
+    res = _rho_search(P[reps], (m - 1) ** 2 + 1 - (m - k), max_states)
+    members = [[i for i in range(m) if cls[i] == c] for c in range(k)]
+    word, seen = [], set()
+    for c in res.worst_word:                         # expand each class's first occurrence into its agents
+        word += members[c] if c not in seen else [members[c][0]]
+        seen.add(c)
+    return RhoResult(res.rho, res.exact, res.words, tuple(word), res.upper)
+
+
+def _rho_search(P: np.ndarray, N: int, max_states: int) -> RhoResult:
+    """ρ over repeat-free words of length <= N over the m letters of P containing every letter.
+
+    Reductions (all exact): P_i² = P_i, so the products are those of repeat-free words of
+    length <= N containing every letter; dropping a first or last factor never decreases the
+    norm (||P_a W|| <= ||W||, ||W P_b|| <= ||W||), so the maximum is attained on a word whose
+    first letter a and last letter b occur once: a, then a complete repeat-free word over the
+    other m - 2 letters (length <= N - 2), then b. With U_i an orthonormal basis of the range
+    of P_i, ||P_a M P_b|| = ||U_a' M U_b||. The middle words are grown letter by letter from
+    X = U_a' (prefix); ||X|| bounds every extension, so a prefix with ||X|| <= the best value
+    found is dropped. If more than `max_states` prefixes would be kept, the search stops:
+    `rho` is then the best value found (a lower bound) and `upper` the largest norm of a
+    prefix still open (an upper bound), exact=False.
+    """
+    m = len(P)
     if m == 1:
-        return RhoResult(float(np.linalg.norm(P[0], 2)), True, 1, (0,))
-    # count minimal complete words first (dynamic programming over (mask, last))
-    count = 0
-    counts = {(1 << a, a): 1 for a in range(m)}
-    for _ in range(2, N + 1):
-        nxt: dict = {}
-        for (mask, last), c in counts.items():
-            for a in range(m):
-                if a == last:
-                    continue
-                key = (mask | 1 << a, a)
-                if key[0] == full:
-                    count += c
-                else:
-                    nxt[key] = nxt.get(key, 0) + c
-        counts = nxt
-    if count > max_words:
-        rng = rng or np.random.default_rng(0)
-        best, worst = 0.0, ()
-        for _ in range(max(1, samples // 10_000)):
-            words = _random_complete_words(m, N, 10_000, rng)
-            for w in words:
-                M = P[w[0]]
-                for a in w[1:]:
-                    M = M @ P[a]
-                v = np.linalg.norm(M, 2)
-                if v > best:
-                    best, worst = float(v), tuple(int(x) for x in w)
-        return RhoResult(best, False, samples, worst)
-    prods = P.copy()
-    last = np.arange(m)
-    mask = 1 << last
-    words = [[a] for a in range(m)]
-    best, worst, seen = -1.0, (), 0
-    for _ in range(2, N + 1):
-        new_p, new_l, new_m, new_w = [], [], [], []
-        for a in range(m):
-            sel = np.nonzero(last != a)[0]
-            if sel.size == 0:
+        return RhoResult(float(np.linalg.norm(P[0], 2)), True, 1, (0,), float(np.linalg.norm(P[0], 2)))
+    U = range_bases(P)
+    if any(u.shape[1] == 0 for u in U):                  # some P_i = 0: every product is 0
+        z = next(i for i, u in enumerate(U) if u.shape[1] == 0)
+        word = (z,) + tuple(i for i in range(m) if i != z)
+        return RhoResult(0.0, True, 0, word, 0.0)
+    best, worst, evaluated, open_bound, states = -1.0, (), 0, 0.0, 0
+    for a in range(m):
+        for b in range(m):
+            if a == b:
                 continue
-            pa = prods[sel] @ P[a]
-            ma = mask[sel] | (1 << a)
-            done = ma == full
-            if done.any():
-                nrm = np.linalg.norm(pa[done], ord=2, axis=(1, 2))
-                seen += int(done.sum())
-                k = int(np.argmax(nrm))
-                if nrm[k] > best:
-                    best = float(nrm[k])
-                    worst = tuple(words[sel[np.nonzero(done)[0][k]]]) + (a,)
-            keep = ~done
-            new_p.append(pa[keep])
-            new_l.append(np.full(int(keep.sum()), a))
-            new_m.append(ma[keep])
-            new_w.extend(words[i] + [a] for i in sel[keep])
-        if not new_p or sum(len(x) for x in new_l) == 0:
-            break
-        prods, last, mask, words = np.concatenate(new_p), np.concatenate(new_l), np.concatenate(new_m), new_w
-    return RhoResult(max(best, 0.0), True, seen, worst)
+            mid = [c for c in range(m) if c not in (a, b)]
+            if not mid:                                  # m = 2: the word a b
+                v = float(np.linalg.norm(U[a].T @ U[b], 2))
+                evaluated += 1
+                if v > best:
+                    best, worst = v, (a, b)
+                continue
+            full = (1 << len(mid)) - 1
+            # frontier: X (K, k_a, n), last letter index into mid, mask, and (parent, letter) per level
+            X = np.einsum("ij,cjk->cik", U[a].T, P[mid])
+            last = np.arange(len(mid))
+            mask = 1 << last
+            history = [(np.full(len(mid), -1), last.copy())]
+            for length in range(1, N - 1):
+                done = mask == full
+                if done.any():
+                    vals = np.linalg.norm(X[done] @ U[b], ord=2, axis=(1, 2))
+                    evaluated += int(done.sum())
+                    k = int(np.argmax(vals))
+                    if vals[k] > best:
+                        best = float(vals[k])
+                        worst = (a,) + _trace_word(history, int(np.nonzero(done)[0][k]), mid) + (b,)
+                if length == N - 2:
+                    break
+                alive = spectral_norm(X) > best
+                idx = np.nonzero(alive)[0]
+                if idx.size == 0:
+                    break
+                cand = np.broadcast_to(np.arange(len(mid)), (idx.size, len(mid)))
+                step = cand != last[idx][:, None]
+                parents, nxt = np.repeat(idx, len(mid))[step.ravel()], cand[step]
+                states += parents.size
+                if states > max_states:
+                    open_bound = max(open_bound, float(spectral_norm(X[idx]).max()))
+                    break
+                X = X[parents] @ P[np.array(mid)[nxt]]
+                last, mask = nxt, mask[parents] | (1 << nxt)
+                history.append((parents, nxt))
+    exact = open_bound <= best
+    return RhoResult(max(best, 0.0), exact, evaluated, worst, max(best, open_bound, 0.0))
 
 
-def _random_complete_words(m: int, N: int, k: int, rng: np.random.Generator) -> list[np.ndarray]:
+def _trace_word(history: list, index: int, letters: list[int]) -> tuple[int, ...]:
+    """The middle word of frontier entry `index` at the last level of `history`."""
     out = []
-    while len(out) < k:
-        length = int(rng.integers(m, N + 1))
-        w = [int(rng.integers(m))]
-        while len(w) < length:
-            a = int(rng.integers(m - 1))
-            w.append(a if a < w[-1] else a + 1)
-        if len(set(w)) == m:
-            out.append(np.array(w))
-    return out
+    for parents, letter in reversed(history):
+        out.append(letters[int(letter[index])])
+        index = int(parents[index])
+    return tuple(reversed(out))
 
 
 def count_complete_repeat_free_words(m: int, max_len: int) -> int:
@@ -377,7 +514,7 @@ def sigma_symmetric(P_blocks: np.ndarray, graphs: np.ndarray | None = None, m_de
     m, n, _ = P.shape
     graphs = connected_undirected_graphs(m) if graphs is None else graphs
     Pbig = sla.block_diag(*P)
-    Ms = np.array([symmetric_weights(G, m_design) for G in graphs])
+    Ms = symmetric_weights_batch(graphs, m_design)
     big = Pbig @ _kron_batch(Ms, n)
     vals = np.linalg.norm(big, ord=2, axis=(1, 2))
     k = int(np.argmax(vals))

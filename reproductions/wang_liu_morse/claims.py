@@ -1,67 +1,134 @@
-"""The claim catalogue of the hybrid-observer paper (spec §3.2), checked on the paper's
-example (Section 6) and on a generic system with ρ > 0 whose theory q is small enough to
-simulate (so that Theorem 1's hypotheses hold exactly). Claim ids `wang-liu-morse.<where>.<what>`.
+"""The claim catalogue of the hybrid-observer paper, checked on every scenario of the family
+(scope "family") and, for the paper's reproduction, on the Section 6 example (scope
+"paper-example"). Claim ids `wang-liu-morse.<where>.<what>`.
 
-Part names: "paper" (Section 6 example), "generic" (the ρ > 0 system); a user's scenario
-is checked as the single part "scenario" against every claim that does not need printed
-numbers.
+A reproduction has one or more scenarios ("paper" and "generic" for the paper; "scenario"
+for a user's file), each with several runs. A claim checks every (scenario, run) cell of
+the kind it is about, after checking that cell's own hypotheses (`hypotheses.cell_failures`:
+the run's q against (22) or (27), (10), constancy of N(t) on the windows (23)); cells whose
+hypotheses do not hold are left out and named in the detail, and a claim with no cell left is
+`not-checkable` naming them. Hypotheses that concern every cell of a claim are also listed in
+the claim's `hypotheses`, so that the driver reports them.
+
+Tolerances are derived from the arithmetic (see `simulation_tolerance` and the checks'
+docstrings); every one is stated in the detail text.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
 import estimators.jointly_observable_design as jd
 from pipeline.verify import (ERRATUM, FAIL, NOT_CHECKABLE, PASS, Claim, Verdict, identity, inequality,
-                             not_checkable)
+                             not_checkable, roundoff_tolerance)
 
-from .compute import MultiResults, Results
-from .scenario import hypotheses_async
+from . import hypotheses as hy
+from .compute import DT_PLOT, MultiResults, Results
+from .scenario import HybridScenario, RunSpec
 
 PID = "wang-liu-morse"
-EPS = np.finfo(float).eps
-ROUNDOFF = 1e3          # errors below ROUNDOFF·eps·scale are round-off: rate fits stop there
-IDENTITY_TOL = 1e-12    # relative to the size of the states (≈ 4500 eps)
+EPS = float(np.finfo(float).eps)
 
+# Reference values for the Section 6 example, computed independently of this code (numpy/scipy
+# scratch computations): σ of (26) to 6 digits, and max_i ||e_i(sT)|| of the synchronous run
+# with the paper's initial conditions to 3 significant digits.
 PRINTED_ABAR = [np.array([[-0.1, -0.1], [0.4, -0.1]]), np.array([[-0.1, -0.4], [0.1, -0.1]]),
                 np.array([[0.1, -2.0], [0.2, -0.2]]), np.array([[-0.2, -0.2], [2.0, 0.1]])]
 PRINTED_CBAR = [np.array([[0.0, 1.0]])] * 4
-SPEC_SIGMA = 0.929855          # spec §4.3, computed independently by the spec's author
-SPEC_Q22 = 3_507_081           # spec §4.3 (Lemma-5 α, λ = 2)
-SPEC_Q22_PRINTED = 471
-SPEC_SYNC_ERRORS = [20.5, 11.2, 1.97, 0.308, 4.13e-2, 5.9e-3, 7.7e-4]   # spec §4.3, 3 significant digits
+REFERENCE_SIGMA = 0.929855
+REFERENCE_SYNC_ERRORS = [20.5, 11.2, 1.97, 0.308, 4.13e-2, 5.9e-3, 7.7e-4]
 
 
-# -- helpers ---------------------------------------------------------------------------------------
+# -- cells --------------------------------------------------------------------------------------------
 
-def _parts(res: MultiResults, which: str = "all") -> list[tuple[str, Results]]:
-    items = list(res.parts.items())
-    if which == "theory":
-        return [(k, r) for k, r in items if k != "paper"]
-    if which == "paper":
-        return [(k, r) for k, r in items if k == "paper"]
-    return items
+@dataclass
+class Cells:
+    """The (scenario, run) cells a claim checks, and the ones left out by their hypotheses."""
 
+    items: list = field(default_factory=list)           # (label, Results, RunSpec)
+    left_out: list = field(default_factory=list)        # text per cell
 
-def _runs(r: Results, pred: Callable) -> list[str]:
-    return [s.name for s in r.scenario.runs if pred(s)]
+    def note(self) -> str:
+        return (" Left out: " + "; ".join(self.left_out) + ".") if self.left_out else ""
 
-
-def meets_q22(r: Results, run) -> bool:
-    """q of the run satisfies (22) with the Lemma-5 α (the theorems' hypothesis)."""
-    return run.rule == "mean" and run.q >= int(str(r.design["q_thm22"]))
-
-
-def in_hypotheses(r: Results, run) -> bool:
-    """Theorem 1/2 hypotheses: (22), nobody leaves, no noise, sync or (10)-respecting async."""
-    if run.leave is not None or run.noise or run.timing == "offset" or not meets_q22(r, run):
-        return False
-    return not hypotheses_async(run)
+    def verdict(self, verdicts: list[tuple[str, Verdict]], what: str) -> Verdict:
+        if not verdicts:
+            reason = f"no {what}"
+            return not_checkable(reason + (": every candidate's hypotheses fail." + self.note() if self.left_out else ""))
+        return _combine(verdicts, detail=self.note())
 
 
-def constants(r: Results, run) -> dict[str, float]:
+def cells(res: MultiResults, select: Callable[[Results, RunSpec], bool], needs: tuple[str, ...] = ()) -> Cells:
+    out = Cells()
+    for part, r in res.parts.items():
+        for run in r.scenario.runs:
+            if not select(r, run):
+                continue
+            label = f"{part}/{run.name}"
+            fails = hy.cell_failures(res, part, run, needs)
+            if fails:
+                out.left_out.append(f"[{label}] " + ", ".join(
+                    f"{hid} {'does not hold' if h.holds is False else 'is undecided'} (value {_fmt(h.value)}, "
+                    f"threshold {_fmt(h.threshold)})" for hid, h in fails))
+            else:
+                out.items.append((label, r, run))
+    return out
+
+
+def _fmt(v) -> str:
+    if isinstance(v, (int, np.integer)):
+        return f"{int(v):,}"
+    if isinstance(v, (float, np.floating)):
+        return f"{float(v):.6g}"
+    return str(v)
+
+
+def _combine(verdicts: list[tuple[str, Verdict]], detail: str = "") -> Verdict:
+    """Worst of several verdicts (fail > erratum > pass > not-checkable), details joined."""
+    order = {FAIL: 0, ERRATUM: 1, PASS: 2, NOT_CHECKABLE: 3}
+    label, worst = min(verdicts, key=lambda lv: (order[lv[1].status], lv[1].margin if lv[1].margin is not None else 0))
+    if len(verdicts) == 1:
+        text = f"[{label}] {worst.detail}"
+    else:
+        text = f"worst case {label}. " + "; ".join(f"[{lab}] {v.status}: {v.detail}" for lab, v in verdicts)
+    return Verdict(worst.status, measured=worst.measured, reference=worst.reference, tolerance=worst.tolerance,
+                   margin=worst.margin, trials=worst.trials, printed=worst.printed, corrected=worst.corrected,
+                   detail=f"{text}{detail}".strip())
+
+
+def is_theorem_run(run: RunSpec) -> bool:
+    """The runs Theorems 1 and 2 are about: x' = Ax (no input), every agent present, rule (13)."""
+    return not run.noise and run.leave is None and run.rule == "mean"
+
+
+def timing_needs(run: RunSpec) -> tuple[str, ...]:
+    return ("eq10", "windows") if run.timing in ("async", "offset") else ()
+
+
+def cells_with(res: MultiResults, select, base: tuple[str, ...]) -> Cells:
+    """Like `cells`, with (10) and the windows added for asynchronous / offset runs."""
+    out = Cells()
+    for timing_specific in (False, True):
+        part = cells(res, lambda r, run: select(r, run) and bool(timing_needs(run)) == timing_specific,
+                     base + (("eq10", "windows") if timing_specific else ()))
+        out.items += part.items
+        out.left_out += part.left_out
+    return out
+
+
+def in_theorem1(r: Results, run: RunSpec) -> bool:
+    """A synchronous theorem run whose q satisfies (22) (for figures)."""
+    return run.timing == "sync" and is_theorem_run(r.spec(run.name)) and hy.q_eq22(r, run.q).holds is True
+
+
+# -- quantities ------------------------------------------------------------------------------------------
+
+def constants(r: Results, run: RunSpec) -> dict[str, float]:
+    """b = q e^(||A||T)|Q|, c = max c_i, d = c b e^(λT)/(1 - e^(-(λ̄-λ)T)) of the proof of Theorem 1, and d'
+    (2-norm analogue for the symmetric case)."""
     sc, dz = r.scenario, r.design
     nA = float(dz["norm_A"])
     c = float(dz["c_i"].max())
@@ -83,6 +150,44 @@ def event_norms(r: Results, name: str):
     return e, eb, e2, eb2
 
 
+def simulation_tolerance(r: Results, run: RunSpec) -> tuple[float, str]:
+    """Round-off allowance, relative to the size of the states, of any quantity built from a
+    simulated run (errors e = x̂ - x, the identities (41)/(61')).
+
+    Longest chains of floating-point operations per interval: the q estimator iterations, each
+    a sum over mn terms, and the exact propagation over the interval, T/dt + m + 1 steps of a
+    D-dimensional matrix exponential (D = n + Σn_i + 2 + mn + n states); their results are
+    multiplied by e^(AT) and by B(s) (so the condition is ||e^(AT)||_2 (1 + max_s ||B(s)||_2)).
+    """
+    d = r.obs
+    m, n = d.m, d.n
+    D = n + sum(d.n_i) + 2 + m * n + n
+    steps = math.ceil(r.scenario.T / DT_PLOT) + m + 1
+    ops = run.q * m * n + steps * D
+    b2 = r.runs[run.name]["B_2"]
+    bmax = float(np.nanmax(b2)) if np.isfinite(b2).any() else float(r.design["Q_2"]) * run.q * math.exp(
+        float(r.design["norm_A"]) * r.scenario.T)
+    cond = max(1.0, float(r.design["norm_eAT"])) * (1.0 + bmax)
+    tol, text = roundoff_tolerance(scale=1.0, operations=ops, condition=cond)
+    return tol, (f"{text} (relative to the size of the states: q·mn = {run.q * m * n:,} iteration terms + {steps} "
+                 f"propagation steps × D = {D}; condition ||e^(AT)||(1 + max ||B(s)||) = {cond:.3g})")
+
+
+def state_scale(r: Results, name: str) -> np.ndarray:
+    """max(1, ||x(t_is)||, ||x̂_i(t_is)||, ||ē(s)||) per event index and trial: (S+1, B)."""
+    run = r.run(name)
+    xs = np.linalg.norm(run.x_event, axis=-1).max(axis=-1)
+    xh = np.linalg.norm(run.e_post + run.x_event, axis=-1).max(axis=-1)
+    eb = np.linalg.norm(run.ebar, axis=-1)
+    return np.nan_to_num(np.maximum.reduce([xs, xh, eb, np.ones_like(xs)]), nan=1.0)
+
+
+def roundoff_floor(r: Results, name: str) -> np.ndarray:
+    """The simulation's round-off allowance in absolute terms per event index and trial: (S+1, B)."""
+    tol, _ = simulation_tolerance(r, r.spec(name))
+    return tol * state_scale(r, name)
+
+
 def fit_rate(t: np.ndarray, v: np.ndarray, floor: np.ndarray, skip: int = 2) -> tuple[float, int, int]:
     """Least-squares decay rate of log v over the samples from `skip` until v first reaches the
     round-off floor (exclusive). Returns (rate, first, last) sample indices; nan if < 3 samples."""
@@ -94,58 +199,82 @@ def fit_rate(t: np.ndarray, v: np.ndarray, floor: np.ndarray, skip: int = 2) -> 
     return float(-slope), skip, stop
 
 
-def roundoff_floor(r: Results, name: str) -> np.ndarray:
-    """ROUNDOFF · eps · (size of the states) per event index and trial: (S+1, B)."""
-    run = r.run(name)
-    xs = np.linalg.norm(run.x_event, axis=-1).max(axis=-1)
-    xh = np.linalg.norm(run.e_post + run.x_event, axis=-1).max(axis=-1)
-    return ROUNDOFF * EPS * np.maximum(np.maximum(xs, xh), 1.0)
-
-
-def _combine(verdicts: list[tuple[str, Verdict]], detail: str = "") -> Verdict:
-    """Worst of several verdicts (fail > erratum > pass), details joined."""
-    if not verdicts:
-        return not_checkable("no run of the scenario is eligible for this check")
-    order = {FAIL: 0, ERRATUM: 1, PASS: 2, NOT_CHECKABLE: 3}
-    label, worst = min(verdicts, key=lambda lv: (order[lv[1].status], lv[1].margin if lv[1].margin is not None else 0))
-    text = "; ".join(f"[{lab}] {v.status}: {v.detail}" for lab, v in verdicts)
-    return Verdict(worst.status, measured=worst.measured, reference=worst.reference, tolerance=worst.tolerance,
-                   margin=worst.margin, trials=worst.trials, printed=worst.printed, corrected=worst.corrected,
-                   detail=f"worst case {label}. {text} {detail}".strip())
+def alpha_used(r: Results) -> tuple[float | None, str]:
+    """α of Lemma 5 for ρ exact, or for the proven upper bound of ρ (a larger α: a check against
+    it is weaker but sound); None when no upper bound below 1 is known."""
+    dz = r.design
+    if bool(dz["rho_exact"]):
+        return float(dz["alpha_lemma5"]), f"α = {float(dz['alpha_lemma5']):.12g} (ρ exact)"
+    if "alpha_lemma5_upper" in dz:
+        return float(dz["alpha_lemma5_upper"]), (f"α = {float(dz['alpha_lemma5_upper']):.12g} from the upper bound "
+                                                f"ρ <= {float(dz['rho_upper']):.6g}")
+    return None, "ρ is not bounded below 1 by the search"
 
 
 # -- design checks ---------------------------------------------------------------------------------------
 
 def check_local_design(res: MultiResults) -> Verdict:
+    """C_i = C̄_i L_i, L_i A = Ā_i L_i, rank of the observability matrix of (C̄_i, Ā_i) = n_i,
+    and footnote 3 (P_i from M L_i equals P_i from L_i). Allowances: the residual of C_i is
+    C_i P_i, so 10·n·n_i·eps·κ(L_i) relative to ||C_i|| (P_i from a QR of L_i'); L_i A - Ā_i L_i =
+    L_i A P_i is zero for an exactly A-invariant kernel, so 10·n²·eps·κ(L_i) relative to
+    ||A|| ||L_i||, plus the largest singular value the rank decision discarded and twice κ(L_i)
+    times the distance of L_i's row space from the computed observable space (0 unless L_i is
+    given); the two projectors of footnote 3 differ by 10·n·n_i·eps·(κ(L_i) + κ(M L_i))."""
     out = []
-    for name, r in _parts(res):
-        dz = r.design
-        scale = max(1.0, float(np.abs(r.scenario.A).max()))
-        errs = np.concatenate([dz["residual_C"], dz["residual_A"] / scale, dz["P_basis_dev"]])
+    for name, r in res.parts.items():
+        dz, sc = r.design, r.scenario
+        n = sc.n
+        ni = np.asarray(dz["n_i"], float)
+        kL, kML = np.asarray(dz["kappa_L"]), np.asarray(dz["kappa_ML"])
+        tol_C = 10 * n * ni * EPS * kL
+        tol_A = 10 * n * n * EPS * kL + np.asarray(dz["discarded"]) + 2 * kL * np.asarray(dz["row_space_dist"])
+        tol_P = 10 * n * ni * EPS * (kL + kML)
+        err = np.concatenate([dz["residual_C"], dz["residual_A"], dz["P_basis_dev"]])
+        tol = np.concatenate([tol_C, tol_A, tol_P])
+        ratio = err / tol
         rank_ok = bool(np.array_equal(dz["obs_rank_local"], dz["n_i"]))
-        v = identity(errs, np.zeros_like(errs), rtol=0, atol=1e-12,
-                     detail=f"C_i = C̄_i L_i, L_i A = Ā_i L_i, P_i basis-independent; rank O(C̄_i, Ā_i) = n_i: {rank_ok}")
-        if not rank_ok:
-            v = Verdict(FAIL, detail=v.detail)
-        out.append((name, v))
+        k = int(np.argmax(ratio))
+        detail = (f"largest residual / allowance = {ratio.max():.3g} (residuals of C_i = C̄_i L_i: "
+                  f"{np.max(dz['residual_C']):.3g}, of L_i A = Ā_i L_i: {np.max(dz['residual_A']):.3g}, footnote 3 "
+                  f"|P_i(M L_i) - P_i(L_i)| over an orthogonal M and an M with condition 100: "
+                  f"{np.max(dz['P_basis_dev']):.3g}; κ(L_i) <= {kL.max():.3g}, κ(M L_i) <= {kML.max():.3g}); "
+                  f"rank of the observability matrix of (C̄_i, Ā_i) = n_i for every agent: {rank_ok}")
+        status = PASS if (ratio.max() <= 1 and rank_ok) else FAIL
+        out.append((name, Verdict(status, measured=float(err[k]), reference=0.0, tolerance=float(tol[k]),
+                                  margin=float(tol[k] - err[k]), detail=detail)))
     return _combine(out)
 
 
 def check_printed_reduced(res: MultiResults) -> Verdict:
+    """Exact: the printed L_i, A have entries that are integers or tenths, and so are the products."""
     r = res["paper"]
     d = r.obs
     got = np.concatenate([np.ravel(d.Abar[i]) for i in range(4)] + [np.ravel(d.Cbar[i]) for i in range(4)])
     ref = np.concatenate([np.ravel(a) for a in PRINTED_ABAR] + [np.ravel(c) for c in PRINTED_CBAR])
-    return identity(got, ref, rtol=0, atol=1e-14, detail="Ā_i = L_i A L_i', C̄_i = C_i L_i' from the printed L_i vs the "
-                                                          "printed Ā_i, C̄_i")
+    tol, text = roundoff_tolerance(scale=float(np.abs(r.scenario.A).max()), operations=2 * r.scenario.n)
+    return identity(got, ref, rtol=0, atol=tol, detail=f"Ā_i = L_i A L_i', C̄_i = C_i L_i' from the printed L_i vs the "
+                                                        f"printed Ā_i, C̄_i; {text}")
 
 
 def check_joint_observability(res: MultiResults) -> Verdict:
+    """(16) both ways: the observable space of the stacked outputs (orthogonal Krylov iteration)
+    is R^n iff σ_min([I - P_1; ...; I - P_m]) > 0 (decided at the rank tolerance)."""
     out = []
-    for name, r in _parts(res):
+    for name, r in res.parts.items():
+        sc = r.scenario
         smin = float(r.design["sigma_min_16"])
-        out.append((name, Verdict(PASS if smin > 1e-9 else FAIL, measured=smin, reference=0.0, margin=smin,
-                                  detail=f"smallest singular value of [I - P_1; ...; I - P_m] = {smin:.6g} > 0 (16)")))
+        lhs = jd.observable_basis(sc.A, np.vstack(sc.C), sc.rank_tol).rows.shape[0] == sc.n
+        rhs = smin > sc.rank_tol
+        detail = (f"(C, A) jointly observable: {lhs}; σ_min([I - P_1; ...; I - P_m]) = {smin:.6g} > rank tolerance "
+                  f"{sc.rank_tol:g}: {rhs}")
+        if lhs == rhs:
+            out.append((name, Verdict(PASS, measured=smin, reference=sc.rank_tol, margin=smin - sc.rank_tol,
+                                      detail=detail)))
+        elif 1e-3 * sc.rank_tol < smin < 1e3 * sc.rank_tol:
+            out.append((name, not_checkable(detail + "; the rank decision is too close to call")))
+        else:
+            out.append((name, Verdict(FAIL, measured=smin, reference=sc.rank_tol, detail=detail)))
     return _combine(out)
 
 
@@ -157,8 +286,8 @@ def check_local_rates(res: MultiResults) -> Verdict:
     slow = float(rates.min())
     detail = (f"eig(Ā_i + K_i C̄_i) with the printed K_i: local rates {np.round(rates, 4).tolist()}; the slowest is "
               f"{slow:.4f}, so the stated λ̄ = {printed:g} > λ = {lam_printed:g} does not hold (the text's own 'local "
-              f"observer convergence rates are all 2' is right). The theorem checks here use λ = {r.scenario.lam}, "
-              f"λ̄ = {r.scenario.lam_bar} (valid: λ < λ̄ <= {slow:.4f}).")
+              f"observer convergence rates are all 2' is right; tolerance 0.02 for the gains printed to 3 digits). "
+              f"The theorem checks here use λ = {r.scenario.lam}, λ̄ = {r.scenario.lam_bar} (valid: λ < λ̄ <= {slow:.4f}).")
     ok_corrected = abs(slow - 2.0) <= 0.02
     status = ERRATUM if (slow < printed and ok_corrected) else (PASS if slow >= printed else FAIL)
     return Verdict(status, measured=printed, reference=slow, printed=printed, corrected=2.0, tolerance=0.02,
@@ -175,29 +304,6 @@ def check_redundancy(res: MultiResults) -> Verdict:
                           f"vertex i: {con.tolist()} (graph 2a reconstructed as the bidirectional ring)")
 
 
-def check_rho(res: MultiResults) -> Verdict:
-    out = []
-    for name, r in _parts(res):
-        dz = r.design
-        rho = float(dz["rho"])
-        exact = bool(dz["rho_exact"])
-        detail = (f"ρ = {rho:.10g} over {int(dz['rho_words'])} minimal complete words "
-                  f"({'exhaustive' if exact else 'SAMPLED: a lower estimate only'}), worst word "
-                  f"{[int(x) + 1 for x in dz['rho_worst_word']]}")
-        if r.scenario.m <= 3:
-            brute = brute_force_rho(r.design["P"])
-            detail += f"; brute force over all m^N products of exactly N factors: {brute:.10g}"
-            if abs(brute - rho) > 1e-12:
-                out.append((name, Verdict(FAIL, measured=rho, reference=brute, detail=detail)))
-                continue
-        v = inequality(rho, 1.0, strict=True, detail=detail)
-        if name == "paper":
-            v2 = identity([rho], [0.0], rtol=0, atol=1e-15, detail=detail + "; the spec finds ρ = 0 exactly")
-            v = v2 if v2.status != PASS else v
-        out.append((name, v))
-    return _combine(out)
-
-
 def brute_force_rho(P: np.ndarray) -> float:
     """Every product of exactly N = (m-1)²+1 factors containing all P_i (the definition (17)), no reduction."""
     m = len(P)
@@ -208,67 +314,77 @@ def brute_force_rho(P: np.ndarray) -> float:
     prod = P[idx[:, 0]]
     for k in range(1, N):
         prod = prod @ P[idx[:, k]]
-    return float(jd.spectral_norm(prod).max())
+    return float(np.linalg.norm(prod, ord=2, axis=(1, 2)).max())
+
+
+def check_rho(res: MultiResults) -> Verdict:
+    """ρ < 1 (17), from the exact value or its proven upper bound; allowance 10·N·n·eps for the
+    products of N projections. For m <= 3 also against the definition (all m^N products)."""
+    out = []
+    for name, r in res.parts.items():
+        dz = r.design
+        m, n = r.scenario.m, r.scenario.n
+        N = (m - 1) ** 2 + 1
+        rho, up, exact = float(dz["rho"]), float(dz["rho_upper"]), bool(dz["rho_exact"])
+        tol, text = roundoff_tolerance(scale=1.0, operations=N * n)
+        detail = (f"ρ {'= ' + format(rho, '.10g') if exact else f'in [{rho:.10g}, {up:.10g}]'} by branch and bound over "
+                  f"words whose first and last letters occur once ({int(dz['rho_words']):,} products evaluated), worst "
+                  f"word {[int(x) + 1 for x in dz['rho_worst_word']]}; {text}")
+        if m <= 3:
+            brute = brute_force_rho(r.design["P"])
+            v = identity([rho], [brute], rtol=0, atol=tol, detail=detail + f"; the definition over all m^N products: "
+                                                                            f"{brute:.10g}")
+            if v.status != PASS:
+                out.append((name, v))
+                continue
+        if name == "paper":
+            v = identity([rho], [0.0], rtol=0, atol=tol, detail=detail + "; the example's P_i are complementary "
+                                                                         "coordinate projections, so ρ = 0 exactly")
+            if v.status != PASS:
+                out.append((name, v))
+                continue
+        if up >= 1 and not exact:
+            out.append((name, not_checkable(detail + "; the upper bound is not below 1")))
+            continue
+        out.append((name, inequality(up, 1.0, strict=True, tolerance=tol, detail=detail)))
+    return _combine(out)
 
 
 def check_alpha(res: MultiResults) -> Verdict:
     out = []
-    for name, r in _parts(res):
+    for name, r in res.parts.items():
         dz, m = r.design, r.scenario.m
         a5, ap = float(dz["alpha_lemma5"]), float(dz["alpha_printed"])
-        lm = float(dz["lemma5_max"])
         detail = (f"m = {m}: α as printed in (18) = {ap:.10g}; α of Lemma 5 (and [33] eq. (26)) = {a5:.10g} "
-                  f"(1 - α = 10^{float(dz['one_minus_alpha_log10']):.4f}); largest sampled |P(S_N⊗I)···P(S_1⊗I)| = "
-                  f"{lm:.6g} over {int(dz['lemma5_samples'])} products (neither value is refuted by sampling)")
+                  f"(1 - α = 10^{float(dz['one_minus_alpha_log10']):.4f}), both from exact decimal arithmetic")
         if m == 2:
-            out.append((name, identity([ap], [a5], rtol=1e-12, detail=detail + "; for m = 2 both forms agree")))
+            out.append((name, identity([ap], [a5], rtol=4 * EPS, detail=detail + "; for m = 2 both forms agree")))
             continue
-        status = ERRATUM if abs(ap - a5) > 1e-12 * a5 else PASS
-        out.append((name, Verdict(status, measured=ap, reference=a5, printed=ap, corrected=a5, tolerance=1e-12,
+        status = ERRATUM if abs(ap - a5) > 4 * EPS * a5 else PASS
+        out.append((name, Verdict(status, measured=ap, reference=a5, printed=ap, corrected=a5, tolerance=4 * EPS,
                                   margin=float(a5 - ap),
-                                  detail=detail + "; (18) drops the exponent: m(m-1)^2 printed for m^((m-1)^2), which "
-                                                  "the proof of Lemma 5 uses")))
+                                  detail=detail + "; (18) prints m(m-1)^2 where the proof of Lemma 5 uses m^((m-1)^2)")))
     return _combine(out)
 
 
 def check_lemma5(res: MultiResults) -> Verdict:
+    """Sampled products of N steps P(S⊗I) against α; allowance 10·N·mn·eps (N products of mn-square
+    matrices)."""
     out = []
-    for name, r in _parts(res):
-        dz = r.design
-        out.append((name, inequality(float(dz["lemma5_max"]), float(dz["alpha_lemma5"]),
-                                     detail=f"{int(dz['lemma5_samples'])} products of N = {(r.scenario.m - 1) ** 2 + 1} "
-                                            f"steps over {int(dz['lemma5_pool'])} strongly connected graphs (random + "
-                                            "every constant sequence)")))
+    for name, r in res.parts.items():
+        dz, sc = r.design, r.scenario
+        N = (sc.m - 1) ** 2 + 1
+        alpha, atext = alpha_used(r)
+        if alpha is None:
+            out.append((name, not_checkable(atext)))
+            continue
+        tol, text = roundoff_tolerance(scale=1.0, operations=N * sc.m * sc.n)
+        out.append((name, inequality(float(dz["lemma5_max"]), alpha, tolerance=tol,
+                                     detail=f"{int(dz['lemma5_samples'])} products of N = {N} steps over "
+                                            f"{int(dz['lemma5_pool'])} strongly connected graphs (random + every "
+                                            f"constant sequence), largest |·| = {float(dz['lemma5_max']):.6g}; {atext}; "
+                                            f"{text}")))
     return _combine(out)
-
-
-def check_q_paper(res: MultiResults) -> Verdict:
-    r = res["paper"]
-    dz = r.design
-    q22 = int(str(dz["q_thm22_paper"]))
-    q22p = int(str(dz["q_thm22_printed_alpha_paper"]))
-    qmin = int(str(dz["q_minimal_paper"]))
-    q = r.scenario.q_design
-    detail = (f"Section 6 uses q = {q} for λ = 2, T = 1, m = 4, ρ = {float(dz['rho']):.3g}, ||A|| = "
-              f"{float(dz['norm_A']):.10f}: (22) needs q >= {q22:,} with the Lemma-5 α (minimal sufficient "
-              f"{qmin:,}; spec: {SPEC_Q22:,}) and q >= {q22p} even with α as printed in (18) (spec: {SPEC_Q22_PRINTED}). "
-              "The example does not meet its own sufficient condition; it converges because ρ = 0 "
-              "(see wang-liu-morse.sec6.eq44_q50).")
-    ok = q22 == SPEC_Q22 and q22p == SPEC_Q22_PRINTED
-    if not ok:
-        detail += " MISMATCH with the spec's q values."
-    return Verdict(FAIL, measured=q, reference=q22, margin=float(q - q22), detail=detail)
-
-
-def check_q27_paper(res: MultiResults) -> Verdict:
-    r = res["paper"]
-    dz = r.design
-    q27 = int(dz["q27_paper"])
-    detail = (f"σ = {float(dz['sigma']):.7f} over {int(dz['sigma_graphs'])} connected graphs (worst: edges "
-              f"{_edges(dz['sigma_worst_mask'])}); (27) with λ = 2 needs q >= {q27} (minimal sufficient "
-              f"{int(dz['q27_minimal_paper'])}); the paper uses q = {r.scenario.q_design}")
-    return Verdict(FAIL if r.scenario.q_design < q27 else PASS, measured=r.scenario.q_design, reference=q27,
-                   margin=float(r.scenario.q_design - q27), detail=detail)
 
 
 def _edges(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -278,15 +394,19 @@ def _edges(mask: np.ndarray) -> list[tuple[int, int]]:
 
 def check_sigma(res: MultiResults) -> Verdict:
     out = []
-    for name, r in _parts(res):
+    for name, r in res.parts.items():
         dz = r.design
         if "sigma" not in dz:
             out.append((name, not_checkable("m > 6: σ by enumeration of all connected graphs is not attempted")))
             continue
         sig = float(dz["sigma"])
-        v = inequality(sig, 1.0, strict=True, detail=f"σ = {sig:.10g} over {int(dz['sigma_graphs'])} connected graphs")
+        tol, text = roundoff_tolerance(scale=1.0, operations=r.scenario.m * r.scenario.n)
+        v = inequality(sig, 1.0, strict=True, tolerance=tol,
+                       detail=f"σ = {sig:.10g} over {int(dz['sigma_graphs'])} connected graphs (worst: edges "
+                              f"{_edges(dz['sigma_worst_mask'])}); {text}")
         if name == "paper":
-            v2 = identity([sig], [SPEC_SIGMA], rtol=1e-6, detail=f"σ = {sig:.10g} vs the spec's {SPEC_SIGMA}")
+            v2 = identity([sig], [REFERENCE_SIGMA], rtol=1e-6, detail=f"σ = {sig:.10g} vs the independent value "
+                                                                      f"{REFERENCE_SIGMA} (6 digits)")
             v = v2 if v2.status != PASS else v
         out.append((name, v))
     return _combine(out)
@@ -294,179 +414,207 @@ def check_sigma(res: MultiResults) -> Verdict:
 
 def check_lemma6(res: MultiResults) -> Verdict:
     out = []
-    for name, r in _parts(res):
+    for name, r in res.parts.items():
         dz = r.design
-        out.append((name, inequality(float(dz["lemma6_max"]), 1.0, strict=True,
+        tol, text = roundoff_tolerance(scale=1.0, operations=r.scenario.m * r.scenario.n)
+        out.append((name, inequality(float(dz["lemma6_max"]), 1.0, strict=True, tolerance=tol,
                                      detail=f"max ||P(F⊗I)||_2 over {int(dz['lemma6_count'])} random doubly stochastic F "
-                                            "with positive diagonal and a strongly connected graph")))
+                                            f"with positive diagonal and a strongly connected graph; {text}")))
     return _combine(out)
 
 
 # -- simulation identities ----------------------------------------------------------------------------------
 
+def recursion_residuals(r: Results, run: RunSpec, key: str) -> np.ndarray:
+    a = r.runs[run.name]
+    ok = ~np.isnan(a[key])
+    return a[key][ok] / a["res_scale"][ok]
+
+
 def check_eq41(res: MultiResults) -> Verdict:
+    cs = cells(res, lambda r, run: not run.noise and run.timing != "offset")
     out = []
-    for name, r in _parts(res):
-        for run in r.scenario.runs:
-            if run.noise or run.timing == "offset":
-                continue
-            a = r.runs[run.name]
-            ok = ~np.isnan(a["res_minus"])
-            if not ok.any():
-                continue
-            rel = a["res_minus"][ok] / a["res_scale"][ok]
-            v = identity(rel, np.zeros_like(rel), rtol=0, atol=IDENTITY_TOL,
-                         detail=f"max |e(s) - A(s)e(s-1) - B(s)ē(s-1)| / scale = {rel.max():.3g} = {rel.max() / EPS:.1f} eps "
-                                f"over {rel.size} (interval, trial) pairs")
-            out.append((f"{name}/{run.name}", v))
-    return _combine(out)
+    for label, r, run in cs.items:
+        rel = recursion_residuals(r, run, "res_minus")
+        if not rel.size:
+            continue
+        tol, text = simulation_tolerance(r, run)
+        out.append((label, identity(rel, np.zeros_like(rel), rtol=0, atol=tol,
+                                    detail=f"max |e(s) - A(s)e(s-1) - B(s)ē(s-1)| / scale = {rel.max():.3g} "
+                                           f"({rel.max() / EPS:.1f} eps) over {rel.size} (interval, trial) pairs; {text}")))
+    return cs.verdict(out, "noise-free run without event-time offsets")
 
 
 def check_eq61_sign(res: MultiResults) -> Verdict:
+    """(61) with +Γ as printed and with -Γ; the identity is algebraic for the index-aligned
+    exchange (no hypothesis), so the corrected sign must hold to round-off."""
+    cs = cells(res, lambda r, run: run.timing == "offset" and not run.noise and run.leave is None)
     rows = []
-    for name, r in _parts(res):
-        for run in r.scenario.runs:
-            if run.timing != "offset" or run.noise or run.leave is not None:
-                continue
-            a = r.runs[run.name]
-            ok = ~np.isnan(a["res_minus"])
-            rows.append((f"{name}/{run.name}", float((a["res_minus"][ok] / a["res_scale"][ok]).max()),
-                         float((a["res_plus"][ok] / a["res_scale"][ok]).max())))
+    for label, r, run in cs.items:
+        minus, plus = recursion_residuals(r, run, "res_minus"), recursion_residuals(r, run, "res_plus")
+        if minus.size:
+            rows.append((label, float(minus.max()), float(plus.max()), *simulation_tolerance(r, run)))
     if not rows:
-        return not_checkable("no run with event-time offsets")
-    corr = max(x[1] for x in rows)
-    printed = min(x[2] for x in rows)
-    detail = "; ".join(f"[{lab}] residual with -Γ (corrected) {c:.3g}, with +Γ (printed) {p:.3g}" for lab, c, p in rows)
-    if corr <= IDENTITY_TOL and printed > 1e3 * IDENTITY_TOL:
-        status = ERRATUM
-    elif corr <= IDENTITY_TOL and printed <= IDENTITY_TOL:
-        status = PASS
-    else:
-        status = FAIL
-    return Verdict(status, measured=printed, reference=0.0, tolerance=IDENTITY_TOL, printed=printed, corrected=corr,
-                   margin=IDENTITY_TOL - corr, detail=f"(61) e(s) = A e(s-1) + B ē(s-1) ∓ G x((s-1)T), relative residuals: "
-                                                      f"{detail}. The sign of Γ in (57), (59)-(61) is wrong.")
+        return not_checkable("no noise-free run with event-time offsets")
+    detail = "; ".join(f"[{lab}] residual with -Γ (corrected) {c:.3g}, with +Γ (printed) {p:.3g}, allowance {t:.3g}"
+                       for lab, c, p, t, _ in rows)
+    corr_ok = all(c <= t for _, c, _, t, _ in rows)
+    printed_ok = all(p <= t for _, _, p, t, _ in rows)
+    worst = max(rows, key=lambda x: x[1] / x[3])
+    status = (PASS if printed_ok else ERRATUM) if corr_ok else FAIL
+    note = (" With these offsets the two signs cannot be told apart." if printed_ok and corr_ok else
+            " The sign of Γ in (57), (59)-(61) is wrong." if corr_ok else "")
+    return Verdict(status, measured=max(x[2] for x in rows), reference=0.0, tolerance=worst[3],
+                   printed=max(x[2] for x in rows), corrected=max(x[1] for x in rows), margin=worst[3] - worst[1],
+                   detail=f"(61) e(s) = A e(s-1) + B ē(s-1) ∓ G x((s-1)T), residuals relative to the size of the states: "
+                          f"{detail}. Allowance: {worst[4]}.{note}")
 
 
-def check_lemma2(res: MultiResults, timing: str) -> Verdict:
-    out = []
-    for name, r in _parts(res):
-        for run in r.scenario.runs:
-            if run.timing != timing or (timing == "async" and hypotheses_async(run)):
-                continue
-            a = r.runs[run.name]
-            mism = int((a["sources"] != a["nominal"]).sum())
-            viol = int(a["reception_violations"])
-            total = int(a["sources"].size)
-            out.append((f"{name}/{run.name}",
-                        identity([mism, viol], [0, 0], rtol=0, atol=0,
-                                 detail=f"{mism} of {total} source-set entries differ from N_i((s-1)T+(k-1)Δ+β); "
-                                        f"{viol} messages outside the reception interval")))
-    return _combine(out)
+def check_lemma2(res: MultiResults) -> Verdict:
+    cs = cells(res, lambda r, run: run.timing == "sync")
+    return cs.verdict([(label, _sources(r, run)) for label, r, run in cs.items], "synchronous run")
+
+
+def check_lemma3(res: MultiResults) -> Verdict:
+    cs = cells(res, lambda r, run: run.timing == "async", ("eq10", "windows"))
+    return cs.verdict([(label, _sources(r, run)) for label, r, run in cs.items], "asynchronous run")
+
+
+def _sources(r: Results, run: RunSpec) -> Verdict:
+    a = r.runs[run.name]
+    mism = int((a["sources"] != a["nominal"]).sum())
+    viol = int(a["reception_violations"])
+    return identity([mism, viol], [0, 0], rtol=0, atol=0,
+                    detail=f"{mism} of {int(a['sources'].size)} source-set entries differ from N_i((s-1)T+(k-1)Δ+β); "
+                           f"{viol} messages outside the reception interval")
 
 
 def check_lemma1(res: MultiResults) -> Verdict:
-    """Windows 𝓘_s(k) = [sT + (k-1)Δ + β - ε, sT + (k-1)Δ + β + ε] are disjoint and inside [sT, (s+1)T)."""
+    """Windows 𝓘_s(k) = [sT + (k-1)Δ + β - ε, sT + (k-1)Δ + β + ε] are disjoint and inside
+    [sT, (s+1)T); the gaps are differences of inputs of size T, so the allowance is 10·q·eps·T."""
+    cs = cells(res, lambda r, run: run.timing in ("async", "offset"), ("eq10",))
     out = []
-    for name, r in _parts(res):
-        for run in r.scenario.runs:
-            if run.timing not in ("async", "offset") or hypotheses_async(run):
-                continue
-            eps = max(run.epsilon)
-            centres = np.arange(run.q) * run.Delta + run.beta
-            gaps = np.concatenate([[centres[0] - eps], (centres[1:] - eps) - (centres[:-1] + eps),
-                                   [r.scenario.T - (centres[-1] + eps)]])
-            v = inequality(np.zeros_like(gaps), gaps, detail=f"smallest gap {gaps.min():.3g} between consecutive windows "
-                                                              f"(and the interval ends), ε = {eps:g}, β = {run.beta:g}, "
-                                                              f"Δ = {run.Delta:g}, q = {run.q}")
-            if gaps[-1] <= 0 or gaps[1:-1].min(initial=1) <= 0:
-                v = Verdict(FAIL, measured=float(gaps.min()), reference=0.0, detail=v.detail)
-            out.append((f"{name}/{run.name}", v))
-    return _combine(out)
+    for label, r, run in cs.items:
+        eps = hy.run_epsilon(run)
+        T = r.scenario.T
+        centres = np.arange(run.q) * run.Delta + run.beta
+        gaps = np.concatenate([[centres[0] - eps], (centres[1:] - eps) - (centres[:-1] + eps),
+                               [T - (centres[-1] + eps)]])
+        tol, text = roundoff_tolerance(scale=T, operations=run.q)
+        v = inequality(np.zeros_like(gaps), gaps, tolerance=tol,
+                       detail=f"smallest gap {gaps.min():.3g} between consecutive windows (and the interval ends), ε = "
+                              f"{eps:g}, β = {run.beta:g}, Δ = {run.Delta:g}, q = {run.q}; {text}")
+        out.append((label, v))
+    return cs.verdict(out, "run with jitter or offsets satisfying (10)")
 
 
 def check_async_equals_sync(res: MultiResults) -> Verdict:
+    """Bitwise: under (10) and N(t) constant on the windows, every source set is the nominal one,
+    so the iterates are computed from the same numbers in the same order."""
+    cs = cells(res, lambda r, run: run.timing == "async" and bool(run.reference_run), ("eq10", "windows"))
     out = []
-    for name, r in _parts(res):
-        for run in r.scenario.runs:
-            if run.timing != "async" or not run.reference_run:
-                continue
-            a, b = r.runs[run.name], r.runs[run.reference_run]
-            B = min(a["e_post"].shape[1], b["e_post"].shape[1])
-            dz = float(np.nanmax(np.abs(a["z0"] - b["z0"])))
-            de = float(np.nanmax(np.abs(a["e_post"][:, :B] - b["e_post"][:, :B])))
-            jit = float(np.abs(a["jitter"]).max()) if "jitter" in a else 0.0
-            out.append((f"{name}/{run.name}",
-                        identity([dz, de], [0.0, 0.0], rtol=0, atol=0,
-                                 detail=f"max |z_async - z_sync| = {dz:.3g}, max |e_async(s) - e_sync(s)| = {de:.3g} over "
-                                        f"{B} trials (jitter up to {jit:.3g}); bitwise equal iterates")))
-    return _combine(out)
+    for label, r, run in cs.items:
+        ref = r.spec(run.reference_run)
+        a, b = r.runs[run.name], r.runs[ref.name]
+        same = (ref.timing == "sync" and ref.q == run.q and ref.rule == run.rule and ref.noise == run.noise
+                and ref.ideal == run.ideal and ref.leave == run.leave and a["nominal"].shape == b["nominal"].shape
+                and np.array_equal(a["nominal"], b["nominal"]))
+        if not same:
+            out.append((label, not_checkable(f"the reference run {ref.name} is not the same observer with synchronous "
+                                             "timing (q, rule, input, initial conditions or nominal graphs differ)")))
+            continue
+        B = min(a["e_post"].shape[1], b["e_post"].shape[1])
+        dz = float(np.nanmax(np.abs(a["z0"] - b["z0"])))
+        de = float(np.nanmax(np.abs(a["e_post"][:, :B] - b["e_post"][:, :B])))
+        jit = float(np.abs(a["jitter"]).max()) if "jitter" in a else 0.0
+        out.append((label, identity([dz, de], [0.0, 0.0], rtol=0, atol=0,
+                                    detail=f"max |z_async - z_sync| = {dz:.3g}, max |e_async(s) - e_sync(s)| = {de:.3g} "
+                                           f"over {B} trials (jitter up to {jit:.3g}); bitwise equal iterates")))
+    return cs.verdict(out, "asynchronous run with a synchronous reference run")
 
 
 # -- Lemma 4 and the bounds -----------------------------------------------------------------------------------
 
-def check_eq44(res: MultiResults, theory: bool) -> Verdict:
+def _matrix_tolerance(r: Results, run: RunSpec, scale: float) -> tuple[float, str]:
+    """A(s), B(s), Φ_s(k), G(s) are products and sums of up to q mn-square matrices."""
+    return roundoff_tolerance(scale=scale, operations=run.q * r.scenario.m * r.scenario.n)
+
+
+def check_eq44(res: MultiResults) -> Verdict:
+    cs = cells_with(res, lambda r, run: run.rule == "mean" and run.leave is None, ("q",))
     out = []
-    for name, r in _parts(res):
-        for run in r.scenario.runs:
-            if run.rule != "mean" or run.leave is not None:
-                continue
-            if theory != meets_q22(r, run):
-                continue
-            a = r.runs[run.name]
-            vals = a["A_mixed"][~np.isnan(a["A_mixed"])]
-            lim = math.exp(-r.scenario.lam * r.scenario.T)
-            out.append((f"{name}/{run.name}", inequality(vals, np.full_like(vals, lim),
-                                                         detail=f"max |A(s)| = {vals.max():.3g} vs e^(-λT) = {lim:.6g} "
-                                                                f"(q = {run.q})")))
-    if not theory and out:
-        return _combine(out, detail="OUTSIDE the hypotheses: q does not satisfy (22); (44) holds empirically.")
-    return _combine(out)
+    for label, r, run in cs.items:
+        vals = r.runs[run.name]["A_mixed"]
+        vals = vals[~np.isnan(vals)]
+        lim = math.exp(-r.scenario.lam * r.scenario.T)
+        tol, text = _matrix_tolerance(r, run, float(r.design["norm_eAT"]))
+        out.append((label, inequality(vals, np.full_like(vals, lim), tolerance=tol,
+                                      detail=f"max |A(s)| = {vals.max():.3g} vs e^(-λT) = {lim:.6g} (q = {run.q}); {text}")))
+    return cs.verdict(out, "run with rule (13) whose q satisfies (22)")
+
+
+def check_eq44_q50(res: MultiResults) -> Verdict:
+    """The paper's example with its q = 50, which misses (22): (44) measured."""
+    r = res["paper"]
+    out = []
+    for run in r.scenario.runs:
+        if run.rule != "mean" or run.leave is not None:
+            continue
+        vals = r.runs[run.name]["A_mixed"]
+        vals = vals[~np.isnan(vals)]
+        lim = math.exp(-r.scenario.lam * r.scenario.T)
+        out.append((f"paper/{run.name}", inequality(vals, np.full_like(vals, lim),
+                                                    detail=f"max |A(s)| = {vals.max():.3g} vs e^(-λT) = {lim:.6g} "
+                                                           f"(q = {run.q})")))
+    return _combine(out, detail=" Outside the hypotheses (q = 50 misses (22) and (27), see the hypotheses "
+                                "q_eq22 and q_eq27): (44) holds empirically, because ρ = 0.")
 
 
 def check_eq45_49(res: MultiResults) -> Verdict:
+    """(45) and (49) follow from |P_i| <= 1 and row-stochastic weights, whatever q is."""
+    cs = cells(res, lambda r, run: run.rule == "mean")
     out = []
-    for name, r in _parts(res):
-        for run in r.scenario.runs:
-            a = r.runs[run.name]
-            if run.rule != "mean":
-                continue
-            ok = ~np.isnan(a["B_mixed"])
-            okp = ~np.isnan(a["Phi_max"])
-            bnd = constants(r, run)["b"]
-            lo = np.concatenate([a["B_mixed"][ok], a["Phi_max"][okp]])
-            up = np.concatenate([np.full(ok.sum(), bnd), np.ones(okp.sum())])
-            out.append((f"{name}/{run.name}", inequality(lo, up + 1e-12,
-                                                         detail=f"max |B(s)| = {a['B_mixed'][ok].max():.4g} <= q e^(||A||T)|Q| "
-                                                                f"= {bnd:.4g} over {ok.sum()} intervals; max |Φ_s(k)| = "
-                                                                f"{a['Phi_max'][okp].max():.12f} <= 1 over all k of the first "
-                                                                f"{okp.sum()} intervals (tolerance 1e-12)")))
-    return _combine(out)
+    for label, r, run in cs.items:
+        a = r.runs[run.name]
+        ok, okp = ~np.isnan(a["B_mixed"]), ~np.isnan(a["Phi_max"])
+        if not ok.any():
+            continue
+        bnd = constants(r, run)["b"]
+        tol, text = _matrix_tolerance(r, run, bnd)
+        tol1, _ = _matrix_tolerance(r, run, 1.0)
+        lhs = np.concatenate([a["B_mixed"][ok] / bnd, a["Phi_max"][okp]])
+        out.append((label, inequality(lhs, np.ones(lhs.size), tolerance=max(tol / bnd, tol1),
+                                      detail=f"max |B(s)| = {a['B_mixed'][ok].max():.4g} <= q e^(||A||T)|Q| = {bnd:.4g} "
+                                             f"over {ok.sum()} intervals; max |Φ_s(k)| = {a['Phi_max'][okp].max():.12f} "
+                                             f"<= 1 over all k of the first {okp.sum()} intervals (both as ratios to "
+                                             f"their bounds); {text}")))
+    return cs.verdict(out, "run with rule (13) and every agent present in some interval")
 
 
 def check_c3(res: MultiResults) -> Verdict:
+    """With ē ≡ 0 (w_i(0) = L_i x(0)) and p = floor(q/N): max_i||π_is(q)|| <= α^p max_i||π_is(0)|| and
+    |e(s)| <= e^(||A||T) α^p |e(s-1)|, plus the simulation's round-off allowance."""
+    cs = cells(res, lambda r, run: run.ideal and run.rule == "mean" and run.leave is None and not run.noise)
     out = []
-    for name, r in _parts(res):
-        for run in r.scenario.runs:
-            if not run.ideal or run.rule != "mean":
-                continue
-            a = r.runs[run.name]
-            N = (r.scenario.m - 1) ** 2 + 1
-            p = run.q // N
-            alpha = float(r.design["alpha_lemma5"])
-            fl = ROUNDOFF * EPS * np.maximum(1.0, np.linalg.norm(a["x_event"][:-1], axis=-1).max(axis=-1))
-            lhs = a["piq_max"]
-            rhs = alpha ** p * a["pi0_max"] + fl
-            e, _, _, _ = event_norms(r, run.name)
-            lhs2 = e[1:]
-            rhs2 = math.exp(float(r.design["norm_A"]) * r.scenario.T) * alpha ** p * e[:-1] + ROUNDOFF * EPS * \
-                np.maximum(1.0, np.linalg.norm(a["x_event"][1:], axis=-1).max(axis=-1))
-            v = inequality(np.concatenate([lhs.ravel(), lhs2.ravel()]), np.concatenate([rhs.ravel(), rhs2.ravel()]),
-                           detail=f"ē ≡ 0, p = floor(q/N) = {p}, α^p = {alpha ** p:.6g}; measured worst ratio "
-                                  f"max_i||π(q)|| / max_i||π(0)|| = {np.nanmax(lhs[:1] / a['pi0_max'][:1]):.3g} in the "
-                                  f"first interval (round-off allowance {ROUNDOFF:g} eps · ||x||)")
-            out.append((f"{name}/{run.name}", v))
-    return _combine(out)
+    for label, r, run in cs.items:
+        alpha, atext = alpha_used(r)
+        if alpha is None:
+            out.append((label, not_checkable(atext)))
+            continue
+        a = r.runs[run.name]
+        N = (r.scenario.m - 1) ** 2 + 1
+        p = run.q // N
+        fl = roundoff_floor(r, run.name)
+        e, _, _, _ = event_norms(r, run.name)
+        lhs = np.concatenate([a["piq_max"].ravel(), e[1:].ravel()])
+        rhs = np.concatenate([(alpha ** p * a["pi0_max"] + fl[:-1]).ravel(),
+                              (math.exp(float(r.design["norm_A"]) * r.scenario.T) * alpha ** p * e[:-1] + fl[1:]).ravel()])
+        _, text = simulation_tolerance(r, run)
+        out.append((label, inequality(lhs, rhs, detail=f"ē ≡ 0, p = floor(q/N) = {p}, {atext}, α^p = {alpha ** p:.6g}; "
+                                                       f"measured max_i||π(q)|| / max_i||π(0)|| in the first interval = "
+                                                       f"{float(a['piq_max'][0].max() / a['pi0_max'][0].max()):.3g}; "
+                                                       f"{text}")))
+    return cs.verdict(out, "run with ē(0) = 0 ('ideal') and rule (13)")
 
 
 def event_bound(r: Results, name: str, sym: bool = False):
@@ -481,179 +629,224 @@ def event_bound(r: Results, name: str, sym: bool = False):
     return e[1:], decay * (e[0] + k["d"] * eb[0])[None]
 
 
-def check_event_bound(res: MultiResults, timing: str, sym: bool = False) -> Verdict:
+def check_event_bound(res: MultiResults, timing: str) -> Verdict:
+    cs = cells_with(res, lambda r, run: run.timing == timing and is_theorem_run(run), ("q",))
     out = []
-    for name, r in _parts(res):
-        for run in r.scenario.runs:
-            if run.timing != timing or run.leave is not None or run.noise:
-                continue
-            if sym != (run.rule == "symmetric"):
-                continue
-            if not sym and not in_hypotheses(r, run):
-                continue
-            if sym and run.q < int(r.design["q27"]):
-                continue
-            lhs, rhs = event_bound(r, run.name, sym)
-            ratio = float((lhs / rhs).max())
-            floor = roundoff_floor(r, run.name)[1:]
-            v = inequality(lhs, rhs + floor, detail=f"max measured/bound = {ratio:.3g} over {lhs.size} (s, trial) pairs "
-                                                    f"(d = {constants(r, run)['d_sym' if sym else 'd']:.4g}); errors below "
-                                                    f"{ROUNDOFF:g} eps ||x|| count as round-off")
-            out.append((f"{name}/{run.name}", Verdict(v.status, v.measured, v.reference, margin=v.margin,
-                                                      trials=lhs.shape[1], detail=v.detail)))
-    return _combine(out)
+    for label, r, run in cs.items:
+        lhs, rhs = event_bound(r, run.name)
+        floor = roundoff_floor(r, run.name)[1:]
+        _, text = simulation_tolerance(r, run)
+        v = inequality(lhs, rhs + floor, detail=f"max measured/bound = {float((lhs / rhs).max()):.3g} over {lhs.size} "
+                                                f"(s, trial) pairs (d = {constants(r, run)['d']:.4g}); {text}")
+        out.append((label, Verdict(v.status, v.measured, v.reference, tolerance=v.tolerance, margin=v.margin,
+                                   trials=lhs.shape[1], detail=v.detail)))
+    return cs.verdict(out, f"{timing} noise-free run with rule (13) and every agent present")
+
+
+def restart_ratios(r: Results, name: str) -> np.ndarray:
+    """|e(s)| / (e^(-λ(s-s0)T)(|e(s0)| + d|ē(s0)|) + floor) for every 1 <= s0 < s and trial: the bound (51)
+    restarted at s0 (the proof holds from any event index, since (15) holds from any μ)."""
+    run = r.spec(name)
+    k = constants(r, run)
+    e, eb, _, _ = event_norms(r, name)
+    fl = roundoff_floor(r, name)
+    S = e.shape[0] - 1
+    lamT = r.scenario.lam * r.scenario.T
+    s0, s = np.meshgrid(np.arange(S + 1), np.arange(S + 1), indexing="ij")
+    valid = (s0 >= 1) & (s > s0)
+    gap = np.where(valid, s - s0, 0)
+    bound = np.exp(-lamT * gap)[..., None] * (e + k["d"] * eb)[:, None, :] + fl[None]
+    return (e[None] / bound)[valid]
+
+
+def check_rate(res: MultiResults) -> Verdict:
+    """'Each e_i tends to zero as fast as e^(-λt)': the bound (51) restarted at every event index
+    s0 >= 1 holds for every later s. Least-squares rates are reported, not judged."""
+    cs = cells(res, lambda r, run: run.timing == "sync" and is_theorem_run(run), ("q",))
+    out = []
+    for label, r, run in cs.items:
+        ratios = restart_ratios(r, run.name)
+        if not ratios.size:
+            continue
+        e, _, _, _ = event_norms(r, run.name)
+        fl = roundoff_floor(r, run.name)
+        t = r.run(run.name).event_ns[0] / 1e9
+        rates = np.array([fit_rate(t, e[:, b], fl[:, b])[0] for b in range(e.shape[1])])
+        fitted = (f"least-squares decay rates of max_i||e_i(t_is)|| until round-off: min {np.nanmin(rates):.4f}, median "
+                  f"{np.nanmedian(rates):.4f}" if np.isfinite(rates).any() else "too few samples above round-off for a fit")
+        _, text = simulation_tolerance(r, run)
+        out.append((label, inequality(ratios, np.ones_like(ratios),
+                                      detail=f"max over s0 < s of |e(s)| / (e^(-λ(s-s0)T)(|e(s0)| + d|ē(s0)|)) = "
+                                             f"{ratios.max():.3g} over {ratios.size} (s0, s, trial) triples, λ = "
+                                             f"{r.scenario.lam:g}; {fitted}; {text}")))
+    return cs.verdict(out, "synchronous noise-free run with rule (13), every agent present, q satisfying (22)")
 
 
 def continuous_ratios(r: Results, name: str) -> tuple[float, float]:
     """max over t >= 0, agents and trials of ||e_i(t)|| / bound(t) for the printed bound
     e^{||A||T - λt}(|e(0)| + d|ē(0)|) and the corrected e^{(||A||+λ)T - λt}(...), including the
-    left limits e_i(t_is^-)."""
+    left limits e_i(t_is^-); the round-off allowance is added to the bounds."""
     run, spec = r.run(name), r.spec(name)
     k = constants(r, spec)
+    tol, _ = simulation_tolerance(r, spec)
     e, eb, _, _ = event_norms(r, name)
     K0 = e[0] + k["d"] * eb[0]                                     # (B,)
     lam, T, nA = r.scenario.lam, r.scenario.T, k["norm_A"]
     t = run.t_ns / 1e9
-    grid = run.err.max(axis=-1) / (np.exp(nA * T - lam * t)[:, None] * K0[None])
-    pre = np.linalg.norm(run.e_pre[1:], axis=-1).max(axis=-1)      # (S, B)
-    ts = np.arange(1, pre.shape[0] + 1) * T
-    pre_r = pre / (np.exp(nA * T - lam * ts)[:, None] * K0[None])
-    printed = float(max(grid.max(), pre_r.max()))
-    return printed, printed * math.exp(-lam * T)
+    err = run.err.max(axis=-1)
+    floor = tol * np.maximum(1.0, run.xnorm + err)
+    out = []
+    for extra in (0.0, lam * T):
+        grid = err / (np.exp(nA * T + extra - lam * t)[:, None] * K0[None] + floor)
+        pre = np.linalg.norm(run.e_pre[1:], axis=-1).max(axis=-1)      # (S, B)
+        ts = np.arange(1, pre.shape[0] + 1) * T
+        pre_floor = tol * state_scale(r, name)[1:]
+        pre_r = pre / (np.exp(nA * T + extra - lam * ts)[:, None] * K0[None] + pre_floor)
+        out.append(float(max(grid.max(), pre_r.max())))
+    return out[0], out[1]
 
 
 def check_continuous_bound(res: MultiResults) -> Verdict:
-    rows = []
-    for name, r in _parts(res):
-        for run in r.scenario.runs:
-            if run.timing == "sync" and in_hypotheses(r, run):
-                rows.append((f"{name}/{run.name}", *continuous_ratios(r, run.name)))
+    cs = cells(res, lambda r, run: run.timing == "sync" and is_theorem_run(run), ("q",))
+    rows = [(label, *continuous_ratios(r, run.name), simulation_tolerance(r, run)[1]) for label, r, run in cs.items]
     if not rows:
-        return not_checkable("no synchronous run satisfies Theorem 1's hypotheses")
+        return not_checkable("no synchronous noise-free run with rule (13) and q satisfying (22)." + cs.note())
     printed = max(x[1] for x in rows)
     corrected = max(x[2] for x in rows)
-    detail = "; ".join(f"[{lab}] max ||e_i(t)||/printed bound = {p:.4g}, /corrected bound = {c:.4g}" for lab, p, c in rows)
+    detail = "; ".join(f"[{lab}] max ||e_i(t)||/printed bound = {p:.4g}, /corrected bound = {c:.4g}" for lab, p, c, _ in rows)
     status = ERRATUM if (printed > 1 and corrected <= 1) else (PASS if printed <= 1 else FAIL)
     return Verdict(status, measured=printed, reference=1.0, printed=printed, corrected=corrected, margin=1 - corrected,
                    detail=f"printed: ||e_i(t)|| <= e^(||A||T - λt)(|e(0)| + d|ē(0)|); corrected: an extra factor e^(λT) "
                           f"(the proof uses e^(-λ(s-1)T) <= e^(-λt) on [(s-1)T, sT], which is false). {detail}. The "
-                          "printed bound fails just before the first reset when ē(0) = 0.")
-
-
-def rate_fits(r: Results, name: str) -> tuple[np.ndarray, int, int]:
-    run = r.run(name)
-    e, _, _, _ = event_norms(r, name)
-    fl = roundoff_floor(r, name)
-    t = run.event_ns[0] / 1e9
-    rates, first, last = [], 0, 0
-    for b in range(e.shape[1]):
-        rate, first, stop = fit_rate(t, e[:, b], fl[:, b])
-        rates.append(rate)
-        last = max(last, stop)
-    return np.array(rates), first, last
-
-
-def check_rate(res: MultiResults, which: str) -> Verdict:
-    out = []
-    for name, r in _parts(res, which):
-        for run in r.scenario.runs:
-            if run.timing != "sync" or run.noise or run.leave is not None or run.ideal:
-                continue
-            if which == "theory" and not in_hypotheses(r, run):
-                continue
-            rates, first, last = rate_fits(r, run.name)
-            ok = ~np.isnan(rates)
-            if not ok.any():
-                continue
-            e, _, _, _ = event_norms(r, run.name)
-            floor_hit = int(np.sum(e[:, 0] <= roundoff_floor(r, run.name)[:, 0]))
-            lam = r.scenario.lam
-            v = inequality(np.full(ok.sum(), lam), rates[ok],
-                           detail=f"fitted decay rate of max_i||e_i(t_is)||: min {rates[ok].min():.4f}, median "
-                                  f"{np.median(rates[ok]):.4f} over {ok.sum()} trials vs λ = {lam}; fit from s = "
-                                  f"{first} until round-off ({ROUNDOFF:g} eps ||x||; trial 0 reaches it at "
-                                  f"{floor_hit} of {e.shape[0]} event samples)")
-            out.append((f"{name}/{run.name}", Verdict(v.status, measured=float(rates[ok].min()), reference=lam,
-                                                      margin=float(rates[ok].min() - lam), trials=int(ok.sum()),
-                                                      detail=v.detail)))
-    return _combine(out)
+                          f"printed bound fails just before the first reset when ē(0) = 0. Allowance: {rows[0][3]}."
+                          + cs.note())
 
 
 def check_paper_rate(res: MultiResults) -> Verdict:
     r = res["paper"]
-    rates, first, last = rate_fits(r, "sync")
-    lam_p = float(r.scenario.paper_values.get("lambda", 2.0))
     e, _, _, _ = event_norms(r, "sync")
-    got = [float(x) for x in e[1:1 + len(SPEC_SYNC_ERRORS), 0]]
-    reg = identity(got, SPEC_SYNC_ERRORS, rtol=6e-3, detail="trial 0 max_i||e_i(sT)|| vs spec §4.3")
-    rate0 = float(rates[0])
+    fl = roundoff_floor(r, "sync")
+    t = r.run("sync").event_ns[0] / 1e9
+    fits = [fit_rate(t, e[:, b], fl[:, b]) for b in range(e.shape[1])]
+    rate0, first, last = fits[0]
+    lam_p = float(r.scenario.paper_values.get("lambda", 2.0))
+    got = [float(x) for x in e[1:1 + len(REFERENCE_SYNC_ERRORS), 0]]
+    reg = identity(got, REFERENCE_SYNC_ERRORS, rtol=6e-3,
+                   detail="trial 0 max_i||e_i(sT)|| vs independent values to 3 digits")
+    all_rates = np.array([x[0] for x in fits])
     detail = (f"trial 0 (paper's ICs) fitted rate {rate0:.4f} (s = {first}..{last - 1}); all trials min "
-              f"{np.nanmin(rates):.4f}; the target λ = {lam_p:g} is reached only marginally because the local observers "
-              f"themselves decay at rate 2 (spec A9). max_i||e_i(sT)|| = {[f'{x:.3g}' for x in got]} ({reg.status} against "
-              f"the spec's values: {reg.detail})")
+              f"{np.nanmin(all_rates):.4f}; the target λ = {lam_p:g} is reached only marginally because the local "
+              f"observers themselves decay at rate 2. max_i||e_i(sT)|| = {[f'{x:.3g}' for x in got]} ({reg.status} "
+              f"against the independent values: {reg.detail}). q = 50 misses (22) and (27) (hypotheses q_eq22, "
+              f"q_eq27): an empirical finding outside the theorems.")
     if reg.status != PASS:
-        return Verdict(FAIL, measured=got[0], reference=SPEC_SYNC_ERRORS[0], detail=detail)
-    return Verdict(PASS if abs(rate0 - lam_p) <= 0.05 else FAIL, measured=rate0, reference=lam_p, tolerance=0.05,
-                   margin=0.05 - abs(rate0 - lam_p), trials=int(np.sum(~np.isnan(rates))), detail=detail)
+        return Verdict(FAIL, measured=got[0], reference=REFERENCE_SYNC_ERRORS[0], detail=detail)
+    return Verdict(PASS if abs(rate0 - lam_p) <= 0.05 else FAIL, measured=float(rate0), reference=lam_p, tolerance=0.05,
+                   margin=0.05 - abs(float(rate0) - lam_p), trials=int(np.sum(np.isfinite(all_rates))), detail=detail)
 
 
 def check_special(res: MultiResults) -> Verdict:
+    """Lemma 7: ||A(s)||_2 <= e^(-λT) (54), and ||e(s)||_2 <= e^(-λsT)(||e(0)||_2 + d'||ē(0)||_2) with
+    d' = c q e^(||A||T)||Q||_2 e^(λT)/(1 - e^(-(λ̄-λ)T)) (the same proof in 2-norms)."""
+    cs = cells_with(res, lambda r, run: run.rule == "symmetric" and run.leave is None and not run.noise, ("q",))
     out = []
-    for name, r in _parts(res):
-        for run in r.scenario.runs:
-            if run.rule != "symmetric" or run.leave is not None or run.noise:
-                continue
-            a = r.runs[run.name]
-            lim = math.exp(-r.scenario.lam * r.scenario.T)
-            vals = a["A_2"][~np.isnan(a["A_2"])]
-            q27 = int(r.design["q27"])
-            v = inequality(vals, np.full_like(vals, lim), detail=f"max ||A(s)||_2 = {vals.max():.4g} vs e^(-λT) = {lim:.4g} "
-                                                                   f"with q = {run.q} (27 needs {q27})")
-            out.append((f"{name}/{run.name}/eq54", v))
-            if run.q >= q27:
-                lhs, rhs = event_bound(r, run.name, sym=True)
-                out.append((f"{name}/{run.name}/bound", inequality(lhs, rhs, detail=f"||e(s)||_2 <= e^(-λsT)(||e(0)||_2 + "
-                                                                                     f"d'||ē(0)||_2), max ratio "
-                                                                                     f"{(lhs / rhs).max():.3g}")))
-    return _combine(out)
+    for label, r, run in cs.items:
+        a = r.runs[run.name]
+        lim = math.exp(-r.scenario.lam * r.scenario.T)
+        vals = a["A_2"][~np.isnan(a["A_2"])]
+        tol, text = _matrix_tolerance(r, run, float(r.design["norm_eAT"]))
+        out.append((f"{label}/eq54", inequality(vals, np.full_like(vals, lim), tolerance=tol,
+                                                detail=f"max ||A(s)||_2 = {vals.max():.4g} vs e^(-λT) = {lim:.4g} with "
+                                                       f"q = {run.q}; {text}")))
+        lhs, rhs = event_bound(r, run.name, sym=True)
+        floor = roundoff_floor(r, run.name)[1:] * math.sqrt(r.scenario.m)
+        _, text2 = simulation_tolerance(r, run)
+        out.append((f"{label}/bound", inequality(lhs, rhs + floor, detail=f"||e(s)||_2 <= e^(-λsT)(||e(0)||_2 + "
+                                                                          f"d'||ē(0)||_2), max ratio "
+                                                                          f"{float((lhs / rhs).max()):.3g}; {text2}")))
+    return cs.verdict(out, "noise-free run with the convex rule (25) and q satisfying (27)")
 
 
 def check_lemma8(res: MultiResults) -> Verdict:
+    """(62) |G(s)| <= 2mqε||A||e^(||A||(T+β)). The proof's intermediate inequality
+    ||e^(Mt) - e^(Mτ)|| <= ||M(t-τ)||e^(||Mt||) is false in general; ||M|||t-τ|e^(||M|| max(|t|,|τ|))
+    replaces it and gives the same conclusion because |t_i0| <= ε <= β under (10)."""
+    cs = cells(res, lambda r, run: run.timing == "offset" and run.leave is None, ("eq10",))
     out = []
-    for name, r in _parts(res):
-        for run in r.scenario.runs:
-            if run.timing != "offset" or hypotheses_async(run):
-                continue
-            a = r.runs[run.name]
-            eps = max(abs(x) for x in run.offsets)
-            nA = float(r.design["norm_A"])
-            bnd = 2 * r.scenario.m * run.q * eps * nA * math.exp(nA * (r.scenario.T + run.beta))
-            vals = a["G_mixed"][~np.isnan(a["G_mixed"])]
-            out.append((f"{name}/{run.name}", inequality(vals, np.full_like(vals, bnd),
-                                                         detail=f"max |G(s)| = {vals.max():.4g} <= 2mqε||A||e^(||A||(T+β)) "
-                                                                f"= {bnd:.4g}")))
-    return _combine(out)
+    for label, r, run in cs.items:
+        a = r.runs[run.name]
+        eps = hy.run_epsilon(run)
+        nA = float(r.design["norm_A"])
+        bnd = 2 * r.scenario.m * run.q * eps * nA * math.exp(nA * (r.scenario.T + run.beta))
+        vals = a["G_mixed"][~np.isnan(a["G_mixed"])]
+        if not vals.size:
+            continue
+        tol, text = _matrix_tolerance(r, run, bnd)
+        out.append((label, inequality(vals, np.full_like(vals, bnd), tolerance=tol,
+                                      detail=f"max |G(s)| = {vals.max():.4g} <= 2mqε||A||e^(||A||(T+β)) = {bnd:.4g}; "
+                                             f"{text}")))
+    return cs.verdict(out, "run with event-time offsets satisfying (10)")
 
 
 def check_eq63(res: MultiResults) -> Verdict:
+    cs = cells(res, lambda r, run: run.timing == "offset" and is_theorem_run(run), ("q", "eq10", "windows"))
     out = []
-    for name, r in _parts(res):
-        for run in r.scenario.runs:
-            if run.timing != "offset" or hypotheses_async(run) or not meets_q22(r, run):
-                continue
-            a = r.runs[run.name]
-            k = constants(r, run)
-            e, eb, _, _ = event_norms(r, run.name)
-            S = e.shape[0] - 1
-            lam, T = r.scenario.lam, r.scenario.T
-            eps = max(abs(x) for x in run.offsets)
-            g = 2 * r.scenario.m * run.q * k["norm_A"] * math.exp(k["norm_A"] * (T + run.beta))
-            xn = np.linalg.norm(a["x_nominal"], axis=-1)          # (S+1, B)
-            rhs = np.empty((S, e.shape[1]))
-            for s in range(1, S + 1):
-                w = np.exp(-lam * (s - np.arange(1, s + 1)) * T)
-                rhs[s - 1] = math.exp(-lam * s * T) * (e[0] + k["d"] * eb[0]) + eps * g * (w[:, None] * xn[:s]).sum(axis=0)
-            out.append((f"{name}/{run.name}", inequality(e[1:], rhs, detail=f"(63), max ratio {(e[1:] / rhs).max():.3g}")))
+    for label, r, run in cs.items:
+        a = r.runs[run.name]
+        k = constants(r, run)
+        e, eb, _, _ = event_norms(r, run.name)
+        S = e.shape[0] - 1
+        lam, T = r.scenario.lam, r.scenario.T
+        eps = hy.run_epsilon(run)
+        g = 2 * r.scenario.m * run.q * k["norm_A"] * math.exp(k["norm_A"] * (T + run.beta))
+        xn = np.linalg.norm(a["x_nominal"], axis=-1)          # (S+1, B)
+        s_idx = np.arange(1, S + 1)
+        w = np.exp(-lam * (s_idx[:, None] - s_idx[None, :]) * T) * (s_idx[None, :] <= s_idx[:, None])   # (S, S)
+        rhs = np.exp(-lam * s_idx * T)[:, None] * (e[0] + k["d"] * eb[0])[None] + eps * g * (w @ xn[:S])
+        floor = roundoff_floor(r, run.name)[1:]
+        _, text = simulation_tolerance(r, run)
+        out.append((label, inequality(e[1:], rhs + floor, detail=f"(63), max ratio {float((e[1:] / rhs).max()):.3g}; "
+                                                                 f"{text}")))
+    return cs.verdict(out, "noise-free run with offsets, rule (13) and q satisfying (22)")
+
+
+def check_central(res: MultiResults) -> Verdict:
+    """Our reference: the centralized observer's error e_c(t) = e^(Ft) e_c(0), F = A + K_c C, obeys
+    ||e_c(t)|| <= κ(t) ||e_c(0)|| with κ(t) = ||e^(Ft)||_2 computed on the same time grid; the
+    fitted decay rate is reported against the slowest design pole."""
+    import scipy.linalg as sla
+
+    from .compute import central_gain
+
+    out = []
+    for name, r in res.parts.items():
+        spec = next((s for s in r.scenario.runs if s.timing == "sync" and not s.noise and s.leave is None), None)
+        if spec is None:
+            continue
+        run = r.run(spec.name)
+        sc = r.scenario
+        t = (run.t_ns - run.t_ns[0]) / 1e9
+        ce = run.central_err[:, 0]
+        F = sc.A + central_gain(sc) @ np.vstack(sc.C)
+        Phi = sla.expm(F * float(t[1] - t[0])) if len(t) > 1 else np.eye(sc.n)
+        kappa = np.empty(len(t))
+        E = np.eye(sc.n)
+        for k in range(len(t)):
+            kappa[k] = np.linalg.norm(E, 2)
+            E = Phi @ E
+        tol, text = roundoff_tolerance(scale=1.0, operations=len(t) * (sc.n + sc.m * sc.n),
+                                       condition=float(kappa.max()))
+        xs = np.maximum(1.0, run.xnorm[:, 0])
+        fl = tol * xs
+        rate, _, _ = fit_rate(t, ce, fl, skip=min(100, len(t) // 4))
+        design = -max(sc.central_poles)
+        out.append((name, inequality(ce, kappa * ce[0] + fl,
+                                     detail=f"centralized observer on the stacked outputs (poles {list(sc.central_poles)}), "
+                                            f"run {spec.name}, trial 0: max ||e_c(t)|| / (||e^(Ft)|| ||e_c(0)||) over "
+                                            f"{len(t)} times; fitted decay rate {rate:.4f} vs the slowest pole's "
+                                            f"{design:g} (reported); {text} × max(1, ||x||)")))
+    if not out:
+        return not_checkable("no noise-free synchronous run")
     return _combine(out)
 
 
@@ -676,7 +869,7 @@ def check_fig3(res: MultiResults) -> Verdict:
     return inequality(late, 1.5 * mid, detail=f"with the input b cos(10t) the error stays bounded: max error on [4, 10) = "
                                               f"{mid:.3g}, on [10, 15] = {late:.3g} (||x|| up to {xs.max():.3g}); the "
                                               f"centralized Kalman filter (filterpy) on the stacked outputs reaches "
-                                              f"{kf_late:.3g}. Sufficient conditions do not cover inputs (spec P16).")
+                                              f"{kf_late:.3g}. The sufficient conditions do not cover inputs.")
 
 
 def check_fig4(res: MultiResults) -> Verdict:
@@ -687,9 +880,9 @@ def check_fig4(res: MultiResults) -> Verdict:
     err = run.err[:, 0].max(axis=-1)
     early = err[_window(run, 1, 3)].max()
     late = err[_window(run, 12, 15.0001)].max()
-    viol = hypotheses_async(spec)
+    viol = hy.eq10(spec, r.scenario.T).detail
     xs = np.linalg.norm(run.x0, axis=-1)
-    detail = (f"OUTSIDE the hypotheses of Section 4: {'; '.join(viol)}; {int((a['sources'] != a['nominal']).sum())} "
+    detail = (f"OUTSIDE the hypotheses of Section 4: {viol}; {int((a['sources'] != a['nominal']).sum())} "
               f"source-set entries differ from the nominal graph and {int(a['reception_violations'])} index-aligned "
               f"messages would have to arrive before they are sent. Errors (trial 0): max on [1, 3) = {early:.3g}, on "
               f"[12, 15] = {late:.3g}; ||x(15)|| = {xs[-1]:.3g}. A is Hurwitz, so (63) predicts decay at min(λ, λ_a) with "
@@ -720,20 +913,18 @@ def check_fig5(res: MultiResults) -> Verdict:
                    margin=float(1e-2 - diff / scale),
                    detail=f"loss of agent {ag + 1} at t = {t_out:g}: the other agents' errors on [{t_out:g}, {t_in:g}) differ "
                           f"from the run where it stays by at most {diff:.3g} ({diff / scale:.2e} of max ||x||): no visible "
-                          f"impact. Re-join at t = {t_in:g} ({spec.leave.policy}): max error of the others on "
-                          f"[{t_in - 1:g}, {t_in:g}) = {pre:.3g}, max error of all on [{t_in:g}, {t_in + 3:g}) = {peak:.3g} "
-                          f"(the re-initialised agent's w_i(t) - L_i x(t) is as large as at t = 0), on the last interval "
-                          f"{late:.3g} (without the leave: {base_late:.3g}): a disturbance that decays at the local "
-                          "observers' rate. Section 5's design for losing one agent: ρ_d = "
+                          f"impact (visual threshold 1% of ||x||). Re-join at t = {t_in:g} ({spec.leave.policy}): max error "
+                          f"of the others on [{t_in - 1:g}, {t_in:g}) = {pre:.3g}, max error of all on [{t_in:g}, "
+                          f"{t_in + 3:g}) = {peak:.3g} (the re-initialised agent's w_i(t) - L_i x(t) is as large as at "
+                          f"t = 0), on the last interval {late:.3g} (without the leave: {base_late:.3g}): a disturbance "
+                          f"that decays at the local observers' rate. Section 5's design for losing one agent: ρ_d = "
                           f"{np.round(r.design['vertex_loss_rho'], 6).tolist()}, q* = max q_d = {qstar} (q = "
                           f"{spec.q} here). The paper makes no claim about re-joining (Section 5).")
 
 
 def check_key_point(res: MultiResults) -> Verdict:
     """Demonstrated on the generic system (unstable: eig 0.3, 0.1 ± 0.8j); the universal statement is not checkable."""
-    r = next((r for _, r in _parts(res, "theory") if np.max(np.linalg.eigvals(r.scenario.A).real) > 0), None)
-    if r is None:
-        return not_checkable("no scenario with an unstable A")
+    r = res["generic"]
     dz = r.design
     t, xn, ee, em = dz["kp_t"], dz["kp_xnorm"], dz["kp_err_exact"], dz["kp_err_mismatch"]
     half = t >= t[-1] / 2
@@ -748,107 +939,96 @@ def check_key_point(res: MultiResults) -> Verdict:
     return Verdict(PASS if ok else FAIL, measured=grow, reference=unstable, margin=grow - 0.5 * unstable, detail=detail)
 
 
-def check_central(res: MultiResults) -> Verdict:
+# -- the catalogue -----------------------------------------------------------------------------------------------
+
+def rests_on(scenarios: dict[str, HybridScenario], names: tuple[str, ...]) -> tuple[str, ...]:
+    """The claim-level hypothesis ids: the validated scenario-level ones always, and with a
+    single scenario also 'q_eq22' when every run with rule (13) uses the design q (otherwise
+    each cell is gated by its own row)."""
+    multi = len(scenarios) > 1
     out = []
-    for name, r in _parts(res):
-        run = r.run("sync") if "sync" in r.runs else None
-        if run is None:
-            continue
-        t = run.t_ns / 1e9
-        ce = run.central_err[:, 0]
-        fl = ROUNDOFF * EPS * np.maximum(1.0, run.xnorm[:, 0])
-        sel = (t >= 1.0)
-        rate, first, stop = fit_rate(t[sel], ce[sel], fl[sel], skip=0)
-        design = -max(r.scenario.central_poles)
-        out.append((name, Verdict(PASS if rate >= 0.99 * design else FAIL, measured=rate, reference=design,
-                                  tolerance=0.01, margin=rate - 0.99 * design,
-                                  detail=f"centralized observer on the stacked outputs (poles {list(r.scenario.central_poles)}"
-                                         f"): fitted error decay rate {rate:.4f} vs its slowest pole {design} (1% allowed "
-                                         f"for the transient of the faster poles), t >= 1 until round-off")))
-    return _combine(out)
+    for part, sc in scenarios.items():
+        for name in names:
+            if name in hy.VALIDATED:
+                out.append(hy.hyp_id(part, name, multi))
+            elif name == "q_eq22" and not multi and all(r.q == sc.q_design for r in sc.runs if r.rule == "mean"):
+                out.append(hy.hyp_id(part, name, multi))
+    return tuple(out)
 
 
-def catalogue(parts: list[str]) -> list[Claim]:
-    paper = "paper" in parts
+def catalogue(scenarios: dict[str, HybridScenario]) -> list[Claim]:
     C = []
+    OBS = ("joint_observability",)
+    THM = ("joint_observability", "strong_connectivity", "local_observers", "q_eq22")
+    SYM = ("joint_observability", "strong_connectivity", "local_observers")
 
-    def add(where, what, source, statement, kind, fn):
-        C.append(Claim(f"{PID}.{where}.{what}", source, statement, kind, fn))
+    def add(where, what, source, statement, kind, fn, needs=(), scope="family"):
+        C.append(Claim(f"{PID}.{where}.{what}", source, statement, kind, fn, rests_on(scenarios, needs), scope))
 
+    paper = "paper-example"
     add("sec2", "local_design", "Sec. 2, footnote 3", "C_i = C̄_i L_i and L_i A = Ā_i L_i have unique solutions, (C̄_i, Ā_i) is "
         "observable, and P_i does not depend on the choice of L_i", "identity", check_local_design)
     add("eq16", "joint_observability", "(16)", "(C, A) jointly observable ⟺ ∩ image P_i = 0", "inequality",
         check_joint_observability)
-    if paper:
-        add("sec6", "reduced_models", "Sec. 6", "the printed Ā_i, C̄_i follow from the printed L_i", "identity",
-            check_printed_reduced)
-        add("sec6", "local_rates", "Sec. 6", "the printed K_i achieve λ̄ = 3 > λ = 2", "identity", check_local_rates)
-        add("sec6", "redundancy", "Sec. 6", "the system is redundantly jointly observable and graph 2a redundantly "
-            "strongly connected", "qualitative", check_redundancy)
+    add("sec6", "reduced_models", "Sec. 6", "the printed Ā_i, C̄_i follow from the printed L_i", "identity",
+        check_printed_reduced, scope=paper)
+    add("sec6", "local_rates", "Sec. 6", "the printed K_i achieve λ̄ = 3 > λ = 2", "identity", check_local_rates,
+        scope=paper)
+    add("sec6", "redundancy", "Sec. 6", "the system is redundantly jointly observable and graph 2a redundantly "
+        "strongly connected", "qualitative", check_redundancy, scope=paper)
     add("eq17", "rho", "(17)", "ρ = max ||M|| over products of (m-1)²+1 projections containing every P_i is < 1",
-        "inequality", check_rho)
+        "inequality", check_rho, OBS)
     add("eq18", "alpha", "(18) vs Lemma 5", "α = 1 - (m-1)(1-ρ)/(m(m-1)²) as printed in (18)", "identity", check_alpha)
     add("lemma5", "product_bound", "Lemma 5, (46)", "|P(S_μ⊗I)···P(S_1⊗I)| <= α for μ >= (m-1)²+1 flocking matrices "
-        "of strongly connected graphs", "inequality", check_lemma5)
+        "of strongly connected graphs", "inequality", check_lemma5, OBS)
     add("eq26", "sigma", "(26), Lemma 6", "σ = max over symmetric strongly connected graphs of ||P(M_G⊗I)|| < 1",
-        "inequality", check_sigma)
+        "inequality", check_sigma, OBS)
     add("lemma6", "norm_below_one", "Lemma 6", "||P(F⊗I)||_2 < 1 for doubly stochastic F with positive diagonal and a "
-        "strongly connected graph", "inequality", check_lemma6)
-    if paper:
-        add("sec6", "q_eq22", "Sec. 6, (22)", "q = 50 meets Theorem 1's condition (22) for the example", "inequality",
-            check_q_paper)
-        add("sec6", "q_eq27", "Sec. 6, (27)", "q = 50 meets the symmetric-case condition (27) for the example",
-            "inequality", check_q27_paper)
+        "strongly connected graph", "inequality", check_lemma6, OBS)
     add("eq41", "error_recursion", "(37)-(43)", "e(s) = A(s) e(s-1) + B(s) ē(s-1) along every noise-free run", "identity",
         check_eq41)
     add("eq61", "offset_recursion", "(57)-(61)", "with event-time offsets, e(s) = A e(s-1) + B ē(s-1) + G x((s-1)T) as "
         "printed (sign of Γ)", "identity", check_eq61_sign)
-    add("lemma2", "source_sets", "Lemma 2, (36)", "synchronous: S_is(k) = N_i((s-1)T+(k-1)Δ+β)", "identity",
-        lambda r: check_lemma2(r, "sync"))
+    add("lemma2", "source_sets", "Lemma 2, (36)", "synchronous: S_is(k) = N_i((s-1)T+(k-1)Δ+β)", "identity", check_lemma2)
     add("lemma3", "source_sets", "Lemmas 1, 3, (36)", "asynchronous under (10) with N(t) constant on the windows (23): "
-        "S_is(k) = N_i((s-1)T+(k-1)Δ+β) and every message lands in its reception interval", "identity",
-        lambda r: check_lemma2(r, "async"))
+        "S_is(k) = N_i((s-1)T+(k-1)Δ+β) and every message lands in its reception interval", "identity", check_lemma3)
     add("lemma1", "windows", "Lemma 1, (23)", "under (10) the q windows 𝓘_s(k) are disjoint and lie in [sT, (s+1)T)",
         "inequality", check_lemma1)
     add("thm2", "async_equals_sync", "Theorem 2, Lemma 3", "under Theorem 2's hypotheses the asynchronous observer "
         "produces the synchronous iterates exactly", "identity", check_async_equals_sync)
-    add("lemma4", "eq44", "Lemma 4, (44)", "|A(s)| <= e^(-λT) when q satisfies (22)", "inequality",
-        lambda r: check_eq44(r, True))
-    if paper:
-        add("sec6", "eq44_q50", "Sec. 6, (44)", "with q = 50 (outside (22)) |A(s)| <= e^(-λT) still holds", "inequality",
-            lambda r: check_eq44(r, False))
+    add("lemma4", "eq44", "Lemma 4, (44)", "|A(s)| <= e^(-λT) when q satisfies (22)", "inequality", check_eq44,
+        ("joint_observability", "strong_connectivity", "q_eq22"))
+    add("sec6", "eq44_q50", "Sec. 6, (44)", "with q = 50 (outside (22)) |A(s)| <= e^(-λT) still holds", "inequality",
+        check_eq44_q50, scope=paper)
     add("lemma4", "eq45_eq49", "Lemma 4, (45), (49)", "|B(s)| <= q e^(||A||T)|Q| and |Φ_s(k)| <= 1", "inequality",
         check_eq45_49)
     add("sec2", "idealized_attenuation", "text after (19), (20)", "with ē ≡ 0: max||π(q)|| <= α^p max||π(0)|| and "
-        "|e(s)| <= e^(||A||T) α^p |e(s-1)|", "inequality", check_c3)
+        "|e(s)| <= e^(||A||T) α^p |e(s-1)|", "inequality", check_c3, ("joint_observability", "strong_connectivity"))
     add("thm1", "event_bound", "Theorem 1, (51)", "|e(s)| <= e^(-λsT)(|e(0)| + d|ē(0)|)", "inequality",
-        lambda r: check_event_bound(r, "sync"))
+        lambda r: check_event_bound(r, "sync"), THM)
     add("thm1", "continuous_bound", "Theorem 1, proof", "||e_i(t)|| <= e^(||A||T - λt)(|e(0)| + d|ē(0)|) for t >= 0",
-        "inequality", check_continuous_bound)
-    add("thm1", "rate", "Theorem 1", "each e_i tends to zero as fast as e^(-λt)", "inequality",
-        lambda r: check_rate(r, "theory"))
-    if paper:
-        add("sec6", "rate", "Sec. 6", "the example converges at rate λ = 2", "inequality", check_paper_rate)
+        "inequality", check_continuous_bound, THM)
+    add("thm1", "rate", "Theorem 1", "each e_i tends to zero as fast as e^(-λt)", "inequality", check_rate, THM)
+    add("sec6", "rate", "Sec. 6", "the example converges at rate λ = 2", "inequality", check_paper_rate, scope=paper)
     add("thm2", "event_bound", "Theorem 2", "asynchronous: the same bound (51)", "inequality",
-        lambda r: check_event_bound(r, "async"))
+        lambda r: check_event_bound(r, "async"), THM)
     add("sec3", "symmetric_case", "(25)-(27), Lemma 7, (54)", "symmetric graphs with rule (25) and q from (27): "
-        "||A(s)||_2 <= e^(-λT) and the 2-norm analogue of (51)", "inequality", check_special)
+        "||A(s)||_2 <= e^(-λT) and the 2-norm analogue of (51)", "inequality", check_special, SYM)
     add("lemma8", "eq62", "Lemma 8, (62)", "|G(s)| <= 2mqε||A||e^(||A||(T+β))", "inequality", check_lemma8)
     add("sec4", "eq63", "(63)", "|e(s)| <= e^(-λsT)(|e(0)| + d|ē(0)|) + εg Σ e^(-λ(s-k)T)||x((k-1)T)||", "inequality",
-        check_eq63)
-    add("reference", "centralized", "reference", "a centralized observer on the stacked outputs converges at its design "
-        "rate", "inequality", check_central)
-    if paper:
-        add("sec6", "fig3_noise", "Sec. 6, Fig. 3", "performance in the face of system noise: bounded error",
-            "qualitative", check_fig3)
-        add("sec6", "fig4_offset", "Sec. 6, Fig. 4", "robust to agent 4's events occurring 0.2T early", "qualitative",
-            check_fig4)
-        add("sec6", "fig5_leave_join", "Sec. 6, Fig. 5", "the loss of agent 4 at t = 5 has no visible impact; its "
-            "re-emergence at t = 7 briefly affects performance", "qualitative", check_fig5)
-        add("sec4", "key_point_mismatch", "Sec. 4", "with an unstable A and a model mismatch every open-loop estimator "
-            "(including Kalman filters) diverges", "qualitative", check_key_point)
-        add("remarks", "not_tight", "Sec. 2.2, 7", "α^p is not likely tight; strong connectivity is stronger than "
-            "necessary; re-joining is not covered", "qualitative",
-            lambda r: not_checkable("opinions and conjectures (spec §3.2 remarks); the measured |A(s)| values "
-                                    "(sec6.eq44_q50) illustrate how loose α^p is"))
+        check_eq63, THM)
+    add("reference", "centralized", "reference", "a centralized observer on the stacked outputs obeys its exact error "
+        "bound", "inequality", check_central)
+    add("sec6", "fig3_noise", "Sec. 6, Fig. 3", "performance in the face of system noise: bounded error", "qualitative",
+        check_fig3, scope=paper)
+    add("sec6", "fig4_offset", "Sec. 6, Fig. 4", "robust to agent 4's events occurring 0.2T early", "qualitative",
+        check_fig4, scope=paper)
+    add("sec6", "fig5_leave_join", "Sec. 6, Fig. 5", "the loss of agent 4 at t = 5 has no visible impact; its "
+        "re-emergence at t = 7 briefly affects performance", "qualitative", check_fig5, scope=paper)
+    add("sec4", "key_point_mismatch", "Sec. 4", "with an unstable A and a model mismatch every open-loop estimator "
+        "(including Kalman filters) diverges", "qualitative", check_key_point, scope=paper)
+    add("remarks", "not_tight", "Sec. 2.2, 7", "α^p is not likely tight; strong connectivity is stronger than "
+        "necessary; re-joining is not covered", "qualitative",
+        lambda r: not_checkable("opinions and conjectures; the measured |A(s)| values (sec6.eq44_q50) illustrate how "
+                                "loose α^p is"), scope=paper)
     return C

@@ -22,6 +22,9 @@ from .scenario import HybridScenario, RunSpec
 CODE_MODULES = ("estimators.hybrid_observer", "estimators.jointly_observable_design",
                 "reproductions.wang_liu_morse.compute", "reproductions.wang_liu_morse.scenario")
 LEMMA5_SAMPLES = 20_000
+LEMMA5_FLOPS = 2 * 10 ** 9      # at most about this many flops for the sampled products of Lemma 5
+LEMMA6_SAMPLES = 2000
+BASIS_CONDITION = 100.0     # condition number of the non-orthogonal change of basis of footnote 3
 #: arrays in which NaN marks "not applicable" (intervals an agent sat out; identities of runs with an input)
 NOT_APPLICABLE = ("res_minus", "res_plus", "res_scale", "A_mixed", "B_mixed", "G_mixed", "A_2", "B_2", "Phi_max")
 DT_PLOT = 0.01
@@ -40,14 +43,15 @@ def observer_design(sc: HybridScenario) -> ho.ObserverDesign:
 
 
 def central_gain(sc: HybridScenario) -> np.ndarray:
-    """Centralized observer on the stacked outputs: x_c' = (A + K_c C) x_c - K_c y."""
-    Cs = np.vstack(sc.C)
-    return jd.place_gain(sc.A, Cs, sc.central_poles)
+    """Centralized observer on the stacked outputs: x_c' = (A + K_c C) x_c - K_c y (see `jd.stacked_gain`)."""
+    return jd.stacked_gain(sc.A, np.vstack(sc.C), sc.central_poles, sc.rank_tol)
 
 
 # -- design stage ----------------------------------------------------------------------------------
 
-def compute_design(sc: HybridScenario, seed: int) -> dict[str, np.ndarray]:
+def compute_design(sc: HybridScenario, seed: int, extras: bool = False) -> dict[str, np.ndarray]:
+    """Design quantities; `extras` adds the ones only the paper's claims use (Section 5's vertex-loss
+    design, the model-mismatch demonstration of Section 4)."""
     d = observer_design(sc)
     m, n = d.m, d.n
     out: dict[str, np.ndarray] = {}
@@ -56,28 +60,23 @@ def compute_design(sc: HybridScenario, seed: int) -> dict[str, np.ndarray]:
     out["norm_eAT"] = np.array(np.linalg.norm(sla.expm(sc.A * sc.T), 2))
     out["P"] = d.P
     out["n_i"] = np.array(d.n_i)
-    out["residual_C"] = np.array([np.abs(sc.C[i] - d.Cbar[i] @ d.L[i]).max() for i in range(m)])
-    out["residual_A"] = np.array([np.abs(d.L[i] @ sc.A - d.Abar[i] @ d.L[i]).max() for i in range(m)])
-    out["obs_rank_local"] = np.array([np.linalg.matrix_rank(jd.observability_matrix(d.Abar[i], d.Cbar[i]))
-                                      for i in range(m)])
-    # P_i does not depend on the basis L_i (footnote 3): a random invertible change of basis
-    rng = np.random.default_rng(1234)
-    dev = []
-    for i in range(m):
-        Mi = rng.standard_normal((d.n_i[i], d.n_i[i])) + 3 * np.eye(d.n_i[i])
-        alt = jd.local_design(sc.A, sc.C[i], L=Mi @ d.L[i])
-        dev.append(np.abs(alt.P - d.P[i]).max())
-    out["P_basis_dev"] = np.array(dev)
+    out.update(local_design_checks(sc, d, seed))
     stack = np.vstack([np.eye(n) - d.P[i] for i in range(m)])
     out["sigma_min_16"] = np.array(np.linalg.svd(stack, compute_uv=False).min())
     F = [d.F(i) for i in range(m)]
     out["local_abscissa"] = np.array([jd.spectral_abscissa(Fi) for Fi in F])
+    out["local_abscissa_tol"] = np.array([eigenvalue_roundoff(Fi) for Fi in F])
     out["c_i"] = np.array([jd.transient_constant(Fi, sc.lam_bar) for Fi in F])
     out["Q_mixed"] = np.array(jd.mixed_norm(sla.block_diag(*d.Q), [n] * m, d.n_i))
     out["Q_2"] = np.array(np.linalg.norm(sla.block_diag(*d.Q), 2))
-    rho = jd.rho_exact(d.P, rng=np.random.default_rng(seed))
+    rho = jd.rho_exact(d.P)
     out["rho"], out["rho_exact"], out["rho_words"] = np.array(rho.rho), np.array(rho.exact), np.array(rho.words)
+    out["rho_upper"] = np.array(rho.upper)
     out["rho_worst_word"] = np.array(rho.worst_word)
+    if rho.upper < 1:           # (22) from the proven upper bound on ρ: a q that is sufficient for sure
+        sq = jd.sufficient_q(rho.upper, m, nA, sc.lam, sc.T)
+        out["alpha_lemma5_upper"] = np.array(float(sq.alpha_lemma5))
+        out["q_thm22_upper"] = np.array(str(sq.q_thm22))
     for label, lam in (("", sc.lam), ("_paper", float(sc.paper_values.get("lambda", sc.lam)))):
         sq = jd.sufficient_q(rho.rho, m, nA, lam, sc.T)
         out[f"alpha_lemma5{label}"] = np.array(float(sq.alpha_lemma5))
@@ -94,30 +93,23 @@ def compute_design(sc: HybridScenario, seed: int) -> dict[str, np.ndarray]:
         for label, lam in (("", sc.lam), ("_paper", float(sc.paper_values.get("lambda", sc.lam)))):
             out[f"q27{label}"] = np.array(jd.q_symmetric(sig, nA, lam, sc.T))
             out[f"q27_minimal{label}"] = np.array(jd.q_symmetric_minimal(sig, nA, lam, sc.T))
-    # redundancy (Section 5): joint observability without agent i, strong connectivity without vertex i
-    red_obs = []
-    for i in range(m):
-        O = np.vstack([jd.observability_matrix(sc.A, sc.C[j]) for j in range(m) if j != i])
-        red_obs.append(np.linalg.matrix_rank(O) == n)
-    out["redundant_observable"] = np.array(red_obs)
-    out["redundant_connected"] = np.array([[jd.is_strongly_connected(np.delete(np.delete(G, i, 0), i, 1))
-                                            for i in range(m)] for G in sc.graphs])
     # Lemma 5: products of N = (m-1)^2+1 steps P(S⊗I) with S flocking matrices of strongly connected graphs
     N = (m - 1) ** 2 + 1
-    pool = jd.strongly_connected_digraphs(m) if m <= 4 else None
-    if pool is None:
+    if m <= 4:
+        pool = jd.strongly_connected_digraphs(m)
+    else:
         gen = block_generator(stream_seed(seed, "lemma5-pool"))
         cand = gen.random((4000, m, m)) < 0.5
         cand |= np.eye(m, dtype=bool)[None]
-        pool = np.array([g for g in cand if jd.is_strongly_connected(g)])
+        pool = cand[jd.strongly_connected_batch(cand)]
     flock = np.array([jd.flocking_matrix(g) for g in pool])
-    steps = np.einsum("ab,gbc->gac", sla.block_diag(*d.P), np.einsum("gij,ab->giajb", flock, np.eye(n)).reshape(
-        len(pool), m * n, m * n))
+    Pbig = sla.block_diag(*d.P)
+    steps = Pbig[None] @ np.einsum("gij,ab->giajb", flock, np.eye(n)).reshape(len(pool), m * n, m * n)
     gen = block_generator(stream_seed(seed, "lemma5"))
-    samples = LEMMA5_SAMPLES
+    samples = int(min(LEMMA5_SAMPLES, max(len(pool), LEMMA5_FLOPS // (N * (m * n) ** 3))))
     idx = gen.integers(0, len(pool), size=(samples, N))
     # adversarial members: every constant sequence (the slowest mixing graphs repeated)
-    idx[: len(pool)] = np.arange(len(pool))[:, None] if len(pool) <= samples else idx[: len(pool)]
+    idx[: len(pool)] = np.arange(len(pool))[:, None]
     prod = steps[idx[:, 0]]
     for k in range(1, N):
         prod = steps[idx[:, k]] @ prod
@@ -125,37 +117,94 @@ def compute_design(sc: HybridScenario, seed: int) -> dict[str, np.ndarray]:
     out["lemma5_max"] = np.array(norms.max())
     out["lemma5_samples"] = np.array(samples)
     out["lemma5_pool"] = np.array(len(pool))
-    # Lemma 6: random doubly stochastic F with positive diagonal and strongly connected graph
+    # Lemma 6: random doubly stochastic F = w0 I + Σ_k w_k Π_k (Π_k permutations) with a strongly connected graph
     gen = block_generator(stream_seed(seed, "lemma6"))
-    vals = []
-    for _ in range(2000):
-        perms = [np.eye(m)[gen.permutation(m)] for _ in range(3)]
-        wts = gen.dirichlet(np.ones(4))
-        Fm = wts[0] * np.eye(m) + sum(w * Pm for w, Pm in zip(wts[1:], perms))
-        if not jd.is_strongly_connected(Fm > 1e-12):
-            continue
-        vals.append(np.linalg.norm(sla.block_diag(*d.P) @ np.kron(Fm, np.eye(n)), 2))
-    out["lemma6_max"] = np.array(max(vals) if vals else np.nan)
-    out["lemma6_count"] = np.array(len(vals))
-    # Section 5, vertex loss: ρ_d and q_d of (22) for every d = m minus one agent; q* = max
-    rho_d, q_d, ok_d = [], [], []
+    perms = np.array([[np.eye(m)[gen.permutation(m)] for _ in range(3)] for _ in range(LEMMA6_SAMPLES)])
+    wts = gen.dirichlet(np.ones(4), size=LEMMA6_SAMPLES)
+    Fm = wts[:, :1, None] * np.eye(m)[None] + np.einsum("bk,bkij->bij", wts[:, 1:], perms)
+    Fm = Fm[jd.strongly_connected_batch(Fm > 1e-12)]
+    vals = np.linalg.norm(Pbig[None] @ np.einsum("fij,ab->fiajb", Fm, np.eye(n)).reshape(len(Fm), m * n, m * n),
+                          ord=2, axis=(1, 2)) if len(Fm) else np.array([np.nan])
+    out["lemma6_max"] = np.array(np.max(vals))
+    out["lemma6_count"] = np.array(len(Fm))
+    if extras:
+        out.update(section5_design(sc, d, nA))
+        out.update(model_mismatch(sc, seed))
+    return out
+
+
+def section5_design(sc: HybridScenario, d: ho.ObserverDesign, nA: float) -> dict[str, np.ndarray]:
+    """Section 5: joint observability and strong connectivity without agent i; for every d = m
+    minus one agent that stays jointly observable, ρ_d (its upper bound) and q_d of (22); q* = max."""
+    m, n = d.m, d.n
+    out: dict[str, np.ndarray] = {}
+    red_obs = [jd.observable_basis(sc.A, np.vstack([sc.C[j] for j in range(m) if j != i]), sc.rank_tol).rows.shape[0]
+               == n for i in range(m)]
+    out["redundant_observable"] = np.array(red_obs)
+    out["redundant_connected"] = np.array([[jd.is_strongly_connected(np.delete(np.delete(G, i, 0), i, 1))
+                                            for i in range(m)] for G in sc.graphs])
+    rho_d, q_d = [], []
     lam_p = float(sc.paper_values.get("lambda", sc.lam))
     for i in range(m):
         keep = [j for j in range(m) if j != i]
-        O = np.vstack([jd.observability_matrix(sc.A, sc.C[j]) for j in keep])
-        ok = np.linalg.matrix_rank(O) == n and m - 1 >= 2     # connectivity: `redundant_connected`, per graph
-        ok_d.append(ok)
-        if ok:
-            rd = jd.rho_exact(d.P[keep]).rho
+        if red_obs[i] and m - 1 >= 2:
+            rd = jd.rho_exact(d.P[keep]).upper
             rho_d.append(rd)
-            q_d.append(str(jd.sufficient_q(rd, m - 1, nA, lam_p, sc.T).q_thm22))
+            q_d.append(str(jd.sufficient_q(rd, m - 1, nA, lam_p, sc.T).q_thm22) if rd < 1 else "")
         else:
-            rho_d.append(np.nan)
+            rho_d.append(-1.0)
             q_d.append("")
-    out["vertex_loss_ok"], out["vertex_loss_q"] = np.array(ok_d), np.array(q_d)
-    out["vertex_loss_rho"] = np.nan_to_num(np.array(rho_d), nan=-1.0)
-    out.update(model_mismatch(sc, seed))
+    out["vertex_loss_ok"], out["vertex_loss_q"] = np.array(red_obs), np.array(q_d)
+    out["vertex_loss_rho"] = np.array(rho_d)
     return out
+
+
+def eigenvalue_roundoff(F: np.ndarray) -> float:
+    """Round-off allowance of a computed eigenvalue of F (Bauer-Fike): 10·k·eps·||F||_2·κ(V) for
+    the k x k matrix F with eigenvector matrix V (infinite for a defective F)."""
+    _, V = np.linalg.eig(F)
+    sv = np.linalg.svd(V, compute_uv=False)
+    kappa = sv[0] / sv[-1] if sv[-1] > 0 else np.inf
+    return float(10 * len(F) * np.finfo(float).eps * np.linalg.norm(F, 2) * kappa)
+
+
+def random_orthogonal(gen: np.random.Generator, k: int) -> np.ndarray:
+    Qm, Rm = np.linalg.qr(gen.standard_normal((k, k)))
+    return Qm * np.sign(np.diag(Rm))
+
+
+def local_design_checks(sc: HybridScenario, d: ho.ObserverDesign, seed: int) -> dict[str, np.ndarray]:
+    """Per agent: the residuals of C_i = C̄_i L_i and L_i A = Ā_i L_i (relative to ||C_i||,
+    ||A|| ||L_i||), the rank of the observability matrix of (C̄_i, Ā_i), and footnote 3: the
+    largest entry of P_i(M L_i) - P_i(L_i) for a random orthogonal M and a random M of
+    condition number BASIS_CONDITION. What each residual may be from round-off and from the
+    rank decision is recorded beside it (κ(L_i), κ(M L_i), the singular value the rank
+    decision discarded, the distance of a given L_i's row space from the computed one)."""
+    gen = block_generator(stream_seed(seed, "basis-change"))
+    m = d.m
+    rows = {k: [] for k in ("residual_C", "residual_A", "kappa_L", "discarded", "row_space_dist", "obs_rank_local",
+                            "P_basis_dev", "kappa_ML")}
+    for i in range(m):
+        loc = jd.local_design(sc.A, sc.C[i], rank_tol=sc.rank_tol, L=None if sc.L_given is None else sc.L_given[i])
+        basis = jd.observable_basis(sc.A, sc.C[i], sc.rank_tol)
+        L = loc.L
+        nL = float(np.linalg.norm(L, 2))
+        rows["residual_C"].append(np.abs(sc.C[i] - loc.Cbar @ L).max() / max(float(np.linalg.norm(sc.C[i], 2)), 1e-300))
+        rows["residual_A"].append(np.abs(L @ sc.A - loc.Abar @ L).max() / max(float(np.linalg.norm(sc.A, 2)) * nL, 1e-300))
+        rows["kappa_L"].append(loc.condition)
+        rows["discarded"].append(basis.discarded)
+        rows["row_space_dist"].append(float(np.linalg.norm(L - (L @ basis.rows.T) @ basis.rows, 2)) / nL)
+        rows["obs_rank_local"].append(jd.observable_basis(loc.Abar, loc.Cbar, sc.rank_tol).rows.shape[0])
+        k = loc.n_i
+        dev, kap = [], []
+        U, V = random_orthogonal(gen, k), random_orthogonal(gen, k)
+        for M in (U, U @ np.diag(np.logspace(0, np.log10(BASIS_CONDITION), k)) @ V):
+            _, P_alt, cond = jd.pseudo_inverse_rows(M @ L)
+            dev.append(np.abs(P_alt - loc.P).max())
+            kap.append(cond)
+        rows["P_basis_dev"].append(max(dev))
+        rows["kappa_ML"].append(max(kap))
+    return {k: np.array(v) for k, v in rows.items()}
 
 
 def model_mismatch(sc: HybridScenario, seed: int, steps: int = 2000, dt: float = 0.01, size: float = 1e-3
@@ -278,7 +327,7 @@ def recursion_checks(sc: HybridScenario, d: ho.ObserverDesign, run: RunSpec, res
         out["res_scale"][s - 1] = np.maximum.reduce([np.linalg.norm(res.x_event[s], axis=-1).max(axis=-1),
                                                      np.linalg.norm(res.x_event[s - 1], axis=-1).max(axis=-1),
                                                      np.abs(res.e_post[s - 1]).reshape(B, -1).max(axis=1),
-                                                     np.ones(B)])
+                                                     np.linalg.norm(res.ebar[s - 1], axis=-1), np.ones(B)])
     return out
 
 
@@ -355,11 +404,13 @@ def _cached_run(cache: StageCache, base: dict[str, Any], sc: HybridScenario, see
                                 allow_nonfinite=NOT_APPLICABLE)
 
 
-def compute(sc: HybridScenario, opts: RunOptions, cache: StageCache, *, is_paper: bool = False) -> Results:
+def compute(sc: HybridScenario, opts: RunOptions, cache: StageCache, *, is_paper: bool = False,
+            extras: bool = False) -> Results:
+    """`extras`: the design quantities only the paper's own claims use (see `compute_design`)."""
     trials = trial_count(sc, opts)
     base = {"scenario": sc.key(), "code": code_fingerprint(CODE_MODULES)}
-    design = cache.get_or_compute("design", {**base, "seed": opts.seed}, lambda: compute_design(sc, opts.seed),
-                                  scenario=sc.name)
+    design = cache.get_or_compute("design", {**base, "seed": opts.seed, "extras": extras},
+                                  lambda: compute_design(sc, opts.seed, extras), scenario=sc.name)
     work = functools.partial(_cached_run, cache, base, sc, opts.seed, trials)
     outs = parallel_map(work, list(sc.runs), workers=opts.workers, desc=f"{sc.name}: hybrid observer runs")
     return Results(sc, opts.seed, trials, opts.quick, design, {r.name: o for r, o in zip(sc.runs, outs)}, is_paper)

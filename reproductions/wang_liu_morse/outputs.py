@@ -124,7 +124,7 @@ def _bounds_figure(r: Results, path: Path) -> None:
     """Theorem 1 on a run inside its hypotheses: |e(s)| over trials vs (51); the continuous bound
     as printed and corrected on the idealised run."""
     fig, axes = new_figure(ncols=2, width=5.6)
-    sync = next((s for s in r.scenario.runs if s.timing == "sync" and cl.in_hypotheses(r, s) and not s.ideal), None)
+    sync = next((s for s in r.scenario.runs if s.timing == "sync" and cl.in_theorem1(r, s) and not s.ideal), None)
     if sync is None:
         sync = next(s for s in r.scenario.runs if s.timing == "sync")
     lhs, rhs = cl.event_bound(r, sync.name)
@@ -181,7 +181,7 @@ def _decay_figure(res: MultiResults, path: Path) -> None:
         rate, first, stop = cl.fit_rate(t, e[:, 0], fl[:, 0])
         c = _mpl(idx)
         ax.semilogy(t, np.maximum(e[:, 0], TINY), "o", ms=3, color=c, label=f"{name}/{sync.name}: max_i||e_i(t_is)||")
-        ax.semilogy(t, fl[:, 0], ":", color=c, lw=1, label=f"{name}: round-off floor ({cl.ROUNDOFF:g} eps ||x||)")
+        ax.semilogy(t, fl[:, 0], ":", color=c, lw=1, label=f"{name}: round-off allowance")
         if not math.isnan(rate):
             tt = t[first:stop]
             c0 = np.exp(np.polyfit(tt, np.log(e[first:stop, 0]), 1)[1])

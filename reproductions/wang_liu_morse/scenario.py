@@ -132,13 +132,11 @@ class HybridScenario:
             if not np.any(Ci):
                 raise ScenarioError(f"system.C[{i}]", "is zero (every agent must sense something: C_i != 0)")
         rank_tol = as_float(sysd.get("rank_tol", 1e-9), "system.rank_tol", low=0.0, high=1e-2, low_open=True)
-        O = np.vstack([jd.observability_matrix(A, Ci) for Ci in C])
-        sv = np.linalg.svd(O, compute_uv=False)
-        rank = int(np.sum(sv > rank_tol * sv[0]))
+        rank = jd.observable_basis(A, np.vstack(C), rank_tol).rows.shape[0]
         if rank < n:
-            raise ScenarioError("system.C", f"(C, A) is not jointly observable: the stacked observability matrix has "
-                                            f"rank {rank} < n = {n} (smallest singular value {sv[-1]:.3g}); "
-                                            "condition (16) fails")
+            raise ScenarioError("system.C", f"(C, A) is not jointly observable: the observable space of the stacked "
+                                            f"outputs has dimension {rank} < n = {n} (relative rank tolerance "
+                                            f"{rank_tol:g}); condition (16) fails")
         if m < 2:
             raise ScenarioError("system.C", "needs at least 2 agents (with one agent there is nothing to distribute)")
 
@@ -207,6 +205,11 @@ class HybridScenario:
         central_poles = as_float_tuple(des.get("central_poles", list(default_poles(lam_bar, n))), "design.central_poles")
         if len(central_poles) != n or max(central_poles) >= 0:
             raise ScenarioError("design.central_poles", f"must be {n} negative real poles")
+        try:
+            jd.stacked_gain(A, np.vstack(C), central_poles, rank_tol)
+        except ValueError as exc:
+            raise ScenarioError("design.central_poles", f"pole placement for the centralized reference failed: "
+                                                        f"{exc}") from None
         nA = float(np.linalg.norm(A, 2))
 
         # -- graphs -----------------------------------------------------------------------------
@@ -439,16 +442,3 @@ def paper_scenario() -> HybridScenario:
 
 def generic_scenario() -> HybridScenario:
     return load(Path(__file__).with_name("generic.toml"))
-
-
-def hypotheses_async(run: RunSpec) -> list[str]:
-    """Violated hypotheses of Theorem 2 / Lemma 3 ((10), Δq + ε <= T), as text."""
-    out = []
-    eps = max(run.epsilon) if run.epsilon else 0.0
-    if run.timing in ("async", "offset"):
-        if 2 * eps > run.beta + 1e-15:
-            out.append(f"(10) needs ε_i + ε_j <= β: 2ε = {2 * eps:g} > β = {run.beta:g}")
-        if 2 * eps + run.beta >= run.Delta:
-            out.append(f"(10) needs ε_i + ε_j + β < Δ: {2 * eps + run.beta:g} >= Δ = {run.Delta:g}")
-    return out
-
