@@ -349,7 +349,7 @@ def geometric_gram_sum(lam, p: int) -> np.ndarray:
     """``(1 - |lam|^{2p}) / (1 - |lam|^2)``, the limit ``p`` at ``|lam| = 1``; elementwise.
 
     For ``p >= 0`` this is ``s = sum_{j=0}^{p-1} |lam|^{2j}``, the modal value of ``S_p``
-    (spec's ``s_h``; eq. (16) corrected).  Negative ``p`` is allowed so that the printed (16),
+    (the modal ``s_h``; eq. (16) corrected).  Negative ``p`` is allowed so that the printed (16),
     which has ``p = m - 1``, can be evaluated verbatim at ``m = 0`` (giving ``-1/lam^2``, and
     ``-inf`` at ``lam = 0``).  Evaluated as ``expm1(p x)/expm1(x)`` with ``x = 2 ln|lam|``,
     which is accurate also for ``|lam|`` within rounding of 1.

@@ -56,15 +56,32 @@ class KKTResiduals:
     projected_gradient : the gradient with each component at an active bound replaced by its
         infeasible part (``min(g, 0)`` at a lower bound, ``max(g, 0)`` at an upper bound); its
         infinity norm is the KKT residual, 0 at an exact KKT point.
+    d2J_dell2, d2J_dzeta2 : second differences (curvatures) at the optimum, for scaling the residual.
     """
 
     dJ_dell: float
     dJ_dzeta: float
     projected_gradient: tuple[float, float]
+    d2J_dell2: float = 0.0
+    d2J_dzeta2: float = 0.0
 
     @property
     def residual(self) -> float:
         return float(max(abs(g) for g in self.projected_gradient))
+
+    def scaled_residual(self, J: float, ell: float) -> float:
+        """The projected gradient in units of what a minimum located from values of ``J`` can resolve.
+
+        Such a minimiser is within ``sqrt(eps J / J'')`` of the true one, where the gradient is
+        ``sqrt(eps J J'')``; so each component is divided by ``sqrt(J max(|J''|, J/s^2))`` with the
+        coordinate's scale ``s`` (``ell`` for ``ell``, 1 for ``zeta``, whose range is [0, 1]). The result is
+        at most about ``sqrt(eps)`` at a computed minimum (less after the Newton polish).
+        """
+        J = abs(float(J))
+        out = 0.0
+        for g, h, s in zip(self.projected_gradient, (self.d2J_dell2, self.d2J_dzeta2), (ell, 1.0)):
+            out = max(out, abs(g) / np.sqrt(J * max(abs(h), J / s**2)))
+        return float(out)
 
 
 @dataclass(frozen=True, eq=False)
@@ -134,18 +151,24 @@ def _projected(g: float, x: float, lo: float, hi: float) -> float:
 
 
 def _kkt(fun, ell: float, zeta: float | None) -> KKTResiduals:
-    """Central differences with steps ``1e-5 ell`` and ``1e-5``: the error relative to the gradient's
-    scale ``J/ell`` is about ``(1e-5)^2`` (truncation) plus ``eps/1e-5`` (rounding), near 1e-10."""
+    """Central first and second differences with steps ``1e-5 ell`` and ``1e-5``: the first differences'
+    error relative to the gradient's scale ``J/ell`` is about ``(1e-5)^2`` (truncation) plus
+    ``eps/1e-5`` (rounding), near 1e-10."""
     h = _FD_STEP * ell
-    d_ell = float((fun(ell + h, zeta) - fun(ell - h, zeta)) / (2.0 * h))
+    J0 = float(fun(ell, zeta))
+    up, down = float(fun(ell + h, zeta)), float(fun(ell - h, zeta))
+    d_ell, dd_ell = (up - down) / (2.0 * h), (up - 2.0 * J0 + down) / h**2
     if zeta is None:
-        return KKTResiduals(d_ell, 0.0, (_projected(d_ell, ell, *ELL_BOUNDS), 0.0))
+        return KKTResiduals(d_ell, 0.0, (_projected(d_ell, ell, *ELL_BOUNDS), 0.0), dd_ell, 0.0)
     h = _FD_STEP
-    d_zeta = float((fun(ell, zeta + h) - fun(ell, zeta - h)) / (2.0 * h))
+    up, down = float(fun(ell, zeta + h)), float(fun(ell, zeta - h))
+    d_zeta, dd_zeta = (up - down) / (2.0 * h), (up - 2.0 * J0 + down) / h**2
     return KKTResiduals(
         d_ell,
         d_zeta,
         (_projected(d_ell, ell, *ELL_BOUNDS), _projected(d_zeta, zeta, *ZETA_BOUNDS)),
+        dd_ell,
+        dd_zeta,
     )
 
 

@@ -4,7 +4,7 @@ Checks the exact covariance machinery (recursion (22), unrolled (23), steady sta
 three methods, trace formula (16) printed and corrected), the plain filter's closed forms
 and bounds, the gain optimiser (KKT, grid agreement, reference tables), and the Monte Carlo
 simulator (pathwise identities (17), (19), (20) and second moments against the exact
-recursion).  Reference numbers are from the implementation spec (§4, §5.7) for the paper's
+recursion).  Reference numbers are our independently computed values for the paper's
 example: 3-node path graph, Q = I - 0.4 L, q = 1, r = 25.
 """
 
@@ -336,7 +336,7 @@ def test_fig1_exact_values_and_lower_bounds():
             assert t == pytest.approx(ref, abs=5e-4)
             bound = carli_trace_lower_bound(ell=0.25, m=m, sigma_c=sigma_c, k=4)
             assert t >= bound
-    # sum_{i<4} 0.75^{2i} = 2.056884765625 (the spec prints 2.0566)
+    # sum_{i<4} 0.75^{2i} = 2.056884765625 (2.0566 when truncated to 4 decimals)
     assert carli_trace_lower_bound(ell=0.25, m=1, sigma_c=1.0, k=4) == pytest.approx(2.056884765625, rel=1e-15)
 
 
@@ -562,7 +562,7 @@ def test_fig2_printed_table_and_non_monotone_zeta():
 
 
 def test_v14_large_m_limit():
-    # spec C-IV(d) prints 10.335 for sigma_c = 1; the value is 10.33445, which rounds to 10.334
+    # for sigma_c = 1 the value is 10.33445, which rounds to 10.334 (not 10.335)
     refs = {0.0: 10.295, 0.25: 10.297, 0.5: 10.305, 1.0: 10.3345, 2.0: 10.453}
     for s, ref in refs.items():
         assert optimal_reinjection_gains(Q_PATH, m=50, sigma_c=s, **QR).J == pytest.approx(ref, abs=5e-4)

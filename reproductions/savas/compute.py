@@ -96,16 +96,18 @@ def compute_bounds(sc: NoisyConsensusScenario, quick: bool) -> dict[str, np.ndar
     grid = gain_grid(sc, quick)
     if sc.symmetric:
         for formula in ("corrected", "printed"):
-            ell, zeta, J, kkt, kkt_zeta, grid_min = (np.zeros((S, M + 1)) for _ in range(6))
+            ell, zeta, J, kkt, kkt_zeta, grid_min, scaled = (np.zeros((S, M + 1)) for _ in range(7))
             for s, sigma_c in enumerate(progress(sc.sigma_c, desc=f"{sc.name}: optimal gains, {formula} (16)")):
                 for m in range(M + 1):
                     opt = gt.optimal_reinjection_gains(sc.Q, m=m, sigma_c=sigma_c, q=sc.q, r=sc.r,
                                                        formula=formula, grid=grid)
                     ell[s, m], zeta[s, m], J[s, m] = opt.ell, opt.zeta, opt.J
                     kkt[s, m], kkt_zeta[s, m] = opt.kkt.dJ_dell, opt.kkt.dJ_dzeta
+                    scaled[s, m] = opt.kkt.scaled_residual(opt.J, opt.ell)
                     grid_min[s, m] = np.min(opt.grid_J)
             out.update({f"{formula}_ell": ell, f"{formula}_zeta": zeta, f"{formula}_J": J,
-                        f"{formula}_dJ_dell": kkt, f"{formula}_dJ_dzeta": kkt_zeta, f"{formula}_grid_min": grid_min})
+                        f"{formula}_dJ_dell": kkt, f"{formula}_dJ_dzeta": kkt_zeta, f"{formula}_grid_min": grid_min,
+                        f"{formula}_kkt_scaled": scaled})
         big = [[gt.optimal_reinjection_gains(sc.Q, m=m, sigma_c=s_c, q=sc.q, r=sc.r, formula="corrected", grid=grid)
                 for m in LARGE_M] for s_c in sc.sigma_c]
         out["large_m"] = np.array(LARGE_M)

@@ -106,14 +106,19 @@ def _trace_over_k_figure(res: Results, path: Path) -> None:
     save_figure(fig, path)
 
 
-def write_figures(res: Results, out_dir: Path) -> None:
+def _fig(paper: bool, number: int) -> str:
+    """'Fig. N: ' in the paper's reproduction only (a user's scenario is not the paper's figure)."""
+    return f"Fig. {number}: " if paper else ""
+
+
+def write_figures(res: Results, out_dir: Path, paper: bool = False) -> None:
     figs = out_dir / "figures"
-    _metric_figure(res, "carli", "Fig. 1: two-stage filter (7)+(9) under communication noise, ℓ = "
+    _metric_figure(res, "carli", f"{_fig(paper, 1)}two-stage filter (7)+(9) under communication noise, ℓ = "
                    f"{res.scenario.carli_ell:g}", figs / "fig1.png")
     if res.scenario.symmetric:
         _gains_figure(res, figs / "fig2.png")
-    _metric_figure(res, "reinjection", f"Fig. 3: re-injection filter (11)-(13), {res.scenario.reinjection_gains} gains",
-                   figs / "fig3.png")
+    _metric_figure(res, "reinjection", f"{_fig(paper, 3)}re-injection filter (11)-(13), {res.scenario.reinjection_gains} "
+                   "gains", figs / "fig3.png")
     _trace_over_k_figure(res, figs / "trace_over_k.png")
 
 
@@ -193,17 +198,19 @@ def write_trials_recording(res: Results, path: Path, claims: list[dict], prov: d
         rec_.log_claims(rec, claims, summary)
 
 
-def write_figures_recording(res: Results, path: Path, claims: list[dict], prov: dict, summary: str) -> None:
+def write_figures_recording(res: Results, path: Path, claims: list[dict], prov: dict, summary: str,
+                            paper: bool = False) -> None:
     sc, b = res.scenario, res.bounds
-    views = [rrb.TimeSeriesView(origin="/fig1", name="Fig. 1: Carli's filter, tr P(4|3) vs m (lines exact, dots Monte Carlo)",
-                                plot_legend=rrb.PlotLegend(rrb.Corner2D.LeftTop)),
-             rrb.TimeSeriesView(origin="/fig3", name="Fig. 3: re-injection filter, tr P(4|3) vs m (σ_c: dark 0 → yellow max)",
-                                plot_legend=rrb.PlotLegend(visible=False))]
+    metric = f"tr P({sc.eval_step}|{sc.eval_step - 1})"
+    views = [rrb.TimeSeriesView(origin="/fig1", name=f"{_fig(paper, 1)}Carli's filter, {metric} vs m (lines exact, dots "
+                                "Monte Carlo)", plot_legend=rrb.PlotLegend(rrb.Corner2D.LeftTop)),
+             rrb.TimeSeriesView(origin="/fig3", name=f"{_fig(paper, 3)}re-injection filter, {metric} vs m (σ_c: dark 0 → "
+                                "yellow max)", plot_legend=rrb.PlotLegend(visible=False))]
     if sc.symmetric:
         hidden = rrb.PlotLegend(visible=False)
-        views += [rrb.TimeSeriesView(origin="/fig2/ell", name="Fig. 2: optimal ℓ* vs m (lines corrected (16), dots printed)",
-                                     plot_legend=hidden),
-                  rrb.TimeSeriesView(origin="/fig2/zeta", name="Fig. 2: optimal ζ* vs m", plot_legend=hidden),
+        views += [rrb.TimeSeriesView(origin="/fig2/ell", name=f"{_fig(paper, 2)}optimal ℓ* vs m (lines corrected (16), dots "
+                                     "printed)", plot_legend=hidden),
+                  rrb.TimeSeriesView(origin="/fig2/zeta", name=f"{_fig(paper, 2)}optimal ζ* vs m", plot_legend=hidden),
                   rrb.TimeSeriesView(origin="/fig2/J", name="optimal cost J* vs m", plot_legend=hidden)]
     blueprint = rrb.Blueprint(
         rrb.Tabs(rrb.Grid(*views, name="figures"),
@@ -233,10 +240,11 @@ def write_figures_recording(res: Results, path: Path, claims: list[dict], prov: 
         rec_.log_claims(rec, claims, summary)
 
 
-def write_outputs(res: Results, out_dir: Path, claims: list[dict], prov: dict) -> None:
-    write_figures(res, out_dir)
-    counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable")}
+def write_outputs(res: Results, out_dir: Path, claims: list[dict], prov: dict, paper: bool = False) -> None:
+    write_figures(res, out_dir, paper)
+    counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
     summary = (f"# {res.scenario.name}: {counts['pass']} pass, {counts['fail']} fail, {counts['erratum']} erratum, "
-               f"{counts['not-checkable']} not checkable\n\nseed {res.seed}, {res.trials:,} trials per cell")
+               f"{counts['not-checkable']} not checkable, {counts['error']} error\n\nseed {res.seed}, "
+               f"{res.trials:,} trials per cell")
     write_trials_recording(res, out_dir / f"{res.scenario.name}.rrd", claims, prov, summary)
-    write_figures_recording(res, out_dir / f"{res.scenario.name}_figures.rrd", claims, prov, summary)
+    write_figures_recording(res, out_dir / f"{res.scenario.name}_figures.rrd", claims, prov, summary, paper)

@@ -1,10 +1,11 @@
-"""Reference numbers from the implementation spec (shared/specs/002_savas_noisy_comm.md §5.7),
-computed there with independent prototypes; used only for the paper's own scenario."""
+"""Reference numbers for our reconstruction of the paper's example, computed independently of this
+package (separate prototypes of the exact recursion, the Lyapunov solver and the optimiser);
+used only by the claims about the paper's own example (scope "paper-example")."""
 import numpy as np
 
 EIG_Q = np.array([-0.2, 0.6, 1.0])
 
-#: σ_c thresholds for an increase of tr P(4|3) from m to m+1 (ℓ = 0.25), m = 0..4 (spec C-III)
+#: σ_c thresholds for an increase of tr P(4|3) from m to m+1 (ℓ = 0.25), m = 0..4 (derived)
 CARLI_THRESHOLDS = np.array([1.1431, 0.4888, 0.2624, 0.1527, 0.0908])
 
 #: Fig. 1: Carli's filter, ℓ = 0.25, exact tr P(4|3), σ = 1; rows σ_c in the paper grid, columns m = 0..5

@@ -60,7 +60,7 @@ class NoisyConsensusReproduction:
     def write_outputs(self, results, out_dir: Path, claims: list[dict], prov: dict) -> None:
         from . import outputs
 
-        outputs.write_outputs(results, out_dir, claims, prov)
+        outputs.write_outputs(results, out_dir, claims, prov, paper=self.is_paper)
 
     def notes(self) -> str:
         return NOTES if self.is_paper else FAMILY_NOTES
