@@ -57,15 +57,19 @@ def test_quick_paper_outputs(quick_paper):
     assert {"tran.cor31.ultimate_bound", "tran.rem31.comparison", "tran.sec34.comparison_lmi_infeasible",
             "tran.prop41.exact_moments", "tran.num.step_halving"} <= ids
     verdicts = {c["id"]: c["verdict"] for c in doc["claims"]}
-    # the findings the spec documents, as numbers
+    # the findings on the paper's example, as numbers
     assert verdicts["tran.sec34.comparison_lmi_infeasible"] == "pass"
     assert verdicts["tran.rem42.additional_term"] == "erratum"
     assert verdicts["tran.rem43.necessary_condition"] == "fail"
     for cid in ("tran.eq62.printed_P", "tran.lemma31.vertex_lmis", "tran.thm21.identity54", "tran.cor31.ultimate_bound",
-                "tran.rem31.comparison", "tran.num.step_halving", "tran.spec.reference_values", "tran.eq9.error_dynamics",
+                "tran.rem31.comparison", "tran.num.step_halving", "tran.ref.regression_values", "tran.eq9.error_dynamics",
                 "tran.prop41.exact_moments", "tran.prop41.bound_roles"):
         assert verdicts[cid] == "pass", (cid, [c for c in doc["claims"] if c["id"] == cid])
     assert all(c["verdict"] != "fail" or c["id"] == "tran.rem43.necessary_condition" for c in doc["claims"])
+    hyps = {h["id"]: h["holds"] for h in doc["hypotheses"]}
+    for hid in ("tran.hyp.vertex_lmi", "tran.hyp.fixed_local", "tran.hyp.input_bound", "tran.hyp.integration",
+                "tran.hyp.S_fixed_hurwitz"):
+        assert hyps[hid] is True, hid
     for k in range(2, 12):
         assert (d / "figures" / f"fig{k}.png").stat().st_size > 10_000
     assert summary["fail"] == 1
@@ -85,40 +89,69 @@ def test_quick_paper_recording(quick_paper):
     assert "infeasible" in lmi["TextDocument:text"][0]
 
 
+PAPER_TEXT = ("Fig. ", "Ex. 5", "12 sensors", "spec §", "spec:", "Figs. ", "example's")
+
+
 def test_user_scenario_runs_and_is_consistent(tmp_path):
-    """A scenario not in the spec: LMI-designed P, proximity roles; claims evaluated, no crash."""
+    """A scenario of our own: LMI-designed P, proximity roles; hypotheses hold, claims pass, no claim or
+    text about the paper's example in the outputs."""
     repro = tran.from_dict(copy.deepcopy(USER))
     summary = run(repro, tmp_path, RunOptions(quick=True, workers=1), out_dir=tmp_path / "run" / "ring5")
-    doc = json.loads((tmp_path / "run" / "ring5" / "report.json").read_text())
+    out = tmp_path / "run" / "ring5"
+    doc = json.loads((out / "report.json").read_text())
     v = {c["id"]: c for c in doc["claims"]}
-    for cid in ("tran.eq9.error_dynamics", "tran.step_i.lmi_feasible", "tran.thm21.identity54", "tran.thm31.vdot",
-                "tran.thm31.bounded", "tran.cor31.ultimate_bound", "tran.num.step_halving", "tran.thm31.vertices"):
+    for cid in ("tran.eq9.error_dynamics", "tran.thm21.identity54", "tran.thm31.vdot", "tran.thm31.bounded",
+                "tran.cor31.ultimate_bound", "tran.thm31.vertices", "tran.lemma31.vertex_lmis", "tran.prop41.exact_moments"):
         assert v[cid]["verdict"] == "pass", v[cid]
-    assert v["tran.spec.reference_values"]["verdict"] == "not-checkable"
-    assert summary["pass"] > 15
-    assert (tmp_path / "run" / "ring5" / "ring5.rrd").exists()
+    assert all(c["scope"] == "family" for c in doc["claims"])
+    assert "tran.ref.regression_values" not in v and "tran.rem43.necessary_condition" not in v
+    assert {h["id"]: h["holds"] for h in doc["hypotheses"]}["tran.hyp.vertex_lmi"] is True
+    assert summary["fail"] == 0 and summary["pass"] > 15
+    text = (out / "report.md").read_text() + (out / "report.json").read_text()
+    assert not [w for w in PAPER_TEXT if w in text], [w for w in PAPER_TEXT if w in text]
+    figs = {p.name for p in (out / "figures").iterdir()}
+    assert "states.png" in figs and not any(f.startswith("fig") for f in figs)
+    assert (out / "ring5.rrd").exists()
 
 
-def test_user_scenario_with_infeasible_lmi_is_reported(tmp_path):
-    """A node type whose Ā_i(1) is unstable: (28)-(29) infeasible -> reported with the solver status."""
+def test_user_scenario_with_infeasible_lmi_is_not_checkable(tmp_path):
+    """A node type whose Ā_i(1) is unstable: (28)-(29) infeasible. The hypothesis says so, with the solver
+    status and the eigenvalue certificate; the theorems' conclusions are not checkable; no fail."""
     data = copy.deepcopy(USER)
     data["node_type"]["vel"]["L"] = [[-6.0], [-6.0]]
     data["coupling"]["P"] = "lmi"
     repro = tran.from_dict(data)
-    from reproductions.tran import compute
-    design = compute.compute_design(repro.scenario, quick=True)
-    assert design["lmi_margin"][1] < 0
-    status = str(design["lmi_status"][1])
-    assert status in ("infeasible", "infeasible_inaccurate") or status.startswith("solver_error")
-    from reproductions.tran.claims import check_lmi_feasible
-    from reproductions.tran.compute import Results
-    verdict = check_lmi_feasible(Results(repro.scenario, 0, 10, True, design))
-    assert verdict.status == "fail" and status in verdict.detail
-    # the whole pipeline still runs and reports
     summary = run(repro, tmp_path, RunOptions(quick=True, workers=1), out_dir=tmp_path / "run" / "bad")
     doc = json.loads((tmp_path / "run" / "bad" / "report.json").read_text())
-    row = next(c for c in doc["claims"] if c["id"] == "tran.step_i.lmi_feasible")
-    assert row["verdict"] == "fail" and status in row["detail"] and summary["fail"] >= 1
+    hyp = next(h for h in doc["hypotheses"] if h["id"] == "tran.hyp.vertex_lmi")
+    assert hyp["holds"] is False
+    assert "infeasible" in hyp["detail"] or "solver_error" in hyp["detail"]
+    assert "unstable at some g" in hyp["detail"]
+    v = {c["id"]: c for c in doc["claims"]}
+    for cid in ("tran.thm31.vertices", "tran.cor31.ultimate_bound", "tran.lemma31.vertex_lmis", "tran.rem22.small_sigmaK"):
+        assert v[cid]["verdict"] == "not-checkable" and "tran.hyp.vertex_lmi" in v[cid]["detail"], v[cid]
+    assert summary["fail"] == 0 and summary["error"] == 0
+
+
+def test_lyapunov_P_leaves_thm31_not_checkable(tmp_path):
+    """P from (10) at fixed roles certifies Thm 2.1, not the vertex LMIs of Thm 3.1 (the issue's
+    thm31.vertices with a Lyapunov P)."""
+    data = copy.deepcopy(USER)
+    data["coupling"]["P"] = "lyapunov"
+    data["roles"] = {"mode": "fixed", "active": [1, 1, 0, 0, 0]}
+    data.pop("fixed_roles")
+    repro = tran.from_dict(data)
+    from pipeline.cache import StageCache
+    from pipeline.reproduction import evaluate_claims
+    res = repro.compute(RunOptions(quick=True, workers=1), StageCache(tmp_path / "cache"))
+    ev = evaluate_claims(repro, res)
+    hyps = {h["id"]: h["holds"] for h in ev.hypotheses}
+    v = {c["id"]: c["verdict"] for c in ev.claims}
+    assert hyps["tran.hyp.fixed_local"] is True
+    if hyps["tran.hyp.vertex_lmi"] is not True:
+        assert v["tran.thm31.vertices"] == "not-checkable"
+    assert v["tran.thm21.identity54"] == "pass" and v["tran.cor21.ultimate_bound"] == "pass"
+    assert "fail" not in v.values() and "error" not in v.values()
 
 
 def edit(data, path, value):
@@ -233,7 +266,8 @@ def test_cli_run_user_scenario(tmp_path, monkeypatch):
     doc = json.loads((tmp_path / "out" / "run" / "line4" / "report.json").read_text())
     v = {c["id"]: c["verdict"] for c in doc["claims"]}
     assert v["tran.thm21.identity54"] == "pass" and v["tran.cor21.ultimate_bound"] == "pass"
-    assert v["tran.prop41.bound_fixed"] == "pass" and v["tran.thm31.vertices"] == "pass"
+    assert v["tran.prop41.bound_fixed"] == "pass"
+    assert v["tran.thm31.vertices"] in ("pass", "not-checkable")
     (tmp_path / "bad.toml").write_text(USER_TOML.replace("alpha = 4.0", "alpha = -4.0"))
     assert cli.main(["run", str(tmp_path / "bad.toml"), "--out", str(tmp_path / "out2")]) == 2
     assert not (tmp_path / "out2").exists()

@@ -1,5 +1,5 @@
 """The centralized reference: a Kalman filter (filterpy) on the augmented state s = [x; w] with
-all currently active sensors (a project addition, spec §9; not in the paper).
+all currently active sensors (a project addition, not in the paper).
 
 The unknown input is modelled as a random walk ẇ = q_w^{1/2} ξ; the model ṡ = F s + noise,
 F = [[A, B], [0, 0]], is discretised exactly at dt by Van Loan's method. Node i contributes

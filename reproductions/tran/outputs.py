@@ -1,7 +1,7 @@
 """Figures (PNG) and the Rerun recording of the coestimation family.
 
-Figures 2-11 of the paper (Fig. 2 reconstructed), plus roles, bounds and Monte Carlo
-figures. One recording `<scenario>.rrd` on timeline `t` (duration): the graph at fixed
+Figures 2-11 of the paper (Fig. 2 reconstructed) for the paper's example, the same views with
+plain names and titles for users' scenarios, plus roles, bounds and Monte Carlo figures. One recording `<scenario>.rrd` on timeline `t` (duration): the graph at fixed
 positions with each node's role g_i(t) as colour and size, the target and each node's
 estimate in the plane, states and inputs against truth, errors against the bounds, the
 stochastic Monte Carlo against (46) and the exact moments, the LMI results and the claims.
@@ -23,12 +23,41 @@ from pipeline.stats import z_for_confidence
 from .claims import _sde_constants, errors, lyapunov_values
 from .compute import Results
 
-STATE_LABELS = ("x₁ (x position)", "x₂ (x velocity)", "x₃ (y position)", "x₄ (y velocity)")
+PAPER_STATE_LABELS = ("x₁ (x position)", "x₂ (x velocity)", "x₃ (y position)", "x₄ (y velocity)")
 FRAME_DT = 0.1  # seconds between recorded network/plane frames
+# (paper file, paper title, user file, user title) of each figure
+FIGURES = {
+    "graph": ("fig2", "Fig. 2 (reconstructed): communication graph and sensing discs", "graph",
+              "communication graph and sensing discs"),
+    "states": ("fig3", "Fig. 3: coestimation (22)-(23), x̂_i(t); dashed: true x(t)", "states",
+               "coestimation (22)-(23), x̂_i(t); dashed: true x(t)"),
+    "inputs": ("fig4", "Fig. 4: coestimation, ŵ_i(t); dashed: true w(t)", "inputs",
+               "coestimation, ŵ_i(t); dashed: true w(t)"),
+    "plane": ("fig5", "Fig. 5: coestimation, position estimates; AN = active nodes", "plane",
+              "coestimation, position estimates; AN = active nodes"),
+    "comp_states": ("fig6", "Fig. 6: estimation architecture (36)-(37), x̂_i(t)", "comparison_states",
+                    "estimation architecture (36)-(37), x̂_i(t)"),
+    "comp_inputs": ("fig7", "Fig. 7: estimation architecture (36)-(37), ŵ_i(t)", "comparison_inputs",
+                    "estimation architecture (36)-(37), ŵ_i(t)"),
+    "comp_plane": ("fig8", "Fig. 8: estimation architecture, position estimates", "comparison_plane",
+                   "estimation architecture, position estimates"),
+    "sde_pos": ("fig9", "Fig. 9: Ex. 5.2 (stochastic), run 0; shaded: true-state envelope over the runs",
+                "stochastic_positions", "stochastic run 0, position states; shaded: true-state envelope over the runs"),
+    "sde_other": ("fig10", "Fig. 10: Ex. 5.2, run 0, the other states; shaded: envelope over the runs",
+                  "stochastic_states", "stochastic run 0, the other states; shaded: envelope over the runs"),
+    "sde_inputs": ("fig11", "Fig. 11: Ex. 5.2, run 0, ŵ_i(t); dashed: true w(t)", "stochastic_inputs",
+                   "stochastic run 0, ŵ_i(t); dashed: true w(t)"),
+}
 
 
-def _state_label(k: int, n: int) -> str:
-    return STATE_LABELS[k] if n == 4 else f"x{k + 1}"
+def _figure(key: str, paper: bool) -> tuple[str, str]:
+    pf, pt, uf, ut = FIGURES[key]
+    return (pf, pt) if paper else (uf, ut)
+
+
+def state_labels(res: Results, paper: bool) -> list[str]:
+    n = res.scenario.n
+    return list(PAPER_STATE_LABELS) if paper and n == 4 else [f"x{k + 1}" for k in range(n)]
 
 
 def _node_colors(N: int):
@@ -37,7 +66,7 @@ def _node_colors(N: int):
 
 # -- figures ----------------------------------------------------------------------------------
 
-def _states_figure(res: Results, run: dict, title: str, path: Path, states=None, band=None) -> None:
+def _states_figure(res: Results, run: dict, title: str, path: Path, labels: list[str], states=None, band=None) -> None:
     sc = res.scenario
     states = list(range(sc.n)) if states is None else states
     cols = _node_colors(sc.N)
@@ -53,7 +82,7 @@ def _states_figure(res: Results, run: dict, title: str, path: Path, states=None,
             ax.plot(run["t"], run["e"][:, i, k], color=cols[i], lw=0.8, label=f"node {i + 1}" if a == 0 else None)
         ax.plot(run["t"], run["x"][:, k], "k--", lw=1.4, label="true" if a == 0 else None)
         ax.set_xlabel("t (s)")
-        ax.set_ylabel(_state_label(k, sc.n))
+        ax.set_ylabel(labels[k])
     for ax in axes.flat[len(states):]:
         ax.set_visible(False)
     axes.flat[0].legend(ncol=5, fontsize=5, loc="best", framealpha=0.6)
@@ -77,7 +106,7 @@ def _inputs_figure(res: Results, run: dict, title: str, path: Path) -> None:
     save_figure(fig, path)
 
 
-def _plane_figure(res: Results, run: dict, title: str, path: Path) -> None:
+def _plane_figure(res: Results, run: dict, title: str, path: Path, labels: list[str]) -> None:
     sc = res.scenario
     a, b = sc.position_states
     cols = _node_colors(sc.N)
@@ -87,8 +116,8 @@ def _plane_figure(res: Results, run: dict, title: str, path: Path) -> None:
     for i in range(sc.N):
         ax.plot(run["e"][:, i, a], run["e"][:, i, b], color=cols[i], lw=0.8)
     ax.plot(run["x"][:, a], run["x"][:, b], "k--", lw=1.6, label="true trajectory")
-    ax.set_xlabel(_state_label(a, sc.n))
-    ax.set_ylabel(_state_label(b, sc.n))
+    ax.set_xlabel(labels[a])
+    ax.set_ylabel(labels[b])
     ax.set_aspect("equal", adjustable="datalim")
     ax.legend(fontsize=7, loc="lower left")
     ax.set_title(title, fontsize=9)
@@ -113,19 +142,19 @@ def _draw_network(ax, res: Results, g: np.ndarray | None = None, tag_active: boo
         ax.annotate(f"{i + 1}{tag}", pos[i], xytext=(5, 5), textcoords="offset points", fontsize=7)
 
 
-def _graph_figure(res: Results, path: Path) -> None:
+def _graph_figure(res: Results, path: Path, title: str, labels: list[str]) -> None:
     sc = res.scenario
     fig, axes = new_figure(width=6.4, height=5.4)
     ax = axes[0, 0]
     run = res.runs["coest"]
     _draw_network(ax, res, run["g"], tag_active=False)
     a, b = sc.position_states
-    ax.plot(run["x"][:, a], run["x"][:, b], "k--", lw=1, label="target path (Ex. 5.1)")
+    ax.plot(run["x"][:, a], run["x"][:, b], "k--", lw=1, label="target path (deterministic run)")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel(_state_label(a, sc.n))
-    ax.set_ylabel(_state_label(b, sc.n))
-    ax.set_title("Fig. 2 (reconstructed): communication graph and sensing discs\nmarker size and opacity = fraction of "
-                 f"time active in Ex. 5.1; circles = {sc.types[0].name}, squares = other types", fontsize=8)
+    ax.set_xlabel(labels[a])
+    ax.set_ylabel(labels[b])
+    ax.set_title(f"{title}\nmarker size and opacity = fraction of time active in the deterministic run; "
+                 f"circles = {sc.types[0].name}, squares = other types", fontsize=8)
     ax.legend(fontsize=7)
     save_figure(fig, path)
 
@@ -149,7 +178,7 @@ def _bounds_figure(res: Results, path: Path) -> None:
     d = res.design
     fig, axes = new_figure(ncols=2, width=5.4, height=4)
     for ax, run, label, bounds in (
-            (axes[0, 0], "coest", "time-varying roles (Ex. 5.1)",
+            (axes[0, 0], "coest", "time-varying roles",
              [("(18), single ε", d["bound18_single"]), ("(18), per-node ε_i", d["bound18_pernode"]),
               ("(18), certified ε_i", d["bound18_certified"]), ("(18), vertex q*", d["bound18_qstar"])]),
             (axes[0, 1], "fixed", "fixed roles (Thm 2.1)", [("(18), Q̄ = Q + 2αL⊗I", d["fixed_bound18"])])):
@@ -181,7 +210,7 @@ def _mc_figure(res: Results, path: Path) -> None:
         ax.semilogy(r["t"], lb.mean_square_bound(r["t"], m[0], c["kappa"], c["eta"]), "r:", label="bound (46)")
         ax.set_xlabel("t (s)")
         ax.set_ylabel("E{zᵀPz}")
-        ax.set_title("fixed roles" if fixed else "time-varying roles (Ex. 5.2)", fontsize=9)
+        ax.set_title("fixed roles" if fixed else "time-varying roles", fontsize=9)
         ax.legend(fontsize=7)
     save_figure(fig, path)
 
@@ -191,30 +220,34 @@ def _stochastic_run(res: Results, k: int = 0) -> dict:
     return {"t": r["t"], "w": r["w"], "x": r["kept_x"][k], "e": r["kept_e"][k], "g": r["kept_g"][k]}
 
 
-def write_figures(res: Results, out_dir: Path) -> None:
+def write_figures(res: Results, out_dir: Path, paper: bool = True) -> None:
     figs = out_dir / "figures"
     sc = res.scenario
     co = res.runs["coest"]
-    _graph_figure(res, figs / "fig2.png")
-    _states_figure(res, co, "Fig. 3: coestimation (22)-(23), x̂_i(t); dashed: true x(t)", figs / "fig3.png")
-    _inputs_figure(res, co, "Fig. 4: coestimation, ŵ_i(t); dashed: true w(t)", figs / "fig4.png")
-    _plane_figure(res, co, "Fig. 5: coestimation, position estimates; AN = active nodes", figs / "fig5.png")
+    labels = state_labels(res, paper)
+
+    def where(key):
+        name, title = _figure(key, paper)
+        return title, figs / f"{name}.png"
+
+    _graph_figure(res, where("graph")[1], where("graph")[0], labels)
+    _states_figure(res, co, *where("states"), labels)
+    _inputs_figure(res, co, *where("inputs"))
+    _plane_figure(res, co, *where("plane"), labels)
     if "comparison" in res.runs:
         cp = res.runs["comparison"]
-        _states_figure(res, cp, "Fig. 6: estimation architecture (36)-(37), x̂_i(t)", figs / "fig6.png")
-        _inputs_figure(res, cp, "Fig. 7: estimation architecture (36)-(37), ŵ_i(t)", figs / "fig7.png")
-        _plane_figure(res, cp, "Fig. 8: estimation architecture, position estimates", figs / "fig8.png")
+        _states_figure(res, cp, *where("comp_states"), labels)
+        _inputs_figure(res, cp, *where("comp_inputs"))
+        _plane_figure(res, cp, *where("comp_plane"), labels)
     r = res.runs["sde_roles"]
     if r["kept_x"].size:
         run0 = _stochastic_run(res)
         band = (r["kept_x"].min(0), r["kept_x"].max(0), r["kept_x"].shape[0])
         a, b = sc.position_states
         others = [k for k in range(sc.n) if k not in (a, b)]
-        _states_figure(res, run0, "Fig. 9: Ex. 5.2 (stochastic), run 0; shaded: true-state envelope over the runs",
-                       figs / "fig9.png", states=[a, b], band=band)
-        _states_figure(res, run0, "Fig. 10: Ex. 5.2, run 0, the other states; shaded: envelope over the runs",
-                       figs / "fig10.png", states=others or [a], band=band)
-        _inputs_figure(res, run0, "Fig. 11: Ex. 5.2, run 0, ŵ_i(t); dashed: true w(t)", figs / "fig11.png")
+        _states_figure(res, run0, *where("sde_pos"), labels, states=[a, b], band=band)
+        _states_figure(res, run0, *where("sde_other"), labels, states=others or [a], band=band)
+        _inputs_figure(res, run0, *where("sde_inputs"))
     _roles_figure(res, figs / "roles.png")
     _bounds_figure(res, figs / "bounds.png")
     _mc_figure(res, figs / "mean_square.png")
@@ -236,12 +269,19 @@ def lmi_markdown(res: Results) -> str:
         lines.append(f"| {ty.name} | {ty.eps:g} | {d['lmi_status'][t]} | {float(d['lmi_margin'][t]):.4g} | "
                      f"{float(d['lmi_verified'][t]):.4g} | {'' if pg is None else f'{pg[0]:.4g}'} | "
                      f"{'' if pg is None else f'{pg[-1]:.4g}'} |")
-    lines += ["", "## (38)-(39): the comparison architecture", "",
-              "| type | σ (paper) | status | t* | smallest feasible σ | σ_b used | status | t* |", "|---|---|---|---|---|---|---|---|"]
-    for t, ty in enumerate(sc.types):
-        lines.append(f"| {ty.name} | {ty.sigma:g} | {d['comp_status'][t]} | {float(d['comp_margin'][t]):.4g} | "
-                     f"{float(d['comp_sigma_min'][t]):.4g} | {ty.comparison_sigma:g} | {d['comp_status_b'][t]} | "
-                     f"{float(d['comp_margin_b'][t]):.4g} |")
+    lines += ["", "## (38)-(39): the comparison architecture", ""]
+    if "comp_status" in d:   # the LMIs at the coestimation σ and the smallest feasible σ: the paper's example only
+        lines += ["| type | σ (coestimation) | status | t* | smallest feasible σ | σ_b used | status | t* |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for t, ty in enumerate(sc.types):
+            lines.append(f"| {ty.name} | {ty.sigma:g} | {d['comp_status'][t]} | {float(d['comp_margin'][t]):.4g} | "
+                         f"{float(d['comp_sigma_min'][t]):.4g} | {ty.comparison_sigma:g} | {d['comp_status_b'][t]} | "
+                         f"{float(d['comp_margin_b'][t]):.4g} |")
+    else:
+        lines += ["| type | σ_b used | status | t* |", "|---|---|---|---|"]
+        for t, ty in enumerate(sc.types):
+            lines.append(f"| {ty.name} | {ty.comparison_sigma:g} | {d['comp_status_b'][t]} | "
+                         f"{float(d['comp_margin_b'][t]):.4g} |")
     lines += ["", "## Bounds", "", f"- w̄ = {float(d['wbar']):.6g} (sup‖w‖ = {float(d['w_sup']):.6g}, sup‖ẇ‖ = "
               f"{float(d['wdot_sup']):.6g}); φ̄ = {float(d['phibar']):.6g} (tight {float(d['phibar_tight']):.6g})",
               f"- λ_min(P) = {float(d['lamP_min']):.5g}, λ_max(P) = {float(d['lamP_max']):.5g}",
@@ -254,7 +294,7 @@ def lmi_markdown(res: Results) -> str:
     return "\n".join(lines)
 
 
-def write_recording(res: Results, path: Path, claims: list[dict], prov: dict) -> None:
+def write_recording(res: Results, path: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:
     sc, d = res.scenario, res.design
     n, p, N = sc.n, sc.p, sc.N
     co = res.runs["coest"]
@@ -262,6 +302,8 @@ def write_recording(res: Results, path: Path, claims: list[dict], prov: dict) ->
     idx = rec_.duration_index("t", t_ns)
     cols = [_rgb(c) for c in _node_colors(N)]
     a, b = sc.position_states
+    labels = state_labels(res, paper)
+    figs_est, figs_comp = (" (Figs. 3-4)", " (Figs. 6-7)") if paper else ("", "")
     blueprint = rrb.Blueprint(
         rrb.Tabs(
             rrb.Horizontal(
@@ -269,12 +311,12 @@ def write_recording(res: Results, path: Path, claims: list[dict], prov: dict) ->
                              rrb.TimeSeriesView(origin="/roles", name="roles g_i(t)"), row_shares=[3, 2]),
                 rrb.Spatial2DView(origin="/plane", name="target (black) and node estimates in the plane"),
                 column_shares=[2, 3], name="network"),
-            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/states/x{k + 1}", name=f"{_state_label(k, n)}: nodes vs truth")
+            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/states/x{k + 1}", name=f"{labels[k]}: nodes vs truth")
                        for k in range(n)],
                      *[rrb.TimeSeriesView(origin=f"/states/w{k + 1}", name=f"w{k + 1}: nodes vs truth") for k in range(p)],
-                     grid_columns=2, name="estimates (Figs. 3-4)"),
-            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/comparison/x{k + 1}", name=f"comparison arch.: {_state_label(k, n)}")
-                       for k in range(n)], grid_columns=2, name="comparison (Figs. 6-7)"),
+                     grid_columns=2, name=f"estimates{figs_est}"),
+            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/comparison/x{k + 1}", name=f"comparison arch.: {labels[k]}")
+                       for k in range(n)], grid_columns=2, name=f"comparison{figs_comp}"),
             rrb.Grid(rrb.TimeSeriesView(origin="/bounds/roles", name="‖z(t)‖ vs (18) variants (log)"),
                      rrb.TimeSeriesView(origin="/bounds/fixed", name="fixed roles: ‖z‖ vs (18)"),
                      rrb.TimeSeriesView(origin="/mc", name="E{z^T P z}: Monte Carlo, exact, (46)"),
@@ -382,10 +424,10 @@ def write_recording(res: Results, path: Path, claims: list[dict], prov: dict) ->
         rec_.send_series(rec, "mc/sde_fixed/exact", rec_.duration_index("t", np.round(ex["t"] * 1e9).astype(np.int64)),
                          ex["EV"], names="fixed roles: exact E{V}", colors=[(0, 0, 0)])
         rec_.log_markdown(rec, "lmi", lmi_markdown(res))
-        counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable")}
+        counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
         rec_.log_claims(rec, claims, f"# {sc.name}: {counts}")
 
 
 def write_outputs(res: Results, out_dir: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:
-    write_figures(res, out_dir)
-    write_recording(res, out_dir / f"{res.scenario.name}.rrd", claims, prov)
+    write_figures(res, out_dir, paper)
+    write_recording(res, out_dir / f"{res.scenario.name}.rrd", claims, prov, paper)
