@@ -77,7 +77,7 @@ def _below(lower, upper, allowance, *, detail: str, strict: bool = False) -> Ver
     ok = bool(np.all(slack > -t) if strict else np.all(slack >= -t))
     return Verdict(PASS if ok else FAIL, measured=float(lo[worst]), reference=float(up[worst]),
                    tolerance=float(t[worst]), margin=float(slack[worst]),
-                   detail=(f"smallest slack {slack[worst]:.6g} (round-off allowance {t[worst]:.3g}) over {lo.size} "
+                   detail=(f"smallest slack {slack[worst]:.6g} (allowance {t[worst]:.3g}) over {lo.size} "
                            f"cases. {detail}").strip())
 
 

@@ -24,7 +24,7 @@ under the report's family-wise confidence."""
 
 FAMILY_NOTES = """Statistical verdicts use exact laws of the simulated errors given the gains (χ² for per-agent mean squares,
 normal for sums, conservative Chernoff bounds for the trace), valid at any number of trials, under the report's
-family-wise confidence. Claims about the paper's own example are not evaluated on this scenario."""
+family-wise confidence."""
 
 
 class NoisyConsensusReproduction:
