@@ -275,7 +275,7 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
     grid = np.arange(start_ns - (start_ns % dt_ns if start_ns % dt_ns else 0), end_ns + 1, dt_ns)
     grid = grid[(grid >= start_ns) & (grid <= end_ns)]
     times = np.unique(np.concatenate([grid, event_ns.ravel(), T_ns * np.arange(S + 1), [start_ns, end_ns]]))
-    eAT = sla.expm(A * timing.T)
+    eAT = sla.expm(A * (T_ns / NS))        # the event spacing as simulated (whole nanoseconds)
     W_slices = d.w_slices
 
     # interval participation and agent activity
@@ -473,10 +473,12 @@ def transition_products(P: np.ndarray, W: np.ndarray) -> np.ndarray:
 
 
 def error_recursion(d: ObserverDesign, W: np.ndarray, T: float, offsets: np.ndarray | None = None,
-                    Phi: np.ndarray | None = None, eAT: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    Phi: np.ndarray | None = None, eAT: np.ndarray | None = None,
+                    E: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A(s) = e^{ÃT} Φ(0) (42), B(s) = e^{ÃT} Σ_{k=1}^q Φ(k) Q (43), and for event-time offsets
     G(s) = e^{ÃT} Σ_k Φ(k) P Γ(k) with Γ_i(k) = Σ_j W_ij(k) (e^{A t_i0} - e^{A t_j0}) (58), so that
-    e(s) = A e(s-1) + B ē(s-1) - G x((s-1)T)  (61, with the sign corrected)."""
+    e(s) = A e(s-1) + B ē(s-1) - G x((s-1)T)  (61, with the sign corrected). `E`: the e^{A t_i0} if
+    already computed."""
     m, n = d.m, d.n
     Phi = transition_products(d.P, W) if Phi is None else Phi
     eAT = np.kron(np.eye(m), sla.expm(d.A * T) if eAT is None else eAT)
@@ -485,7 +487,8 @@ def error_recursion(d: ObserverDesign, W: np.ndarray, T: float, offsets: np.ndar
     Bs = eAT @ Phi[1:].sum(axis=0) @ Qb
     G = np.zeros((m * n, n))
     if offsets is not None and np.any(offsets != 0):
-        E = np.array([sla.expm(d.A * t) if t else np.eye(n) for t in offsets])      # (m, n, n)
+        if E is None:                                                       # e^{A t_i0}, (m, n, n)
+            E = np.array([sla.expm(d.A * t) if t else np.eye(n) for t in offsets])
         Gam = E[None] - np.einsum("kij,jab->kiab", W, E)                   # (q, m, n, n), rows of W sum to 1
         Pb = sla.block_diag(*d.P)
         G = eAT @ (Phi[1:] @ Pb[None] @ Gam.reshape(W.shape[0], m * n, n)).sum(axis=0)

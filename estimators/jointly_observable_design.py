@@ -403,7 +403,7 @@ def _rho_search(P: np.ndarray, N: int, max_states: int) -> RhoResult:
             for length in range(1, N - 1):
                 done = mask == full
                 if done.any():
-                    vals = np.linalg.norm(X[done] @ U[b], ord=2, axis=(1, 2))
+                    vals = spectral_norm(X[done] @ U[b])
                     evaluated += int(done.sum())
                     k = int(np.argmax(vals))
                     if vals[k] > best:

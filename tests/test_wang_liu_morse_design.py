@@ -1,7 +1,7 @@
 """Design quantities of the hybrid observer: per-agent objects, ρ, α, q, σ, c_i, norms, graphs.
 
-Reference numbers for the paper's example come from the spec (§4.3), computed there with
-independent scratch scripts; random systems are checked against brute-force definitions."""
+Reference numbers for the paper's example were computed independently (numpy/scipy scratch
+computations, not this code); random systems are checked against brute-force definitions."""
 from __future__ import annotations
 
 import itertools
@@ -50,7 +50,7 @@ def test_paper_local_design_and_footnote3():
         svd_L = jd.local_design(A_PAPER, C)
         assert np.abs(given_L.L @ A_PAPER - given_L.Abar @ given_L.L).max() == 0.0
         assert np.abs(C - given_L.Cbar @ given_L.L).max() == 0.0
-        assert np.abs(given_L.P - svd_L.P).max() < 1e-15          # P_i independent of L_i
+        assert np.abs(given_L.P - svd_L.P).max() < 1e-15          # P_i independent of L_i (Krylov basis)
         assert jd.same_kernel(L, A_PAPER, C)
     assert not jd.same_kernel(np.eye(4)[2:], A_PAPER, C_PAPER[0])        # agent 1 sees (x1, x2), not (x3, x4)
     assert not jd.same_kernel(np.eye(4)[:1], A_PAPER, C_PAPER[0])        # too small a row space
@@ -152,7 +152,7 @@ def test_alpha_q_in_logs_no_overflow():
 
 
 def test_transient_constants_and_gains():
-    expected = [13.72, 55.21, 31.62, 4.63]            # spec §4.3, λ̄ = 2
+    expected = [13.72, 55.21, 31.62, 4.63]            # independent values, λ̄ = 2
     for C, L, K, c in zip(C_PAPER, L_PAPER, K_PAPER, expected):
         d = jd.local_design(A_PAPER, C, L=L)
         F = d.Abar + K @ d.Cbar
@@ -201,13 +201,133 @@ def test_lemma6_on_random_instances(seed):
     assert sig < 1
 
 
-def test_rho_beyond_exhaustive_is_flagged_as_lower_estimate():
-    rng = np.random.default_rng(7)
-    P = []
-    for _ in range(5):
-        Qm, _ = np.linalg.qr(rng.standard_normal((4, 2)))
-        P.append(Qm @ Qm.T)
-    res = jd.rho_exact(np.array(P), samples=20_000, rng=np.random.default_rng(1))
-    assert not res.exact and 0 < res.rho < 1 and len(set(res.worst_word)) == 5
+def repeat_free_rho(P, max_len=None):
+    """ρ by growing every repeat-free word (no pruning, no first/last-letter reduction)."""
+    m = len(P)
+    N = (m - 1) ** 2 + 1 if max_len is None else max_len
+    best, frontier = 0.0, [((i,), P[i]) for i in range(m)]
+    for length in range(1, N + 1):
+        nxt = []
+        for w, M in frontier:
+            if len(set(w)) == m:
+                best = max(best, np.linalg.norm(M, 2))
+            if length < N:
+                nxt += [(w + (a,), M @ P[a]) for a in range(m) if a != w[-1]]
+        frontier = nxt
+    return best
+
+
+def random_projections(rng, m, n, dims=None):
+    out = []
+    for i in range(m):
+        k = int(rng.integers(1, n)) if dims is None else dims[i]
+        Qm, _ = np.linalg.qr(rng.standard_normal((n, k)))
+        out.append(Qm @ Qm.T)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_rho_branch_and_bound_m4_against_all_words(seed):
+    """m = 4: every repeat-free word of length <= 10 (118,096 words) against the branch and bound."""
+    P = random_projections(np.random.default_rng(seed), 4, 3)
+    res = jd.rho_exact(P)
+    assert res.exact and res.upper == res.rho
+    assert res.rho == pytest.approx(repeat_free_rho(P), rel=1e-12, abs=1e-15)
     w = res.worst_word
+    assert len(set(w)) == 4 and len(w) <= 10 and all(a != b for a, b in zip(w, w[1:]))
     assert np.linalg.norm(np.linalg.multi_dot([P[i] for i in w]), 2) == pytest.approx(res.rho, rel=1e-12)
+
+
+def test_rho_five_agents_exact_and_fast():
+    """m = 5 (N = 17): exact in well under a second, and never below any sampled complete word."""
+    import time
+
+    rng = np.random.default_rng(11)
+    P = random_projections(rng, 5, 4)
+    t0 = time.perf_counter()
+    res = jd.rho_exact(P)
+    assert res.exact and time.perf_counter() - t0 < 5.0
+    for _ in range(300):
+        L = int(rng.integers(5, 18))
+        w = [int(rng.integers(5))]
+        while len(w) < L:
+            a = int(rng.integers(4))
+            w.append(a if a < w[-1] else a + 1)
+        if len(set(w)) == 5:
+            assert np.linalg.norm(np.linalg.multi_dot([P[i] for i in w]), 2) <= res.rho * (1 + 1e-12) + 1e-15
+
+
+def test_rho_repeated_projections_are_merged():
+    """Agents sharing a projection: the merged search equals the definition for m = 4."""
+    rng = np.random.default_rng(3)
+    for _ in range(4):
+        base = random_projections(rng, 3, 3)
+        P = base[[0, 1, 0, 2]]
+        res = jd.rho_exact(P)
+        assert res.exact and res.rho == pytest.approx(repeat_free_rho(P), rel=1e-12, abs=1e-15)
+        w = res.worst_word
+        assert len(set(w)) == 4 and len(w) <= 10
+        assert np.linalg.norm(np.linalg.multi_dot([P[i] for i in w]), 2) == pytest.approx(res.rho, rel=1e-12)
+
+
+def test_rho_bracket_when_the_search_is_cut():
+    """With a tiny state budget the search stops with a proven bracket around the exact value."""
+    P = random_projections(np.random.default_rng(7), 5, 4, dims=[2] * 5)
+    exact = jd.rho_exact(P)
+    cut = jd.rho_exact(P, max_states=50)
+    assert exact.exact and not cut.exact
+    assert cut.rho <= exact.rho * (1 + 1e-12) and cut.upper >= exact.rho * (1 - 1e-12)
+    w = cut.worst_word
+    assert np.linalg.norm(np.linalg.multi_dot([P[i] for i in w]), 2) == pytest.approx(cut.rho, rel=1e-12)
+
+
+def test_rho_zero_projection():
+    P = random_projections(np.random.default_rng(2), 3, 3)
+    P[1] = 0.0
+    assert jd.rho_exact(P).rho == 0.0 and jd.rho_exact(P).exact
+
+
+@pytest.mark.parametrize("kappa", [1e2, 1e4, 1e6])
+def test_projection_from_an_ill_conditioned_basis(kappa):
+    """Footnote 3 with a change of basis of condition κ: P_i from M L_i (QR, no (L L')^-1) equals P_i
+    from L_i to 10·n·n_i·eps·(1 + κ(M L_i)); the explicit inverse of L L' (κ²) did not."""
+    rng = np.random.default_rng(int(kappa))
+    n, k = 6, 3
+    L, _ = np.linalg.qr(rng.standard_normal((n, k)))
+    L = L.T
+    U, _ = np.linalg.qr(rng.standard_normal((k, k)))
+    V, _ = np.linalg.qr(rng.standard_normal((k, k)))
+    M = U @ np.diag(np.geomspace(1.0, kappa, k)) @ V
+    _, P, _ = jd.pseudo_inverse_rows(L)
+    Q2, P2, cond = jd.pseudo_inverse_rows(M @ L)
+    assert cond == pytest.approx(kappa, rel=1e-6)
+    assert np.abs(P2 - P).max() <= 10 * n * k * np.finfo(float).eps * (1 + cond)
+    assert np.abs((M @ L) @ Q2 - np.eye(k)).max() <= 10 * n * k * np.finfo(float).eps * cond
+
+
+def test_observable_basis_badly_scaled_system():
+    """||A|| = 40, n = 6: the observable space of each agent has the planted dimension, and the
+    rows are A-invariant to round-off (the rank decision on [C; CA; ...; CA^5] mixes scales 1 to 40^5)."""
+    rng = np.random.default_rng(5)
+    n = 6
+    V = rng.standard_normal((n, n)) + 3 * np.eye(n)
+    Vi = np.linalg.inv(V)
+    lam = np.array([-40.0, -25.0, -3.0, -1.0, 0.5, 0.05])
+    A = V @ np.diag(lam) @ Vi
+    for seen in ([0, 5], [1, 2, 3], [4], [0, 1, 2, 3, 4]):
+        C = rng.standard_normal((1, len(seen))) @ Vi[seen]
+        basis = jd.observable_basis(A, C)
+        assert basis.rows.shape[0] == len(seen)
+        R = basis.rows
+        assert np.abs(R @ R.T - np.eye(len(seen))).max() < 1e-14
+        assert np.linalg.norm(R @ A @ (np.eye(n) - R.T @ R), 2) <= 1e-12 * np.linalg.norm(A, 2)
+        # the row space is spanned by the planted left eigenvectors
+        W = Vi[seen] / np.linalg.norm(Vi[seen], axis=1, keepdims=True)
+        assert np.linalg.norm(W - (W @ R.T) @ R, 2) < 1e-10
+
+
+def test_stacked_gain_with_repeated_outputs():
+    A, Cs = random_jointly_observable(4)
+    C = np.vstack(Cs + Cs)                                    # every output twice
+    K = jd.stacked_gain(A, C, [-1.0, -1.5, -2.0, -2.5])
+    assert np.allclose(np.sort(np.linalg.eigvals(A + K @ C).real), [-2.5, -2.0, -1.5, -1.0], atol=1e-8)

@@ -79,17 +79,30 @@ def test_paper_verdicts(paper_run):
     P = "wang-liu-morse."
     for claim in ("eq41.error_recursion", "thm1.event_bound", "thm1.rate", "thm2.async_equals_sync", "lemma4.eq44",
                   "lemma2.source_sets", "lemma3.source_sets", "eq17.rho", "eq26.sigma", "sec6.rate", "sec6.eq44_q50",
-                  "sec3.symmetric_case", "lemma8.eq62", "sec4.eq63", "sec6.fig5_leave_join", "sec6.reduced_models"):
+                  "sec3.symmetric_case", "lemma8.eq62", "sec4.eq63", "sec6.fig5_leave_join", "sec6.reduced_models",
+                  "sec2.local_design", "reference.centralized"):
         assert v[P + claim]["verdict"] == "pass", (claim, v[P + claim]["detail"][:500])
     for claim in ("thm1.continuous_bound", "eq61.offset_recursion", "sec6.local_rates", "eq18.alpha"):
         row = v[P + claim]
         assert row["verdict"] == "erratum" and row["printed"] is not None and row["corrected"] is not None, claim
     assert v[P + "thm1.continuous_bound"]["printed"] > 1 >= v[P + "thm1.continuous_bound"]["corrected"]
-    # the paper's own example fails its sufficient conditions, with the spec's numbers
-    assert v[P + "sec6.q_eq22"]["verdict"] == "fail" and v[P + "sec6.q_eq22"]["reference"] == 3_507_081
-    assert v[P + "sec6.q_eq27"]["reference"] == 57
     assert v[P + "eq41.error_recursion"]["measured"] < 1e-13
-    assert summary["fail"] == 2 and summary["erratum"] == 4
+    # the example's q = 50 misses (22) and (27): hypotheses of the theorems that the example does not meet
+    # (reported first, with the required q), not claims; the theorem claims are checked on the generic system
+    assert P + "sec6.q_eq22" not in v and P + "sec6.q_eq27" not in v
+    hyps = {h["id"]: h for h in json.loads((d / "report.json").read_text())["hypotheses"]}
+    q22, q27 = hyps[P + "hyp.paper.q_eq22"], hyps[P + "hyp.paper.q_eq27"]
+    assert q22["holds"] is False and q22["value"] == 50 and q22["threshold"] == 3_419_701        # λ = 1.9
+    assert "3,507,081" in q22["detail"] and "471" in q22["detail"]                                # λ = 2; α as printed
+    assert q27["holds"] is False and q27["threshold"] == 55 and "q >= 57" in q27["detail"]
+    assert hyps[P + "hyp.generic.q_eq22"]["holds"] is True and hyps[P + "hyp.paper.symmetric.q_eq27"]["holds"] is True
+    assert not any(h["error"] for h in hyps.values())
+    assert "[generic/sync]" in v[P + "thm1.event_bound"]["detail"]
+    assert "hyp.paper.q_eq22 does not hold" in v[P + "thm1.event_bound"]["detail"]          # the paper's cells left out
+    for claim in ("sec6.rate", "sec6.fig3_noise", "sec4.key_point_mismatch", "remarks.not_tight", "sec6.eq44_q50"):
+        assert v[P + claim]["scope"] == "paper-example", claim
+    assert v[P + "thm1.rate"]["scope"] == "family"
+    assert summary["fail"] == 0 and summary["erratum"] == 4 and summary.get("error", 0) == 0
 
 
 def test_paper_outputs(paper_run):
@@ -125,7 +138,13 @@ def test_user_scenario_against_independent_design(tmp_path):
     for claim in ("eq41.error_recursion", "thm1.event_bound", "thm2.async_equals_sync", "lemma4.eq44", "thm1.rate",
                   "eq17.rho", "lemma3.source_sets"):
         assert v["wang-liu-morse." + claim]["verdict"] == "pass", claim
-    assert "wang-liu-morse.sec6.q_eq22" not in v
+    assert not any(k.startswith("wang-liu-morse.sec6") for k in v)            # the paper's example claims are absent
+    hyps = {h["id"]: h for h in json.loads((d / "report.json").read_text())["hypotheses"]}
+    assert hyps["wang-liu-morse.hyp.q_eq22"]["holds"] is True and hyps["wang-liu-morse.hyp.async.eq10"]["holds"] is True
+    assert "wang-liu-morse.hyp.q_eq22" in v["wang-liu-morse.thm1.event_bound"]["hypotheses"]
+    report = (d / "report.md").read_text()
+    for text in ("q = 50", "Fig. ", "graph 2a", "spec §", "the spec", "Section 6"):
+        assert text not in report, text
     design = json.loads((d / "design.json").read_text())["scenario"]
     # independent: for m = 2, ρ = ||P_1 P_2|| = cos of the angle between the unobservable lines
     A = np.array(data["system"]["A"])
@@ -192,3 +211,29 @@ def test_cli_rejects_a_bad_file_with_one_line(tmp_path):
     lines = proc.stderr.strip().splitlines()
     assert proc.returncode == 2 and len(lines) == 1 and "system.C: (C, A) is not jointly observable" in lines[0]
     assert not (tmp_path / "out").exists()
+
+
+def test_q_below_the_bound_makes_the_theorems_not_checkable(tmp_path):
+    """A q one below (22): Theorem 1's conclusions are not checked (not-checkable, naming the hypothesis);
+    the identities still are. A run with its own q below the bound is left out of the claims by name."""
+    data = tomllib.loads(USER)
+    probe = from_dict(copy.deepcopy(data))
+    q22 = probe.scenarios["scenario"].q_design
+    data["design"]["q"] = q22 - 1
+    for r in data["runs"]:
+        r["intervals"] = min(r["intervals"], 10)
+    data["runs"].append({"name": "enough", "q": q22, "intervals": 10})
+    repro = from_dict(data)
+    results = repro.compute(RunOptions(seed=1, quick=True), __import__("pipeline.cache", fromlist=["StageCache"]).StageCache(tmp_path))
+    from pipeline.reproduction import evaluate_claims
+    ev = evaluate_claims(repro, results)
+    v = {r["id"]: r for r in ev.claims}
+    hyps = {h["id"]: h for h in ev.hypotheses}
+    assert hyps["wang-liu-morse.hyp.q_eq22"]["holds"] is False
+    assert hyps["wang-liu-morse.hyp.enough.q_eq22"]["holds"] is True
+    assert not any(r["verdict"] in ("fail", "error") for r in ev.claims)
+    # the design q governs every run but one: the claim gates the cells itself and checks 'enough'
+    ev_bound = v["wang-liu-morse.thm1.event_bound"]
+    assert ev_bound["verdict"] == "pass" and "[scenario/enough]" in ev_bound["detail"]
+    assert "wang-liu-morse.hyp.q_eq22 does not hold" in ev_bound["detail"]
+    assert v["wang-liu-morse.eq41.error_recursion"]["verdict"] == "pass"

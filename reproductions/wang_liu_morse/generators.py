@@ -201,7 +201,7 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
         A, C = _system(rng, n, m, kind, chain=(e == "integrator_chain" and n >= 2))
     lam = round(float(rng.uniform(0.2, 1.2)), 3)
     lam_bar = round(lam * float(rng.uniform(1.2, 2.0)), 3)
-    T = round(float(rng.uniform(0.2, 1.0)), 3)
+    T = int(rng.integers(20, 101)) / 100         # a multiple of the 0.01 plotting step: few distinct time steps
     des = _design(A, C, lam, T)
 
     # graphs

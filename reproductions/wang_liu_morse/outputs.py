@@ -395,9 +395,9 @@ def write_outputs(res: MultiResults, out_dir: Path, claims: list[dict], prov: di
     write_figures(res, out_dir, paper)
     atomic_write_text(out_dir / "design.json", json.dumps({k: design_summary(r) for k, r in res.parts.items()},
                                                           indent=1, default=str))
-    counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable")}
+    counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
     summary = (f"# hybrid observer: {counts['pass']} pass, {counts['fail']} fail, {counts['erratum']} erratum, "
-               f"{counts['not-checkable']} not checkable")
+               f"{counts['not-checkable']} not checkable, {counts['error']} error")
     for name, r in res.parts.items():
         for s in r.scenario.runs:
             fname = f"{name}_{s.name}.rrd" if paper else f"{s.name}.rrd"
