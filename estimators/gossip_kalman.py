@@ -36,7 +36,8 @@ from typing import Sequence
 import numpy as np
 
 __all__ = ["GossipSystem", "MatchingDistribution", "NodeInitiatedGossip", "GreedyMatchingGossip", "riccati_step",
-           "lyapunov_step",
+           "lyapunov_step", "factor_psd", "riccati_sqrt_step", "factor_features", "riccati_roundoff",
+           "lyapunov_roundoff", "propagate_error", "error_norm",
            "gikf_covariance_step", "gikf_error_step", "covariance_features", "FEATURES"]
 
 
@@ -160,6 +161,90 @@ def _riccati_scalar_obs(X, C, R, F, Q, return_gain):
     for i in range(M):
         K[..., i, 0] = k[i]
     return out, K
+
+
+EPS = float(np.finfo(float).eps)
+
+
+def _fro2(A: np.ndarray) -> np.ndarray:
+    return np.square(A).sum(axis=(-2, -1))
+
+
+def riccati_roundoff(X: np.ndarray, K: np.ndarray, C: np.ndarray, R: np.ndarray, F: np.ndarray,
+                     Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Round-off of one Joseph-form step f(X) (as computed by `riccati_step`), to first order.
+
+    Returns (delta, G), batched. `delta` bounds the spectral norm of the error the step itself
+    commits: γ(‖F‖²(‖A‖²‖X‖ + ‖K‖²‖R‖) + ‖Q‖) with γ = 10·n_ops·eps, A = I − K C and n_ops = 4M + 3m + 4
+    the longest chain of products and sums in the step (each product of matrices commits at most
+    ~n·eps relative to the product of absolute values, whose norm the Frobenius norms bound), plus
+    the effect of the computed gain's error, ‖F‖²‖dK S^½‖² (S = C X Cᵀ + R; large when S is
+    ill-conditioned or C X Cᵀ cancels, i.e. when X is huge along a direction C barely sees).
+    G = F A is the closed loop: the map's derivative Df(X)[H] = G H Gᵀ carries an earlier error H,
+    so an error bound E (−E ⪯ H ⪯ E) propagates as `propagate_error` (G E Gᵀ + delta·I), which follows
+    the actual contraction of the composed maps rather than a product of norms."""
+    M, m = F.shape[0], C.shape[-2]
+    gamma = 10.0 * (4 * M + 3 * m + 4) * EPS
+    A = np.eye(M) - K @ C
+    fF, fQ = _fro2(F), np.sqrt(_fro2(Q))
+    scale = fF * (_fro2(A) * np.sqrt(_fro2(X)) + _fro2(K) * np.sqrt(_fro2(R))) + fQ
+    # the gain: K̂ = K + dK adds exactly F dK S dKᵀ Fᵀ to the Joseph form (P(K) = P(K*) + (K − K*) S (K − K*)ᵀ),
+    # with ‖dK S^½‖ ≤ (‖E₁‖ + ‖K‖‖E₂‖)/√λ_min(S) + ‖K‖ γ κ(S) √‖S‖ for the errors E₁ of X Cᵀ and E₂ of S
+    aX, aC = np.abs(X), np.abs(C)
+    S = C @ X @ np.swapaxes(C, -1, -2) + R
+    s_eig = np.linalg.eigvalsh(S)
+    s_min, s_max = np.maximum(s_eig[..., 0], np.finfo(float).tiny), s_eig[..., -1]
+    E1 = gamma * np.sqrt(_fro2(aX @ np.swapaxes(aC, -1, -2)))
+    E2 = gamma * np.sqrt(_fro2(aC @ aX @ np.swapaxes(aC, -1, -2) + np.abs(R)))
+    k = np.sqrt(_fro2(K))
+    dK = (E1 + k * E2) / np.sqrt(s_min) + k * gamma * (s_max / s_min) * np.sqrt(s_max)
+    return gamma * scale + fF * dK * dK, F @ A
+
+
+def lyapunov_roundoff(X: np.ndarray, F: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`riccati_roundoff` for f_0(X) = F X Fᵀ + Q: (10·(2M+2)·eps·(‖F‖²‖X‖ + ‖Q‖), F)."""
+    M = F.shape[0]
+    return 10.0 * (2 * M + 2) * EPS * (_fro2(F) * np.sqrt(_fro2(X)) + np.sqrt(_fro2(Q))), F
+
+
+def propagate_error(E: np.ndarray, G: np.ndarray, delta) -> np.ndarray:
+    """The error bound after one step: G E Gᵀ + delta·I (E: (…, M, M), a PSD bound −E ⪯ H ⪯ E of the error H)."""
+    M = E.shape[-1]
+    return G @ E @ np.swapaxes(G, -1, -2) + np.asarray(delta)[..., None, None] * np.eye(M)
+
+
+def error_norm(E: np.ndarray) -> np.ndarray:
+    """‖H‖ ≤ λ_max(E) for any −E ⪯ H ⪯ E (inf where the bound itself left float64)."""
+    finite = np.isfinite(E).all(axis=(-2, -1))
+    out = np.full(E.shape[:-2], np.inf)
+    out[finite] = np.linalg.eigvalsh(E[finite])[..., -1]
+    return out
+
+
+def factor_psd(X: np.ndarray) -> np.ndarray:
+    """A factor S with S Sᵀ = X for (batched) PSD X: V diag(√λ) from the eigendecomposition, so that
+    singular X (e.g. X = 0) needs no special case."""
+    lam, V = np.linalg.eigh(_sym(np.asarray(X, float)))
+    return V * np.sqrt(np.maximum(lam, 0.0))[..., None, :]
+
+
+def riccati_sqrt_step(S: np.ndarray, C: np.ndarray, R_half: np.ndarray, F: np.ndarray, Q_half: np.ndarray) -> np.ndarray:
+    """f in square-root (array) form: given S with X = S Sᵀ, a factor S' with S' S'ᵀ = f(X), batched.
+
+    The pre-array [[R^½, C S, 0], [0, F S, Q^½]] is triangularised by an orthogonal transformation
+    (QR of its transpose); the lower-triangular result [[R_e^½, 0], [K̄, S']] has R_e^½ R_e^½ᵀ = C X Cᵀ + R
+    and S' S'ᵀ = F X Fᵀ + Q − K̄ K̄ᵀ = f(X). The innovation variance is a sum of squares, never a
+    difference, and the transformation is backward stable, so the factor stays accurate (and finite)
+    for ‖X‖ far beyond the range where the Joseph form loses the well-observed directions."""
+    m, M = C.shape[-2], F.shape[0]
+    batch = np.broadcast_shapes(S.shape[:-2], C.shape[:-2], R_half.shape[:-2])
+    pre = np.zeros(batch + (m + M, m + 2 * M))
+    pre[..., :m, :m] = R_half
+    pre[..., :m, m:m + M] = C @ S
+    pre[..., m:, m:m + M] = F @ S
+    pre[..., m:, m + M:] = Q_half
+    r = np.linalg.qr(np.swapaxes(pre, -1, -2), mode="r")
+    return np.swapaxes(r, -1, -2)[..., m:, m:]
 
 
 def riccati_textbook(X, C, R, F, Q):
@@ -501,29 +586,48 @@ def covariance_features(P: np.ndarray) -> np.ndarray:
                                      np.log(np.maximum(eig, tiny)).sum(-1)]), diag])
 
 
+def factor_features(S: np.ndarray) -> np.ndarray:
+    """`covariance_features` of X = S Sᵀ computed from the factor: eigenvalues are the squared
+    singular values of S, the trace its squared Frobenius norm and the diagonal its squared row
+    norms, so the small eigenvalues stay accurate when ‖X‖ is far beyond 1/eps."""
+    sv = np.linalg.svd(S, compute_uv=False)
+    tiny = np.finfo(float).tiny
+    lam = np.maximum(sv * sv, tiny)
+    rows = np.square(S).sum(axis=-1)
+    return np.concatenate([np.stack([np.log(rows.sum(-1)), np.log(lam[..., 0]), np.log(lam[..., -1]),
+                                     np.log(lam).sum(-1)]), np.moveaxis(rows, -1, 0)])
+
+
 # -- batched GIKF run with on-line statistics -----------------------------------------------------------
 
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95, 0.99)
-
-
-def _rel_min_eig(D: np.ndarray, scale: np.ndarray) -> float:
-    """min over the batch of λ_min(D) / max(1, scale): a relative Loewner margin."""
-    return float((np.linalg.eigvalsh(D)[..., 0] / np.maximum(1.0, scale)).min())
 
 
 def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: np.random.Generator, *,
                   record_times: Sequence[int], P_central: np.ndarray, K_central: np.ndarray,
                   envelope: np.ndarray, j_grid: np.ndarray, n_paths: int = 3, check_runs: int = 1000,
                   nees_window: tuple[int, int] = (20, 60), token_steps: int = 20,
-                  nees_level: float = 0.99, stat_stride: int = 1) -> dict[str, np.ndarray]:
+                  nees_level: float = 0.99, stat_stride: int = 1, P_floor: np.ndarray | None = None,
+                  floor_err: np.ndarray | None = None, envelope_err: np.ndarray | None = None,
+                  nees_slots: Sequence[int] = ()) -> dict[str, np.ndarray]:
     """n_runs independent GIKF runs of n_slots slots (covariances and the error recursion).
 
     P_central (T+1, M, M) and K_central (T, M, N m) are the centralized filter's prior covariances
     and update gains; envelope (T+1, M, M) is f_0^t(P0). Returns on-line statistics:
     features of a uniformly random sensor q and of every sensor at record_times, per-(t, n)
     quantiles of log tr P over runs, exceedance counts of ‖P‖ over j_grid, relative Loewner
-    margins against P_c(t), Q and the envelope, NEES sums, token-chain counts and a few full
-    sample paths (trace per sensor, errors, matchings, centralized error).
+    margins against a lower bound P_floor (default P_c(t); (T+1, N, M, M) gives one per sensor), Q
+    and the envelope, NEES sums, token-chain counts and a few full sample paths (trace per
+    sensor, errors, matchings, centralized error).
+
+    Loewner margins come in two forms (T+1, 3, N): `margins`, min over runs of
+    λ_min(difference) / max(1, ‖P̂‖) per sensor, and `slack`, the same with the round-off allowance of both
+    sides added before the minimum: the first-order bound of `riccati_roundoff` carried along every
+    run (for the first `check_runs` runs) plus `floor_err` / `envelope_err` (the bounds of the
+    reference matrices) plus eps·‖Q‖. A margin is a counterexample only where its slack is < 0.
+    `nees_slots`: slots at which the NEES of the random sensor q and of the centralized filter are
+    kept per run (`nees_q`, `nees_c`, (len(nees_slots), runs)): given the gossip path each is exactly
+    χ²_M and independent across runs.
     """
     from scipy.stats import chi2
 
@@ -533,7 +637,7 @@ def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: n
     q = rng.integers(0, N, B)
     rows = np.arange(B)
     P = np.broadcast_to(sys.P0, (B, N, M, M)).copy()
-    e = np.broadcast_to(rng.standard_normal((B, 1, M)) @ np.linalg.cholesky(sys.P0).T, (B, N, M)).copy()
+    e = np.broadcast_to(rng.standard_normal((B, 1, M)) @ factor_psd(sys.P0).T, (B, N, M)).copy()
     e_c = e[:, 0].copy()
     Lr = sys.R_chol
     Lq = np.linalg.cholesky(sys.Q)
@@ -542,7 +646,15 @@ def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: n
     feat_n = np.full((len(times), nf, B, N), np.nan)
     quant = np.full((T + 1, N, len(QUANTILES)), np.nan)
     exceed = np.full((T + 1, N, len(j_grid)), -1, dtype=np.int64)  # -1: slot not evaluated (stride)
-    margins = np.full((T + 1, 3), np.nan)  # vs P_c(t), vs Q (t ≥ 1), envelope − P
+    margins = np.full((T + 1, 3, N), np.nan)  # per sensor: vs P_floor(t), vs Q (t ≥ 1), envelope − P
+    slack = np.full((T + 1, 3, N), np.nan)
+    P_floor = P_central if P_floor is None else P_floor
+    floor_err = np.zeros(P_floor.shape[:-2]) if floor_err is None else np.asarray(floor_err, float)
+    envelope_err = np.zeros(T + 1) if envelope_err is None else np.asarray(envelope_err, float)
+    q_norm = EPS * float(np.linalg.norm(sys.Q, 2))
+    nees_slots = [int(t) for t in nees_slots if 1 <= t <= T]
+    nees_q = np.full((len(nees_slots), B), np.nan)
+    nees_cq = np.full((len(nees_slots), B), np.nan)
     sp = min(n_paths, B)
     path_trace = np.full((sp, T + 1, N), np.nan)
     path_err = np.full((sp, T + 1, N, M), np.nan)
@@ -558,6 +670,7 @@ def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: n
     tok0[0, 0] = B
     overflow = -1
     cr = min(check_runs, B)
+    err = np.zeros((cr, N, M, M))  # first-order round-off bound of P̂_n(t), runs [0, cr) (see propagate_error)
 
     def record(t: int) -> None:
         tr = np.trace(P, axis1=-2, axis2=-1)
@@ -565,27 +678,37 @@ def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: n
         path_trace[:, t] = tr[:sp]
         path_err[:, t] = e[:sp]
         path_err_c[:, t] = e_c[:sp]
+        if t in nees_slots:
+            k = nees_slots.index(t)
+            eq = e[rows, q]
+            nees_q[k] = np.einsum("bm,bm->b", eq, np.linalg.solve(P[rows, q], eq[..., None])[..., 0])
+            nees_cq[k] = np.einsum("bm,bm->b", e_c, np.linalg.solve(P_central[t], e_c.T).T)
         if t % stat_stride and t not in times and t != T:
             return
         eig = np.linalg.eigvalsh(P)
         lam_max = eig[..., -1]
         exceed[t] = (lam_max[..., None] >= j_grid).sum(axis=0)
-        scale = lam_max[:cr]
-        margins[t, 0] = _rel_min_eig(P[:cr] - P_central[t], scale)
-        if t >= 1:
-            margins[t, 1] = _rel_min_eig(P[:cr] - sys.Q, scale)
-        margins[t, 2] = _rel_min_eig(envelope[t] - P[:cr], np.linalg.norm(envelope[t], 2))
+        scale = np.maximum(1.0, lam_max[:cr])
+        env_scale = max(1.0, float(np.linalg.norm(envelope[t], 2)))
+        e_P = error_norm(err)
+        for col, (D, tol, sc_) in enumerate(((P[:cr] - P_floor[t], e_P + floor_err[t], scale),
+                                             (P[:cr] - sys.Q, e_P + q_norm, scale),
+                                             (envelope[t] - P[:cr], e_P + envelope_err[t], env_scale))):
+            if col == 1 and t == 0:
+                continue
+            lam_min = np.linalg.eigvalsh(D)[..., 0]
+            margins[t, col] = (lam_min / sc_).min(axis=0)
+            slack[t, col] = ((lam_min + tol) / sc_).min(axis=0)
         if t in times:
             i = times.index(t)
             feat_n[i] = np.moveaxis(covariance_features(P), -1, -1)
             feat_q[i] = feat_n[i][:, rows, q]
-        if nees_window[0] <= t < nees_window[1]:
+        if max(1, nees_window[0]) <= t < nees_window[1]:
             z = np.einsum("bnm,bnm->bn", e, np.linalg.solve(P, e[..., None])[..., 0])
             nees[0] += z.sum()
             nees[1] += (z > nees_thr).sum()
             nees[2] += z.size
-            zc = e_c @ np.linalg.inv(P_central[t]) * e_c
-            zc = zc.sum(axis=1)
+            zc = np.einsum("bm,bm->b", e_c, np.linalg.solve(P_central[t], e_c.T).T)
             nees[3] += zc.sum()
             nees_c[0] += (zc > nees_thr).sum()
             nees_c[1] += zc.size
@@ -604,7 +727,10 @@ def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: n
             loc = new_loc
             if 1 <= t <= token_steps:
                 tok0[t] = np.bincount(loc[:, 0], minlength=N)  # law of p_0(t) (A(0) = I: p_0(0) = 0)
+            X_in = swap(P[:cr], partners[:cr])
             P, K = gikf_covariance_step(P, partners, sys, return_gain=True)
+            delta, G = riccati_roundoff(X_in, K[:cr], sys.C, sys.R, sys.F, sys.Q)
+            err = propagate_error(err[rows[:cr, None], partners[:cr]], G, delta)
             w = rng.standard_normal((B, M)) @ Lq.T
             v = np.einsum("nij,bnj->bni", Lr, rng.standard_normal((B, N, m)))
             e = gikf_error_step(e, partners, K, sys, w, v)
@@ -615,7 +741,8 @@ def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: n
                 break
             record(t + 1)
     return {"times": np.array(times), "q": q, "feat_q": feat_q, "feat_n": feat_n, "quantiles": quant,
-            "exceed": exceed, "margins": margins, "path_trace": path_trace, "path_err": path_err,
+            "exceed": exceed, "margins": margins, "slack": slack, "nees_q": nees_q, "nees_c": nees_cq,
+            "nees_slots": np.array(nees_slots, dtype=np.int64), "path_trace": path_trace, "path_err": path_err,
             "path_partners": path_partners, "path_err_c": path_err_c, "nees": np.concatenate([nees, nees_c]), "nees_run": nees_run,
             "nees_threshold": np.array(nees_thr), "trans": trans, "token0": tok0,
             "token0_final": np.bincount(loc[:, 0], minlength=N), "overflow": np.array(overflow)}

@@ -14,8 +14,10 @@ measure μ^Ā from any initial law (Theorem 8). The samplers below are
 * a forward coupling diagnostic: the same switching from 0 and from c I, whose relative gap
   tells how long the burn-in must be.
 
-Chains are batched on a leading axis; all maps are the Joseph-form Riccati of
-:mod:`estimators.gossip_kalman`.
+Chains are batched on a leading axis. The maps are the Joseph-form Riccati of
+:mod:`estimators.gossip_kalman`, or with ``sqrt=True`` its square-root (array) form, which carries a
+factor S of X = S Sᵀ and stays accurate and finite when ‖X‖ is huge (a start at c·I with c ≫ 1, or a
+direction no sensor of the path sees); features are then computed from the factor.
 """
 from __future__ import annotations
 
@@ -24,7 +26,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .gossip_kalman import GossipSystem, covariance_features, riccati_step
+from .gossip_kalman import (GossipSystem, covariance_features, error_norm, factor_features, factor_psd,
+                            propagate_error, riccati_roundoff, riccati_sqrt_step, riccati_step)
 
 __all__ = ["sample_chain", "sample_protocol_chain", "switched_riccati", "pullback", "coupling_gap", "exact_small_t_law"]
 
@@ -65,56 +68,103 @@ def apply_maps(sys: GossipSystem, X: np.ndarray, nodes: np.ndarray) -> np.ndarra
     return riccati_step(X, sys.C[nodes], sys.R[nodes], sys.F, sys.Q)
 
 
+class _Iterate:
+    """A batch of B matrices under switched Riccati maps, in Joseph form (the matrices) or in
+    square-root form (factors S with X = S Sᵀ)."""
+
+    def __init__(self, sys: GossipSystem, X0: np.ndarray, B: int, sqrt: bool, track_error: bool = False):
+        self.sys, self.sqrt, self.track = sys, sqrt, track_error and not sqrt
+        X = np.broadcast_to(np.asarray(X0, float), (B,) + sys.Q.shape)
+        self.E = np.zeros((B,) + sys.Q.shape)  # first-order round-off bound of the Joseph-form iterate (riccati_roundoff)
+        if sqrt:
+            self.R_half, self.Q_half = sys.R_chol, np.linalg.cholesky(sys.Q)
+            self.state = factor_psd(X)
+        else:
+            self.state = X.copy()
+
+    def step(self, nodes: np.ndarray) -> None:
+        s = self.sys
+        if self.sqrt:
+            self.state = riccati_sqrt_step(self.state, s.C[nodes], self.R_half[nodes], s.F, self.Q_half)
+        elif self.track:
+            X = self.state
+            self.state, K = riccati_step(X, s.C[nodes], s.R[nodes], s.F, s.Q, return_gain=True)
+            delta, G = riccati_roundoff(X, K, s.C[nodes], s.R[nodes], s.F, s.Q)
+            self.E = propagate_error(self.E, G, delta)
+        else:
+            self.state = apply_maps(s, self.state, nodes)
+
+    @property
+    def err(self) -> np.ndarray:
+        """Bound of the spectral norm of the accumulated round-off, per batch entry."""
+        return error_norm(self.E)
+
+    def matrix(self) -> np.ndarray:
+        S = self.state
+        return S @ np.swapaxes(S, -1, -2) if self.sqrt else S
+
+    def features(self) -> np.ndarray:
+        return factor_features(self.state) if self.sqrt else covariance_features(self.state)
+
+
 def switched_riccati(sys: GossipSystem, path: np.ndarray, X0: np.ndarray, record_times: Sequence[int] = (),
-                     *, keep_final: bool = False) -> dict[str, np.ndarray]:
+                     *, keep_final: bool = False, sqrt: bool = False) -> dict[str, np.ndarray]:
     """Run P̃(t+1) = f_{path[:, t]}(P̃(t)) for t < T = path.shape[1] from X0 ((M, M) or (B, M, M)).
 
     Returns features (covariance_features) at each record time t ≤ T, stacked (len(times), F, B),
-    the last switch path[:, t-1] at each record time, and P̃(T) if keep_final.
+    the last switch path[:, t-1] at each record time, and P̃(T) with its round-off bound
+    (`final_err`, Joseph form) if keep_final.
     """
     B, T = path.shape
-    X = np.broadcast_to(np.asarray(X0, float), (B,) + sys.Q.shape).copy()
+    it = _Iterate(sys, X0, B, sqrt, track_error=keep_final)
     times = sorted(set(int(t) for t in record_times))
     feats, last = [], []
     if 0 in times:
-        feats.append(covariance_features(X))
+        feats.append(it.features())
         last.append(np.full(B, -1))
     for t in range(T):
-        X = apply_maps(sys, X, path[:, t])
+        it.step(path[:, t])
         if t + 1 in times:
-            feats.append(covariance_features(X))
+            feats.append(it.features())
             last.append(path[:, t])
     out = {"times": np.array(times, dtype=np.int64), "features": np.array(feats), "last": np.array(last)}
     if keep_final:
-        out["final"] = X
+        out["final"] = it.matrix()
+        out["final_err"] = it.err
     return out
 
 
-def pullback(sys: GossipSystem, backward: np.ndarray, X: np.ndarray, horizons: Sequence[int]) -> np.ndarray:
-    """f_{ω₋₁} ∘ … ∘ f_{ω₋T}(X) for each T in horizons; backward[:, k] = ω₋(k+1). Returns (len(horizons), B, M, M)."""
+def pullback(sys: GossipSystem, backward: np.ndarray, X: np.ndarray, horizons: Sequence[int], *,
+             sqrt: bool = False, with_error: bool = False):
+    """f_{ω₋₁} ∘ … ∘ f_{ω₋T}(X) for each T in horizons; backward[:, k] = ω₋(k+1). Returns (len(horizons), B, M, M),
+    and with `with_error` (Joseph form) also the round-off bounds (len(horizons), B)."""
     B = backward.shape[0]
-    out = []
+    out, errs = [], []
     for T in horizons:
-        Y = np.broadcast_to(np.asarray(X, float), (B,) + sys.Q.shape).copy()
+        it = _Iterate(sys, X, B, sqrt, track_error=with_error)
         for k in range(T - 1, -1, -1):
-            Y = apply_maps(sys, Y, backward[:, k])
-        out.append(Y)
-    return np.array(out)
+            it.step(backward[:, k])
+        out.append(it.matrix())
+        errs.append(it.err)
+    return (np.array(out), np.array(errs)) if with_error else np.array(out)
 
 
-def coupling_gap(sys: GossipSystem, path: np.ndarray, c: float, record_times: Sequence[int]) -> np.ndarray:
-    """‖φ(t, ω, cI) − φ(t, ω, 0)‖ / ‖φ(t, ω, 0)‖ (spectral norms), (len(times), B), same switching."""
+def coupling_gap(sys: GossipSystem, path: np.ndarray, c: float, record_times: Sequence[int], *,
+                 sqrt: bool = True) -> np.ndarray:
+    """‖φ(t, ω, cI) − φ(t, ω, 0)‖ / ‖φ(t, ω, 0)‖ (spectral norms), (len(times), B), same switching.
+    Square-root form by default: the copy started at c·I may be huge for a while."""
     B, T = path.shape
     M = sys.M
-    lo = np.zeros((B, M, M))
-    hi = np.broadcast_to(c * np.eye(M), (B, M, M)).copy()
+    lo = _Iterate(sys, np.zeros((M, M)), B, sqrt)
+    hi = _Iterate(sys, c * np.eye(M), B, sqrt)
     times = set(int(t) for t in record_times)
     gaps = []
     for t in range(T):
-        lo = apply_maps(sys, lo, path[:, t])
-        hi = apply_maps(sys, hi, path[:, t])
+        lo.step(path[:, t])
+        hi.step(path[:, t])
         if t + 1 in times:
-            gaps.append(np.linalg.norm(hi - lo, 2, axis=(1, 2)) / np.linalg.norm(lo, 2, axis=(1, 2)))
+            L, H = lo.matrix(), hi.matrix()
+            gaps.append(np.linalg.norm(H - L, 2, axis=(1, 2)) / np.linalg.norm(L, 2, axis=(1, 2)))
     return np.array(gaps)
 
 

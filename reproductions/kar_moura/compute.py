@@ -1,14 +1,17 @@
 """Stages of the gossip-Kalman family, each cached: deterministic bounds and assumption checks,
 the batched GIKF Monte Carlo, the Theorem-8 (switched Riccati) reference sample of μ, and the
-auxiliary samplers (other initial laws, a token started at a fixed sensor, forward coupling,
-pull-back)."""
+auxiliary samplers (other initial laws, a token started at a fixed sensor, the restarted
+stationary process, forward coupling, pull-back), run only where a claim needs them: the
+theorem's conclusions where C.1 and D.1 hold, Theorem 26(a) where C.1 holds and a mode is unseen."""
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import scipy.linalg
 from scipy.stats import wishart
 
 import estimators.gossip_kalman as gk
@@ -30,6 +33,7 @@ PULLBACK_LAW_T = (5, 20, 100)
 PULLBACK_PATH_T = (16, 32, 64, 128, 256)
 WITNESS_MAX_LEN = 6
 STAT_STRIDE = 5
+EPS = float(np.finfo(float).eps)
 ABAR_DRAWS = 200_000  # Monte Carlo Ā when no exact form is feasible (greedy matching on a large graph)
 
 
@@ -38,7 +42,7 @@ def mean_adjacency(sc: GossipKalmanScenario) -> tuple[np.ndarray, np.ndarray, bo
     and user-given matchings; the greedy-matching protocol (P4) is exact on small graphs (recursion
     over edge sets) and a Monte Carlo estimate otherwise. Where Ā is estimated, the Theorem-8
     chains are driven by the protocol itself (sampler S3) and the claims that need the exact Ā are
-    not checked (spec §11 P9)."""
+    not checked (an estimated Ā would bias the invariant law)."""
     protocol = sc.protocol.build(sc.graph)
     zero = np.zeros((sc.N, sc.N))
     if isinstance(protocol, gk.GreedyMatchingGossip):
@@ -87,6 +91,7 @@ class ScenarioResults:
     reference: dict[str, np.ndarray]
     aux: dict[str, np.ndarray] = field(default_factory=dict)
     comparison: dict[str, np.ndarray] | None = None
+    assume: "Assumptions | None" = None
 
     @property
     def name(self) -> str:
@@ -98,11 +103,8 @@ class ScenarioResults:
 
     @property
     def d1(self) -> bool:
+        """D.1 holds (decided); False when it fails or cannot be decided."""
         return bool(self.bounds["d1"])
-
-    @property
-    def theorem_applies(self) -> bool:
-        return self.c1 and self.d1
 
     def witness(self) -> tuple[int, ...] | None:
         w = self.bounds["witness"]
@@ -132,38 +134,96 @@ def record_times(sc: GossipKalmanScenario, slots: int) -> list[int]:
     return sorted({t for t in sc.record_times if t <= slots} | {slots} | {t for t in PULLBACK_LAW_T if t <= slots})
 
 
+# -- assumptions (deterministic, shared by the claim catalogue, the stage gating and the hypotheses) --------
+
+@dataclass(frozen=True)
+class Assumptions:
+    """The theorems' hypotheses decided for one scenario from the support of Ā.
+
+    `d1.holds` and `undetectable` may be None: undecided in floating point (see
+    `walk_detectability`). `blind[c]` lists the eigenvalues |λ| ≥ 1 that class c of Ā cannot see,
+    or None when its unobservable subspace is undecided; `rate` is the largest 2 log|λ| over them
+    (the growth rate of the covariance of a blind class, 0 when none grows exponentially)."""
+
+    c1: bool
+    irreducible: bool
+    aperiodic: bool
+    classes: tuple[tuple[int, ...], ...]
+    d1: wd.D1Decision
+    blind: tuple[tuple[complex, ...] | None, ...]
+    exact_abar: bool
+    central_detectable: bool | None
+    rate: float
+
+    @property
+    def undetectable(self) -> bool | None:
+        """Some class of Ā cannot detect an eigenvalue |λ| ≥ 1 (True), none can't (False), undecided (None)."""
+        if any(b for b in self.blind if b):
+            return True
+        return None if any(b is None for b in self.blind) else False
+
+    @property
+    def theorem(self) -> bool:
+        """C.1 and D.1 hold (S.1 always does: validation requires Q ≻ 0)."""
+        return self.c1 and self.d1.holds is True
+
+
+def assumptions(sc: GossipKalmanScenario) -> Assumptions:
+    sys_ = sc.system()
+    S = support_matrix(sc)
+    chk = wd.check_chain(S)
+    d1 = wd.decide_d1(sys_, S, chk.classes, chk.c1, max_len=WITNESS_MAX_LEN)
+    blind, rate = [], 0.0
+    for cls in chk.classes:
+        lam, found = wd.unobservable_modes(sc.F, sys_.C[list(cls)].reshape(-1, sc.M))
+        unseen = [complex(x) for x in found if abs(x) >= 1 - 1e-12]
+        rate = max([rate] + [2 * float(np.log(abs(x))) for x in unseen])
+        blind.append(None if lam is None else tuple(unseen))
+    central, _ = wd.unobservable_modes(sc.F, sys_.C_all)
+    central_detectable = None if central is None else not any(abs(x) >= 1 - 1e-12 for x in central)
+    protocol = sc.protocol.build(sc.graph)
+    exact = not isinstance(protocol, gk.GreedyMatchingGossip) or _exact_greedy_mean(protocol) is not None
+    return Assumptions(chk.c1, chk.irreducible, chk.aperiodic, chk.classes, d1, tuple(blind), exact, central_detectable,
+                       rate)
+
+
 # -- bounds -----------------------------------------------------------------------------------------
 
-def compute_bounds(sc: GossipKalmanScenario, slots: int) -> dict[str, np.ndarray]:
+def _centralized(F, C, Q, R, P0, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Prior covariances, update gains and the first-order round-off bound of a centralized filter
+    (Joseph form, `riccati_roundoff` carried along the recursion)."""
+    cov = kal.kalman_covariances(F, C, Q, R, P0, steps)
+    E = np.zeros_like(cov.P_prior)
+    for t in range(steps - 1):
+        delta, G = gk.riccati_roundoff(cov.P_prior[t], cov.gains[t], C, R, F, Q)
+        E[t + 1] = gk.propagate_error(E[t], G, delta)
+    return cov.P_prior, cov.gains, gk.error_norm(E)
+
+
+def compute_bounds(sc: GossipKalmanScenario, slots: int, assume: Assumptions) -> dict[str, np.ndarray]:
     sys_ = sc.system()
     Abar, Abar_se, Abar_exact, Abar_draws = mean_adjacency(sc)
     chk = wd.check_chain(Abar)
-    if not Abar_exact:  # C.1's structure from the exact support (an estimate can miss a rare entry)
-        s_chk = wd.check_chain(support_matrix(sc))
-        chk = wd.ChainCheck(s_chk.irreducible, s_chk.aperiodic, s_chk.n_classes, s_chk.classes, chk.unit_multiplicity,
-                            chk.slem, chk.min_eig)
     out: dict[str, Any] = {"Abar": Abar, "Abar_se": Abar_se, "Abar_exact": Abar_exact, "Abar_draws": Abar_draws,
-                           "irreducible": chk.irreducible, "aperiodic": chk.aperiodic, "c1": chk.c1,
-                           "n_classes": chk.n_classes, "unit_multiplicity": chk.unit_multiplicity, "slem": chk.slem,
+                           "irreducible": assume.irreducible, "aperiodic": assume.aperiodic, "c1": assume.c1,
+                           "n_classes": len(assume.classes), "unit_multiplicity": chk.unit_multiplicity, "slem": chk.slem,
                            "min_eig_Abar": chk.min_eig, "tv": wd.tv_to_uniform(Abar, 200)}
     labels = np.zeros(sc.N, dtype=np.int64)
-    for c, cls in enumerate(chk.classes):
+    for c, cls in enumerate(assume.classes):
         labels[list(cls)] = c
     out["class_of"] = labels
-    # detectability: each sensor alone, each class of Ā, all sensors
     F = sc.F
     out["sensor_detectable"] = np.array([not wd.pbh_undetectable(F, sys_.C[n]) for n in range(sc.N)])
-    bad_all = wd.pbh_undetectable(F, sys_.C_all)
-    out["central_detectable"] = not bad_all
-    out["central_observable"] = wd.observable(F, sys_.C_all)
-    class_rate = np.zeros(sc.N)
-    for cls in chk.classes:
-        bad = wd.pbh_undetectable(F, sys_.C[list(cls)].reshape(-1, sc.M))
-        class_rate[list(cls)] = 2 * np.log(max(abs(b) for b in bad)) if bad else 0.0
-    out["divergence_rate"] = class_rate  # predicted growth rate of log tr P per slot (0: no prediction)
-    search = wd.search_witness(sys_, Abar if Abar_exact else support_matrix(sc), max_len=WITNESS_MAX_LEN)
-    out["d1"] = search.witness is not None
-    out["d1_covering"] = search.witness is not None and chk.irreducible
+    out["central_detectable"] = bool(assume.central_detectable)
+    out["central_observable"] = wd.observable(F, sys_.C_all) is True
+    rates = np.zeros(sc.N)
+    for cls, unseen in zip(assume.classes, assume.blind):
+        rates[list(cls)] = max([0.0] + [2 * np.log(abs(x)) for x in (unseen or ())])
+    out["divergence_rate"] = rates  # growth rate of log tr P̂ per slot where a class cannot see |λ| > 1
+    out["blind"] = np.array([bool(b) for b in assume.blind])[labels]
+    search = assume.d1.search
+    out["d1"] = assume.d1.holds is True
+    out["d1_covering"] = search.witness is not None and assume.irreducible
     out["witness"] = np.array(search.witness if search.witness else [], dtype=np.int64)
     out["witness_max_rank"] = search.max_rank
     out["walks_checked"] = search.walks_checked
@@ -171,46 +231,69 @@ def compute_bounds(sc: GossipKalmanScenario, slots: int) -> dict[str, np.ndarray
     out["alpha"] = float(np.linalg.norm(F, 2))
     out["qnorm"] = float(np.linalg.norm(sc.Q, 2))
     if search.witness is not None:
-        w = search.witness
-        out["gramian"] = search.gramian
-        out["gramian_weighted"] = wd.walk_gramian(sys_, w, weighted=True)
-        out["sigma_sub"] = wd.sigma_sub(sys_, w)
-        out["sigma_sub_printed"] = wd.sigma_sub_printed(sys_, w)
-        cs = np.array([1e2, 1e4, 1e6, 1e8])
-        out["g_of_cI_c"] = cs
-        out["g_of_cI"] = np.array([wd.compose_walk(sys_, w, c * np.eye(sc.M)) for c in cs])
-        alpha0 = float(np.linalg.eigvalsh(out["sigma_sub"])[-1])
-        out["alpha0"] = alpha0
-        windows = search.windows
-        a0_multi = max(float(np.linalg.eigvalsh(wd.sigma_sub(sys_, v))[-1]) for v in windows)
-        out["alpha0_multi"] = a0_multi
-        ks = np.array([wd.k_of_J(out["alpha"], alpha0, out["qnorm"], J) for J in J_GRID])
-        km = np.array([wd.k_of_J(out["alpha"], a0_multi, out["qnorm"], J) for J in J_GRID])
-        ell = len(w)
-        out["kJ"] = ks
-        # β needs the exact Ā (an estimated Ā gives an estimated bound): NaN marks "not computed"
-        out["beta_single"] = np.array([(wd.tail_bound_single(Abar, w, min(slots, k + ell)) if k >= 0 else 1.0)
-                                       if Abar_exact else np.nan for k in ks])
-        small = sc.N ** max(ell - 1, 0) <= 2000 and Abar_exact
-        out["beta_multi"] = np.array([(wd.tail_bound_multi(Abar, windows, min(slots, k + ell)) if k >= 0 else 1.0)
-                                      if small else np.nan for k in km])
-        support = (Abar > 1e-12).astype(float)
-        n_windows = float(np.linalg.matrix_power(support, ell - 1).sum())
-        if n_windows <= 5000 and Abar_exact:
-            Z, pi, corr, printed = wd.lifted_chain_stationary(Abar, ell)
-            out["lifted_pi"], out["lifted_corrected"], out["lifted_printed"] = pi, corr, printed
-    # centralized reference (same P0): our batched filter, filterpy, and the DARE
-    cov = kal.kalman_covariances(F, sys_.C_all, sc.Q, sys_.R_all, sc.P0, slots + 1)
-    out["P_central"] = cov.P_prior
-    out["K_central"] = cov.gains
+        _witness_bounds(out, sys_, search, Abar, Abar_exact, slots)
+    # centralized reference (same P0): our recursion with its round-off bound, filterpy, and the DARE
+    P_c, K_c, err_c = _centralized(F, sys_.C_all, sc.Q, sys_.R_all, sc.P0, slots + 1)
+    out["P_central"], out["K_central"], out["P_central_err"] = P_c, K_c, err_c
     out["P_central_filterpy"] = _filterpy_prior(sc, sys_, slots + 1)
-    if out["central_detectable"]:
+    if assume.central_detectable:
         out["P_central_inf"] = kal.steady_state_prior_covariance(F, sys_.C_all, sc.Q, sys_.R_all)
-    env = [sc.P0]
-    for _ in range(slots):
-        env.append(gk.lyapunov_step(env[-1], F, sc.Q))
+    # the lower bound of each sensor: the centralized filter of its class (tokens never leave a class)
+    floor, floor_err = np.empty((slots + 1, sc.N, sc.M, sc.M)), np.empty((slots + 1, sc.N))
+    for cls in assume.classes:
+        idx = list(cls)
+        if len(assume.classes) == 1:
+            Pk, ek = P_c, err_c
+        else:
+            Pk, _, ek = _centralized(F, sys_.C[idx].reshape(-1, sc.M), sc.Q, scipy.linalg.block_diag(*sys_.R[idx]),
+                                     sc.P0, slots + 1)
+        floor[:, idx], floor_err[:, idx] = Pk[:, None], ek[:, None]
+    out["P_floor"], out["P_floor_err"] = floor, floor_err
+    env, env_E = [sc.P0], [np.zeros_like(sc.P0)]
+    with np.errstate(over="ignore", invalid="ignore"):  # a fast-growing envelope may leave float64 (then NaN margins)
+        for _ in range(slots):
+            delta, G = gk.lyapunov_roundoff(env[-1], F, sc.Q)
+            env_E.append(gk.propagate_error(env_E[-1], G, delta))
+            env.append(gk.lyapunov_step(env[-1], F, sc.Q))
     out["envelope"] = np.array(env)
+    out["envelope_err"] = np.array([np.linalg.eigvalsh(E)[-1] if np.all(np.isfinite(E)) else np.inf for E in env_E])
     return {k: np.asarray(v) for k, v in out.items()}
+
+
+def _witness_bounds(out: dict, sys_: gk.GossipSystem, search: wd.WitnessSearch, Abar: np.ndarray, Abar_exact: bool,
+                    slots: int) -> None:
+    """Lemma 14's constant along the witness and every witness window, and Lemma 15's tail bounds."""
+    w = search.witness
+    out["gramian"] = search.gramian
+    out["gramian_weighted"] = Gt = wd.walk_gramian(sys_, w, weighted=True)
+    out["gramian_cond"] = float(np.linalg.cond(Gt))
+    out["sigma_sub"] = wd.sigma_sub(sys_, w)
+    out["sigma_sub_printed"] = wd.sigma_sub_printed(sys_, w)
+    cs = np.array([1e2, 1e4, 1e6, 1e8])
+    out["g_of_cI_c"] = cs
+    out["g_of_cI"] = np.array([wd.compose_walk(sys_, w, c * np.eye(sys_.M)) for c in cs])
+    alpha0 = float(np.linalg.eigvalsh(out["sigma_sub"])[-1])
+    out["alpha0"] = alpha0
+    windows = search.windows
+    out["n_windows"] = len(windows) if search.windows_complete else -1
+    a0_multi = max(float(np.linalg.eigvalsh(wd.sigma_sub(sys_, v))[-1]) for v in windows) if windows else np.nan
+    out["alpha0_multi"] = a0_multi
+    ks = np.array([wd.k_of_J(out["alpha"], alpha0, out["qnorm"], J) for J in J_GRID])
+    ell = len(w)
+    out["kJ"] = ks
+    # β needs the exact Ā (an estimated Ā gives an estimated bound): NaN marks "not computed"
+    out["beta_single"] = np.array([(wd.tail_bound_single(Abar, w, min(slots, k + ell)) if k >= 0 else 1.0)
+                                   if Abar_exact else np.nan for k in ks])
+    small = sys_.N ** max(ell - 1, 0) <= 2000 and Abar_exact and windows
+    km = np.array([wd.k_of_J(out["alpha"], a0_multi, out["qnorm"], J) for J in J_GRID]) if windows else ks
+    out["beta_multi"] = np.array([(wd.tail_bound_multi(Abar, windows, min(slots, k + ell)) if k >= 0 else 1.0)
+                                  if small else np.nan for k in km])
+    support = (Abar > 1e-12).astype(float)
+    n_windows = float(np.linalg.matrix_power(support, ell - 1).sum())
+    if n_windows <= 5000 and Abar_exact:
+        Z, pi, corr, printed = wd.lifted_chain_stationary(Abar, ell)
+        out["lifted_pi"], out["lifted_corrected"], out["lifted_printed"] = pi, corr, printed
+        out["lifted_states"] = len(Z)
 
 
 def _filterpy_prior(sc: GossipKalmanScenario, sys_: gk.GossipSystem, steps: int) -> np.ndarray:
@@ -230,6 +313,11 @@ def _filterpy_prior(sc: GossipKalmanScenario, sys_: gk.GossipSystem, steps: int)
 
 # -- Monte Carlo stages -----------------------------------------------------------------------------
 
+def nees_slots(slots: int) -> list[int]:
+    """Three slots (early, middle, last) at which the per-run NEES is kept for the exact χ² tests."""
+    return sorted({max(1, slots // 3), max(1, (2 * slots) // 3), slots})
+
+
 def simulate_gikf_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, runs: int, slots: int,
                         which: str = "protocol") -> dict[str, np.ndarray]:
     spec = sc.protocol if which == "protocol" else sc.comparison
@@ -240,7 +328,9 @@ def simulate_gikf_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, runs:
         return gk.simulate_gikf(sys_, protocol, size, slots, rng, record_times=record_times(sc, slots),
                                 P_central=bounds["P_central"], K_central=bounds["K_central"],
                                 envelope=bounds["envelope"], j_grid=J_GRID, n_paths=sc.sample_paths,
-                                nees_window=(min(20, slots // 3), min(60, slots)), stat_stride=STAT_STRIDE)
+                                nees_window=(max(1, min(20, slots // 3)), min(60, slots)), stat_stride=STAT_STRIDE,
+                                P_floor=bounds["P_floor"], floor_err=bounds["P_floor_err"],
+                                envelope_err=bounds["envelope_err"], nees_slots=nees_slots(slots))
 
     # one block: the per-(t, n) quantiles over runs need every run at once (memory is O(runs N M²))
     return run_blocks(block, lambda parts: parts[0], runs, stream_seed(seed, sc.name, "gikf", which), block=runs)
@@ -255,8 +345,24 @@ def reference_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_runs:
     return out
 
 
-def aux_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_runs: int, slots: int) -> dict[str, np.ndarray]:
-    """Other initial laws (R5), tokens from fixed sensors (R8), coupling (burn-in), pull-back (R18/R19)."""
+def restart_slot(Abar: np.ndarray, slots: int, tokens: list[int]) -> tuple[int, np.ndarray]:
+    """s for the finite-horizon form of Theorem 10[ii] ((72)-(84)): the first s ≤ T/2 at which the
+    tokens' chains are within 1e-3 of uniform in total variation (else T/2), and d_v(p_n(s), U)."""
+    N = len(Abar)
+    P = np.eye(N)[tokens]
+    for s in range(slots // 2 + 1):
+        dv = 0.5 * np.abs(P - 1.0 / N).sum(axis=1)
+        if dv.max() <= 1e-3 or s == slots // 2:
+            return s, dv
+        P = P @ Abar
+    return slots // 2, dv
+
+
+def theorem_aux_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_runs: int, slots: int) -> dict[str, np.ndarray]:
+    """Samples that only the theorem's conclusions use (run where C.1 and D.1 hold): other initial laws
+    (Theorem 8), tokens from fixed sensors and the restarted stationary process Q^s(T) (Theorem 10[ii]),
+    forward coupling (burn-in), pull-back (Lemma 23, Theorem 26(b)). Copies started at c·I with c ≫ 1
+    run in square-root form, which stays accurate and finite however large the iterates get."""
     sys_ = sc.system()
     chain = chain_sampler(sc, bounds)
     M = sc.M
@@ -264,40 +370,93 @@ def aux_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_runs: int, 
     half = max(ref_runs // 2, 100)
     out: dict[str, np.ndarray] = {}
     rng = block_generator(stream_seed(seed, sc.name, "aux"))
-    inits = {"zero": np.zeros((M, M)), "huge": 1e6 * np.eye(M),
-             "wishart": wishart(df=M + 2, scale=np.eye(M)).rvs(size=half, random_state=rng.integers(2**31)).reshape(half, M, M)}
-    for label, X0 in inits.items():
+    wish = wishart(df=M + 2, scale=np.eye(M)).rvs(size=half, random_state=rng.integers(2**31)).reshape(half, M, M)
+    out["wishart_lam_max"] = np.linalg.eigvalsh(wish)[:, -1]
+    c = max(COUPLING_C, 10.0 * float(np.linalg.norm(sc.P0, 2)))  # the sandwich 0 ⪯ X0 ⪯ cI must contain P0
+    out["coupling_c"] = np.array(c)
+    for label, X0, sqrt in (("zero", np.zeros((M, M)), False), ("huge", c * np.eye(M), True),
+                            ("wishart", wish, False)):
         path = chain(half, slots, rng)
-        out[f"init_{label}"] = sr.switched_riccati(sys_, path, X0, [slots])["features"][0]
-    for n in sorted({0, min(1, sc.N - 1)}):
+        out[f"init_{label}"] = sr.switched_riccati(sys_, path, X0, [slots], sqrt=sqrt)["features"][0]
+    tokens = sorted({0, min(1, sc.N - 1)})
+    for n in tokens:
         path = chain(half, slots, rng, start=n)
-        r = sr.switched_riccati(sys_, path, sc.P0, times)
-        out[f"token{n}"] = r["features"]
-    cpl_times = [t for t in (10, 20, 40, 80, 160, 320) if t <= slots]
+        out[f"token{n}"] = sr.switched_riccati(sys_, path, sc.P0, times)["features"]
+    if bool(bounds["Abar_exact"]):
+        s, dv = restart_slot(bounds["Abar"], slots, tokens)
+        path = chain(half, slots - s, rng)
+        out["restart_s"], out["restart_dv"] = np.array(s), dv
+        out["restart"] = sr.switched_riccati(sys_, path, bounds["envelope"][s], [slots - s], sqrt=True)["features"][0]
+    cpl_times = [t for t in (10, 20, 40, 80, 160, 320) if t <= slots] or [slots]
     path = chain(min(2000, ref_runs), slots, rng)
     out["coupling_times"] = np.array(cpl_times)
-    out["coupling"] = sr.coupling_gap(sys_, path, COUPLING_C, cpl_times)
+    out["coupling"] = sr.coupling_gap(sys_, path, c, cpl_times)
+    out["coupling_final"] = sr.coupling_gap(sys_, path, c, [slots])[0]
     law_T = [t for t in PULLBACK_LAW_T if t <= slots]
-    back = chain(half, max(law_T), rng)  # Ā symmetric: the reversed stationary chain is again a Ā-chain
-    pb = sr.pullback(sys_, back, sc.P0, law_T)
-    out["pullback_law_T"] = np.array(law_T)
-    out["pullback_law"] = np.array([gk.covariance_features(x) for x in pb])
-    # backward paths need not fit in the forward horizon, but a predicted divergence must stay in float64
-    rate = float(bounds["divergence_rate"].max())
-    path_T = [t for t in PULLBACK_PATH_T if rate <= 0 or t * rate < FLOAT_LOG_BUDGET] or [8, 16, 32]
+    if law_T:
+        back = chain(half, max(law_T), rng)  # Ā symmetric: the reversed stationary chain is again a Ā-chain
+        pb = sr.pullback(sys_, back, sc.P0, law_T)
+        out["pullback_law_T"] = np.array(law_T)
+        out["pullback_law"] = np.array([gk.covariance_features(x) for x in pb])
+    path_T = list(PULLBACK_PATH_T)
     back = chain(500, max(path_T), rng)
-    lo = sr.pullback(sys_, back, np.zeros((M, M)), path_T)
-    hi = sr.pullback(sys_, back, COUPLING_C * np.eye(M), path_T)
-    out["pullback_path_T"] = np.array(path_T)
-    out["pullback_lo_norm"] = np.linalg.norm(lo, 2, axis=(-2, -1))
+    lo, err = sr.pullback(sys_, back, np.zeros((M, M)), path_T, with_error=True)
+    hi = sr.pullback(sys_, back, c * np.eye(M), path_T, sqrt=True)
+    _pullback_paths(out, lo, err, path_T)
     out["pullback_gap"] = np.linalg.norm(hi - lo, 2, axis=(-2, -1)) / out["pullback_lo_norm"]
-    steps = np.diff(lo, axis=0)
-    out["pullback_step"] = np.linalg.norm(steps, 2, axis=(-2, -1)) / out["pullback_lo_norm"][1:]
-    out["ref_final_lo"] = lo[-1]
     return out
 
 
-GIKF_PARTIAL = ("margins", "feat_q", "feat_n", "quantiles", "path_trace", "path_err", "path_err_c")
+def _pullback_paths(out: dict, lo: np.ndarray, err: np.ndarray, path_T: list[int]) -> None:
+    """Pull-backs L_T from 0 with their round-off bounds: norms, relative changes between horizons, and
+    λ_min(L_T' − L_T) (≥ 0 in exact arithmetic: f monotone and f(0) = Q ⪰ 0, so L_T grows with T)."""
+    out["pullback_path_T"] = np.array(path_T)
+    out["pullback_lo_norm"] = np.linalg.norm(lo, 2, axis=(-2, -1))
+    out["pullback_err"] = err
+    steps = np.diff(lo, axis=0)
+    out["pullback_step"] = np.linalg.norm(steps, 2, axis=(-2, -1)) / out["pullback_lo_norm"][1:]
+    out["pullback_monotone"] = np.linalg.eigvalsh(steps)[..., 0]
+    out["pullback_monotone_err"] = err[1:] + err[:-1]
+
+
+def divergent_pullback_stage(sc: GossipKalmanScenario, bounds: dict, seed: int) -> dict[str, np.ndarray]:
+    """Theorem 26, alternative (a) (run where C.1 holds and a mode |λ| ≥ 1 is unseen): pull-backs from 0
+    along 500 backward paths and the centralized filter from 0 (a pathwise lower bound of every
+    pull-back), both in Joseph form with their round-off bounds, at the horizons whose pull-backs stay
+    inside the range where the Joseph form is accurate (`accurate_range`)."""
+    sys_ = sc.system()
+    rng = block_generator(stream_seed(seed, sc.name, "pullback-divergent"))
+    horizons = (4, 8, 16, 32, 64, 128, 256)
+    back = chain_sampler(sc, bounds)(500, max(horizons), rng)
+    limit = accurate_range(sc)
+    kept, lows, errs = [], [], []
+    with np.errstate(all="ignore"):
+        for T in horizons:
+            lo, err = sr.pullback(sys_, back, np.zeros((sc.M, sc.M)), [T], with_error=True)
+            if not (np.all(np.isfinite(lo)) and np.linalg.norm(lo, 2, axis=(-2, -1)).max() <= limit):
+                break
+            kept.append(T)
+            lows.append(lo[0])
+            errs.append(err[0])
+    out: dict[str, np.ndarray] = {"pullback_range": np.array(limit)}
+    if len(kept) < 2:
+        out["pullback_path_T"] = np.array(kept, dtype=np.int64)
+        return out
+    lo, err = np.array(lows), np.array(errs)
+    _pullback_paths(out, lo, err, kept)
+    Pc, _, ec = _centralized(sc.F, sys_.C_all, sc.Q, sys_.R_all, np.zeros((sc.M, sc.M)), max(kept) + 1)
+    out["central_from_zero"] = Pc[kept]
+    out["central_from_zero_err"] = ec[kept]
+    out["pullback_vs_central"] = np.linalg.eigvalsh(lo - Pc[kept][:, None])[..., 0]   # (len(kept), 500)
+    return out
+
+
+GIKF_PARTIAL = ("margins", "slack", "feat_q", "feat_n", "quantiles", "path_trace", "path_err", "path_err_c", "nees_q",
+                "nees_c")
+#: round-off bounds may exceed float64 (a bound that large says only that nothing is resolved: an infinite allowance)
+ERROR_BOUNDS = ("final_err", "pullback_err", "pullback_monotone_err", "central_from_zero_err")
+BOUNDS_PARTIAL = ("beta_multi", "beta_single", "lifted_printed", "alpha0_multi", "envelope", "envelope_err", "P_floor",
+                  "P_floor_err", "P_central", "P_central_err", "P_central_filterpy")
 
 
 def _stage(cache: StageCache, key: dict, name: str, fn, scenario: str = "", allow: tuple[str, ...] = ()):
@@ -305,41 +464,52 @@ def _stage(cache: StageCache, key: dict, name: str, fn, scenario: str = "", allo
 
 
 def _checked_gikf(fn, scenario: str):
-    """GIKF stage: NaN marks slots not evaluated (stride) in 'margins' and, after a float overflow
-    (a divergence, reported by the claims with its slot), the unreached slots; anything else
+    """GIKF stage: NaN marks slots not evaluated (stride) in 'margins' and 'slack' and, after a float
+    overflow (a divergence, reported by the claims with its slot), the unreached slots; anything else
     non-finite is an error."""
     def run():
         out = fn()
         if int(out["overflow"]) < 0:
-            check_finite({k: v for k, v in out.items() if k != "margins"}, stage="gikf", scenario=scenario)
+            check_finite({k: v for k, v in out.items() if k not in ("margins", "slack", "nees_q", "nees_c")},
+                         stage="gikf", scenario=scenario)
         return out
     return run
 
 
-FLOAT_LOG_BUDGET = 600.0  # log of the largest covariance entry we let a predicted divergence reach (float64: ~709)
+FLOAT_LOG_BUDGET = 600.0  # log of the largest covariance entry an iterate may reach (float64: ~709)
 
 
-def divergence_rate(sc: GossipKalmanScenario) -> float:
-    """Largest predicted growth rate 2 log|λ| of log tr P over the classes of Ā that cannot detect λ (0: none)."""
+def accurate_range(sc: GossipKalmanScenario) -> float:
+    """The largest ‖X‖ at which the Joseph form still resolves every sensor's innovation variance:
+    C X Cᵀ carries a round-off of ~eps‖X‖‖C‖², kept below 1e-3 λ_min(R) (so a direction that a sensor
+    does not see, not along a coordinate axis, cannot make C X Cᵀ + R lose its R)."""
     sys_ = sc.system()
-    chk = wd.check_chain(support_matrix(sc))
-    rates = [2 * np.log(max(abs(b) for b in bad)) for cls in chk.classes
-             if (bad := wd.pbh_undetectable(sc.F, sys_.C[list(cls)].reshape(-1, sc.M)))]
-    return float(max(rates, default=0.0))
+    seen = [n for n in range(sc.N) if np.abs(sys_.C[n]).max() > 0]
+    if not seen:
+        return math.exp(FLOAT_LOG_BUDGET)
+    r_min = min(float(np.linalg.eigvalsh(sys_.R[n])[0]) for n in seen)
+    c_max = max(float(np.linalg.norm(sys_.C[n], 2)) ** 2 for n in seen)
+    return min(math.exp(FLOAT_LOG_BUDGET), 1e-3 * r_min / (EPS * c_max))
 
 
-def horizon(sc: GossipKalmanScenario, slots: int) -> int:
-    """A predicted divergence is simulated only as long as it stays inside float64: slots ≤ 600 / rate."""
-    rate = divergence_rate(sc)
-    return slots if rate <= 0 else int(min(slots, max(10, FLOAT_LOG_BUDGET // rate)))
+def horizon(sc: GossipKalmanScenario, slots: int, assume: Assumptions) -> int:
+    """Where a class of Ā cannot see a mode |λ| > 1, its covariances grow like |λ|^(2t): simulate only
+    while they stay inside the range where the Joseph form is accurate (`accurate_range`)."""
+    rate = assume.rate
+    if rate <= 0:
+        return slots
+    start = max(1.0, float(np.linalg.norm(sc.P0, 2)), float(np.linalg.norm(sc.Q, 2)))
+    budget = math.log(accurate_range(sc) / start)
+    return int(min(slots, max(10, budget // rate)))
 
 
 def compute_scenario(sc: GossipKalmanScenario, opts: RunOptions, cache: StageCache) -> ScenarioResults:
+    assume = assumptions(sc)
     runs, ref_runs, slots = sizes(sc, opts)
-    slots = horizon(sc, slots)
+    slots = horizon(sc, slots, assume)
     code = code_fingerprint(CODE_MODULES)
     base = {"scenario": sc.key(), "code": code, "slots": slots}
-    bounds = _stage(cache, base, "bounds", lambda: compute_bounds(sc, slots), sc.name, ("beta_multi", "beta_single"))
+    bounds = _stage(cache, base, "bounds", lambda: compute_bounds(sc, slots, assume), sc.name, BOUNDS_PARTIAL)
     mc = {**base, "seed": opts.seed, "runs": runs, "ref_runs": ref_runs}
     gikf = _stage(cache, mc, "gikf", _checked_gikf(lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots), sc.name),
                   sc.name, GIKF_PARTIAL)
@@ -347,9 +517,17 @@ def compute_scenario(sc: GossipKalmanScenario, opts: RunOptions, cache: StageCac
                          _checked_gikf(lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots, "comparison"), sc.name),
                          sc.name, GIKF_PARTIAL)
                   if sc.comparison is not None else None)
-    reference = _stage(cache, mc, "theorem8", lambda: reference_stage(sc, bounds, opts.seed, ref_runs, slots), sc.name)
-    aux = _stage(cache, mc, "aux", lambda: aux_stage(sc, bounds, opts.seed, ref_runs, slots), sc.name)
-    return ScenarioResults(sc, opts.seed, runs, ref_runs, slots, opts.quick, bounds, gikf, reference, aux, comparison)
+    reference = _stage(cache, mc, "theorem8", lambda: reference_stage(sc, bounds, opts.seed, ref_runs, slots), sc.name,
+                       ERROR_BOUNDS)
+    aux: dict[str, np.ndarray] = {}
+    if assume.theorem:
+        aux.update(_stage(cache, mc, "aux", lambda: theorem_aux_stage(sc, bounds, opts.seed, ref_runs, slots), sc.name,
+                          ERROR_BOUNDS))
+    if assume.c1 and assume.undetectable is True:
+        aux.update(_stage(cache, mc, "pullback_divergent", lambda: divergent_pullback_stage(sc, bounds, opts.seed),
+                          sc.name, ERROR_BOUNDS))
+    return ScenarioResults(sc, opts.seed, runs, ref_runs, slots, opts.quick, bounds, gikf, reference, aux, comparison,
+                           assume)
 
 
 def compute(scenarios: list[GossipKalmanScenario], opts: RunOptions, cache: StageCache) -> Results:
@@ -359,11 +537,6 @@ def compute(scenarios: list[GossipKalmanScenario], opts: RunOptions, cache: Stag
 
 
 def roles(sc: GossipKalmanScenario) -> dict[str, bool]:
-    """Which claims a scenario gets, from its (cheap, deterministic) assumption checks."""
-    sys_ = sc.system()
-    Abar = support_matrix(sc)
-    chk = wd.check_chain(Abar)
-    d1 = wd.search_witness(sys_, Abar, max_len=WITNESS_MAX_LEN).witness is not None
-    diverges = any(wd.pbh_undetectable(sc.F, sys_.C[list(cls)].reshape(-1, sc.M)) for cls in chk.classes)
-    return {"c1": chk.c1, "d1": d1, "diverges": diverges, "periodic": chk.irreducible and not chk.aperiodic,
-            "tv": chk.c1}
+    """Which optional claims a scenario gets: the comparison of two protocols (Remark 9) when the
+    scenario names a second protocol."""
+    return {"comparison": sc.comparison is not None}
