@@ -526,12 +526,17 @@ def _kron_batch(W: np.ndarray, n: int) -> np.ndarray:
     return np.einsum("gij,ab->giajb", W, np.eye(n)).reshape(g, m * n, m * n)
 
 
+def _r_symmetric(sigma: float, norm_A: float, lam: float, T: float) -> float:
+    if not 0.0 <= sigma < 1.0:
+        raise ValueError(f"σ = {sigma} is not in [0, 1): (27) gives no q")
+    return 0.0 if sigma == 0.0 else (lam + norm_A) * T / -math.log(sigma)
+
+
 def q_symmetric(sigma: float, norm_A: float, lam: float, T: float) -> int:
-    """Smallest integer q with q > ceil((λ + ||A||)T / ln(1/σ))  (27)."""
-    return int(math.ceil((lam + norm_A) * T / -math.log(sigma))) + 1
+    """Smallest integer q with q > ceil((λ + ||A||)T / ln(1/σ))  (27); σ = 0 (every P_i = 0) gives 1."""
+    return int(math.ceil(_r_symmetric(sigma, norm_A, lam, T))) + 1
 
 
 def q_symmetric_minimal(sigma: float, norm_A: float, lam: float, T: float) -> int:
     """Smallest q with e^{||A||T} σ^q < e^{-λT} (the need stated before (27))."""
-    r = (lam + norm_A) * T / -math.log(sigma)
-    return int(math.floor(r)) + 1
+    return int(math.floor(_r_symmetric(sigma, norm_A, lam, T))) + 1

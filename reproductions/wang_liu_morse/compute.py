@@ -92,8 +92,9 @@ def compute_design(sc: HybridScenario, seed: int, extras: bool = False) -> dict[
         out["sigma"], out["sigma_worst"], out["sigma_graphs"] = np.array(sig), np.array(worst), np.array(len(vals))
         out["sigma_worst_mask"] = jd.connected_undirected_graphs(m)[worst]
         for label, lam in (("", sc.lam), ("_paper", float(sc.paper_values.get("lambda", sc.lam)))):
-            out[f"q27{label}"] = np.array(jd.q_symmetric(sig, nA, lam, sc.T))
-            out[f"q27_minimal{label}"] = np.array(jd.q_symmetric_minimal(sig, nA, lam, sc.T))
+            if sig < 1:
+                out[f"q27{label}"] = np.array(jd.q_symmetric(sig, nA, lam, sc.T))
+                out[f"q27_minimal{label}"] = np.array(jd.q_symmetric_minimal(sig, nA, lam, sc.T))
     # Lemma 5: products of N = (m-1)^2+1 steps P(S⊗I) with S flocking matrices of strongly connected graphs
     N = (m - 1) ** 2 + 1
     if m <= 4:

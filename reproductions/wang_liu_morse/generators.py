@@ -12,7 +12,8 @@ Edge cases: five agents with ρ > 0 (the q of (22) is far beyond simulation: the
 claims must say so), six agents (ρ only bracketed by the search), switching directed graphs
 (per interval and per iteration, with jitter), marginal A (eigenvalues on the imaginary axis,
 an integrator chain) and unstable A, q exactly at the bound of (22) and (27) and one below,
-two agents, larger state sizes, event-time offsets with a leaving agent, and an input.
+two agents, a scalar state and larger state sizes, a single estimator iteration per interval,
+event-time offsets with a leaving agent, and an input.
 """
 from __future__ import annotations
 
@@ -40,6 +41,8 @@ EDGES: tuple[str, ...] = (
     "symmetric_rule_at_bound",
     "offsets_and_leave",
     "with_input",
+    "scalar_state",
+    "one_iteration",
 )
 
 
@@ -188,6 +191,8 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
         m, n = 2, int(rng.integers(2, 5))
     elif e == "large_state":
         m, n = int(rng.integers(2, 4)), int(rng.integers(6, 9))
+    elif e == "scalar_state":                     # n = 1: every agent sees everything, P_i = 0, ρ = σ = 0
+        m, n = int(rng.integers(2, 5)), 1
     elif e in ("q_at_bound", "q_below_bound", "symmetric_rule_at_bound"):
         m, n = int(rng.integers(2, 4)), int(rng.integers(2, 5))
     else:
@@ -217,12 +222,14 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
     # q: the bound of (22) when it can be simulated, else a q of a few tens
     q22, q27 = des["q22"], des["q27"]
     theory = q22 is not None and q22 <= MAX_Q_GENERATED
-    if e == "q_below_bound" and theory:
+    if e == "one_iteration":
+        q = 1
+    elif e == "q_below_bound" and theory:
         q = q22 - 1
     elif theory and (e == "q_at_bound" or rng.random() < 0.6):
         q = q22
     else:
-        q = int(rng.integers(3, 40))
+        q = int(rng.integers(1, 40)) if rng.random() < 0.2 else int(rng.integers(3, 40))
     intervals = int(max(4, min(24, round(8.0 / T))))
     if q > 600:
         intervals = min(intervals, 10)

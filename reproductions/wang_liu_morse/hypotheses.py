@@ -116,6 +116,8 @@ def q_eq27(r, q: int) -> Holds:
     dz, sc = r.design, r.scenario
     if "sigma" not in dz:
         return Holds(None, q, None, f"σ of (26) is not computed for m = {sc.m} > 6 (enumeration of connected graphs)")
+    if "q27" not in dz:
+        return Holds(None, q, None, f"σ = {float(dz['sigma']):.10g} is not below 1: (27) gives no q")
     need = int(dz["q27"])
     text = (f"q = {q:,}; (27) with σ = {float(dz['sigma']):.10g} (over {int(dz['sigma_graphs'])} connected graphs), "
             f"||A|| = {float(dz['norm_A']):.6g}, λ = {sc.lam:g}, T = {sc.T:g} needs q >= {need:,} (minimal sufficient "
@@ -197,7 +199,7 @@ def run_rows(sc: HybridScenario) -> list[tuple[str, str, Callable]]:
 SCENARIO_ROWS: tuple[tuple[str, str, Callable], ...] = (
     ("joint_observability", "(16): (C, A) jointly observable, ∩ image P_i = 0", joint_observability),
     ("strong_connectivity", "every neighbour graph N(t) is strongly connected", strong_connectivity),
-    ("local_observers", "(15): the local observers decay faster than e^(-λ̄t), λ < λ̄", local_observers),
+    ("local_observers", "(15): the local observers decay at least as fast as e^(-λ̄t), λ < λ̄", local_observers),
     ("q_eq22", "the design q satisfies (22) (ρ of (17), α of Lemma 5)", lambda r: q_eq22(r, r.scenario.q_design)),
     ("q_eq27", "the design q satisfies (27) (σ of (26), symmetric special case)",
      lambda r: q_eq27(r, r.scenario.q_design)),

@@ -244,17 +244,27 @@ class HybridScenario:
         if isinstance(q_raw, str):
             q_label = as_str(q_raw, "design.q", ("theory", "symmetric"))
             if q_label == "theory":
-                rho = jd.rho_exact(np.array([loc.P for loc in locs]))
-                q_design = jd.sufficient_q(rho.rho, m, nA, lam, T).q_thm22
+                # (22) grows with ρ: its value at ρ = 0 is a lower bound, enough to refuse without computing ρ
+                q_design = jd.sufficient_q(0.0, m, nA, lam, T).q_thm22
+                if q_design <= MAX_Q:
+                    rho = jd.rho_exact(np.array([loc.P for loc in locs]))
+                    if rho.upper >= 1:
+                        raise ScenarioError("design.q", f"ρ of (17) is only bracketed in [{rho.rho:.6g}, {rho.upper:.6g}]: "
+                                                        "no sufficient q is known; give an integer q")
+                    q_design = jd.sufficient_q(rho.upper, m, nA, lam, T).q_thm22
+                else:
+                    raise ScenarioError("design.q", f"the theory q is {q_design} or more (> {MAX_Q}): too many "
+                                                    "iterations to simulate; give an integer q (the hypotheses report "
+                                                    "the required q)")
             else:
                 sig = jd.sigma_symmetric(np.array([loc.P for loc in locs]))[0] if m <= 6 else None
                 if sig is None:
                     raise ScenarioError("design.q", "'symmetric' needs m <= 6 (σ of (26) by enumeration)")
-                q_design = jd.q_symmetric(sig, nA, lam, T)
+                q_design = symmetric_q(sig, nA, lam, T, "design.q")
                 sigma_q = sig
             if q_design > MAX_Q:
                 raise ScenarioError("design.q", f"the {q_label} q is {q_design} (> {MAX_Q}): too many iterations to "
-                                                "simulate; give an integer q (the claims report the required q)")
+                                                "simulate; give an integer q (the hypotheses report the required q)")
         else:
             q_design = as_int(q_raw, "design.q", low=1, high=MAX_Q)
             q_label = "given"
@@ -310,6 +320,14 @@ class HybridScenario:
                    runs, dict(pv))
 
 
+def symmetric_q(sigma: float, norm_A: float, lam: float, T: float, field: str) -> int:
+    """q of (27), or a ScenarioError naming `field` when σ is not below 1."""
+    try:
+        return jd.q_symmetric(sigma, norm_A, lam, T)
+    except ValueError as exc:
+        raise ScenarioError(field, f"(27) gives no q: {exc}") from None
+
+
 def default_poles(lam_bar: float, k: int) -> tuple[float, ...]:
     """Distinct real poles strictly beyond -λ̄: -λ̄(1.25 + 0.25 j), j = 0..k-1."""
     return tuple(-lam_bar * (1.25 + 0.25 * j) for j in range(k))
@@ -363,7 +381,7 @@ def parse_runs(value: Any, *, m: int, T: float, q_design: int, q_label: str, gra
                 if m > 6:
                     raise ScenarioError(join(f, "q"), "'symmetric' needs m <= 6 (σ of (26) by enumeration)")
                 sig = jd.sigma_symmetric(np.array([loc.P for loc in locs]))[0]
-                q, q_lab = jd.q_symmetric(sig, nA, lam, T), "symmetric"
+                q, q_lab = symmetric_q(sig, nA, lam, T, join(f, "q")), "symmetric"
                 if q > MAX_Q:
                     raise ScenarioError(join(f, "q"), f"q of (27) is {q} (> {MAX_Q}); give an integer")
         else:
