@@ -1,0 +1,417 @@
+"""Constant-gain local filters whose estimates are fused over the network, and their exact moments.
+
+Three fusion rules share one local stage: every node corrects its prediction with its own
+measurement through a constant gain,
+
+    x̂_i(k|k) = x̄_i(k) + K_i (y_i(k) − H_i x̄_i(k)),                              (L)
+
+and predicts x̄_i(k+1) = F x̂_i^fused(k) after the fusion of the step:
+
+* ``consensus``: Carli, Chiuso, Schenato & Zampieri (2008), as written by Savas, Srivastava &
+  Leonard (2017), (7)-(9): m rounds z ← W z (+ noise) from z = x̂(k|k); the fused estimate is z.
+  The papers' scalar state (a random walk seen by identical sensors, x̂ ← (1 − ℓ) x̂ + ℓ y) is (L)
+  with n = 1, F = 1, H_i = 1, K_i = ℓ; in vector form every node keeps an n-vector, the gains are
+  n x m matrices and W acts on the node index (W ⊗ I_n), which is Savas's (9) for each state
+  coordinate (the noise vector has independent coordinates, each Savas's σ_c u).
+* ``reinjection``: Savas et al. (2017), (11)-(13): z ← W z + x̂(k|k) (+ noise) for m rounds, then
+  x̂^fused = ζ x̂(k|k) + (1 − ζ) z / (m + 1). Vector form as above.
+* ``pairwise``: Tanwani's constant-gain filters with pairwise averaging, (5)-(6), in discrete
+  time: (L) is the discrete analogue of the flow (5) (the gain K_i plays L_i dt over one sample);
+  at every exchange the active nodes move to x̂_i + α Σ_{j active} (x̂_j − x̂_i) (6), with
+  Π = I − α L (3). Poisson-clocked edges exchange one pair at a time, in time order; a synchronous
+  round lets every working edge exchange at once, which is (6) with several active neighbours.
+
+With random links the working edges of each round (or the Poisson exchanges) are drawn afresh
+(pipeline of `link_models`); the weight of a failed link falls back on the node itself
+(`network_mixing`). With every link working and the Laplacian weights q_e = α, ``pairwise`` and
+``consensus`` coincide (a test checks it).
+
+Exact moments: the errors are linear in (x(0), w, v, u) with gains that do not depend on the
+data, so the joint error second moment Σ (`joint_moments`) follows an exact recursion. With
+random links the mean of Σ over the link draws is exact when the edges of a round are
+independent (reliable links, independent failures: `joint_moments.mean_random_round`) and for
+Poisson exchanges (the mean map of one exchange on a uniform edge, composed over the truncated
+Poisson count); for matchings the edges of a round are dependent and no closed form is used.
+
+Re-injection, with ε_h = (h + 1) x 1 − z_h the error of the consensus variable: ε_0 = e(k|k),
+ε_h = W_h ε_{h−1} + e(k|k) − σ_c u_h (using W 1 = 1), and the fused error is
+ζ e(k|k) + (1 − ζ) ε_m / (m + 1). Its exact mean recursion carries Z = E[ε εᵀ], C = E[ε eᵀ] and
+X = E[e eᵀ]: Z' = E[W Z Wᵀ] + W̄ C + (W̄ C)ᵀ + X + σ_c² E[noise mask], C' = W̄ C + X.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+import scipy.linalg as sla
+
+from . import joint_moments as jm
+from .link_models import LinkModel
+from .network_mixing import Mixer, heard
+from .network_step import StepContext, apply_gain, innovation, predict
+from .sensor_network import SensorNetworkModel
+
+__all__ = ["RULES", "FusionFilter", "FusionRun", "exact_moments", "steady_state", "mean_square_radius",
+           "tune_scale", "tune_reinjection"]
+
+RULES = ("consensus", "reinjection", "pairwise")
+
+
+@dataclass(frozen=True, eq=False)
+class FusionFilter:
+    """A constant-gain network filter: model, links, gains (N, n, m), edge weights q_e (E,)."""
+
+    model: SensorNetworkModel
+    links: LinkModel
+    gains: np.ndarray
+    weights: np.ndarray
+    rule: str = "consensus"
+    zeta: float = 1.0
+
+    def __post_init__(self):
+        if self.rule not in RULES:
+            raise ValueError(f"unknown fusion rule {self.rule!r}")
+        if self.rule != "pairwise" and not self.links.synchronous:
+            raise ValueError(f"the {self.rule} rule needs synchronous rounds")
+
+    @cached_property
+    def mixer(self) -> Mixer:
+        return Mixer(self.links.topology, np.asarray(self.weights, float))
+
+    @property
+    def rounds(self) -> int:
+        return self.links.n_rounds
+
+    def with_gains(self, gains=None, zeta=None) -> "FusionFilter":
+        return FusionFilter(self.model, self.links, self.gains if gains is None else gains, self.weights, self.rule,
+                            self.zeta if zeta is None else zeta)
+
+    @property
+    def exact_available(self) -> tuple[bool, str]:
+        if self.links.kind == "matchings" and self.links.random:
+            return False, ("the edges of a random matching are dependent: the mean of the second moment over "
+                           "matchings has no closed form here (Monte Carlo only)")
+        return True, ""
+
+
+class FusionRun:
+    """One batch of trials of a `FusionFilter` (state x̄ (N, n, B))."""
+
+    def __init__(self, f: FusionFilter, B: int):
+        self.f = f
+        self.B = B
+        self.xbar = np.broadcast_to(f.model.x0[None, :, None], (f.model.N, f.model.n, B)).copy()
+        self.estimate = self.xbar
+
+    def step(self, ctx: StepContext) -> np.ndarray:
+        f, m = self.f, self.f.model
+        sigma = f.links.noise_std
+        xh = self.xbar + apply_gain(f.gains, innovation(ctx.y, m.H, self.xbar))
+        if f.links.synchronous:
+            z = xh
+            for r, mask in enumerate(ctx.links.rounds):
+                z = f.mixer.mix(z, mask)
+                if f.rule == "reinjection":
+                    z = z + xh
+                if sigma:
+                    z = z + sigma * ctx.noise[r] * ctx.heard[r][:, None, :]
+            if f.rule == "reinjection":
+                est = f.zeta * xh + (1.0 - f.zeta) / (self.f.rounds + 1) * z
+            else:
+                est = z
+        else:
+            est = self._exchanges(xh, ctx)
+        self.estimate = est
+        self.xbar = predict(m.F, est)
+        return est
+
+    def _exchanges(self, x: np.ndarray, ctx: StepContext) -> np.ndarray:
+        """Poisson exchanges in time order: both endpoints move towards each other by q_e (6)."""
+        x = x.copy()
+        topo, q, sigma = self.f.links.topology, self.f.weights, self.f.links.noise_std
+        cols = np.arange(self.B)
+        for c, ids in enumerate(ctx.links.events):
+            live = ids >= 0
+            if not live.any():
+                break
+            b, e = cols[live], ids[live]
+            i, j = topo.edges[e, 0], topo.edges[e, 1]
+            xi, xj = x[i, :, b], x[j, :, b]
+            a = q[e][:, None]
+            ni, nj = xi + a * (xj - xi), xj + a * (xi - xj)
+            if sigma:
+                ni = ni + sigma * ctx.event_noise[c, 0][:, b].T
+                nj = nj + sigma * ctx.event_noise[c, 1][:, b].T
+            x[i, :, b], x[j, :, b] = ni, nj
+        return x
+
+
+# -- exact moments ----------------------------------------------------------------------------------------
+
+def _round_mean(f: FusionFilter) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(W̄, edge activity s, P(node heard)) of one synchronous round."""
+    topo = f.links.topology
+    s = f.links.edge_activity()
+    inc = topo.incidence
+    Wbar = np.eye(topo.n_nodes) - (inc * (s * f.weights)) @ inc.T
+    miss = np.ones(topo.n_nodes)
+    for (a, b), se in zip(topo.edges, s):
+        miss[a] *= 1.0 - se
+        miss[b] *= 1.0 - se
+    return Wbar, s, 1.0 - miss
+
+
+def _noise_blocks(prob: np.ndarray, n: int, var: float) -> np.ndarray:
+    return (var * prob)[:, None, None] * np.eye(n)
+
+
+def _fusion_moment(f: FusionFilter, X: np.ndarray) -> np.ndarray:
+    """E[ê ê ᵀ] of the fused error from X = E[e eᵀ] of e(k|k) (one step's communication)."""
+    topo, n = f.links.topology, f.model.n
+    var = f.links.noise_std ** 2
+    if not f.links.synchronous:
+        return _poisson_exchanges_moment(f, X)
+    Wbar, s, p_heard = _round_mean(f)
+    noise = _noise_blocks(p_heard, n, var)
+    if f.rule != "reinjection":
+        Z = X
+        for _ in range(f.rounds):
+            Z = jm.mean_random_round(Z, topo.incidence, topo.edges, f.weights, s)
+            if var:
+                Z = jm.add_block_diagonal(Z, noise)
+        return Z
+    Z, C = X, X
+    for _ in range(f.rounds):
+        WC = (Wbar @ C.reshape(topo.n_nodes, -1)).reshape(C.shape)
+        Z = jm.mean_random_round(Z, topo.incidence, topo.edges, f.weights, s) + WC + _swap(WC) + X
+        if var:
+            Z = jm.add_block_diagonal(Z, noise)
+        C = WC + X
+    c = (1.0 - f.zeta) / (f.rounds + 1)
+    return f.zeta ** 2 * X + f.zeta * c * (C + _swap(C)) + c * c * Z
+
+
+def _swap(C: np.ndarray) -> np.ndarray:
+    """The transposed second moment: (E[a bᵀ])ᵀ = E[b aᵀ] in the (N, n, N, n) layout."""
+    return np.transpose(C, (2, 3, 0, 1))
+
+
+def _poisson_exchanges_moment(f: FusionFilter, X: np.ndarray) -> np.ndarray:
+    """Mean over the step's Poisson exchanges: Σ_c P(count = c) T^c(X) with T the mean map of one
+    exchange on a uniformly random edge, T(X) = X − (L X + X L)/E + Σ_e q_e² D_e X D_e / E
+    (+ σ_c² diag(degree)/E ⊗ I), L = Σ_e q_e D_e."""
+    topo, n = f.links.topology, f.model.n
+    E = topo.E
+    Lq = topo.laplacian(f.weights)
+    var = f.links.noise_std ** 2
+    noise = _noise_blocks(topo.degrees / E, n, var)
+    law = f.links.poisson_count_law()
+    N = topo.n_nodes
+
+    def T(Y):
+        LY = (Lq @ Y.reshape(N, -1)).reshape(Y.shape)
+        out = Y - (LY + _swap(LY)) / E + jm.edge_pattern_sum(Y, topo.edges, f.weights ** 2 / E)
+        return jm.add_block_diagonal(out, noise) if var else out
+
+    acc = np.zeros_like(X)
+    cur = X
+    for c, p in enumerate(law):
+        acc += p * cur
+        if c + 1 < len(law):
+            cur = T(cur)
+    return acc
+
+
+def _local_update_moment(f: FusionFilter, S: np.ndarray) -> np.ndarray:
+    m = f.model
+    A = np.eye(m.n) - f.gains @ m.H                            # (N, n, n)
+    KRK = f.gains @ m.R @ np.swapaxes(f.gains, 1, 2)
+    return jm.add_block_diagonal(jm.node_wise(A, S), KRK)
+
+
+def exact_moments(f: FusionFilter, n_steps: int) -> dict[str, np.ndarray]:
+    """The exact mean second moment of the fused errors at the end of each step k < n_steps.
+
+    Returns ``blocks`` (K, N, n, n) = E[e_i e_iᵀ], ``mse`` (K, N), ``disagreement`` (K,), and
+    ``network`` (K,) the node average of ``mse``."""
+    ok, why = f.exact_available
+    if not ok:
+        raise ValueError(why)
+    m = f.model
+    S = jm.common_start(m.N, m.P0)
+    blocks = np.empty((n_steps, m.N, m.n, m.n))
+    dis = np.empty(n_steps)
+    for k in range(n_steps):
+        fused = _fusion_moment(f, _local_update_moment(f, S))
+        blocks[k] = jm.node_blocks(fused)
+        dis[k] = jm.disagreement(fused)
+        S = jm.state_wise(m.F, fused, m.Q)
+    mse = np.einsum("kiaa->ki", blocks)
+    return {"blocks": blocks, "mse": mse, "disagreement": dis, "network": mse.mean(axis=1)}
+
+
+# -- steady state and gain tuning -----------------------------------------------------------------------
+
+def _affine_step(f: FusionFilter):
+    """The mean map of one step on the prior moment S ↦ fused, and S ↦ next prior."""
+    m = f.model
+
+    def fused(S):
+        return _fusion_moment(f, _local_update_moment(f, S))
+
+    def step(S):
+        return jm.state_wise(m.F, fused(S), m.Q)
+
+    return fused, step
+
+
+def mean_square_radius(f: FusionFilter, iterations: int = 400, tol: float = 1e-7) -> float:
+    """Spectral radius of the linear part of the mean second-moment step (ρ < 1: the mean-square
+    error converges). The linear part maps PSD to PSD, so power iteration from the identity
+    converges to the dominant (real, nonnegative) eigenvalue."""
+    m = f.model
+    if not f.links.random and f.links.synchronous:
+        A = _transition_matrix(f)
+        return float(np.max(np.abs(np.linalg.eigvals(A)))) ** 2
+    lin = _linear_part(f)
+    S = np.eye(m.N * m.n).reshape(m.N, m.n, m.N, m.n)
+    rho = 0.0
+    for _ in range(iterations):
+        T = lin(S)
+        nrm = float(np.linalg.norm(T))
+        if not np.isfinite(nrm) or nrm == 0.0:
+            return nrm
+        new = nrm / float(np.linalg.norm(S))
+        S = T / nrm
+        if abs(new - rho) <= tol * max(new, 1.0):
+            return new
+        rho = new
+    return rho
+
+
+def _linear_part(f: FusionFilter):
+    m = f.model
+    zero = np.zeros((m.N, m.n, m.N, m.n))
+    quiet = FusionFilter(_noiseless(m), LinkModel(f.links.topology, f.links.kind, f.links.rounds, f.links.p_fail,
+                                                  f.links.rate, 0.0), f.gains, f.weights, f.rule, f.zeta)
+    _, qstep = _affine_step(quiet)
+    return lambda S: qstep(S) - qstep(zero)
+
+
+def _noiseless(m: SensorNetworkModel) -> SensorNetworkModel:
+    return SensorNetworkModel(m.F, np.zeros_like(m.Q), m.H, np.zeros_like(m.R), m.P0, m.x0, m.rows)
+
+
+def _transition_matrix(f: FusionFilter) -> np.ndarray:
+    """Reliable links: the prior-to-prior error transition (I ⊗ F) M (diag(I − K_i H_i)) ⊗, (N n, N n)."""
+    m = f.model
+    W = f.mixer.matrix
+    M = _reliable_fusion_matrix(f, W)
+    A = sla.block_diag(*(np.eye(m.n) - f.gains @ m.H))
+    return np.kron(np.eye(m.N), m.F) @ np.kron(M, np.eye(m.n)) @ A
+
+
+def _reliable_fusion_matrix(f: FusionFilter, W: np.ndarray) -> np.ndarray:
+    mr = f.rounds
+    if f.rule == "reinjection":
+        powers = [np.linalg.matrix_power(W, h) for h in range(mr + 1)]
+        return f.zeta * np.eye(len(W)) + (1.0 - f.zeta) / (mr + 1) * sum(powers)
+    return np.linalg.matrix_power(W, mr)
+
+
+def steady_state(f: FusionFilter) -> dict[str, float | np.ndarray]:
+    """Steady state of the exact mean recursion: the fused second moment Σ∞ and its network MSE
+    (node average of tr), or inf when the mean-square recursion is unstable (ρ ≥ 1).
+
+    Reliable links: a discrete Lyapunov equation (Bartels–Stewart on N n x N n). Random links:
+    (I − L) vec S = vec W solved by GMRES, L the linear part of the mean step."""
+    m = f.model
+    rho = mean_square_radius(f)
+    if not rho < 1.0:
+        return {"rho": rho, "network": np.inf, "fused": None}
+    fused, step = _affine_step(f)
+    zero = np.zeros((m.N, m.n, m.N, m.n))
+    if not f.links.random and f.links.synchronous:
+        A = _transition_matrix(f)
+        Wc = jm.as_matrix(step(zero))
+        S = sla.solve_discrete_lyapunov(A, Wc)
+        S = jm.from_matrix(0.5 * (S + S.T), m.N)
+    else:
+        from scipy.sparse.linalg import LinearOperator, gmres
+
+        lin = _linear_part(f)
+        shape = zero.shape
+        size = zero.size
+        op = LinearOperator((size, size), matvec=lambda v: v - lin(v.reshape(shape)).ravel(), dtype=float)
+        rhs = step(zero).ravel()
+        sol, info = gmres(op, rhs, rtol=1e-11, atol=0.0, restart=60, maxiter=400)
+        S = sol.reshape(shape)
+        S = 0.5 * (S + _swap(S))
+        for _ in range(5):           # polish by the map itself (a contraction)
+            S = step(S)
+    F_ = fused(S)
+    return {"rho": rho, "network": float(jm.mean_square_per_node(F_).mean()), "fused": F_}
+
+
+def _golden(fun, lo: float, hi: float, iters: int = 30) -> tuple[float, float]:
+    g = (np.sqrt(5) - 1) / 2
+    a, b = lo, hi
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = fun(c), fun(d)
+    for _ in range(iters):
+        if fc <= fd:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = fun(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = fun(d)
+    return (c, fc) if fc <= fd else (d, fd)
+
+
+def tune_scale(f: FusionFilter, base_gains: np.ndarray, *, lo: float = 1e-3, hi: float = 2.0, grid: int = 25,
+               iters: int = 25) -> tuple[float, float]:
+    """ℓ minimising the steady network MSE of the filter with gains ℓ·base (Carli et al.'s choice of
+    the constant gain, for gains of a given shape): a log grid on [lo, hi], then golden-section
+    search in log ℓ between the neighbours of the best grid point. Returns (ℓ, MSE)."""
+    def J(log_ell):
+        return steady_state(f.with_gains(np.exp(log_ell) * base_gains))["network"]
+
+    xs = np.linspace(np.log(lo), np.log(hi), grid)
+    vals = np.array([J(x) for x in xs])
+    if not np.isfinite(vals).any():
+        return float("nan"), float("inf")
+    k = int(np.argmin(vals))
+    a, b = xs[max(k - 1, 0)], xs[min(k + 1, grid - 1)]
+    x, v = _golden(J, a, b, iters)
+    if vals[k] < v:
+        x, v = xs[k], vals[k]
+    return float(np.exp(x)), float(v)
+
+
+def tune_reinjection(f: FusionFilter, base_gains: np.ndarray, *, ell0: float, sweeps: int = 2,
+                     zeta_grid: int = 11) -> tuple[float, float, float]:
+    """(ℓ, ζ) minimising the steady network MSE of the re-injection filter (Savas et al. §V-B), by
+    coordinate search from ℓ0: ζ on a grid of [0, 1] then golden section, ℓ by `tune_scale`'s search
+    around the current value. Returns (ℓ, ζ, MSE)."""
+    ell, zeta = ell0, 0.5
+
+    def J(l, z):
+        return steady_state(f.with_gains(l * base_gains, z))["network"]
+
+    best = J(ell, zeta)
+    for _ in range(sweeps):
+        zs = np.linspace(0.0, 1.0, zeta_grid)
+        vals = np.array([J(ell, z) for z in zs])
+        k = int(np.argmin(vals))
+        z, v = _golden(lambda t: J(ell, t), zs[max(k - 1, 0)], zs[min(k + 1, zeta_grid - 1)], 20)
+        if vals[k] < v:
+            z, v = zs[k], vals[k]
+        if v <= best:
+            zeta, best = z, v
+        x, v = _golden(lambda t: J(np.exp(t), zeta), np.log(ell) - 1.0, np.log(ell) + 1.0, 20)
+        if v <= best:
+            ell, best = float(np.exp(x)), v
+    return float(ell), float(zeta), float(best)

@@ -1,0 +1,128 @@
+"""The gossip interactive Kalman filter (Kar & Moura, GIKF) on any link model, batched over trials.
+
+Kar & Moura (8)-(10): at the start of each slot the sensors that communicate swap their whole
+filter states (estimate and conditional error covariance); every sensor then corrects the state
+it holds with its own measurement and predicts. Their communication is an i.i.d. sequence of
+matchings; here a step's swaps are a permutation of the states:
+
+* a matching (the link model's own random matching; for reliable links or independent failures,
+  the random greedy maximal matching of the edges working in the step's first round, built from
+  priorities drawn for this filter alone) swaps its pairs at once, as in the paper;
+* Poisson exchanges swap one pair at a time in time order, so a state may travel several hops
+  in one step (the generalisation: a composition of transpositions is a permutation, and a state
+  is still corrected exactly once per step, by the sensor that holds it).
+
+Communication noise (the convention of `network_step`): a state estimate that travelled h hops
+arrives with N(0, h σ_c² I) added; the receiver knows σ_c and adds h σ_c² I to the covariance it
+received, so the covariance stays the exact conditional covariance given the swap path and the
+filter stays a Kalman filter along the path of each state (the paper's conditional Gaussianity,
+(8)-(9)). Hence, given the path, the error of every sensor is N(0, P) exactly.
+
+Update in Joseph form (exactly symmetric, positive semidefinite under rounding); the covariances
+are stacked per node and trial with the matrix indices leading (`small_matrix`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import small_matrix as sm
+from .link_models import LinkModel, StepLinks, greedy_matching, swap_permutation
+from .network_step import StepContext, predict
+from .sensor_network import SensorNetworkModel
+
+__all__ = ["GossipSwapRun", "step_permutation", "kalman_update", "TokenSampler"]
+
+
+def step_permutation(links: LinkModel, step: StepLinks, B: int, priority: np.ndarray | None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(source, hops), each (N, B): the state node i holds after the step's swaps came from
+    source[i], over hops[i] links."""
+    topo = links.topology
+    if not links.synchronous:
+        return swap_permutation(topo, step, B)
+    if links.kind == "matchings":
+        matching = step.rounds[0]
+    else:
+        matching = greedy_matching(topo, priority, step.rounds[0])
+    return swap_permutation(topo, step, B, matching=matching)
+
+
+def kalman_update(P: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(gain K (n, m, *b), posterior P (n, n, *b)) for stacked priors P, H (m, n, *b), R (m, m, *b)."""
+    Ht = sm.transpose(H)
+    PHt = sm.matmul(P, Ht)
+    S = sm.matmul(H, PHt) + R
+    K = PHt / S[0, 0] if S.shape[0] == 1 else sm.matmul(PHt, sm.spd_inverse(S))
+    A = sm.identity(P.shape[0], P.ndim - 2) - sm.matmul(K, H)
+    post = sm.sandwich(A, P) + sm.sandwich(K, R)
+    return K, post
+
+
+class GossipSwapRun:
+    """A batch of B trials of the GIKF; `estimate` (N, n, B) and `cov` (n, n, N, B) hold x̂(k|k)
+    and P(k|k) after each step, `xbar`, `Pbar` the predictions for the next."""
+
+    def __init__(self, model: SensorNetworkModel, links: LinkModel, B: int):
+        self.model, self.links, self.B = model, links, B
+        N, n = model.N, model.n
+        self.xbar = np.broadcast_to(model.x0[None, :, None], (N, n, B)).copy()
+        self.Pbar = np.broadcast_to(model.P0[:, :, None, None], (n, n, N, B)).copy()
+        self.H = sm.to_batched(model.H)[..., None]          # (m, n, N, 1)
+        self.R = sm.to_batched(model.R)[..., None]          # (m, m, N, 1)
+        self.estimate = self.xbar
+        self.cov = self.Pbar
+        self.hops = np.zeros((N, B), np.int64)
+
+    def step(self, ctx: StepContext) -> np.ndarray:
+        m = self.model
+        src, hops = step_permutation(self.links, ctx.links, self.B, ctx.gossip_priority)
+        self.hops = hops
+        x_in = np.take_along_axis(self.xbar, src[:, None, :], axis=0)
+        P_in = np.take_along_axis(self.Pbar, src[None, None], axis=2)
+        sigma = self.links.noise_std
+        if sigma:
+            moved = hops > 0
+            x_in = x_in + sigma * np.sqrt(hops)[:, None, :] * ctx.node_noise
+            P_in = P_in + (sigma ** 2 * hops) * np.eye(m.n)[:, :, None, None] * moved
+        K, P = kalman_update(P_in, self.H, self.R)
+        r = ctx.y - np.einsum("imn,inb->imb", m.H, x_in)                                # (N, m, B)
+        corr = sum(K[:, j] * r[:, j][None] for j in range(m.m))                           # (n, N, B)
+        est = x_in + np.moveaxis(corr, 0, 1)
+        self.estimate, self.cov = est, P
+        self.xbar = predict(m.F, est)
+        self.Pbar = sm.const_sandwich(m.F, P) + m.Q[:, :, None, None]
+        return est
+
+    def nees(self, err: np.ndarray) -> np.ndarray:
+        """(N, B): e_iᵀ P_i⁻¹ e_i with P the filter's own posterior covariance."""
+        v = np.moveaxis(err, 1, 0)
+        return sm.quad_form(sm.spd_inverse(self.cov), v)
+
+
+class TokenSampler:
+    """Kar & Moura's auxiliary sequence (20): one state carried along the chain of locations of a
+    token that starts at a uniformly random sensor and moves with an independent copy of the
+    communication, corrected at every location by that sensor's Riccati map (with the noise of
+    the hops it travelled). Its law at every step equals the law of P̂_q for a uniformly random
+    sensor q independent of the communication (the identity behind weak consensus, Thm 10(i))."""
+
+    def __init__(self, model: SensorNetworkModel, links: LinkModel, B: int, start: np.ndarray):
+        self.model, self.links, self.B = model, links, B
+        self.loc = np.asarray(start, np.int64)
+        self.P = np.broadcast_to(model.P0[:, :, None], (model.n, model.n, B)).copy()
+        self.H = sm.to_batched(model.H)
+        self.R = sm.to_batched(model.R)
+
+    def step(self, step_links: StepLinks, priority: np.ndarray | None) -> None:
+        src, hops = step_permutation(self.links, step_links, self.B, priority)
+        inv = np.empty_like(src)
+        np.put_along_axis(inv, src, np.arange(src.shape[0])[:, None] + 0 * src, axis=0)
+        cols = np.arange(self.B)
+        self.loc = inv[self.loc, cols]
+        h = hops[self.loc, cols]
+        sigma = self.links.noise_std
+        P = self.P
+        if sigma:
+            P = P + (sigma ** 2 * h) * np.eye(self.model.n)[:, :, None]
+        _, post = kalman_update(P, self.H[:, :, self.loc], self.R[:, :, self.loc])
+        self.P = sm.const_sandwich(self.model.F, post) + self.model.Q[:, :, None]
