@@ -49,9 +49,9 @@ def sample_chain(Abar: np.ndarray, size: int, steps: int, rng: np.random.Generat
 
 def sample_protocol_chain(protocol, size: int, steps: int, rng: np.random.Generator,
                           start: np.ndarray | int | None = None) -> np.ndarray:
-    """(size, steps) states of a Ā-chain driven by the protocol itself (spec §5, sampler S3):
+    """(size, steps) states of a Ā-chain driven by the protocol itself (sampler S3):
     p̃(t+1) = partner of p̃(t) in a fresh matching A' ~ D. P(p̃(t+1) = l | p̃(t) = k) = E[A'_kl] = Ā_kl
-    exactly, so no estimate of Ā enters (spec §11 P9). Start uniform unless given."""
+    exactly, so no estimate of Ā enters (an estimated Ā would bias μ). Start uniform unless given."""
     n = protocol.n
     path = np.empty((size, steps), dtype=np.int64)
     p = rng.integers(0, n, size) if start is None else np.broadcast_to(np.asarray(start), (size,)).copy()
@@ -108,26 +108,31 @@ class _Iterate:
 
 
 def switched_riccati(sys: GossipSystem, path: np.ndarray, X0: np.ndarray, record_times: Sequence[int] = (),
-                     *, keep_final: bool = False, sqrt: bool = False) -> dict[str, np.ndarray]:
+                     *, keep_final: bool = False, sqrt: bool = False, track_error: bool = False) -> dict[str, np.ndarray]:
     """Run P̃(t+1) = f_{path[:, t]}(P̃(t)) for t < T = path.shape[1] from X0 ((M, M) or (B, M, M)).
 
     Returns features (covariance_features) at each record time t ≤ T, stacked (len(times), F, B),
-    the last switch path[:, t-1] at each record time, and P̃(T) with its round-off bound
-    (`final_err`, Joseph form) if keep_final.
+    the last switch path[:, t-1] at each record time, P̃(T) with its round-off bound (`final_err`,
+    Joseph form) if keep_final, and the round-off bound at each record time (`err`) if track_error.
     """
     B, T = path.shape
-    it = _Iterate(sys, X0, B, sqrt, track_error=keep_final)
+    track = keep_final or track_error
+    it = _Iterate(sys, X0, B, sqrt, track_error=track)
     times = sorted(set(int(t) for t in record_times))
-    feats, last = [], []
+    feats, last, errs = [], [], []
     if 0 in times:
         feats.append(it.features())
         last.append(np.full(B, -1))
+        errs.append(it.err)
     for t in range(T):
         it.step(path[:, t])
         if t + 1 in times:
             feats.append(it.features())
             last.append(path[:, t])
+            errs.append(it.err)
     out = {"times": np.array(times, dtype=np.int64), "features": np.array(feats), "last": np.array(last)}
+    if track_error:
+        out["err"] = np.array(errs)
     if keep_final:
         out["final"] = it.matrix()
         out["final_err"] = it.err

@@ -2,7 +2,7 @@
 
 Oracles: filterpy's KalmanFilter (one object per sensor, states swapped by hand, H and R passed
 explicitly), the information form of the Riccati map, brute-force path enumeration, and the
-spec's reference numbers for E1 (shared/specs/001_kar_moura_gikf.md §6.4, §12).
+reference numbers of an independent prototype for example E1.
 """
 from __future__ import annotations
 
@@ -200,7 +200,7 @@ def test_simulate_gikf_is_deterministic_and_consistent():
     assert np.nanmin(a["margins"][1:, 1]) > -1e-12    # ⪰ Q
     s, above, n = a["nees"][:3]
     assert abs(s / n / 2 - 1) < 0.05
-    # t = 1: two atoms f_even(P0), f_odd(P0) with traces 2.13 and 2.245 (spec §7 R7)
+    # t = 1: two atoms f_even(P0), f_odd(P0) with traces 2.13 and 2.245 (exact small-t law)
     tr1 = np.exp(a["feat_q"][0][0])
     assert set(np.round(tr1, 6)) == {2.13, 2.245}
 
@@ -254,7 +254,7 @@ def test_chain_checks():
     chk = wd.check_chain(swap.mean_matrix())
     assert chk.irreducible and not chk.aperiodic and abs(chk.min_eig + 1) < 1e-12
     even_ring = gk.MatchingDistribution.from_matchings(4, [[(0, 1), (2, 3)], [(1, 2), (3, 0)]], [0.5, 0.5])
-    assert not wd.check_chain(even_ring.mean_matrix()).aperiodic  # spec E7's second trap
+    assert not wd.check_chain(even_ring.mean_matrix()).aperiodic  # example E7's second trap
 
 
 def test_witness_search_and_lemma14_constants_e1():
@@ -263,7 +263,7 @@ def test_witness_search_and_lemma14_constants_e1():
     assert res.witness == (0, 1)
     np.testing.assert_allclose(res.gramian, np.diag([1.0, 1.21]), atol=1e-14)
     S = wd.sigma_sub(sys_, res.witness)
-    np.testing.assert_allclose(np.diag(S), [2.3176, 1.31], atol=5e-5)   # spec §6.4
+    np.testing.assert_allclose(np.diag(S), [2.3176, 1.31], atol=5e-5)   # prototype value
     g = wd.compose_walk(sys_, res.witness, 1e10 * np.eye(2))
     np.testing.assert_allclose(g, S, atol=1e-6)                          # minimal walk: sup g = Σ_sub
     S3 = wd.sigma_sub(sys_, (0, 0, 1))
@@ -309,7 +309,7 @@ def test_tail_bounds_equal_brute_force_path_enumeration(seed, L):
 
 def test_k_of_J_special_cases():
     assert wd.k_of_J(1.0, 2.0, 0.5, 10.0) == 16            # α = 1: 2 + 0.5 k ≤ 10
-    assert wd.k_of_J(1.2, 2.3176, 0.1, 10.0) == 3           # spec §12: k(1e1) = 3
+    assert wd.k_of_J(1.2, 2.3176, 0.1, 10.0) == 3           # prototype: k(1e1) = 3
     assert wd.k_of_J(1.2, 2.3176, 0.1, 1e5) == 29
     assert wd.k_of_J(1.2, 2.3176, 0.1, 1.0) == -1           # J < α0
 
@@ -326,7 +326,7 @@ def test_lifted_chain_stationary_law():
 def test_random_graphs_tokens_and_centralized_domination(seed, N, M):
     """On random connected graphs and random systems (with an actuator): the corrected token recursion
     reproduces every sensor's covariance pathwise (19), and every sensor dominates the centralized
-    filter started from the same P0 (spec §6.6)."""
+    filter started from the same P0."""
     import networkx as nx
 
     import estimators.kalman as kal

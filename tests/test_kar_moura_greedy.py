@@ -1,4 +1,4 @@
-"""Greedy maximal matching with link failures (spec §2, protocol P4): the batched sampler against
+"""Greedy maximal matching with link failures (protocol P4): the batched sampler against
 the plain sequential scan, the exact matching law and exact Ā against Monte Carlo frequencies,
 the protocol-driven chain (sampler S3), and the protocol through a scenario file."""
 from __future__ import annotations
@@ -115,7 +115,7 @@ def test_exact_mean_matrix_detects_a_wrong_law():
     path = gk.GreedyMatchingGossip(4, ((0, 1), (1, 2), (2, 3)), 1.0)
     np.testing.assert_allclose(path.exact_mean_matrix()[1, 2], 1 / 3, atol=1e-15)
     np.testing.assert_allclose(path.exact_mean_matrix()[0, 0], 1 / 3, atol=1e-15)
-    # even ring without failures: always a perfect matching, Ā_nn = 0 (periodic, spec §11 P10)
+    # even ring without failures: always a perfect matching, Ā_nn = 0 (periodic)
     ring = gk.GreedyMatchingGossip(4, ((0, 1), (1, 2), (2, 3), (0, 3)), 1.0)
     assert np.allclose(np.diag(ring.exact_mean_matrix()), 0) and np.allclose(np.diag(ring.support_matrix()), 0)
     big = gk.GreedyMatchingGossip(30, tuple(sorted(nx.random_geometric_graph(30, 0.35, seed=0).edges())), 0.5)

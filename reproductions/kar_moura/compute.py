@@ -374,19 +374,26 @@ def theorem_aux_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_run
     out["wishart_lam_max"] = np.linalg.eigvalsh(wish)[:, -1]
     c = max(COUPLING_C, 10.0 * float(np.linalg.norm(sc.P0, 2)))  # the sandwich 0 ⪯ X0 ⪯ cI must contain P0
     out["coupling_c"] = np.array(c)
-    for label, X0, sqrt in (("zero", np.zeros((M, M)), False), ("huge", c * np.eye(M), True),
-                            ("wishart", wish, False)):
+    for label, X0 in (("zero", np.zeros((M, M))), ("huge", c * np.eye(M)), ("wishart", wish)):
         path = chain(half, slots, rng)
-        out[f"init_{label}"] = sr.switched_riccati(sys_, path, X0, [slots], sqrt=sqrt)["features"][0]
+        sqrt = float(np.max(np.linalg.norm(X0, 2, axis=(-2, -1)))) > accurate_range(sc)  # Joseph where it is accurate
+        run = sr.switched_riccati(sys_, path, X0, [slots], sqrt=sqrt, track_error=not sqrt)
+        out[f"init_{label}"] = run["features"][0]
+        out[f"init_{label}_err"] = run["err"][0] if not sqrt else np.zeros(half)
     tokens = sorted({0, min(1, sc.N - 1)})
     for n in tokens:
         path = chain(half, slots, rng, start=n)
-        out[f"token{n}"] = sr.switched_riccati(sys_, path, sc.P0, times)["features"]
+        tok = sr.switched_riccati(sys_, path, sc.P0, times, track_error=True)
+        out[f"token{n}"], out[f"token{n}_err"] = tok["features"], tok["err"][-1]
     if bool(bounds["Abar_exact"]):
         s, dv = restart_slot(bounds["Abar"], slots, tokens)
         path = chain(half, slots - s, rng)
         out["restart_s"], out["restart_dv"] = np.array(s), dv
-        out["restart"] = sr.switched_riccati(sys_, path, bounds["envelope"][s], [slots - s], sqrt=True)["features"][0]
+        # the same arithmetic as the tokens (Joseph form) unless f_0^s(P0) is beyond its accurate range
+        huge = float(np.linalg.norm(bounds["envelope"][s], 2)) > accurate_range(sc)
+        rs = sr.switched_riccati(sys_, path, bounds["envelope"][s], [slots - s], sqrt=huge, track_error=not huge)
+        out["restart"] = rs["features"][0]
+        out["restart_err"] = rs["err"][0] + float(bounds["envelope_err"][s]) if not huge else np.zeros(half)
     cpl_times = [t for t in (10, 20, 40, 80, 160, 320) if t <= slots] or [slots]
     path = chain(min(2000, ref_runs), slots, rng)
     out["coupling_times"] = np.array(cpl_times)
@@ -398,7 +405,7 @@ def theorem_aux_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_run
         pb = sr.pullback(sys_, back, sc.P0, law_T)
         out["pullback_law_T"] = np.array(law_T)
         out["pullback_law"] = np.array([gk.covariance_features(x) for x in pb])
-    path_T = list(PULLBACK_PATH_T)
+    path_T = [t for t in PULLBACK_PATH_T if t <= max(64, 2 * slots)]  # pathwise convergence: a few horizon doublings
     back = chain(500, max(path_T), rng)
     lo, err = sr.pullback(sys_, back, np.zeros((M, M)), path_T, with_error=True)
     hi = sr.pullback(sys_, back, c * np.eye(M), path_T, sqrt=True)
@@ -454,7 +461,8 @@ def divergent_pullback_stage(sc: GossipKalmanScenario, bounds: dict, seed: int) 
 GIKF_PARTIAL = ("margins", "slack", "feat_q", "feat_n", "quantiles", "path_trace", "path_err", "path_err_c", "nees_q",
                 "nees_c")
 #: round-off bounds may exceed float64 (a bound that large says only that nothing is resolved: an infinite allowance)
-ERROR_BOUNDS = ("final_err", "pullback_err", "pullback_monotone_err", "central_from_zero_err")
+ERROR_BOUNDS = ("final_err", "pullback_err", "pullback_monotone_err", "central_from_zero_err", "token0_err", "token1_err",
+                "restart_err", "init_zero_err", "init_huge_err", "init_wishart_err")
 BOUNDS_PARTIAL = ("beta_multi", "beta_single", "lifted_printed", "alpha0_multi", "envelope", "envelope_err", "P_floor",
                   "P_floor_err", "P_central", "P_central_err", "P_central_filterpy")
 

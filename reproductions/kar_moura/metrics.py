@@ -22,7 +22,8 @@ def _one(sr) -> dict[str, float]:
     return {"median_log_trP": float(np.median(finite)) if finite.size else float("inf"),
             "q90_log_trP": float(np.quantile(finite, 0.9)) if finite.size else float("inf"),
             "nonfinite_fraction": float(1.0 - finite.size / log_tr.size),
-            "central_log_trP": float(np.log(np.trace(sr.bounds["P_central_inf"]))),
+            "central_log_trP": (float(np.log(np.trace(sr.bounds["P_central_inf"]))) if "P_central_inf" in sr.bounds
+                                else float("nan")),  # no limit where (F, C_all) is not detectable
             "slem": float(sr.bounds["slem"]), "c1": float(sr.c1), "d1": float(sr.d1)}
 
 

@@ -91,7 +91,7 @@ def fig_per_sensor(r: ScenarioResults, path: Path) -> None:
     _ecdf(ax, _log10_trace(ref["features"][-1]), color="k", lw=2.2, label="μ_T (Theorem-8 process)")
     ax.set_xlabel("log₁₀ tr P̂_n(T)")
     ax.set_ylabel("empirical CDF")
-    ax.set_title(f"{r.name}: per-sensor laws at T = {T} differ (weak, not strong, consensus); their mixture is μ", fontsize=9)
+    ax.set_title(f"{r.name}: per-sensor laws at T = {T}; their mixture is μ (weak consensus)", fontsize=9)
     ax.legend(ncol=2, fontsize=7)
     save_figure(fig, path)
 
@@ -283,9 +283,10 @@ def write_recording(r: ScenarioResults, path: Path, claims: list[dict], prov: di
                          points=True)
         rec_.log_tensor(rec, "graph/Abar", b["Abar"])
         own = [c for c in claims if c["id"].endswith(f".{sc.name}")]
-        counts = {s: sum(c["verdict"] == s for c in own) for s in ("pass", "fail", "erratum", "not-checkable")}
+        counts = {s: sum(c["verdict"] == s for c in own) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
         summary = (f"# {sc.name}: {counts['pass']} pass, {counts['fail']} fail, {counts['erratum']} erratum, "
-                   f"{counts['not-checkable']} not checkable\n\n{sc.description}\n\nseed {r.seed}, {r.runs:,} GIKF runs, "
+                   f"{counts['not-checkable']} not checkable, {counts['error']} errors\n\n{sc.description}\n\nseed {r.seed}, "
+                   f"{r.runs:,} GIKF runs, "
                    f"{r.reference_runs:,} Theorem-8 runs, {r.slots} slots")
         table = [c for c in own if c["id"].endswith(f".{sc.name}") or c["id"].count(".") == 2]
         rec_.log_claims(rec, table, summary, details=own)

@@ -1,5 +1,5 @@
 """The gossip-Kalman scenario family (GIKF on any graph with a random-matching protocol):
-the spec's examples E1-E8 and any user scenario of the same kind (`family = "gossip-kalman"`)."""
+our examples E1-E9 and any user scenario of the same kind (`family = "gossip-kalman"`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -25,12 +25,12 @@ class ProtocolSpec:
     """[protocol] (and [comparison_protocol]) of a scenario file; `kind` is one of
 
     * "single-edge" (edge_prob): each graph edge is the only swap of the slot with probability
-      edge_prob (edge_prob × number of edges ≤ 1), spec P1;
-    * "node-initiated": a uniform node wakes up and swaps with a uniform neighbour, spec P2;
+      edge_prob (edge_prob × number of edges ≤ 1), protocol P1;
+    * "node-initiated": a uniform node wakes up and swaps with a uniform neighbour, protocol P2;
     * "matchings" (matchings, probs): a user-given distribution over matchings, the rest of the
-      probability is "no communication" (spec P3 is a case);
+      probability is "no communication" (protocol P3 is a case);
     * "greedy-matching" (p_link ∈ (0, 1]): random greedy maximal matching, each chosen link then
-      works with probability p_link, spec P4. Ā is exact on small graphs (≤ 40 edges), otherwise a
+      works with probability p_link, protocol P4. Ā is exact on small graphs (≤ 40 edges), otherwise a
       Monte Carlo estimate, and the Theorem-8 chains are driven by the protocol itself (S3).
     """
 
@@ -170,7 +170,7 @@ class GossipKalmanScenario:
             raise ScenarioError("model.Q", "missing")
         Q = as_matrix(model["Q"], "model.Q", shape=(M, M), psd=True)
         if np.linalg.eigvalsh(Q).min() <= 1e-12 * max(1.0, np.abs(Q).max()):
-            raise ScenarioError("model.Q", "must be positive definite (the theorems' proofs use Q ≻ 0; spec §10.13)")
+            raise ScenarioError("model.Q", "must be positive definite (the theorems' proofs use Q ≻ 0)")
         P0 = as_matrix(model.get("P0", np.eye(M).tolist()), "model.P0", shape=(M, M), psd=True)
 
         sensors = section(data["sensors"], "sensors")

@@ -6,9 +6,10 @@ kept however few runs a scenario has and however heavy the tails of the covarian
 
 * two-sample Kolmogorov-Smirnov with the exact p-value (`ks_test`): distribution free for
   continuous laws and conservative for atomic ones (ties only make the statistic smaller); the
-  covariance features are log scale, and values closer than `SNAP` (far above the round-off of
-  two equivalent computations, far below any statistical resolution) are merged into ties first,
-  so that two bitwise-different computations of the same atom do not look like different laws;
+  covariance features are log scale, and values closer than their numerical resolution (`SNAP`,
+  far above the round-off of two equivalent computations and far below any statistical resolution,
+  or ~eps·κ for the smallest eigenvalue of a matrix of condition κ) are merged into ties first, so
+  that two bitwise-different computations of the same atom do not look like different laws;
 * exact binomial p-values (`binom_p`, twice the smaller tail) for counts of a known probability;
 * the exact χ² law of a sum of squared standard normals (`pipeline.stats.chi2_two_sided_p`);
 * Clopper-Pearson bounds for one-sided comparisons of proportions with an allowance;
@@ -39,29 +40,42 @@ def finite(a) -> np.ndarray:
 
 def snap_many(*samples, tol: float = SNAP) -> list[np.ndarray]:
     """The finite values of each sample, every value replaced by the smallest of its run of pooled
-    values closer than tol to their neighbour (single linkage on the sorted pooled sample): nearly
-    equal values become exact ties, in all samples alike."""
-    parts = [finite(x) for x in samples]
-    pooled = np.concatenate(parts)
+    values closer than the tolerance to their neighbour (single linkage on the sorted pooled sample):
+    nearly equal values become exact ties, in all samples alike.
+
+    A sample may be an array of values or a pair (values, per-value resolution): two neighbours merge
+    when their gap is within the larger of their resolutions (and of `tol`), so a feature that is
+    only resolved to ~eps·κ (the smallest eigenvalue of an ill-conditioned matrix) merges at that
+    scale and well-resolved values do not."""
+    vals, tols = [], []
+    for x in samples:
+        v, r = (x if isinstance(x, tuple) else (x, np.zeros(np.shape(x))))
+        v, r = np.asarray(v, float).ravel(), np.broadcast_to(np.asarray(r, float), np.shape(v)).ravel()
+        keep = np.isfinite(v)
+        vals.append(v[keep])
+        tols.append(np.maximum(r[keep], tol))
+    pooled, res = np.concatenate(vals), np.concatenate(tols)
     if pooled.size == 0:
-        return parts
+        return vals
     order = np.argsort(pooled, kind="stable")
-    v = pooled[order]
-    new_group = np.concatenate([[True], np.diff(v) > tol])
+    v, r = pooled[order], res[order]
+    new_group = np.concatenate([[True], np.diff(v) > np.maximum(r[1:], r[:-1])])
     rep = v[np.flatnonzero(new_group)][np.cumsum(new_group) - 1]
     out = np.empty_like(pooled)
     out[order] = rep
-    return np.split(out, np.cumsum([len(x) for x in parts])[:-1])
+    return np.split(out, np.cumsum([len(x) for x in vals])[:-1])
 
 
-def snap(a: np.ndarray, b: np.ndarray, tol: float = SNAP) -> tuple[np.ndarray, np.ndarray]:
+def snap(a, b, tol: float = SNAP) -> tuple[np.ndarray, np.ndarray]:
     a, b = snap_many(a, b, tol=tol)
     return a, b
 
 
 def ks_test(a, b) -> tuple[float, float, int, int]:
-    """(D, exact two-sided p-value, n_a, n_b) after snapping near-ties."""
-    a, b = snap(finite(a), finite(b))
+    """(D, exact two-sided p-value, n_a, n_b) after snapping near-ties (a, b: values or (values, resolution))."""
+    a, b = snap(a, b)
+    if min(len(a), len(b)) == 0:
+        return math.nan, 1.0, len(a), len(b)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         r = stats.ks_2samp(a, b, method="exact")
