@@ -169,6 +169,40 @@ def prepare(net: NetworkObserver, h: float, noise: NoiseModel | None = None) -> 
     return Prepared(h, phi_functions(M, h), factors, scale_of)
 
 
+def injection_matrix(net: NetworkObserver) -> np.ndarray:
+    """The injection Σ_i [L_i; J_i] C_i (x − x̂_i) as one constant (Nq × D) matrix acting on u = [x; e];
+    the simulation masks its row blocks by g_i."""
+    n, N, q = net.n, net.N, net.q
+    LJC = np.einsum("iqm,imn->iqn", net.LJ, net.C)
+    Minj = np.zeros((N * q, n + N * q))
+    for i in range(N):
+        Minj[i * q:(i + 1) * q, :n] = LJC[i]
+        Minj[i * q:(i + 1) * q, n + i * q:n + i * q + n] = -LJC[i]
+    return Minj
+
+
+def linear_gaussian_step(net: NetworkObserver, prepared: Prepared, g) -> tuple[np.ndarray, np.ndarray]:
+    """The stochastic step of `simulate` with fixed roles g, written as u_{k+1} = Φ u_k + (input terms) + κ
+    with κ ~ N(0, Q) exactly: the law of the simulated recursion, for exact tests of the Monte Carlo.
+
+    ETD2RK with the injection N(u) = Ĝ u (Ĝ the injection rows scaled by g): a = E u + hΦ₁Ĝu,
+    u⁺ = a + hΦ₂Ĝ(a − u), so Φ = A₁ + hΦ₂Ĝ(A₁ − I) with A₁ = E + hΦ₁Ĝ; the kick Fᵀ(amp∘ξ) plus its
+    half-step injection: κ = (I + ½hĜ)Fᵀ(amp∘ξ), amp = 1 for process noise and g_i for node i."""
+    n, q = net.n, net.q
+    E, Phi1, Phi2 = prepared.phi
+    h, D = prepared.h, E.shape[0]
+    g = np.asarray(g, float)
+    Ghat = np.zeros((D, D))
+    Ghat[n:] = injection_matrix(net) * np.repeat(g, q)[:, None]
+    A1 = E + h * Phi1 @ Ghat
+    Phi = A1 + h * Phi2 @ Ghat @ (A1 - np.eye(D))
+    amp = np.r_[1.0, g][prepared.scale_of] if len(prepared.scale_of) else np.zeros(0)
+    F = prepared.factors * amp[:, None]
+    T = np.eye(D) + 0.5 * h * Ghat
+    Q = T @ (F.T @ F) @ T.T
+    return Phi, (Q + Q.T) / 2
+
+
 @dataclass
 class Trajectory:
     """Samples every `record_every` steps: t (T,), w (T, p), and per kept trial x (K, T, n),
@@ -218,13 +252,7 @@ def simulate(net: NetworkObserver, roles, signal: SinusoidalInput, x0, e0, *, t_
     if noise is not None:
         factors, scale_of = prepared.factors, prepared.scale_of
 
-    # the injection Σ_i g_i [L_i; J_i] C_i (x − x̂_i) as one constant matrix, masked by g per row block
-    LJC = np.einsum("iqm,imn->iqn", net.LJ, net.C)
-    Minj = np.zeros((N * q, D))
-    for i in range(N):
-        Minj[i * q:(i + 1) * q, :n] = LJC[i]
-        Minj[i * q:(i + 1) * q, n + i * q:n + i * q + n] = -LJC[i]
-    MinjT = Minj.T.copy()
+    MinjT = injection_matrix(net).T.copy()
 
     def injection(uu, gq):
         out = uu @ MinjT

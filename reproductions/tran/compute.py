@@ -180,8 +180,9 @@ def _design_P(sc: CoestimationScenario, P_lmi: np.ndarray) -> tuple[np.ndarray, 
         else:
             from scipy.linalg import solve_continuous_lyapunov
             Ab = ce.error_matrix(sc.A, sc.B, *_node(sc, i), sc.roles_active[i])
-            X = solve_continuous_lyapunov(Ab.T, -np.eye(q))
-            cand = (X + X.T) / 2
+            if np.linalg.eigvals(Ab).real.max() < 0:   # (10) has a positive definite solution only then
+                X = solve_continuous_lyapunov(Ab.T, -np.eye(q))
+                cand = (X + X.T) / 2
         if cand is not None and np.all(np.isfinite(cand)):
             ev = np.linalg.eigvalsh(cand)
             if ev[0] > 1e3 * np.finfo(float).eps * ev[-1]:
@@ -471,6 +472,43 @@ def check_indices(sc: CoestimationScenario, t_sde: float) -> np.ndarray:
     return np.arange(stride, last + 1, stride)
 
 
+def error_map(sc: CoestimationScenario) -> np.ndarray:
+    """Z with z = Z u + (terms in w): z_i = [x − x̂_i; ŵ_i − w] from u = [x; e_1; …; e_N]."""
+    n, p, N = sc.n, sc.p, sc.N
+    q = n + p
+    Z = np.zeros((N * q, n + N * q))
+    for i in range(N):
+        Z[i * q:i * q + n, :n] = np.eye(n)
+        Z[i * q:i * q + n, n + i * q:n + i * q + n] = -np.eye(n)
+        Z[i * q + n:(i + 1) * q, n + i * q + n:n + (i + 1) * q] = np.eye(p)
+    return Z
+
+
+def simulated_error_covariance(sc: CoestimationScenario, P: np.ndarray, noise: sim.NoiseModel, h: float,
+                               idx: np.ndarray) -> np.ndarray:
+    """The exact covariance of the simulated fixed-role error at the record indices `idx` (an arithmetic
+    sequence from its step): the recursion u⁺ = Φu + κ, κ ~ N(0, Q) of `sim.linear_gaussian_step`,
+    composed over the record step and over the stride between checks (positive semidefinite sums only)."""
+    net = coestimation(sc, P)
+    Phi, Q = sim.linear_gaussian_step(net, sim.prepare(net, h, noise), np.asarray(sc.fixed_active, float))
+
+    def compose(Phi, Q, k):
+        Pk, Qk = np.eye(len(Phi)), np.zeros_like(Q)
+        for _ in range(k):
+            Qk = Phi @ Qk @ Phi.T + Q
+            Pk = Phi @ Pk
+        return Pk, (Qk + Qk.T) / 2
+    with np.errstate(over="ignore", invalid="ignore"):
+        Phi, Q = compose(Phi, Q, int(round(sc.record_dt / h)))
+        Phi, Q = compose(Phi, Q, int(idx[0]))
+        Z = error_map(sc)
+        out, Sig = [], np.zeros_like(Q)
+        for _ in idx:
+            Sig = Phi @ Sig @ Phi.T + Q
+            out.append(Z @ Sig @ Z.T)
+    return np.array(out)
+
+
 def exact_fixed_moments(sc: CoestimationScenario, design, means: dict[str, dict], noise: sim.NoiseModel,
                         idx: np.ndarray) -> dict[str, np.ndarray]:
     """The exact law of the fixed-role error: z(t) ~ N(m(t), Σ(t)), Σ̇ = SΣ + ΣSᵀ + GGᵀ, Σ(0) = 0 ((45), (60)).
@@ -479,7 +517,8 @@ def exact_fixed_moments(sc: CoestimationScenario, design, means: dict[str, dict]
     the simulation's own step (`means['h']`; the SDE step is the same recursion plus zero-mean
     kicks, so this is its exact mean). At the check times `idx`: the principal directions u_j = P^{1/2}v_j
     of P^{1/2}ΣP^{1/2} (v_j its eigenvectors, λ_j = var(u_jᵀz) its largest eigenvalues, Σ_j λ_j = tr(PΣ)),
-    and the means u_jᵀm for the run at h and at h/2."""
+    and the means u_jᵀm for the run at h and at h/2; the variances var(u_jᵀz) of the simulated recursion at h
+    and h/2 (the law the Monte Carlo has exactly, `simulated_error_covariance`)."""
     P, S = design["P"], design["S_fixed"]
     n = sc.n
     Gm = noise_input_matrix(sc, noise, np.asarray(sc.fixed_active))
@@ -493,18 +532,29 @@ def exact_fixed_moments(sc: CoestimationScenario, design, means: dict[str, dict]
     root = ce.block_diag([(U * np.sqrt(np.maximum(w, 0))) @ U.T for w, U in (np.linalg.eigh(Pi) for Pi in P)])
     dirs, lam = [], []
     for S_k in Sig:
+        if not np.all(np.isfinite(S_k)):   # an unstable S overflows: no law to compare with
+            dirs.append(np.full((N_DIRECTIONS, len(S_k)), np.nan))
+            lam.append(np.full(N_DIRECTIONS, np.nan))
+            continue
         w, V = np.linalg.eigh(root @ S_k @ root)
         order = np.argsort(w)[::-1][:N_DIRECTIONS]
-        lam.append(np.maximum(w[order], 0.0))
-        dirs.append((root @ V[:, order]).T)
+        # directions below the numerical rank of Σ (λ_j ≤ 1e-8 λ_1: eigh's relative error there is eps·λ_1/λ_j)
+        # carry round-off, not noise: not tested
+        lost = w[order] <= 1e-8 * max(w[order[0]], 0.0)
+        lam.append(np.where(lost, 0.0, w[order]))
+        dirs.append(np.where(lost[:, None], np.nan, (root @ V[:, order]).T))
     dirs, lam = np.array(dirs), np.array(lam)
     mean_proj = {k: np.einsum("ckd,cd->ck", dirs, z[idx]) for k, z in zf.items() if len(z) > idx.max()}
+    sim_var = {}
+    for k, h in (("h", sc.sde_step), ("half", sc.sde_step / 2)):
+        Sz = simulated_error_covariance(sc, P, noise, h, idx)
+        sim_var[k] = np.einsum("ckd,cde,cke->ck", dirs, Sz, dirs)
     r_fixed = max(np.linalg.norm(Gm[:, 1 + i]) for i in range(sc.N))
     r_any = max(np.linalg.norm(noise_input_matrix(sc, noise, np.ones(sc.N))[:, 1 + i]) for i in range(sc.N))
     return {"EV": EV, "t": t, "v_star": np.array(np.linalg.norm(noise.process)), "r_star": np.array(r_fixed),
             "r_star_roles": np.array(r_any), "h_star": np.array(np.linalg.norm(noise.measurement[:, :, 0], axis=1).max()),
             "tr_PSigma": trace, "probe_index": idx, "probe_dirs": dirs, "probe_var": lam,
-            **{f"mean_proj_{k}": v for k, v in mean_proj.items()}}
+            **{f"mean_proj_{k}": v for k, v in mean_proj.items()}, **{f"sim_var_{k}": v for k, v in sim_var.items()}}
 
 
 def _sde_job(cache, key, sc, P, trials, seed, t_ends, probes, job):
@@ -550,8 +600,8 @@ def compute(sc: CoestimationScenario, opts: RunOptions, cache: StageCache, *, pa
              "half": res.runs["fixed_half" if sc.sde_step == sc.step else "fixed_sde_half"]}
     res.runs["exact_fixed"] = cache.get_or_compute(
         "exact-fixed", {**base, "seed": opts.seed, "t_sde": t_sde}, lambda: exact_fixed_moments(sc, design, means, noise, idx),
-        scenario=sc.name, allow_nonfinite=RUN_MAY_BE_NAN + tuple(f"mean_proj_{k}" for k in means) + ("probe_dirs",
-                                                                                                    "probe_var", "tr_PSigma"))
+        scenario=sc.name, allow_nonfinite=RUN_MAY_BE_NAN + tuple(f"mean_proj_{k}" for k in means) + tuple(f"sim_var_{k}" for k in means)
+        + ("probe_dirs", "probe_var", "tr_PSigma"))
     ex = res.runs["exact_fixed"]
     probes = {"sde_fixed": {int(k): d for k, d in zip(ex["probe_index"], ex["probe_dirs"])},
               "sde_fixed_half": {int(k): d for k, d in zip(ex["probe_index"], ex["probe_dirs"])

@@ -29,6 +29,7 @@ H_OBSV = "tran.hyp.collective_observability"
 H_INTEG = "tran.hyp.integration"
 H_NOISE = "tran.hyp.noise_bounded"
 H_SFIX = "tran.hyp.S_fixed_hurwitz"
+H_SDE = "tran.hyp.sde_step"
 
 
 def _decide(margin: np.ndarray, tol: np.ndarray) -> bool | None:
@@ -144,6 +145,28 @@ def s_fixed_hurwitz(res) -> Holds:
                         f"condition {float(d['S_fixed_cond']):.3g})")
 
 
+def sde_deviation(res) -> tuple[float, float]:
+    """Largest relative difference of var(u_jᵀz) between the simulated recursion (at h, at h/2) and (60), over
+    the principal directions and check times of the fixed-role law; (0, 0) without noise."""
+    ex = res.runs["exact_fixed"]
+    lam = ex["probe_var"]
+    ok = lam > 0
+    if not np.any(ok):
+        return 0.0, 0.0
+    return tuple(float(np.max(np.abs(ex[f"sim_var_{k}"][ok] / lam[ok] - 1.0))) for k in ("h", "half"))
+
+
+def sde_step(res) -> Holds:
+    """The stochastic step is in the scheme's convergent regime: halving it at least halves the difference
+    between the simulated recursion's law and (60) (or both are at round-off level, below 1e-6)."""
+    dh, dhalf = sde_deviation(res)
+    ok = bool(np.isfinite(dh) and np.isfinite(dhalf) and (dh <= 1e-6 or dhalf <= 0.5 * dh))
+    return Holds(ok, value=[dh, dhalf], threshold=0.5,
+                 detail=f"largest relative difference of var(u_jᵀz) between the simulated recursion and (60) along the "
+                        f"principal directions: {dh:.3g} at h = {res.scenario.sde_step:g}, {dhalf:.3g} at h/2 (halving h "
+                        "must at least halve it: the scheme converges to (60) and the step is in that regime)")
+
+
 def integration_error(res, run: str) -> tuple[float, float, float]:
     """(error estimate of the run at step h, scale of the run, first non-finite time): 2·max|Δ| between the
     run at h and at h/2 on the recorded samples (a first-order Richardson estimate, conservative for the
@@ -196,6 +219,8 @@ def catalogue() -> list[Hypothesis]:
         h(H_FIXED, "fixed roles: Q_i = −(Ā_iᵀP_i + P_iĀ_i) > 0, i.e. (10) with Q_i > 0 (Thm 2.1, Prop 4.1)", fixed_local),
         h(H_QSTAR, "q* > 0 (the vertex dissipation of the tighter variant of (18))", qstar_positive),
         h(H_SFIX, "S at the fixed roles is Hurwitz (the fixed-role error system is stable)", s_fixed_hurwitz),
+        h(H_SDE, "the stochastic step is in its convergent regime (the simulated law approaches (60) as h halves)",
+          sde_step),
         h(H_NOISE, "bounded noise intensities ‖v‖ ≤ v*, ‖h_i‖ ≤ h* (Prop 4.1)", noise_bounded),
         h(H_INTEG, "the deterministic runs are accurate (step halving)", integration),
     ]

@@ -262,7 +262,7 @@ def _rgb(c) -> tuple[int, int, int]:
 def lmi_markdown(res: Results) -> str:
     d, sc = res.design, res.scenario
     lines = ["# LMI results", "", "## (28)-(29): coestimation, per node type", "",
-             "| type | ε | Clarabel status | normalised margin t* | verified max eig at P* | printed P: max eig g=0 | g=1 |",
+             "| type | ε | Clarabel status | normalised margin t* | verified max eig at P* | given P: max eig g=0 | g=1 |",
              "|---|---|---|---|---|---|---|"]
     for t, ty in enumerate(sc.types):
         pg = d["given_sweep"][t] if "given_sweep" in d else None
