@@ -25,7 +25,7 @@ import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from .errors import CacheMiss, NumericalError, OutputError, ScenarioError  # noqa: E402
-from .reproduction import RunOptions, reverify, run  # noqa: E402
+from .reproduction import REVERIFY_RTOL, RunOptions, reverify, run  # noqa: E402
 from .outlock import output_lock  # noqa: E402
 from .report import counts_line, verdict_counts, write_summary  # noqa: E402
 
@@ -138,23 +138,59 @@ def cmd_run(args) -> int:
 
 
 def cmd_verify(args) -> int:
-    reg = _registry()
     target = Path(args.out_dir)
-    dirs = [target] if (target / "run.json").exists() else sorted(p.parent for p in target.glob("*/run.json"))
-    dirs += [] if (target / "run.json").exists() else sorted(p.parent for p in target.glob("run/*/run.json"))
-    if not dirs:
-        raise OutputError(f"{target} holds no run.json: nothing to verify (run `dse reproduce` first)")
+    if not target.is_dir():
+        raise OutputError(f"{target} is not a directory: give the output of `dse reproduce`, `dse run` or `dse sweep` "
+                          "(e.g. out, out/savas, out/run/NAME or out/sweep/NAME)")
+    runs = [target] if (target / "run.json").exists() else sorted(
+        {p.parent for pattern in ("*/run.json", "run/*/run.json") for p in target.glob(pattern)})
+    sweeps = [target] if (target / "sweep.json").exists() else sorted(p.parent for p in target.glob("sweep/*/sweep.json"))
+    if not runs and not sweeps:
+        raise OutputError(f"{target} holds no run.json and no sweep.json: nothing to verify (give the directory a "
+                          "`dse reproduce`, `dse run` or `dse sweep` wrote)")
     status = 0
-    for d in dirs:
-        meta = json.loads((d / "run.json").read_text())
-        repro = reg.family_from_dict(meta["scenario"]) if meta.get("scenario") else reg.paper(meta["paper"])
-        rows, diffs = reverify(repro, (d / meta["out_root"]).resolve(), d)
-        counts = verdict_counts(rows)
-        print(f"{d}: re-checked {len(rows)} claims from the cache: {counts_line(counts)}")
+    for d in runs:
+        status |= _verify_run(args, d)
+    for d in sweeps:
+        from .sweep import verify_sweep
+
+        diffs, n_points = verify_sweep(d)
+        print(f"{d}: re-assembled {n_points} sweep points from their stored results: "
+              f"{'identical' if not diffs else f'{len(diffs)} differences'}")
         for line in diffs:
             print(f"  differs: {line}")
-        status |= bool(diffs) or _strict_status(args, [counts])
+        status |= bool(diffs)
     return status
+
+
+def _verify_run(args, d: Path) -> int:
+    reg = _registry()
+    try:
+        meta = json.loads((d / "run.json").read_text())
+        options, out_root = meta["options"], meta["out_root"]
+        json.loads((d / "report.json").read_text())["claims"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise OutputError(f"{d}: run.json or report.json is damaged ({type(exc).__name__}: {exc}); run the scenario "
+                          "again to rewrite them") from None
+    if out_root is None:
+        raise OutputError(f"{d} was written without a stage cache (Python API without cache_dir): there is nothing "
+                          "to re-check from; run it with `dse run` or with a cache_dir")
+    repro = reg.family_from_dict(meta["scenario"]) if meta.get("scenario") else reg.paper(meta["paper"])
+    root = (d / out_root).resolve()
+    try:
+        rows, diffs = reverify(repro, root, d)
+    except CacheMiss:
+        again = (f"dse reproduce {meta['paper']} --out {root}" if not meta.get("scenario") else
+                 f"dse run <the scenario file> --out {root}")
+        seeds = f" --seed {options.get('seed', 0)}" + (" --quick" if options.get("quick") else "")
+        raise CacheMiss(f"{d}: the stage cache under {root / '.cache'} has no results for this run with the current "
+                        f"code (it changed since, or the cache was deleted); run `{again}{seeds}` again, then verify") from None
+    counts = verdict_counts(rows)
+    print(f"{d}: re-checked {len(rows)} claims from the cache (numbers within a relative {REVERIFY_RTOL:g}): "
+          f"{counts_line(counts)}")
+    for line in diffs:
+        print(f"  differs: {line}")
+    return int(bool(diffs)) | _strict_status(args, [counts])
 
 
 def cmd_sweep(args) -> int:

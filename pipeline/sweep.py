@@ -363,7 +363,8 @@ def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", worke
     staging = _staging_dir(out_dir)
     try:
         wall = write_sweep_outputs(spec, staging, done, results, failures, log)
-        meta = {"name": spec.name, "family": spec.family, "sweep": spec.source, "scheduler": mode, "workers": workers,
+        meta = {"name": spec.name, "family": spec.family, "sweep": spec.source, "base_scenario": spec.base,
+                "scheduler": mode, "workers": workers,
                 "points": [_point_meta(t, results.get(t.key), failures.get(t.key)) for t in tasks],
                 "failures": failures, "wall_s": time.perf_counter() - start}
         atomic_write_text(staging / "sweep.json", json.dumps(meta, indent=1, default=str))
@@ -396,3 +397,47 @@ def write_sweep_outputs(spec: SweepSpec, out_dir: Path, done: list[Task], result
         so.write_recording(spec, frame, plan, summary_md, out_dir / "sweep.rrd")
     atomic_write_text(out_dir / "summary.md", summary_md + "\n")
     return {"numerical_errors": int((frame["status"] != "ok").sum()) if len(frame) else 0}
+
+
+def verify_sweep(out_dir: Path) -> tuple[list[str], int]:
+    """Re-assemble a sweep's results and claims tables from its stored points (checksums
+    verified) and list every difference from the written tables (numbers within the
+    relative tolerance of `dse verify`). Returns (differences, points found)."""
+    import pandas as pd
+
+    from . import sweep_outputs as so
+    from .errors import OutputError
+    from .reproduction import same_number
+
+    try:
+        meta = json.loads((out_dir / "sweep.json").read_text())
+        from .sweep_spec import parse_sweep
+
+        source = {k: v for k, v in meta["sweep"].items() if k != "base"} | {"scenario": meta["base_scenario"]}
+        spec = parse_sweep(source, base_dir=out_dir)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise OutputError(f"{out_dir}: sweep.json is damaged ({type(exc).__name__}: {exc}); run the sweep again") from None
+    store = PointStore(points_dir(out_dir.parent.parent, meta["name"]))
+    tasks = {t.key: t for t in build_tasks(spec)}
+    diffs, done, results = [], [], {}
+    for p in meta["points"]:
+        if "failed" in p:
+            continue
+        res = store.load(p["key"])
+        if res is None:
+            diffs.append(f"point {p['point']}: its stored result is missing or damaged")
+            continue
+        done.append(tasks[p["key"]] if p["key"] in tasks else None)
+        results[p["key"]] = res
+    if any(t is None for t in done):
+        return diffs + ["the sweep's points no longer match its file or the code (point keys changed): run it again"], 0
+    frame = so.results_frame(spec, [t.point for t in done], [results[t.key] for t in done])
+    written = pd.read_parquet(out_dir / "results.parquet")
+    if list(frame.columns) != list(written.columns) or len(frame) != len(written):
+        diffs.append("results.parquet: columns or rows differ from the stored points")
+    else:
+        for col in frame.columns:
+            for i, (a, b) in enumerate(zip(written[col].tolist(), frame[col].tolist())):
+                if not (same_number(a, b) or (a != a and b != b)):
+                    diffs.append(f"results.parquet row {i} column {col}: {a!r} written, {b!r} from the stored point")
+    return diffs, len(done)
