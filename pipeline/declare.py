@@ -15,15 +15,22 @@ import typing
 from typing import Annotated, Any, Literal, Mapping, get_args, get_origin
 
 from annotated_types import Ge, Gt, Le, Lt, MaxLen, MinLen
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 from pydantic.fields import FieldInfo
-from pydantic_core import PydanticUndefined
+from pydantic_core import PydanticCustomError, PydanticUndefined
 
 from .errors import ScenarioError
 from .scenario import MAX_MAGNITUDE
 
-#: A finite real number of magnitude at most MAX_MAGNITUDE (TOML integer or float).
-Real = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_MAGNITUDE, le=MAX_MAGNITUDE)]
+def _within_magnitude(x: float) -> float:
+    if abs(x) > MAX_MAGNITUDE:
+        raise PydanticCustomError("magnitude", "magnitude must be at most {limit}", {"limit": MAX_MAGNITUDE})
+    return x
+
+
+#: A finite real number of magnitude at most MAX_MAGNITUDE (TOML integer or float). The magnitude is
+#: checked by a validator, not by ge/le bounds, which would override the bounds a key declares.
+Real = Annotated[float, Field(allow_inf_nan=False), AfterValidator(_within_magnitude)]
 #: A matrix as a list of rows; shape and symmetry rules are checked by the section.
 Matrix = list[list[Real]]
 
@@ -86,6 +93,7 @@ def _scenario_error(err: dict, prefix: str, model: type[Section]) -> ScenarioErr
         "less_than_equal": (f"magnitude must be at most {MAX_MAGNITUDE:g}, got {got}" if ctx.get("le") == MAX_MAGNITUDE
                             else f"must be <= {_num(ctx.get('le'))}, got {got}"),
         "finite_number": f"must be finite, got {got}",
+        "magnitude": f"magnitude must be at most {MAX_MAGNITUDE:g}, got {got}",
         "float_type": f"must be a number, got {_type(value)}",
         "int_type": f"must be an integer, got {_type(value)}",
         "int_from_float": f"must be an integer, got {_type(value)}",
