@@ -60,7 +60,10 @@ def parse(model: type[Section], data: Any, prefix: str = "") -> Section:
     try:
         return model.model_validate(dict(data))
     except ValidationError as exc:
-        raise _scenario_error(exc.errors()[0], prefix, model) from None
+        errors = exc.errors()
+        # an unknown key is named first: it is usually a typo that also explains a missing one
+        first = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])
+        raise _scenario_error(first, prefix, model) from None
 
 
 def _path(prefix: str, loc: tuple) -> str:
