@@ -35,14 +35,6 @@ def observability_matrix(A: np.ndarray, C: np.ndarray) -> np.ndarray:
     return np.vstack(rows)
 
 
-def row_space_basis(O: np.ndarray, rank_tol: float) -> tuple[np.ndarray, np.ndarray]:
-    """Orthonormal rows spanning the row space of O (SVD, relative rank tolerance); also the
-    singular values, so that a caller can report how clear the rank decision was."""
-    _, sv, Vt = np.linalg.svd(O)
-    rank = int(np.sum(sv > rank_tol * max(sv[0], 1e-300))) if sv.size else 0
-    return Vt[:rank], sv
-
-
 @dataclass(frozen=True)
 class ObservableBasis:
     """Orthonormal rows spanning the observable row space of (C, A) (= the row space of the

@@ -17,7 +17,8 @@ import scipy.linalg as sla
 
 from pipeline import record
 from pipeline.errors import ScenarioError
-from pipeline.reproduction import RunOptions, reverify, run
+from pipeline.cache import StageCache
+from pipeline.reproduction import RunOptions, evaluate_claims, reverify, run
 from reproductions.wang_liu_morse.reproduction import from_dict, paper
 
 RERUN = Path(sys.executable).parent / "rerun"
@@ -224,9 +225,7 @@ def test_q_below_the_bound_makes_the_theorems_not_checkable(tmp_path):
         r["intervals"] = min(r["intervals"], 10)
     data["runs"].append({"name": "enough", "q": q22, "intervals": 10})
     repro = from_dict(data)
-    results = repro.compute(RunOptions(seed=1, quick=True), __import__("pipeline.cache", fromlist=["StageCache"]).StageCache(tmp_path))
-    from pipeline.reproduction import evaluate_claims
-    ev = evaluate_claims(repro, results)
+    ev = evaluate_claims(repro, repro.compute(RunOptions(seed=1, quick=True), StageCache(tmp_path)))
     v = {r["id"]: r for r in ev.claims}
     hyps = {h["id"]: h for h in ev.hypotheses}
     assert hyps["wang-liu-morse.hyp.q_eq22"]["holds"] is False

@@ -17,7 +17,6 @@ event-time offsets with a leaving agent, and an input.
 """
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np

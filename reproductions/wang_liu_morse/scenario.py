@@ -240,7 +240,6 @@ class HybridScenario:
 
         # -- q ----------------------------------------------------------------------------------
         q_raw = des["q"]
-        sigma_q = None
         if isinstance(q_raw, str):
             q_label = as_str(q_raw, "design.q", ("theory", "symmetric"))
             if q_label == "theory":
@@ -261,14 +260,12 @@ class HybridScenario:
                 if sig is None:
                     raise ScenarioError("design.q", "'symmetric' needs m <= 6 (σ of (26) by enumeration)")
                 q_design = symmetric_q(sig, nA, lam, T, "design.q")
-                sigma_q = sig
             if q_design > MAX_Q:
                 raise ScenarioError("design.q", f"the {q_label} q is {q_design} (> {MAX_Q}): too many iterations to "
                                                 "simulate; give an integer q (the hypotheses report the required q)")
         else:
             q_design = as_int(q_raw, "design.q", low=1, high=MAX_Q)
             q_label = "given"
-        del sigma_q
 
         # -- initial conditions ---------------------------------------------------------------------
         ini = section(data["initial"], "initial")
