@@ -22,7 +22,7 @@ sweeps: $(STAMP)
 	for f in reproductions/sweeps/*.toml; do $(BIN)/dse sweep $$f --out out || exit 1; done
 
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest
 
 # Opens every recording of a quick reproduction and of one example sweep in Rerun's own viewer (headless, software
 # Vulkan from Debian's mesa-vulkan-drivers) and checks the views render without errors.

@@ -418,8 +418,8 @@ def verify_sweep(out_dir: Path) -> tuple[list[str], int]:
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise OutputError(f"{out_dir}: sweep.json is damaged ({type(exc).__name__}: {exc}); run the sweep again") from None
     store = PointStore(points_dir(out_dir.parent.parent, meta["name"]))
-    tasks = {t.key: t for t in build_tasks(spec)}
-    diffs, done, results = [], [], {}
+    points = spec.points()
+    diffs, done, results = [], [], []
     for p in meta["points"]:
         if "failed" in p:
             continue
@@ -427,11 +427,9 @@ def verify_sweep(out_dir: Path) -> tuple[list[str], int]:
         if res is None:
             diffs.append(f"point {p['point']}: its stored result is missing or damaged")
             continue
-        done.append(tasks[p["key"]] if p["key"] in tasks else None)
-        results[p["key"]] = res
-    if any(t is None for t in done):
-        return diffs + ["the sweep's points no longer match its file or the code (point keys changed): run it again"], 0
-    frame = so.results_frame(spec, [t.point for t in done], [results[t.key] for t in done])
+        done.append(points[p["point"]])
+        results.append(res)
+    frame = so.results_frame(spec, done, results)
     written = pd.read_parquet(out_dir / "results.parquet")
     if list(frame.columns) != list(written.columns) or len(frame) != len(written):
         diffs.append("results.parquet: columns or rows differ from the stored points")
