@@ -31,3 +31,29 @@ def save_figure(fig, path: str | os.PathLike) -> None:
 def sequential_colors(n: int, cmap: str = "viridis"):
     cm = plt.get_cmap(cmap)
     return [cm(x) for x in ([0.0] if n == 1 else [0.9 * i / (n - 1) for i in range(n)])]
+
+
+_JOBS: list = []
+
+
+def _draw(index: int) -> None:
+    _JOBS[index]()
+
+
+def draw_all(jobs, workers: int = 1) -> None:
+    """Run figure-drawing callables (each draws and saves one or more figures), in `workers`
+    forked processes when there are several: the callables need not be picklable (workers
+    inherit them through fork and receive only their index)."""
+    global _JOBS
+    jobs = list(jobs)
+    if workers <= 1 or len(jobs) <= 1:
+        for job in jobs:
+            job()
+        return
+    from .simulate import parallel_map
+
+    _JOBS = jobs
+    try:
+        parallel_map(_draw, range(len(jobs)), workers=min(workers, len(jobs)), desc="figures")
+    finally:
+        _JOBS = []
