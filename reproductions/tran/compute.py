@@ -137,7 +137,7 @@ def _solve_vertex_lmis(sc: CoestimationScenario) -> dict[str, np.ndarray]:
     re-verification, the maximiser) and an eigenvalue certificate of infeasibility: the largest
     real part of Ā_i(g) over g ∈ [0, 1] (an unstable Ā_i(g) admits no P)."""
     T, q = len(sc.types), sc.n + sc.p
-    status, margin, verified = [], [], []
+    status, margin, verified, mstatus = [], [], [], []
     P_lmi = np.full((T, q, q), np.nan)
     hurwitz = np.zeros((T, len(G_SWEEP)))
     for t, ty in enumerate(sc.types):
@@ -145,12 +145,14 @@ def _solve_vertex_lmis(sc: CoestimationScenario) -> dict[str, np.ndarray]:
         status.append(r.status)
         margin.append(r.margin)
         verified.append(r.verified)
+        mstatus.append(r.margin_status)
         if r.P is not None:
             P_lmi[t] = r.P
         hurwitz[t] = [np.linalg.eigvals(ce.error_matrix(sc.A, sc.B, ty.C, ty.L, ty.J, ty.sigma, ty.K, g)).real.max()
                       for g in G_SWEEP]
     return {"lmi_status": np.array(status), "lmi_margin": np.array(margin, float),
-            "lmi_verified": np.array(verified, float), "P_lmi": P_lmi, "lmi_hurwitz_sweep": hurwitz}
+            "lmi_verified": np.array(verified, float), "lmi_margin_status": np.array(mstatus), "P_lmi": P_lmi,
+            "lmi_hurwitz_sweep": hurwitz}
 
 
 def _design_P(sc: CoestimationScenario, P_lmi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
