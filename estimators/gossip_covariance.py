@@ -19,9 +19,11 @@ import numpy as np
 import scipy.linalg as sla
 
 from .gossip_filter import GossipSystem
-from .linear_flows import affine_flow_grid, affine_steady_state, critical_parameter, spectral_abscissa
+from .linear_flows import (abscissa_tolerance, affine_flow_grid, affine_steady_state, critical_parameter,
+                           spectral_abscissa)
 
 MAX_JOINT_DIM = 40     # N·n above which the dense (Nn)²×(Nn)² generator of Σ̄ is not formed
+MAX_SECOND_DIM = 40    # N·n(n+1)/2 above which the second moments of the P-process are not formed
 
 
 def vec(X: np.ndarray) -> np.ndarray:
@@ -71,9 +73,138 @@ def bound_abscissa(sys: GossipSystem, rate: float) -> float:
     return spectral_abscissa(bound_generator(sys, rate)[0])
 
 
+def bound_abscissa_tolerance(sys: GossipSystem, rate: float) -> float:
+    """Rounding level of `bound_abscissa` (see `linear_flows.abscissa_tolerance`)."""
+    return abscissa_tolerance(bound_generator(sys, rate)[0])
+
+
 def critical_rate_bound(sys: GossipSystem) -> float:
-    """λ_crit of (9): inf{λ : M_9(λ) Hurwitz} (0 if every A_i is Hurwitz, inf if never)."""
-    return critical_parameter(lambda lam: bound_abscissa(sys, lam))
+    """λ_crit of (9): inf{λ : M_9(λ) Hurwitz} (0 if every A_i is Hurwitz, or if M_9(0) is only
+    marginally stable and every small λ > 0 is stable; inf if never)."""
+    return critical_parameter(lambda lam: bound_abscissa(sys, lam), tol=lambda lam: bound_abscissa_tolerance(sys, lam))
+
+
+def bound_steady_deviation(sys: GossipSystem, rate: float, S: np.ndarray) -> np.ndarray | None:
+    """𝒫_i^∞(λ) − S (N, n, n) for any S, solved for directly (None when M_9(λ) is not Hurwitz).
+
+    The constant stack 1⊗S is annihilated exactly by the jump terms (J_c1 = 1), so the
+    deviation D solves M_9(λ) vec D = −r with the λ-free residual r_i = A_iS + SA_iᵀ + G_i: no
+    term of size λ‖S‖ is formed and cancelled, and D = O(1/λ) keeps its relative accuracy at
+    large λ (forming 𝒫^∞ and subtracting S loses ~log10(λ) digits)."""
+    M, _ = bound_generator(sys, rate)
+    if spectral_abscissa(M) >= -abscissa_tolerance(M):
+        return None
+    r = np.concatenate([vec(A @ S + S @ A.T + G) for A, G in zip(sys.Ai, sys.Gi)])
+    return unvec(np.linalg.solve(M, -r).reshape(sys.N, -1), sys.n)
+
+
+def first_order_deviation(sys: GossipSystem) -> np.ndarray:
+    """C (N, n, n) with 𝒫_i^∞(λ) = S + C_i/λ + O(λ⁻²) as λ → ∞ (singular perturbation of (9)).
+
+    With W = −Σ_c (J_c − I) (= α𝓛 in both clock modes) the deviation δ = Σ_k δ_k λ^(−k) of
+    p = 1⊗vec S + δ solves (𝔄 − λW⊗I)δ = −r: at order λ⁰, (W⊗I)δ_1 = r, so
+    δ_1 = (W⁺⊗I)r + 1⊗z (r sums to 0 over the nodes because S solves (11)); at order λ⁻¹ the
+    consensus part of 𝔄δ_1 must vanish, which fixes z: ĀZ + ZĀᵀ = −(1/N)Σ_i(A_iY_i + Y_iA_iᵀ),
+    Y_i = Σ_j (W⁺)_ij R_j. C_i = Y_i + Z."""
+    S = lyapunov_S(sys)
+    R = np.array([A @ S + S @ A.T + G for A, G in zip(sys.Ai, sys.Gi)])
+    W = -sum(sys.jump(c) - np.eye(sys.N) for c in range(len(sys.clocks)))
+    Y = np.einsum("ij,jab->iab", np.linalg.pinv(W), R)
+    F = np.mean([A @ Yi + Yi @ A.T for A, Yi in zip(sys.Ai, Y)], axis=0)
+    Z = sla.solve_continuous_lyapunov(sys.Abar, -F)
+    C = Y + Z
+    return (C + np.swapaxes(C, 1, 2)) / 2
+
+
+# -- second moments of the P-process over clock paths -------------------------------------------------
+
+def vech_pairs(n: int) -> list[tuple[int, int]]:
+    return [(a, b) for a in range(n) for b in range(a, n)]
+
+
+def vech_weights(U: np.ndarray) -> np.ndarray:
+    """w (k, n(n+1)/2) with uᵀPu = w·x for the directions U (k, n) and the coordinates x of a
+    symmetric P: x_ab = P_ab (a ≤ b), so uᵀPu = Σ_a u_a²x_aa + 2Σ_{a<b} u_au_bx_ab."""
+    pairs = vech_pairs(U.shape[1])
+    return np.stack([U[:, a] * U[:, b] * (1.0 if a == b else 2.0) for a, b in pairs], axis=1)
+
+
+def _vech_maps(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(Dup (n², q), Elim (q, n²)): vec P = Dup x and x = Elim vec P (column-major vec)."""
+    pairs = vech_pairs(n)
+    Dup, Elim = np.zeros((n * n, len(pairs))), np.zeros((len(pairs), n * n))
+    for k, (a, b) in enumerate(pairs):
+        Dup[a + n * b, k] = Dup[b + n * a, k] = 1.0
+        Elim[k, a + n * b] = 1.0
+    return Dup, Elim
+
+
+def sym_reduce(M: np.ndarray, D: int) -> np.ndarray:
+    """Elim·M·Dup: an operator on vec of D×D matrices that maps symmetric matrices to symmetric
+    ones, written on their symmetric coordinates (`vech_pairs` order): D(D+1)/2 instead of D²
+    unknowns, with the same spectrum on that subspace."""
+    pairs = np.array(vech_pairs(D))
+    a, b = pairs[:, 0], pairs[:, 1]
+    at, bt = a + D * b, b + D * a
+    Mr = M[at]
+    return Mr[:, at] + np.where(a != b, 1.0, 0.0) * Mr[:, bt]
+
+
+def sym_coords(X: np.ndarray) -> np.ndarray:
+    """The symmetric coordinates x_ab = X_ab (a ≤ b) of (…, D, D)."""
+    pairs = np.array(vech_pairs(X.shape[-1]))
+    return X[..., pairs[:, 0], pairs[:, 1]]
+
+
+def from_sym_coords(x: np.ndarray, D: int) -> np.ndarray:
+    pairs = np.array(vech_pairs(D))
+    X = np.zeros(x.shape[:-1] + (D, D))
+    X[..., pairs[:, 0], pairs[:, 1]] = x
+    X[..., pairs[:, 1], pairs[:, 0]] = x
+    return X
+
+
+def bound_second_moments(sys: GossipSystem, rate: float, step: float, n_steps: int,
+                         weights: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Exact mean and second moment over the clock paths of linear functionals c·p of the
+    P-process (14), p = [x_1; …; x_N] the stacked symmetric coordinates of P_1..P_N.
+
+    `weights` (K, N·q): the functionals (e.g. `vech_weights` of a direction, placed in node i's
+    block). Returns (E[c·p], E[(c·p)²]) at the times k·step, arrays (n_steps + 1, K), or None
+    when D = N·q exceeds MAX_SECOND_DIM.
+
+    Between rings p flows by ṗ = 𝔐p + g (𝔐 = blkdiag of the Lyapunov operators of the A_i on
+    symmetric coordinates), and a ring of clock c maps p to 𝒦_cp with 𝒦_c = J_c ⊗ I_q. Hence
+    (Dynkin's formula for this piecewise-deterministic Markov process) m = E[p] solves
+    ṁ = (𝔐 + λΣ_c(𝒦_c − I))m + g (eq. 9) and W = E[ppᵀ] solves the closed linear equation
+    Ẇ = 𝔐W + W𝔐ᵀ + gmᵀ + mgᵀ + λΣ_c(𝒦_cW𝒦_cᵀ − W), integrated exactly together with m on
+    the symmetric coordinates of W (one matrix exponential of size D(D+1)/2 + D)."""
+    n, N = sys.n, sys.N
+    q = n * (n + 1) // 2
+    D = N * q
+    if D > MAX_SECOND_DIM:
+        return None
+    Dup, Elim = _vech_maps(n)
+    Mf = sla.block_diag(*[Elim @ lyapunov_generator(A) @ Dup for A in sys.Ai])
+    g = np.concatenate([Elim @ vec(G) for G in sys.Gi])
+    K = [np.kron(sys.jump(c), np.eye(q)) for c in range(len(sys.clocks))]
+    I = np.eye(D)
+    M1 = Mf + rate * sum(Kc - I for Kc in K)
+    Op = np.kron(I, Mf) + np.kron(Mf, I) + rate * sum(np.kron(Kc, Kc) for Kc in K) - rate * len(K) * np.eye(D * D)
+    Cm = np.kron(I, g[:, None]) + np.kron(g[:, None], I)                   # vec(gmᵀ + mgᵀ)
+    D2, E2 = _vech_maps(D)                                                  # symmetric coordinates of W
+    big = np.zeros((E2.shape[0] + D, E2.shape[0] + D))
+    big[:E2.shape[0], :E2.shape[0]] = E2 @ Op @ D2
+    big[:E2.shape[0], E2.shape[0]:] = E2 @ Cm
+    big[E2.shape[0]:, E2.shape[0]:] = M1
+    const = np.concatenate([np.zeros(E2.shape[0]), g])
+    p0 = np.concatenate([Elim @ vec(sys.P0) for _ in range(N)])
+    y0 = np.concatenate([E2 @ vec(np.outer(p0, p0)), p0])
+    y = affine_flow_grid(big, const, y0, step, n_steps)
+    Wt = unvec(y[:, :E2.shape[0]] @ D2.T, D)                               # (T, D, D)
+    mean = y[:, E2.shape[0]:] @ weights.T
+    second = np.einsum("kd,tde,ke->tk", weights, Wt, weights)
+    return mean, second
 
 
 # -- exact mean joint covariance ----------------------------------------------------------------
@@ -94,31 +225,61 @@ def joint_generator(sys: GossipSystem, rate: float) -> tuple[np.ndarray, np.ndar
     return M, vec(G)
 
 
+def joint_generator_sym(sys: GossipSystem, rate: float) -> tuple[np.ndarray, np.ndarray]:
+    """`joint_generator` on the symmetric coordinates of Σ̄ (the flow and the jumps keep Σ̄
+    symmetric; the spectral abscissa of the full operator is attained there, on the positive
+    semidefinite cone the flow preserves)."""
+    M, _ = joint_generator(sys, rate)
+    D = sys.N * sys.n
+    return sym_reduce(M, D), sym_coords(sys.joint_noise[sys.n:, sys.n:])
+
+
 def joint_initial(sys: GossipSystem) -> np.ndarray:
     return sys.joint_second_moment0()[sys.n:, sys.n:]
 
 
 def joint_transient(sys: GossipSystem, rate: float, step: float, n_steps: int) -> np.ndarray:
     """Σ̄(k·step): (n_steps + 1, Nn, Nn)."""
-    M, g = joint_generator(sys, rate)
+    M, g = joint_generator_sym(sys, rate)
     D = sys.N * sys.n
-    p = affine_flow_grid(M, g, vec(joint_initial(sys)), step, n_steps)
-    return unvec(p, D)
+    p = affine_flow_grid(M, g, sym_coords(joint_initial(sys)), step, n_steps)
+    return from_sym_coords(p, D)
 
 
 def joint_steady(sys: GossipSystem, rate: float) -> np.ndarray | None:
-    M, g = joint_generator(sys, rate)
+    M, g = joint_generator_sym(sys, rate)
     p = affine_steady_state(M, g)
-    return None if p is None else unvec(p, sys.N * sys.n)
+    return None if p is None else from_sym_coords(p, sys.N * sys.n)
+
+
+def joint_abscissa(sys: GossipSystem, rate: float) -> tuple[float, float]:
+    """(spectral abscissa of M_Σ(λ), its round-off level)."""
+    M, _ = joint_generator_sym(sys, rate)
+    return spectral_abscissa(M), abscissa_tolerance(M)
 
 
 def critical_rate_joint(sys: GossipSystem, upper: float | None = None) -> float:
     """λ_crit of the exact mean covariance; `upper` (e.g. λ_crit of (9), which is never smaller:
     𝒫_i ⪰ E[e_ie_iᵀ]) narrows the bisection."""
-    f = lambda lam: spectral_abscissa(joint_generator(sys, lam)[0])
-    if upper is not None and math.isfinite(upper) and upper > 0 and f(upper * (1 + 1e-9)) < 0:
-        return critical_parameter(f, start=upper * (1 + 1e-9))
-    return critical_parameter(f)
+    f = lambda lam: joint_abscissa(sys, lam)[0]
+    tol = lambda lam: abscissa_tolerance(joint_generator_sym(sys, lam)[0])
+    if upper is not None and math.isfinite(upper) and upper > 0 and f(upper * (1 + 1e-9)) < -tol(upper * (1 + 1e-9)):
+        return critical_parameter(f, tol=tol, start=upper * (1 + 1e-9))
+    return critical_parameter(f, tol=tol)
+
+
+def joint_steady_deviation(sys: GossipSystem, rate: float, S_lim: np.ndarray) -> np.ndarray | None:
+    """Σ̄^∞(λ) − 11ᵀ⊗S_lim (Nn × Nn), solved for directly (None when M_Σ(λ) is not Hurwitz).
+
+    As for `bound_steady_deviation`: 𝒥_c(11ᵀ⊗S)𝒥_cᵀ = 11ᵀ⊗S, so only the λ-free residual
+    𝒜X + X𝒜ᵀ + 𝒢 of X = 11ᵀ⊗S_lim enters the right-hand side."""
+    M, _ = joint_generator_sym(sys, rate)
+    if spectral_abscissa(M) >= -abscissa_tolerance(M):
+        return None
+    X = np.kron(np.ones((sys.N, sys.N)), S_lim)
+    Ablk = sla.block_diag(*sys.Ai)
+    R = Ablk @ X + X @ Ablk.T + sys.joint_noise[sys.n:, sys.n:]
+    return from_sym_coords(np.linalg.solve(M, -sym_coords(R)), sys.N * sys.n)
 
 
 def diagonal_blocks(S: np.ndarray, N: int, n: int) -> np.ndarray:
@@ -269,26 +430,39 @@ def gridded_scheme_covariance(sys: GossipSystem, rate: float, step: float, n_ste
     jumps = []
     for c in range(len(sys.clocks)):
         Jc = np.kron(sys.jump(c), np.eye(n))
-        Ms, Jp = np.zeros((D * D, D * D)), np.eye(D)
+        Ms, Jp = 0.0, np.eye(D)
         for k in range(c_max + 1):
-            Ms += probs[k] * np.kron(Jp, Jp)
+            Ms = Ms + probs[k] * sym_reduce(np.kron(Jp, Jp), D)
             Jp = Jc @ Jp
         jumps.append(Ms)
-    flow = np.kron(Phi, Phi)
-    q = vec(Q)
-    ops = []
+    flow = sym_reduce(np.kron(Phi, Phi), D)
+    q = sym_coords(Q)
+    Q_dim = len(q)
+    # every step as an affine map on the symmetric coordinates of Σ, written as an augmented
+    # matrix [[F, c], [0, 1]]
+    steps = []
     for seq in (jumps, jumps[::-1]):              # odd steps: forward clock order; even: reversed
         op = flow
         for Ms in seq:
             op = Ms @ op
-        ops.append((flow @ op, flow @ _apply_all(seq, q) + q))
+        aug = np.eye(Q_dim + 1)
+        aug[:-1, :-1] = flow @ op
+        aug[:-1, -1] = flow @ _apply_all(seq, q) + q
+        steps.append(aug)
+    odd, even = steps
+    # one output interval of `every` steps, starting on an odd or on an even step (products by squaring)
+    half = every // 2
+    from_odd = np.linalg.matrix_power(even @ odd, half)
+    from_even = np.linalg.matrix_power(odd @ even, half)
+    if every % 2:
+        from_odd, from_even = odd @ from_odd, even @ from_even
     out = [joint_initial(sys)]
-    v = vec(out[0])
-    for s in range(1, n_steps + 1):
-        op, const = ops[0] if s % 2 else ops[1]
-        v = op @ v + const
-        if s % every == 0:
-            out.append(unvec(v, D))
+    v = np.append(sym_coords(out[0]), 1.0)
+    start = 1
+    for _ in range(n_steps // every):
+        v = (from_odd if start % 2 else from_even) @ v
+        start += every
+        out.append(from_sym_coords(v[:-1], D))
     return np.array(out)
 
 

@@ -221,7 +221,9 @@ class EventDrivenRun:
     pbound: (K, T, N, n, n) per-path bound P_i(t; τ) of eq. (14);
     min_gap: (K, N) smallest eigenvalue of P_i − Σ_ii seen along the path at every event and
     output time; scale: (K, N) largest ‖P_i‖_F seen (for relative tolerances);
-    event_times, event_clocks: (K, M) the clock paths (inf / −1 padded).
+    event_times, event_clocks: (K, M) the clock paths (inf / −1 padded);
+    condition: condition number of the eigenvector basis used for the exact flows (1 when the
+    dense Van Loan fallback was used), which scales the rounding of every propagated quantity.
     """
 
     times: np.ndarray
@@ -233,6 +235,7 @@ class EventDrivenRun:
     event_times: np.ndarray
     event_clocks: np.ndarray
     cross: np.ndarray | None = field(default=None)
+    condition: float = 1.0
 
 
 def _controllable_basis(A: np.ndarray, G: np.ndarray, tol: float = 1e-9) -> np.ndarray:
@@ -411,7 +414,9 @@ def simulate_event_driven(sys: GossipSystem, rate: float, times: np.ndarray, n_t
         mins = np.linalg.eigvalsh((gap + gap.transpose(0, 1, 3, 2)) / 2)[..., 0]
         min_gap[r] = np.minimum(min_gap[r], mins)
         scale[r] = np.maximum(scale[r], np.linalg.norm(P[r], axis=(2, 3)))
-    return EventDrivenRun(times, zs if sample else None, sig_out, p_out, min_gap, scale, ev_t[:, :M], ev_c[:, :M], cross)
+    cond = flow.condition if isinstance(flow, BlockDiagonalFlow) else 1.0
+    return EventDrivenRun(times, zs if sample else None, sig_out, p_out, min_gap, scale, ev_t[:, :M], ev_c[:, :M], cross,
+                          cond)
 
 
 # -- gridded simulator -------------------------------------------------------------------------

@@ -52,41 +52,70 @@ def affine_steady_state(M: np.ndarray, g: np.ndarray) -> np.ndarray | None:
     return np.linalg.solve(M, -g)
 
 
-def critical_parameter(abscissa: Callable[[float], float], *, upper: float = 1e9, rtol: float = 1e-10,
-                       start: float | None = None) -> float:
+def critical_parameter(abscissa: Callable[[float], float], *, tol: Callable[[float], float] | float = 0.0,
+                       upper: float = 1e9, rtol: float = 1e-10, start: float | None = None) -> float:
     """inf{λ ≥ 0 : abscissa(λ) < 0} for an abscissa that decreases through zero once.
 
-    Returns 0.0 when abscissa(0) < 0, and also when abscissa(0) == 0 up to rounding while
-    every λ > 0 is stable (the marginal case: the flow at λ = 0 is only marginally stable);
-    returns inf when no λ up to `upper` gives a negative abscissa.
+    `tol(λ)` (or a constant) is the rounding level of the computed abscissa: a value within
+    ±tol cannot be told from 0. Returns 0.0 when abscissa(0) < −tol, and also when abscissa(0)
+    is zero up to rounding while small λ > 0 are stable (the marginal case: the flow at λ = 0
+    is only marginally stable, and the sign change sits at λ = 0 up to rounding, so the
+    bisection stops as soon as the abscissa can no longer be told from 0 instead of chasing
+    rounding noise down to λ ≈ 1e-16). Returns inf when no λ up to `upper` gives an abscissa
+    below −tol.
     """
-    if abscissa(0.0) < 0:
+    level = tol if callable(tol) else (lambda lam, _t=float(tol): _t)
+    a0 = abscissa(0.0)
+    if a0 < -level(0.0):
         return 0.0
     lo, hi = 0.0, (start if start is not None else 1e-3)      # `start`: a known stable value
-    while abscissa(hi) >= 0:
+    while abscissa(hi) >= -level(hi):
         lo, hi = hi, hi * 4
         if hi > upper:
             return math.inf
     while hi - lo > rtol * hi:
         mid = 0.5 * (lo + hi)
-        if abscissa(mid) < 0:
+        a = abscissa(mid)
+        if a < -level(mid):
             hi = mid
-        else:
+        elif a > level(mid):
             lo = mid
-    return hi if lo > 0 else 0.0
+        else:                                                   # zero up to rounding: the sign change is here
+            hi = mid
+            break
+    return 0.0 if lo == 0.0 and a0 <= level(0.0) else hi
+
+
+def abscissa_tolerance(M: np.ndarray) -> float:
+    """Rounding level of the computed spectral abscissa of M: 10·dim·eps·‖M‖₁ (backward error of
+    the eigenvalue solver; eigenvalues of a normal matrix move by at most that much)."""
+    return 10.0 * len(M) * float(np.finfo(float).eps) * float(np.abs(M).sum(axis=0).max())
 
 
 def van_loan(A: np.ndarray, G: np.ndarray, delta: float) -> tuple[np.ndarray, np.ndarray]:
-    """(e^{Aδ}, ∫_0^δ e^{As} G e^{Aᵀs} ds) by Van Loan's block exponential."""
+    """(e^{Aδ}, ∫_0^δ e^{As} G e^{Aᵀs} ds) by Van Loan's block exponential.
+
+    The block exponential contains e^{−Aδ}, which overflows or loses every digit when ‖A‖δ is
+    large (stiff node dynamics, e.g. gains of 1e4). It is therefore formed on δ/2^k with
+    ‖A‖₁δ/2^k ≤ 1/2, and the interval doubled k times: Φ(2d) = Φ(d)², Q(2d) = Q(d) + Φ(d)Q(d)Φ(d)ᵀ
+    (every step adds positive semidefinite terms: no cancellation)."""
     n = len(A)
+    norm = float(np.abs(A).sum(axis=0).max()) * abs(delta)
+    k = int(math.ceil(math.log2(norm / 0.5))) if norm > 0.5 else 0
+    d = delta / 2 ** k
     C = np.zeros((2 * n, 2 * n))
     C[:n, :n] = -A
     C[:n, n:] = G
     C[n:, n:] = A.T
-    E = sla.expm(C * delta)
+    E = sla.expm(C * d)
     Phi = E[n:, n:].T
     Q = Phi @ E[:n, n:]
-    return Phi, (Q + Q.T) / 2
+    Q = (Q + Q.T) / 2
+    for _ in range(k):
+        Q = Q + Phi @ Q @ Phi.T
+        Q = (Q + Q.T) / 2
+        Phi = Phi @ Phi
+    return Phi, Q
 
 
 def phi1(c: np.ndarray, delta: np.ndarray) -> np.ndarray:

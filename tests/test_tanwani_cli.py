@@ -121,7 +121,7 @@ def test_paper_quick_report(paper_run):
     assert doc["paper"] == "tanwani"
     ids = {c["id"]: c for c in doc["claims"]}
     for name in ("s1a", "s1b", "s1c", "s2", "s3"):
-        for what in ("thm3_1.item1_exact", "prop3_2.per_path", "prop3_4.mean_of_P", "spec_values",
+        for what in ("thm3_1.item1_exact", "prop3_2.per_path", "prop3_4.mean_of_P", "reference_values",
                      "sim.event_exact_given_clocks", "reference.kalman_bucy"):
             assert ids[f"tanwani.{what}.{name}"]["verdict"] == "pass", (what, name, ids[f"tanwani.{what}.{name}"])
     for c in doc["claims"]:
@@ -162,12 +162,15 @@ def test_user_scenario_runs(tmp_path):
     assert ids["damped3.thm3_1.item1_exact.damped3"]["verdict"] == "pass"
     assert ids["damped3.prop3_2.per_path.damped3"]["verdict"] == "pass"
     assert ids["damped3.limit.true_covariance.damped3"]["verdict"] == "not-checkable"    # ordered clocks
-    assert ids["damped3.spec_values.damped3"]["verdict"] == "not-checkable"
+    assert not any(".reference_values." in k or ".nc." in k for k in ids)            # about the paper's scenarios
+    assert all(h["error"] == "" for h in doc["hypotheses"])
+    text = json.dumps(doc, ensure_ascii=False) + (tmp_path / "run" / "damped3" / "report.md").read_text()
+    assert "spec" not in text.lower().replace("spectral", "")
     assert summary["fail"] == 0, [c["id"] for c in doc["claims"] if c["verdict"] == "fail"]
     assert (tmp_path / "run" / "damped3" / "damped3.rrd").exists()
 
 
-@pytest.mark.parametrize("text, unbounded", [(DIVERGING, "λ_crit of (9) = 2.5"), (NOT_HURWITZ, "not Hurwitz")])
+@pytest.mark.parametrize("text, unbounded", [(DIVERGING, "λ_crit of (9) = 2.5"), (NOT_HURWITZ, "abar_hurwitz")])
 def test_diverging_bound_is_reported_not_crashed(tmp_path, text, unbounded):
     repro = _user(text)
     name = repro.paper_id
@@ -177,8 +180,11 @@ def test_diverging_bound_is_reported_not_crashed(tmp_path, text, unbounded):
     assert unbounded in text_all
     ids = {c["id"]: c for c in doc["claims"]}
     assert ids[f"{name}.thm3_1.item1_exact.{name}"]["verdict"] == "pass"      # item 1 holds for every λ
-    if "Hurwitz" in unbounded:
-        assert ids[f"{name}.thm3_1.item2_convergence.{name}"]["verdict"] == "not-checkable"
+    if "hurwitz" in unbounded:
+        hyps = {h["id"]: h for h in doc["hypotheses"]}
+        assert hyps[f"{name}.hyp.{name}.abar_hurwitz"]["holds"] is False
+        row = ids[f"{name}.thm3_1.item2_convergence.{name}"]
+        assert row["verdict"] == "not-checkable" and "abar_hurwitz" in row["detail"]
 
 
 BAD = [

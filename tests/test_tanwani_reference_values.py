@@ -1,5 +1,6 @@
-"""The spec's reference numbers apply only to the spec's own scenarios: a scenario that keeps a
-spec name but changes the system (as a sweep point does) gets `not-checkable`, not a crash."""
+"""The reference numbers of the reproduction's own scenarios apply only to those scenarios: a
+scenario that keeps such a name but changes the system (as a sweep point does) gets
+`not-checkable`, not a crash."""
 from __future__ import annotations
 
 import copy
@@ -9,7 +10,7 @@ from types import SimpleNamespace
 import pytest
 
 from pipeline.scenario import load_toml
-from reproductions.tanwani.claims import _spec_differences
+from reproductions.tanwani.claims import _reference_differences
 from reproductions.tanwani.scenario import FilterNetworkScenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "reproductions" / "tanwani" / "scenarios"
@@ -20,8 +21,8 @@ def _results(data: dict) -> SimpleNamespace:
 
 
 @pytest.mark.parametrize("name", ["s1a", "s1b", "s1c", "s2", "s3"])
-def test_shipped_spec_scenarios_match_themselves(name):
-    assert _spec_differences(_results(load_toml(SCENARIOS / f"{name}.toml")), name) == ([], True)
+def test_shipped_scenarios_match_themselves(name):
+    assert _reference_differences(_results(load_toml(SCENARIOS / f"{name}.toml")), name) == ([], True)
 
 
 def test_changed_system_or_clock_is_detected():
@@ -29,7 +30,7 @@ def test_changed_system_or_clock_is_detected():
     changed = copy.deepcopy(s2)
     changed["communication"]["alpha"] = 0.3
     changed["graph"]["kind"] = "line"
-    assert _spec_differences(_results(changed), "s2") == (["edges", "alpha"], True)
+    assert _reference_differences(_results(changed), "s2") == (["edges", "alpha"], True)
     slower = copy.deepcopy(s2)
     slower["communication"]["rates"] = [0.5]
-    assert _spec_differences(_results(slower), "s2") == ([], False)
+    assert _reference_differences(_results(slower), "s2") == ([], False)

@@ -1,9 +1,20 @@
-"""The claim catalogue of the random-communication filtering paper (spec §4.8 check matrix).
+"""The claims and hypotheses of the random-communication filtering paper.
 
-Claim ids: `<paper-id>.<where>.<what>.<scenario>`. Exact computations are checked to
-machine-precision-level tolerances, Monte Carlo statements with a family-wise confidence
-(Bonferroni over every cell checked together) and the trial count, inequalities in the
-matrix (Loewner) order with the smallest eigenvalue of the difference as the margin.
+Claim ids: `<paper-id>.<where>.<what>.<scenario>`; hypothesis ids `<paper-id>.hyp.<scenario>.<name>`.
+Every claim names the hypotheses its conclusion rests on; a claim whose hypotheses fail is
+not checkable (the driver says which). Exact computations are compared with round-off
+allowances derived from the sizes, operation counts and condition numbers of the computation;
+Monte Carlo statements use tests that keep their level at the sample size used:
+
+* exact laws where they are known: given a clock path the errors are Gaussian with a known
+  covariance, so sums of squared (whitened) errors are exactly χ²; Poisson counts are exactly
+  Poisson; sums of independent sign-symmetric differences obey Efron's self-normalised bound;
+* for means over random clock paths of nonnegative per-path quantities (heavy right tails when
+  nodes are unstable between rings): the variance over paths is computed exactly from the
+  second-moment equation of the P-process, a sample mean too low is tested with Bernstein's
+  inequality for variables bounded above (valid at any sample size), a sample mean too high
+  only when both the Student statistic and the known-variance z statistic are significant
+  (each errs on one side of the skewness, so requiring both keeps the level).
 """
 from __future__ import annotations
 
@@ -15,13 +26,17 @@ import scipy.linalg as sla
 from scipy import stats as sps
 
 import estimators.gossip_covariance as gc
-from pipeline.verify import ERRATUM, FAIL, PASS, Claim, Verdict, identity, inequality, not_checkable, statistical
+from estimators.linear_flows import van_loan
+from pipeline.stats import chi2_two_sided_p
+from pipeline.verify import (EPS, ERRATUM, FAIL, NOT_CHECKABLE, PASS, Claim, Holds, Hypothesis, Verdict, erratum,
+                             identity, inequality, not_checkable, p_value_test, roundoff_tolerance)
 
 from . import reference_values as ref
-from .compute import Results, ScenarioResults
+from .compute import MAX_SCHEME_DIM, Results, ScenarioResults, directions, test_times
 
-CONFIDENCE = 0.999
-REL_TOL = 1e-9          # Loewner-order tolerance relative to max(1, ‖matrix‖)
+MIN_PATHS = 50          # below: a Monte Carlo mean over clock paths is not tested
+MIN_TRIALS = 2          # exact-law tests keep their level at any sample size
+RADAU_RTOL = 1e-11      # local tolerance of the reference Riccati integration
 
 
 # -- helpers -----------------------------------------------------------------------------------------
@@ -35,93 +50,12 @@ def worst_direction(X: np.ndarray) -> np.ndarray:
     return np.linalg.eigh((X + np.swapaxes(X, -1, -2)) / 2)[1][..., 0]
 
 
-def one_sided(excess: np.ndarray, se: np.ndarray, *, confidence: float, trials: int, detail: str) -> Verdict:
-    """Pass unless some estimate exceeds its bound by more than z·se (one-sided, Bonferroni)."""
-    ex, se = np.asarray(excess, float).ravel(), np.asarray(se, float).ravel()
-    n = ex.size
-    z = float(sps.norm.ppf(1 - (1 - confidence) / n))
-    scores = ex / np.maximum(se, 1e-300)
-    w = int(np.argmax(scores))
-    ok = bool(np.all(scores <= z))
-    return Verdict(PASS if ok else FAIL, measured=float(scores[w]), reference=z, tolerance=z, margin=float(z - scores[w]),
-                   confidence=confidence, trials=trials,
-                   detail=f"largest one-sided z = {scores[w]:.2f} over {n} cells (threshold {z:.2f}). {detail}")
-
-
-def floor_se(se: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    """Standard errors floored at 1e-9·max(1, max|ref|): cells that are deterministic (every
-    path equal, or structurally zero entries) must then agree to that rounding level."""
-    return np.maximum(se, 1e-9 * max(1.0, float(np.nanmax(np.abs(ref)))))
-
-
-ROUTE_MIN_PATHS = 25    # Cochran's rule n > 25·γ₁² for a Bernoulli(p) component (γ₁² ≈ 1/p): K·p ≥ 25
-
-
-def clt_times(r: ScenarioResults, n_paths: int) -> tuple[np.ndarray, str]:
-    """Output times t > 0 at which a mean over `n_paths` clock paths may be given a normal
-    (CLT) test, and the stated criterion.
-
-    Which clocks rang, in which order, changes E[e_ie_iᵀ | τ](t) in jumps: information from node
-    j reaches node i only after the d(i, j) clocks of a route rang in order, an event of
-    probability P(Erlang(d, λ) ≤ t) ≈ (λt)^d/d! per route at small λt. Below that the per-path
-    values are a rare-event mixture (most paths identical, a few far off) whose plug-in standard
-    error misses the unseen paths. A time is kept when even the rarest shortest route (d = graph
-    diameter) is expected in ≥ 25 of the paths, Cochran's rule n ≥ 25·γ₁² for a Bernoulli(p)
-    component (γ₁² ≈ 1/p)."""
-    from scipy.sparse.csgraph import shortest_path
-    from scipy.special import gammainc
-
-    adj = (np.abs(r.sys.laplacian - np.diag(np.diag(r.sys.laplacian))) > 0).astype(float)
-    dist = shortest_path(adj, unweighted=True)
-    diam = float(dist.max()) if r.sys.N > 1 else 0.0
-    t = r.scenario.output_times[1:]
-    lam = r.scenario.main_rate
-    if not math.isfinite(diam):
-        return np.zeros(len(t), bool), "graph not connected: no route between some nodes"
-    p = gammainc(diam, lam * t) if diam > 0 else np.ones(len(t))
-    keep = n_paths * p >= ROUTE_MIN_PATHS
-    first = f"{t[keep][0]:g}" if keep.any() else "none"
-    return keep, (f"CLT criterion: times where K·P(Erlang(diam = {diam:g}, λ = {lam:g}) ≤ t) ≥ {ROUTE_MIN_PATHS} "
-                  f"(the rarest information route expected in ≥ {ROUTE_MIN_PATHS} of the {n_paths} paths): "
-                  f"{int(keep.sum())} of {len(t)} times, from t = {first}")
-
-
-def skew_corrected_test(d1, d2, d3, n: int, shift, ref, keep, *, confidence: float, detail: str) -> Verdict:
-    """Mean of n i.i.d. per-path values against `ref`, robust to their skewness, on the times `keep`.
-
-    Inputs are power sums Σ(v − c)^k, k = 1..3, about a deterministic shift c (…, T, cells).
-    The Studentized mean T = (v̄ − ref)/(s/√n) is skewed when v is (long silences of unstable
-    nodes, rare mixing patterns) and its tail then differs from Φ at Bonferroni levels. Hall's
-    (1992, JRSS B 54, 221) monotone transformation with the sample skewness γ̂,
-    T_H = T + aT² + a²T³/3 + γ̂/(6√n), a = γ̂/(3√n), removes the n^(-1/2) skewness term of the
-    Edgeworth expansion; |T_H| is tested against the Bonferroni normal quantile. Standard errors
-    are floored as in `floor_se` (deterministic cells must agree to rounding)."""
-    from pipeline.stats import z_for_confidence
-
-    sl = (keep,)
-    m = d1[sl] / n
-    m2 = np.maximum(d2[sl] / n - m ** 2, 0.0)
-    m3 = d3[sl] / n - 3 * m * d2[sl] / n + 2 * m ** 3
-    est, refk = shift[sl] + m, ref[sl]
-    se = np.sqrt(m2 / (n - 1))
-    sef = floor_se(se, refk)
-    gam = np.where(se > sef * (1 - 1e-12), m3 / np.maximum(m2, 1e-300) ** 1.5, 0.0)
-    T = (est - refk) / sef
-    a = gam / (3 * math.sqrt(n))
-    TH = np.abs(T + a * T ** 2 + a ** 2 * T ** 3 / 3 + gam / (6 * math.sqrt(n)))
-    z = z_for_confidence(confidence, TH.size)
-    w = np.unravel_index(int(np.argmax(TH)), TH.shape)
-    ok = bool(np.all(TH <= z))
-    return Verdict(PASS if ok else FAIL, measured=float(est[w]), reference=float(refk[w]), tolerance=z,
-                   margin=float(z - TH[w]), confidence=confidence, trials=n,
-                   detail=(f"worst skewness-corrected |z| = {TH[w]:.2f} (plain |z| {abs(T[w]):.2f}, skewness "
-                           f"{gam[w]:.2f}) over {TH.size} cells (threshold {z:.2f} for family-wise confidence "
-                           f"{confidence}); median {np.median(TH):.2f}; worst plain |z| {np.abs(T).max():.2f}. "
-                           f"{detail}").strip())
-
-
 def _scenario(res: Results, name: str) -> ScenarioResults:
     return res.scenarios[name]
+
+
+def _fmt(x) -> str:
+    return "unbounded" if not np.isfinite(x) else f"{x:.6g}"
 
 
 def _needs_joint(r: ScenarioResults) -> Verdict | None:
@@ -130,8 +64,160 @@ def _needs_joint(r: ScenarioResults) -> Verdict | None:
     return None
 
 
-def _fmt(x) -> str:
-    return "unbounded" if not np.isfinite(x) else f"{x:.6g}"
+def _flow_tolerance(values: np.ndarray, n_steps: int, dim: int, growth: float = 1.0) -> tuple[float, str]:
+    """Round-off of a quantity propagated over `n_steps` exact steps (matrix exponential, then
+    products of length `dim`): each step adds a relative error ~dim·eps of the values it acts
+    on, which later steps carry along (amplified at most by `growth`)."""
+    scale = float(np.nanmax(np.abs(values))) if np.size(values) else 0.0
+    return roundoff_tolerance(scale=max(scale, 1e-300), operations=max(n_steps, 1) * dim, condition=max(growth, 1.0))
+
+
+# -- tests for Monte Carlo means over random clock paths -------------------------------------------------
+
+def path_mean_pvalues(s1, s2, n: int, mu, var, *, side: str = "two") -> np.ndarray:
+    """p-values for the mean of n i.i.d. nonnegative per-path values X (sums s1 = ΣX, s2 = ΣX²)
+    against `mu`, given an upper bound `var` ≥ Var(X) computed without the sample.
+
+    * too low (x̄ < μ): Bernstein's inequality for Y = μ − X ≤ μ with Var Y ≤ v,
+      P(x̄ ≤ μ − ε) ≤ exp(−nε²/(2v + 2με/3)), valid at every n and for every law of X ≥ 0;
+    * too high (x̄ > μ): the larger of the one-sided p-values of the Student statistic
+      (x̄ − μ)/(s/√n) (conservative when X is right-skewed: a large x̄ comes with a large s)
+      and of the known-variance statistic (x̄ − μ)√n/√v (conservative when X is left-skewed
+      or rare low values exist: v includes them). Rejecting only when both reject keeps the
+      level whichever way X is skewed.
+
+    `side`: "two" (equality, 2·min of the two sides) or "upper" (H0: E X ≤ μ)."""
+    s1, s2, mu, var = (np.asarray(a, float) for a in (s1, s2, mu, var))
+    xbar = s1 / n
+    sample_var = np.maximum(s2 / n - xbar ** 2, 0.0) * n / (n - 1)
+    v = np.maximum(var, 0.0) + var_floor(mu)
+    eps = mu - xbar
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        p_lo = np.where(eps > 0, np.exp(-n * eps ** 2 / (2 * v + 2 * np.abs(mu) * eps / 3)), 1.0)
+        t = np.where(sample_var > 0, (xbar - mu) / np.sqrt(sample_var / n), np.sign(xbar - mu) * np.inf)
+        p_t = sps.t.sf(t, n - 1)
+        p_z = sps.norm.sf((xbar - mu) / np.sqrt(v / n))
+    p_up = np.maximum(p_t, p_z)
+    if side == "upper":
+        return p_up
+    return np.minimum(1.0, 2 * np.minimum(p_lo, p_up))
+
+
+def var_floor(mu) -> np.ndarray:
+    """Round-off level of a variance computed as E[X²] − (E X)² from exact moment equations:
+    1e3·eps·μ² (the two terms agree to ~1e3·eps relative after the matrix exponentials)."""
+    return 1e3 * EPS * np.square(np.asarray(mu, float)) + 1e-300
+
+
+def path_test(p, *, n: int, measured, reference, detail: str, min_trials: int = MIN_PATHS) -> Verdict:
+    return p_value_test(np.ravel(p), trials=n, min_trials=min_trials, measured=measured, reference=reference,
+                        detail=detail)
+
+
+def _worst(p, est, refv):
+    k = int(np.argmin(np.ravel(p)))
+    return float(np.ravel(est)[k]), float(np.ravel(refv)[k])
+
+
+def chi2_lower_p(stat, dof) -> np.ndarray:
+    return sps.chi2.cdf(np.asarray(stat, float), np.asarray(dof, float))
+
+
+def chi2_upper_p(stat, dof) -> np.ndarray:
+    return sps.chi2.sf(np.asarray(stat, float), np.asarray(dof, float))
+
+
+# -- hypotheses --------------------------------------------------------------------------------------------
+
+GRID_ASYMPTOTIC = 1.0   # h·(max‖A_i‖₂ + λ d_max) below which the splitting error is in its h² regime
+
+
+def _alpha(res: Results, name: str) -> Holds:
+    s = _scenario(res, name).sys
+    dmax = int(s.degrees.max())
+    return Holds(bool(0 < s.alpha <= 1.0 / dmax * (1 + 4 * EPS)), s.alpha, 1.0 / dmax,
+                 f"α = {s.alpha:.6g}, 1/d_max = {1 / dmax:.6g}")
+
+
+def _connected(res: Results, name: str) -> Holds:
+    s = _scenario(res, name).sys
+    lam = np.linalg.eigvalsh(s.laplacian)
+    tol = 10 * s.N * EPS * float(np.abs(s.laplacian).sum(axis=0).max())
+    fied = float(lam[1]) if s.N > 1 else 0.0
+    return Holds(bool(fied > tol), fied, tol, f"σ₂(𝓛) = {fied:.6g} (round-off level {tol:.2g})")
+
+
+def _initial(res: Results, name: str) -> Holds:
+    s = _scenario(res, name).sys
+    E0 = s.joint_second_moment0()[s.n:, s.n:]
+    gap = min(float(min_eig(s.P0 - E0[i * s.n:(i + 1) * s.n, i * s.n:(i + 1) * s.n])) for i in range(s.N))
+    tol = 10 * s.n * EPS * max(1.0, float(np.abs(s.P0).max()))
+    return Holds(bool(gap >= -tol), gap, -tol, f"P_i(0) = 𝒫_i(0) = P0 = E[e_i(0)e_i(0)ᵀ] (x̂_i(0) = m0): smallest eigenvalue of "
+                                         f"the difference {gap:.3g}")
+
+
+def _abar(res: Results, name: str) -> Holds:
+    b = _scenario(res, name).bounds
+    a, tol = float(b["abar_abscissa"]), float(b["abar_tolerance"])
+    if abs(a) <= tol:
+        return Holds(None, a, 0.0, f"spectral abscissa of Ā = {a:.3g} cannot be told from 0 (round-off level {tol:.2g})")
+    return Holds(bool(a < 0), a, 0.0, f"spectral abscissa of Ā = (1/N)Σ(A − L_iH_i): {a:.6g}")
+
+
+def _rate_sufficient(res: Results, name: str) -> Holds:
+    b = _scenario(res, name).bounds
+    if "explicit_tight" not in b:
+        return Holds(None, None, None, "Ā is not Hurwitz: no explicit threshold")
+    thr = float(b["explicit_tight"][-1])
+    dev = b["sweep_dev_bound"]
+    lams = b["sweep"][np.all(np.isfinite(dev), axis=(1, 2, 3))]
+    top = float(lams.max()) if lams.size else 0.0
+    return Holds(bool(top / 10 >= thr), top / 10, thr,
+                 f"the λ sweep (with points added at multiples of λ_thr, up to {1e9:g}) reaches λ = {top:.4g}; its top "
+                 f"decade starts at {top / 10:.4g}, λ_thr of the explicit (12) (tight constants) is {thr:.4g}")
+
+
+def _above_critical(res: Results, name: str) -> Holds:
+    r = _scenario(res, name)
+    c = float(r.bounds["crit_bound"])
+    lam = r.scenario.main_rate
+    return Holds(bool(lam > c), lam, c, f"simulated λ = {lam:g}, λ_crit of (9) = {_fmt(c)}")
+
+
+def _kalman_bucy(res: Results, name: str) -> Holds:
+    b = _scenario(res, name).bounds
+    ok = "P_kb" in b
+    return Holds(ok, float(np.trace(b["P_kb"])) if ok else None, None,
+                 "tr P_KB = %.6g" % np.trace(b["P_kb"]) if ok else "no stabilising solution of the filter CARE "
+                 "((A, H) not detectable or (A, B) not stabilisable)")
+
+
+def _grid_asymptotic(res: Results, name: str) -> Holds:
+    r = _scenario(res, name)
+    s, sc = r.sys, r.scenario
+    rho = sc.grid_step * (max(np.linalg.norm(A, 2) for A in s.Ai) + sc.main_rate * int(s.degrees.max()))
+    return Holds(bool(rho <= GRID_ASYMPTOTIC), float(rho), GRID_ASYMPTOTIC,
+                 f"h·(max‖A_i‖₂ + λ d_max) = {rho:.3g} with h = {sc.grid_step:g}")
+
+
+HYPOTHESES = {
+    "alpha": ("0 < α ≤ 1/d_max (eq. 3): the fusion weights Π = I − α𝓛 are nonnegative and doubly stochastic", _alpha),
+    "connected": ("the communication graph is connected (σ₂(𝓛) > 0)", _connected),
+    "initial": ("P_i(0) ⪰ E[e_i(0)e_i(0)ᵀ] for every node (Prop. III.2, Thm. III.1)", _initial),
+    "abar_hurwitz": ("Ā = (1/N)Σ_i(A − L_iH_i) is Hurwitz (Thm. III.1 item 2)", _abar),
+    "rate_sufficient": ("'λ sufficiently large' in (12): the λ sweep reaches a decade above the explicit threshold "
+                        "λ_thr (derived constants, tight variant)", _rate_sufficient),
+    "rate_above_critical": ("the simulated λ exceeds λ_crit of (9), so that 𝒫_i(t) has a finite limit", _above_critical),
+    "kalman_bucy": ("the filter Riccati equation has a stabilising solution (centralized Kalman–Bucy reference)",
+                    _kalman_bucy),
+    "grid_asymptotic": (f"the gridded simulator's step is in its asymptotic regime, h·(max‖A_i‖₂ + λ d_max) ≤ "
+                        f"{GRID_ASYMPTOTIC:g}", _grid_asymptotic),
+}
+
+
+def hypotheses(paper_id: str, names: list[str]) -> list[Hypothesis]:
+    return [Hypothesis(f"{paper_id}.hyp.{nm}.{key}", text, (lambda res, _f=fn, _n=nm: _f(res, _n)))
+            for nm in names for key, (text, fn) in HYPOTHESES.items()]
 
 
 # -- the model ----------------------------------------------------------------------------------------
@@ -139,67 +225,92 @@ def _fmt(x) -> str:
 def check_jensen(res: Results) -> Verdict:
     """Lemma III.3 on random vectors and Dirichlet weights, and its exact gap."""
     rng = np.random.default_rng(20210930)
-    worst, ident = np.inf, 0.0
-    for trial in range(2000):
+    worst, ident, tol_rel = np.inf, 0.0, 0.0
+    for _ in range(2000):
         m, n = rng.integers(1, 6), rng.integers(1, 6)
         X = rng.standard_normal((m, n)) * rng.exponential(1.0, (m, 1))
         g = rng.dirichlet(np.ones(m))
         z = g @ X
         gap = np.einsum("j,ja,jb->ab", g, X, X) - np.outer(z, z)
-        scale = max(1.0, np.abs(X).max() ** 2)
+        scale = float(np.abs(X).max() ** 2)
         worst = min(worst, float(min_eig(gap)) / scale)
         exact = np.einsum("j,ja,jb->ab", g, X - z, X - z)
         ident = max(ident, float(np.abs(gap - exact).max()) / scale)
-    ok = worst >= -1e-12 and ident <= 1e-12
-    return Verdict(PASS if ok else FAIL, measured=worst, reference=0.0, tolerance=1e-12, margin=worst + 1e-12,
-                   detail=f"2000 random cases (m, n ≤ 5): smallest eigenvalue of Σγ_j x_jx_jᵀ − zzᵀ (relative) {worst:.3e} "
-                          f"≥ −1e-12; the gap equals Σγ_j(x_j − z)(x_j − z)ᵀ to {ident:.1e}")
+        tol_rel = max(tol_rel, roundoff_tolerance(scale=1.0, operations=2 * m + 2 * n)[0])
+    ok = worst >= -tol_rel and ident <= tol_rel
+    return Verdict(PASS if ok else FAIL, measured=worst, reference=0.0, tolerance=tol_rel, margin=worst + tol_rel,
+                   detail=f"2000 random cases (m, n ≤ 5): smallest eigenvalue of Σγ_j x_jx_jᵀ − zzᵀ relative to max|x|² "
+                          f"{worst:.3e}; the gap equals Σγ_j(x_j − z)(x_j − z)ᵀ to {ident:.1e}; round-off allowance "
+                          f"{tol_rel:.2g} = 10·(2m + 2n) operations·eps (sums of m outer products and the eigenvalue solve)")
 
 
 def check_fusion(res: Results, name: str) -> Verdict:
     s = _scenario(res, name).sys
     Pi = np.eye(s.N) - s.alpha * s.laplacian
     jump_sum = sum(s.jump(c) - np.eye(s.N) for c in range(len(s.clocks)))
-    dmax = int(s.degrees.max())
-    err = max(np.abs(Pi.sum(0) - 1).max(), np.abs(Pi.sum(1) - 1).max(), np.abs(jump_sum + s.alpha * s.laplacian).max())
-    ok = err <= 1e-14 and Pi.min() >= 0 and s.alpha <= 1.0 / dmax + 1e-15
-    return Verdict(PASS if ok else FAIL, measured=float(Pi.min()), reference=0.0, tolerance=1e-14,
-                   margin=float(Pi.min()),
-                   detail=f"Π = I − α𝓛 with α = {s.alpha:.6g} ≤ 1/d_max = {1 / dmax:.6g}: row/column sums and "
-                          f"Σ_c (J_c − I) = −α𝓛 hold to {err:.1e}; smallest entry {Pi.min():.4g} ≥ 0")
+    err = max(np.abs(Pi.sum(0) - 1).max(), np.abs(Pi.sum(1) - 1).max(), np.abs(jump_sum + s.alpha * s.laplacian).max(),
+              np.abs(Pi - Pi.T).max())
+    tol, how = roundoff_tolerance(scale=1.0, operations=2 * s.N + len(s.clocks))
+    ok = err <= tol and Pi.min() >= -tol
+    return Verdict(PASS if ok else FAIL, measured=float(Pi.min()), reference=0.0, tolerance=tol, margin=float(Pi.min()),
+                   detail=f"Π = I − α𝓛 with α = {s.alpha:.6g}: symmetric, row/column sums 1 and Σ_c (J_c − I) = −α𝓛 "
+                          f"hold to {err:.1e} ({how}); smallest entry {Pi.min():.4g} ≥ 0")
+
+
+def _two_sided_discrete(cdf_k, sf_k) -> np.ndarray:
+    return np.minimum(1.0, 2 * np.minimum(cdf_k, sf_k))
 
 
 def check_poisson(res: Results, name: str) -> Verdict:
+    """Node counters against their exact laws: the total count over n paths is Poisson(n·d_iλT)
+    and the number of paths without any event is Binomial(n, e^{−d_iλT}) (exact tests)."""
     r = _scenario(res, name)
     ev, sc, s = r.event, r.scenario, r.sys
     n = int(ev["n"])
     mu = s.degrees * sc.main_rate * sc.horizon
-    mean = ev["c1"] / n
-    var = (ev["c2"] - ev["c1"] ** 2 / n) / (n - 1)
-    se_mean = np.sqrt(var / n)
-    se_var = np.sqrt((mu + 2 * mu ** 2) / n)
-    v = statistical(np.concatenate([mean, var]), np.concatenate([se_mean, se_var]), np.concatenate([mu, mu]),
-                    confidence=CONFIDENCE, trials=n,
-                    detail=f"node event counts on [0, {sc.horizon:g}] vs Poisson(d_i λ T) = {np.round(mu, 3).tolist()}: "
-                           f"means {np.round(mean, 3).tolist()}, variances {np.round(var, 3).tolist()}; smallest "
-                           f"spacing between events {float(ev['spacing']):.3g} > 0 (no simultaneous rings)")
-    if v.status == PASS and not float(ev["spacing"]) > 0:
+    total, zeros = np.asarray(ev["c1"], float), np.asarray(ev["c0"], float)
+    p_sum = _two_sided_discrete(sps.poisson.cdf(total, n * mu), sps.poisson.sf(total - 1, n * mu))
+    p0 = np.exp(-mu)
+    p_zero = _two_sided_discrete(sps.binom.cdf(zeros, n, p0), sps.binom.sf(zeros - 1, n, p0))
+    spacing = float(ev["spacing"])
+    v = p_value_test(np.concatenate([p_sum, p_zero]), trials=n, min_trials=MIN_TRIALS,
+                     measured=float((total / n)[np.argmin(p_sum)]), reference=float(mu[np.argmin(p_sum)]),
+                     detail=f"exact tests of the node event counts on [0, {sc.horizon:g}] at λ = {sc.main_rate:g}: total "
+                            f"over {n} paths ~ Poisson(n·d_iλT) (means {np.round(total / n, 3).tolist()} vs "
+                            f"{np.round(mu, 3).tolist()}), paths without event ~ Binomial(n, e^(−d_iλT)) "
+                            f"({zeros.astype(int).tolist()} vs expected {np.round(n * p0, 2).tolist()}); smallest spacing "
+                            f"between events {spacing:.3g} > 0 (no simultaneous rings)")
+    if v.status == PASS and not spacing > 0:
         return Verdict(FAIL, detail="two events at the same instant. " + v.detail)
     return v
 
 
 # -- Proposition III.2 ---------------------------------------------------------------------------------
 
+def _path_tolerance(r: ScenarioResults, scale: float) -> tuple[float, str]:
+    """Round-off of per-path quantities: each event or output time is one step of products of
+    length (N+1)n through the eigenvector basis of the flows (condition number κ); an exact
+    exponential over an interval δ ≤ the output step carries a relative error ~eps·‖A_i‖δ
+    (scaling and squaring, in the simulator and in the Van Loan reference alike)."""
+    ev, s = r.event, r.sys
+    steps = int(ev["max_events"]) + r.scenario.n_outputs
+    cond = float(ev["condition"]) if np.isfinite(ev["condition"]) else 1.0
+    stiff = 1.0 + max(float(np.abs(A).sum(axis=0).max()) for A in s.Ai) * r.scenario.output_step
+    return roundoff_tolerance(scale=max(scale, 1e-300), operations=steps * (s.N + 1) * s.n, condition=cond * stiff)
+
+
 def check_prop32_path(res: Results, name: str) -> Verdict:
     r = _scenario(res, name)
-    g, gr = float(r.event["min_gap"]), float(r.event["min_rel_gap"])
-    ok = gr >= -REL_TOL
-    return Verdict(PASS if ok else FAIL, measured=gr, reference=-REL_TOL, tolerance=REL_TOL, margin=gr + REL_TOL,
-                   trials=int(r.event["n"]),
-                   detail=f"smallest eigenvalue of P_i(t; τ) − E[e_ie_iᵀ | τ](t) over {int(r.event['n'])} random clock paths, "
-                          f"every node, every event and output time on [0, {r.scenario.horizon:g}] at λ = "
-                          f"{r.scenario.main_rate:g}: {g:.3e} (relative to max(1, ‖P_i‖_F): {gr:.3e}); equality holds "
-                          "before a node's first event, so the margin is 0 up to rounding")
+    ev = r.event
+    g = float(ev["min_gap"])
+    tol, how = _path_tolerance(r, float(ev["max_scale"]))
+    v = inequality([0.0], [g], tolerance=tol, detail=(
+        f"smallest eigenvalue of P_i(t; τ) − E[e_ie_iᵀ | τ](t) over {int(ev['n'])} random clock paths, every node, "
+        f"every event and output time on [0, {r.scenario.horizon:g}] at λ = {r.scenario.main_rate:g}: {g:.3e} (largest "
+        f"‖P_i‖_F {float(ev['max_scale']):.3g}); {how}. Equality holds before a node's first event, so the margin "
+        "is 0 up to rounding"))
+    return Verdict(v.status, measured=g, reference=-tol, tolerance=tol, margin=g + tol, trials=int(ev["n"]),
+                   detail=v.detail)
 
 
 def _first_event_times(r: ScenarioResults) -> np.ndarray:
@@ -228,10 +339,10 @@ def check_prop32_reference(res: Results, name: str) -> Verdict:
         measured += [r.event["sample_pbound"][p].ravel(), r.event["sample_sigma"][p].ravel()]
         reference += [P.ravel(), gc.diagonal_blocks(Sig, s.N, s.n).ravel()]
     m, ref_ = np.concatenate(measured), np.concatenate(reference)
-    scale = max(1.0, np.abs(ref_).max())
-    return identity(m, ref_, rtol=0, atol=1e-9 * scale,
+    tol, how = _path_tolerance(r, float(np.abs(ref_).max()))
+    return identity(m, ref_, rtol=0, atol=tol,
                     detail=f"{len(measured) // 2} stored clock paths: the eigendecomposition-based batched propagation "
-                           "equals a per-interval Van Loan computation (scipy expm)")
+                           f"equals a per-interval Van Loan computation (scipy expm); {how}")
 
 
 def check_prop32_flow(res: Results, name: str) -> Verdict:
@@ -247,90 +358,140 @@ def check_prop32_flow(res: Results, name: str) -> Verdict:
             a.append(r.event["sample_sigma"][p, k, i].ravel())
             b.append(r.event["sample_pbound"][p, k, i].ravel())
     a, b = np.concatenate(a), np.concatenate(b)
-    return identity(a, b, rtol=0, atol=1e-10 * max(1.0, np.abs(b).max()),
+    tol, how = _path_tolerance(r, float(np.abs(b).max()) if b.size else 0.0)
+    return identity(a, b, rtol=0, atol=tol,
                     detail=f"{a.size} entries before each node's first event on the stored paths; uses the corrected "
                            "error dynamics (13a) de_i = (A − L_iH_i)e_i dt + B dω − L_i dv_i (the printed "
-                           "'(A − L_iH_i) de_i' has no meaning)")
+                           f"'(A − L_iH_i) de_i' has no meaning); {how}")
+
+
+def whitening_directions(Sigma: np.ndarray, pairs) -> tuple[np.ndarray, np.ndarray]:
+    """For covariances Σ (…, n, n): vectors w (…, q, n) such that wᵀe ~ N(0, 1) when e ~ N(0, Σ):
+    v_a/√μ_a (eigenpairs of Σ) and (v_a/√μ_a + v_b/√μ_b)/√2, and whether each is usable (the
+    eigenvalues involved exceed 1e-9 of the largest: below, the errors are rounding)."""
+    mu, V = np.linalg.eigh((Sigma + np.swapaxes(Sigma, -1, -2)) / 2)
+    ok = mu > 1e-9 * np.maximum(mu[..., -1:], 1e-300)
+    Y = V / np.sqrt(np.where(ok, mu, 1.0))[..., None, :]
+    W = np.stack([Y[..., :, a] if a == b else (Y[..., :, a] + Y[..., :, b]) / math.sqrt(2) for a, b in pairs], -2)
+    use = np.stack([ok[..., a] & ok[..., b] for a, b in pairs], -1)
+    return W, use
 
 
 def check_prop32_frozen(res: Results, name: str, which: str) -> Verdict:
+    """One frozen clock path: the errors of the K trials are i.i.d. N(0, Σ_ii(t; τ)) exactly, so
+    Σ_k (wᵀe_k)² ~ χ²(K) for every whitening direction w (two-sided exact test), and under
+    (15), Σ_ii ⪯ P_i, Σ_k (uᵀe_k)²/(uᵀP_iu) is stochastically below χ²(K) (one-sided)."""
     r = _scenario(res, name)
     fz = r.frozen
     mom = r.frozen_moments()
-    Sig, P = fz["path_sigma"][1:], fz["path_pbound"][1:]
     K = mom.count
+    S2 = mom.s2[1:]                                     # Σ_k e eᵀ (T, N, n, n)
+    Sig, P = fz["path_sigma"][1:], fz["path_pbound"][1:]
+    events = len(fz["path_times"])
     if which == "equal":
-        est, se = mom.entries()
-        iu = np.triu_indices(r.sys.n)
-        return statistical(est[1:][..., iu[0], iu[1]], floor_se(se[1:][..., iu[0], iu[1]], Sig), Sig[..., iu[0], iu[1]],
-                           confidence=CONFIDENCE, trials=K,
-                           detail=f"one frozen clock path ({len(fz['path_times'])} events on [0, {r.scenario.horizon:g}]): "
-                                  "Monte Carlo over (x0, ω, v) of every entry of E[e_ie_iᵀ], every node and output time "
-                                  "t > 0, against the exact Σ_ii(t; τ)")
-    u = worst_direction(P - Sig)
-    m2, se = mom.quadratic(np.concatenate([u[:1] * 0, u]))
-    m2, se = m2[1:], se[1:]
-    bound = np.einsum("tna,tnab,tnb->tn", u, P, u)
-    gap = min_eig(P - mom.mean[1:])
-    return one_sided(m2 - bound, se, confidence=CONFIDENCE, trials=K,
-                     detail=f"(15) on one frozen path: uᵀÊu ≤ uᵀP_iu along the worst direction u of P_i − Σ_ii, every "
-                            f"node and t > 0; smallest eigenvalue of P_i − Ê over t ≥ 1: {gap[times_from(r, 1.0)].min():.4g}"
-                            f" (exact: {min_eig(P - Sig)[times_from(r, 1.0)].min():.4g})")
-
-
-def times_from(r: ScenarioResults, t0: float) -> np.ndarray:
-    return r.scenario.output_times[1:] >= t0
+        W, use = whitening_directions(Sig, gc.vech_pairs(r.sys.n))
+        stat = np.einsum("...da,...ab,...db->...d", W, S2, W)[use]
+        p = chi2_two_sided_p(stat, K)
+        return p_value_test(p, trials=K, min_trials=MIN_TRIALS, measured=float(stat[np.argmin(p)] / K), reference=1.0,
+                            detail=f"one frozen clock path ({events} events on [0, {r.scenario.horizon:g}]): Monte Carlo "
+                                   f"over (x0, ω, v) of the errors whitened by the exact Σ_ii(t; τ) (eigen-directions and "
+                                   f"their pairwise sums, every node and output time t > 0): Σ_k (wᵀe_k)² ~ χ²({K}) "
+                                   "exactly (measured: the mean square, 1 expected)")
+    U = np.concatenate([worst_direction(P - Sig)[..., None, :],
+                        np.broadcast_to(directions(r.sys.n), Sig.shape[:-2] + directions(r.sys.n).shape)], -2)
+    den = np.einsum("...da,...ab,...db->...d", U, P, U)
+    use = den > 1e-12 * np.maximum(np.abs(P).max(axis=(-2, -1)), 1e-300)[..., None]
+    stat = np.einsum("...da,...ab,...db->...d", U, S2, U)[use] / den[use]
+    p = chi2_upper_p(stat, K)
+    return p_value_test(p, trials=K, min_trials=MIN_TRIALS, measured=float(stat[np.argmin(p)] / K), reference=1.0,
+                        detail=f"(15) on one frozen path ({events} events): Σ_k (uᵀe_k)²/(uᵀP_iu) is stochastically "
+                               f"below χ²({K}) when Σ_ii ⪯ P_i (the errors are exactly Gaussian given the path); one-sided "
+                               "exact test along the worst direction of P_i − Σ_ii and the fixed directions, every node "
+                               "and t > 0 (measured: the ratio of the mean square to uᵀP_iu, at most 1 expected)")
 
 
 # -- Proposition III.4 ---------------------------------------------------------------------------------
 
+def _cell_var_note(b) -> str:
+    return ("variance over clock paths from the exact second-moment equation of the P-process (max relative "
+            f"difference of its mean from (9): {_rel(b['cell_P_mean'], b['cell_bound']):.1e})")
+
+
+def _rel(a, b) -> float:
+    return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-300))
+
+
+def _needs_second(r: ScenarioResults) -> Verdict | None:
+    if "cell_P_second" not in r.bounds:
+        s = r.sys
+        return not_checkable(f"N·n(n+1)/2 = {s.N * s.n * (s.n + 1) // 2} > {gc.MAX_SECOND_DIM}: the exact second "
+                             "moments of the P-process over clock paths (needed for a test valid at any sample size) "
+                             "were not formed")
+    return None
+
+
 def check_prop34(res: Results, name: str) -> Verdict:
     r = _scenario(res, name)
-    ev = r.event
+    if (na := _needs_second(r)) is not None:
+        return na
+    ev, b = r.event, r.bounds
     n = int(ev["n"])
-    mean = ev["p1"] / n
-    exact = r.bound(r.scenario.main_rate)
-    keep, crit = clt_times(r, n)
-    if not keep.any():
-        return not_checkable(f"no output time where the mean over {n} clock paths may be tested: {crit}")
-    iu = np.triu_indices(r.sys.n)
-    sl = (slice(1, None), slice(None), iu[0], iu[1])
-    return skew_corrected_test(ev["pd1"][sl], ev["pd2"][sl], ev["pd3"][sl], n, ev["p_c"][sl], exact[sl], keep,
-                               confidence=CONFIDENCE,
-                               detail=f"mean over {n} clock paths of every entry of P_i(t; τ) (eq. 14) vs the solution "
-                                      f"of (9) at λ = {r.scenario.main_rate:g}, every node; {crit}. E.g. tr at t = T: "
-                                      f"MC {np.trace(mean[-1], axis1=1, axis2=2).round(4).tolist()} vs (9) "
-                                      f"{np.trace(exact[-1], axis1=1, axis2=2).round(4).tolist()}")
+    mu, second = b["cell_bound"], b["cell_P_second"]
+    p = path_mean_pvalues(ev["qP1"], ev["qP2"], n, mu, second - np.square(b["cell_P_mean"]))
+    est = ev["qP1"] / n
+    m, rf = _worst(p, est, mu)
+    return path_test(p, n=n, measured=m, reference=rf,
+                     detail=f"mean over {n} clock paths of uᵀP_i(t; τ)u (eq. 14) against uᵀ𝒫_i(t)u of (9) at λ = "
+                            f"{r.scenario.main_rate:g}, every node, {len(b['cell_times'])} times and the directions e_a, "
+                            f"(e_a + e_b)/√2; {_cell_var_note(b)}. Low means: Bernstein's bound; high means: Student "
+                            "and known-variance statistics must both reject")
 
 
 # -- Theorem III.1 item 1 --------------------------------------------------------------------------------
+
+def _transient_tolerance(r: ScenarioResults, *arrays) -> tuple[float, str]:
+    s, sc = r.sys, r.scenario
+    vals = np.concatenate([np.ravel(a) for a in arrays])
+    vals = vals[np.isfinite(vals)]
+    growth = float(np.max(np.abs(vals)) / max(float(np.abs(s.P0).max()), 1e-300)) if vals.size else 1.0
+    return _flow_tolerance(vals, sc.n_outputs, (s.N * s.n) ** 2, growth)
+
 
 def check_item1_exact(res: Results, name: str) -> Verdict:
     r = _scenario(res, name)
     if (na := _needs_joint(r)) is not None:
         return na
     s, b = r.sys, r.bounds
-    gaps, rel, later = [], [], []
+    gaps, tols, later = [], [], []
     for lam in r.scenario.rates:
         P = r.bound(lam)
         Jd = gc.diagonal_blocks(r.joint(lam), s.N, s.n)
-        g = min_eig(P - Jd)
-        gaps.append(g.ravel())
-        rel.append((g / np.maximum(1.0, np.linalg.norm(P, axis=(2, 3)))).ravel())
-        later.append(g[r.scenario.output_times >= 1.0].min())
+        fin = np.all(np.isfinite(P), axis=(1, 2, 3)) & np.all(np.isfinite(Jd), axis=(1, 2, 3))
+        tol, how = _transient_tolerance(r, P[fin], Jd[fin])
+        g = min_eig(P[fin] - Jd[fin])
+        gaps.append(g.ravel() + tol)
+        tols.append(tol)
+        later.append(float(g[r.scenario.output_times[fin] >= 1.0].min()) if np.any(r.scenario.output_times[fin] >= 1.0)
+                     else float("nan"))
     fin = np.all(np.isfinite(b["sweep_bound"]), axis=(1, 2, 3)) & np.all(np.isfinite(b["sweep_joint"]), axis=(1, 2, 3))
     gs = min_eig(b["sweep_bound"][fin] - b["sweep_joint"][fin])
-    rel.append((gs / np.maximum(1.0, np.linalg.norm(b["sweep_bound"][fin], axis=(2, 3)))).ravel())
-    worst = float(np.concatenate(rel).min())
-    ok = worst >= -REL_TOL
+    stol = [_flow_tolerance(np.concatenate([b["sweep_bound"][k].ravel(), b["sweep_joint"][k].ravel()]), 1,
+                            (s.N * s.n) ** 2, _solve_condition(r, k))[0] for k in np.flatnonzero(fin)]
+    slack = np.concatenate(gaps + [(gs + np.array(stol)[:, None]).ravel()])
     n_div = int((~np.all(np.isfinite(b["sweep_bound"]), axis=(1, 2, 3))).sum())
-    return Verdict(PASS if ok else FAIL, measured=worst, reference=-REL_TOL, tolerance=REL_TOL, margin=worst + REL_TOL,
-                   detail=f"smallest eigenvalue of 𝒫_i(t) − E[e_ie_iᵀ](t) (exact mean joint covariance ODE) on the "
-                          f"output grid for λ ∈ {list(r.scenario.rates)}: {min(float(np.concatenate(gaps).min()), 0):.3e} "
-                          f"(0 at t = 0, where both equal P0); for t ≥ 1: {np.round(later, 4).tolist()}; at "
-                          f"{int(fin.sum())} steady states of the λ sweep: smallest {gs.min() if gs.size else float('nan'):.4g}. "
-                          f"{n_div} sweep rates lie below λ_crit of (9) = {_fmt(float(b['crit_bound']))}: there the bound "
-                          "diverges (reported, not compared)")
+    v = inequality(np.zeros_like(slack), slack, detail=(
+        f"smallest eigenvalue of 𝒫_i(t) − E[e_ie_iᵀ](t) (exact mean joint covariance ODE) plus its round-off allowance, "
+        f"on the output grid for λ ∈ {list(r.scenario.rates)} (allowances {', '.join(f'{t:.2g}' for t in tols)}: "
+        f"{how}) and at {int(fin.sum())} steady states of the λ sweep (allowance eps·dim·κ(M_Σ)·scale). For t ≥ 1 "
+        f"the gap is {np.round(later, 4).tolist()}; at the steady states ≥ {gs.min() if gs.size else float('nan'):.4g}. "
+        f"{n_div} sweep rates lie below λ_crit of (9) = {_fmt(float(b['crit_bound']))}: there the bound diverges "
+        "(reported, not compared)"))
+    return v
+
+
+def _solve_condition(r: ScenarioResults, k: int) -> float:
+    """Condition number of the steady-state solve of (D1) at sweep point k (1-norm, LAPACK estimate)."""
+    return float(r.bounds["sweep_cond"][k])
 
 
 def check_item1_kb(res: Results, name: str) -> Verdict:
@@ -338,380 +499,451 @@ def check_item1_kb(res: Results, name: str) -> Verdict:
     if (na := _needs_joint(r)) is not None:
         return na
     s, b = r.sys, r.bounds
-    rel, raw = [], []
+    slack, raw, tols = [], [], []
     for lam in r.scenario.rates:
         Jd = gc.diagonal_blocks(r.joint(lam), s.N, s.n)
-        g = min_eig(Jd - b["P_kb_t"][:, None])
-        raw.append(g.ravel())
-        rel.append((g / np.maximum(1.0, np.linalg.norm(Jd, axis=(2, 3)))).ravel())
-    worst = float(np.concatenate(rel).min())
-    ok = worst >= -REL_TOL
-    return Verdict(PASS if ok else FAIL, measured=worst, reference=-REL_TOL, tolerance=REL_TOL, margin=worst + REL_TOL,
-                   detail=f"smallest eigenvalue of E[e_ie_iᵀ](t) − P_KB(t) (Kalman–Bucy Riccati ODE from P0) over the grid, "
-                          f"every node and simulated λ: {float(np.concatenate(raw).min()):.3e} (0 at t = 0). Each x̂_i is a "
-                          "linear functional of the data the centralized filter sees, so it cannot beat it")
+        fin = np.all(np.isfinite(Jd), axis=(1, 2, 3)) & np.all(np.isfinite(b["P_kb_t"]), axis=(1, 2))
+        tol, how = _transient_tolerance(r, Jd[fin], b["P_kb_t"][fin])
+        g = min_eig(Jd[fin] - b["P_kb_t"][fin][:, None])
+        raw.append(g.ravel()), slack.append(g.ravel() + tol), tols.append(tol)
+    slack = np.concatenate(slack)
+    return inequality(np.zeros_like(slack), slack, detail=(
+        f"smallest eigenvalue of E[e_ie_iᵀ](t) − P_KB(t) (Kalman–Bucy Riccati ODE from P0) over the grid, every node "
+        f"and simulated λ: {float(np.concatenate(raw).min()):.3e} (0 at t = 0); round-off allowance "
+        f"{max(tols):.2g} ({how}). Each x̂_i is a linear functional of the data the centralized filter sees, so it "
+        "cannot beat it"))
 
 
 def check_item1_mc(res: Results, name: str) -> Verdict:
+    """Sampled errors of the exact event-driven simulator: (i) E[e_ie_iᵀ] ≤ 𝒫_i along the test
+    directions, one-sided (see `path_mean_pvalues`, variance of (uᵀe)² bounded by
+    3E[(uᵀP_iu)²] − (uᵀP_KBu)² from the exact P-process moments); (ii) P_KB ≤ E[e_ie_iᵀ]: given the
+    clocks every error is N(0, Σ_ii(t; τ)) with Σ_ii(t; τ) ⪰ P_KB(t) on every path, so
+    Σ_k (uᵀe_k)²/(uᵀP_KBu) is stochastically above χ²(K): an exact one-sided lower test."""
     r = _scenario(res, name)
-    if (na := _needs_joint(r)) is not None:
+    if (na := _needs_second(r)) is not None:
         return na
-    s, b = r.sys, r.bounds
-    excess, ses, gaps_up, gaps_lo = [], [], [], []
-    for lam in r.scenario.rates:
-        mom = r.grid_moments(lam)
-        P = r.bound(lam)[1:]
-        Jd = gc.diagonal_blocks(r.joint(lam), s.N, s.n)[1:]
-        Pkb = np.broadcast_to(b["P_kb_t"][1:, None], Jd.shape)
-        u = worst_direction(P - Jd)
-        m2, se = mom.quadratic(np.concatenate([u[:1], u]))
-        excess.append((m2[1:] - np.einsum("tna,tnab,tnb->tn", u, P, u)).ravel()), ses.append(se[1:].ravel())
-        w = worst_direction(Jd - Pkb)
-        m2, se = mom.quadratic(np.concatenate([w[:1], w]))
-        excess.append((np.einsum("tna,tnab,tnb->tn", w, Pkb, w) - m2[1:]).ravel()), ses.append(se[1:].ravel())
-        late = times_from(r, 1.0)
-        gaps_up.append(min_eig(P - mom.mean[1:])[late].min())
-        gaps_lo.append(min_eig(mom.mean[1:] - Pkb)[late].min())
-    return one_sided(np.concatenate(excess), np.concatenate(ses), confidence=CONFIDENCE, trials=r.trials,
-                     detail=f"gridded Monte Carlo ({r.trials} trials per λ): P_KB ≤ Ê[e_ie_iᵀ] ≤ 𝒫_i tested along the "
-                            "worst eigen-direction of each exact difference, every node, λ and t > 0. Smallest eigenvalue "
-                            f"of 𝒫_i − Ê for t ≥ 1, per λ: {np.round(gaps_up, 4).tolist()}; of Ê − P_KB: "
-                            f"{np.round(gaps_lo, 4).tolist()}")
+    ev, b = r.event, r.bounds
+    n = int(ev["n"])
+    kbq = np.broadcast_to(b["cell_kb"][:, None, :], b["cell_bound"].shape)
+    var = 3 * b["cell_P_second"] - np.square(kbq)
+    p_up = path_mean_pvalues(ev["qE1"], ev["qE2"], n, b["cell_bound"], var, side="upper")
+    use = kbq > 0
+    p_lo = chi2_lower_p(ev["qE1"][use] / kbq[use], n)
+    est = ev["qE1"] / n
+    gap_up = float(np.min(b["cell_bound"] - est))
+    gap_lo = float(np.min(est[use] - kbq[use])) if use.any() else float("nan")
+    p = np.concatenate([np.ravel(p_up), p_lo])
+    m, rf = _worst(p_up, est, b["cell_bound"])
+    return path_test(p, n=n, measured=m, reference=rf, min_trials=MIN_PATHS,
+                     detail=f"event-driven Monte Carlo ({n} paths) at λ = {r.scenario.main_rate:g}: "
+                            f"uᵀP_KBu ≤ Ê[(uᵀe_i)²] ≤ uᵀ𝒫_iu at {len(b['cell_times'])} times, every node and direction "
+                            f"(upper: Bernstein/Student/known-variance as for the mean of P; lower: exact χ² given the "
+                            f"clocks). Smallest slack of the upper bound {gap_up:.4g}, of the lower {gap_lo:.4g}")
 
 
 # -- the two simulators ---------------------------------------------------------------------------------
 
-def _entries(mom, t_slice=slice(1, None)):
-    est, se = mom.entries()
-    n = est.shape[-1]
-    iu = np.triu_indices(n)
-    return est[t_slice][..., iu[0], iu[1]], se[t_slice][..., iu[0], iu[1]]
-
-
-def _joint_entries(r: ScenarioResults, lam: float):
-    Jd = gc.diagonal_blocks(r.joint(lam), r.sys.N, r.sys.n)[1:]
-    iu = np.triu_indices(r.sys.n)
-    return Jd[..., iu[0], iu[1]]
-
-
-def check_grid_vs_exact(res: Results, name: str) -> Verdict:
-    r = _scenario(res, name)
-    if (na := _needs_joint(r)) is not None:
-        return na
-    est, se, refs = [], [], []
-    for lam in r.scenario.rates:
-        e, s_ = _entries(r.grid_moments(lam))
-        est.append(e.ravel()), se.append(s_.ravel()), refs.append(_joint_entries(r, lam).ravel())
-    return statistical(np.concatenate(est), floor_se(np.concatenate(se), np.concatenate(refs)), np.concatenate(refs),
-                       confidence=CONFIDENCE,
-                       trials=r.trials,
-                       detail=f"gridded simulator (h = {r.scenario.grid_step:g}, Strang splitting of flow and Poisson "
-                              f"rings, alternating clock order) vs the exact mean joint covariance ODE: every entry of E[e_ie_iᵀ], node, output "
-                              f"time t > 0 and λ ∈ {list(r.scenario.rates)}")
-
-
 def check_grid_bias(res: Results, name: str) -> Verdict:
-    """The gridded simulator's own exact mean covariance vs the model's: size and order of the
-    discretisation bias, measured against the Monte Carlo standard errors it could distort."""
+    """The gridded simulator's own exact mean covariance against the model's: the Strang
+    splitting with alternating clock order is second order, so halving h divides the bias by
+    2^p with p = 2. The observed order log2(b(h)/b(h/2)) must lie within half an order of 2 (a
+    first-order scheme gives p ≈ 1); the hypothesis grid_asymptotic (hκ ≤ 1, κ the fastest
+    rate of the flows and jumps) keeps h where the leading term dominates."""
     r = _scenario(res, name)
-    if (na := _needs_joint(r)) is not None:
-        return na
+    b = r.bounds
+    if "scheme_bias_h" not in b:
+        return not_checkable(f"N·n = {r.sys.N * r.sys.n} > {MAX_SCHEME_DIM}: the gridded scheme's own mean covariance "
+                             "was not formed")
     sc, s = r.scenario, r.sys
-    lam, h = sc.main_rate, sc.grid_step
-    every = int(round(sc.output_step / h))
-    exact = gc.diagonal_blocks(r.joint(lam), s.N, s.n)
-    b1 = gc.diagonal_blocks(gc.gridded_scheme_covariance(s, lam, h, every * sc.n_outputs, every), s.N, s.n) - exact
-    b2 = gc.diagonal_blocks(gc.gridded_scheme_covariance(s, lam, h / 2, 2 * every * sc.n_outputs, 2 * every),
-                            s.N, s.n) - exact
-    e1, e2 = float(np.abs(b1).max()), float(np.abs(b2).max())
-    ratio = e1 / max(e2, 1e-300)
-    _, se = r.grid_moments(lam).entries()
-    rel = float((np.abs(b1[1:]) / floor_se(se[1:], exact)).max())
-    ok = rel <= 0.5 and (3.0 <= ratio <= 5.0 or e1 < 1e-12)
-    return Verdict(PASS if ok else FAIL, measured=rel, reference=0.5, margin=0.5 - rel,
-                   detail=f"exact mean covariance of the gridded scheme (Strang, Poisson counts, alternating clock "
-                          f"order) minus the model's, λ = {lam:g}: max |bias| {e1:.3e} at h = {h:g}, {e2:.3e} at h/2 "
-                          f"(ratio {ratio:.2f}: second order); at most {rel:.3f} Monte Carlo standard errors of the "
-                          f"{r.trials}-trial estimate in any cell")
+    e1, e2 = float(np.abs(b["scheme_bias_h"]).max()), float(np.abs(b["scheme_bias_h2"]).max())
+    steps = 2 * int(round(sc.horizon / sc.grid_step))
+    floor, how = _flow_tolerance(r.joint(sc.main_rate), steps, (s.N * s.n) ** 2)
+    detail = (f"exact mean covariance of the gridded scheme (Strang, Poisson counts, alternating clock order) minus the "
+              f"model's, λ = {sc.main_rate:g}: max |bias| {e1:.3e} at h = {sc.grid_step:g}, {e2:.3e} at h/2")
+    if e2 <= floor:
+        return Verdict(PASS, measured=e1, reference=floor, tolerance=floor,
+                       detail=f"{detail}: both at the round-off level ({how})")
+    order = math.log2(e1 / e2)
+    return Verdict(PASS if abs(order - 2) <= 0.5 else FAIL, measured=order, reference=2.0, tolerance=0.5,
+                   margin=0.5 - abs(order - 2),
+                   detail=f"{detail}: observed order log2(ratio) = {order:.3f}, 2 expected within half an order")
 
 
 def check_event_vs_exact(res: Results, name: str) -> Verdict:
+    """Mean over clock paths of uᵀΣ_ii(t; τ)u (the exact per-path covariances of the event-driven
+    simulator, a Rao–Blackwellised estimate of E[e_ie_iᵀ]) against the exact mean covariance
+    ODE (D1). Per path P_KB(t) ⪯ Σ_ii(t; τ) ⪯ P_i(t; τ), so with k = uᵀP_KBu and Y = uᵀP_iu,
+    Var(uᵀΣ_iiu) ≤ E[(Y − k)²], known exactly from the second moments of the P-process."""
     r = _scenario(res, name)
-    if (na := _needs_joint(r)) is not None:
-        return na
-    lam = r.scenario.main_rate
-    ev = r.event
+    for na in (_needs_joint(r), _needs_second(r)):
+        if na is not None:
+            return na
+    ev, b = r.event, r.bounds
     n = int(ev["n"])
-    keep, crit = clt_times(r, n)
-    if not keep.any():
-        return not_checkable(f"no output time where the mean over {n} clock paths may be tested: {crit}")
-    iu = np.triu_indices(r.sys.n)
-    sl = (slice(1, None), slice(None), iu[0], iu[1])
-    ref_ = gc.diagonal_blocks(r.joint(lam), r.sys.N, r.sys.n)[sl]
-    return skew_corrected_test(ev["sigd1"][sl], ev["sigd2"][sl], ev["sigd3"][sl], n, ev["sig_c"][sl], ref_, keep,
-                               confidence=CONFIDENCE,
-                               detail=f"exact event-driven simulator at λ = {lam:g}: the mean over {n} Poisson clock "
-                                      "paths of the exact per-path covariance E[e_ie_iᵀ | τ](t) (Rao–Blackwellised "
-                                      "estimator of E[e_ie_iᵀ](t)) agrees with the exact mean joint covariance ODE, "
-                                      f"every entry and node; {crit}")
+    k = np.broadcast_to(b["cell_kb"][:, None, :], b["cell_bound"].shape)
+    var = b["cell_P_second"] - 2 * k * b["cell_P_mean"] + np.square(k) - np.square(b["cell_joint"] - k)
+    p = path_mean_pvalues(ev["qS1"], ev["qS2"], n, b["cell_joint"], var)
+    m, rf = _worst(p, ev["qS1"] / n, b["cell_joint"])
+    return path_test(p, n=n, measured=m, reference=rf,
+                     detail=f"exact event-driven simulator at λ = {r.scenario.main_rate:g}: mean over {n} Poisson clock "
+                            "paths of uᵀE[e_ie_iᵀ | τ](t)u against the exact mean joint covariance ODE, every node, "
+                            f"{len(b['cell_times'])} times, directions e_a and (e_a + e_b)/√2; variance bound from "
+                            "P_KB ⪯ Σ_ii(τ) ⪯ P_i(τ) and the exact second moments of P")
 
 
 def check_event_given_clocks(res: Results, name: str) -> Verdict:
-    """The sampled errors have exactly the conditional law N(0, Σ(t; τ)) given the clock path."""
+    """The sampled errors have exactly the conditional law N(0, Σ(t; τ)) given the clock path:
+    whitened by their own path's Σ_ii, their squared coordinates summed over the paths are
+    exactly χ² with as many degrees of freedom as terms (two-sided exact test per cell)."""
     r = _scenario(res, name)
     ev = r.event
     n = int(ev["n"])
-    iu = np.triu_indices(r.sys.n)
-    resid = (ev["resid"] / n)[1:][..., iu[0], iu[1]]
-    se = (np.sqrt(ev["cond_var"]) / n)[1:][..., iu[0], iu[1]]
-    return statistical(resid.ravel(), floor_se(se.ravel(), ev["sig1"] / n), np.zeros(resid.size),
-                       confidence=CONFIDENCE, trials=n,
-                       detail=f"(1/K)Σ_k (e_k e_kᵀ − Σ(t; τ_k)) has mean 0 and known variance (1/K²)Σ_k(Σ_ab² + "
-                              f"Σ_aaΣ_bb) when the sampler is exact; {n} trials at λ = {r.scenario.main_rate:g}, every "
-                              "entry, node and output time t > 0 (the clock paths' heavy tails cancel out of this test)")
+    stat, dof = np.ravel(ev["white"]), np.ravel(ev["white_n"])
+    use = dof > 0
+    p = chi2_two_sided_p(stat[use], dof[use])
+    return p_value_test(p, trials=n, min_trials=MIN_TRIALS, measured=float((stat[use] / dof[use])[np.argmin(p)]),
+                        reference=1.0,
+                        detail=f"{n} paths at λ = {r.scenario.main_rate:g}: errors whitened by the exact E[e_ie_iᵀ | τ](t) of "
+                               f"their own clock path (eigen-coordinates and their pairwise sums), every node and "
+                               f"{len(test_times(r.scenario))} times; Σ (wᵀe)² ~ χ²(terms) exactly (measured: mean square, "
+                               "1 expected). Exact whatever the law of the clock paths")
 
 
 def check_event_vs_grid(res: Results, name: str) -> Verdict:
-    """Two-sample test of the two simulators at the main rate. The event-driven side is its
-    Rao–Blackwellised estimate (mean over clock paths of the exact E[e eᵀ | τ]): the sampled
-    errors themselves are tested against that conditional law by `sim.event_exact_given_clocks`,
-    and a plain sample of K = a few hundred heavy-tailed second moments (unstable A_i, long
-    silences) has an unreliable standard error."""
+    """Two simulators, paired trial by trial: d_k = (uᵀe_k)²(event) − (uᵀe_k)²(gridded) + β with β
+    the gridded scheme's exact bias (its own mean covariance minus the model's). When both
+    simulators draw from the same law, the d_k are independent and sign-symmetric, and Efron's
+    self-normalised bound P(|Σd_k| ≥ x(Σd_k²)^{1/2}) ≤ 2exp(−x²/2) holds at every sample size and
+    whatever the tails (the gridded law beyond its mean differs at O(h²), neglected)."""
     r = _scenario(res, name)
-    lam = r.scenario.main_rate
-    ev = r.event
-    n = int(ev["n"])
-    iu = np.triu_indices(r.sys.n)
-    rb = (ev["sig1"] / n)[1:][..., iu[0], iu[1]]
-    rb_se = np.sqrt(np.maximum(ev["sig2"] / n - (ev["sig1"] / n) ** 2, 0) / n)[1:][..., iu[0], iu[1]]
-    e2, s2 = _entries(r.grid_moments(lam))
-    e1, s1 = _entries(r.event_moments())
-    raw = np.abs(e1 - e2) / floor_se(np.sqrt(s1 ** 2 + s2 ** 2), e2)
-    return statistical(rb - e2, floor_se(np.sqrt(rb_se ** 2 + s2 ** 2), e2), np.zeros_like(rb), confidence=CONFIDENCE,
-                       trials=n + r.trials,
-                       detail=f"two-sample test at λ = {lam:g}, every entry of E[e_ie_iᵀ], node and output time t > 0: "
-                              f"exact event-driven simulator ({n} clock paths, mean of the exact per-path covariances) "
-                              f"minus gridded simulator ({r.trials} trials). For information, the plain sampled second "
-                              f"moments of the two simulators differ by at most {raw.max():.2f} standard errors "
-                              f"(median {np.median(raw):.2f})")
+    b = r.bounds
+    if "scheme_bias_h" not in b:
+        return not_checkable(f"N·n = {r.sys.N * r.sys.n} > {MAX_SCHEME_DIM}: the gridded scheme's bias, needed to pair "
+                             "the two simulators, was not formed")
+    ev_vals = r.event["pair_values"]
+    gr_vals = r.gridded[r.scenario.main_rate]["pair_values"]
+    K = min(len(ev_vals), len(gr_vals))
+    beta = quadratic_forms_cells(r, b["scheme_bias_h"])
+    d = ev_vals[:K] - gr_vals[:K] + beta
+    S, Q = d.sum(0), np.square(d).sum(0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = np.where(Q > 0, np.minimum(1.0, 2 * np.exp(-np.square(S) / (2 * Q))), 1.0)
+    k = int(np.argmin(p))
+    return p_value_test(np.ravel(p), trials=K, min_trials=MIN_TRIALS, measured=float(np.ravel(S)[k] / K), reference=0.0,
+                        detail=f"{K} trials of each simulator paired at λ = {r.scenario.main_rate:g}, "
+                               f"{len(test_times(r.scenario))} times, every node and direction; the gridded bias "
+                               f"(at most {np.abs(beta).max():.2g} in these cells) is removed exactly (measured: the "
+                               "mean paired difference of the worst cell)")
+
+
+def quadratic_forms_cells(r: ScenarioResults, X: np.ndarray) -> np.ndarray:
+    """uᵀX_i(t)u at the test cells: X (T+1, N, n, n) → (len(test_times), N, q)."""
+    U = directions(r.sys.n)
+    return np.einsum("da,tiab,db->tid", U, X[test_times(r.scenario)], U)
 
 
 # -- Theorem III.1 item 2 ----------------------------------------------------------------------------------
 
-def _item2_hypothesis(r: ScenarioResults) -> Verdict | None:
-    ab = float(r.bounds["abar_abscissa"])
-    if ab >= 0:
-        return not_checkable(f"Ā = (1/N)Σ(A − L_iH_i) is not Hurwitz (spectral abscissa {ab:.4g} ≥ 0): the hypothesis of "
-                             "Theorem III.1 item 2 fails, (10)-(11) have no solution and 𝒫_i^∞(λ) does not approach a "
-                             "limit S; reported honestly, not checked")
-    return None
-
-
-def check_lyapunov(res: Results, name: str) -> Verdict:
-    r = _scenario(res, name)
-    if (na := _item2_hypothesis(r)) is not None:
-        return na
-    import control as ct
-
-    s, b = r.sys, r.bounds
-    R, S = b["R"], b["S"]
-    res10 = np.abs(R @ s.Abar + s.Abar.T @ R + np.eye(s.n)).max()
-    res11 = np.abs(s.Abar @ S + S @ s.Abar.T + s.Gbar).max()
-    S_ct = ct.lyap(s.Abar, s.Gbar, method="scipy")
-    R_ct = ct.lyap(s.Abar.T, np.eye(s.n), method="scipy")
-    diff = max(np.abs(S - S_ct).max() / max(1, np.abs(S).max()), np.abs(R - R_ct).max() / max(1, np.abs(R).max()))
-    eR, eS = np.linalg.eigvalsh(R), np.linalg.eigvalsh(S)
-    err = max(res10 / max(1, np.abs(R).max()), res11 / max(1, np.abs(S).max()), diff)
-    ok = err <= 1e-10 and eR[0] > 0 and eS[0] >= -1e-12
-    return Verdict(PASS if ok else FAIL, measured=float(err), reference=0.0, tolerance=1e-10, margin=1e-10 - float(err),
-                   detail=f"Ā Hurwitz (abscissa {float(b['abar_abscissa']):.5g}); R of (10) (equality RĀ + ĀᵀR = −I): "
-                          f"eigenvalues {np.round(eR, 5).tolist()} > 0; S of (11): eigenvalues {np.round(eS, 5).tolist()} "
-                          f"≥ 0, tr S = {np.trace(S):.6f}; residuals {res10:.1e}, {res11:.1e}; python-control lyap agrees "
-                          f"to {diff:.1e}")
-
-
-def _distances(r: ScenarioResults):
+def _deviations(r: ScenarioResults):
+    """Sweep rates, d(λ) = max_i ‖𝒫_i^∞(λ) − S‖_F (solved for directly), its round-off bound and
+    the finite mask."""
     b = r.bounds
-    lams = b["sweep"]
-    d = np.linalg.norm(b["sweep_bound"] - b["S"], axis=(2, 3))   # (L, N), nan where divergent
-    return lams, d
+    lams, D, err = b["sweep"], b["sweep_dev_bound"], b["sweep_dev_err"]
+    fin = np.all(np.isfinite(D), axis=(1, 2, 3)) & np.isfinite(err)
+    d = np.where(fin, np.linalg.norm(np.where(np.isfinite(D), D, 0.0), axis=(2, 3)).max(axis=1), np.nan)
+    return lams, D, d, err, fin
 
 
-def _slope(lams, d, top_decades: float = 1.0):
-    ok = np.all(np.isfinite(d), axis=1) & (lams >= lams[-1] / 10 ** top_decades)
-    x, y = np.log(lams[ok]), np.log(d[ok].max(axis=1))
-    return float(np.polyfit(x, y, 1)[0]), int(ok.sum())
+def _top_decade(lams, fin):
+    top = lams[fin].max() if fin.any() else np.nan
+    return fin & (lams >= top / 10)
 
 
 def check_item2_convergence(res: Results, name: str) -> Verdict:
     r = _scenario(res, name)
-    if (na := _item2_hypothesis(r)) is not None:
-        return na
-    lams, d = _distances(r)
-    dmax = d.max(axis=1)
-    fin = np.isfinite(dmax)
-    if np.nanmax(dmax) < 1e-10:
-        return Verdict(PASS, measured=float(np.nanmax(dmax)), reference=0.0, margin=float(1e-10 - np.nanmax(dmax)),
-                       detail="homogeneous nodes: 𝒫_i(t) ≡ 𝒮(t) and 𝒫_i^∞ = S for every λ (spec D5): d_i(λ) ≡ 0")
-    slope, k = _slope(lams, d)
-    v = inequality([slope], [-0.5], detail=(
-        f"d(λ) = max_i ‖𝒫_i^∞(λ) − S‖_F (steady state of (9) by a linear solve) falls from "
-        f"{dmax[fin][0]:.4g} at λ = {lams[fin][0]:.4g} to {dmax[fin][-1]:.3e} at λ = {lams[fin][-1]:.4g}; log–log slope "
-        f"over the last decade ({k} points) {slope:.4f} ≤ −1/2 as (12) requires"))
-    return v
+    lams, _, d, err, fin = _deviations(r)
+    dec = _top_decade(lams, fin)
+    resolved = dec & (d > 10 * err)
+    if not resolved.any():
+        return Verdict(PASS, measured=float(np.nanmax(d[dec])), reference=float(np.nanmax(10 * err[dec])),
+                       detail=f"d(λ) = max_i ‖𝒫_i^∞(λ) − S‖_F is at the round-off level (≤ 10× its bound "
+                              f"{np.nanmax(err[dec]):.2g}) on the top decade of the sweep: 𝒫_i^∞ = S (e.g. identical nodes), "
+                              "so (12) holds trivially")
+    if resolved.sum() < 2:
+        return not_checkable("fewer than two rates of the top decade have d(λ) above its round-off level")
+    slope = float(np.polyfit(np.log(lams[resolved]), np.log(d[resolved]), 1)[0])
+    return inequality([slope], [-0.5], detail=(
+        f"d(λ) = max_i ‖𝒫_i^∞(λ) − S‖_F (deviation from S solved for directly, steady state of (9)) falls from "
+        f"{d[fin][0]:.4g} at λ = {lams[fin][0]:.4g} to {d[fin][-1]:.3e} at λ = {lams[fin][-1]:.4g}; log–log slope over "
+        f"the top decade ({int(resolved.sum())} rates above λ_thr) {slope:.4f} ≤ −1/2 as (12) requires"))
 
 
 def check_item2_rate(res: Results, name: str) -> Verdict:
+    """The rate is 1/λ: 𝒫_i^∞(λ) = S + C_i/λ + O(λ⁻²) with C from the singular perturbation of (9)
+    (`gossip_covariance.first_order_deviation`). Checked at the two ends (λ₀ < λ₁) of the top
+    decade: the remainder e(λ) = max_i ‖λ(𝒫_i^∞ − S) − C_i‖_F must shrink like 1/λ, i.e.
+    λ₁e(λ₁) ≤ 2λ₀e(λ₀) plus the round-off of λ₁(𝒫^∞ − S); a wrong C would leave e constant."""
     r = _scenario(res, name)
-    if (na := _item2_hypothesis(r)) is not None:
-        return na
-    lams, d = _distances(r)
-    if np.nanmax(d) < 1e-10:
-        return not_checkable("d_i(λ) ≡ 0 for homogeneous nodes: there is no rate to measure")
-    slope, k = _slope(lams, d)
-    fin = np.all(np.isfinite(d), axis=1)
-    ld = (lams[fin] * d[fin].max(axis=1))
-    return identity([slope], [-1.0], rtol=0, atol=0.02,
-                    detail=f"the spec finds d_i(λ) = Θ(1/λ) (singular perturbation), sharper than the paper's O(λ^(-1/2)) "
-                           f"in (12): fitted slope over the last decade {slope:.4f}; λ·d(λ) at the three largest λ: "
-                           f"{np.round(ld[-3:], 5).tolist()} (tends to a constant)")
+    lams, D, d, err, fin = _deviations(r)
+    C = r.bounds["first_order"]
+    dec = np.flatnonzero(_top_decade(lams, fin))
+    if len(dec) < 2:
+        return not_checkable("fewer than two finite rates in the top decade of the sweep")
+    k0, k1 = dec[0], dec[-1]
+    e = lambda k: float(np.linalg.norm(lams[k] * D[k] - C, axis=(1, 2)).max())
+    e0, e1 = e(k0), e(k1)
+    cn = float(np.linalg.norm(C, axis=(1, 2)).max())
+    tol = 2 * lams[k0] * e0 / lams[k1] + lams[k1] * float(err[k1])
+    return Verdict(PASS if e1 <= tol else FAIL, measured=float(lams[k1] * d[k1]), reference=cn, tolerance=tol,
+                   margin=tol - e1,
+                   detail=f"λ·max_i‖𝒫_i^∞(λ) − S‖_F → max_i‖C_i‖_F = {cn:.6g} (first-order singular perturbation of (9), "
+                          f"derived): at λ = {lams[k0]:.4g} the remainder max_i‖λ(𝒫_i^∞ − S) − C_i‖ is {e0:.3g}, at "
+                          f"λ = {lams[k1]:.4g} it is {e1:.3g} ≤ {tol:.3g} (= 2·{lams[k0]:.3g}·{e0:.3g}/{lams[k1]:.3g} + "
+                          f"round-off {lams[k1] * float(err[k1]):.2g}): the bound converges at rate 1/λ, sharper than "
+                          "the O(λ^(-1/2)) of (12)")
 
 
 def check_item2_explicit(res: Results, name: str, variant: str) -> Verdict:
     r = _scenario(res, name)
-    if (na := _item2_hypothesis(r)) is not None:
-        return na
     b = r.bounds
-    lams, d = _distances(r)
+    lams, _, d, err, fin = _deviations(r)
     B = b[f"sweep_explicit_{variant}"]
     thr = float(b[f"explicit_{variant}"][-1])
-    ok = np.isfinite(B) & np.all(np.isfinite(d), axis=1)
+    ok = np.isfinite(B) & fin
     if not ok.any():
         return not_checkable(f"no rate of the sweep exceeds λ_thr = {thr:.4g}")
     crit = float(b["crit_bound"])
-    rounding = 1e-9 * max(1.0, float(np.linalg.norm(b["S"])))      # d is a difference of solves: rounding level
-    v = inequality(np.concatenate([d[ok].max(axis=1) - rounding, [crit]]), np.concatenate([B[ok], [thr]]),
-                   detail=f"explicit (12) ('{variant}' constants C0..C3 of spec §4.5, DERIVED; the paper gives none): "
-                          f"B_12(λ) ≥ max_i ‖𝒫_i^∞ − S‖_F at the {int(ok.sum())} sweep rates above λ_thr = {thr:.4g} "
-                          f"(e.g. λ = {lams[ok][0]:.4g}: B_12 = {B[ok][0]:.4g} vs d = {d[ok][0].max():.3e}), and "
-                          f"λ_thr ≥ λ_crit of (9) = {_fmt(crit)}. Very conservative, as the spec warns")
+    crit_tol = 1e-9 * crit
+    v = inequality(np.concatenate([d[ok] - err[ok], [crit - crit_tol]]), np.concatenate([B[ok], [thr]]),
+                   detail=f"explicit (12) (our '{variant}' constants C0..C3 derived from the proof; the paper gives none): "
+                          f"B_12(λ) ≥ max_i ‖𝒫_i^∞ − S‖_F (less its round-off bound) at the {int(ok.sum())} sweep rates "
+                          f"above λ_thr = {thr:.4g} (e.g. λ = {lams[ok][0]:.4g}: B_12 = {B[ok][0]:.4g} vs d = "
+                          f"{d[ok][0]:.3e}), and λ_thr ≥ λ_crit of (9) = {_fmt(crit)} (bisection to 1e-9 relative). "
+                          "Very conservative")
     return v
 
 
-def check_true_limit(res: Results, name: str) -> Verdict:
+def _lyap_condition(A: np.ndarray) -> float:
+    return float(np.linalg.cond(gc.lyapunov_generator(A), 1))
+
+
+def check_lyapunov(res: Results, name: str) -> Verdict:
+    """(10) and (11) solved by scipy, checked by their residuals (backward error, no condition
+    number needed) and against python-control (forward difference allowed eps·n²·κ, κ the
+    condition number of the Lyapunov operator of Ā)."""
+    import control as ct
+
     r = _scenario(res, name)
-    if (na := _item2_hypothesis(r)) is not None:
-        return na
+    s, b = r.sys, r.bounds
+    R, S = b["R"], b["S"]
+    Gbar = (s.Gbar + s.Gbar.T) / 2
+    nA = float(np.linalg.norm(s.Abar, 2))
+    res10 = float(np.linalg.norm(R @ s.Abar + s.Abar.T @ R + np.eye(s.n), 2)) / (2 * nA * np.linalg.norm(R, 2) + 1)
+    res11 = float(np.linalg.norm(s.Abar @ S + S @ s.Abar.T + Gbar, 2)) / (2 * nA * np.linalg.norm(S, 2)
+                                                                             + np.linalg.norm(Gbar, 2))
+    S_ct = ct.lyap(s.Abar, Gbar, method="scipy")
+    R_ct = ct.lyap(s.Abar.T, np.eye(s.n), method="scipy")
+    diff = max(float(np.abs(S - S_ct).max() / np.abs(S).max()), float(np.abs(R - R_ct).max() / np.abs(R).max()))
+    kappa = _lyap_condition(s.Abar)
+    tol_res, how_res = roundoff_tolerance(scale=1.0, operations=3 * s.n)
+    tol_fwd, how_fwd = roundoff_tolerance(scale=1.0, operations=s.n * s.n, condition=kappa)
+    eR, eS = np.linalg.eigvalsh(R), np.linalg.eigvalsh(S)
+    ok = res10 <= tol_res and res11 <= tol_res and diff <= tol_fwd and eR[0] > 0 and eS[0] >= -tol_fwd * np.abs(S).max()
+    return Verdict(PASS if ok else FAIL, measured=max(res10, res11), reference=0.0, tolerance=tol_res,
+                   margin=tol_res - max(res10, res11),
+                   detail=f"Ā Hurwitz (abscissa {float(b['abar_abscissa']):.5g}); R of (10) (equality RĀ + ĀᵀR = −I): "
+                          f"eigenvalues {np.round(eR, 5).tolist()} > 0; S of (11): eigenvalues {np.round(eS, 5).tolist()} "
+                          f"≥ 0, tr S = {np.trace(S):.6f}; relative residuals {res10:.1e}, {res11:.1e} ({how_res}); "
+                          f"python-control lyap agrees to {diff:.1e} ({how_fwd}, κ of the Lyapunov operator)")
+
+
+def check_true_limit(res: Results, name: str) -> Verdict:
+    """E[e_ie_iᵀ]^∞(λ) → S_true (noise averaged over N², edge clocks), with S ⪰ S_true; for the
+    split Kalman–Bucy gains S_true = P_KB (its Lyapunov equation is then the filter CARE)."""
+    r = _scenario(res, name)
     if r.sys.mode != "edge":
         return not_checkable("the limit S_true (noise averaged over N²) is derived for one clock per undirected edge")
     if (na := _needs_joint(r)) is not None:
         return na
-    b = r.bounds
+    s, b = r.sys, r.bounds
     lams = b["sweep"]
-    Jd = b["sweep_joint"]
-    fin = np.all(np.isfinite(Jd), axis=(1, 2, 3))
-    err = np.linalg.norm(Jd[fin] - b["S_true"], axis=(2, 3)).max(axis=1)
-    top = lams[fin] >= lams[fin][-1] / 10
-    slope = float(np.polyfit(np.log(lams[fin][top]), np.log(err[top]), 1)[0])
+    Dj, errj = b["sweep_dev_joint"], b["sweep_dev_joint_err"]
+    fin = np.all(np.isfinite(Dj), axis=(1, 2, 3)) & np.isfinite(errj)
+    d = np.where(fin, np.linalg.norm(np.where(np.isfinite(Dj), Dj, 0.0), axis=(2, 3)).max(axis=1), np.nan)
+    dec = _top_decade(lams, fin)
+    resolved = dec & (d > 10 * errj)
+    kappa = _lyap_condition(s.Abar)
+    tol_psd = roundoff_tolerance(scale=float(np.abs(b["S"]).max()), operations=s.n * s.n, condition=kappa)[0]
     gap = float(min_eig(b["S"] - b["S_true"]))
-    detail = (f"E[e_ie_iᵀ]^∞(λ) → S_true (Lyapunov with (1/N²)ΣL_iV_iL_iᵀ): max error {err[-1]:.3e} at λ = "
-              f"{lams[fin][-1]:.3g}, slope {slope:.3f} over the last decade; S − S_true ⪰ 0 with smallest eigenvalue "
-              f"{gap:.4g}: the bound's limit S is not the true limit (Lemma III.3 drops the averaging of sensor noises)")
-    if r.scenario.gain_rule == "kalman-bucy-split":
-        kbd = float(np.abs(b["S_true"] - b["P_kb"]).max())
-        detail += f"; with the Kalman–Bucy split gains S_true = P_KB to {kbd:.1e} (the network recovers the centralized filter)"
-        if kbd > 1e-9:
-            return Verdict(FAIL, measured=kbd, reference=0.0, detail=detail)
-    ok = slope < -0.9 and gap >= -1e-12
-    return Verdict(PASS if ok else FAIL, measured=slope, reference=-1.0, margin=gap, detail=detail)
+    parts = [f"S − S_true ⪰ 0: smallest eigenvalue {gap:.4g} (allowance {tol_psd:.2g}): the bound's limit S is not the "
+             "true limit (Lemma III.3 drops the averaging of sensor noises)"]
+    ok = gap >= -tol_psd
+    if resolved.sum() >= 2:
+        slope = float(np.polyfit(np.log(lams[resolved]), np.log(d[resolved]), 1)[0])
+        parts.append(f"max_i‖E[e_ie_iᵀ]^∞(λ) − S_true‖_F (solved for directly) is {d[resolved][-1]:.3e} at "
+                     f"λ = {lams[resolved][-1]:.3g}, log–log slope {slope:.3f} over the top decade (≤ −1/2 required)")
+        ok = ok and slope <= -0.5
+    else:
+        parts.append(f"E[e_ie_iᵀ]^∞(λ) = S_true to round-off on the top decade (max deviation {np.nanmax(d[dec]):.2g})")
+    if r.scenario.gain_rule == "kalman-bucy-split" and "P_kb" in b:
+        P = b["P_kb"]
+        Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
+        Sinv = Hs.T @ np.linalg.solve(Vs, Hs)
+        G_true = s.B @ s.B.T + sum(L @ V @ L.T for L, V in zip(s.L, s.V)) / s.N ** 2
+        lyap_res = s.Abar @ P + P @ s.Abar.T + G_true
+        care_res = s.A @ P + P @ s.A.T + s.B @ s.B.T - P @ Sinv @ P
+        terms = 2 * np.linalg.norm(s.A, 2) * np.linalg.norm(P, 2) + np.linalg.norm(s.B @ s.B.T, 2) \
+            + np.linalg.norm(P @ Sinv @ P, 2) + 2 * np.linalg.norm(s.Abar, 2) * np.linalg.norm(P, 2)
+        tol_kb, how = roundoff_tolerance(scale=float(terms), operations=4 * s.n)
+        diff = float(np.abs(lyap_res - care_res).max())
+        parts.append(f"with the Kalman–Bucy split gains P_KB solves the Lyapunov equation of S_true: its residual "
+                     f"equals the CARE residual of P_KB to {diff:.1e} ({how}), i.e. S_true = P_KB (the network "
+                     "recovers the centralized filter)")
+        ok = ok and diff <= tol_kb
+    return Verdict(PASS if ok else FAIL, measured=gap, reference=0.0, tolerance=tol_psd, margin=gap + tol_psd,
+                   detail="; ".join(parts))
 
 
 def check_critical(res: Results, name: str) -> Verdict:
+    """λ_crit of (9) is a sign change of the spectral abscissa of M_9 (up to its round-off level),
+    λ_crit of the exact covariance is not larger (𝒫_i ⪰ E[e_ie_iᵀ]: M_9 Hurwitz ⇒ M_Σ Hurwitz), and
+    when Ā is Hurwitz M_9(λ) is Hurwitz at every sweep rate beyond λ_thr ('λ sufficiently large')."""
     r = _scenario(res, name)
     s, b = r.sys, r.bounds
     c9 = float(b["crit_bound"])
     cS = float(b["crit_joint"]) if "crit_joint" in b else float("nan")
+    a = lambda lam: gc.bound_abscissa(s, lam)
+    t = lambda lam: gc.bound_abscissa_tolerance(s, lam)
     details = [f"λ_crit of (9) = {_fmt(c9)}, of the exact mean covariance = {_fmt(cS)}"]
-    below = [lam for lam in r.scenario.rates if lam <= c9]
-    if below:
-        details.append(f"simulated λ = {below} ≤ λ_crit(9): there the bound (9) diverges as t → ∞ (no steady state; "
-                       "reported as unbounded, its finite-horizon transient is still checked)" +
-                       ("; the true mean covariance diverges too" if any(lam <= cS for lam in below) else
-                        "; the true mean covariance stays bounded"))
-    lo, up = [], []
+    lo, up = [], []                                     # lower ≤ upper + 0 for every check (tolerances folded in)
     if math.isfinite(c9) and c9 > 0:
-        lo.append(gc.bound_abscissa(s, 1.01 * c9)), up.append(0.0)       # stable just above
-        lo.append(0.0), up.append(gc.bound_abscissa(s, 0.99 * c9))       # unstable just below
-        details.append(f"abscissa of M_9 at 0.99/1.01 λ_crit: {up[-1]:.3e} / {lo[0]:.3e}")
+        above, below = a(c9 * 1.001), a(c9 * 0.999)
+        lo += [above, -t(c9 * 0.999)]
+        up += [t(c9 * 1.001), below]
+        details.append(f"abscissa of M_9 at 0.999/1.001 λ_crit: {below:.3e} / {above:.3e} (round-off level "
+                       f"{t(c9):.2g})")
+    elif c9 == 0.0:
+        a0 = a(0.0)
+        lo.append(a(float(b["sweep"][0]))), up.append(t(float(b["sweep"][0])))
+        details.append(f"λ_crit = 0: abscissa of M_9 at λ = 0 is {a0:.3e} ({'marginal: zero to round-off' if abs(a0) <= t(0.0) else 'stable'}), "
+                       f"at λ = {float(b['sweep'][0]):.3g} {lo[-1]:.3e}")
     if math.isfinite(cS) and math.isfinite(c9):
-        lo.append(cS), up.append(c9)
+        lo.append(cS), up.append(c9 * (1 + 1e-9) + 1e-9)
+    lams, absc, tol = b["sweep"], b["sweep_absc_bound"], b["sweep_absc_tol"]
+    late = lams > c9
+    bad = late & (absc >= tol)
+    if bad.any():
+        details.append(f"M_9(λ) is not Hurwitz at {int(bad.sum())} sweep rates above λ_crit (largest {lams[bad].max():.4g}): "
+                       "the stable rates do not form a half-line here")
+    if "explicit_tight" in b:
+        thr = float(b["explicit_tight"][-1])
+        beyond = lams > thr
+        if beyond.any():
+            lo.append(float(np.max(absc[beyond] - tol[beyond]))), up.append(0.0)
+            details.append(f"M_9 Hurwitz at the {int(beyond.sum())} sweep rates beyond λ_thr = {thr:.4g}")
     if not lo:
-        if not math.isfinite(c9):
-            return Verdict(PASS, measured=c9, detail="; ".join(details) + ": (9) diverges for every λ (Ā not Hurwitz), "
-                           "reported as unbounded")
-        return Verdict(PASS, measured=c9, reference=0.0, detail="; ".join(details) + " (every A_i Hurwitz)")
-    v = inequality(lo, up, strict=False, detail="; ".join(details) +
-                   ". λ_crit(Σ̄) ≤ λ_crit(9): a window where the true covariance is bounded but the bound diverges")
+        return Verdict(PASS, measured=c9, detail="; ".join(details) + ": (9) diverges for every λ up to 1e9, reported as "
+                       "unbounded")
+    v = inequality(lo, up, detail="; ".join(details))
     return Verdict(v.status, measured=c9, reference=cS, margin=v.margin, detail=v.detail)
 
 
 # -- the centralized reference ------------------------------------------------------------------------------
 
+def _care_residual(A, B, S, X) -> np.ndarray:
+    return A @ X + X @ A.T + B @ B.T - X @ S @ X
+
+
 def check_kb_reference(res: Results, name: str) -> Verdict:
+    """Three computations of the Kalman–Bucy covariance agree within what their own errors allow:
+
+    * P_KB (scipy CARE) and python-control's care and lqe: to first order an approximate
+      solution X of the CARE differs from the exact one by L⁻¹(R(X)), L(Y) = A_cY + YA_cᵀ the
+      closed-loop Lyapunov operator and R(X) the residual; two solutions may therefore differ by
+      at most ‖L⁻¹‖(‖R(X₁)‖ + ‖R(X₂)‖), doubled for the second-order terms, plus rounding;
+    * the closed-form Riccati ODE solution on the output grid and scipy's Radau integration
+      (local relative tolerance 1e-11; the global error is allowed 1e3 times that, times the scale)."""
     import control as ct
     from scipy.integrate import solve_ivp
 
     r = _scenario(res, name)
     s, b, sc = r.sys, r.bounds, r.scenario
-    if "P_kb" not in b:
-        return not_checkable("the filter CARE has no stabilising solution")
     Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
+    Sinv = Hs.T @ np.linalg.solve(Vs, Hs)
+    P = b["P_kb"]
     X, _, _ = ct.care(s.A.T, Hs.T, s.B @ s.B.T, Vs, method="scipy")
     Lq, Pq, _ = ct.lqe(s.A, s.B, Hs, np.eye(s.B.shape[1]), Vs, method="scipy")
-    Sinv = Hs.T @ np.linalg.solve(Vs, Hs)
+    Ac = s.A - P @ Sinv
+    inv_norm = 1.0 / float(np.linalg.svd(gc.lyapunov_generator(Ac), compute_uv=False)[-1])
+    nR = lambda Y: float(np.linalg.norm(_care_residual(s.A, s.B, Sinv, Y), 2))
+    round_ = roundoff_tolerance(scale=float(np.abs(P).max()), operations=4 * s.n)[0]
+    allow = [2 * inv_norm * (nR(P) + nR(Y)) + round_ for Y in (X, Pq)]
+    diffs = [float(np.linalg.norm(Y - P, 2)) for Y in (X, Pq)]
+    gain_allow = allow[1] * float(np.linalg.norm(Hs.T @ np.linalg.solve(Vs, np.eye(len(Vs))), 2))
+    gain = float(np.linalg.norm(Lq - b["K_kb"], 2))
 
     def rhs(t, p):
-        P = p.reshape(s.n, s.n)
-        return (s.A @ P + P @ s.A.T + s.B @ s.B.T - P @ Sinv @ P).ravel()
+        Pt = p.reshape(s.n, s.n)
+        return (s.A @ Pt + Pt @ s.A.T + s.B @ s.B.T - Pt @ Sinv @ Pt).ravel()
 
     ts = sc.output_times
-    sol = solve_ivp(rhs, (0, ts[-1]), s.P0.ravel(), method="Radau", t_eval=ts, rtol=1e-11, atol=1e-13)
+    sol = solve_ivp(rhs, (0, ts[-1]), s.P0.ravel(), method="Radau", t_eval=ts, rtol=RADAU_RTOL,
+                    atol=RADAU_RTOL * max(1.0, float(np.abs(P).max())))
+    if not sol.success:
+        return not_checkable(f"the Radau integration of the Riccati ODE failed: {sol.message}")
     ode = sol.y.T.reshape(-1, s.n, s.n)
-    m = np.concatenate([X.ravel(), Pq.ravel(), Lq.ravel(), b["P_kb_t"].ravel()])
-    rf = np.concatenate([b["P_kb"].ravel(), b["P_kb"].ravel(), b["K_kb"].ravel(), ode.ravel()])
-    return identity(m, rf, rtol=0, atol=1e-7 * max(1.0, np.abs(rf).max()),
-                    detail=f"P_KB (scipy CARE) = python-control care and lqe; the exact Hamiltonian solution of the "
-                           f"Riccati ODE equals scipy's Radau integration on the output grid; tr P_KB = "
-                           f"{np.trace(b['P_kb']):.6f}, tr P_KB(T) = {np.trace(b['P_kb_t'][-1]):.6f}")
+    scale = max(float(np.abs(ode).max()), float(np.abs(b["P_kb_t"]).max()))
+    ode_err = float(np.abs(ode - b["P_kb_t"]).max())
+    ode_tol = 1e3 * RADAU_RTOL * scale
+    margins = [a - d for a, d in zip(allow, diffs)] + [gain_allow - gain, ode_tol - ode_err]
+    ok = min(margins) >= 0
+    return Verdict(PASS if ok else FAIL, measured=max(diffs), reference=0.0, tolerance=min(allow), margin=min(margins),
+                   detail=f"‖P_KB − care‖₂ = {diffs[0]:.2e} (allowed {allow[0]:.2e}), ‖P_KB − lqe‖₂ = {diffs[1]:.2e} "
+                          f"(allowed {allow[1]:.2e}) with ‖L⁻¹‖ = {inv_norm:.3g} and CARE residual of P_KB {nR(P):.2e}; "
+                          f"lqe gain differs by {gain:.1e} (allowed {gain_allow:.1e}); the closed-form Riccati ODE "
+                          f"solution equals Radau to {ode_err:.2e} (allowed {ode_tol:.2e}); tr P_KB = "
+                          f"{np.trace(P):.6f}, tr P_KB(T) = {np.trace(b['P_kb_t'][-1]):.6f}")
 
 
 def check_filterpy(res: Results, name: str) -> Verdict:
+    """filterpy's discrete filter on the sampled model (R = V/h): its steady covariance equals
+    scipy's DARE within what the two computations' own residuals allow (see
+    `compute.filterpy_reference`), and it converges to P_KB at first order in h (log–log slope 1;
+    the steps satisfy hν ≤ 1/2 with ν the fastest Kalman–Bucy mode, so the O(h²) term is at most
+    a fraction hν of the O(h) term over the range used, which bounds the slope's deviation by 1/4)."""
     r = _scenario(res, name)
     b = r.bounds
-    if "P_kb" not in b:
-        return not_checkable("the filter CARE has no stabilising solution")
+    steady = b["filterpy_steady"].astype(bool)
     h = b["filterpy_h"]
-    dare_err = float(np.abs(b["filterpy_prior"] - b["dare_prior"]).max() / max(1, np.abs(b["dare_prior"]).max()))
-    err = np.linalg.norm(b["filterpy_prior"] - b["P_kb"], axis=(1, 2))
-    err_post = np.linalg.norm(b["filterpy_post"] - b["P_kb"], axis=(1, 2))
+    if steady.sum() < 3:
+        return not_checkable(f"the sampled filter reaches its steady state within 6000 steps at only "
+                             f"{int(steady.sum())} of the {len(h)} sampling steps (slow modes)")
+    h, pri, post, dare = h[steady], b["filterpy_prior"][steady], b["filterpy_post"][steady], b["dare_prior"][steady]
+    diff = np.linalg.norm(pri - dare, 2, axis=(1, 2))
+    allow = b["filterpy_allow"][steady]
+    err = np.linalg.norm(pri - b["P_kb"], axis=(1, 2))
+    err_post = np.linalg.norm(post - b["P_kb"], axis=(1, 2))
     slope = float(np.polyfit(np.log(h), np.log(err), 1)[0])
+    k = int(np.argmax(diff / allow))
     detail = (f"filterpy KalmanFilter on the sampled model (F = e^(Ah), Q = Van Loan, R = V/h, z = Δy/h): steady prior "
-              f"equals scipy's DARE to {dare_err:.1e}; ‖P⁻(h) − P_KB‖_F = {np.round(err, 5).tolist()} and ‖P⁺(h) − "
-              f"P_KB‖_F = {np.round(err_post, 5).tolist()} for h = {h.tolist()}: first order, log–log slope {slope:.3f}")
-    ok = dare_err <= 1e-7 and abs(slope - 1) <= 0.15
-    return Verdict(PASS if ok else FAIL, measured=slope, reference=1.0, tolerance=0.15, margin=0.15 - abs(slope - 1),
+              f"equals scipy's DARE to {diff[k]:.1e} (allowed {allow[k]:.1e} from the residuals of both and the "
+              f"closed-loop Stein operator); ‖P⁻(h) − P_KB‖_F = {np.round(err, 6).tolist()} and ‖P⁺(h) − P_KB‖_F = "
+              f"{np.round(err_post, 6).tolist()} for h = {np.round(h, 6).tolist()} (fastest Kalman–Bucy mode "
+              f"ν = {float(b['kb_fastest_mode']):.3g}): first order, log–log slope {slope:.3f}")
+    ok = bool(np.all(diff <= allow)) and abs(slope - 1) <= 0.25
+    return Verdict(PASS if ok else FAIL, measured=slope, reference=1.0, tolerance=0.25, margin=0.25 - abs(slope - 1),
                    detail=detail)
 
 
-# -- reference numbers of the spec (paper scenarios) ------------------------------------------------------
+# -- reference numbers of this reproduction's own scenarios --------------------------------------------------
 
 SYSTEM_FIELDS = ("A", "B", "H", "V", "L", "edges", "alpha", "mode", "P0", "m0")
 
 
-def _spec_differences(r: ScenarioResults, name: str) -> tuple[list[str], bool]:
-    """Fields of the system in which scenario `name` differs from the spec's scenario of that
-    name (shipped in scenarios/), and whether the transient references (at the spec's main
-    rate, output step and horizon) apply."""
+def _reference_differences(r: ScenarioResults, name: str) -> tuple[list[str], bool]:
+    """Fields of the system in which scenario `name` differs from the shipped scenario of that
+    name, and whether the transient references (at its main rate, output step and horizon) apply."""
     from pipeline.cache import canonical_json
     from pipeline.scenario import load_toml
 
@@ -721,21 +953,23 @@ def _spec_differences(r: ScenarioResults, name: str) -> tuple[list[str], bool]:
     if not path.exists():
         return ["name"], False
     data = {k: v for k, v in load_toml(path).items() if k != "family"}
-    mine, spec = r.scenario.key(), FilterNetworkScenario.from_dict(data).key()
-    differ = [f for f in SYSTEM_FIELDS if canonical_json(mine[f]) != canonical_json(spec[f])]
-    same_clock = (mine["rates"][0] == spec["rates"][0] and mine["output_step"] == spec["output_step"]
-                  and mine["horizon"] >= spec["horizon"])
+    mine, shipped = r.scenario.key(), FilterNetworkScenario.from_dict(data).key()
+    differ = [f for f in SYSTEM_FIELDS if canonical_json(mine[f]) != canonical_json(shipped[f])]
+    same_clock = (mine["rates"][0] == shipped["rates"][0] and mine["output_step"] == shipped["output_step"]
+                  and mine["horizon"] >= shipped["horizon"])
     return differ, same_clock
 
 
-def check_spec_values(res: Results, name: str) -> Verdict:
+def check_reference_values(res: Results, name: str) -> Verdict:
     r = _scenario(res, name)
     b, s = r.bounds, r.sys
     meas, refs, tol = [], [], []
-    differ, same_clock = _spec_differences(r, name) if name in (*ref.CLOSED_FORMS, "s2", "s3") else ([], True)
+    if name not in (*ref.CLOSED_FORMS, "s2", "s3"):
+        return not_checkable("reference numbers exist only for the scenarios S1-S3 of this reproduction")
+    differ, same_clock = _reference_differences(r, name)
     if differ:
-        return not_checkable(f"this scenario is named {name} but differs from the spec's {name.upper()} in "
-                             f"{', '.join(differ)}: the spec's reference numbers do not apply")
+        return not_checkable(f"this scenario is named {name} but differs from the shipped {name.upper()} in "
+                             f"{', '.join(differ)}: the reference numbers do not apply")
 
     def add(m, rf, rt):
         """rt = "printed": half a unit of the last printed decimal of rf (absolute, made relative)."""
@@ -764,7 +998,7 @@ def check_spec_values(res: Results, name: str) -> Verdict:
                 k = int(round(t / r.scenario.output_step))
                 for m_, v_ in zip((P[k, 0, 0, 0], P[k, 1, 0, 0], J[k, 0, 0, 0], J[k, 1, 0, 0]), vals):
                     add(m_, v_, "printed")
-    elif name in ("s2", "s3"):
+    else:
         rv = ref.S2 if name == "s2" else ref.S3
         add(b["crit_bound"], rv["crit_bound"], "printed"), add(b["crit_joint"], rv["crit_joint"], "printed")
         add(np.trace(b["P_kb"]), rv["tr_P_kb"], "printed"), add(np.trace(b["S"]), rv["tr_S"], "printed")
@@ -788,8 +1022,6 @@ def check_spec_values(res: Results, name: str) -> Verdict:
             for variant in ("faithful", "tight"):
                 eb = gc.explicit_bound(s, variant)
                 add(eb.threshold, rv["lam_thr"][variant], 5e-3), add(eb.value(1e5), rv["B12_1e5"][variant], 5e-3)
-    else:
-        return not_checkable("the spec gives reference numbers only for its scenarios S1-S3")
     m, rf, tl = np.array(meas), np.array(refs), np.array(tol)
     err = np.abs(m - rf) / np.maximum(np.abs(rf), 1e-12)
     err = np.where(np.abs(rf) < 1e-12, np.abs(m - rf), err)
@@ -797,106 +1029,11 @@ def check_spec_values(res: Results, name: str) -> Verdict:
     ok = bool(np.all(err <= tl))
     return Verdict(PASS if ok else FAIL, measured=float(m[w]), reference=float(rf[w]), tolerance=float(tl[w]),
                    margin=float(np.min(tl - err)),
-                   detail=f"{len(m)} reference numbers of spec §5 (closed forms for S1, printed values to half a unit of their last printed digit for S2, S3); worst relative error {err[w]:.2e} (tolerance {tl[w]:.0e})"
-                          + ("" if same_clock else "; the transient references were skipped: this scenario's main rate, "
-                             "output step or horizon differ from the spec's"))
-
-
-# -- errata ----------------------------------------------------------------------------------------------------
-
-def _mc_erratum(printed, corrected, est, se, *, confidence, trials, detail) -> Verdict:
-    """Erratum test against Monte Carlo: which formula is consistent with the simulated mean."""
-    z = float(sps.norm.ppf(1 - (1 - confidence) / (2 * np.size(est))))
-    zp = np.abs(np.asarray(printed) - est) / se
-    zc = np.abs(np.asarray(corrected) - est) / se
-    p_ok, c_ok = bool(np.all(zp <= z)), bool(np.all(zc <= z))
-    status = PASS if p_ok else (ERRATUM if c_ok else FAIL)
-    w = int(np.argmax(zp))
-    return Verdict(status, measured=float(np.ravel(est)[w]), reference=float(np.ravel(est)[w]), tolerance=z,
-                   margin=float(z - zc.max()), confidence=confidence, trials=trials,
-                   printed=float(np.ravel(printed)[w]), corrected=float(np.ravel(corrected)[w]),
-                   detail=f"worst |z| printed {zp.max():.1f}, corrected {zc.max():.2f} (threshold {z:.2f}). {detail}")
-
-
-def _stacked_bound(r: ScenarioResults, sign: float, single: bool = False) -> np.ndarray:
-    """𝒫(t) from the stacked ODE 𝒫' = F(𝒫) + G + λ(Π⊗I)𝒫 − λ𝒫 with Π = I + sign·α𝓛 (printed: +),
-    or (single=True) with one neighbour's jump term per node instead of the sum."""
-    s, sc = r.sys, r.scenario
-    lam = sc.main_rate
-    M = sla.block_diag(*[gc.lyapunov_generator(A) for A in s.Ai])
-    if single:
-        W = np.zeros((s.N, s.N))
-        for i in range(s.N):
-            j = int(np.flatnonzero(s.laplacian[i] < 0)[0])
-            W[i, j], W[i, i] = s.alpha, -s.alpha
-    else:
-        W = sign * s.alpha * s.laplacian
-    M = M + lam * np.kron(W, np.eye(s.n * s.n))
-    g = np.concatenate([gc.vec(G) for G in s.Gi])
-    from estimators.linear_flows import affine_flow_grid
-
-    p = affine_flow_grid(M, g, np.tile(gc.vec(s.P0), s.N), sc.output_step, sc.n_outputs)
-    return gc.unvec(p.reshape(len(p), s.N, -1), s.n)
-
-
-def _prop34_mc(r: ScenarioResults):
-    ev = r.event
-    n = int(ev["n"])
-    mean = ev["p1"] / n
-    se = np.sqrt(np.maximum(ev["p2"] / n - mean ** 2, 0.0) / n)
-    k = r.scenario.output_times >= 0.5
-    tr = np.trace(mean, axis1=2, axis2=3)[k]
-    tr_se = np.sqrt(np.einsum("tnaa->tn", se ** 2))[k]   # conservative (ignores covariances of the diagonal)
-    return tr, tr_se, k, n
-
-
-def check_erratum_pi_sign(res: Results, name: str) -> Verdict:
-    r = _scenario(res, name)
-    tr, tr_se, k, n = _prop34_mc(r)
-    with np.errstate(over="ignore", invalid="ignore"):
-        printed = np.trace(_stacked_bound(r, +1.0), axis1=2, axis2=3)[k]
-    corrected = np.trace(_stacked_bound(r, -1.0), axis1=2, axis2=3)[k]
-    printed = np.where(np.isfinite(printed), printed, 1e300)
-    return _mc_erratum(printed, corrected, tr, tr_se, confidence=CONFIDENCE, trials=n,
-                       detail="§III.C 'we recall that Π = I_N + α𝓛' vs eq. (3) Π = I_N − α𝓛, in the stacked ODE "
-                              "𝒫' = F(𝒫) + G + λ(Π⊗I)𝒫 − λ𝒫; reference: the Monte Carlo mean of the P-process (14) "
-                              "(tr 𝒫_i, t ≥ 0.5). With +α𝓛 the off-diagonal weights are negative and the ODE explodes")
-
-
-def check_erratum_generator(res: Results, name: str) -> Verdict:
-    r = _scenario(res, name)
-    if r.sys.degrees.max() < 2:
-        return not_checkable("every node has one neighbour: the missing Σ_{j∈N_i} makes no difference here")
-    tr, tr_se, k, n = _prop34_mc(r)
-    printed = np.trace(_stacked_bound(r, 0.0, single=True), axis1=2, axis2=3)[k]
-    corrected = np.trace(_stacked_bound(r, -1.0), axis1=2, axis2=3)[k]
-    return _mc_erratum(printed, corrected, tr, tr_se, confidence=CONFIDENCE, trials=n,
-                       detail="proof of Prop. III.4: the final generator formula carries one neighbour's term "
-                              "λ(E[ψ^j(Q)] − Q) without Σ_{j∈N_i} (read here with the first neighbour); (9) has the sum. "
-                              "Reference: Monte Carlo mean of the P-process")
-
-
-def check_erratum_inverse(res: Results, name: str) -> Verdict:
-    """§III.C: '𝒫 = sqrt(N(U⊗I)^{-1})𝒬' vs 𝒫 = sqrt(N)(U⊗I)^{-1}𝒬 = sqrt(N)(Uᵀ⊗I)𝒬."""
-    r = _scenario(res, name)
-    s = r.sys
-    w, Uv = np.linalg.eigh(s.laplacian)
-    U = Uv.T.copy()
-    U[0] = np.sign(U[0].sum()) * U[0]
-    P = r.bound(r.scenario.main_rate)[-1].reshape(s.N * s.n, s.n)
-    UI = np.kron(U, np.eye(s.n))
-    Q = UI @ P / np.sqrt(s.N)
-    printed = (sla.sqrtm(s.N * np.linalg.inv(UI)) @ Q).real
-    corrected = np.sqrt(s.N) * np.kron(U.T, np.eye(s.n)) @ Q
-    scale = np.linalg.norm(P)
-    rp, rc = np.linalg.norm(printed - P) / scale, np.linalg.norm(corrected - P) / scale
-    status = PASS if rp <= 1e-12 else (ERRATUM if rc <= 1e-12 else FAIL)
-    return Verdict(status, measured=float(rp), reference=0.0, tolerance=1e-12, margin=float(1e-12 - rc),
-                   printed=float(rp), corrected=float(rc),
-                   detail="relative Frobenius error of the reconstruction of 𝒫 from 𝒬 = (1/√N)(U⊗I)𝒫 (U the "
-                          "orthogonal eigenbasis of 𝓛, first row 1/√N): printed 'sqrt(N(U⊗I)⁻¹)𝒬' (a matrix square "
-                          f"root) gives {rp:.3g}, corrected √N(Uᵀ⊗I)𝒬 gives {rc:.1e} (𝒫 = 𝒫(T) at "
-                          f"λ = {r.scenario.main_rate:g})")
+                   detail=f"{len(m)} reference numbers of this reproduction's scenario {name.upper()}, computed "
+                          "independently (closed forms for S1; values printed to a given number of decimals for S2, S3, "
+                          f"compared to half a unit of their last digit); worst relative error {err[w]:.2e} (tolerance "
+                          f"{tl[w]:.0e})" + ("" if same_clock else "; the transient references were skipped: this "
+                                             "scenario's main rate, output step or horizon differ"))
 
 
 def check_topology(res: Results) -> Verdict:
@@ -915,29 +1052,147 @@ def check_topology(res: Results) -> Verdict:
         gaps.append(np.nanmin(gap)), slopes.append(slope)
         parts.append(f"{g}: ασ_2 = {float(topo[f'{g}_alpha_fiedler']):.4g}, λ_crit(9) = {float(topo[f'{g}_crit_bound']):.4g}, "
                      f"min gap {np.nanmin(gap):.4g}, slope {slope:.3f}")
-    ok = min(gaps) >= -1e-9 and max(slopes) <= -0.5
+    ok = min(gaps) >= 0 and max(slopes) <= -0.5
     return Verdict(PASS if ok else FAIL, measured=float(max(slopes)), reference=-0.5, margin=float(min(gaps)),
                    detail="S4 (S2's plant and sensors on four 4-node graphs): at every steady state of the λ sweep "
                           "𝒫_i^∞ ⪰ E[e_ie_iᵀ]^∞ (smallest eigenvalue of the difference ≥ 0) and ‖𝒫_i^∞ − S‖_F decays "
                           "with log–log slope ≤ −1/2 over the last decade. " + "; ".join(parts))
 
 
+# -- errata ----------------------------------------------------------------------------------------------------
+
+def generator_by_definition(r: ScenarioResults, Q: np.ndarray) -> tuple[np.ndarray, float]:
+    """The generator (17) of the P-process at the state Q (N, n, n), from its definition
+    𝓛(Q) = lim_{ε→0} (E[P(ε) | P(0) = Q] − Q)/ε and the path rules (14) alone (no use of (9)):
+    over [0, ε] no ring (probability e^{−Λε}, Λ = λ·#clocks) gives the Lyapunov flow of every
+    node (exact Van Loan), one ring of clock c (probability λε e^{−Λε}) the flow to ε/2, the
+    jump (14b), the flow to ε; more rings and the midpoint rule change E[P(ε)] by O(ε²). The
+    difference quotient is extrapolated twice (Richardson, error O(ε²)); the returned error
+    bound is the change of the extrapolation under ε → ε/2 plus the rounding of the quotient."""
+    s, lam = r.sys, r.scenario.main_rate
+    Lam = lam * len(s.clocks)
+    kappa = max(np.linalg.norm(A, 2) for A in s.Ai) + Lam
+    eps0 = 1e-3 / kappa
+    jumps = [s.jump(c) for c in range(len(s.clocks))]
+
+    def mean_after(eps: float) -> np.ndarray:
+        half = [van_loan(A, G, eps / 2) for A, G in zip(s.Ai, s.Gi)]
+        flow = lambda P: np.array([F @ Pi @ F.T + Qn for (F, Qn), Pi in zip(half, P)])
+        none = flow(flow(Q))
+        mid = flow(Q)
+        one = sum(flow(np.einsum("ij,jab->iab", J, mid)) for J in jumps)
+        return math.exp(-Lam * eps) * (none + lam * eps * one)
+
+    quotient = lambda eps: (mean_after(eps) - Q) / eps
+    richardson = lambda eps: 2 * quotient(eps / 2) - quotient(eps)
+    g1, g2 = richardson(eps0), richardson(eps0 / 2)
+    rounding = roundoff_tolerance(scale=float(np.abs(Q).max()) / (eps0 / 4), operations=4 * s.N * s.n)[0]
+    return g2, float(np.abs(g1 - g2).max()) + rounding
+
+
+def _generator_formula(r: ScenarioResults, Q: np.ndarray, coupling: np.ndarray) -> np.ndarray:
+    """A_iQ_i + Q_iA_iᵀ + G_i + λ Σ_j W_ij Q_j for a coupling matrix W (N, N)."""
+    s = r.sys
+    flow = np.einsum("iab,ibc->iac", s.Ai, Q)
+    return flow + np.swapaxes(flow, 1, 2) + s.Gi + r.scenario.main_rate * np.einsum("ij,jab->iab", coupling, Q)
+
+
+def _erratum_states(r: ScenarioResults) -> np.ndarray:
+    """Node states at which the generators are compared: 𝒫_i(T) of (9) (or P0 if it diverged) plus
+    distinct random positive definite perturbations, so that neighbours differ."""
+    s = r.sys
+    base = r.bound(r.scenario.main_rate)[-1]
+    if not np.all(np.isfinite(base)):
+        base = np.broadcast_to(s.P0, (s.N, s.n, s.n))
+    rng = np.random.default_rng(17)
+    Z = rng.standard_normal((s.N, s.n, s.n))
+    scale = max(1.0, float(np.abs(base).max()))
+    return base + 0.5 * scale * (Z @ np.swapaxes(Z, 1, 2)) / s.n
+
+
+def _generator_erratum(r: ScenarioResults, printed_coupling: np.ndarray, text: str) -> Verdict:
+    s = r.sys
+    Q = _erratum_states(r)
+    ref_, tol = generator_by_definition(r, Q)
+    corrected = _generator_formula(r, Q, sum(s.jump(c) - np.eye(s.N) for c in range(len(s.clocks))))
+    printed = _generator_formula(r, Q, printed_coupling)
+    ep, ec = float(np.abs(printed - ref_).max()), float(np.abs(corrected - ref_).max())
+    status = PASS if ep <= tol else (ERRATUM if ec <= tol else FAIL)
+    w = np.unravel_index(int(np.argmax(np.abs(printed - ref_))), ref_.shape)
+    return Verdict(status, measured=float(ref_[w]), reference=float(ref_[w]), tolerance=tol, margin=tol - ec,
+                   printed=float(printed[w]), corrected=float(corrected[w]),
+                   detail=f"{text} The generator computed from its definition (17) and the path rules (14) alone, at "
+                          f"distinct node states, differs from the printed formula by up to {ep:.4g} and from the "
+                          f"corrected one by {ec:.2e} (allowed {tol:.2e}: extrapolation error and rounding of the "
+                          f"difference quotient); λ = {r.scenario.main_rate:g}")
+
+
+def check_erratum_pi_sign(res: Results, name: str) -> Verdict:
+    r = _scenario(res, name)
+    return _generator_erratum(r, r.sys.alpha * r.sys.laplacian,
+                              "§III.C 'we recall that Π = I_N + α𝓛' vs eq. (3) Π = I_N − α𝓛, in the stacked ODE "
+                              "𝒫' = F(𝒫) + G + λ(Π⊗I)𝒫 − λ𝒫 (with + the coupling pushes neighbours apart).")
+
+
+def check_erratum_generator(res: Results, name: str) -> Verdict:
+    r = _scenario(res, name)
+    s = r.sys
+    if s.degrees.max() < 2:
+        return not_checkable("every node has one neighbour: the missing Σ_{j∈N_i} makes no difference here")
+    W = np.zeros((s.N, s.N))
+    for i in range(s.N):
+        j = int(np.flatnonzero(s.laplacian[i] < 0)[0])
+        W[i, j], W[i, i] = s.alpha, -s.alpha
+    return _generator_erratum(r, W, "Proof of Prop. III.4: the final generator formula carries one neighbour's term "
+                                    "λ(E[ψ^j(Q)] − Q) without Σ_{j∈N_i} (read here with the first neighbour); (9) has "
+                                    "the sum.")
+
+
+def check_erratum_inverse(res: Results, name: str) -> Verdict:
+    """§III.C: '𝒫 = sqrt(N(U⊗I)^{-1})𝒬' vs 𝒫 = sqrt(N)(U⊗I)^{-1}𝒬 = sqrt(N)(Uᵀ⊗I)𝒬."""
+    r = _scenario(res, name)
+    s = r.sys
+    w, Uv = np.linalg.eigh(s.laplacian)
+    U = Uv.T.copy()
+    U[0] = np.sign(U[0].sum()) * U[0]
+    P = r.bound(r.scenario.main_rate)[-1].reshape(s.N * s.n, s.n)
+    if not np.all(np.isfinite(P)):
+        P = np.tile(s.P0, (s.N, 1))
+    UI = np.kron(U, np.eye(s.n))
+    Q = UI @ P / np.sqrt(s.N)
+    printed = (sla.sqrtm(s.N * np.linalg.inv(UI)) @ Q).real
+    corrected = np.sqrt(s.N) * np.kron(U.T, np.eye(s.n)) @ Q
+    scale = np.linalg.norm(P)
+    rp, rc = np.linalg.norm(printed - P) / scale, np.linalg.norm(corrected - P) / scale
+    tol, how = roundoff_tolerance(scale=1.0, operations=2 * s.N * s.n)
+    status = PASS if rp <= tol else (ERRATUM if rc <= tol else FAIL)
+    return Verdict(status, measured=float(rp), reference=0.0, tolerance=tol, margin=float(tol - rc),
+                   printed=float(rp), corrected=float(rc),
+                   detail="relative Frobenius error of the reconstruction of 𝒫 from 𝒬 = (1/√N)(U⊗I)𝒫 (U the "
+                          "orthogonal eigenbasis of 𝓛, first row 1/√N): printed 'sqrt(N(U⊗I)⁻¹)𝒬' (a matrix square "
+                          f"root) gives {rp:.3g}, corrected √N(Uᵀ⊗I)𝒬 gives {rc:.1e} ({how}; 𝒫 = 𝒫(T) at "
+                          f"λ = {r.scenario.main_rate:g})")
+
+
 # -- the catalogue ------------------------------------------------------------------------------------------------
 
-def catalogue(paper_id: str, names: list[str], main: str, *, paper: bool = False) -> list[Claim]:
+def catalogue(paper_id: str, names: list[str], main: str) -> list[Claim]:
     C = Claim
     p = paper_id
     out = [C(f"{p}.lemma3_3.jensen", "Lemma III.3, eq. (16)", "zzᵀ ≤ Σγ_j x_jx_jᵀ for a convex combination z = Σγ_j x_j",
              "inequality", check_jensen)]
     for nm in names:
         f = lambda fn, *a, _n=nm: (lambda res: fn(res, _n, *a))
+        h = lambda *keys, _n=nm: tuple(f"{p}.hyp.{_n}.{k}" for k in keys)
         out += [
             C(f"{p}.model.fusion_weights.{nm}", "eq. (3), (6)", "Π = I − α𝓛 is symmetric, doubly stochastic and "
-              "nonnegative for 0 < α ≤ 1/d_max, and the mean jump of the edge clocks is λ(Π − I)", "identity", f(check_fusion)),
+              "nonnegative for 0 < α ≤ 1/d_max, and the mean jump of the edge clocks is λ(Π − I)", "identity",
+              f(check_fusion), h("alpha")),
             C(f"{p}.model.poisson_clocks.{nm}", "§II, (P1)-(P2)", "node counters are Poisson of rate d_iλ; rings are "
               "never simultaneous, so every activation set is a singleton", "statistical", f(check_poisson)),
             C(f"{p}.prop3_2.per_path.{nm}", "Prop. III.2, eq. (15)", "for a fixed clock path, E[e_ie_iᵀ | τ](t) ≤ P_i(t) "
-              "(eq. 14) for all t (exact per-path computation, many random paths)", "inequality", f(check_prop32_path)),
+              "(eq. 14) for all t (exact per-path computation, many random paths)", "inequality", f(check_prop32_path),
+              h("alpha", "initial")),
             C(f"{p}.prop3_2.reference_path.{nm}", "Prop. III.2, eq. (14)", "the batched per-path P_i(t; τ) and "
               "Σ(t; τ) equal an independent per-interval Van Loan computation", "identity", f(check_prop32_reference)),
             C(f"{p}.prop3_2.flow_equality.{nm}", "proof of Prop. III.2, eq. (13a) corrected", "between events "
@@ -946,52 +1201,58 @@ def catalogue(paper_id: str, names: list[str], main: str, *, paper: bool = False
             C(f"{p}.prop3_2.frozen_path_mc.{nm}", "Prop. III.2", "Monte Carlo over (x0, ω, v) on one frozen clock "
               "path reproduces the exact per-path covariance", "statistical", f(check_prop32_frozen, "equal")),
             C(f"{p}.prop3_2.frozen_path_bound.{nm}", "Prop. III.2, eq. (15)", "Monte Carlo on one frozen clock path: "
-              "Ê[e_ie_iᵀ] ≤ P_i(t) (one-sided, matrix order)", "statistical", f(check_prop32_frozen, "bound")),
+              "E[e_ie_iᵀ | τ] ≤ P_i(t) (one-sided, matrix order)", "statistical", f(check_prop32_frozen, "bound"),
+              h("alpha", "initial")),
             C(f"{p}.prop3_4.mean_of_P.{nm}", "Prop. III.4", "the mean over Poisson clock paths of P_i(t) solves the "
               "linear ODE (9)", "statistical", f(check_prop34)),
             C(f"{p}.thm3_1.item1_exact.{nm}", "Thm. III.1 item 1, (8)-(9)", "E[e_ie_iᵀ](t) ≤ 𝒫_i(t) in the matrix "
-              "order, for all t and λ (exact mean joint covariance ODE vs (9))", "inequality", f(check_item1_exact)),
-            C(f"{p}.thm3_1.item1_lower_kb.{nm}", "Thm. III.1 item 1 (spec D2)", "P_KB(t) ≤ E[e_ie_iᵀ](t): the "
-              "centralized Kalman–Bucy filter is a lower bound", "inequality", f(check_item1_kb)),
+              "order, for all t and λ (exact mean joint covariance ODE vs (9))", "inequality", f(check_item1_exact),
+              h("alpha", "initial")),
+            C(f"{p}.thm3_1.item1_lower_kb.{nm}", "Thm. III.1 item 1 (derived lower bound)", "P_KB(t) ≤ E[e_ie_iᵀ](t): "
+              "the centralized Kalman–Bucy filter is a lower bound", "inequality", f(check_item1_kb)),
             C(f"{p}.thm3_1.item1_mc.{nm}", "Thm. III.1 item 1", "Monte Carlo: P_KB ≤ Ê[e_ie_iᵀ] ≤ 𝒫_i (one-sided "
-              "tests in the matrix order with margins)", "statistical", f(check_item1_mc)),
-            C(f"{p}.sim.gridded_vs_exact.{nm}", "spec §3, §4.7 (D1)", "the gridded simulator reproduces the exact "
-              "mean error covariance", "statistical", f(check_grid_vs_exact)),
-            C(f"{p}.sim.gridded_bias.{nm}", "spec §3, §7.3-7.4", "the gridded simulator's discretisation bias is "
-              "second order in h and negligible against the Monte Carlo error", "inequality", f(check_grid_bias)),
-            C(f"{p}.sim.event_vs_exact.{nm}", "spec §3, §4.7 (D1)", "the exact event-driven simulator (mean of its "
-              "per-path exact covariances) reproduces the exact mean error covariance", "statistical", f(check_event_vs_exact)),
-            C(f"{p}.sim.event_exact_given_clocks.{nm}", "spec §3", "the event-driven simulator samples the errors "
-              "from their exact conditional law given the clock path", "statistical", f(check_event_given_clocks)),
-            C(f"{p}.sim.event_vs_gridded.{nm}", "spec §3", "the event-driven and gridded simulators agree",
-              "statistical", f(check_event_vs_grid)),
+              "tests along fixed directions)", "statistical", f(check_item1_mc), h("alpha", "initial")),
+            C(f"{p}.sim.gridded_bias.{nm}", "simulation method", "the gridded simulator's discretisation bias is "
+              "second order in the step h", "inequality", f(check_grid_bias), h("grid_asymptotic")),
+            C(f"{p}.sim.event_vs_exact.{nm}", "simulation method, exact mean covariance", "the exact event-driven "
+              "simulator (mean of its per-path exact covariances) reproduces the exact mean error covariance",
+              "statistical", f(check_event_vs_exact)),
+            C(f"{p}.sim.event_exact_given_clocks.{nm}", "simulation method", "the event-driven simulator samples the "
+              "errors from their exact conditional law given the clock path", "statistical", f(check_event_given_clocks)),
+            C(f"{p}.sim.event_vs_gridded.{nm}", "simulation method", "the event-driven and gridded simulators agree "
+              "(trial by trial in law, up to the gridded scheme's exact bias)", "statistical", f(check_event_vs_grid)),
             C(f"{p}.thm3_1.item2_lyapunov.{nm}", "Thm. III.1 item 2, (10)-(11)", "Ā Hurwitz; R ≻ 0 with RĀ + ĀᵀR ≤ −I; "
-              "S ⪰ 0 solves (11)", "identity", f(check_lyapunov)),
+              "S ⪰ 0 solves (11)", "identity", f(check_lyapunov), h("abar_hurwitz")),
             C(f"{p}.thm3_1.item2_convergence.{nm}", "Thm. III.1 item 2, eq. (12)", "limsup ‖𝒫_i(t) − S‖_F → 0 as λ → ∞, "
-              "at least as fast as λ^(-1/2)", "inequality", f(check_item2_convergence)),
-            C(f"{p}.thm3_1.item2_rate.{nm}", "Thm. III.1 item 2 (spec §4.5)", "the actual rate is O(1/λ), sharper than "
-              "(12)", "identity", f(check_item2_rate)),
-            C(f"{p}.thm3_1.item2_explicit_faithful.{nm}", "eq. (12), explicit constants (spec §4.5)", "explicit B_12(λ) "
-              "bounds limsup ‖𝒫_i − S‖_F beyond λ_thr (paper-faithful constants)", "inequality",
-              f(check_item2_explicit, "faithful")),
-            C(f"{p}.thm3_1.item2_explicit_tight.{nm}", "eq. (12), explicit constants (spec §4.5)", "explicit B_12(λ) "
-              "bounds limsup ‖𝒫_i − S‖_F beyond λ_thr (tight constants)", "inequality", f(check_item2_explicit, "tight")),
-            C(f"{p}.limit.true_covariance.{nm}", "abstract; spec D3", "the true covariances converge to S_true ⪯ S (= P_KB "
-              "for the split Kalman–Bucy gains) at rate 1/λ: the bound's limit is not tight", "inequality",
-              f(check_true_limit)),
-            C(f"{p}.critical_rate.{nm}", "§III (λ 'sufficiently large'); spec D4", "(9) converges iff λ > λ_crit; "
-              "λ_crit of the true covariance ≤ λ_crit of (9)", "inequality", f(check_critical)),
+              "at least as fast as λ^(-1/2)", "inequality", f(check_item2_convergence),
+              h("alpha", "connected", "abar_hurwitz", "rate_sufficient")),
+            C(f"{p}.thm3_1.item2_rate.{nm}", "Thm. III.1 item 2 (derived rate)", "the actual rate is 1/λ: "
+              "λ(𝒫_i^∞ − S) → C_i from the singular perturbation of (9), sharper than (12)", "identity",
+              f(check_item2_rate), h("alpha", "connected", "abar_hurwitz", "rate_sufficient")),
+            C(f"{p}.thm3_1.item2_explicit_faithful.{nm}", "eq. (12), explicit constants (derived)", "explicit B_12(λ) "
+              "bounds limsup ‖𝒫_i − S‖_F beyond λ_thr (constants as in the paper's proof)", "inequality",
+              f(check_item2_explicit, "faithful"), h("alpha", "connected", "abar_hurwitz")),
+            C(f"{p}.thm3_1.item2_explicit_tight.{nm}", "eq. (12), explicit constants (derived)", "explicit B_12(λ) "
+              "bounds limsup ‖𝒫_i − S‖_F beyond λ_thr (tight constants)", "inequality", f(check_item2_explicit, "tight"),
+              h("alpha", "connected", "abar_hurwitz")),
+            C(f"{p}.limit.true_covariance.{nm}", "abstract; derived limit", "the true covariances converge to "
+              "S_true ⪯ S (= P_KB for the split Kalman–Bucy gains): the bound's limit is not tight", "inequality",
+              f(check_true_limit), h("abar_hurwitz", "rate_sufficient")),
+            C(f"{p}.critical_rate.{nm}", "§III (λ 'sufficiently large'); derived critical rates", "(9) becomes stable "
+              "at λ_crit (a sign change of the abscissa of its generator); λ_crit of the true covariance ≤ λ_crit of "
+              "(9); with Ā Hurwitz (9) is stable beyond λ_thr", "inequality", f(check_critical)),
             C(f"{p}.reference.kalman_bucy.{nm}", "reference", "the Kalman–Bucy Riccati solution agrees with scipy, "
-              "python-control and a stiff ODE integrator", "identity", f(check_kb_reference)),
-            C(f"{p}.reference.filterpy.{nm}", "reference (spec §7.12)", "filterpy's discrete filter on the sampled model "
-              "(R = V/h) converges to the Kalman–Bucy covariance at rate h", "identity", f(check_filterpy)),
-            C(f"{p}.spec_values.{nm}", "spec §5", "the reference numbers of the spec's scenario", "identity",
-              f(check_spec_values)),
+              "python-control and a stiff ODE integrator", "identity", f(check_kb_reference), h("kalman_bucy")),
+            C(f"{p}.reference.filterpy.{nm}", "reference", "filterpy's discrete filter on the sampled model "
+              "(R = V/h) converges to the Kalman–Bucy covariance at rate h", "identity", f(check_filterpy),
+              h("kalman_bucy")),
+            C(f"{p}.reference_values.{nm}", "this reproduction's scenarios", "independently computed reference numbers "
+              "of the scenarios S1-S3 (the paper has no numerical example)", "identity", f(check_reference_values),
+              scope="paper-example"),
         ]
-    if paper:
-        out.append(C(f"{p}.s4.topology_sweep", "Thm. III.1 (spec S4)", "items 1 and 2 hold at steady state on path, "
-                     "ring, star and complete graphs", "inequality", check_topology))
     out += [
+        C(f"{p}.s4.topology_sweep", "Thm. III.1 (scenario S4)", "items 1 and 2 hold at steady state on path, ring, star "
+          "and complete graphs", "inequality", check_topology, scope="paper-example"),
         C(f"{p}.errata.pi_sign", "§III.C", "'Π = I_N + α𝓛' (printed) vs Π = I_N − α𝓛 (eq. 3)", "identity",
           lambda res: check_erratum_pi_sign(res, main)),
         C(f"{p}.errata.generator_sum", "proof of Prop. III.4, (17)", "the final generator formula lacks Σ_{j∈N_i}",
@@ -1000,12 +1261,13 @@ def catalogue(paper_id: str, names: list[str], main: str, *, paper: bool = False
           "identity", lambda res: check_erratum_inverse(res, main)),
         C(f"{p}.nc.lemma_a1", "Lemma A.1", "W ≤ −a_1r² + a_2rs − a_3s² + g s implies W ≤ −c(r² + s²) outside a ball",
           "qualitative", lambda res: not_checkable("as stated it lacks the hypothesis 4a_1a_3 > a_2² and c, χ are only "
-                                                   "cited ([5, Lemma 2]); the explicit (12) checks replace it")),
+                                                   "cited ([5, Lemma 2]); the explicit (12) checks replace it"),
+          scope="paper-example"),
         C(f"{p}.nc.markov", "proof of Prop. III.4", "'P_i(t) is Markovian'", "qualitative",
           lambda res: not_checkable("false for one node alone (its jumps use P_j); true for (P_1..P_N), which is all "
-                                    "(9) needs; not a numerical statement")),
+                                    "(9) needs; not a numerical statement"), scope="paper-example"),
         C(f"{p}.nc.fig1", "Fig. 1", "layout of the distributed filters (schematic)", "qualitative",
           lambda res: not_checkable("a schematic without data; regenerated as figures/fig1_network_events.png and the "
-                                    "graph of every recording")),
+                                    "graph of every recording"), scope="paper-example"),
     ]
     return out

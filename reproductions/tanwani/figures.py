@@ -22,7 +22,7 @@ from pipeline.figures import new_figure, save_figure
 from .compute import Results, ScenarioResults, TOPOLOGIES
 
 Z95 = 1.959964
-NOTE = "(scenario proposed by the spec: the paper has no numerical example)"
+PAPER_NOTE = "(scenario of this reproduction: the paper has no numerical example)"
 
 
 def _tr(X):
@@ -36,7 +36,7 @@ def _node_axes(N, width=4.2, height=3.0):
     return fig, axes.ravel()
 
 
-def fig1(r: ScenarioResults, path: Path) -> None:
+def fig1(r: ScenarioResults, path: Path, note: str = "") -> None:
     s = r.sys
     pos = r.scenario.graph.positions()
     fig, axes = new_figure(ncols=2, width=5.2, height=4.0)
@@ -62,11 +62,12 @@ def fig1(r: ScenarioResults, path: Path) -> None:
     ax.set_xlabel("t")
     ax.set_ylabel("edge clock")
     ax.set_title(f"Poisson rings of every edge, one path, λ = {r.scenario.main_rate:g}", fontsize=9)
-    fig.suptitle(f"Fig. 1 (regenerated): {r.scenario.title}", fontsize=10)
+    fig.suptitle(f"Fig. 1 (regenerated): {r.scenario.title}" if note else f"Network and edge events: {r.scenario.title}",
+                 fontsize=10)
     save_figure(fig, path)
 
 
-def fig2(r: ScenarioResults, path: Path) -> None:
+def fig2(r: ScenarioResults, path: Path, note: str = "") -> None:
     sc, s, b = r.scenario, r.sys, r.bounds
     t = sc.output_times
     lam = sc.main_rate
@@ -92,11 +93,11 @@ def fig2(r: ScenarioResults, path: Path) -> None:
     for ax in axes[s.N:]:
         ax.set_axis_off()
     axes[0].legend(fontsize=6)
-    fig.suptitle(f"Fig. 2: traces at λ = {lam:g}, {sc.title} {NOTE}", fontsize=9)
+    fig.suptitle(f"Traces at λ = {lam:g}, {sc.title} {note}".strip(), fontsize=9)
     save_figure(fig, path)
 
 
-def fig3(r: ScenarioResults, path: Path) -> None:
+def fig3(r: ScenarioResults, path: Path, note: str = "") -> None:
     sc, s = r.scenario, r.sys
     t = sc.output_times
     fig, axes = _node_axes(s.N)
@@ -116,11 +117,11 @@ def fig3(r: ScenarioResults, path: Path) -> None:
         ax.set_axis_off()
     axes[0].legend(fontsize=6)
     fig.suptitle(f"Fig. 3: one clock path at λ = {sc.main_rate:g} (output grid {sc.output_step:g}; ticks = events), "
-                 f"{sc.name} {NOTE}", fontsize=9)
+                 f"{sc.name} {note}".strip(), fontsize=9)
     save_figure(fig, path)
 
 
-def fig4(r: ScenarioResults, path: Path) -> None:
+def fig4(r: ScenarioResults, path: Path, note: str = "") -> None:
     sc, s = r.scenario, r.sys
     t = sc.output_times
     fig, axes = new_figure(ncols=2, width=5.0, height=3.6)
@@ -147,11 +148,11 @@ def fig4(r: ScenarioResults, path: Path) -> None:
                  fontsize=9)
     ax.set_xlabel("t")
     ax.legend(fontsize=6)
-    fig.suptitle(f"Fig. 4: gaps of the bounds, {sc.name} {NOTE}", fontsize=9)
+    fig.suptitle(f"Gaps of the bounds, {sc.name} {note}".strip(), fontsize=9)
     save_figure(fig, path)
 
 
-def fig5(r: ScenarioResults, path: Path) -> None:
+def fig5(r: ScenarioResults, path: Path, note: str = "") -> None:
     sc, b, s = r.scenario, r.bounds, r.sys
     fig, axes = new_figure(width=6.8, height=4.6)
     ax = axes[0, 0]
@@ -181,11 +182,11 @@ def fig5(r: ScenarioResults, path: Path) -> None:
     ax.set_xlabel("λ")
     ax.set_ylabel("Frobenius distance")
     ax.legend(fontsize=6)
-    ax.set_title(f"Fig. 5: practical convergence (12), {sc.name}\n{NOTE}", fontsize=9)
+    ax.set_title(f"Practical convergence (12), {sc.name}" + (f"\n{note}" if note else ""), fontsize=9)
     save_figure(fig, path)
 
 
-def fig6(r: ScenarioResults, path: Path) -> None:
+def fig6(r: ScenarioResults, path: Path, note: str = "") -> None:
     sc, b, s = r.scenario, r.bounds, r.sys
     fig, axes = new_figure(width=6.8, height=4.4)
     ax = axes[0, 0]
@@ -204,12 +205,12 @@ def fig6(r: ScenarioResults, path: Path) -> None:
     ax.set_xlabel("λ")
     ax.set_ylabel("trace")
     ax.legend(fontsize=6, ncol=2)
-    ax.set_title(f"Fig. 6: steady-state traces (bound diverges below λ_crit = {float(b['crit_bound']):.4g}), "
+    ax.set_title(f"Steady-state traces (bound diverges below λ_crit = {float(b['crit_bound']):.4g}), "
                  f"{sc.name}", fontsize=9)
     save_figure(fig, path)
 
 
-def fig7(r: ScenarioResults, path: Path) -> None:
+def fig7(r: ScenarioResults, path: Path, note: str = "") -> None:
     sc, b = r.scenario, r.bounds
     fig, axes = new_figure(width=6.4, height=4.0)
     ax = axes[0, 0]
@@ -223,12 +224,12 @@ def fig7(r: ScenarioResults, path: Path) -> None:
     ax.set_ylabel("max Re eig")
     ax.set_ylim(max(-10, np.nanmin(b["sweep_absc_bound"]) * 1.1), None)
     ax.legend(fontsize=7)
-    ax.set_title(f"Fig. 7: critical rates, {sc.name}: λ_crit(9) = {float(b['crit_bound']):.5g}, exact = "
+    ax.set_title(f"Critical rates, {sc.name}: λ_crit(9) = {float(b['crit_bound']):.5g}, exact = "
                  f"{float(b.get('crit_joint', np.nan)):.5g}", fontsize=9)
     save_figure(fig, path)
 
 
-def fig_topology(topo: dict, path: Path) -> None:
+def fig_topology(topo: dict, path: Path, note: str = PAPER_NOTE) -> None:
     fig, axes = new_figure(ncols=2, width=5.0, height=4.0)
     lams = topo["lams"]
     for k, name in enumerate(TOPOLOGIES):
@@ -241,18 +242,19 @@ def fig_topology(topo: dict, path: Path) -> None:
     axes[0, 1].set_xlabel("λ α σ_2(ℒ)")
     axes[0, 1].set_ylabel("mean_i tr E[e_ie_iᵀ]^∞")
     axes[0, 0].legend()
-    fig.suptitle(f"S4: S2's plant and sensors on four graphs of 4 nodes {NOTE}", fontsize=9)
+    fig.suptitle(f"S4: S2's plant and sensors on four graphs of 4 nodes {note}", fontsize=9)
     save_figure(fig, path)
 
 
-def write_figures(res: Results, fig_dir: Path, *, main: str) -> None:
-    fig1(res.scenarios[main], fig_dir / "fig1_network_events.png")
+def write_figures(res: Results, fig_dir: Path, *, main: str, paper: bool = False) -> None:
+    note = PAPER_NOTE if paper else ""
+    fig1(res.scenarios[main], fig_dir / "fig1_network_events.png", note)
     for name, r in res.scenarios.items():
-        fig2(r, fig_dir / f"fig2_traces_{name}.png")
-        fig3(r, fig_dir / f"fig3_sample_path_{name}.png")
-        fig4(r, fig_dir / f"fig4_gaps_{name}.png")
-        fig5(r, fig_dir / f"fig5_rate_{name}.png")
-        fig6(r, fig_dir / f"fig6_traces_vs_rate_{name}.png")
-        fig7(r, fig_dir / f"fig7_abscissa_{name}.png")
+        fig2(r, fig_dir / f"fig2_traces_{name}.png", note)
+        fig3(r, fig_dir / f"fig3_sample_path_{name}.png", note)
+        fig4(r, fig_dir / f"fig4_gaps_{name}.png", note)
+        fig5(r, fig_dir / f"fig5_rate_{name}.png", note)
+        fig6(r, fig_dir / f"fig6_traces_vs_rate_{name}.png", note)
+        fig7(r, fig_dir / f"fig7_abscissa_{name}.png", note)
     if res.topology is not None:
         fig_topology(res.topology, fig_dir / "fig_topology.png")

@@ -2,8 +2,8 @@
 from __future__ import annotations
 
 
-def write_outputs(res, out_dir, claims, prov, *, main: str) -> None:
+def write_outputs(res, out_dir, claims, prov, *, main: str, paper: bool = False) -> None:
     from . import figures, recordings
 
-    figures.write_figures(res, out_dir / "figures", main=main)
-    recordings.write_recordings(res, out_dir, claims, prov)
+    figures.write_figures(res, out_dir / "figures", main=main, paper=paper)
+    recordings.write_recordings(res, out_dir, claims, prov, paper=paper)

@@ -32,7 +32,8 @@ def _lam_tag(lam: float) -> str:
     return f"lam{lam:g}".replace(".", "p")
 
 
-def write_scenario(r: ScenarioResults, res: Results, path: Path, claims: list[dict], prov: dict) -> None:
+def write_scenario(r: ScenarioResults, res: Results, path: Path, claims: list[dict], prov: dict,
+                   paper: bool = False) -> None:
     sc, s, b = r.scenario, r.sys, r.bounds
     N, n = s.N, s.n
     t = sc.output_times
@@ -127,13 +128,13 @@ def write_scenario(r: ScenarioResults, res: Results, path: Path, claims: list[di
                                               np.trace(r.bound(lams[0])[:, i], axis1=1, axis2=2)]),
                              names=["tr P_i(t; τ) (14)", "tr E[e_ie_iᵀ | τ] exact", "tr 𝒫_i(t) (9)"],
                              colors=[(214, 39, 40), (0, 0, 0), (255, 152, 150)])
-        counts = {v: sum(c["verdict"] == v for c in claims) for v in ("pass", "fail", "erratum", "not-checkable")}
+        counts = {v: sum(c["verdict"] == v for c in claims) for v in ("pass", "fail", "erratum", "not-checkable", "error")}
         table = [c for c in claims if c["id"].endswith(f".{sc.name}") or c["id"].count(".") == 2]
-        rec_.log_claims(rec, table, f"# {sc.title}\n\nScenario proposed by the spec (the paper has no numerical "
-                        f"example). All claims of the run: {counts}.", width=24,
+        note = "Scenario of this reproduction (the paper has no numerical example). " if paper else ""
+        rec_.log_claims(rec, table, f"# {sc.title}\n\n{note}All claims of the run: {counts}.", width=24,
                         details=[c for c in claims if c["id"].endswith(f".{sc.name}")])
 
 
-def write_recordings(res: Results, out_dir: Path, claims: list[dict], prov: dict) -> None:
+def write_recordings(res: Results, out_dir: Path, claims: list[dict], prov: dict, paper: bool = False) -> None:
     for name, r in res.scenarios.items():
-        write_scenario(r, res, out_dir / f"{name}.rrd", claims, prov)
+        write_scenario(r, res, out_dir / f"{name}.rrd", claims, prov, paper)

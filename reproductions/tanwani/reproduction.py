@@ -15,21 +15,24 @@ from .scenario import FilterNetworkScenario, paper_scenarios
 
 TITLE = "Tanwani: Suboptimal filtering over sensor networks with random communication (IEEE TAC 2022)"
 
-NOTES = """The paper has no numerical example, no simulation and no table (its Fig. 1 is a schematic): every scenario
-here (S1a-c, S2, S3, the topology sweep S4) is the spec's proposal (shared/specs/000_tanwani.md §5), and every
-plot and number is labelled as such. Choices (spec §2, §6): x(0) ~ N(0, P0), x̂_i(0) = 0, one Poisson clock per
-undirected edge with both endpoints updating from pre-jump values (per ordered pair is available as
-`communication.mode = "ordered"`), α = min(1/2, 1/d_max), gains = the centralized Kalman–Bucy gain split by
-columns (L_i = N K_i) unless given. E[e eᵀ] is the second moment (1/K Σ e eᵀ). The exact mean joint covariance
-ODE (D1), the per-path quantities, the critical rates, S_true and the explicit constants of (12) are DERIVED in the
-spec, not in the paper. Monte Carlo: an exact event-driven simulator (per-trial Poisson events, exact Gaussian
-transitions between events via an eigendecomposition of the block-diagonal error dynamics, per-path exact
-covariances) and a gridded one (exact flow over h/2, Poisson(λh) rings per clock per step in alternating clock
-order, flow over h/2; its own exact mean covariance shows an O(h²) bias, checked by `sim.gridded_bias`), both
-batched over trials; statistical verdicts use a family-wise confidence of 0.999 (Bonferroni).
-Typos found by the spec that numbers cannot show (no claim): (13a) reads '(A − L_iH_i) de_i' (the corrected form
-is used and checked by `prop3_2.flow_equality`); the interval in (5); lost minus signs in the problem statement;
-'v_i standard' with covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ."""
+NOTES = """The paper has no numerical example, no simulation and no table (its Fig. 1 is a schematic): the scenarios
+here (S1a-c, S2, S3 and the topology sweep S4) were designed for this reproduction, and their reference numbers
+were computed independently. """
+
+FAMILY_NOTES = """Model choices: x(0) ~ N(m0, P0), x̂_i(0) = m0, one Poisson clock per undirected edge with both endpoints
+updating from pre-jump values (per ordered pair with `communication.mode = "ordered"`), α = min(1/2, 1/d_max) unless
+given, gains = the centralized Kalman–Bucy gain split by columns (L_i = N K_i) unless given. E[e eᵀ] is the second
+moment. Derived here, not in the paper: the exact mean joint covariance ODE, the per-path quantities, the second
+moments of the P-process over clock paths, the critical rates, the limit S_true, the first-order rate of (9) and
+explicit constants for (12). Monte Carlo: an exact event-driven simulator (exact Poisson events, exact Gaussian
+transitions between events, exact per-path covariances) and a gridded one (exact flow over h/2, Poisson(λh) rings
+per clock per step in alternating clock order, flow over h/2; its own exact mean covariance gives its O(h²) bias).
+Statistical verdicts use exact laws (χ² of whitened Gaussian errors given the clocks, Poisson and binomial counts,
+Efron's bound for paired symmetric differences) or, for means over random clock paths, Bernstein's inequality with
+the exact variance for low means and a Student plus known-variance test for high means. Typos that numbers cannot
+show (no claim): (13a) reads '(A − L_iH_i) de_i' (the corrected form is used and checked by
+`prop3_2.flow_equality`); the interval in (5); lost minus signs in the problem statement; 'v_i standard' with
+covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ."""
 
 
 class RandomCommReproduction:
@@ -44,10 +47,10 @@ class RandomCommReproduction:
         return [sc.name for sc in self.scenarios]
 
     def claims(self):
-        return claims_mod.catalogue(self.paper_id, self.scenario_ids(), self.main, paper=self.is_paper)
+        return claims_mod.catalogue(self.paper_id, self.scenario_ids(), self.main)
 
     def hypotheses(self):
-        return []
+        return claims_mod.hypotheses(self.paper_id, self.scenario_ids())
 
     def trials(self, opts: RunOptions) -> int:
         return max(compute_mod.trial_counts(sc, opts)[0] for sc in self.scenarios)
@@ -56,10 +59,10 @@ class RandomCommReproduction:
         return compute_mod.compute(self.scenarios, opts, cache, is_paper=self.is_paper)
 
     def write_outputs(self, results, out_dir: Path, claims: list[dict], prov: dict) -> None:
-        outputs.write_outputs(results, out_dir, claims, prov, main=self.main)
+        outputs.write_outputs(results, out_dir, claims, prov, main=self.main, paper=self.is_paper)
 
     def notes(self) -> str:
-        return NOTES
+        return (NOTES + FAMILY_NOTES) if self.is_paper else FAMILY_NOTES
 
 
 def paper() -> RandomCommReproduction:
