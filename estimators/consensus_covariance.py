@@ -30,6 +30,7 @@ All functions are deterministic; equation numbers refer to Savas, Srivastava & L
 from __future__ import annotations
 
 import numbers
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
@@ -42,6 +43,11 @@ __all__ = [
     "predictive_covariance_sequence",
     "filtered_covariance",
     "predictive_covariance_unrolled",
+    "CovarianceAtSteps",
+    "predictive_covariance_at_steps",
+    "centralized_prior_variances",
+    "SteadyStateSummary",
+    "asymptotic_covariance_summary",
     "asymptotic_covariance_lyapunov",
     "asymptotic_covariance_series",
     "asymptotic_covariance_modal",
@@ -275,6 +281,150 @@ def predictive_covariance_unrolled(
     for k in range(K):
         out[k] = rho**k * (powers[k] @ P0 @ powers[k].T) + partial[k]
     return 0.5 * (out + np.swapaxes(out, -1, -2))
+
+
+@dataclass(frozen=True, eq=False)
+class CovarianceAtSteps:
+    """``P(k|k-1)`` at chosen steps, summarised: ``diag`` (K, N) (the agents' error variances),
+    ``trace`` (K,) and ``eigenvalues`` (K, N) in ascending order (the weights of the trace's law)."""
+
+    steps: np.ndarray
+    diag: np.ndarray
+    trace: np.ndarray
+    eigenvalues: np.ndarray
+
+
+def _check_step_list(steps) -> np.ndarray:
+    k = np.asarray(steps)
+    if k.ndim != 1 or k.size == 0 or not np.issubdtype(k.dtype, np.integer) or k.min() < 0 or np.any(np.diff(k) <= 0):
+        raise ValueError(f"steps must be a non-empty strictly increasing sequence of integers >= 0, got {steps!r}")
+    return k.astype(np.int64)
+
+
+def _modal_terms(Q: np.ndarray, ell, m, sigma_c, q, r, zeta, reinjection, g):
+    """The recursion (22) mode by mode, when ``Q`` is symmetric and ``1`` lies in one of its eigenvectors
+    (a simple unit eigenvalue): ``(V, V^T 1, b, alpha)`` with ``p_h(k+1) = alpha_h p_h(k) + b_h``; else None."""
+    if not np.array_equal(Q, Q.T):
+        return None
+    lam, V = np.linalg.eigh(Q)
+    ones = V.T @ np.ones(Q.shape[0])
+    spread = np.sort(np.abs(ones))[:-1]
+    if spread.size and spread.max() > 1e-10 * np.sqrt(Q.shape[0]):
+        return None
+    m, zeta = int(m), float(zeta)
+    mu = zeta + (1.0 - zeta) / (m + 1) * _power_sum(lam, m) if reinjection else lam**m
+    b = ell**2 * float(r) * mu**2 + (g * float(sigma_c)) ** 2 * geometric_gram_sum(lam, m) + float(q) * ones**2
+    return V, ones, b, (1.0 - ell) ** 2 * mu**2
+
+
+@dataclass(frozen=True, eq=False)
+class SteadyStateSummary:
+    """``P_inf = lim P(k|k-1)`` summarised: ``diag`` (N,), ``trace``, ``eigenvalues`` (N,) ascending,
+    ``loewner_gap`` = the smallest eigenvalue of ``P_inf - p_ref 1 1^T`` (>= 0 when every agent's
+    error is at least a reference variance ``p_ref`` in every direction of the consensus mode), and
+    ``matrix`` (N, N) when asked for."""
+
+    diag: np.ndarray
+    trace: float
+    eigenvalues: np.ndarray
+    loewner_gap: float
+    matrix: np.ndarray | None
+
+
+def asymptotic_covariance_summary(
+    Q, *, ell, m, sigma_c, q, r, reinjection, zeta=1.0, reference=0.0, with_matrix=True
+) -> SteadyStateSummary:
+    """The steady state of (22) (Theorem 1(i)) without forming N x N matrices when ``Q`` is symmetric
+    with a simple unit eigenvalue (modes ``p_h = b_h/(1 - alpha_h)``, O(N) after the eigendecomposition;
+    then ``P_inf - reference 1 1^T`` has eigenvalues ``p_h`` off the consensus mode and
+    ``p_0 - N reference`` on it); otherwise from :func:`asymptotic_covariance_lyapunov`."""
+    Q_, A, _, _, g, ell_f = _recursion_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection)
+    _check_stable(A, ell_f)
+    reference = float(reference)
+    modes = _modal_terms(Q_, ell_f, m, sigma_c, q, r, zeta, reinjection, g)
+    if modes is not None:
+        V, ones, b, alpha = modes
+        p = b / (1.0 - alpha)
+        shifted = p - reference * ones**2
+        P = (V * p) @ V.T if with_matrix else None
+        return SteadyStateSummary((V * V) @ p, float(p.sum()), np.sort(p), float(shifted.min()),
+                                  None if P is None else 0.5 * (P + P.T))
+    P = asymptotic_covariance_lyapunov(Q, ell=ell, m=m, sigma_c=sigma_c, q=q, r=r, reinjection=reinjection, zeta=zeta)
+    n = P.shape[0]
+    gap = float(np.linalg.eigvalsh(P - reference * np.ones((n, n))).min())
+    return SteadyStateSummary(np.diag(P).copy(), float(np.trace(P)), np.linalg.eigvalsh(P), gap,
+                              P if with_matrix else None)
+
+
+def predictive_covariance_at_steps(
+    Q, *, ell, m, sigma_c, q, r, sigma0, steps, reinjection, zeta=1.0
+) -> CovarianceAtSteps:
+    """``P(k|k-1)`` of the recursion (22) (or its plain analogue) at the given steps ``k``, for any horizon.
+
+    For a symmetric ``Q`` with a simple unit eigenvalue every matrix of (22) is diagonal in the
+    eigenbasis ``Q = V diag(lam) V^T``, and each mode follows the scalar recursion
+    ``p_h(k+1) = alpha_h p_h(k) + b_h``, ``alpha_h = (1-ell)^2 mu_h^2``, in closed form
+    ``p_h(k) = alpha_h^k p_h(0) + b_h (1 - alpha_h^k)/(1 - alpha_h)`` with ``p_h(0) = sigma0 (v_h^T 1)^2`` and
+    ``b_h = ell^2 r mu_h^2 + g^2 sigma_c^2 s_h + q (v_h^T 1)^2`` (``mu_h``, ``s_h`` as in
+    :func:`asymptotic_covariance_modal`): O(N) per step whatever ``k``. Otherwise the affine map
+    ``P -> Ã P Ã^T + B`` (``Ã = (1-ell) A``) is applied in jumps between consecutive steps, each jump
+    ``j`` composed by repeated squaring from ``(Ã, B)``: ``log2(j)`` matrix products instead of ``j``.
+    """
+    Q_, A, B, _, g, ell = _recursion_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection)
+    sigma0 = _check_nonneg(sigma0, "sigma0")
+    k = _check_step_list(steps)
+    n = A.shape[0]
+    modes = _modal_terms(Q_, ell, m, sigma_c, q, r, zeta, reinjection, g)
+    if modes is not None:
+        V, ones, b, alpha = modes
+        kk = k[:, None].astype(float)
+        with np.errstate(divide="ignore"):
+            log_alpha = np.log(np.where(alpha > 0, alpha, 1.0))
+            decay = np.where(alpha > 0, np.exp(kk * log_alpha), (kk == 0).astype(float))
+            rise = np.where(alpha > 0, -np.expm1(kk * log_alpha), (kk > 0).astype(float))
+        p = decay * (sigma0 * ones**2) + rise * (b / (1.0 - alpha))
+        out = CovarianceAtSteps(k, p @ (V * V).T, p.sum(axis=1), np.sort(p, axis=1))
+        if k[0] == 0:   # P(0|-1) = sigma0 1 1^T exactly
+            out.diag[0], out.trace[0], out.eigenvalues[0] = sigma0, n * sigma0, 0.0
+            out.eigenvalues[0, -1] = n * sigma0
+        return out
+    At = (1.0 - ell) * A
+    jumps: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for gap in set(np.diff(np.concatenate([[0], k])).tolist()) - {0}:
+        power, gram = np.eye(n), np.zeros((n, n))   # the map applied `done` times: P -> power P power^T + gram
+        sq_power, sq_gram, left = At, B, gap          # the map applied 2^i times
+        while left:
+            if left & 1:
+                power, gram = sq_power @ power, sq_power @ gram @ sq_power.T + sq_gram
+            left >>= 1
+            if left:
+                sq_power, sq_gram = sq_power @ sq_power, sq_power @ sq_gram @ sq_power.T + sq_gram
+        jumps[gap] = (power, 0.5 * (gram + gram.T))
+    P = sigma0 * np.ones((n, n))
+    diag, trace, eig = np.empty((k.size, n)), np.empty(k.size), np.empty((k.size, n))
+    done = 0
+    for i, step in enumerate(k):
+        if step > done:
+            power, gram = jumps[int(step - done)]
+            P = power @ P @ power.T + gram
+            P = 0.5 * (P + P.T)
+            done = int(step)
+        diag[i], trace[i], eig[i] = np.diag(P), np.trace(P), np.linalg.eigvalsh(P)
+    return CovarianceAtSteps(k, diag, trace, eig)
+
+
+def centralized_prior_variances(q, r, n_agents, sigma0, n_steps) -> np.ndarray:
+    """``P_KF(k|k-1)``, ``k = 0..n_steps-1``, of the centralized Kalman filter on all ``N`` measurements:
+    a scalar filter on their mean (noise variance ``r/N``), ``P(k+1) = P(k) r/(r + N P(k)) + q``,
+    ``P(0) = sigma0``. Every agent's error variance of any linear filter here is at least this."""
+    q, r, sigma0 = _check_nonneg(q, "q"), _check_nonneg(r, "r"), _check_nonneg(sigma0, "sigma0")
+    K = _check_steps(n_steps, "n_steps")
+    out = np.empty(K)
+    P = sigma0
+    for k in range(K):
+        out[k] = P
+        P = P * r / (r + n_agents * P) + q
+    return out
 
 
 # --------------------------------------------------------------------------------------

@@ -12,17 +12,28 @@ Process and sensors (a = 1): ``x(k+1) = x(k) + w(k)`` (eq. (3)), ``y(k) = x(k) 1
    then ``xhat(k+1|k) = z`` (plain) or ``zeta xhat(k|k) + (1-zeta) z/(m+1)`` (eq. (13));
 5. propagate ``x(k+1) = x(k) + w(k)``.
 
-Trials live on the leading array axis; the only Python loops are over time steps and
-consensus rounds (the rounds in closed form, z(m) = A xhat(k|k) + sigma_c b(m), see the loop).  Draw order from ``rng`` (fixed, so a seed reproduces a run): ``X_0``
-(trials,), then per step ``n(k)`` (trials, N), ``u(k + h/m)`` for ``h = 1..m`` (trials, N)
-each, ``w(k)`` (trials,).  The ``u`` draws are made even when ``sigma_c = 0`` so that runs
-differing only in ``sigma_c`` share their process and measurement noise.
+Trials live on an array axis; the only Python loops are over time steps and consensus
+rounds (the rounds in closed form, ``z(m) = A xhat(k|k) + sigma_c b(m)``, see `_simulate`).
+Products with ``Q`` and ``A`` are sums over each row's nonzero entries in a fixed order, made of
+elementwise operations only: a trial's numbers never depend on how many trials are simulated
+together (a matrix product's kernel may change with the array's width).
+
+Random numbers come from ``rng``: one generator, or a sequence of ``(generator, size)`` streams
+that cover consecutive groups of trials, each group drawing from its own generator. Draw order
+per group (fixed, so a seed reproduces a run): ``X_0`` (size,), then per step ``n(k)`` (N, size),
+``u(k + h/m)`` for ``h = 1..m`` (N, size) each, ``w(k)`` (size,). The ``u`` draws are made even when
+``sigma_c = 0`` so that runs differing only in ``sigma_c`` share their process and measurement noise.
+
+Two ways to consume a run: `simulate_consensus_filter(_configs)` keeps every error (trials x
+steps x agents; for tests and small runs), `consensus_filter_moments` keeps only per-stream
+sums of the errors' powers at chosen steps, so that memory does not grow with the horizon.
 """
 
 from __future__ import annotations
 
 import numbers
 from dataclasses import dataclass
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -35,7 +46,9 @@ from .consensus_covariance import (
     _check_zeta,
 )
 
-__all__ = ["ConsensusFilterRun", "simulate_consensus_filter", "simulate_consensus_filter_configs"]
+__all__ = ["ConsensusFilterRun", "ConsensusFilterMoments", "StreamMoments", "simulate_consensus_filter",
+           "simulate_consensus_filter_configs", "consensus_filter_moments"]
+
 
 @dataclass(frozen=True, eq=False)
 class ConsensusFilterRun:
@@ -62,6 +75,11 @@ class ConsensusFilterRun:
         Process noise ``w(k)`` (variance ``q``; ``x(k+1) = x(k) + w(k)``).
     n : (P, K, N)
         Measurement noise ``n(k)`` (variance ``r``).
+
+    With several configurations (:func:`simulate_consensus_filter_configs`, :func:`consensus_filter_moments`)
+    ``err_pred``, ``err_filt``, ``xhat_pred``, ``xhat_filt`` and ``z_rounds`` carry an extra axis 1 of
+    length ``C``; in :func:`consensus_filter_moments` the paths cover the first ``path_steps`` steps only
+    and ``err_pred``, ``err_filt`` are those of the ``P`` path trials.
     """
 
     err_pred: np.ndarray
@@ -74,6 +92,35 @@ class ConsensusFilterRun:
     u: np.ndarray
     w: np.ndarray
     n: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class StreamMoments:
+    """Sums over the trials of each random stream, at the recorded steps (``U`` streams, ``C``
+    configurations, ``S`` recorded steps, ``N`` agents): ``count`` (U,) trials; ``s1``, ``s2``, ``s4``
+    (U, C, S, N) sums of ``e``, ``e^2``, ``e^4`` per agent; ``t1``, ``t2`` (U, C, S) sums of
+    ``t = sum_i e_i^2`` and ``t^2``. Summed over streams in stream order they are the moments of
+    the whole run, the same whatever groups of streams were simulated together."""
+
+    count: np.ndarray
+    s1: np.ndarray
+    s2: np.ndarray
+    s4: np.ndarray
+    t1: np.ndarray
+    t2: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class ConsensusFilterMoments:
+    """Result of :func:`consensus_filter_moments`: the recorded ``steps``, the moments of the
+    predictive and posterior errors (:class:`StreamMoments`), and the sample paths of the first
+    ``P`` trials over the first ``path_steps`` steps (a :class:`ConsensusFilterRun`; ``P = 0`` when
+    none were asked for)."""
+
+    steps: np.ndarray
+    pred: StreamMoments
+    filt: StreamMoments
+    paths: ConsensusFilterRun
 
 
 def simulate_consensus_filter(
@@ -105,7 +152,7 @@ def simulate_consensus_filter(
     x0_mean : mean of ``X_0``; ``xhat(0|-1) = x0_mean 1``.
     n_steps : ``K``, number of steps ``k = 0..K-1`` recorded.
     n_trials : number of Monte Carlo trials (leading axis).
-    rng : ``numpy.random.Generator``.
+    rng : ``numpy.random.Generator``, or ``(generator, size)`` streams (see the module docstring).
     reinjection : False for the Carli et al. filter (7)+(9) (``sigma_c = 0`` gives (7)+(8));
         True for the re-injection filter (11)-(13).
     zeta : convex weight of eq. (13), in [0, 1] (ignored when ``reinjection`` is False).
@@ -122,18 +169,8 @@ def simulate_consensus_filter(
     )
 
 
-def _config_vector(value, name: str, check) -> np.ndarray:
-    arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
-    if arr.ndim != 1 or arr.size == 0:
-        raise ValueError(f"{name} must be a scalar or a non-empty 1-D sequence, got shape {arr.shape}")
-    for v in arr:
-        check(float(v), name)
-    return arr
-
-
 def simulate_consensus_filter_configs(
     Q, *, ell, m, sigma_c, q, r, sigma0, x0_mean, n_steps, n_trials, rng, reinjection, zeta=1.0, n_paths=0,
-    buffers: dict | None = None,
 ) -> ConsensusFilterRun:
     """Several gain / noise configurations of the same filter driven by the same random draws.
 
@@ -146,75 +183,225 @@ def simulate_consensus_filter_configs(
     Returns a :class:`ConsensusFilterRun` whose per-configuration fields carry an extra axis 1 of
     length ``C``: ``err_pred``, ``err_filt`` (trials, C, K, N); ``xhat_pred``, ``xhat_filt``
     (P, C, K, N); ``z_rounds`` (P, C, K, m+1, N). ``x``, ``y``, ``u``, ``w``, ``n`` are shared.
-
-    ``buffers``: an optional dict kept by a caller that simulates block after block and is done
-    with a block's ``err_pred`` / ``err_filt`` before it asks for the next one. Those two arrays
-    (the bulk of the memory) are then reused between calls of the same shape instead of being
-    allocated anew: a fresh allocation of that size is mapped from the OS and pays a page fault
-    on first touch, measured ~2 ns per element here, as much as the normal draws of the step.
+    Memory grows with trials x steps: :func:`consensus_filter_moments` is the streaming variant.
     """
-    Q = _as_consensus_matrix(Q)
-    ell_v = _config_vector(ell, "ell", lambda v, n: _check_ell(v, n))
-    sigma_v = _config_vector(sigma_c, "sigma_c", _check_nonneg)
-    zeta_v = _config_vector(zeta, "zeta", lambda v, n: _check_zeta(v, n))
+    setup = _Setup(Q, ell, m, sigma_c, q, r, sigma0, x0_mean, n_steps, n_trials, rng, reinjection, zeta, n_paths)
+    C, K, N, R = setup.C, setup.K, setup.N, setup.R
+    e_pred = np.empty((C, K, N, R))
+    e_filt = np.empty((C, K, N, R))
+
+    def keep(k, ep, ef):
+        e_pred[:, k] = ep
+        e_filt[:, k] = ef
+
+    paths = _simulate(setup, keep, path_steps=K)
+    paths["err_pred"] = np.moveaxis(e_pred, 3, 0)  # (R, C, K, N) views of the trials-last arrays
+    paths["err_filt"] = np.moveaxis(e_filt, 3, 0)
+    return ConsensusFilterRun(**paths)
+
+
+def consensus_filter_moments(
+    Q, *, ell, m, sigma_c, q, r, sigma0, x0_mean, n_steps, rng, reinjection, record_steps, zeta=1.0, n_paths=0,
+    path_steps=None,
+) -> ConsensusFilterMoments:
+    """The configurations of :func:`simulate_consensus_filter_configs`, keeping only the moments of the
+    errors at ``record_steps`` (sums per random stream, :class:`StreamMoments`) and the sample paths
+    of the first ``n_paths`` trials over the first ``path_steps`` steps (default: all). Memory is that
+    of one step of the trials plus the recorded sums: it does not grow with ``n_steps``.
+
+    ``rng``: ``(generator, size)`` streams (a single generator is one stream); the number of trials
+    is their total size.
+    """
+    streams = _streams(rng)
+    n_trials = sum(size for _, size in streams)
+    setup = _Setup(Q, ell, m, sigma_c, q, r, sigma0, x0_mean, n_steps, n_trials, rng, reinjection, zeta, n_paths)
+    steps = np.asarray(record_steps)
+    if (steps.ndim != 1 or steps.size == 0 or not np.issubdtype(steps.dtype, np.integer) or steps.min() < 0
+            or steps.max() >= setup.K or np.any(np.diff(steps) <= 0)):
+        raise ValueError(f"record_steps must be strictly increasing integers in [0, n_steps), got {record_steps!r}")
+    P_steps = setup.K if path_steps is None else _check_steps(path_steps, "path_steps")
+    if P_steps > setup.K:
+        raise ValueError(f"path_steps must be at most n_steps = {setup.K}, got {path_steps!r}")
+    sizes = np.array([size for _, size in streams])
+    U, C, S, N = sizes.size, setup.C, steps.size, setup.N
+    where = np.full(setup.K, -1)
+    where[steps] = np.arange(S)
+    sums = {kind: {name: np.zeros((U, C, S, N)) for name in ("s1", "s2", "s4")} | {name: np.zeros((U, C, S))
+                                                                                 for name in ("t1", "t2")}
+            for kind in ("pred", "filt")}
+
+    def accumulate(k, ep, ef):
+        j = where[k]
+        if j < 0:
+            return
+        for kind, e in (("pred", ep), ("filt", ef)):
+            out = sums[kind]
+            sq = e * e
+            tr = sq.sum(axis=1)
+            out["s1"][:, :, j] = _per_stream(e, sizes)
+            out["s2"][:, :, j] = _per_stream(sq, sizes)
+            sq *= sq
+            out["s4"][:, :, j] = _per_stream(sq, sizes)
+            out["t1"][:, :, j] = _per_stream(tr, sizes)
+            tr *= tr
+            out["t2"][:, :, j] = _per_stream(tr, sizes)
+
+    paths = _simulate(setup, accumulate, path_steps=P_steps)
+    counts = sizes.astype(np.int64)
+    return ConsensusFilterMoments(steps.astype(np.int64), StreamMoments(counts, **sums["pred"]),
+                                  StreamMoments(counts, **sums["filt"]), ConsensusFilterRun(**paths))
+
+
+def _per_stream(a: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """Sums over the trials (last axis) of each stream: (..., R) -> (U, ...). Each stream's sum is the
+    same pairwise sum over its own trials wherever it sits in the array."""
+    full = int(np.argmin(np.append(sizes, -1) == sizes[0]))   # the leading streams of the first stream's size
+    if full == sizes.size:
+        out = a.reshape(a.shape[:-1] + (sizes.size, int(sizes[0]))).sum(axis=-1)
+        return np.moveaxis(out, -1, 0)
+    edges = np.concatenate([[0], np.cumsum(sizes)])
+    head = a[..., : edges[full]].reshape(a.shape[:-1] + (full, int(sizes[0]))).sum(axis=-1) if full else None
+    rest = [a[..., edges[u]:edges[u + 1]].sum(axis=-1) for u in range(full, sizes.size)]
+    parts = ([np.moveaxis(head, -1, 0)] if head is not None else []) + [r[None] for r in rest]
+    return np.concatenate(parts, axis=0)
+
+
+# --------------------------------------------------------------------------------------
+# the common engine
+# --------------------------------------------------------------------------------------
+
+
+def _config_vector(value, name: str, check) -> np.ndarray:
+    arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    if arr.ndim != 1 or arr.size == 0:
+        raise ValueError(f"{name} must be a scalar or a non-empty 1-D sequence, got shape {arr.shape}")
+    for v in arr:
+        check(float(v), name)
+    return arr
+
+
+def _streams(rng) -> list[tuple[np.random.Generator, int]]:
+    if isinstance(rng, np.random.Generator):
+        raise TypeError("rng: the streaming simulator needs (generator, size) streams")
     try:
-        ell_v, sigma_v, zeta_v = np.broadcast_arrays(ell_v, sigma_v, zeta_v)
-    except ValueError:
-        raise ValueError(f"ell, sigma_c and zeta must have a common length, got {ell_v.size}, {sigma_v.size}, "
-                         f"{zeta_v.size}") from None
-    m = _check_rounds(m)
-    q = _check_nonneg(q, "q")
-    r = _check_nonneg(r, "r")
-    sigma0 = _check_nonneg(sigma0, "sigma0")
-    x0_mean = float(x0_mean)
-    if not np.isfinite(x0_mean):
-        raise ValueError(f"x0_mean must be finite, got {x0_mean!r}")
-    K = _check_steps(n_steps, "n_steps")
-    R = _check_steps(n_trials, "n_trials")
-    if isinstance(n_paths, bool) or not isinstance(n_paths, numbers.Integral) or not 0 <= n_paths <= R:
-        raise ValueError(f"n_paths must be an integer in [0, n_trials], got {n_paths!r}")
-    P = int(n_paths)
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-    reinjection = bool(reinjection)
+        streams = [(g, int(size)) for g, size in rng]
+    except (TypeError, ValueError):
+        raise TypeError(f"rng must be a numpy.random.Generator or a sequence of (generator, size), got "
+                        f"{type(rng).__name__}") from None
+    if not streams or any(not isinstance(g, np.random.Generator) or size < 1 for g, size in streams):
+        raise TypeError("rng: every stream must be a (numpy.random.Generator, positive size) pair")
+    return streams
 
-    N = Q.shape[0]
-    C = ell_v.size
-    sq, sr = np.sqrt(q), np.sqrt(r)
+
+class _Draws:
+    """Standard normal draws for all trials, stream by stream along the last (trial) axis."""
+
+    def __init__(self, rng, n_trials: int):
+        self.streams = [(rng, n_trials)] if isinstance(rng, np.random.Generator) else _streams(rng)
+        if sum(size for _, size in self.streams) != n_trials:
+            raise ValueError("rng: the streams' sizes must add up to n_trials")
+
+    def normal(self, out: np.ndarray) -> np.ndarray:
+        if len(self.streams) == 1:
+            self.streams[0][0].standard_normal(out=out)
+            return out
+        start = 0
+        for g, size in self.streams:
+            out[..., start:start + size] = g.standard_normal(out.shape[:-1] + (size,))
+            start += size
+        return out
+
+
+class _RowSparse:
+    """``M @ v`` for v of shape (..., N, R) as a sum over each row's nonzero entries of M, in a fixed
+    order, with elementwise operations only (exact IEEE per element: independent of R)."""
+
+    def __init__(self, M: np.ndarray):
+        n = M.shape[0]
+        nz = [np.flatnonzero(M[i]) for i in range(n)]
+        width = max(1, max(len(c) for c in nz))
+        self.cols = np.zeros((width, n), dtype=np.intp)
+        self.weights = np.zeros((width, n, 1))
+        for i, c in enumerate(nz):
+            self.cols[: len(c), i] = c
+            self.cols[len(c):, i] = c[0] if len(c) else 0
+            self.weights[: len(c), i, 0] = M[i, c]
+
+    def apply(self, v: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> np.ndarray:
+        np.take(v, self.cols[0], axis=-2, out=out, mode="clip")
+        out *= self.weights[0]
+        for cols, w in zip(self.cols[1:], self.weights[1:]):
+            np.take(v, cols, axis=-2, out=tmp, mode="clip")
+            tmp *= w
+            out += tmp
+        return out
+
+
+class _Setup:
+    """Validated inputs of a run."""
+
+    def __init__(self, Q, ell, m, sigma_c, q, r, sigma0, x0_mean, n_steps, n_trials, rng, reinjection, zeta, n_paths):
+        self.Q = _as_consensus_matrix(Q)
+        ell_v = _config_vector(ell, "ell", lambda v, n: _check_ell(v, n))
+        sigma_v = _config_vector(sigma_c, "sigma_c", _check_nonneg)
+        zeta_v = _config_vector(zeta, "zeta", lambda v, n: _check_zeta(v, n))
+        try:
+            self.ell, self.sigma_c, self.zeta = np.broadcast_arrays(ell_v, sigma_v, zeta_v)
+        except ValueError:
+            raise ValueError(f"ell, sigma_c and zeta must have a common length, got {ell_v.size}, {sigma_v.size}, "
+                             f"{zeta_v.size}") from None
+        self.m = _check_rounds(m)
+        self.q = _check_nonneg(q, "q")
+        self.r = _check_nonneg(r, "r")
+        self.sigma0 = _check_nonneg(sigma0, "sigma0")
+        self.x0_mean = float(x0_mean)
+        if not np.isfinite(self.x0_mean):
+            raise ValueError(f"x0_mean must be finite, got {x0_mean!r}")
+        self.K = _check_steps(n_steps, "n_steps")
+        self.R = _check_steps(n_trials, "n_trials")
+        if isinstance(n_paths, bool) or not isinstance(n_paths, numbers.Integral) or not 0 <= n_paths <= self.R:
+            raise ValueError(f"n_paths must be an integer in [0, n_trials], got {n_paths!r}")
+        self.P = int(n_paths)
+        if not isinstance(rng, np.random.Generator) and isinstance(rng, (np.random.RandomState, str, bytes)):
+            raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        self.draws = _Draws(rng, self.R)
+        self.reinjection = bool(reinjection)
+        self.N = self.Q.shape[0]
+        self.C = self.ell.size
+
+
+def _simulate(s: _Setup, visit: Callable[[int, np.ndarray, np.ndarray], None], *, path_steps: int) -> dict:
+    """Run the filters; ``visit(k, e_pred, e_filt)`` sees each step's errors (C, N, R) (valid during the call).
+    Returns the sample paths of the first P trials over the first ``path_steps`` steps."""
+    C, K, N, R, P, m = s.C, s.K, s.N, s.R, s.P, s.m
+    Kp = path_steps
+    sq, sr = np.sqrt(s.q), np.sqrt(s.r)
     # Internal layout: trials on the LAST axis, (C, N, R). With N tiny, every broadcast then
-    # runs over long contiguous inner loops (measured several times faster than (R, C, N));
-    # the results are exposed with trials leading, as views.
-    gain = ell_v[:, None, None]
-    retain = (1.0 - ell_v)[:, None, None]
-    keep = ((1.0 - zeta_v) / (m + 1))[:, None, None]
-    zeta_b = zeta_v[:, None, None]
-    sigma_b = sigma_v[:, None, None]
-    noisy = bool(np.any(sigma_v != 0.0))
+    # runs over long contiguous inner loops (measured several times faster than (R, C, N)).
+    gain = s.ell[:, None, None]
+    retain = (1.0 - s.ell)[:, None, None]
+    keep = ((1.0 - s.zeta) / (m + 1))[:, None, None]
+    zeta_b = s.zeta[:, None, None]
+    sigma_b = s.sigma_c[:, None, None]
+    noisy = bool(np.any(s.sigma_c != 0.0))
 
-    if buffers is not None and buffers.get("shape") == (C, K, N, R):
-        e_pred, e_filt = buffers["e_pred"], buffers["e_filt"]
-    else:
-        e_pred = np.empty((C, K, N, R))
-        e_filt = np.empty((C, K, N, R))
-        if buffers is not None:
-            buffers.update(shape=(C, K, N, R), e_pred=e_pred, e_filt=e_filt)
-    p_x = np.empty((P, K))
-    p_y = np.empty((P, K, N))
-    p_xp = np.empty((P, C, K, N))
-    p_xf = np.empty((P, C, K, N))
-    p_z = np.empty((P, C, K, m + 1, N))
-    p_u = np.empty((P, K, m, N))
-    p_w = np.empty((P, K))
-    p_n = np.empty((P, K, N))
+    paths = dict(
+        err_pred=np.empty((P, C, Kp, N)), err_filt=np.empty((P, C, Kp, N)), x=np.empty((P, Kp)),
+        y=np.empty((P, Kp, N)), xhat_pred=np.empty((P, C, Kp, N)), xhat_filt=np.empty((P, C, Kp, N)),
+        z_rounds=np.empty((P, C, Kp, m + 1, N)), u=np.empty((P, Kp, m, N)), w=np.empty((P, Kp)), n=np.empty((P, Kp, N)),
+    )
 
+    e_pred = np.empty((C, N, R))
+    e_filt = np.empty((C, N, R))
     x = np.empty(R)
-    rng.standard_normal(out=x)
-    x *= np.sqrt(sigma0)
-    x += x0_mean
-    xp = np.full((C, N, R), x0_mean)
+    s.draws.normal(x)
+    x *= np.sqrt(s.sigma0)
+    x += s.x0_mean
+    xp = np.full((C, N, R), s.x0_mean)
     xf = np.empty((C, N, R))
     noise = np.empty((N, R))
     scaled = np.empty((C, N, R))
+    spare = np.empty((C, N, R))
     z = np.empty((C, N, R))
     w = np.empty(R)
     # The m consensus rounds in closed form. z(h) = Q z(h-1) + sigma_c u(h) (+ xhat(k|k) with
@@ -227,74 +414,66 @@ def simulate_consensus_filter_configs(
     A = np.eye(N)
     power = np.eye(N)
     for _ in range(m):
-        power = Q @ power
-        A = A + power if reinjection else power
+        power = s.Q @ power
+        A = A + power if s.reinjection else power
+    Q_op, A_op = _RowSparse(s.Q), _RowSparse(A)
     b = np.zeros((N, R))
     bnext = np.empty((N, R))
+    btmp = np.empty((N, R))
 
     def paths_of(a):  # (C, N, R) -> (P, C, N) for the first P trials
         return np.moveaxis(a[:, :, :P], 2, 0)
 
     for k in range(K):
-        np.subtract(x, xp, out=e_pred[:, k])
-        rng.standard_normal(out=noise)  # n(k) / sqrt(r)
+        np.subtract(x, xp, out=e_pred)
+        s.draws.normal(noise)  # n(k) / sqrt(r)
         noise *= sr
-        if P:
-            p_x[:, k] = x[:P]
-            p_n[:, k] = noise[:, :P].T
-            p_y[:, k] = x[:P, None] + noise[:, :P].T
-            p_xp[:, :, k] = paths_of(xp)
+        on_path = P > 0 and k < Kp
+        if on_path:
+            paths["x"][:, k] = x[:P]
+            paths["n"][:, k] = noise[:, :P].T
+            paths["y"][:, k] = x[:P, None] + noise[:, :P].T
+            paths["xhat_pred"][:, :, k] = paths_of(xp)
+            paths["err_pred"][:, :, k] = paths_of(e_pred)
         # (7)/(11): xf = (1-ell) xp + ell (x 1 + n)
         noise += x
         np.multiply(noise, gain, out=xf)
         xp *= retain
         xf += xp
-        np.subtract(x, xf, out=e_filt[:, k])
-        if P:
-            p_xf[:, :, k] = paths_of(xf)
-            p_z[:, :, k, 0] = paths_of(xf)
+        np.subtract(x, xf, out=e_filt)
+        visit(k, e_pred, e_filt)
+        if on_path:
+            paths["err_filt"][:, :, k] = paths_of(e_filt)
+            paths["xhat_filt"][:, :, k] = paths_of(xf)
+            paths["z_rounds"][:, :, k, 0] = paths_of(xf)
             zp = xf[:, :, :P].copy()
         b[...] = 0.0
         for h in range(m):
-            rng.standard_normal(out=noise)  # u(k + (h+1)/m), shared by the configurations
-            np.matmul(Q, b, out=bnext)
+            s.draws.normal(noise)  # u(k + (h+1)/m), shared by the configurations
+            Q_op.apply(b, bnext, btmp)
             bnext += noise
             b, bnext = bnext, b
-            if P:
-                p_u[:, k, h] = noise[:, :P].T
-                zp = Q @ zp + sigma_b * noise[:, :P] + (xf[:, :, :P] if reinjection else 0.0)
-                p_z[:, :, k, h + 1] = np.moveaxis(zp, 2, 0)
+            if on_path:
+                paths["u"][:, k, h] = noise[:, :P].T
+                zp = np.einsum("ij,cjp->cip", s.Q, zp) + sigma_b * noise[:, :P] + (xf[:, :, :P] if s.reinjection else 0.0)
+                paths["z_rounds"][:, :, k, h + 1] = np.moveaxis(zp, 2, 0)
         if m:
-            np.matmul(A, xf, out=z)
+            A_op.apply(xf, z, spare)
             if noisy:
                 np.multiply(b, sigma_b, out=scaled)
                 z += scaled
         else:
             z[...] = xf
-        if reinjection:
+        if s.reinjection:
             # (13): xhat(k+1|k) = zeta xhat(k|k) + (1-zeta) z(k+1|k)/(m+1)
             np.multiply(z, keep, out=xp)
             np.multiply(xf, zeta_b, out=scaled)
             xp += scaled
         else:
             xp[...] = z
-        rng.standard_normal(out=w)
+        s.draws.normal(w)
         w *= sq
-        if P:
-            p_w[:, k] = w[:P]
+        if on_path:
+            paths["w"][:, k] = w[:P]
         x += w
-
-    err_pred = np.moveaxis(e_pred, 3, 0)  # (R, C, K, N) views of the trials-last arrays
-    err_filt = np.moveaxis(e_filt, 3, 0)
-    return ConsensusFilterRun(
-        err_pred=err_pred,
-        err_filt=err_filt,
-        x=p_x,
-        y=p_y,
-        xhat_pred=p_xp,
-        xhat_filt=p_xf,
-        z_rounds=p_z,
-        u=p_u,
-        w=p_w,
-        n=p_n,
-    )
+    return paths

@@ -33,7 +33,7 @@ from pipeline.verify import (EPS, ERRATUM, FAIL, PASS, Claim, Verdict, erratum, 
 
 from . import hypotheses as H
 from . import reference_values as ref
-from .compute import LARGE_M, Cell, Results, filter_kwargs
+from .compute import LARGE_M, Cell, Results, carli_thresholds, filter_kwargs
 from .exact_laws import chi2_sum_p, normal_sum_p, weighted_chi2_p
 
 #: the exact tests hold at any sample size; two trials are the least that make a sum of squares a test
@@ -208,17 +208,26 @@ def check_pathwise(res: Results) -> Verdict:
 
 
 def check_unrolled(res: Results) -> Verdict:
-    """(23) against the iterated (22) for k < 20 in every cell (pure algebra: no hypothesis)."""
+    """(23) against the iterated (22) for k < 20 in every cell (pure algebra: no hypothesis); and the closed
+    form at any step that the exact laws of the Monte Carlo checks use (modes, or jumps by squaring),
+    against the same iterated (22) at the recorded steps below 20."""
     sc = res.scenario
     a, b, t = [], [], []
     steps = 20
     for cell in res.cells:
         kw = {**filter_kwargs(sc, cell), "n_steps": steps}
         seq = cc.predictive_covariance_sequence(sc.Q, **kw)
-        a.append(seq), b.append(cc.predictive_covariance_unrolled(sc.Q, **kw))
-        t.append(np.full(seq.shape, _tol(scale=float(np.abs(seq).max()), operations=steps * (3 * sc.n + 4))))
-    return _close(np.array(a), np.array(b), np.array(t),
-                  detail=f"(23) vs (22) for k < {steps}, every cell; allowance 20·(3N+4) operations on the entries' scale")
+        tol = _tol(scale=float(np.abs(seq).max()), operations=steps * (3 * sc.n + 4))
+        a.append(seq.ravel()), b.append(cc.predictive_covariance_unrolled(sc.Q, **kw).ravel())
+        t.append(np.full(seq.size, tol))
+        ex = res.exact(cell)
+        early = ex.steps < steps
+        a.append(np.diagonal(seq[ex.steps[early]], axis1=1, axis2=2).ravel()), b.append(ex.diag[early].ravel())
+        t.append(np.full(int(early.sum()) * sc.n, tol))
+    return _close(np.concatenate(a), np.concatenate(b), np.concatenate(t),
+                  detail=(f"(23) vs (22) for k < {steps}, and the per-agent variances at the recorded steps (modal or "
+                          "squaring closed form, used by the exact laws) vs (22), every cell; allowance 20·(3N+4) "
+                          "operations on the entries' scale"))
 
 
 def _reinjection_params(res: Results):
@@ -250,7 +259,7 @@ def check_thm1_i_mc(res: Results) -> Verdict:
     sc, c = res.scenario, res.long_cell
     mom = res.moments(c)
     k, R = c.n_steps - 1, mom.count
-    P_k = np.diag(res.exact_pred(c)[k])
+    P_k = res.exact(c).diag[-1]   # the last step is always recorded
     P_inf = np.diag(_steady(res, ell=c.ell, zeta=c.zeta, m=c.m, sigma_c=c.sigma_c)[0])
     gap = float(np.max(np.abs(P_k - P_inf) / P_inf))
     resolution = float(np.sqrt(2.0 / R))
@@ -259,11 +268,11 @@ def check_thm1_i_mc(res: Results) -> Verdict:
         return not_checkable(f"at {where} the exact variances still differ from diag P∞ by {gap:.2e} (relative), more "
                              f"than {TRANSIENT_FRACTION:g} of the Monte Carlo resolution √(2/R) = {resolution:.2e}: the "
                              "horizon is too short for these gains (mc.per_agent checks the finite-k law)")
-    p = chi2_sum_p(mom.s2[k], P_k, R)
+    p = chi2_sum_p(mom.s2[-1], P_k, R)
     w = int(np.argmin(p))
-    return p_value_test(p, trials=R, min_trials=MIN_TRIALS, measured=float(mom.s2[k][w] / R), reference=float(P_inf[w]),
+    return p_value_test(p, trials=R, min_trials=MIN_TRIALS, measured=float(mom.s2[-1][w] / R), reference=float(P_inf[w]),
                         detail=(f"Σ_t x̃_i²/P_ii ~ χ²(R) exactly per agent ({where}); diag P(k|k−1) is within {gap:.1e} "
-                                f"(relative) of diag P∞; mean squares {np.array2string(mom.s2[k] / R, precision=4)} vs "
+                                f"(relative) of diag P∞; mean squares {np.array2string(mom.s2[-1] / R, precision=4)} vs "
                                 f"P∞ {np.array2string(P_inf, precision=4)}"))
 
 
@@ -365,14 +374,13 @@ def _mc_vs_exact(res: Results, stat: str) -> Verdict:
     sc = res.scenario
     p, est, refs = [], [], []
     for c in res.cells:
-        P = res.exact_pred(c)
-        if stat == "filt":
-            P = cc.filtered_covariance(P, c.ell, sc.r)
+        P = res.exact(c)
+        diag = (1 - c.ell) ** 2 * P.diag + c.ell ** 2 * sc.r if stat == "filt" else P.diag   # (18) for P(k|k)
         mom = res.moments(c, "filt" if stat == "filt" else "pred")
-        R, diag = mom.count, np.diagonal(P, axis1=1, axis2=2)
+        R = mom.count
         if stat == "trace":
-            p.append(weighted_chi2_p(mom.s2.sum(axis=1), np.linalg.eigvalsh(P), R))
-            est.append(mom.s2.sum(axis=1) / R), refs.append(np.trace(P, axis1=1, axis2=2))
+            p.append(weighted_chi2_p(mom.s2.sum(axis=1), P.eigenvalues, R))
+            est.append(mom.s2.sum(axis=1) / R), refs.append(P.trace)
         elif stat == "mean":
             p.append(normal_sum_p(mom.s1, diag, R)), est.append(mom.s1 / R), refs.append(np.zeros_like(diag))
         else:
@@ -381,7 +389,7 @@ def _mc_vs_exact(res: Results, stat: str) -> Verdict:
     w = int(np.argmin(p))
     return p_value_test(p, trials=res.trials, min_trials=MIN_TRIALS, measured=float(est[w]), reference=float(refs[w]),
                         detail=(f"{_MC_TESTS[stat]}; exact at any number of trials. {len(res.cells)} cells (algorithm × m "
-                                f"× σ_c), every k < {sc.n_steps}; measured: the Monte Carlo "
+                                f"× σ_c), {_steps_text(res)}; measured: the Monte Carlo "
                                 f"{'mean' if stat == 'mean' else 'mean square'} of the cell with the smallest p-value"))
 
 
@@ -436,15 +444,14 @@ def check_kkt(res: Results) -> Verdict:
 
 def check_kf_lower_bound(res: Results) -> Verdict:
     sc = res.scenario
-    kf = res.bounds["kf_prior"]
     lo, up, t = [], [], []
     for c in res.cells:
-        d = np.diagonal(res.exact_pred(c), axis1=1, axis2=2)
-        lo.append(np.broadcast_to(kf[: c.n_steps, None], d.shape)), up.append(d)
+        d = res.exact(c).diag
+        lo.append(np.broadcast_to(res.design.kf_prior(res.steps_of(c))[:, None], d.shape)), up.append(d)
         t.append(np.full(d.shape, _tol(scale=float(d.max()), operations=c.n_steps * (2 * sc.n + 6) + 2 * (c.m + 1) * sc.n)))
     return _below(np.array(lo), np.array(up), np.array(t),
-                  detail="P_KF(k|k-1) <= [P(k|k-1)]_ii for every agent, k and cell (exact recursions); allowance "
-                         "K(2N+6) + 2(m+1)N operations on the largest variance")
+                  detail=(f"P_KF(k|k-1) <= [P(k|k-1)]_ii for every agent and cell, {_steps_text(res)} (exact "
+                          "recursions); allowance K(2N+6) + 2(m+1)N operations on the largest variance"))
 
 
 def _centralized(res: Results) -> tuple[float, float, float]:
@@ -571,9 +578,11 @@ def check_carli_diverges(res: Results) -> Verdict:
         P, _, tol = _steady(res, ell=c.ell, zeta=1.0, m=c.m, sigma_c=c.sigma_c, reinjection=False)
         lo.append(cc.carli_trace_lower_bound_asymptotic(ell=c.ell, m=c.m, sigma_c=c.sigma_c))
         up.append(np.trace(P)), t.append(sc.n * tol)
-        Pk = res.exact_pred(c)[k]
-        lo.append(cc.carli_trace_lower_bound(ell=c.ell, m=c.m, sigma_c=c.sigma_c, k=k)), up.append(np.trace(Pk))
-        t.append(_tol(scale=float(np.abs(Pk).max()) * sc.n, operations=(k + 1) * (2 * sc.n + 6) + 2 * (c.m + 1) * sc.n))
+        i = _index(res, c, k)
+        ex = res.exact(c)
+        lo.append(cc.carli_trace_lower_bound(ell=c.ell, m=c.m, sigma_c=c.sigma_c, k=k)), up.append(ex.trace[i])
+        # the largest entry of a covariance is on its diagonal
+        t.append(_tol(scale=float(ex.diag[i].max()) * sc.n, operations=(k + 1) * (2 * sc.n + 6) + 2 * (c.m + 1) * sc.n))
     m = np.arange(sc.rounds_max + 1)
     grows = []
     if "carli_opt_J" in res.bounds and np.array_equal(sc.Q, sc.Q.T):  # re-optimising ℓ cannot save it: J_C* >= σ_c² m
@@ -602,28 +611,25 @@ def check_carli_bounded_in_k(res: Results) -> Verdict:
                           "covariance converges in k (the divergence the paper reports is in m, not in time)"))
 
 
+def _index(res: Results, cell: Cell, k: int) -> int:
+    """Position of step k among the cell's recorded steps (eval_step and the last step always are)."""
+    return int(np.searchsorted(res.steps_of(cell), k))
+
+
+def _steps_text(res: Results) -> str:
+    sc = res.scenario
+    n = len(res.design.steps)
+    return f"every k < {sc.n_steps}" if n == sc.n_steps else f"{n} recorded steps k in 0..{sc.n_steps - 1}"
+
+
 def _eval_traces(res: Results, alg: str) -> np.ndarray:
     sc = res.scenario
-    return np.array([[np.trace(res.exact_pred(res.cell(alg, m, s_c))[sc.eval_step]) for m in sc.rounds] for s_c in sc.sigma_c])
-
-
-def _carli_trace(res: Results, m: int, *, noise_only: bool) -> float:
-    """tr P(k_eval) of Carli's filter: without round noise, or its coefficient of σ_c² (the recursion is affine in σ_c²)."""
-    sc = res.scenario
-    kw = dict(q=0.0, r=0.0, sigma0=0.0, sigma_c=1.0) if noise_only else dict(q=sc.q, r=sc.r, sigma0=sc.sigma0, sigma_c=0.0)
-    P = cc.predictive_covariance_sequence(sc.Q, ell=sc.carli_ell, m=m, n_steps=sc.eval_step + 1, reinjection=False, **kw)
-    return float(np.trace(P[-1]))
-
-
-def carli_thresholds(res: Results, rounds) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For consecutive m → m' in `rounds`: the σ_c above which tr P(k_eval) increases (0 if it always does, inf if never),
-    the σ_c² coefficients b_m and the noise-free traces a_m (tr = a_m + b_m σ_c²)."""
-    a = np.array([_carli_trace(res, m, noise_only=False) for m in rounds])
-    b = np.array([_carli_trace(res, m, noise_only=True) for m in rounds])
-    da, db = -np.diff(a), np.diff(b)   # the trace rises from m to m' iff b' σ² + a' > b σ² + a
-    with np.errstate(divide="ignore", invalid="ignore"):
-        thr = np.where(db > 0, np.sqrt(np.maximum(da, 0.0) / db), np.where(da < 0, 0.0, np.inf))
-    return thr, b, a
+    out = np.empty((len(sc.sigma_c), len(sc.rounds)))
+    for s, s_c in enumerate(sc.sigma_c):
+        for j, m in enumerate(sc.rounds):
+            c = res.cell(alg, m, s_c)
+            out[s, j] = res.exact(c).trace[_index(res, c, sc.eval_step)]
+    return out
 
 
 def check_fig1_increase(res: Results) -> Verdict:
@@ -634,7 +640,7 @@ def check_fig1_increase(res: Results) -> Verdict:
         return not_checkable(f"a trend in m needs two or more m; the scenario has m in {list(sc.rounds)}")
     if sc.eval_step == 0:
         return not_checkable("the metric at k = 0 precedes any consensus round (sweep.eval_step = 0)")
-    thr, b, _ = carli_thresholds(res, sc.rounds)
+    thr, b, _ = carli_thresholds(sc, sc.rounds)
     k = sc.eval_step
     t = [_tol(scale=b[j + 1], operations=k * (2 * sc.n + 6) + 2 * (sc.rounds[j + 1] + 1) * sc.n) for j in range(len(b) - 1)]
     v = _below(b[:-1], b[1:], np.array(t), strict=True, detail="")
@@ -650,7 +656,7 @@ def check_fig1_increase(res: Results) -> Verdict:
 
 
 def check_fig1_values(res: Results) -> Verdict:
-    thr = carli_thresholds(res, tuple(range(len(ref.CARLI_THRESHOLDS) + 1)))[0]
+    thr = carli_thresholds(res.scenario, tuple(range(len(ref.CARLI_THRESHOLDS) + 1)))[0]
     return _close(np.concatenate([_eval_traces(res, "carli").ravel(), thr]),
                   np.concatenate([ref.FIG1_EXACT.ravel(), ref.CARLI_THRESHOLDS]),
                   np.concatenate([np.full(ref.FIG1_EXACT.size, 6e-4), np.full(len(thr), 1e-4)]),
@@ -775,7 +781,8 @@ def check_beats_carli(res: Results) -> Verdict:
 
 
 def check_filterpy(res: Results) -> Verdict:
-    """Our batched centralized KF equals filterpy's KalmanFilter on the sample-path measurements."""
+    """Our batched centralized KF equals filterpy's KalmanFilter on the sample-path measurements, and the
+    scalar recursion of the design equals its covariances."""
     from filterpy.kalman import KalmanFilter
 
     sc = res.scenario
@@ -791,6 +798,10 @@ def check_filterpy(res: Results) -> Verdict:
     ops = y.shape[1] * (sc.n ** 2 + 10)
     t_x = _tol(scale=max(np.abs(y).max(), abs(sc.x0_mean), 1e-300), operations=ops, condition=cond)
     t_P = _tol(scale=P_max, operations=ops, condition=cond)
+    # the scalar recursion behind every P_KF of the design (bound checks, tables) on the same steps
+    ours += list(res.design.kf_prior(np.arange(y.shape[1])))
+    theirs += list(run.cov.P_prior[:, 0, 0])
+    allow += [t_P] * y.shape[1]
     for p in range(y.shape[0]):
         kf = KalmanFilter(dim_x=1, dim_z=sc.n)
         kf.F, kf.H, kf.Q, kf.R = F.copy(), H_.copy(), Qw.copy(), R.copy()
@@ -802,7 +813,8 @@ def check_filterpy(res: Results) -> Verdict:
             kf.update(y[p, k])
             kf.predict()
     return _close(ours, theirs, allow,
-                  detail=(f"priors x̂(k|k-1), P(k|k-1) on {y.shape[0]} sample trials × {y.shape[1]} steps; allowance "
+                  detail=(f"priors x̂(k|k-1), P(k|k-1) on {y.shape[0]} sample trials × {y.shape[1]} steps, and the scalar "
+                          "recursion of P_KF(k|k-1) used by the bounds on the same steps; allowance "
                           f"K(N²+10) operations × the condition {cond:.3g} of the innovation covariance"))
 
 

@@ -5,8 +5,9 @@ draw is small (a quick run takes a few seconds) and deterministic in (seed, edge
 cases are the ones that broke or could break the checks: no or one consensus round with the
 default `gains.rounds_max`, no communication noise, consensus matrices that are doubly
 stochastic but not normal (or normal but not symmetric), eigenvalues near −1, extreme noise
-intensities and ratios q/r, a single agent, larger networks (where scipy's Lyapunov solver
-switches method), ℓ = 1, σ0 = 0 and the evaluation step k = 0.
+intensities and ratios q/r, two agents, larger networks (where scipy's Lyapunov solver
+switches method), ℓ = 1, σ0 = 0, the evaluation step k = 0, and a horizon longer than the
+recorded steps (statistics kept at a subset of the steps).
 """
 from __future__ import annotations
 
@@ -27,7 +28,6 @@ EDGES: tuple[str, ...] = (
     "tiny_noise",
     "huge_noise",
     "extreme_ratio_q_over_r",
-    "single_agent",
     "two_agents",
     "larger_network",
     "complete_metropolis",
@@ -36,6 +36,7 @@ EDGES: tuple[str, ...] = (
     "ell_one_sigma0_zero",
     "eval_step_zero",
     "large_sigma_c",
+    "long_horizon",
 )
 
 
@@ -149,8 +150,6 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
             q, r = float(10 ** rng.uniform(-4, -2)), float(10 ** rng.uniform(3, 4))
         else:
             q, r = float(10 ** rng.uniform(2, 4)), float(10 ** rng.uniform(-3, -1))
-    elif edge == "single_agent":
-        graph, consensus = {"kind": "line", "n": 1}, {"weights": "metropolis"}
     elif edge == "two_agents":
         graph = {"kind": "line", "n": 2}
     elif edge == "larger_network":
@@ -172,19 +171,24 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
     elif edge == "large_sigma_c":
         sigma_c = [round(float(rng.uniform(5.0, 20.0)), 3)]
         rounds = sorted({1, int(rng.integers(2, 6))})
+    elif edge == "long_horizon":
+        n_steps, eval_step = int(rng.integers(200, 400)), int(rng.integers(1, 10))
+        extra = {"sweep_extra": {"recorded_steps": int(rng.integers(10, 40))}}
 
     if graph is None:
         graph = _graph(rng, graph_kind, n)
     if consensus is None:
         consensus = _weights(rng, graph, weight_kind)
     name = f"gen-{edge or 'random'}-{seed}"
+    sweep = {"rounds": rounds, "sigma_c": sigma_c, "n_steps": n_steps, "eval_step": eval_step,
+             **extra.pop("sweep_extra", {})}
     return {
         "family": FAMILY,
         "name": name,
         "graph": graph,
         "consensus": consensus,
         "model": {"q": q, "r": r, "sigma0": sigma0},
-        "sweep": {"rounds": rounds, "sigma_c": sigma_c, "n_steps": n_steps, "eval_step": eval_step},
+        "sweep": sweep,
         "carli": {"ell": carli_ell},
         "reinjection": gains,
         "monte_carlo": {"trials": int(rng.integers(200, 3001)), "sample_paths": int(rng.integers(0, 3))},
