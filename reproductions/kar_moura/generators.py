@@ -10,10 +10,13 @@ counterexample:
 * ``shared-unobserved``: one unstable mode no sensor sees, so every sensor diverges alike;
 * ``shared-c-different-r``: sensor types with the same C and different R;
 * ``periodic``: a protocol whose Ā is periodic (perfect matchings of an even ring);
-* ``node-initiated``, ``greedy-links`` (greedy maximal matching with link failures) and
-  ``greedy-perfect`` (no failures: Ā_nn may vanish);
+* ``node-initiated``, ``greedy-links`` (greedy maximal matching with link failures),
+  ``greedy-perfect`` (no failures: Ā_nn may vanish) and ``greedy-estimated`` (a complete graph of
+  10 nodes, 45 edges: Ā has no exact form and is estimated, the chains are driven by the protocol);
 * ``small-noise`` / ``large-noise`` (Q, R, P0 scaled by 1e-6 or 1e4, P0 up to 1e6);
-* ``stable-f``, ``unstable-f`` (|λ| up to 1.3) and ``marginal-f`` (a rotation on the unit circle);
+* ``stable-f``, ``unstable-f`` (|λ| up to 1.3), ``marginal-f`` (a rotation on the unit circle) and
+  ``singular-f`` (an unstable mode plus a null space that every sensor sees only in part: D.1 can
+  fail although (F, C_all) is observable);
 * ``actuators``: some nodes observe nothing (C = []), others have two-row sensors;
 * ``comparison``: a second protocol with the same Ā (single edges against matchings).
 
@@ -26,8 +29,8 @@ import numpy as np
 
 FAMILY = "gossip-kalman"
 EDGES = ("c1-fail-oblique", "d1-fail-oblique", "shared-unobserved", "shared-c-different-r", "periodic",
-         "node-initiated", "greedy-links", "greedy-perfect", "small-noise", "large-noise", "stable-f",
-         "unstable-f", "marginal-f", "actuators", "comparison")
+         "node-initiated", "greedy-links", "greedy-perfect", "greedy-estimated", "small-noise", "large-noise",
+         "stable-f", "unstable-f", "marginal-f", "singular-f", "actuators", "comparison")
 
 
 def _rotation(rng: np.random.Generator, M: int) -> np.ndarray:
@@ -48,6 +51,8 @@ def _dynamics(rng: np.random.Generator, M: int, regime: str) -> tuple[np.ndarray
     V = _rotation(rng, M)
     if regime == "stable":
         lam = rng.uniform(0.3, 0.95, M)
+    elif regime == "singular":
+        lam = np.array([rng.uniform(1.05, 1.3)] + [0.0] * (M - 1))
     elif regime == "unstable":
         lam = rng.uniform(1.02, 1.3, M)
     elif regime == "marginal":
@@ -92,6 +97,8 @@ def generate(seed: int, edge: str | None = None) -> dict:
     P0_scale = float(10 ** rng.uniform(-1, 1))
     if edge in ("c1-fail-oblique", "d1-fail-oblique", "shared-unobserved", "unstable-f"):
         regime, M = "unstable", max(M, 2)
+    elif edge == "singular-f":
+        regime, M = "singular", 3
     elif edge == "stable-f":
         regime = "stable"
     elif edge == "marginal-f":
@@ -114,12 +121,15 @@ def generate(seed: int, edge: str | None = None) -> dict:
     elif edge == "periodic":
         N = 2 * int(rng.integers(1, 4))
         graph = {"kind": "ring", "n": N} if N >= 4 else {"kind": "line", "n": 2}
+    elif edge == "greedy-estimated":
+        N = 10
+        graph = {"kind": "complete", "n": N}
     n_edges = {"line": N - 1, "ring": N, "complete": N * (N - 1) // 2}.get(graph["kind"], len(graph.get("edges", [])))
     kinds = ["single-edge", "node-initiated", "greedy-matching"]
     kind = str(rng.choice(kinds))
     if edge == "node-initiated":
         kind = "node-initiated"
-    elif edge in ("greedy-links", "greedy-perfect"):
+    elif edge in ("greedy-links", "greedy-perfect", "greedy-estimated"):
         kind = "greedy-matching"
     elif edge in ("c1-fail-oblique",):
         kind = "single-edge"
@@ -137,7 +147,7 @@ def generate(seed: int, edge: str | None = None) -> dict:
         protocol = {"kind": "single-edge", "edge_prob": float(0.8 / n_edges)}
 
     # sensors --------------------------------------------------------------------------------------
-    evals, evecs = np.linalg.eigh(0.5 * (F + F.T)) if regime != "marginal" else (None, None)
+    evals, evecs = np.linalg.eigh(0.5 * (F + F.T)) if regime not in ("marginal",) else (None, None)
     n_types = int(rng.integers(1, min(N, 3) + 1))
     C_types, R_types = [], []
     blind = None
@@ -160,6 +170,11 @@ def generate(seed: int, edge: str | None = None) -> dict:
         C_types = [C_types[0]] * 3
         R_types = [_tolist(_spd(rng, m, noise * s)) for s in (0.1, 1.0, 10.0)]
         types = [i % 3 for i in range(N)]
+    elif edge == "singular-f":  # every sensor sees one direction of the null space of F and the unstable mode
+        null = evecs[:, np.abs(evals) < 1e-12]
+        C_types = [_tolist(_rows(rng, M, 1, null[:, [1]])), _tolist(_rows(rng, M, 1, null[:, [0]]))]
+        R_types = [_tolist(_spd(rng, 1, noise)), _tolist(_spd(rng, 1, noise))]
+        types = [i % 2 for i in range(N)]
     elif edge == "actuators":
         C_types.append([])
         R_types.append([])
