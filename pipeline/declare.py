@@ -63,7 +63,7 @@ def parse(model: type[Section], data: Any, prefix: str = "") -> Section:
         errors = exc.errors()
         # an unknown key is named first: it is usually a typo that also explains a missing one
         first = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])
-        raise _scenario_error(first, prefix, model) from None
+        raise _scenario_error(first, prefix, model, errors) from None
 
 
 def _path(prefix: str, loc: tuple) -> str:
@@ -76,7 +76,40 @@ def _path(prefix: str, loc: tuple) -> str:
     return out or "scenario"
 
 
-def _scenario_error(err: dict, prefix: str, model: type[Section]) -> ScenarioError:
+def _is_union_tag(part: Any) -> bool:
+    """pydantic names the member of a union a value was tried against in the error location
+    (`int`, `float`, `literal['theory']`, `function-after[...]`): never a key of ours."""
+    return isinstance(part, str) and (part in ("int", "float", "str", "bool", "none") or "[" in part)
+
+
+#: how a union member that rejected a value by its type is described ("must be an integer or ...")
+_MEMBER_TYPES = {"int_type": "an integer", "int_from_float": "an integer", "float_type": "a number",
+                 "string_type": "a string", "bool_type": "true or false", "list_type": "a list",
+                 "model_type": "a table", "dict_type": "a table", "model_attributes_type": "a table"}
+
+
+def _union_error(errors: list[dict], first: dict, prefix: str, model: type[Section]) -> ScenarioError:
+    """One error for a value that no member of a union (`int | Literal["theory"]`) accepts: the
+    member whose type matched explains the problem (a bound, say); else every alternative is listed."""
+    def bare(e):
+        return tuple(p for p in e["loc"] if not _is_union_tag(p))
+
+    base = bare(first)
+    same = [e for e in errors if bare(e) == base]
+    matched = [e for e in same if e["type"] not in _MEMBER_TYPES and e["type"] != "literal_error"]
+    if matched:
+        return _scenario_error({**matched[0], "loc": base}, prefix, model)
+    alternatives = []
+    for e in same:
+        text = _MEMBER_TYPES.get(e["type"]) or f"one of {(e.get('ctx') or {}).get('expected', '')}"
+        if text not in alternatives:
+            alternatives.append(text)
+    return ScenarioError(_path(prefix, base), f"must be {' or '.join(alternatives)}, got {_show(first.get('input'))}")
+
+
+def _scenario_error(err: dict, prefix: str, model: type[Section], errors: list[dict] | None = None) -> ScenarioError:
+    if errors is not None and any(_is_union_tag(p) for p in err["loc"]):
+        return _union_error(errors, err, prefix, model)
     kind, ctx, value = err["type"], err.get("ctx") or {}, err.get("input")
     if kind == "value_error" and isinstance(ctx.get("error"), ScenarioError):
         # a section's validator names the key relative to the section it validates
@@ -125,7 +158,8 @@ def _allowed(model: type[Section], loc) -> str:
     for part in loc[:-1]:
         if isinstance(part, str) and isinstance(m, type) and issubclass(m, BaseModel) and part in m.model_fields:
             m = _section_type(m.model_fields[part].annotation) or m
-    names = sorted(m.model_fields) if isinstance(m, type) and issubclass(m, BaseModel) else []
+    names = sorted(info.alias or name for name, info in m.model_fields.items()) \
+        if isinstance(m, type) and issubclass(m, BaseModel) else []
     return ", ".join(names)
 
 
@@ -235,6 +269,7 @@ def reference_rows(model: type[Section], prefix: str = "") -> list[tuple[str, li
     here: list[dict[str, str]] = []
     nested: list[tuple[str, list[dict[str, str]], str]] = []
     for name, info in model.model_fields.items():
+        name = info.alias or name                     # the key as written in the file (`lambda`)
         sub = _section_type(info.annotation)
         path = f"{prefix}.{name}" if prefix else name
         kind = _type_name(info.annotation)
@@ -245,7 +280,7 @@ def reference_rows(model: type[Section], prefix: str = "") -> list[tuple[str, li
         extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
         here.append({"key": name, "type": _type_name(info.annotation), "default": _default(info),
                      "constraint": _constraint(info), "unit": extra.get("unit", ""), "meaning": info.description or ""})
-    doc = (model.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ")
+    doc = " ".join((model.__doc__ or "").strip().split("\n\n")[0].split())
     return ([(prefix, here, doc)] if here else []) + nested
 
 
