@@ -85,6 +85,7 @@ def ks_test(a, b) -> tuple[float, float, int, int]:
 def binom_p(k, n, p) -> np.ndarray:
     """Two-sided exact binomial p-value, twice the smaller tail (capped at 1); 0 where p = 0 < k."""
     k, n, p = (np.asarray(x, float) for x in (k, n, p))
+    p = np.clip(p, 0.0, 1.0)  # probabilities summed in floating point may exceed 1 by an ulp
     lower = stats.binom.cdf(k, n, p)
     upper = stats.binom.sf(k - 1, n, p)
     return np.minimum(1.0, 2.0 * np.minimum(lower, upper))
