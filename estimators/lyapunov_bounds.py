@@ -89,10 +89,13 @@ def vertex_dissipation(A, B, C, L, J, K, sigma, P, lap, alpha: float, *, max_nod
 
 def mean_square_constants(P, qbar_min: float, phibar: float, v_star: float, r_star: float, N: int) -> dict[str, float]:
     """Prop. 4.1: κ = λ_min(Q̄)/(2 λ_max(P)), η = 2 φ̄² ‖P‖² / λ_min(Q̄) + λ_max(P) ψ̄²,
-    ψ̄ = sqrt(N (v*² + r*²)); and the limit (52) of E‖z‖."""
+    ψ̄ = sqrt(N (v*² + r*²)); and the limit (52) of E‖z‖. NaN constants when λ_min(Q̄) ≤ 0."""
     lam = np.concatenate([np.linalg.eigvalsh(Pi) for Pi in P])
     lmax, lmin = lam.max(), lam.min()
     psibar = float(np.sqrt(N * (v_star ** 2 + r_star ** 2)))
+    if not qbar_min > 0:   # no dissipation: the proposition does not apply
+        nan = float("nan")
+        return {"kappa": nan, "eta": nan, "psibar": psibar, "limit52": nan}
     kappa = qbar_min / (2 * lmax)
     eta = 2 * phibar ** 2 * lmax ** 2 / qbar_min + lmax * psibar ** 2
     mu = 2 * lmax * phibar / qbar_min
