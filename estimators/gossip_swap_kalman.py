@@ -48,7 +48,26 @@ def step_permutation(links: LinkModel, step: StepLinks, B: int, priority: np.nda
 
 
 def kalman_update(P: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(gain K (n, m, *b), posterior P (n, n, *b)) for stacked priors P, H (m, n, *b), R (m, m, *b)."""
+    """(gain K (n, m, *b), posterior P (n, n, *b)) for stacked priors P, H (m, n, *b), R (m, m, *b).
+
+    Joseph form P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ. For one measurement row it is expanded in the
+    rank-one terms (u = P hᵀ, c = h P hᵀ, k = u / (c + r)): P⁺_ij = P_ij − k_i u_j − u_i k_j + (c + r) k_i k_j,
+    each entry computed once for i ≤ j (exactly symmetric)."""
+    if H.shape[0] == 1:
+        n = P.shape[0]
+        h, r = H[0], R[0, 0]
+        u = [sum(P[i, j] * h[j] for j in range(n)) for i in range(n)]
+        c = sum(h[i] * u[i] for i in range(n))
+        s_ = c + r
+        k = [ui / s_ for ui in u]
+        batch = np.broadcast_shapes(P.shape[2:], np.shape(h[0]), np.shape(r))
+        post = np.empty((n, n) + batch)
+        K = np.empty((n, 1) + batch)
+        for i in range(n):
+            K[i, 0] = k[i]
+            for j in range(i, n):
+                post[i, j] = post[j, i] = P[i, j] - k[i] * u[j] - u[i] * k[j] + s_ * k[i] * k[j]
+        return K, post
     Ht = sm.transpose(H)
     PHt = sm.matmul(P, Ht)
     S = sm.matmul(H, PHt) + R

@@ -120,8 +120,8 @@ class InformationRun:
             ybar = u + f.neighbour_sum(u)
             S = self.U + sm.to_batched(f.neighbour_sum(m.info_matrix))[..., None]
         else:
-            ybar = u + _masked_sum(f, u, mask, trialwise=True)
-            S = self.U + np.moveaxis(_masked_sum(f, m.info_matrix, mask, trialwise=False), 0, 2)
+            ybar = u + _heard_sum(f, u, mask)
+            S = self.U + _heard_information(f, mask)
         return ybar, S
 
     def step(self, ctx: StepContext) -> np.ndarray:
@@ -158,17 +158,20 @@ class InformationRun:
         q = self.qbar + np.einsum("inm,imb->inb", m.info_weight, ctx.y)
         sigma = f.links.noise_std
         if f.links.synchronous:
+            n = m.n
+            Op = np.moveaxis(sm.pack(O), 1, 0)                                  # (N, p, *) packed, node first
             for r, mask in enumerate(ctx.links.rounds):
-                O = np.moveaxis(f.mixer.mix(np.moveaxis(O, 2, 0), mask), 0, 2)
+                Op = f.mixer.mix(Op, mask)
                 q = f.mixer.mix(q, mask)
                 if sigma:
                     kick = sigma * ctx.noise[r] * ctx.heard[r][:, None, :]
-                    q = q + np.moveaxis(sm.matvec(O, np.moveaxis(kick, 1, 0)), 0, 1)
+                    q = q + np.moveaxis(sm.matvec(sm.unpack(np.moveaxis(Op, 0, 1), n), np.moveaxis(kick, 1, 0)), 0, 1)
+            O = sm.unpack(np.moveaxis(Op, 0, 1), n)
         else:
             O, q = _ci_exchanges(f, O, q, ctx, self.B)
-        x = np.moveaxis(sm.spd_solve(O, np.moveaxis(q, 1, 0)[:, None])[:, 0], 0, 1)      # (N, n, B)
-        self.estimate, self.info = x, O
         P = sm.spd_inverse(O)
+        x = np.moveaxis(sm.matvec(P, np.moveaxis(q, 1, 0)), 0, 1)                        # (N, n, B)
+        self.estimate, self.info = x, O
         self.cov = P
         self.Obar = sm.spd_inverse(sm.const_sandwich(m.F, P) + m.Q[:, :, None, None])
         self.xbar = predict(m.F, x)
@@ -182,27 +185,51 @@ class InformationRun:
         return sm.quad_form(sm.spd_inverse(self.cov), v)
 
 
-def _masked_sum(f: InformationFilter, V: np.ndarray, mask: np.ndarray, *, trialwise: bool) -> np.ndarray:
-    """Σ over heard neighbours of V_j: V (N, ..., B) when trialwise, else (N, ...) shared; the
-    result has a trailing trial axis."""
+def _sparse_ends(topo):
+    """(N, E) sparse matrices selecting the first and the second endpoint of every edge."""
+    cache = topo.__dict__.setdefault("_sparse_ends", {})
+    if not cache:
+        import scipy.sparse as sp
+
+        cols = np.arange(topo.E)
+        for end in (0, 1):
+            cache[end] = sp.csr_matrix((np.ones(topo.E), (topo.edges[:, end], cols)), shape=(topo.n_nodes, topo.E))
+    return cache[0], cache[1]
+
+
+def _heard_sum(f: InformationFilter, V: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Σ over the neighbours j that node i heard of V_j, for V (N, r, B) and working edges (E, B)."""
     topo = f.links.topology
     a, b = topo.edges[:, 0], topo.edges[:, 1]
-    E, B = mask.shape
-    Va, Vb = V[a], V[b]
-    if not trialwise:
-        Va, Vb = Va[..., None], Vb[..., None]
-    m = mask.reshape((E,) + (1,) * (Va.ndim - 2) + (B,))
-    out = _inc(topo, 0) @ (Vb * m).reshape(E, -1) + _inc(topo, 1) @ (Va * m).reshape(E, -1)
-    return out.reshape((topo.n_nodes,) + Va.shape[1:-1] + (B,))
+    to_a, to_b = _sparse_ends(topo)
+    m = mask[:, None, :]
+    E = topo.E
+    out = to_a @ (V[b] * m).reshape(E, -1) + to_b @ (V[a] * m).reshape(E, -1)
+    return out.reshape(V.shape)
 
 
-def _inc(topo, end: int) -> np.ndarray:
-    cache = topo.__dict__.setdefault("_end_incidence", {})
-    if end not in cache:
-        M = np.zeros((topo.n_nodes, topo.E))
-        M[topo.edges[:, end], np.arange(topo.E)] = 1.0
-        cache[end] = M
-    return cache[end]
+def _heard_information(f: InformationFilter, mask: np.ndarray) -> np.ndarray:
+    """(n, n, N, B): Σ over heard neighbours of U_j, as one sparse product: row (entry, i), column
+    e holds the packed entry of U at the other end of e when i is an end of e."""
+    topo, m = f.links.topology, f.model
+    cache = f.__dict__.setdefault("_heard_info_matrix", {})
+    if "M" not in cache:
+        import scipy.sparse as sp
+
+        n, N, E = m.n, topo.n_nodes, topo.E
+        packed = sm.pack(sm.to_batched(m.info_matrix))                        # (p, N)
+        p = packed.shape[0]
+        a, b = topo.edges[:, 0], topo.edges[:, 1]
+        rows, cols, vals = [], [], []
+        for x in range(p):
+            rows += [x * N + a, x * N + b]
+            cols += [np.arange(E), np.arange(E)]
+            vals += [packed[x, b], packed[x, a]]
+        cache["M"] = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                   shape=(p * N, E))
+        cache["p"] = p
+    out = (cache["M"] @ mask.astype(float)).reshape(cache["p"], topo.n_nodes, mask.shape[1])
+    return sm.unpack(out, m.n)
 
 
 def _laplacian_apply(f: InformationFilter, x: np.ndarray, mask) -> np.ndarray:

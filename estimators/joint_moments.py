@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["common_start", "node_wise", "node_mix", "state_wise", "add_block_diagonal", "mean_random_round",
-           "edge_pattern_sum", "node_blocks", "mean_square_per_node", "disagreement", "as_matrix", "from_matrix"]
+           "edge_pattern_sum", "edge_pattern_matrix", "apply_edge_pattern", "node_blocks", "mean_square_per_node", "disagreement", "as_matrix", "from_matrix"]
 
 
 def common_start(N: int, P0: np.ndarray) -> np.ndarray:
@@ -44,7 +44,10 @@ def from_matrix(M: np.ndarray, N: int) -> np.ndarray:
 def node_wise(A: np.ndarray, S: np.ndarray, B: np.ndarray | None = None) -> np.ndarray:
     """Σ ← A Σ Bᵀ for block-diagonal A = diag(A_i), B = diag(B_i) ((N, n, n); B = A by default)."""
     B = A if B is None else B
-    return np.einsum("iab,ibjc,jdc->iajd", A, S, B, optimize=True)
+    N, n = S.shape[:2]
+    T = np.matmul(A, S.reshape(N, n, N * n)).reshape(N, n, N, n)          # rows: A_i Σ_ij
+    T = np.matmul(T.transpose(2, 0, 1, 3).reshape(N, N * n, n), np.swapaxes(B, 1, 2))   # columns: · B_jᵀ
+    return T.reshape(N, N, n, n).transpose(1, 2, 0, 3)
 
 
 def node_mix(W: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -57,9 +60,9 @@ def node_mix(W: np.ndarray, S: np.ndarray) -> np.ndarray:
 
 def state_wise(F: np.ndarray, S: np.ndarray, Q: np.ndarray | None = None) -> np.ndarray:
     """Σ ← (I ⊗ F) Σ (I ⊗ F)ᵀ (+ 1 1ᵀ ⊗ Q, a noise common to every node)."""
-    out = np.einsum("ab,ibjc,dc->iajd", F, S, F, optimize=True)
+    out = (F @ S.transpose(0, 2, 1, 3) @ F.T).transpose(0, 2, 1, 3)
     if Q is not None:
-        out += Q[None, :, None, :]
+        out = out + Q[None, :, None, :]
     return out
 
 
@@ -71,17 +74,26 @@ def add_block_diagonal(S: np.ndarray, blocks: np.ndarray) -> np.ndarray:
     return out
 
 
+def edge_pattern_matrix(N: int, edges: np.ndarray) -> np.ndarray:
+    """(N², E): column e holds the node pattern of D_e = (u_a − u_b)(u_a − u_b)ᵀ, flattened."""
+    E = len(edges)
+    inc = np.zeros((N, E))
+    inc[edges[:, 0], np.arange(E)] = 1.0
+    inc[edges[:, 1], np.arange(E)] = -1.0
+    return (inc[:, None, :] * inc[None, :, :]).reshape(N * N, E)
+
+
+def apply_edge_pattern(pattern: np.ndarray, S: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Σ_e c_e D_e Σ D_e for a pattern matrix with columns already scaled by c_e (`edge_pattern_matrix`)."""
+    N, n = S.shape[:2]
+    a, b = edges[:, 0], edges[:, 1]
+    d = S[a, :, a, :] - S[a, :, b, :] - S[b, :, a, :] + S[b, :, b, :]     # (E, n, n): the blocks of D_e Σ D_e
+    return (pattern @ d.reshape(len(edges), n * n)).reshape(N, N, n, n).transpose(0, 2, 1, 3)
+
+
 def edge_pattern_sum(S: np.ndarray, edges: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Σ_e c_e D_e Σ D_e for edges (E, 2) and coefficients c (E,)."""
-    a, b = edges[:, 0], edges[:, 1]
-    d = S[a, :, a, :] - S[a, :, b, :] - S[b, :, a, :] + S[b, :, b, :]     # (E, n, n)
-    d = d * c[:, None, None]
-    out = np.zeros_like(S)
-    np.add.at(out, (a, slice(None), a, slice(None)), d)
-    np.add.at(out, (b, slice(None), b, slice(None)), d)
-    np.add.at(out, (a, slice(None), b, slice(None)), -d)
-    np.add.at(out, (b, slice(None), a, slice(None)), -d)
-    return out
+    return apply_edge_pattern(edge_pattern_matrix(S.shape[0], edges) * c, S, edges)
 
 
 def mean_random_round(S: np.ndarray, incidence: np.ndarray, edges: np.ndarray, q: np.ndarray,

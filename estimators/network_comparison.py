@@ -15,10 +15,13 @@ Estimators (by kind):
 * a `constant_gain_fusion.FusionFilter` (Carli, re-injection, pairwise averaging);
 * an `information_fusion.InformationFilter` (Kalman-consensus, diffusion, consensus on information).
 
-Per-unit sums, each (U, K, N) unless stated: ``sq`` Σ‖e_i‖², ``sq2`` Σ‖e_i‖⁴, ``dist``
-Σ‖x̂_i − x̂_c‖², ``dist2``, ``nees`` Σ e_iᵀP_i⁻¹e_i with the estimator's own covariance and ``nees2``,
-``xnees`` the same with a given exact covariance, ``dis`` and ``dis2`` (U, K) the per-trial
-disagreement (1/N) Σ_i ‖x̂_i − mean_j x̂_j‖², ``msgs`` (U, N) messages sent over the run.
+Per-unit sums over trials, each (U, S, N) at the S recorded steps unless stated: ``sq`` Σ‖e_i‖²,
+``sq2`` Σ‖e_i‖⁴, ``dist`` Σ‖x̂_i − x̂_c‖², ``dist2``, ``cross`` Σ (x − x̂_c)ᵀ(x̂_c − x̂_i) and
+``cross2`` (the orthogonality of the centralized error to every other estimate), ``nees``
+Σ e_iᵀP_i⁻¹e_i with the estimator's own covariance and ``nees2``, ``xnees`` the same with a given
+exact covariance, ``dis`` and ``dis2`` (U, S) the per-trial disagreement (1/N) Σ_i ‖x̂_i − mean_j x̂_j‖²,
+``net`` and ``net2`` (U, S) the per-trial node average of ‖e_i‖²,
+``msgs`` and ``scalars`` (U, N) messages and scalars sent over the whole run (every step).
 """
 from __future__ import annotations
 
@@ -36,9 +39,9 @@ from .network_mixing import heard
 from .network_step import StepContext, apply_gain, innovation, predict
 from .sensor_network import SensorNetworkModel
 
-__all__ = ["Setup", "simulate_units", "STATS", "message_counts"]
+__all__ = ["Setup", "simulate_units", "STATS", "communication", "record_steps"]
 
-STATS = ("sq", "sq2", "dist", "dist2", "nees", "nees2", "xnees")
+STATS = ("sq", "sq2", "dist", "dist2", "cross", "cross2", "nees", "nees2", "xnees")
 
 
 class Draws(Protocol):
@@ -59,8 +62,8 @@ class Setup:
     estimators: dict[str, Any]                    # name -> "central" | "local" | "gossip" | filter object
     exact_cov: dict[str, np.ndarray] = field(default_factory=dict)   # name -> (K, N, n, n)
     token_times: tuple[int, ...] = ()
-    nees_steps: tuple[int, ...] = ()              # steps at which NEES is accumulated (all if empty)
     n_paths: int = 1
+    record_steps: tuple[int, ...] = ()            # steps whose statistics are kept (all if empty)
 
 
 class _Central:
@@ -121,85 +124,109 @@ def _own_nees(run, err: np.ndarray, k: int) -> np.ndarray | None:
     return None
 
 
-def message_counts(kind, links: LinkModel, ctx: StepContext, run=None) -> tuple[np.ndarray, int]:
-    """(messages sent per node in this step, (N, B) or (N,); scalars per message).
+def communication(kind, links: LinkModel, n: int) -> tuple[str, int, int]:
+    """(pattern, messages per contact, scalars per message) of an estimator.
 
-    A message is one transmission from a node to one neighbour. Payloads (n states, m rows):
-    estimates n; GIKF estimate and covariance n + n(n+1)/2; Kalman-consensus measurement
-    information u_j (n) and prior estimate (n), with U_j sent once (constant); diffusion the
-    measurement information (n) and, in a second exchange, the intermediate estimate (n); CI the
-    information pair n + n(n+1)/2 per round."""
-    topo = links.topology
-    n = run.model.n if hasattr(run, "model") else run.f.model.n
+    A message is one transmission from a node to one neighbour; a contact is one working link
+    seen from one of its ends (a node sends one message per contact). Patterns: ``none``;
+    ``rounds`` (every synchronous round, or every Poisson exchange); ``step`` (the links an
+    estimator uses once per step); ``swap`` (the GIKF's matched links or exchanges). Payloads,
+    n states: estimates n; GIKF estimate and covariance n + n(n+1)/2; Kalman-consensus the
+    measurement information u_j and the prior estimate (2n; U_j is constant and sent once);
+    diffusion the measurement information and, in a second exchange, the intermediate estimate
+    (two messages of n); CI the information pair n + n(n+1)/2 per round."""
     half = n * (n + 1) // 2
+    if isinstance(kind, str) and kind in ("central", "local"):
+        return "none", 0, 0
+    if isinstance(kind, str) and kind == "gossip":
+        return "swap", 1, n + half
+    if isinstance(kind, FusionFilter):
+        return "rounds", 1, n
+    if kind.kind == "information-consensus":
+        return "rounds", 1, n + half
+    if kind.kind == "diffusion":
+        return "step", 2, n
+    return "step", 1, 2 * n
 
-    def active(mask):
-        return topo.degrees if mask is None else topo.node_edges.astype(float) @ mask
 
-    def events_per_node():
-        ids = ctx.links.events
-        count = np.zeros((topo.n_nodes, ids.shape[1]))
-        live = ids >= 0
-        cols = np.broadcast_to(np.arange(ids.shape[1]), ids.shape)[live]
-        np.add.at(count, (topo.edges[ids[live], 0], cols), 1.0)
-        np.add.at(count, (topo.edges[ids[live], 1], cols), 1.0)
-        return count
+def _contacts(topo, mask, offsets, sizes) -> np.ndarray:
+    """(U, N): contacts per node summed over the trials of each unit."""
+    if mask is None:
+        return np.outer(sizes, topo.degrees).astype(float)
+    per_unit = np.add.reduceat(mask.astype(float), offsets, axis=1)          # (E, U)
+    return (topo.node_edges.astype(float) @ per_unit).T
 
-    if kind in ("central", "local"):
-        return np.zeros(topo.n_nodes), 0
-    if kind == "gossip":
-        return (run.hops > 0).astype(float) if links.synchronous else events_per_node(), n + half
-    if isinstance(kind, FusionFilter) or (isinstance(kind, InformationFilter) and kind.kind == "information-consensus"):
-        payload = n if isinstance(kind, FusionFilter) else n + half
-        if not links.synchronous:
-            return events_per_node(), payload
-        return sum(active(mask) for mask in ctx.links.rounds), payload
-    mask = ctx.links.step_mask if (links.random or not links.synchronous) else None
-    per_edge = 2 if kind.kind == "diffusion" else 1
-    return per_edge * active(mask), 2 * n if kind.kind == "kalman-consensus" else n
+
+def _event_contacts(topo, ids, offsets, U) -> np.ndarray:
+    unit = np.searchsorted(offsets, np.arange(ids.shape[1]), side="right") - 1
+    live = ids >= 0
+    uu = np.broadcast_to(unit, ids.shape)[live]
+    out = np.zeros((U, topo.n_nodes))
+    np.add.at(out, (uu, topo.edges[ids[live], 0]), 1.0)
+    np.add.at(out, (uu, topo.edges[ids[live], 1]), 1.0)
+    return out
+
+
+def record_steps(n_steps: int, every: int | None = None, extra=()) -> tuple[int, ...]:
+    """The steps whose statistics are kept: all of them up to 100 steps, else about 100 evenly
+    spaced ones (always the first and the last) and `extra`."""
+    if n_steps <= 100 and every is None:
+        return tuple(range(n_steps))
+    stride = every or int(np.ceil(n_steps / 100))
+    return tuple(sorted(set(range(0, n_steps, stride)) | {n_steps - 1} | {int(e) for e in extra if 0 <= e < n_steps}))
 
 
 def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossip: Draws) -> dict[str, Any]:
-    """Simulate the trials of a few RNG units (`plant.sizes`) and return per-unit sums (module doc)."""
+    """Simulate the trials of a few RNG units (`plant.sizes`) and return per-unit sums (module doc).
+
+    Statistics are kept at `setup.record_steps` (all steps when empty); message counts at every step."""
     m, lm, K = setup.model, setup.links, setup.n_steps
-    sizes = list(plant.sizes)
-    B, U = sum(sizes), len(sizes)
+    sizes = np.array(plant.sizes)
+    B, U = int(sizes.sum()), len(sizes)
     offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
     N, n = m.N, m.n
     topo = lm.topology
-    runs = {name: _make(kind, setup, B) for name, kind in setup.estimators.items()}
     kinds = setup.estimators
+    runs = {name: _make(kind, setup, B) for name, kind in kinds.items()}
+    comm = {name: communication(kind, lm, n) for name, kind in kinds.items()}
     has_gossip = any(isinstance(k, str) and k == "gossip" for k in kinds.values())
-    nees_at = set(range(K)) if not setup.nees_steps else set(setup.nees_steps)
+    steps = setup.record_steps or tuple(range(K))
+    where = {k: i for i, k in enumerate(steps)}
+    S = len(steps)
 
     def per_unit(a):                                   # (..., B) -> (U, ...)
         return np.moveaxis(np.add.reduceat(a, offsets, axis=-1), -1, 0)
 
-    acc = {name: {s: np.zeros((U, K, N if kinds[name] != "central" else 1)) for s in STATS} for name in runs}
+    acc = {}
     for name in runs:
-        acc[name]["dis"] = np.zeros((U, K))
-        acc[name]["dis2"] = np.zeros((U, K))
-        acc[name]["msgs"] = np.zeros((U, N))
-        acc[name]["scalars"] = np.zeros((U, N))
+        width = 1 if kinds[name] == "central" else N
+        acc[name] = {s: np.zeros((U, S, width)) for s in STATS}
+        acc[name].update(dis=np.zeros((U, S)), dis2=np.zeros((U, S)), net=np.zeros((U, S)), net2=np.zeros((U, S)),
+                         msgs=np.zeros((U, N)), scalars=np.zeros((U, N)))
     q_node = gossip.integers(0, N) if has_gossip else None
     token = {name: np.zeros((len(setup.token_times), B)) for name, kd in kinds.items() if kd == "gossip"}
     P = min(setup.n_paths, B)
     paths = {"x": np.zeros((K, n, P))}
-    paths.update({name: np.zeros((K, N if kinds[name] != "central" else 1, n, P)) for name in runs})
+    paths.update({name: np.zeros((K, 1 if kinds[name] == "central" else N, n, P)) for name in runs})
 
     x = m.x0[:, None] + _factor(m.P0) @ plant.standard_normal((n,)).T
     Lq = _factor(m.Q)
     sigma = lm.noise_std
+    cols = np.arange(B)
     for k in range(K):
-        v = _measurement_noise(m, plant.standard_normal((N, m.m)))
-        y = np.einsum("imn,nb->imb", m.H, x) + v
+        y = np.einsum("imn,nb->imb", m.H, x) + _measurement_noise(m, plant.standard_normal((N, m.m)))
         step_links = lm.draw(links)
         ctx = StepContext(k, y, step_links)
+        contacts = {}
         if lm.synchronous:
             ctx.heard = [heard(topo, mask, B) for mask in step_links.rounds]
             ctx.step_heard = ctx.heard[0]
+            contacts["rounds"] = sum(_contacts(topo, mask, offsets, sizes) for mask in step_links.rounds)
+            contacts["step"] = _contacts(topo, step_links.rounds[0], offsets, sizes)
         else:
             ctx.step_heard = heard(topo, step_links.step_mask, B)
+            contacts["rounds"] = _event_contacts(topo, step_links.events, offsets, U)
+            contacts["step"] = _contacts(topo, step_links.step_mask, offsets, sizes)
         if sigma:
             if lm.synchronous:
                 ctx.noise = [np.moveaxis(noise.standard_normal((N, n)), 0, -1) for _ in range(lm.rounds)]
@@ -211,49 +238,55 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
             ctx.gossip_priority = gossip.random((topo.E,)).T
         if P:
             paths["x"][k] = x[:, :P]
+        record = k in where
         e_c = None
         for name, run in runs.items():
-            if kinds[name] == "gossip" and k in setup.token_times:
-                tr = sm.trace(run.Pbar)                               # (N, B) prior traces before the step
-                token[name][setup.token_times.index(k)] = tr[q_node, np.arange(B)]
+            if name in token and k in setup.token_times:
+                token[name][setup.token_times.index(k)] = sm.trace(run.Pbar)[q_node, cols]
             est = run.step(ctx)
+            pattern, per_contact, payload = comm[name]
+            a = acc[name]
+            if pattern != "none":
+                c = (per_unit((run.hops > 0).astype(float)) if (pattern == "swap" and lm.synchronous)
+                     else contacts["rounds" if pattern in ("rounds", "swap") else "step"]) * per_contact
+                a["msgs"] += c
+                a["scalars"] += c * payload
+            if P:
+                paths[name][k] = est[:, :, :P]
+            if not record:
+                continue
+            i = where[k]
             err = x[None] - est                                       # (N, n, B)
             if kinds[name] == "central":
                 e_c = err
             sq = np.einsum("inb,inb->ib", err, err)
-            a = acc[name]
-            a["sq"][:, k] = per_unit(sq)
-            a["sq2"][:, k] = per_unit(sq * sq)
+            a["sq"][:, i] = per_unit(sq)
+            a["sq2"][:, i] = per_unit(sq * sq)
+            net = sq.mean(axis=0)
+            a["net"][:, i] = per_unit(net)
+            a["net2"][:, i] = per_unit(net * net)
             if e_c is not None:
                 d = err - e_c
                 dd = np.einsum("inb,inb->ib", d, d)
-                a["dist"][:, k] = per_unit(dd)
-                a["dist2"][:, k] = per_unit(dd * dd)
+                a["dist"][:, i] = per_unit(dd)
+                a["dist2"][:, i] = per_unit(dd * dd)
+                cr = np.einsum("inb,nb->ib", d, e_c[0])               # (x − x̂_c)ᵀ (x̂_c − x̂_i)
+                a["cross"][:, i] = per_unit(cr)
+                a["cross2"][:, i] = per_unit(cr * cr)
             if err.shape[0] > 1:
                 dev = err - err.mean(axis=0, keepdims=True)
                 dis = np.einsum("inb,inb->b", dev, dev) / N
-                a["dis"][:, k] = per_unit(dis)
-                a["dis2"][:, k] = per_unit(dis * dis)
-            if k in nees_at:
-                own = _own_nees(run, err, k)
-                if own is not None:
-                    a["nees"][:, k] = per_unit(own)
-                    a["nees2"][:, k] = per_unit(own * own)
-                if name in setup.exact_cov:
-                    inv = np.linalg.inv(setup.exact_cov[name][k])
-                    xn = np.einsum("inb,inm,imb->ib", err, inv, err)
-                    a["xnees"][:, k] = per_unit(xn)
-            count, payload = message_counts(kinds[name], lm, ctx, run)
-            count = np.broadcast_to(np.asarray(count, float).reshape(N, -1), (N, B))
-            a["msgs"] += per_unit(count)
-            a["scalars"] += per_unit(count * payload)
-            if P:
-                paths[name][k] = est[:, :, :P]
+                a["dis"][:, i] = per_unit(dis)
+                a["dis2"][:, i] = per_unit(dis * dis)
+            own = _own_nees(run, err, k)
+            if own is not None:
+                a["nees"][:, i] = per_unit(own)
+                a["nees2"][:, i] = per_unit(own * own)
+            if name in setup.exact_cov:
+                inv = np.linalg.inv(setup.exact_cov[name][k])
+                a["xnees"][:, i] = per_unit(np.einsum("inb,inm,imb->ib", err, inv, err))
         x = m.F @ x + Lq @ plant.standard_normal((n,)).T
-    if "central" not in kinds.values():
-        for name in runs:
-            acc[name].pop("dist"), acc[name].pop("dist2")
-    return {"sums": acc, "token": token, "paths": paths, "sizes": np.array(sizes)}
+    return {"sums": acc, "token": token, "paths": paths, "sizes": sizes, "steps": np.array(steps)}
 
 
 def _factor(Q: np.ndarray) -> np.ndarray:

@@ -31,18 +31,28 @@ class Mixer:
         inc = self.topology.incidence
         return np.eye(self.topology.n_nodes) - (inc * self.weights) @ inc.T
 
+    @cached_property
+    def _sparse(self):
+        import scipy.sparse as sp
+
+        inc = self.topology.incidence
+        return sp.csr_matrix(inc), sp.csr_matrix(inc.T)
+
     def mix(self, X: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
         """W X for values X (N, ..., B) and a round's working edges (E, B) (None: all)."""
         N = X.shape[0]
         flat = X.reshape(N, -1)
         if mask is None:
             return (self.matrix @ flat).reshape(X.shape)
-        inc = self.topology.incidence
+        inc, incT = self._sparse
         E = inc.shape[1]
-        diff = (inc.T @ flat).reshape((E,) + X.shape[1:])              # x_a − x_b per edge
-        coef = (self.weights[:, None] * mask).reshape((E,) + (1,) * (X.ndim - 2) + (mask.shape[1],))
-        prod = diff * coef
-        return X - (inc @ prod.reshape(E, -1)).reshape((N,) + prod.shape[1:])
+        B = mask.shape[1]
+        if X.shape[-1] != B:                                            # values shared by the trials
+            X = np.broadcast_to(X, X.shape[:-1] + (B,))
+            flat = np.ascontiguousarray(X).reshape(N, -1)
+        diff = (incT @ flat).reshape((E,) + X.shape[1:])               # x_a − x_b per edge
+        diff *= (self.weights[:, None] * mask).reshape((E,) + (1,) * (X.ndim - 2) + (B,))
+        return X - (inc @ diff.reshape(E, -1)).reshape(X.shape)
 
     def matrix_of(self, mask_column: np.ndarray) -> np.ndarray:
         """W for one trial's working edges (E,) bool (tests, exact recursions)."""

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["matmul", "transpose", "const_left", "const_sandwich", "sandwich", "cholesky", "spd_inverse",
+__all__ = ["pack", "unpack", "matmul", "transpose", "const_left", "const_sandwich", "sandwich", "cholesky", "spd_inverse",
            "spd_solve", "symmetrize", "trace", "quad_form", "matvec", "to_batched", "from_batched", "identity"]
 
 
@@ -30,6 +30,25 @@ def from_batched(a: np.ndarray) -> np.ndarray:
 
 def identity(n: int, batch_ndim: int) -> np.ndarray:
     return np.eye(n).reshape((n, n) + (1,) * batch_ndim)
+
+
+def _triu(n: int):
+    return np.triu_indices(n)
+
+
+def pack(X: np.ndarray) -> np.ndarray:
+    """The upper triangle of stacked symmetric matrices (n, n, *b) -> (n(n+1)/2, *b)."""
+    i, j = _triu(X.shape[0])
+    return X[i, j]
+
+
+def unpack(p: np.ndarray, n: int) -> np.ndarray:
+    """Inverse of `pack`: (n(n+1)/2, *b) -> (n, n, *b), exactly symmetric."""
+    i, j = _triu(n)
+    out = np.empty((n, n) + p.shape[1:])
+    out[i, j] = p
+    out[j, i] = p
+    return out
 
 
 def transpose(a: np.ndarray) -> np.ndarray:

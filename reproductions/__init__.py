@@ -19,14 +19,16 @@ FAMILIES = {"random-comm-filter": "reproductions.tanwani.reproduction",
             "noisy-consensus-filter": "reproductions.savas.reproduction",
             "gossip-kalman": "reproductions.kar_moura.reproduction",
             "hybrid-observer": "reproductions.wang_liu_morse.reproduction",
-            "coestimation": "reproductions.tran.reproduction"}
+            "coestimation": "reproductions.tran.reproduction",
+            "compare": "reproductions.compare.reproduction"}
 
 #: a valid scenario file of each family (documentation, and the seed of the input fuzz tests)
 FAMILY_EXAMPLES = {"random-comm-filter": "tanwani/example.toml",
                    "noisy-consensus-filter": "savas/paper.toml",
                    "gossip-kalman": "kar_moura/scenarios/e1.toml",
                    "hybrid-observer": "wang_liu_morse/generic.toml",
-                   "coestimation": "tran/paper.toml"}
+                   "coestimation": "tran/paper.toml",
+                   "compare": "compare/scenarios/tracking.toml"}
 
 
 #: scenario family -> module with `EDGES` (names of edge cases) and `generate(seed, edge=None) -> dict`:
@@ -35,7 +37,8 @@ FAMILY_GENERATORS = {"random-comm-filter": "reproductions.tanwani.generators",
                      "noisy-consensus-filter": "reproductions.savas.generators",
                      "gossip-kalman": "reproductions.kar_moura.generators",
                      "hybrid-observer": "reproductions.wang_liu_morse.generators",
-                     "coestimation": "reproductions.tran.generators"}
+                     "coestimation": "reproductions.tran.generators",
+                     "compare": "reproductions.compare.generators"}
 
 
 def generator(family: str):

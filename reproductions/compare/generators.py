@@ -1,0 +1,110 @@
+"""Random valid scenarios of the compare family, biased towards its edge cases.
+
+`generate(seed, edge)` returns a scenario dict as a user's TOML file would give it, small enough for
+a quick run of a couple of seconds, deterministic in (seed, edge). The edge cases: every link model;
+communication noise strong enough that it dominates Carli's filter; nodes that cannot detect the
+state alone (weak detectability); an unstable plant; two nodes; sensors with two rows; gains given
+by hand; Laplacian weights; exact recursions switched off by size; a restricted set of estimators.
+"""
+from __future__ import annotations
+
+import zlib
+from typing import Any
+
+import numpy as np
+
+FAMILY = "compare"
+
+EDGES: tuple[str, ...] = (
+    "reliable_noisy_scalar",
+    "failures",
+    "matchings",
+    "poisson",
+    "poisson_noisy",
+    "weak_detectability",
+    "unstable_plant",
+    "two_nodes",
+    "two_row_sensors",
+    "given_gains",
+    "laplacian_weights",
+    "no_exact",
+    "few_estimators",
+)
+
+
+def _rng(seed: int, edge: str | None) -> np.random.Generator:
+    return np.random.default_rng([seed, zlib.crc32((edge or "random").encode())])
+
+
+def _plant(rng, n: int, unstable: bool = False):
+    if n == 1:
+        F = np.array([[1.0 if unstable else rng.uniform(0.8, 1.0)]])
+    else:
+        dt = rng.uniform(0.1, 0.5)
+        F = np.eye(n)
+        for i in range(n - 1):
+            F[i, i + 1] = dt
+        F *= 1.01 if unstable else rng.uniform(0.95, 1.0)
+    A = rng.standard_normal((n, n)) * 0.3
+    Q = A @ A.T + 0.05 * np.eye(n)
+    return np.round(F, 4), np.round(Q, 4)
+
+
+def _matrix(a) -> list:
+    return [[float(x) for x in row] for row in np.atleast_2d(a)]
+
+
+def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
+    rng = _rng(seed, edge)
+    e = edge or ""
+    n = 1 if e == "reliable_noisy_scalar" else int(rng.integers(2, 4))
+    N = 2 if e == "two_nodes" else int(rng.integers(3, 7))
+    F, Q = _plant(rng, n, unstable=e in ("unstable_plant", "weak_detectability"))
+    rows = 2 if e == "two_row_sensors" else 1
+    types = []
+    n_types = 2 if e == "weak_detectability" else int(rng.integers(1, 3))
+    for t in range(n_types):
+        if e == "weak_detectability":
+            H = np.zeros((1, n))
+            H[0, t % n] = 1.0              # each type sees one coordinate only
+            if n > 1:
+                F = np.diag(np.round(rng.uniform(1.0, 1.03, n), 4))
+        else:
+            H = np.round(rng.standard_normal((rows, n)), 3)
+        B = rng.standard_normal((rows, rows))
+        R = np.round(B @ B.T + rng.uniform(0.3, 2.0) * np.eye(rows), 4)
+        types.append({"H": _matrix(H), "R": _matrix(R)})
+    kind = "line" if N < 3 or rng.random() < 0.4 else "ring"
+    data: dict[str, Any] = {
+        "family": FAMILY, "name": f"gen-{edge or 'random'}-{seed}",
+        "plant": {"F": _matrix(F), "Q": _matrix(Q)},
+        "sensors": {"types": types},
+        "graph": {"kind": kind, "n": N},
+        "simulation": {"steps": int(rng.integers(12, 25)), "trials": 600, "quick_trials": 600},
+    }
+    model = {"failures": "failures", "matchings": "matchings", "poisson": "poisson", "poisson_noisy": "poisson",
+             "weak_detectability": "matchings"}.get(e) or ["reliable", "failures", "matchings", "poisson"][
+        int(rng.integers(0, 4)) if not e else 0]
+    links: dict[str, Any] = {"model": model, "rounds": int(rng.integers(1, 4)) if model != "poisson" else 1}
+    if model in ("failures", "matchings"):
+        links["p_fail"] = float(np.round(rng.uniform(0.05, 0.4), 3))
+    if model == "poisson":
+        links["rate"] = float(np.round(rng.uniform(0.2, 1.0), 3))
+    if e in ("reliable_noisy_scalar", "poisson_noisy") or (not e and rng.random() < 0.3):
+        links["noise_std"] = float(np.round(rng.uniform(0.5, 2.0), 3))
+    if e == "reliable_noisy_scalar":           # noise that dominates Carli's filter (Savas et al.'s Fig. 1 regime)
+        links["rounds"] = 6
+        links["noise_std"] = float(np.round(rng.uniform(2.5, 4.0), 3))
+        data["plant"] = {"F": [[1.0]], "Q": [[1.0]]}
+        data["sensors"] = {"types": [{"H": [[1.0]], "R": [[25.0]]}]}
+    data["links"] = links
+    if e == "given_gains":
+        data["gains"] = {"base": "given", "given": [_matrix(0.3 * np.ones((n, len(t["H"])))) for t in types],
+                         "carli_scale": 1.0, "reinjection_scale": 1.0, "reinjection_zeta": 0.5}
+    if e == "laplacian_weights":
+        data["weights"] = {"kind": "laplacian", "eps": 0.3}
+    if e == "no_exact":
+        data["simulation"]["exact_max_dimension"] = 2
+    if e == "few_estimators":
+        data["estimators"] = {"include": ["gikf", "kcf", "ci"]}
+    return data

@@ -1,0 +1,209 @@
+"""Figures and the recording of a compare run, drawn from its tables.
+
+* `figures/error_vs_communication.png`: one point per estimator, network mean-square error at the
+  evaluation step against the real numbers each node sends per step, with the centralized filter as
+  the floor: what each estimator buys with its communication budget;
+* `figures/mse_vs_time.png`: every estimator's network MSE over time (Monte Carlo with its band,
+  exact recursions dashed);
+* `figures/nees.png`: the NEES of the estimators that carry a covariance, with the χ² band;
+* `<name>.rrd`: every estimator's curves on one view (timeline `k`), the NEES, the disagreement,
+  the graph, the comparison table and the claims.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipeline import record as rec_
+from pipeline.figures import new_figure, save_figure
+from pipeline.stats import z_for_confidence
+
+from .scenario import ESTIMATORS, LABELS
+
+BAND = 0.95
+COLORS = {e: rec_.color(i) for i, e in enumerate(ESTIMATORS)}
+COLORS["central"] = (0, 0, 0)
+MARKERS = dict(zip(ESTIMATORS, "*ovs^D<>p"))
+
+
+def _rgb(c):
+    return tuple(x / 255 for x in c)
+
+
+def error_vs_communication(res, tables, path: Path) -> None:
+    t = tables["estimators"]
+    app = tables["applicability"]
+    fig, axes = new_figure(ncols=1, width=10.0, height=5.0)
+    ax = axes[0, 0]
+    central = t[t["estimator"] == "central"]
+    floor = float(central["network_mse"].iloc[0]) if len(central) else np.nan
+    z = z_for_confidence(BAND)
+    for _, r in t.iterrows():
+        est = r["estimator"]
+        if est == "central":
+            continue
+        y = r["network_mse"]
+        if not np.isfinite(y):
+            continue
+        err = None if r["exact"] else z * r["network_mse_mc_se"]
+        ax.errorbar([r["scalars_per_step"]], [y], yerr=err, fmt=MARKERS[est], color=_rgb(COLORS[est]), ms=8,
+                    capsize=3, label=f"{LABELS[est]}" + ("" if r["exact"] else " (Monte Carlo)"))
+    if np.isfinite(floor):
+        ax.axhline(floor, color="k", ls="--", lw=1, label="centralized KF (all measurements at one place)")
+    ax.set_xscale("symlog", linthresh=1.0)
+    ax.set_yscale("log")
+    ax.set_xlabel("real numbers sent per node and step")
+    ax.set_ylabel(f"network mean-square error at k = {res.scenario.eval_step}")
+    skipped = app[~app["applies"] & (app["reason"] != "not requested (estimators.include)")]
+    title = f"{res.scenario.name}: error against communication ({res.scenario.link_model} links"
+    title += f", σ_c = {res.scenario.noise_std:g})" if res.scenario.noise_std else ")"
+    ax.set_title(title)
+    if len(skipped):
+        ax.text(0.01, 0.01, "not applicable: " + ", ".join(skipped["estimator"]), transform=ax.transAxes, fontsize=7,
+                va="bottom")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, borderaxespad=0)
+    save_figure(fig, path)
+
+
+def mse_vs_time(res, tables, path: Path) -> None:
+    s = tables["series"]
+    fig, axes = new_figure(ncols=1, width=10.0, height=5.0)
+    ax = axes[0, 0]
+    z = z_for_confidence(BAND)
+    for est in ESTIMATORS:
+        r = s[s["estimator"] == est]
+        if not len(r):
+            continue
+        k, mc, se = r["step"].to_numpy(), r["network_mse_mc"].to_numpy(), r["network_mse_mc_se"].to_numpy()
+        if not np.all(np.isfinite(mc)):
+            continue
+        c = _rgb(COLORS[est])
+        ax.plot(k, mc, color=c, lw=1.2, label=LABELS[est])
+        ax.fill_between(k, np.maximum(mc - z * se, 1e-300), mc + z * se, color=c, alpha=0.2, lw=0)
+        ex = r["network_mse_exact"].to_numpy()
+        if np.isfinite(ex).any():
+            ax.plot(k, ex, color=c, ls="--", lw=1)
+    ax.set_yscale("log")
+    ax.set_xlabel("step k")
+    ax.set_ylabel("network mean-square error")
+    ax.set_title(f"{res.scenario.name}: Monte Carlo (band {BAND:.0%}) and exact (dashed)")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, borderaxespad=0)
+    save_figure(fig, path)
+
+
+def nees_figure(res, tables, path: Path) -> None:
+    s = tables["series"]
+    nodes = tables["nodes"]
+    lo, hi = float(nodes["nees_lo"].iloc[0]), float(nodes["nees_hi"].iloc[0])
+    fig, axes = new_figure(ncols=1, width=10.0, height=4.5)
+    ax = axes[0, 0]
+    for est in ESTIMATORS:
+        r = s[s["estimator"] == est]
+        if not len(r) or not np.isfinite(r["nees_mc"]).any():
+            continue
+        ax.plot(r["step"], r["nees_mc"], color=_rgb(COLORS[est]), label=LABELS[est])
+    ax.axhspan(lo, hi, color="0.8", alpha=0.5, label="χ² band of one consistent node (99%)")
+    ax.axhline(res.design.model.n, color="k", lw=0.8)
+    ax.set_yscale("log")
+    ax.set_xlabel("step k")
+    ax.set_ylabel("mean NEES (node average)")
+    ax.set_title("consistency: NEES with each filter's own covariance (n when consistent)")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, borderaxespad=0)
+    save_figure(fig, path)
+
+
+def write_figures(res, tables, out_dir: Path) -> None:
+    (out_dir / "figures").mkdir(parents=True, exist_ok=True)
+    error_vs_communication(res, tables, out_dir / "figures" / "error_vs_communication.png")
+    mse_vs_time(res, tables, out_dir / "figures" / "mse_vs_time.png")
+    nees_figure(res, tables, out_dir / "figures" / "nees.png")
+
+
+def _comparison_markdown(tables) -> str:
+    t = tables["estimators"]
+    rows = ["| estimator | network MSE | excess over centralized | NEES | messages/step | scalars/step |",
+            "|---|---|---|---|---|---|"]
+    for _, r in t.iterrows():
+        rows.append(f"| {r['label']} | {r['network_mse']:.4g}{'' if r['exact'] else ' (MC)'} | {r['excess']:.4g} | "
+                    f"{r['nees']:.3g} | {r['messages_per_step']:.3g} | {r['scalars_per_step']:.3g} |")
+    app = tables["applicability"]
+    for _, r in app[~app["applies"]].iterrows():
+        rows.append(f"| {r['label']} | not applicable: {r['reason']} | | | | |")
+    return "\n".join(rows)
+
+
+def write_recording(res, tables, path: Path, claims: list[dict], prov: dict, summary: str) -> None:
+    import rerun.blueprint as rrb
+
+    sc = res.scenario
+    blueprint = rrb.Blueprint(
+        rrb.Tabs(
+            rrb.Horizontal(
+                rrb.Vertical(
+                    rrb.TimeSeriesView(origin="/mse", name="network mean-square error: every estimator (dots Monte "
+                                       "Carlo, lines exact)", contents=["/mse/**"],
+                                       plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop)),
+                    rrb.TimeSeriesView(origin="/nees", name="mean NEES with each filter's own covariance",
+                                       contents=["/nees/**"], plot_legend=rrb.PlotLegend(visible=False)),
+                    row_shares=[3, 2]),
+                rrb.Vertical(rrb.TextDocumentView(origin="/comparison", name="comparison at the evaluation step"),
+                             rrb.GraphView(origin="/graph", name="communication graph"), row_shares=[1, 1]),
+                column_shares=[3, 2], name="comparison"),
+            rrb.Grid(rrb.TimeSeriesView(origin="/disagreement", name="disagreement between nodes",
+                                        plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop)),
+                     rrb.TimeSeriesView(origin="/excess", name="mean-square distance to the centralized filter",
+                                        plot_legend=rrb.PlotLegend(visible=False)),
+                     rrb.TimeSeriesView(origin="/trial", name="trial 0: truth (white) and node 0's estimate of the "
+                                        "first state", plot_legend=rrb.PlotLegend(visible=False)),
+                     name="details"),
+            rrb.Horizontal(rrb.TextDocumentView(origin="/report", name="claims"),
+                           rrb.TextDocumentView(origin="/claims", name="claim detail"), name="claims"),
+        ),
+        rrb.TimePanel(timeline="k", expanded=False),
+        collapse_panels=True,
+    )
+    s = tables["series"]
+    with rec_.recording(path, application_id="dse-compare", recording_id=f"compare-{sc.name}-seed{res.seed}",
+                        blueprint=blueprint, properties={"seed": res.seed, "trials": res.trials,
+                                                         "links": sc.link_model, "noise_std": sc.noise_std}) as rec:
+        rec_.log_graph(rec, "graph", sc.graph.positions(), [tuple(e) for e in res.design.topology.edges.tolist()])
+        rec_.log_markdown(rec, "comparison", _comparison_markdown(tables))
+        for est in ESTIMATORS:
+            r = s[s["estimator"] == est]
+            if not len(r):
+                continue
+            idx = rec_.sequence_index("k", r["step"].to_numpy())
+            col = COLORS[est]
+            mc = r["network_mse_mc"].to_numpy()
+            rec_.send_series(rec, f"mse/{est}/monte_carlo", idx, mc, names=f"{LABELS[est]} (MC)", colors=[col],
+                             points=True)
+            ex = r["network_mse_exact"].to_numpy()
+            if np.isfinite(ex).any():
+                rec_.send_series(rec, f"mse/{est}/exact", idx, ex, names=f"{LABELS[est]} (exact)", colors=[col])
+            if np.isfinite(r["nees_mc"]).any():
+                rec_.send_series(rec, f"nees/{est}", idx, r["nees_mc"].to_numpy(), names=LABELS[est], colors=[col])
+            rec_.send_series(rec, f"disagreement/{est}", idx, r["disagreement_mc"].to_numpy(), names=LABELS[est],
+                             colors=[col])
+            if est != "central":
+                rec_.send_series(rec, f"excess/{est}", idx, r["excess_mc"].to_numpy(), names=LABELS[est], colors=[col])
+        if res.paths and "x" in res.paths and res.paths["x"].shape[-1]:
+            K = res.paths["x"].shape[0]
+            idx = rec_.sequence_index("k", np.arange(K))
+            rec_.send_series(rec, "trial/truth", idx, res.paths["x"][:, 0, 0], names="x₁(k)", colors=[(230, 230, 230)],
+                             width=2.5)
+            for est in ESTIMATORS:
+                p = res.paths.get(est)
+                if p is None or not np.all(np.isfinite(p[:, 0, 0, 0])):
+                    continue
+                rec_.send_series(rec, f"trial/{est}", idx, p[:, 0, 0, 0], names=LABELS[est], colors=[COLORS[est]])
+        rec_.log_claims(rec, claims, summary)
+
+
+def write_outputs(res, tables, out_dir: Path, claims: list[dict], prov: dict) -> None:
+    write_figures(res, tables, out_dir)
+    counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
+    summary = (f"# {res.scenario.name}: {counts['pass']} pass, {counts['fail']} fail, {counts['not-checkable']} not "
+               f"checkable, {counts['error']} error\n\nseed {res.seed}, {res.trials:,} trials, {res.scenario.steps} steps, "
+               f"{res.scenario.N} nodes, {res.scenario.link_model} links")
+    write_recording(res, tables, out_dir / f"{res.scenario.name}.rrd", claims, prov, summary)
