@@ -256,19 +256,33 @@ def _controllable_basis(A: np.ndarray, G: np.ndarray, tol: float = 1e-9) -> np.n
     return basis
 
 
-def _psd_factor(Q: np.ndarray) -> np.ndarray:
+def _psd_factor(Q: np.ndarray, jitter: float = 1e-13) -> np.ndarray:
     """A batch of square roots F with F Fᵀ ≈ Q for (near-)PSD Q.
 
-    Cholesky of Q + 1e-13·max(diag Q)·I first (a perturbation below the rounding error of Q
-    itself, which is computed to ~1e-13 relative), falling back to a clipped
-    eigendecomposition when a covariance is numerically singular."""
+    Cholesky of Q + jitter·max(diag Q)·I first, a perturbation at the rounding level of Q itself
+    (`jitter` ≥ 1e-13; larger when Q was formed through an ill-conditioned eigenvector basis),
+    falling back to a clipped eigendecomposition for the rows that are numerically singular."""
     scale = np.max(np.diagonal(Q, axis1=-2, axis2=-1), axis=-1)
-    eye = np.eye(Q.shape[-1])
+    Qr = Q + (jitter * scale)[..., None, None] * np.eye(Q.shape[-1])
     try:
-        return np.linalg.cholesky(Q + (1e-13 * scale)[..., None, None] * eye)
+        return np.linalg.cholesky(Qr)
     except np.linalg.LinAlgError:
-        w, U = np.linalg.eigh(Q)
+        pass
+
+    def clipped(X):
+        w, U = np.linalg.eigh(X)
         return U * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
+
+    if Q.ndim == 2:
+        return clipped(Q)
+    bad = np.linalg.eigvalsh(Qr)[:, 0] <= 0
+    out = np.empty_like(Q)
+    out[bad] = clipped(Q[bad])
+    try:
+        out[~bad] = np.linalg.cholesky(Qr[~bad])
+    except np.linalg.LinAlgError:
+        out[~bad] = clipped(Q[~bad])
+    return out
 
 
 def simulate_event_driven(sys: GossipSystem, rate: float, times: np.ndarray, n_trials: int, rng: np.random.Generator,
@@ -299,6 +313,9 @@ def simulate_event_driven(sys: GossipSystem, rate: float, times: np.ndarray, n_t
     if not flow.condition < 1e8:          # a (nearly) defective block: exact but slower dense Van Loan
         flow = DenseFlow.of(sys.joint_blocks, sys.joint_noise)
     basis = _controllable_basis(sys.joint_drift, sys.joint_noise)
+    # the noise covariances are formed through the eigenvector basis: their rounding is ~eps·κ²
+    jitter = max(1e-13, 10 * np.finfo(float).eps * min(flow.condition, 1e8) ** 2) if isinstance(flow, BlockDiagonalFlow) \
+        else 1e-13
     clocks = np.array(sys.clocks, dtype=np.int64).reshape(-1, 2)
     # pieces of P_i's own flow: block (i+1, i+1) of the joint flow is A_i with noise G_i
     S0 = sys.joint_second_moment0()
@@ -365,10 +382,10 @@ def simulate_event_driven(sys: GossipSystem, rate: float, times: np.ndarray, n_t
             zb = (Phd @ z[r][:, :, None])[:, :, 0]
             if clock_path is not None:
                 Qc = basis.T @ Q[0] @ basis
-                F = np.broadcast_to(_psd_factor(((Qc + Qc.T) / 2)[None])[0], (len(r),) + Qc.shape)
+                F = np.broadcast_to(_psd_factor(((Qc + Qc.T) / 2)[None], jitter)[0], (len(r),) + Qc.shape)
             else:
                 Qc = basis.T @ Q @ basis
-                F = _psd_factor((Qc + Qc.transpose(0, 2, 1)) / 2)
+                F = _psd_factor((Qc + Qc.transpose(0, 2, 1)) / 2, jitter)
             xi = (F @ rng.standard_normal((len(r), basis.shape[1], 1)))[:, :, 0] @ basis.T
             z[r] = zb + xi
         t_cur[r] = t_next

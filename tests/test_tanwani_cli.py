@@ -1,5 +1,5 @@
 """The random-comm-filter family end to end: the paper in quick mode, a user's scenario on a
-system and graph not in the spec, an honest report when the bound diverges, bad input."""
+system and graph not among the reproduction's scenarios, an honest report when the bound diverges, bad input."""
 from __future__ import annotations
 
 import json

@@ -1,4 +1,4 @@
-"""Scenario S1 of the spec (scalar plant, two nodes): closed forms of the bound (9), of the exact
+"""Scenario S1 of the reproduction (scalar plant, two nodes): closed forms of the bound (9), of the exact
 mean covariance, of the critical rates and of the Lyapunov limits, plus reference numbers of S2/S3."""
 from __future__ import annotations
 
@@ -96,7 +96,7 @@ def test_ordered_clocks_give_the_same_bound_but_another_covariance():
 
 
 @pytest.mark.parametrize("name, rv", [("s2", ref.S2), ("s3", ref.S3)])
-def test_spec_reference_numbers(name, rv):
+def test_reference_numbers(name, rv):
     s = load_scenario(name).system
     assert gc.critical_rate_bound(s) == pytest.approx(rv["crit_bound"], abs=6e-6)
     for lam, (tb, tj) in rv["steady"].items():

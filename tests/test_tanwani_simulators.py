@@ -1,5 +1,5 @@
 """The estimators behind the random-communication reproduction, on random systems and graphs
-not in the spec: exact flows, clocks, both simulators, the per-path and mean bounds, the
+not among the reproduction's scenarios: exact flows, clocks, both simulators, the per-path and mean bounds, the
 centralized references (scipy, python-control, filterpy)."""
 from __future__ import annotations
 
@@ -139,7 +139,7 @@ def test_joint_generator_is_d1(seed):
     Ln = np.kron(s.laplacian, np.eye(s.n))
     F = Ab - lam * s.alpha * Ln
     rhs = F @ X + X @ F.T + s.joint_noise[s.n:, s.n:]
-    for i, j in s.edges:                                     # spec (D1): + λα² Σ D_ij Σ D_ij
+    for i, j in s.edges:                                     # exact mean covariance (D1): + λα² Σ D_ij Σ D_ij
         d = np.zeros(s.N)
         d[i], d[j] = 1, -1
         Dm = np.kron(np.outer(d, d), np.eye(s.n))
@@ -220,7 +220,7 @@ def test_frozen_path_is_shared_by_every_trial():
 
 
 def test_gridded_simulator_matches_exact_mean_covariance():
-    """Spec S1c (every node stable, light tails), 20,000 trials, Strang step h = 0.01."""
+    """S1c (every node stable, light tails), 20,000 trials, Strang step h = 0.01."""
     one = np.eye(1)
     s = gf.GossipSystem(np.array([[0.5]]), one, (one, one), (one, one), (np.array([[3.0]]), np.array([[2.0]])),
                         ((0, 1),), 0.5)

@@ -421,13 +421,34 @@ def _rel(a, b) -> float:
     return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-300))
 
 
+SECOND_MOMENT_TRUST = 1e-6    # largest relative disagreement of the second-moment solution's mean with (9)
+
+
 def _needs_second(r: ScenarioResults) -> Verdict | None:
-    if "cell_P_second" not in r.bounds:
-        s = r.sys
+    s, b = r.sys, r.bounds
+    if "cell_P_second" not in b:
         return not_checkable(f"N·n(n+1)/2 = {s.N * s.n * (s.n + 1) // 2} > {gc.MAX_SECOND_DIM}: the exact second "
                              "moments of the P-process over clock paths (needed for a test valid at any sample size) "
                              "were not formed")
+    agree = _mean_agreement(b)
+    if not agree <= SECOND_MOMENT_TRUST:
+        return not_checkable(f"the second moments of the P-process lost their accuracy (strongly non-normal A_i: the "
+                             f"mean carried along differs from (9) by {agree:.2g} relative, more than "
+                             f"{SECOND_MOMENT_TRUST:g}), so no variance over the clock paths can be trusted")
     return None
+
+
+def _mean_agreement(b) -> float:
+    """Relative disagreement of the mean computed with the second moments and the solution of (9):
+    a measure of the accuracy of the second-moment computation."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        return _rel(b["cell_P_mean"], b["cell_bound"])
+
+
+def _variance(b, second) -> np.ndarray:
+    """A variance computed as E[X²] − (E X)² from the second-moment solution, plus its round-off:
+    (1e3·eps + 10·δ)·E[X²] with δ the solution's disagreement with (9) (its accuracy)."""
+    return second + (1e3 * EPS + 10 * _mean_agreement(b)) * 3 * np.abs(b["cell_P_second"])
 
 
 def check_prop34(res: Results, name: str) -> Verdict:
@@ -437,7 +458,7 @@ def check_prop34(res: Results, name: str) -> Verdict:
     ev, b = r.event, r.bounds
     n = int(ev["n"])
     mu, second = b["cell_bound"], b["cell_P_second"]
-    p = path_mean_pvalues(ev["qP1"], ev["qP2"], n, mu, second - np.square(b["cell_P_mean"]))
+    p = path_mean_pvalues(ev["qP1"], ev["qP2"], n, mu, _variance(b, second - np.square(b["cell_P_mean"])))
     est = ev["qP1"] / n
     m, rf = _worst(p, est, mu)
     return path_test(p, n=n, measured=m, reference=rf,
@@ -526,7 +547,7 @@ def check_item1_mc(res: Results, name: str) -> Verdict:
     ev, b = r.event, r.bounds
     n = int(ev["n"])
     kbq = np.broadcast_to(b["cell_kb"][:, None, :], b["cell_bound"].shape)
-    var = 3 * b["cell_P_second"] - np.square(kbq)
+    var = _variance(b, 3 * b["cell_P_second"] - np.square(kbq))
     p_up = path_mean_pvalues(ev["qE1"], ev["qE2"], n, b["cell_bound"], var, side="upper")
     use = kbq > 0
     p_lo = chi2_lower_p(ev["qE1"][use] / kbq[use], n)
@@ -547,7 +568,7 @@ def check_item1_mc(res: Results, name: str) -> Verdict:
 def check_grid_bias(res: Results, name: str) -> Verdict:
     """The gridded simulator's own exact mean covariance against the model's: the Strang
     splitting with alternating clock order is second order, so halving h divides the bias by
-    2^p with p = 2. The observed order log2(b(h)/b(h/2)) must lie within half an order of 2 (a
+    2^p with p ≥ 2. The observed order log2(b(h)/b(h/2)) must be at least 2 − 1/2 (a
     first-order scheme gives p ≈ 1); the hypothesis grid_asymptotic (hκ ≤ 1, κ the fastest
     rate of the flows and jumps) keeps h where the leading term dominates."""
     r = _scenario(res, name)
@@ -565,9 +586,9 @@ def check_grid_bias(res: Results, name: str) -> Verdict:
         return Verdict(PASS, measured=e1, reference=floor, tolerance=floor,
                        detail=f"{detail}: both at the round-off level ({how})")
     order = math.log2(e1 / e2)
-    return Verdict(PASS if abs(order - 2) <= 0.5 else FAIL, measured=order, reference=2.0, tolerance=0.5,
-                   margin=0.5 - abs(order - 2),
-                   detail=f"{detail}: observed order log2(ratio) = {order:.3f}, 2 expected within half an order")
+    return Verdict(PASS if order >= 1.5 else FAIL, measured=order, reference=2.0, tolerance=0.5, margin=order - 1.5,
+                   detail=f"{detail}: observed order log2(ratio) = {order:.3f} ≥ 2 − 1/2 (a larger value means a "
+                          "smaller leading coefficient, not a defect)")
 
 
 def check_event_vs_exact(res: Results, name: str) -> Verdict:
@@ -582,7 +603,7 @@ def check_event_vs_exact(res: Results, name: str) -> Verdict:
     ev, b = r.event, r.bounds
     n = int(ev["n"])
     k = np.broadcast_to(b["cell_kb"][:, None, :], b["cell_bound"].shape)
-    var = b["cell_P_second"] - 2 * k * b["cell_P_mean"] + np.square(k) - np.square(b["cell_joint"] - k)
+    var = _variance(b, b["cell_P_second"] - 2 * k * b["cell_P_mean"] + np.square(k) - np.square(b["cell_joint"] - k))
     p = path_mean_pvalues(ev["qS1"], ev["qS2"], n, b["cell_joint"], var)
     m, rf = _worst(p, ev["qS1"] / n, b["cell_joint"])
     return path_test(p, n=n, measured=m, reference=rf,
@@ -863,7 +884,8 @@ def check_kb_reference(res: Results, name: str) -> Verdict:
       closed-loop Lyapunov operator and R(X) the residual; two solutions may therefore differ by
       at most ‖L⁻¹‖(‖R(X₁)‖ + ‖R(X₂)‖), doubled for the second-order terms, plus rounding;
     * the closed-form Riccati ODE solution on the output grid and scipy's Radau integration
-      (local relative tolerance 1e-11; the global error is allowed 1e3 times that, times the scale)."""
+      (local tolerances rtol = 1e-11 and atol = rtol·max(1, |P_KB|); the global error is allowed 1e3 times
+      rtol·scale + atol)."""
     import control as ct
     from scipy.integrate import solve_ivp
 
@@ -888,14 +910,14 @@ def check_kb_reference(res: Results, name: str) -> Verdict:
         return (s.A @ Pt + Pt @ s.A.T + s.B @ s.B.T - Pt @ Sinv @ Pt).ravel()
 
     ts = sc.output_times
-    sol = solve_ivp(rhs, (0, ts[-1]), s.P0.ravel(), method="Radau", t_eval=ts, rtol=RADAU_RTOL,
-                    atol=RADAU_RTOL * max(1.0, float(np.abs(P).max())))
+    atol = RADAU_RTOL * max(1.0, float(np.abs(P).max()))
+    sol = solve_ivp(rhs, (0, ts[-1]), s.P0.ravel(), method="Radau", t_eval=ts, rtol=RADAU_RTOL, atol=atol)
     if not sol.success:
         return not_checkable(f"the Radau integration of the Riccati ODE failed: {sol.message}")
     ode = sol.y.T.reshape(-1, s.n, s.n)
     scale = max(float(np.abs(ode).max()), float(np.abs(b["P_kb_t"]).max()))
     ode_err = float(np.abs(ode - b["P_kb_t"]).max())
-    ode_tol = 1e3 * RADAU_RTOL * scale
+    ode_tol = 1e3 * (RADAU_RTOL * scale + atol)
     margins = [a - d for a, d in zip(allow, diffs)] + [gain_allow - gain, ode_tol - ode_err]
     ok = min(margins) >= 0
     return Verdict(PASS if ok else FAIL, measured=max(diffs), reference=0.0, tolerance=min(allow), margin=min(margins),
@@ -1213,7 +1235,7 @@ def catalogue(paper_id: str, names: list[str], main: str) -> list[Claim]:
             C(f"{p}.thm3_1.item1_mc.{nm}", "Thm. III.1 item 1", "Monte Carlo: P_KB ≤ Ê[e_ie_iᵀ] ≤ 𝒫_i (one-sided "
               "tests along fixed directions)", "statistical", f(check_item1_mc), h("alpha", "initial")),
             C(f"{p}.sim.gridded_bias.{nm}", "simulation method", "the gridded simulator's discretisation bias is "
-              "second order in the step h", "inequality", f(check_grid_bias), h("grid_asymptotic")),
+              "(at least) second order in the step h", "inequality", f(check_grid_bias), h("grid_asymptotic")),
             C(f"{p}.sim.event_vs_exact.{nm}", "simulation method, exact mean covariance", "the exact event-driven "
               "simulator (mean of its per-path exact covariances) reproduces the exact mean error covariance",
               "statistical", f(check_event_vs_exact)),

@@ -26,7 +26,7 @@ from .scenario import FilterNetworkScenario, with_graph
 CODE_MODULES = ("estimators.gossip_covariance", "estimators.gossip_filter", "estimators.kalman_bucy",
                 "estimators.linear_flows", "pipeline.matrix_moments", "pipeline.simulate", "pipeline.seeding",
                 "reproductions.tanwani.compute")
-FILTERPY_FRACTIONS = (1.0, 0.5, 0.2, 0.1, 0.05)
+FILTERPY_FRACTIONS = (1.0, 0.5, 0.25, 0.125)
 GRID_BLOCK = 2_500
 EVENT_BLOCK = 1000
 TOPOLOGIES = {"path": {"kind": "line", "n": 4}, "ring": {"kind": "ring", "n": 4},
@@ -258,7 +258,7 @@ def _dare_residual(F, Qd, Hs, R, X) -> np.ndarray:
 
 
 def filterpy_reference(s, Hs: np.ndarray, Vs: np.ndarray, P_kb: np.ndarray | None) -> dict[str, np.ndarray]:
-    """filterpy's discrete filter on the sampled model at five sampling steps h, each run until its
+    """filterpy's discrete filter on the sampled model at four sampling steps h, each run until its
     covariance stops changing (at most FILTERPY_MAX_STEPS steps; `filterpy_steady` says whether it
     did), with scipy's DARE solution X and what their difference may be: to first order an
     approximate solution Y of the DARE differs from the exact one by 𝒮⁻¹(R(Y)), 𝒮(Z) = Z − F_cZF_cᵀ
@@ -266,7 +266,7 @@ def filterpy_reference(s, Hs: np.ndarray, Vs: np.ndarray, P_kb: np.ndarray | Non
     ‖𝒮⁻¹‖(‖R(X)‖ + ‖R(Y)‖), doubled for second-order terms, plus rounding (`filterpy_allow`).
 
     The steps scale with the fastest mode ν of the Kalman–Bucy closed loop A − P_KB HᵀV⁻¹H:
-    h = min(0.1, 0.5/ν)·(1, 1/2, 1/5, 1/10, 1/20), so that hν ≤ 1/2 (the first-order regime of
+    h = min(0.1, 0.5/ν)·(1, 1/2, 1/4, 1/8), so that hν ≤ 1/2 (the first-order regime of
     the sampled filter)."""
     if P_kb is None:
         return {}

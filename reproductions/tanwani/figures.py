@@ -1,4 +1,4 @@
-"""The seven figures of the spec (§5 "Proposed figures"; the paper's only figure is a schematic).
+"""The figures of a run (the paper's only figure is a schematic).
 
 fig1_network_events.png   F1: sensor network (+ plant) and the edge-event raster of one clock path
 fig2_traces_<s>.png       F2: tr P̄_i(t), exact tr E[e_ie_iᵀ](t), Monte Carlo with 95% band, tr P_KB(t), tr S, tr S_true

@@ -39,6 +39,7 @@ EDGES = ("marginal", "near-critical", "divergent", "unstable-star", "tiny-v", "h
          "two-nodes", "blind-sensors", "abar-unstable", "homogeneous", "ordered-clocks", "fast-rate")
 GRAPH_KINDS = ("line", "ring", "star", "complete", "tree")
 MAX_ATTEMPTS = 50
+MAX_EVENTS = 80
 
 
 def _rng(seed: int, edge: str | None, attempt: int) -> np.random.Generator:
@@ -166,9 +167,9 @@ def _draw(rng: np.random.Generator, edge: str | None) -> dict:
     elif edge == "homogeneous":
         regime = "unstable"
     elif edge == "ordered-clocks":
-        mode = "ordered"
+        mode, N, kind = "ordered", min(N, 4), str(rng.choice(("line", "ring", "star")))
     elif edge == "fast-rate":
-        fixed_rate = float(rng.uniform(150.0, 400.0))
+        fixed_rate, N, horizon = float(rng.uniform(150.0, 400.0)), min(N, 3), 0.5
     A = _plant(rng, n, regime)
     m = n if rng.random() < 0.7 else max(1, n - 1)
     B = w_scale * (np.eye(n)[:, :m] + rng.normal(0, 0.3, (n, m)))
@@ -219,6 +220,8 @@ def _finish(data: dict, seed: int, edge: str | None) -> dict:
         rate = factor * crit
     rate = float(np.clip(rate, 0.05, 500.0))
     dmax = int(sc.system.degrees.max())
+    # about MAX_EVENTS rings per path at most (the exact simulator's cost grows with them)
+    horizon = min(horizon, max(0.25, round(MAX_EVENTS / (rate * len(sc.system.clocks)), 2)))
     data["communication"]["rates"] = [round(rate, 6)]
     data["simulation"] = _simulation(rate, dmax, horizon)
     data["name"] = f"gen-{edge or 'random'}-{seed}"

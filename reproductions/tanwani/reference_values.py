@@ -1,6 +1,6 @@
-"""Reference numbers from the spec (shared/specs/000_tanwani.md §5), computed there
-independently with numpy/scipy; the paper itself has no numerical example. Node indices
-0-based. Each entry: (what, rate or None, reference, relative tolerance)."""
+"""Reference numbers of the reproduction's scenarios S1-S3, computed independently of this
+code (closed forms for S1, numpy/scipy for S2 and S3); the paper itself has no numerical
+example. Node indices 0-based."""
 from __future__ import annotations
 
 import math
