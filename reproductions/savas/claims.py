@@ -718,7 +718,7 @@ def check_ell_increasing(res: Results) -> Verdict:
                            "location precision, about 10√eps·ℓ*): "
                            + ("non-decreasing for every σ_c" if not bad else
                               f"decreases at {len(bad)} (σ_c, m) pairs, first at m = {first_bad}, σ_c in "
-                              f"{sorted({s for s, _ in bad})}; it holds for m < {first_bad}")))
+                              f"{sorted({s for s, _ in bad})}; it holds for m < {first_bad}.")))
 
 
 def check_zeta_nonmonotone(res: Results) -> Verdict:

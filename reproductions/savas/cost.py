@@ -23,20 +23,27 @@ from .scenario import NoisyConsensusScenario
 MIB = 2.0**20
 #: resident memory of a run before any array: Python, numpy, scipy, pandas, pyarrow, matplotlib, rerun
 BASE_MIB = 300.0
-#: seconds: interpreter start and imports, report, figures and recordings of a small scenario
-FIXED_S = 6.0
+#: seconds of CPU: interpreter start and imports
+STARTUP_S = 0.6
+#: seconds of CPU: the claims' fixed part (scipy.stats, filterpy, the large-m and optimiser checks)
+CLAIMS_S = 0.5
+#: seconds of CPU: figures, recordings and report of a small scenario
+OUTPUTS_S = 1.5
 
-# seconds per unit of work (measured, see docs/papers/savas.md)
-GRID_POINT_MODE_S = 4.0e-9       # one grid point of (16), one mode, one m
-GRID_POINT_S = 2.5e-9            # one grid point per (σ_c, formula): J, its minimum and local minima
-TRIAL_STEP_S = 9.0e-9            # one trial-step: draws of x and w, bookkeeping
-TRIAL_NODE_S = 1.2e-9            # one trial-step-agent: a measurement draw and the update, per configuration
-TRIAL_DRAW_S = 4.5e-9            # one standard normal draw (per agent, per round)
-TRIAL_TERM_S = 1.0e-9            # one term of a row-sparse product, per agent (Q per round, A per configuration)
-TRIAL_RECORD_S = 3.0e-9          # one recorded step, per configuration and agent: the powers and their sums
-STEP_CALL_S = 2.0e-6             # Python overhead per numpy call, per step of a chunk
-RECORD_ROW_S = 4.0e-6            # one row of the per-step tables (claims, tables, Parquet)
-CELL_S = 0.02                    # per cell: exact covariances, steady state, claims' solves
+# seconds of CPU per unit of work, measured on this machine (docs/papers/savas.md gives the ratios)
+GRID_POINT_MODE_S = 5.0e-9       # one grid point of (16), one mode, one m
+GRID_POINT_S = 6.0e-9            # one grid point per (σ_c, formula): J, its minimum and local minima
+CELL_DESIGN_S = 0.003            # per cell: gains, exact covariances at the recorded steps, steady state
+TRIAL_CONFIG_S = 7.9e-9          # per trial, step, configuration and agent: the update and the errors
+TRIAL_DRAW_S = 8.4e-9            # per trial, step and agent, per draw (measurement and each round)
+TRIAL_Q_TERM_S = 0.5e-9          # one term of the row-sparse product with Q, per trial, round and agent
+TRIAL_A_TERM_S = 2.0e-9          # one term of the product with A, per trial, step, configuration and agent
+TRIAL_RECORD_S = 9.7e-9          # per trial, recorded step, configuration and agent: powers and their sums
+STEP_CALL_S = 1.5e-6             # Python overhead per numpy call, per step of a chunk
+CELL_CLAIMS_S = 0.005            # per cell: the claims' solves and exact laws
+CELL_TABLES_S = 0.006            # per cell: its rows of the tables (pandas)
+ROW_S = 2.0e-6                   # one row of the per-step tables: the exact laws, pandas, Parquet
+MODE_CLAIMS_S = 2.0e-7           # per cell and agent squared: the claims' N x N solves (Lyapunov, series)
 
 
 @dataclass(frozen=True)
@@ -53,14 +60,17 @@ def _nnz_rows(M: np.ndarray) -> int:
 
 
 def _a_nnz(sc: NoisyConsensusScenario, m: int) -> int:
-    """Widest row of A = Σ_{j<=m} Q^j (or Q^m): the terms of its row-sparse product."""
-    support = (sc.Q != 0).astype(float)
-    A = np.eye(sc.n)
-    P = np.eye(sc.n)
+    """Widest row of A = Σ_{j<=m} Q^j (or Q^m): the agents within m hops, the terms of its row-sparse product."""
+    import scipy.sparse as sp
+
+    step = sp.csr_matrix(sc.Q != 0, dtype=np.int8)
+    reach = sp.identity(sc.n, dtype=np.int8, format="csr")
     for _ in range(min(m, sc.n)):
-        P = np.minimum(support @ P, 1.0)
-        A = np.maximum(A, P)
-    return int(A.sum(axis=1).max())
+        wider = ((reach + reach @ step) > 0).astype(np.int8)
+        if wider.nnz == reach.nnz:
+            break
+        reach = wider
+    return int(np.diff(reach.indptr).max())
 
 
 def estimate(sc: NoisyConsensusScenario, opts: RunOptions) -> Cost:
@@ -69,31 +79,33 @@ def estimate(sc: NoisyConsensusScenario, opts: RunOptions) -> Cost:
     trials = trial_count(sc, opts)
     N, S_c, M = sc.n, len(sc.sigma_c), len(sc.rounds)
     S = len(recorded_steps(sc.n_steps, sc.recorded_steps, sc.eval_step))
-    n_cells = 2 * M * S_c + 1
+    n_cells = 2 * M * S_c + (1 if sc.n_steps < LONG_RUN_STEPS else 0)
     # design: gain grids (symmetric Q only), then per-cell covariances
-    t_design = n_cells * CELL_S
+    t_design = n_cells * CELL_DESIGN_S * max(1.0, N / 30.0)
     if sc.symmetric:
         n_ell, n_zeta = gain_grid(sc, opts.quick)
         tables = sc.rounds_max + 1 + len(LARGE_M)
         t_design += tables * n_ell * n_zeta * ((N - 1) * GRID_POINT_MODE_S + 2 * S_c * GRID_POINT_S)
     # Monte Carlo: per group (algorithm, m) of S_c configurations over the horizon
     qnnz = _nnz_rows(sc.Q)
-    groups = [(alg, m, sc.n_steps, S_c, S) for alg in ("carli", "reinjection") for m in sc.rounds]
+    groups = [(m, sc.n_steps, S_c, S) for alg in ("carli", "reinjection") for m in sc.rounds]
     if sc.n_steps < LONG_RUN_STEPS:
-        m_long = next((m for m in sc.rounds if m > 0), sc.rounds[-1])
-        groups.append(("reinjection", m_long, LONG_RUN_STEPS, 1, LONG_RUN_STEPS))
-    t_mc = 0.0
+        groups.append((next((m for m in sc.rounds if m > 0), sc.rounds[-1]), LONG_RUN_STEPS, 1, LONG_RUN_STEPS))
     chunk_trials = min(trials, CHUNK_UNITS * RNG_UNIT)
-    for _, m, K, C, S_g in groups:
-        per_trial_step = (TRIAL_STEP_S + C * N * TRIAL_NODE_S * 6 + (1 + m) * N * TRIAL_DRAW_S
-                          + m * N * qnnz * TRIAL_TERM_S + (C * N * _a_nnz(sc, m) * TRIAL_TERM_S if m else 0.0))
-        calls = 30 + m * (3 + 3 * qnnz) + (3 * _a_nnz(sc, m) if m else 0)
-        t_mc += trials * K * per_trial_step + (trials / chunk_trials) * K * calls * STEP_CALL_S
-        t_mc += trials * S_g * C * N * 10 * TRIAL_RECORD_S
-    t_mc /= max(1, min(opts.workers, len(groups)))
+    group_s = []
+    for m, K, C, S_g in groups:
+        a_nnz = _a_nnz(sc, m) if m else 0
+        per_trial_step = (C * N * TRIAL_CONFIG_S + (1 + m) * N * TRIAL_DRAW_S + m * N * qnnz * TRIAL_Q_TERM_S
+                          + C * N * a_nnz * TRIAL_A_TERM_S)
+        calls = 25 + m * (2 + 3 * qnnz) + 3 * a_nnz
+        group_s.append(trials * K * per_trial_step + -(-trials // chunk_trials) * (K * calls + S_g * 12) * STEP_CALL_S
+                       + trials * S_g * C * N * TRIAL_RECORD_S)
+    workers = max(1, min(opts.workers, len(groups)))
+    t_mc = max(sum(group_s) / workers, max(group_s))
     rows = n_cells * S * (N + 1)
-    t_out = rows * RECORD_ROW_S + n_cells * CELL_S
-    seconds = FIXED_S + t_design + t_mc + t_out
+    t_claims = CLAIMS_S + n_cells * (CELL_CLAIMS_S + MODE_CLAIMS_S * N * N) + rows * ROW_S
+    t_out = OUTPUTS_S + n_cells * CELL_TABLES_S + rows * ROW_S
+    seconds = STARTUP_S + t_design + t_mc + t_claims + t_out
     # memory: what stays (recorded sums, exact series, paths, tables) and one chunk per worker
     per_cell = 8.0 * S * (2 * (3 * N + 2) + 2 * N + 1) * 3   # sums, exact diag/eig/trace; x3 for the tables built
     paths = 8.0 * sc.sample_paths * min(sc.n_steps, sc.sample_steps) * N * (max(sc.rounds) + 8) * n_cells
@@ -106,11 +118,11 @@ def estimate(sc: NoisyConsensusScenario, opts: RunOptions) -> Cost:
     if sc.symmetric:
         n_ell, n_zeta = gain_grid(sc, opts.quick)
         fixed += 8.0 * n_ell * n_zeta * (2 * 2 + 4) / MIB
-    peak = BASE_MIB + fixed + chunk * max(1, min(opts.workers, len(groups)))
+    peak = BASE_MIB + fixed + chunk * workers
     detail = (f"{n_cells} cells x {trials:,} trials x {sc.n_steps:,} steps x {N} agents, {S} recorded steps; design "
-              f"{t_design:.2g} s, Monte Carlo {t_mc:.3g} s on {opts.workers} worker(s), tables and outputs "
-              f"{FIXED_S + t_out:.2g} s; memory {BASE_MIB:.0f} MiB base + {fixed:.0f} MiB kept + {chunk:.0f} MiB "
-              "per Monte Carlo chunk")
+              f"{t_design:.2g} s, Monte Carlo {t_mc:.3g} s on {workers} worker(s), claims {t_claims:.2g} s, tables and "
+              f"outputs {t_out:.2g} s; memory {BASE_MIB:.0f} MiB base + {fixed:.0f} MiB kept + {chunk:.0f} MiB per "
+              "Monte Carlo chunk")
     return Cost(seconds, peak, fixed, chunk, detail)
 
 
@@ -120,7 +132,7 @@ def refuse_if_too_large(sc: NoisyConsensusScenario, opts: RunOptions) -> None:
     budget = opts.memory_budget_mib
     if BASE_MIB + c.fixed_mib + c.chunk_mib > budget:
         raise ScenarioError("sweep.recorded_steps", f"the run keeps about {c.fixed_mib:,.0f} MiB of per-step statistics "
-                            f"and tables ({len(sc.sigma_c) * len(sc.rounds) * 2 + 1} cells x {sc.n} agents x the "
+                            f"and tables (cells x {sc.n} agents x the "
                             f"recorded steps) besides {BASE_MIB:.0f} MiB of libraries and a {c.chunk_mib:.0f} MiB "
                             f"chunk: more than the memory budget of {budget:,.0f} MiB; record fewer steps, or raise "
                             "--max-memory")

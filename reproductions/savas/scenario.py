@@ -31,6 +31,14 @@ MAX_STEPS = 100_000
 MAX_ROUNDS = 1000
 
 
+def _listed(values: list):
+    """A list default (a fresh list per file), shown as such on the reference page."""
+    def default():
+        return list(values)
+    default.__doc__ = f"`{values}`"
+    return default
+
+
 def _computed(text: str):
     """A default computed from other keys: None here, resolved when the scenario is built; `text`
     is what the reference page shows."""
@@ -86,11 +94,11 @@ class SweepSection(Section):
     """The cells simulated and checked: both filters at every number of rounds m and noise level σ_c,
     over k = 0..n_steps−1."""
 
-    rounds: list[Round] = key(lambda: [0, 1, 2, 3, 4, 5], doc="numbers m of consensus rounds between two "
-                              "measurements", min_length=1, constraint="strictly increasing")
-    sigma_c: list[NoiseLevel] = key(lambda: [0.0, 1.0], doc="standard deviations σ_c of the communication noise "
+    rounds: list[Round] = key(_listed([0, 1, 2, 3, 4, 5]), doc="numbers m of consensus rounds between two "
+                              "measurements", min_length=1, constraint=f"each 0..{MAX_ROUNDS}; strictly increasing")
+    sigma_c: list[NoiseLevel] = key(_listed([0.0, 1.0]), doc="standard deviations σ_c of the communication noise "
                                     "added at every round (eq. (6))", unit="state", min_length=1,
-                                    constraint="strictly increasing")
+                                    constraint="each >= 0; strictly increasing")
     n_steps: int = key(10, doc="horizon: steps k = 0..n_steps−1 are simulated", ge=1, le=MAX_STEPS)
     eval_step: int | None = key(_computed("min(4, n_steps − 1)"), doc="step k of the figures' metric "
                                 "Σ_i var x̃_i(k|k−1) = tr P(k|k−1) (the paper's k = 4)", ge=0,
@@ -147,8 +155,9 @@ class GainsSection(Section):
 
     rounds_max: int | None = key(_computed("max(sweep.rounds)"), doc="largest m of the gain tables", ge=0,
                                  le=MAX_ROUNDS, constraint=">= max(sweep.rounds)")
-    grid: list[GridSize] = key(lambda: [400, 401], doc="[n_ell, n_zeta]: the grid of (ℓ, ζ) on which J is evaluated "
-                               "before the local search ([100, 101] in quick runs)", min_length=2, max_length=2)
+    grid: list[GridSize] = key(_listed([400, 401]), doc="[n_ell, n_zeta]: the grid of (ℓ, ζ) on which J is evaluated "
+                               "before the local search ([100, 101] in quick runs)", min_length=2, max_length=2,
+                               constraint="each 11..5000")
 
 
 class MonteCarloSection(Section):
@@ -167,7 +176,7 @@ class NoisyConsensusFile(Section):
     """A noisy-consensus-filter scenario file."""
 
     name: str = key("scenario", doc="scenario name: the output directory OUT/run/<name>/",
-                    pattern=r"^[A-Za-z0-9_-]{1,64}$")
+                    pattern=r"^[A-Za-z0-9_-]{1,64}$", constraint="1 to 64 letters, digits, '-' or '_'")
     graph: GraphSection = key(doc="the communication graph")
     consensus: ConsensusSection = key(ConsensusSection, doc="the consensus weights")
     model: ModelSection = key(doc="the process and the measurements")
