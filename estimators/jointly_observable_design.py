@@ -324,7 +324,11 @@ def range_bases(P_blocks: np.ndarray) -> list[np.ndarray]:
     return out
 
 
-def rho_exact(P_blocks: np.ndarray, *, max_states: int = 2_000_000) -> RhoResult:
+#: memory the branch and bound of ρ may hold in its frontier (prefix products of n_i x n each)
+RHO_FRONTIER_BYTES = 256 * 2**20
+
+
+def rho_exact(P_blocks: np.ndarray, *, max_states: int | None = None) -> RhoResult:
     """ρ = max ||P_{i1} ··· P_{iN}|| over products of N = (m-1)² + 1 factors containing every
     P_i (17), by an exact branch and bound (`_rho_search`).
 
@@ -335,6 +339,8 @@ def rho_exact(P_blocks: np.ndarray, *, max_states: int = 2_000_000) -> RhoResult
     """
     P = np.asarray(P_blocks, float)
     m = len(P)
+    if max_states is None:                           # 2,000,000 prefixes up to n = 4, fewer for larger states
+        max_states = int(min(2_000_000, max(10_000, RHO_FRONTIER_BYTES // (8 * P.shape[1] ** 2))))
     reps: list[int] = []                             # one agent per distinct projection
     cls: list[int] = []                              # the class of every agent
     for i in range(m):
@@ -458,6 +464,7 @@ class SufficientQ:
     q_minimal: int                      # N (floor(r) + 1), the Lemma 4 proof's need
     q_thm22_printed_alpha: int          # (22) with α as printed in (18)
     q_minimal_printed_alpha: int
+    q_thm21_printed_alpha: int          # (21) + (19) with α as printed in (18)
 
 
 def _ln1p_neg(u: Decimal) -> Decimal:
@@ -494,7 +501,11 @@ def sufficient_q(rho: float, m: int, norm_A: float, lam: float, T: float, *, pre
         cp, fp = int(rp.to_integral_value(rounding="ROUND_CEILING")), int(rp.to_integral_value(rounding="ROUND_FLOOR"))
         log10_u5 = float(u5.log10())
         return SufficientQ(Decimal(1) - u5, Decimal(1) - up, log10_u5, r5, rp, N * c5 + 1, N * (c5 + 1), N * (f5 + 1),
-                           N * cp + 1, N * (fp + 1))
+                           N * cp + 1, N * (fp + 1), N * (cp + 1))
+
+
+#: memory of one batch of the matrices P (M_G ⊗ I) whose norms give σ
+SIGMA_BATCH_BYTES = 64 * 2**20
 
 
 def sigma_symmetric(P_blocks: np.ndarray, graphs: np.ndarray | None = None, m_design: int | None = None
@@ -507,8 +518,9 @@ def sigma_symmetric(P_blocks: np.ndarray, graphs: np.ndarray | None = None, m_de
     graphs = connected_undirected_graphs(m) if graphs is None else graphs
     Pbig = sla.block_diag(*P)
     Ms = symmetric_weights_batch(graphs, m_design)
-    big = Pbig @ _kron_batch(Ms, n)
-    vals = np.linalg.norm(big, ord=2, axis=(1, 2))
+    batch = max(1, SIGMA_BATCH_BYTES // (8 * (m * n) ** 2))         # graphs per batch, memory bounded
+    vals = np.concatenate([np.linalg.norm(Pbig @ _kron_batch(Ms[a:a + batch], n), ord=2, axis=(1, 2))
+                           for a in range(0, len(Ms), batch)])
     k = int(np.argmax(vals))
     return float(vals[k]), k, vals
 
@@ -527,6 +539,11 @@ def _r_symmetric(sigma: float, norm_A: float, lam: float, T: float) -> float:
 def q_symmetric(sigma: float, norm_A: float, lam: float, T: float) -> int:
     """Smallest integer q with q > ceil((λ + ||A||)T / ln(1/σ))  (27); σ = 0 (every P_i = 0) gives 1."""
     return int(math.ceil(_r_symmetric(sigma, norm_A, lam, T))) + 1
+
+
+def r_symmetric(sigma: float, norm_A: float, lam: float, T: float) -> float:
+    """r = (λ + ||A||)T / ln(1/σ), the quantity (27) rounds up (0 for σ = 0)."""
+    return _r_symmetric(sigma, norm_A, lam, T)
 
 
 def q_symmetric_minimal(sigma: float, norm_A: float, lam: float, T: float) -> int:

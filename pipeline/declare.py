@@ -10,6 +10,7 @@ declared in the field's `constraint` so that the page states them too.
 """
 from __future__ import annotations
 
+import re
 import types
 import typing
 from typing import Annotated, Any, Literal, Mapping, get_args, get_origin
@@ -76,10 +77,13 @@ def _path(prefix: str, loc: tuple) -> str:
     return out or "scenario"
 
 
+_UNION_TAG = re.compile(r"(int|float|str|bool|none|constrained-\w+|[\w-]+\[.*\])", re.S)
+
+
 def _is_union_tag(part: Any) -> bool:
     """pydantic names the member of a union a value was tried against in the error location
-    (`int`, `float`, `literal['theory']`, `function-after[...]`): never a key of ours."""
-    return isinstance(part, str) and (part in ("int", "float", "str", "bool", "none") or "[" in part)
+    (`int`, `constrained-int`, `literal['theory']`, `function-after[...]`): never a key of ours."""
+    return isinstance(part, str) and _UNION_TAG.fullmatch(part) is not None
 
 
 #: how a union member that rejected a value by its type is described ("must be an integer or ...")
@@ -108,7 +112,7 @@ def _union_error(errors: list[dict], first: dict, prefix: str, model: type[Secti
 
 
 def _scenario_error(err: dict, prefix: str, model: type[Section], errors: list[dict] | None = None) -> ScenarioError:
-    if errors is not None and any(_is_union_tag(p) for p in err["loc"]):
+    if errors is not None and err["type"] != "extra_forbidden" and any(_is_union_tag(p) for p in err["loc"]):
         return _union_error(errors, err, prefix, model)
     kind, ctx, value = err["type"], err.get("ctx") or {}, err.get("input")
     if kind == "value_error" and isinstance(ctx.get("error"), ScenarioError):

@@ -12,6 +12,7 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import scipy.linalg as sla
 
@@ -66,7 +67,7 @@ reference_run = "sync"
 @pytest.fixture(scope="module")
 def paper_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("wlm")
-    summary = run(paper(), out, RunOptions(quick=True, trials=8))
+    summary = run(paper(), out, RunOptions(quick=True))
     return out / "wang-liu-morse", summary
 
 
@@ -111,8 +112,18 @@ def test_paper_outputs(paper_run):
     for fig in ("fig1_timing", "fig2_graphs", "fig3", "fig4", "fig5", "theorem1_bounds_paper", "theorem1_bounds_generic",
                 "decay_rates", "A_norms"):
         assert (d / "figures" / f"{fig}.png").stat().st_size > 10_000, fig
-    design = json.loads((d / "design.json").read_text())
-    assert design["paper"]["q_thm22_paper"] == 3_507_081 and design["generic"]["rho_exact"] is True
+    design = pd.read_parquet(d / "tables" / "design.parquet")
+
+    def value(scenario, quantity, lam=None, column="value"):
+        sel = (design["scenario"] == scenario) & (design["quantity"] == quantity)
+        sel &= design["lam"].isna() if lam is None else design["lam"] == lam
+        (v,) = design.loc[sel, column]
+        return v
+
+    assert value("paper", "q_thm22", 2.0, "exact") == "3507081"                          # the printed λ = 2
+    assert value("paper", "q_thm21_printed_alpha", 2.0, "exact") == str(10 * (math.ceil(46.127) + 1))
+    assert value("paper", "q27", 2.0) == 57 and value("paper", "sigma") == pytest.approx(0.929855, abs=1e-6)
+    assert value("generic", "rho_exact") == 1.0
     rrd = d / "paper_sync.rrd"
     for f in (rrd, d / "paper_fig5_leave_join.rrd", d / "generic_async.rrd"):
         proc = subprocess.run([str(RERUN), "rrd", "verify", str(f)], capture_output=True, text=True, timeout=120)
@@ -146,7 +157,9 @@ def test_user_scenario_against_independent_design(tmp_path):
     report = (d / "report.md").read_text()
     for text in ("q = 50", "Fig. ", "graph 2a", "spec §", "the spec", "Section 6"):
         assert text not in report, text
-    design = json.loads((d / "design.json").read_text())["scenario"]
+    design = pd.read_parquet(d / "tables" / "design.parquet").set_index("quantity")
+    design = {q: design.loc[q, "value"] for q in design.index}
+    q_runs = pd.read_parquet(d / "tables" / "runs.parquet").set_index("run")["q"]
     # independent: for m = 2, ρ = ||P_1 P_2|| = cos of the angle between the unobservable lines
     A = np.array(data["system"]["A"])
     C1, C2 = (np.array(c, float) for c in data["system"]["C"])
@@ -156,7 +169,7 @@ def test_user_scenario_against_independent_design(tmp_path):
     assert design["rho"] == pytest.approx(rho, rel=1e-12)
     alpha = (1 + rho) / 2
     r = (0.8 + np.linalg.norm(A, 2)) * 0.5 / math.log(1 / alpha)
-    assert design["q_thm22"] == 2 * math.ceil(r) + 1 == design["q_runs"]["sync"]
+    assert design["q_thm22"] == 2 * math.ceil(r) + 1 == q_runs["sync"]
     assert design["alpha_lemma5"] == pytest.approx(alpha, rel=1e-12) == design["alpha_printed"]
     assert summary["fail"] == 0
     rows, diffs = reverify(from_dict(copy.deepcopy(data)), tmp_path, d)   # claims again, from the cache only
@@ -169,8 +182,12 @@ def test_user_scenario_against_independent_design(tmp_path):
 BAD = [
     (lambda s: s["system"].update(C=[[[1.0, -1.0]], [[2.0, -2.0]]]), "system.C: (C, A) is not jointly observable"),
     (lambda s: s["system"].update(C=[[[1.0, -1.0]], [[0.0, 0.0]]]), "system.C[1]: is zero"),
-    (lambda s: s["graphs"].update(neighbors=[[[2], []]]), "graphs.neighbors[0]: graph is not strongly connected"),
-    (lambda s: s["graphs"].update(neighbors=[[[2], [3]]]), "graphs.neighbors[0][1]: must be <= 2"),
+    (lambda s: s["graphs"].update(neighbors=[[[2], [2]]]), "graphs.neighbors[0][1]: lists agent 2 as its own"),
+    (lambda s: s["graphs"].update(neighbors=[[[2, 2], [1]]]), "graphs.neighbors[0][0]: repeats a neighbour"),
+    (lambda s: s["graphs"].update(neighbors=[[[2], [3]]]), "graphs.neighbors[0][1]: agent labels are 1..2, got 3"),
+    (lambda s: s["system"].update(C=[[[1.0, -1.0]]]), "system.C: needs at least 2 agents"),
+    (lambda s: s["design"].update(q="many"), "design.q: must be an integer or one of"),
+    (lambda s: s.update(name="bad name"), "name: must match"),
     (lambda s: s["design"].update(**{"lambda": 1.5}), "design.lambda: must be < lambda_bar"),
     (lambda s: s["design"].update(poles=[[-0.5], [-2.0]]), "design.lambda_bar: agent 1's local observer"),
     (lambda s: s["design"].update(qq=3), "design.qq: unknown key"),

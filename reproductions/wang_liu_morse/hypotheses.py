@@ -16,11 +16,16 @@ Run-level (one row per run that needs it; ids carry the run's name):
   run is judged by (27));
 - ``<run>.eq10``: (10), ε_i + ε_j <= β and ε_i + ε_j + β < Δ, and Δq + ε <= T (Lemma 1,
   Lemma 3, Theorem 2; Section 4 with ε = max |t_i0|);
-- ``<run>.windows``: N(t) is constant on every window 𝓘_s(k) of (23) (Lemma 3, Theorem 2).
+- ``<run>.windows``: N(t) is constant on every window 𝓘_s(k) of (23) (Lemma 3, Theorem 2);
+- ``<run>.strong_connectivity``: every graph the run uses is strongly connected (only when some
+  graph of the scenario is not: the scenario-level row then fails, and each run is judged by the
+  graphs it uses).
 
 Ids: ``wang-liu-morse.hyp.[<scenario>.]<name>``; the scenario is named when a reproduction
 checks several. Claims that span several scenarios or runs check each (scenario, run) cell
 against the hypotheses that cell rests on (`cell_failures`) and name the cells left out.
+Every check reads the design stage only (`design.Design`, or a run's results, which carry it),
+so that `dse check` decides them without simulating.
 """
 from __future__ import annotations
 
@@ -33,13 +38,14 @@ import estimators.hybrid_observer as ho
 import estimators.jointly_observable_design as jd
 from pipeline.verify import Holds, Hypothesis
 
+from .bounds import run_epsilon
 from .scenario import HybridScenario, RunSpec
 
 PID = "wang-liu-morse"
 EPS = float(np.finfo(float).eps)
 SCENARIO_LEVEL = ("joint_observability", "strong_connectivity", "local_observers", "q_eq22", "q_eq27")
 #: hypotheses the scenario validation already enforces (they hold on every valid scenario)
-VALIDATED = ("joint_observability", "strong_connectivity", "local_observers")
+VALIDATED = ("joint_observability", "local_observers")
 
 
 def hyp_id(part: str, name: str, multi: bool) -> str:
@@ -56,11 +62,24 @@ def joint_observability(r) -> Holds:
     return Holds(smin > tol, smin, tol, f"σ_min([I - P_1; ...; I - P_m]) = {smin:.6g} vs the rank tolerance {tol:g}")
 
 
-def strong_connectivity(r) -> Holds:
-    G = r.scenario.graphs
-    ok = [jd.is_strongly_connected(g) for g in G]
+def strong_connectivity(r, graphs: list[int] | None = None) -> Holds:
+    """Every neighbour graph (of the scenario, or the ones in `graphs`) is strongly connected."""
+    names = r.scenario.graph_names
+    idx = list(range(len(r.scenario.graphs))) if graphs is None else graphs
+    ok = [bool(jd.is_strongly_connected(r.scenario.graphs[g])) for g in idx]
+    bad = [names[g] for g, o in zip(idx, ok) if not o]
     return Holds(all(ok), int(sum(ok)), len(ok), f"{sum(ok)} of {len(ok)} neighbour graphs strongly connected "
-                                                 "(arc j -> i iff j ∈ N_i, self-arcs included)")
+                                                 "(arc j -> i iff j ∈ N_i, self-arcs included)"
+                                                 + (f"; not: {', '.join(bad)}" if bad else ""))
+
+
+def graphs_of(sc: HybridScenario, run: RunSpec) -> list[int]:
+    """The graphs a run uses."""
+    return [run.graph] if run.switching == "fixed" else list(range(len(sc.graphs)))
+
+
+def all_strongly_connected(sc: HybridScenario) -> bool:
+    return all(jd.is_strongly_connected(g) for g in sc.graphs)
 
 
 def local_observers(r) -> Holds:
@@ -130,11 +149,6 @@ def q_eq27(r, q: int) -> Holds:
 
 # -- run level ---------------------------------------------------------------------------------------
 
-def run_epsilon(run: RunSpec) -> float:
-    """ε of (24): the largest jitter bound (asynchronous runs) or event-time offset (Section 4)."""
-    if run.timing == "offset":
-        return max(abs(x) for x in run.offsets)
-    return max(run.epsilon) if run.timing == "async" else 0.0
 
 
 def eq10(run: RunSpec, T: float) -> Holds:
@@ -182,7 +196,11 @@ def q_name(sc: HybridScenario, run: RunSpec) -> str:
 def run_rows(sc: HybridScenario) -> list[tuple[str, str, Callable]]:
     """(name, statement, check(r)) for the run-level hypotheses of a scenario."""
     rows = []
+    connected = all_strongly_connected(sc)
     for run in sc.runs:
+        if not connected:
+            rows.append((f"{run.name}.strong_connectivity", f"run {run.name}: every graph it uses is strongly connected",
+                         lambda r, run=run: strong_connectivity(r, graphs_of(r.scenario, run))))
         if run.rule == "symmetric":
             rows.append((f"{run.name}.q_eq27", f"run {run.name}: q satisfies (27)",
                          lambda r, q=run.q: q_eq27(r, q)))
@@ -229,7 +247,10 @@ def cell_failures(res, part: str, run: RunSpec, needs: tuple[str, ...]) -> list[
     table = {name: fn for name, _, fn in rows_of(sc)}
     out = []
     for need in needs:
-        name = q_name(sc, run) if need == "q" else (f"{run.name}.{need}" if need in ("eq10", "windows") else need)
+        if need == "strong_connectivity":
+            name = f"{run.name}.strong_connectivity" if not all_strongly_connected(sc) else need
+        else:
+            name = q_name(sc, run) if need == "q" else (f"{run.name}.{need}" if need in ("eq10", "windows") else need)
         if name not in table:
             continue
         h = table[name](r)

@@ -1,12 +1,12 @@
-"""Figures (PNG), design quantities (JSON) and Rerun recordings of the hybrid-observer family.
+"""Figures (PNG) and Rerun recordings of the hybrid-observer family, drawn from the run's tables.
 
 One recording per (system, run): ``<part>_<run>.rrd`` on the continuous timeline ``t``
 (integer nanoseconds): the true state and each agent's estimate (trial 0), the error of each
-agent on the sample grid (right-continuous) and before/after every reset at the event
-times, the parameter-estimator iterates within each event interval at their iteration
-times, Monte Carlo aggregates over trials, the bound curves, the switching graph and the
-claims. Errors are also recorded as log10(max(error, 1e-300)): an exact zero never breaks
-a log scale.
+agent at the stored samples and before/after every reset at the event times, trial 0's
+estimator iterates at their iteration times (first stored intervals), statistics over trials,
+the bound curves, the switching graph (source sets of the first stored intervals) and the
+claims. Errors are also recorded as log10(max(error, 1e-300)): an exact zero never breaks a
+log scale.
 """
 from __future__ import annotations
 
@@ -15,15 +15,15 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import rerun as rr
 import rerun.blueprint as rrb
 
 from pipeline import record as rec_
-from pipeline.atomic import atomic_write_text
-from pipeline.figures import new_figure, save_figure
+from pipeline.figures import draw_all, new_figure, save_figure
 
+from . import bounds
 from . import claims as cl
-from .compute import MultiResults, Results
 
 TINY = 1e-300
 AGENT_COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75),
@@ -42,27 +42,46 @@ def log10_safe(v: np.ndarray) -> np.ndarray:
     return np.log10(np.maximum(np.asarray(v, float), TINY))
 
 
+def rows(tables, name: str, scenario: str, run: str | None = None) -> pd.DataFrame:
+    """The rows of one table for a scenario (and a run)."""
+    f = tables[name]
+    sel = f["scenario"] == scenario
+    if run is not None:
+        sel &= f["run"] == run
+    return f[sel]
+
+
+def _pivot(frame: pd.DataFrame, column: str, index: str = "t", by: str = "node") -> tuple[np.ndarray, np.ndarray]:
+    """(index values, matrix index x by) of a tidy frame."""
+    p = frame.pivot(index=index, columns=by, values=column).sort_index()
+    return p.index.to_numpy(float), p.to_numpy(float)
+
+
 # -- figures --------------------------------------------------------------------------------------
 
-def _trace_figure(r: Results, run_name: str, title: str, path: Path, agents=(0,), component: int = 2,
+def _trace_figure(tables, scenario: str, run: str, m: int, title: str, path: Path, agents=(0,), component: int = 2,
                   shade: tuple[float, float] | None = None) -> None:
-    run = r.run(run_name)
-    t = run.t_ns / 1e9
+    st = rows(tables, "state_series", scenario, run)
+    st = st[st["component"] == component + 1]
+    truth = st[st["source"] == "truth"]
     fig, axes = new_figure(ncols=2, width=5.6)
     ax = axes[0, 0]
-    ax.plot(t, run.x0[:, component], "k-", lw=2, label=f"x^({component + 1})")
+    ax.plot(truth["t"], truth["value"], "k-", lw=2, label=f"x^({component + 1})")
     for i in agents:
-        ax.plot(t, run.xhat0[:, i, component], "--", color=_mpl(i), lw=1.3, label=f"x_{i + 1}^({component + 1})")
+        est = st[(st["source"] == "agent") & (st["node"] == i + 1)]
+        ax.plot(est["t"], est["value"], "--", color=_mpl(i), lw=1.3, label=f"x_{i + 1}^({component + 1})")
     ax.set_xlabel("t")
     ax.set_title(title, fontsize=9)
     ax.legend()
     ax = axes[0, 1]
-    for i in range(r.scenario.m):
-        ax.semilogy(t, np.maximum(run.err[:, 0, i], TINY), color=_mpl(i), lw=1, label=f"||e_{i + 1}(t)||")
-    if run_name in r.runs and "kf_err" in r.runs[run_name]:
-        ax.semilogy(t, np.maximum(r.runs[run_name]["kf_err"], TINY), "k:", lw=1, label="centralized KF (filterpy)")
+    t, err = _pivot(rows(tables, "node_series", scenario, run), "error_trial0")
+    for i in range(m):
+        ax.semilogy(t, np.maximum(err[:, i], TINY), color=_mpl(i), lw=1, label=f"||e_{i + 1}(t)||")
+    net = rows(tables, "network_series", scenario, run)
+    if np.isfinite(net["kalman_trial0"]).any():
+        ax.semilogy(net["t"], np.maximum(net["kalman_trial0"], TINY), "k:", lw=1, label="centralized KF (filterpy)")
     else:
-        ax.semilogy(t, np.maximum(run.central_err[:, 0], TINY), "k:", lw=1, label="centralized observer")
+        ax.semilogy(net["t"], np.maximum(net["central_trial0"], TINY), "k:", lw=1, label="centralized observer")
     if shade:
         for a in axes[0]:
             a.axvspan(*shade, color="0.85", zorder=0)
@@ -97,22 +116,22 @@ def _fig1(path: Path) -> None:
     save_figure(fig, path)
 
 
-def _graph_figure(r: Results, path: Path) -> None:
-    G = r.scenario.graphs
-    m = r.scenario.m
-    fig, axes = new_figure(ncols=len(G), width=3.4, height=3.4)
+def _graph_figure(tables, scenario: str, path: Path) -> None:
+    props = rows(tables, "graph_properties", scenario)
+    arcs = rows(tables, "graphs", scenario)
+    m = int(rows(tables, "agents", scenario)["node"].max())
+    fig, axes = new_figure(ncols=len(props), width=3.4, height=3.4)
     ang = np.pi / 2 - 2 * np.pi * np.arange(m) / m
     pos = np.column_stack([np.cos(ang), np.sin(ang)])
-    for g, ax in enumerate(axes[0]):
-        for i in range(m):
-            for j in range(m):
-                if i != j and G[g][i, j]:            # arc j -> i
-                    ax.annotate("", xy=pos[i] * 0.85 + pos[j] * 0.15, xytext=pos[j] * 0.85 + pos[i] * 0.15,
-                                arrowprops=dict(arrowstyle="->", color="0.3", lw=1.2))
+    for ax, (_, g) in zip(axes[0], props.iterrows()):
+        for _, a in arcs[arcs["graph"] == g["graph"]].iterrows():          # arc j -> i
+            i, j = int(a["receiver"]) - 1, int(a["sender"]) - 1
+            ax.annotate("", xy=pos[i] * 0.85 + pos[j] * 0.15, xytext=pos[j] * 0.85 + pos[i] * 0.15,
+                        arrowprops=dict(arrowstyle="->", color="0.3", lw=1.2))
         for i in range(m):
             ax.scatter(*pos[i], s=500, color=_mpl(i), zorder=3)
             ax.text(*pos[i], str(i + 1), ha="center", va="center", color="w", zorder=4)
-        ax.set_title(r.scenario.graph_names[g], fontsize=9)
+        ax.set_title(g["name"] + ("" if g["strongly_connected"] else " (not strongly connected)"), fontsize=9)
         ax.set_xlim(-1.4, 1.4)
         ax.set_ylim(-1.4, 1.4)
         ax.set_aspect("equal")
@@ -120,71 +139,68 @@ def _graph_figure(r: Results, path: Path) -> None:
     save_figure(fig, path)
 
 
-def _bounds_figure(r: Results, path: Path) -> None:
+def _bounds_figure(res, tables, scenario: str, path: Path) -> None:
     """Theorem 1 on a run inside its hypotheses: |e(s)| over trials vs (51); the continuous bound
-    as printed and corrected on the idealised run."""
+    as printed and corrected on the idealised run (trial 0)."""
+    r = res[scenario]
     fig, axes = new_figure(ncols=2, width=5.6)
     sync = next((s for s in r.scenario.runs if s.timing == "sync" and cl.in_theorem1(r, s) and not s.ideal), None)
     if sync is None:
-        sync = next(s for s in r.scenario.runs if s.timing == "sync")
-    lhs, rhs = cl.event_bound(r, sync.name)
-    ts = np.arange(1, lhs.shape[0] + 1) * r.scenario.T
+        sync = next((s for s in r.scenario.runs if s.timing == "sync" and bounds.is_theorem_run(s)), None)
     ax = axes[0, 0]
-    ax.semilogy(ts, np.maximum(lhs.max(axis=1), TINY), "o-", ms=3, label=f"max over {lhs.shape[1]} trials |e(s)|")
-    ax.semilogy(ts, np.maximum(np.median(lhs, axis=1), TINY), ".-", ms=3, label="median |e(s)|")
-    ax.semilogy(ts, rhs.max(axis=1), "k--", label="bound (51), largest over trials")
-    ax.semilogy(ts, np.exp(-r.scenario.lam * ts) * lhs[0].max(), "k:", lw=1, label=f"e^(-λt), λ = {r.scenario.lam}")
+    if sync is not None:
+        ev = rows(tables, "events", scenario, sync.name)
+        ev = ev[ev["s"] >= 1]
+        ts = ev["s"].to_numpy() * r.scenario.T
+        ax.semilogy(ts, np.maximum(ev["error_max"], TINY), "o-", ms=3, label=f"max over {int(ev['trials'].iloc[0])} "
+                                                                             "trials |e(s)|")
+        ax.semilogy(ts, np.maximum(ev["error_mean"], TINY), ".-", ms=3, label="mean |e(s)|")
+        ax.semilogy(ts, ev["bound51_max"], "k--", label="bound (51), largest over trials")
+        ax.semilogy(ts, np.exp(-r.scenario.lam * ts) * float(ev["error_max"].iloc[0]), "k:", lw=1,
+                    label=f"e^(-λt), λ = {r.scenario.lam}")
+        ax.set_title(f"{scenario}/{sync.name}: event-sampled error vs (51), q = {sync.q}", fontsize=9)
+        ax.legend()
     ax.set_xlabel("t = sT")
-    ax.set_title(f"{r.scenario.name}/{sync.name}: event-sampled error vs (51), q = {sync.q}", fontsize=9)
-    ax.legend()
-    ideal = next((s for s in r.scenario.runs if s.ideal), None)
+    ideal = next((s for s in r.scenario.runs if s.ideal and bounds.is_theorem_run(s)), None)
     ax = axes[0, 1]
     if ideal is not None:
-        run = r.run(ideal.name)
-        k = cl.constants(r, ideal)
-        e, eb, _, _ = cl.event_norms(r, ideal.name)
-        t = run.t_ns / 1e9
-        lam, T, nA = r.scenario.lam, r.scenario.T, k["norm_A"]
-        K0s = e[0] + k["d"] * eb[0]
-        ratio = run.err.max(axis=-1) / (np.exp(nA * T - lam * t)[:, None] * K0s[None])
-        b = int(np.argmax(ratio.max(axis=0)))                       # the trial closest to breaking the printed bound
-        K0 = K0s[b]
-        sel = t <= 3 * T
-        printed = np.exp(nA * T - lam * t) * K0
-        err = run.err[:, b].max(axis=-1)
-        ax.plot(t[sel], err[sel] / printed[sel], color="tab:red", label="||e(t)|| / printed bound e^(||A||T-λt)(...)")
-        ax.plot(t[sel], err[sel] / (printed[sel] * np.exp(lam * T)), color="k",
+        net = rows(tables, "network_series", scenario, ideal.name)
+        T = r.scenario.T
+        sel = net["t"].to_numpy() <= 3 * T
+        t, err = net["t"].to_numpy()[sel], net["error_trial0"].to_numpy()[sel]
+        ax.plot(t, err / net["bound_printed_trial0"].to_numpy()[sel], color="tab:red",
+                label="||e(t)|| / printed bound e^(||A||T-λt)(...)")
+        ax.plot(t, err / net["bound_corrected_trial0"].to_numpy()[sel], color="k",
                 label="||e(t)|| / corrected bound (× e^(λT))")
-        pre = np.linalg.norm(run.e_pre[1:, b], axis=-1).max(axis=-1)
-        ts = np.arange(1, len(pre) + 1) * T
-        keep = ts <= 3 * T
-        pb = np.exp(nA * T - lam * ts) * K0
-        ax.plot(ts[keep], pre[keep] / pb[keep], "v", color="tab:red", ms=6, label="left limits e(sT⁻) / printed")
+        nd = rows(tables, "nodes", scenario, ideal.name)
+        pre = nd.groupby("s")["error_before_reset"].max()
+        pre = pre[(pre.index >= 1) & (pre.index * T <= 3 * T)]
+        pts = pre.index.to_numpy() * T
+        printed_at = np.interp(pts, net["t"], net["bound_printed_trial0"])
+        ax.plot(pts, pre.to_numpy() / printed_at, "v", color="tab:red", ms=6, label="left limits e(sT⁻) / printed")
         ax.axhline(1.0, color="0.4", ls="--", lw=1)
-        ax.set_title(f"{r.scenario.name}/{ideal.name} (ē(0) = 0): continuous-time bound ratio, trial {b}", fontsize=9)
+        ax.set_title(f"{scenario}/{ideal.name} (ē(0) = 0): continuous-time bound ratio, trial 0", fontsize=9)
         ax.set_xlabel("t")
         ax.legend(fontsize=7)
     save_figure(fig, path)
 
 
-def _decay_figure(res: MultiResults, path: Path) -> None:
+def _decay_figure(res, tables, path: Path) -> None:
     fig, axes = new_figure()
     ax = axes[0, 0]
     for idx, (name, r) in enumerate(res.parts.items()):
-        sync = next((s for s in r.scenario.runs if s.timing == "sync" and not s.ideal and not s.noise
-                     and s.leave is None), None)
+        sync = next((s for s in r.scenario.runs if s.timing == "sync" and not s.ideal and bounds.is_theorem_run(s)), None)
         if sync is None:
             continue
-        e, _, _, _ = cl.event_norms(r, sync.name)
-        fl = cl.roundoff_floor(r, sync.name)
-        t = r.run(sync.name).event_ns[0] / 1e9
-        rate, first, stop = cl.fit_rate(t, e[:, 0], fl[:, 0])
+        ev = rows(tables, "events", name, sync.name)
+        t, e, fl = ev["t"].to_numpy(), ev["error_trial0"].to_numpy(), ev["floor_trial0"].to_numpy()
+        rate, first, stop = cl.fit_rate(t, e, fl)
         c = _mpl(idx)
-        ax.semilogy(t, np.maximum(e[:, 0], TINY), "o", ms=3, color=c, label=f"{name}/{sync.name}: max_i||e_i(t_is)||")
-        ax.semilogy(t, fl[:, 0], ":", color=c, lw=1, label=f"{name}: round-off allowance")
+        ax.semilogy(t, np.maximum(e, TINY), "o", ms=3, color=c, label=f"{name}/{sync.name}: max_i||e_i(t_is)||")
+        ax.semilogy(t, fl, ":", color=c, lw=1, label=f"{name}: round-off allowance")
         if not math.isnan(rate):
             tt = t[first:stop]
-            c0 = np.exp(np.polyfit(tt, np.log(e[first:stop, 0]), 1)[1])
+            c0 = np.exp(np.polyfit(tt, np.log(e[first:stop]), 1)[1])
             ax.semilogy(tt, c0 * np.exp(-rate * tt), "-", color=c, lw=1.5, label=f"{name}: fit, rate {rate:.3f} "
                                                                                f"(λ = {r.scenario.lam})")
     ax.set_xlabel("t")
@@ -193,7 +209,7 @@ def _decay_figure(res: MultiResults, path: Path) -> None:
     save_figure(fig, path)
 
 
-def _anorm_figure(res: MultiResults, path: Path) -> None:
+def _anorm_figure(res, tables, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     parts = list(res.parts.items())
@@ -202,12 +218,12 @@ def _anorm_figure(res: MultiResults, path: Path) -> None:
     for ax, (name, r) in zip(axes[0], parts):
         k = 0
         for s in r.scenario.runs:
-            a = r.runs[s.name]
+            iv = rows(tables, "intervals", name, s.name)
             key = "A_2" if s.rule == "symmetric" else "A_mixed"
-            v = a[key]
+            v = iv[key].to_numpy()
             if np.all(np.isnan(v)) or s.noise:
                 continue
-            ax.semilogy(np.arange(1, len(v) + 1), np.maximum(v, TINY), marker=".", ms=3, lw=1, color=cmap(k % 20),
+            ax.semilogy(iv["s"], np.maximum(v, TINY), marker=".", ms=3, lw=1, color=cmap(k % 20),
                         ls="-" if k < 10 else "--", label=f"{s.name} ({'||·||₂' if key == 'A_2' else '|·|'}, q = {s.q})")
             k += 1
         ax.axhline(math.exp(-r.scenario.lam * r.scenario.T), ls="--", lw=1.2, color="k", label="e^(-λT)")
@@ -217,65 +233,48 @@ def _anorm_figure(res: MultiResults, path: Path) -> None:
     save_figure(fig, path)
 
 
-def write_figures(res: MultiResults, out_dir: Path, paper: bool) -> None:
+def figure_jobs(res, tables, out_dir: Path, paper: bool) -> list:
     figs = out_dir / "figures"
+    jobs = []
     if paper:
-        r = res["paper"]
-        _fig1(figs / "fig1_timing.png")
-        _graph_figure(r, figs / "fig2_graphs.png")
-        _trace_figure(r, "fig3_noise", "Fig. 3: x' = Ax + b cos(10t); graphs 2a/2b alternate", figs / "fig3.png")
-        _trace_figure(r, "fig4_offset", "Fig. 4: agent 4's events 0.2T early (index-aligned exchange)",
-                      figs / "fig4.png", agents=(0, 3))
-        lv = r.spec("fig5_leave_join").leave
-        _trace_figure(r, "fig5_leave_join", "Fig. 5: agent 4 leaves at t = 5, re-joins at t = 7 (graph 2a)",
-                      figs / "fig5.png", agents=(0, 3), shade=(lv.at, lv.rejoin))
-        for name, rr_ in res.parts.items():
-            _bounds_figure(rr_, figs / f"theorem1_bounds_{name}.png")
+        m = res["paper"].scenario.m
+        lv = res["paper"].spec("fig5_leave_join").leave
+        jobs += [lambda: _fig1(figs / "fig1_timing.png"),
+                 lambda: _graph_figure(tables, "paper", figs / "fig2_graphs.png"),
+                 lambda: _trace_figure(tables, "paper", "fig3_noise", m, "Fig. 3: x' = Ax + b cos(10t); graphs 2a/2b "
+                                       "alternate", figs / "fig3.png"),
+                 lambda: _trace_figure(tables, "paper", "fig4_offset", m, "Fig. 4: agent 4's events 0.2T early "
+                                       "(index-aligned exchange)", figs / "fig4.png", agents=(0, 3)),
+                 lambda: _trace_figure(tables, "paper", "fig5_leave_join", m, "Fig. 5: agent 4 leaves at t = 5, "
+                                       "re-joins at t = 7 (graph 2a)", figs / "fig5.png", agents=(0, 3),
+                                       shade=(lv.at, lv.rejoin))]
+        jobs += [lambda name=name: _bounds_figure(res, tables, name, figs / f"theorem1_bounds_{name}.png")
+                 for name in res.parts]
     else:
-        for name, rr_ in res.parts.items():
-            _graph_figure(rr_, figs / "graphs.png")
-            _bounds_figure(rr_, figs / "theorem1_bounds.png")
-            for s in rr_.scenario.runs:
+        for name, r in res.parts.items():
+            jobs += [lambda name=name: _graph_figure(tables, name, figs / "graphs.png"),
+                     lambda name=name: _bounds_figure(res, tables, name, figs / "theorem1_bounds.png")]
+            for s in r.scenario.runs:
                 shade = (s.leave.at, s.leave.rejoin) if s.leave else None
-                _trace_figure(rr_, s.name, f"run {s.name}", figs / f"run_{s.name}.png", shade=shade,
-                              component=min(2, rr_.scenario.n - 1))
-    _decay_figure(res, figs / "decay_rates.png")
-    _anorm_figure(res, figs / "A_norms.png")
-
-
-# -- design quantities ------------------------------------------------------------------------------
-
-def design_summary(r: Results) -> dict:
-    dz = r.design
-    out = {}
-    for k, v in dz.items():
-        v = np.asarray(v)
-        if v.dtype.kind == "U":
-            out[k] = int(str(v)) if str(v).isdigit() else str(v)
-        elif v.size == 1:
-            out[k] = v.item()
-        elif v.size <= 64:
-            out[k] = v.tolist()
-    out["m"], out["n"], out["T"], out["lambda"], out["lambda_bar"] = (r.scenario.m, r.scenario.n, r.scenario.T,
-                                                                      r.scenario.lam, r.scenario.lam_bar)
-    out["q_runs"] = {s.name: s.q for s in r.scenario.runs}
-    out["K"] = [k.tolist() for k in r.obs.K]
-    out["L"] = [L.tolist() for L in r.obs.L]
-    return out
+                jobs.append(lambda name=name, s=s, shade=shade, r=r: _trace_figure(
+                    tables, name, s.name, r.scenario.m, f"run {s.name}", figs / f"run_{s.name}.png", shade=shade,
+                    component=min(2, r.scenario.n - 1)))
+    jobs += [lambda: _decay_figure(res, tables, figs / "decay_rates.png"),
+             lambda: _anorm_figure(res, tables, figs / "A_norms.png")]
+    return jobs
 
 
 # -- recordings -------------------------------------------------------------------------------------
 
-def _edges(N: np.ndarray) -> list[tuple[str, str]]:
-    m = len(N)
-    return [(str(j + 1), str(i + 1)) for i in range(m) for j in range(m) if i != j and N[i, j]]
+def _ns(t) -> np.ndarray:
+    return np.round(np.asarray(t, float) * 1e9).astype(np.int64)
 
 
-def write_run_recording(r: Results, run_name: str, path: Path, claims: list[dict], prov: dict, summary: str) -> None:
+def write_run_recording(res, tables, scenario: str, run_name: str, path: Path, claims: list[dict], prov: dict,
+                        summary: str) -> None:
+    r = res[scenario]
     sc = r.scenario
     spec = r.spec(run_name)
-    run = r.run(run_name)
-    a = r.runs[run_name]
     m, n = sc.m, sc.n
     blueprint = rrb.Blueprint(
         rrb.Tabs(
@@ -300,105 +299,118 @@ def write_run_recording(r: Results, run_name: str, path: Path, claims: list[dict
         rrb.TimePanel(timeline="t", expanded=False),
         collapse_panels=True,
     )
-    props = {"seed": r.seed, "trials": int(run.err.shape[1]), "system": sc.name, "run": run_name, "q": float(spec.q),
+    ev = rows(tables, "events", scenario, run_name)
+    props = {"seed": r.seed, "trials": int(ev["trials"].iloc[0]), "system": sc.name, "run": run_name, "q": float(spec.q),
              "T": sc.T, "timing": spec.timing, "switching": spec.switching, "rule": spec.rule,
              "versions": json.dumps(prov.get("versions", {})), "git": prov.get("git", "")}
     with rec_.recording(path, application_id="dse-wang-liu-morse", recording_id=f"wlm-{sc.name}-{run_name}-seed{r.seed}",
                         blueprint=blueprint, properties=props) as rec:
-        idx = rec_.duration_index("t", run.t_ns)
-        names = [f"x^({c + 1})" for c in range(n)]
-        rec_.send_series(rec, "truth/x", idx, run.x0, names=names, colors=[(0, 0, 0)] * n, width=2.0)
+        st = rows(tables, "state_series", scenario, run_name)
+        truth = st[st["source"] == "truth"]
+        ts, x = _pivot(truth, "value", by="component")
+        idx = rec_.duration_index("t", _ns(ts))
+        rec_.send_series(rec, "truth/x", idx, x, names=[f"x^({c + 1})" for c in range(n)], colors=[(0, 0, 0)] * n,
+                         width=2.0)
+        tn, err = _pivot(rows(tables, "node_series", scenario, run_name), "error_trial0")
+        _, emean = _pivot(rows(tables, "node_series", scenario, run_name), "error_mean")
+        _, emax = _pivot(rows(tables, "node_series", scenario, run_name), "error_max")
+        nidx = rec_.duration_index("t", _ns(tn))
+        nodes = rows(tables, "nodes", scenario, run_name)
+        its = rows(tables, "iterates", scenario, run_name)
         for i in range(m):
             lab = f"agent {i + 1}"
-            rec_.send_series(rec, f"nodes/{i + 1}/estimate", idx, run.xhat0[:, i],
+            est = st[(st["source"] == "agent") & (st["node"] == i + 1)]
+            te, xe = _pivot(est, "value", by="component")
+            rec_.send_series(rec, f"nodes/{i + 1}/estimate", rec_.duration_index("t", _ns(te)), xe,
                              names=[f"{lab} x_{i + 1}^({c + 1})" for c in range(n)], colors=[_col(i)] * n)
-            rec_.send_series(rec, f"nodes/{i + 1}/error", idx, run.err[:, 0, i], names=f"||e_{i + 1}(t)||", colors=[_col(i)])
-            rec_.send_series(rec, f"nodes/{i + 1}/log10_error", idx, log10_safe(run.err[:, 0, i]),
+            rec_.send_series(rec, f"nodes/{i + 1}/error", nidx, err[:, i], names=f"||e_{i + 1}(t)||", colors=[_col(i)])
+            rec_.send_series(rec, f"nodes/{i + 1}/log10_error", nidx, log10_safe(err[:, i]),
                              names=f"log10 ||e_{i + 1}(t)||", colors=[_col(i)])
-            ev = rec_.duration_index("t", run.event_ns[i])
-            rec_.send_series(rec, f"nodes/{i + 1}/reset/before", ev, log10_safe(np.linalg.norm(run.e_pre[:, 0, i], axis=-1)),
+            nd = nodes[nodes["node"] == i + 1]
+            eidx = rec_.duration_index("t", _ns(nd["t"]))
+            rec_.send_series(rec, f"nodes/{i + 1}/reset/before", eidx, log10_safe(nd["error_before_reset"]),
                              names=f"log10 ||e_{i + 1}(t_is⁻)|| (before reset)", colors=[(120, 120, 120)], points=True)
-            rec_.send_series(rec, f"nodes/{i + 1}/reset/after", ev, log10_safe(np.linalg.norm(run.e_post[:, 0, i], axis=-1)),
+            rec_.send_series(rec, f"nodes/{i + 1}/reset/after", eidx, log10_safe(nd["error_trial0"]),
                              names=f"log10 ||e_{i + 1}(t_is)|| (after reset)", colors=[_col(i)], points=True)
-            # iterates at their iteration times τ_is(k) = t_i(s-1) + kΔ + δ_is(k)
-            S, q1 = run.z0.shape[0], run.z0.shape[1]
-            delta = a["jitter"][:, i, :] if "jitter" in a else np.zeros((S, q1))
-            tau = run.event_ns[i, :S, None] + np.round((np.arange(q1)[None, :] * spec.Delta + delta) * 1e9).astype(np.int64)
-            pi = np.linalg.norm(run.z0[:, :, i] - run.x_event[:S, 0, i][:, None, :], axis=-1)
-            order = np.argsort(tau.ravel(), kind="stable")
-            rec_.send_series(rec, f"nodes/{i + 1}/iterates", rec_.duration_index("t", tau.ravel()[order]),
-                             log10_safe(pi.ravel()[order]), names=f"agent {i + 1} log10 ||π_is(k)||", colors=[_col(i)],
-                             points=True)
-        rec_.send_series(rec, "central/error", idx, run.central_err[:, 0], names="centralized observer ||x_c - x||",
-                         colors=[(0, 0, 0)])
-        rec_.send_series(rec, "central/log10/error", idx, log10_safe(run.central_err[:, 0]),
+            it = its[its["node"] == i + 1].sort_values("t", kind="stable")
+            if len(it):
+                rec_.send_series(rec, f"nodes/{i + 1}/iterates", rec_.duration_index("t", _ns(it["t"])),
+                                 log10_safe(it["error"]), names=f"agent {i + 1} log10 ||π_is(k)||", colors=[_col(i)],
+                                 points=True)
+            rec.send_columns(f"events/reset/{i + 1}", indexes=eidx,
+                             columns=rr.TextLog.columns(text=[f"agent {i + 1}: event s = {int(s)}" for s in nd["s"]]))
+        net = rows(tables, "network_series", scenario, run_name)
+        gidx = rec_.duration_index("t", _ns(net["t"]))
+        rec_.send_series(rec, "central/error", gidx, net["central_trial0"].to_numpy(),
+                         names="centralized observer ||x_c - x||", colors=[(0, 0, 0)])
+        rec_.send_series(rec, "central/log10/error", gidx, log10_safe(net["central_trial0"]),
                          names="log10 centralized observer error", colors=[(90, 90, 90)])
-        if "kf_err" in a:
-            rec_.send_series(rec, "central/log10/kalman", idx, log10_safe(a["kf_err"]),
+        if np.isfinite(net["kalman_trial0"]).any():
+            rec_.send_series(rec, "central/log10/kalman", gidx, log10_safe(net["kalman_trial0"]),
                              names="log10 centralized Kalman filter error (filterpy)", colors=[(0, 0, 0)])
-        if run.err.shape[1] > 1:
-            mx = run.err.max(axis=-1)
-            rec_.send_series(rec, "mc/log10/max_error", idx,
-                             np.column_stack([log10_safe(np.median(mx, axis=1)), log10_safe(mx.max(axis=1))]),
-                             names=[f"median over {mx.shape[1]} trials of max_i ||e_i||", "largest over trials"],
+        trials = int(ev["trials"].iloc[0])
+        if trials > 1:
+            rec_.send_series(rec, "mc/log10/max_error", nidx,
+                             np.column_stack([log10_safe(emean.max(axis=1)), log10_safe(emax.max(axis=1))]),
+                             names=[f"max_i of the mean over {trials} trials of ||e_i||", "largest over trials and agents"],
                              colors=[(100, 100, 200), (200, 100, 100)])
-        # bounds
-        ev0 = rec_.duration_index("t", run.event_ns[0, 1:])
-        if spec.rule == "mean" and not spec.noise and spec.leave is None:
-            lhs, rhs = cl.event_bound(r, run_name)
-            rec_.send_series(rec, "bounds/log10/eq51", ev0, log10_safe(rhs[:, 0]), names="bound (51), trial 0",
-                             colors=[(0, 0, 0)], points=True)
-            k = cl.constants(r, spec)
-            e, eb, _, _ = cl.event_norms(r, run_name)
-            K0 = e[0, 0] + k["d"] * eb[0, 0]
-            t = run.t_ns / 1e9
-            rec_.send_series(rec, "bounds/log10/continuous", idx,
-                             np.column_stack([log10_safe(np.exp(k["norm_A"] * sc.T - sc.lam * t) * K0),
-                                              log10_safe(np.exp((k["norm_A"] + sc.lam) * sc.T - sc.lam * t) * K0)]),
-                             names=["printed continuous bound", "corrected continuous bound (× e^(λT))"],
-                             colors=[(214, 39, 40), (0, 0, 0)], width=1.0)
+        if bounds.is_theorem_run(spec):
+            b = ev[ev["s"] >= 1]
+            rec_.send_series(rec, "bounds/log10/eq51", rec_.duration_index("t", _ns(b["t"])),
+                             log10_safe(b["bound51_trial0"]), names="bound (51), trial 0", colors=[(0, 0, 0)],
+                             points=True)
+            if np.isfinite(net["bound_printed_trial0"]).any():
+                rec_.send_series(rec, "bounds/log10/continuous", gidx,
+                                 np.column_stack([log10_safe(net["bound_printed_trial0"]),
+                                                  log10_safe(net["bound_corrected_trial0"])]),
+                                 names=["printed continuous bound", "corrected continuous bound (× e^(λT))"],
+                                 colors=[(214, 39, 40), (0, 0, 0)], width=1.0)
+        iv = rows(tables, "intervals", scenario, run_name)
         key = "A_2" if spec.rule == "symmetric" else "A_mixed"
-        vals = a[key]
+        vals = iv[key].to_numpy()
         ok = ~np.isnan(vals)
+        t_end = nodes[nodes["node"] == 1].set_index("s")["t"]
         if ok.any():
-            rec_.send_series(rec, "bounds/A_norm", rec_.duration_index("t", run.event_ns[0, 1:][ok]),
+            times = t_end.reindex(iv["s"].to_numpy()[ok]).to_numpy()
+            rec_.send_series(rec, "bounds/A_norm", rec_.duration_index("t", _ns(times)),
                              np.column_stack([log10_safe(vals[ok]), np.full(ok.sum(), -sc.lam * sc.T / math.log(10))]),
                              names=[f"log10 {'||A(s)||₂' if key == 'A_2' else '|A(s)|'}", "log10 e^(-λT)"],
                              colors=[(31, 119, 180), (0, 0, 0)], points=False)
-        # the switching graph: nodes fixed, edges per iteration sample (Lemma 2's nominal graph)
+        # the switching graph: nodes fixed, edges per iteration of the first stored intervals, where they change
         ang = np.pi / 2 - 2 * np.pi * np.arange(m) / m
         rec.log("graph", rr.GraphNodes([str(i + 1) for i in range(m)], positions=np.column_stack([np.cos(ang), np.sin(ang)]) * 100,
                                        labels=[f"agent {i + 1}" for i in range(m)], colors=[_col(i) for i in range(m)],
                                        radii=12.0, show_labels=True), static=True)
-        S = run.sources.shape[0]
+        src = rows(tables, "source_sets", scenario, run_name)
+        src = src[src["used"]]
         times, edges = [], []
-        last = None
-        for s in range(S):
-            for kk in range(run.sources.shape[1]):
-                e_ = _edges(run.sources[s, kk])
-                if e_ != last:
-                    times.append(int(run.event_ns[0, s] + round(kk * spec.Delta * 1e9)))
-                    edges.append(e_)
-                    last = e_
-        rec.send_columns("graph", indexes=rec_.duration_index("t", np.array(times)),
-                         columns=rr.GraphEdges.columns(edges=[e for es in edges for e in es],
-                                                       graph_type=[rr.GraphType.Directed] * sum(len(es) for es in edges)
-                                                       ).partition([len(es) for es in edges]))
-        for i in range(m):
-            ev = rec_.duration_index("t", run.event_ns[i])
-            rec.send_columns(f"events/reset/{i + 1}", indexes=ev,
-                             columns=rr.TextLog.columns(text=[f"agent {i + 1}: event s = {s}" for s in range(len(run.event_ns[i]))]))
+        if len(src):
+            s_, k_ = src["s"].to_numpy(), src["k"].to_numpy()
+            i_, j_ = src["receiver"].to_numpy() - 1, src["sender"].to_numpy() - 1
+            slot = (s_ - 1) * spec.q + (k_ - 1)                           # iteration k of interval s, in time order
+            masks = np.zeros((int(slot.max()) + 1, m, m), dtype=bool)
+            masks[slot, i_, j_] = True
+            change = np.r_[True, (masks[1:] != masks[:-1]).any(axis=(1, 2))]
+            start = t_end.to_dict()
+            for g in np.nonzero(change)[0]:
+                s, k = divmod(int(g), spec.q)
+                times.append(int(round((start[s] + k * spec.Delta) * 1e9)))
+                ii, jj = np.nonzero(masks[g])
+                edges.append([(str(j + 1), str(i + 1)) for i, j in zip(ii, jj)])
+        if times:
+            rec.send_columns("graph", indexes=rec_.duration_index("t", np.array(times)),
+                             columns=rr.GraphEdges.columns(edges=[e for es in edges for e in es],
+                                                           graph_type=[rr.GraphType.Directed] * sum(len(es) for es in edges)
+                                                           ).partition([len(es) for es in edges]))
         rec_.log_claims(rec, claims, summary, width=30)
 
 
-def write_outputs(res: MultiResults, out_dir: Path, claims: list[dict], prov: dict, *, paper: bool) -> None:
-    write_figures(res, out_dir, paper)
-    atomic_write_text(out_dir / "design.json", json.dumps({k: design_summary(r) for k, r in res.parts.items()},
-                                                          indent=1, default=str))
+def write_outputs(res, tables, out_dir: Path, claims: list[dict], prov: dict, *, paper: bool) -> None:
+    draw_all(figure_jobs(res, tables, out_dir, paper), workers=int(prov.get("workers", 1) or 1))
     counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
     summary = (f"# hybrid observer: {counts['pass']} pass, {counts['fail']} fail, {counts['erratum']} erratum, "
                f"{counts['not-checkable']} not checkable, {counts['error']} error")
     for name, r in res.parts.items():
         for s in r.scenario.runs:
             fname = f"{name}_{s.name}.rrd" if paper else f"{s.name}.rrd"
-            write_run_recording(r, s.name, out_dir / fname, claims, prov, summary)
+            write_run_recording(res, tables, name, s.name, out_dir / fname, claims, prov, summary)
