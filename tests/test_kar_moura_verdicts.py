@@ -17,7 +17,6 @@ from pipeline.cache import StageCache
 from pipeline.reproduction import RunOptions, evaluate_claims
 from reproductions.kar_moura import generators
 from reproductions.kar_moura import stats as kst
-from reproductions.kar_moura.reproduction import from_dict
 
 
 def _system(F, C_list, R_list, Q=None):
@@ -152,8 +151,8 @@ def test_square_root_form_agrees_and_stays_finite_where_joseph_breaks():
     Q = 0.1 * np.eye(M)
     C = rng.standard_normal((4, 2, M))
     R = np.tile(0.5 * np.eye(2), (4, 1, 1))
-    X = random_psd = rng.standard_normal((4, M, M + 1))
-    X = random_psd @ np.swapaxes(random_psd, -1, -2)
+    Z = rng.standard_normal((4, M, M + 1))
+    X = Z @ np.swapaxes(Z, -1, -2)
     S = gk.riccati_sqrt_step(gk.factor_psd(X), C, np.linalg.cholesky(R), F, np.linalg.cholesky(Q))
     np.testing.assert_allclose(S @ np.swapaxes(S, -1, -2), gk.riccati_step(X, C, R, F, Q), atol=1e-12)
     # a huge direction that the sensor does not see, not along a coordinate axis
