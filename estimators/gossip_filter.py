@@ -39,6 +39,9 @@ import scipy.linalg as sla
 from .linear_flows import BlockDiagonalFlow, DenseFlow, van_loan
 
 MODES = ("edge", "ordered")
+#: eigenvector condition number κ above which the batched eigenbasis flows are not used: their noise
+#: covariances carry a relative rounding error ~eps·κ² (entries of size κ²‖G‖ cancel), 2e-8 at κ = 1e4
+EIGEN_COND_MAX = 1e4
 
 
 @dataclass(frozen=True)
@@ -310,7 +313,7 @@ def simulate_event_driven(sys: GossipSystem, rate: float, times: np.ndarray, n_t
     ev_c = np.concatenate([ev_c, np.full((K, 1), -1)], axis=1)
 
     flow = BlockDiagonalFlow.of(sys.joint_blocks, sys.joint_noise)
-    if not flow.condition < 1e8:          # a (nearly) defective block: exact but slower dense Van Loan
+    if not flow.condition < EIGEN_COND_MAX:  # ill-conditioned eigenvectors: exact but slower dense Van Loan
         flow = DenseFlow.of(sys.joint_blocks, sys.joint_noise)
     basis = _controllable_basis(sys.joint_drift, sys.joint_noise)
     # the noise covariances are formed through the eigenvector basis: their rounding is ~eps·κ²

@@ -266,11 +266,21 @@ class DenseFlow:
         return C
 
     def _both(self, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Batched Van Loan with the same scaling and doubling as `van_loan`: every δ is divided by
+        2^k (k from the largest ‖A‖₁δ of the batch) and the k doublings are applied to all rows."""
         d = self._generator.shape[0] // 2
-        E = sla.expm(self._generator[None] * np.asarray(delta, float)[:, None, None])
+        delta = np.asarray(delta, float)
+        norm = float(np.abs(self._generator[d:, d:]).sum(axis=0).max()) * float(delta.max(initial=0.0))
+        k = int(math.ceil(math.log2(norm / 0.5))) if norm > 0.5 else 0
+        E = sla.expm(self._generator[None] * (delta / 2 ** k)[:, None, None])
         Phi = E[:, d:, d:].transpose(0, 2, 1)
         Q = Phi @ E[:, :d, d:]
-        return Phi, (Q + Q.transpose(0, 2, 1)) / 2
+        Q = (Q + Q.transpose(0, 2, 1)) / 2
+        for _ in range(k):
+            Q = Q + Phi @ Q @ Phi.transpose(0, 2, 1)
+            Q = (Q + Q.transpose(0, 2, 1)) / 2
+            Phi = Phi @ Phi
+        return Phi, Q
 
     def transition(self, delta: np.ndarray) -> np.ndarray:
         Phi, _ = self._both(delta)
