@@ -60,6 +60,42 @@ def test_critical_rate_zero_when_every_node_is_stable(name):
     assert gc.critical_rate_bound(s1(GAINS[name])) == 0.0
 
 
+def test_critical_rate_zero_when_marginal_at_zero():
+    """A node with A_1 = 0 (L_1 = 0.5 on A = 0.5) is only marginally stable: M_9(0) has abscissa 0
+    (to round-off), every λ > 0 is stable, and the critical rate is 0, not a rounding-level 1e-16."""
+    s = GossipSystem(np.array([[0.5]]), np.eye(1), (np.eye(1), np.eye(1)), (np.eye(1), np.eye(1)),
+                     (np.array([[0.5]]), np.array([[1.5]])), ((0, 1),), 0.5)
+    assert abs(gc.bound_abscissa(s, 0.0)) <= gc.bound_abscissa_tolerance(s, 0.0)
+    assert gc.bound_abscissa(s, 1e-3) < 0
+    assert gc.critical_rate_bound(s) == 0.0
+    assert gc.critical_rate_joint(s) == 0.0
+
+
+def test_first_order_deviation_s1a():
+    """λ(𝒫^∞ − S) → (15/8, 75/8) for S1a (closed form (15/4, 75/4)/(4k − 5), k = λ/2), and the
+    deviation solved for directly keeps its relative accuracy at λ = 1e8 (eps·κ(M_9) ~ 1e-8, where
+    forming 𝒫^∞ and subtracting S would leave no digit)."""
+    s = s1(GAINS["s1a"])
+    np.testing.assert_allclose(gc.first_order_deviation(s)[:, 0, 0], [15 / 8, 75 / 8], rtol=1e-12)
+    for lam in (1e2, 1e8):
+        d = gc.bound_steady_deviation(s, lam, gc.lyapunov_S(s))[:, 0, 0]
+        np.testing.assert_allclose(d, np.array([15 / 4, 75 / 4]) / (2 * lam - 5), rtol=1e-7)
+
+
+@pytest.mark.parametrize("name", sorted(GAINS))
+def test_second_moments_of_the_p_process(name):
+    """The mean carried by the second-moment equation is (9); identical nodes (S1b) have a P-process
+    that is the same on every clock path, so its variance over the paths vanishes."""
+    s = s1(GAINS[name])
+    w = np.eye(2)                                    # P_1 and P_2 (scalar nodes: one coordinate each)
+    mean, second = gc.bound_second_moments(s, 10.0, 0.1, 20, w)
+    P = gc.bound_transient(s, 10.0, 0.1, 20)[:, :, 0, 0]
+    np.testing.assert_allclose(mean, P, rtol=1e-10)
+    assert np.all(second >= mean ** 2 * (1 - 1e-10))
+    if name == "s1b":
+        np.testing.assert_allclose(second, mean ** 2, rtol=1e-10)
+
+
 def test_s1a_distance_is_exactly_order_one_over_lambda():
     s = s1(GAINS["s1a"])
     for lam in (10.0, 100.0, 1e4):
