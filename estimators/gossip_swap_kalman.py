@@ -94,7 +94,8 @@ class GossipSwapRun:
 
     def step(self, ctx: StepContext) -> np.ndarray:
         m = self.model
-        src, hops = step_permutation(self.links, ctx.links, self.B, ctx.gossip_priority)
+        src, hops = ctx.swap if ctx.swap is not None else step_permutation(self.links, ctx.links, self.B,
+                                                                              ctx.gossip_priority)
         self.hops = hops
         x_in = np.take_along_axis(self.xbar, src[:, None, :], axis=0)
         P_in = np.take_along_axis(self.Pbar, src[None, None], axis=2)

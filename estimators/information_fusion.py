@@ -99,8 +99,13 @@ class InformationRun:
     """B trials of an `InformationFilter`: `estimate` (N, n, B) after each step; `cov` the filter's
     own covariance of it ((n, n, N, 1) when it does not depend on the trial) or, for CI, `info`."""
 
-    def __init__(self, f: InformationFilter, B: int):
+    def __init__(self, f: InformationFilter, B: int, twin: "InformationRun | None" = None):
+        """`twin`: a Kalman-consensus run on the same trials and links, whose covariance recursion a
+        diffusion run shares (the two filters' M_i and P_i are the same function of the link draws)."""
         self.f, self.B = f, B
+        self.twin = twin if (twin is not None and f.kind == "diffusion" and twin.f.kind == "kalman-consensus"
+                             and twin.f.links is f.links) else None
+        self._k = None
         m = f.model
         N, n = m.N, m.n
         self.xbar = np.broadcast_to(m.x0[None, :, None], (N, n, B)).copy()
@@ -120,7 +125,7 @@ class InformationRun:
             ybar = u + f.neighbour_sum(u)
             S = self.U + sm.to_batched(f.neighbour_sum(m.info_matrix))[..., None]
         else:
-            ybar = u + _heard_sum(f, u, mask)
+            ybar = u + _heard_sum(f, u, mask, ctx.step_count)
             S = self.U + _heard_information(f, mask)
         return ybar, S
 
@@ -131,7 +136,11 @@ class InformationRun:
         f, m = self.f, self.f.model
         mask = ctx.links.step_mask if self.f.links.random or not self.f.links.synchronous else None
         ybar, S = self._gather(ctx, mask)
-        M = sm.spd_inverse(sm.spd_inverse(self.Pbar) + S)
+        if self.twin is not None and self.twin._k == ctx.k:
+            Om, M = self.twin.info, self.twin.cov
+        else:
+            Om = sm.spd_inverse(self.Pbar) + S
+            M = sm.spd_inverse(Om)
         resid = np.moveaxis(ybar, 1, 0) - sm.matvec(S, np.moveaxis(self.xbar, 1, 0))      # (n, N, B)
         psi = self.xbar + np.moveaxis(sm.matvec(M, resid), 0, 1)
         sigma = f.links.noise_std
@@ -147,9 +156,12 @@ class InformationRun:
             est = f.mixer.mix(psi, mask)
             if sigma:
                 est = est + sigma * ctx.node_noise * heard[:, None, :]
-        self.estimate, self.cov = est, M
+        self.estimate, self.cov, self.info, self._k = est, M, Om, ctx.k
         self.xbar = predict(m.F, est)
-        self.Pbar = sm.const_sandwich(m.F, M) + m.Q[:, :, None, None]
+        if self.twin is not None and self.twin._k == ctx.k:
+            self.Pbar = self.twin.Pbar
+        else:
+            self.Pbar = sm.const_sandwich(m.F, M) + m.Q[:, :, None, None]
         return est
 
     def _ci_step(self, ctx: StepContext) -> np.ndarray:
@@ -179,33 +191,22 @@ class InformationRun:
         return x
 
     def nees(self, err: np.ndarray) -> np.ndarray:
-        v = np.moveaxis(err, 1, 0)
-        if self.f.kind == "information-consensus":
-            return sm.quad_form(self.info, v)
-        return sm.quad_form(sm.spd_inverse(self.cov), v)
+        """(N, B): e_iᵀ P_i⁻¹ e_i with the filter's own covariance, through its information matrix."""
+        return sm.quad_form(self.info, np.moveaxis(err, 1, 0))
 
 
-def _sparse_ends(topo):
-    """(N, E) sparse matrices selecting the first and the second endpoint of every edge."""
-    cache = topo.__dict__.setdefault("_sparse_ends", {})
+def _unit_mixer(f: InformationFilter) -> Mixer:
+    cache = f.__dict__.setdefault("_unit_mixer", [])
     if not cache:
-        import scipy.sparse as sp
-
-        cols = np.arange(topo.E)
-        for end in (0, 1):
-            cache[end] = sp.csr_matrix((np.ones(topo.E), (topo.edges[:, end], cols)), shape=(topo.n_nodes, topo.E))
-    return cache[0], cache[1]
+        cache.append(Mixer(f.links.topology, np.ones(f.links.topology.E)))
+    return cache[0]
 
 
-def _heard_sum(f: InformationFilter, V: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Σ over the neighbours j that node i heard of V_j, for V (N, r, B) and working edges (E, B)."""
-    topo = f.links.topology
-    a, b = topo.edges[:, 0], topo.edges[:, 1]
-    to_a, to_b = _sparse_ends(topo)
-    m = mask[:, None, :]
-    E = topo.E
-    out = to_a @ (V[b] * m).reshape(E, -1) + to_b @ (V[a] * m).reshape(E, -1)
-    return out.reshape(V.shape)
+def _heard_sum(f: InformationFilter, V: np.ndarray, mask: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Σ over the neighbours j that node i heard of V_j, for V (N, r, B), working edges (E, B) and the
+    number of working links of every node (N, B): count_i V_i − (L V)_i, L the Laplacian of the
+    working links."""
+    return count[:, None, :] * V - _laplacian_apply(f, V, mask)
 
 
 def _heard_information(f: InformationFilter, mask: np.ndarray) -> np.ndarray:
@@ -233,14 +234,8 @@ def _heard_information(f: InformationFilter, mask: np.ndarray) -> np.ndarray:
 
 
 def _laplacian_apply(f: InformationFilter, x: np.ndarray, mask) -> np.ndarray:
-    """Σ_{j heard} (x_i − x_j) with unit weights, for x (N, n, B)."""
-    topo = f.links.topology
-    flat = x.reshape(topo.n_nodes, -1)
-    inc = topo.incidence
-    if mask is None:
-        return (topo.laplacian() @ flat).reshape(x.shape)
-    diff = (inc.T @ flat).reshape((topo.E,) + x.shape[1:]) * mask[:, None, :]
-    return (inc @ diff.reshape(topo.E, -1)).reshape(x.shape)
+    """Σ_{j heard} (x_i − x_j) with unit weights, for x (N, r, B)."""
+    return x - _unit_mixer(f).mix(x, mask)
 
 
 def _ci_exchanges(f: InformationFilter, O: np.ndarray, q: np.ndarray, ctx: StepContext, B: int):

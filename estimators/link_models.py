@@ -28,7 +28,6 @@ from functools import cached_property
 from typing import Protocol
 
 import numpy as np
-from scipy.stats import poisson
 
 __all__ = ["LINK_KINDS", "Topology", "LinkModel", "StepLinks", "greedy_matching", "swap_permutation"]
 
@@ -149,6 +148,8 @@ class LinkModel:
 
     @cached_property
     def poisson_cdf(self) -> np.ndarray:
+        from scipy.stats import poisson
+
         mu = self.rate * self.topology.E
         c = int(poisson.isf(POISSON_TAIL, mu)) + 1
         return poisson.cdf(np.arange(c + 1), mu)

@@ -25,6 +25,7 @@ exact covariance, ``dis`` and ``dis2`` (U, S) the per-trial disagreement (1/N) Î
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -32,11 +33,11 @@ import numpy as np
 
 from . import small_matrix as sm
 from .constant_gain_fusion import FusionFilter, FusionRun
-from .gossip_swap_kalman import GossipSwapRun
+from .gossip_swap_kalman import GossipSwapRun, step_permutation
 from .information_fusion import InformationFilter, InformationRun
 from .link_models import LinkModel
-from .network_mixing import heard
-from .network_step import StepContext, apply_gain, innovation, predict
+from .network_mixing import link_count
+from .network_step import StepContext, apply_gain, innovation, predict, slice_context
 from .sensor_network import SensorNetworkModel
 
 __all__ = ["Setup", "simulate_units", "STATS", "communication", "record_steps"]
@@ -64,6 +65,7 @@ class Setup:
     token_times: tuple[int, ...] = ()
     n_paths: int = 1
     record_steps: tuple[int, ...] = ()            # steps whose statistics are kept (all if empty)
+    sub_batch: int = 250                          # trials an estimator steps at once (cache-sized arrays)
 
 
 class _Central:
@@ -187,7 +189,14 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
     N, n = m.N, m.n
     topo = lm.topology
     kinds = setup.estimators
-    runs = {name: _make(kind, setup, B) for name, kind in kinds.items()}
+    cuts = [slice(a, min(a + setup.sub_batch, B)) for a in range(0, B, setup.sub_batch)]
+    runs = {name: [_make(kind, setup, c.stop - c.start) for c in cuts] for name, kind in kinds.items()}
+    kcf = next((name for name, kd in kinds.items() if isinstance(kd, InformationFilter) and kd.kind == "kalman-consensus"),
+               None)
+    for name, kd in kinds.items():      # diffusion shares the Kalman-consensus filter's covariance recursion
+        if kcf is not None and isinstance(kd, InformationFilter) and kd.kind == "diffusion" and \
+                list(kinds).index(kcf) < list(kinds).index(name):
+            runs[name] = [InformationRun(kd, c.stop - c.start, twin=t) for c, t in zip(cuts, runs[kcf])]
     comm = {name: communication(kind, lm, n) for name, kind in kinds.items()}
     has_gossip = any(isinstance(k, str) and k == "gossip" for k in kinds.values())
     steps = setup.record_steps or tuple(range(K))
@@ -209,6 +218,7 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
     paths = {"x": np.zeros((K, n, P))}
     paths.update({name: np.zeros((K, 1 if kinds[name] == "central" else N, n, P)) for name in runs})
 
+    seconds = dict.fromkeys(runs, 0.0)
     x = m.x0[:, None] + _factor(m.P0) @ plant.standard_normal((n,)).T
     Lq = _factor(m.Q)
     sigma = lm.noise_std
@@ -219,12 +229,14 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
         ctx = StepContext(k, y, step_links)
         contacts = {}
         if lm.synchronous:
-            ctx.heard = [heard(topo, mask, B) for mask in step_links.rounds]
-            ctx.step_heard = ctx.heard[0]
+            counts = [link_count(topo, mask, B) for mask in step_links.rounds]
+            ctx.heard = [c > 0 for c in counts]
+            ctx.step_heard, ctx.step_count = ctx.heard[0], counts[0]
             contacts["rounds"] = sum(_contacts(topo, mask, offsets, sizes) for mask in step_links.rounds)
             contacts["step"] = _contacts(topo, step_links.rounds[0], offsets, sizes)
         else:
-            ctx.step_heard = heard(topo, step_links.step_mask, B)
+            ctx.step_count = link_count(topo, step_links.step_mask, B)
+            ctx.step_heard = ctx.step_count > 0
             contacts["rounds"] = _event_contacts(topo, step_links.events, offsets, U)
             contacts["step"] = _contacts(topo, step_links.step_mask, offsets, sizes)
         if sigma:
@@ -236,18 +248,25 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
                 ctx.node_noise = np.moveaxis(noise.standard_normal((N, n)), 0, -1)
         if has_gossip and lm.synchronous and lm.kind != "matchings":
             ctx.gossip_priority = gossip.random((topo.E,)).T
+        if has_gossip:
+            ctx.swap = step_permutation(lm, step_links, B, ctx.gossip_priority)
         if P:
             paths["x"][k] = x[:, :P]
         record = k in where
         e_c = None
-        for name, run in runs.items():
+        ctxs = [slice_context(ctx, c) for c in cuts] if len(cuts) > 1 else [ctx]
+        for name, parts in runs.items():
             if name in token and k in setup.token_times:
-                token[name][setup.token_times.index(k)] = sm.trace(run.Pbar)[q_node, cols]
-            est = run.step(ctx)
+                token[name][setup.token_times.index(k)] = np.concatenate(
+                    [sm.trace(r.Pbar)[q_node[c], np.arange(c.stop - c.start)] for r, c in zip(parts, cuts)])
+            t0 = time.process_time()
+            est = np.concatenate([r.step(cx) for r, cx in zip(parts, ctxs)], axis=-1)
+            seconds[name] += time.process_time() - t0
             pattern, per_contact, payload = comm[name]
             a = acc[name]
             if pattern != "none":
-                c = (per_unit((run.hops > 0).astype(float)) if (pattern == "swap" and lm.synchronous)
+                c = (per_unit(np.concatenate([(r.hops > 0) for r in parts], axis=-1).astype(float))
+                     if (pattern == "swap" and lm.synchronous)
                      else contacts["rounds" if pattern in ("rounds", "swap") else "step"]) * per_contact
                 a["msgs"] += c
                 a["scalars"] += c * payload
@@ -278,7 +297,8 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
                 dis = np.einsum("inb,inb->b", dev, dev) / N
                 a["dis"][:, i] = per_unit(dis)
                 a["dis2"][:, i] = per_unit(dis * dis)
-            own = _own_nees(run, err, k)
+            own = [_own_nees(r, err[..., c], k) for r, c in zip(parts, cuts)]
+            own = None if own[0] is None else np.concatenate(own, axis=-1)
             if own is not None:
                 a["nees"][:, i] = per_unit(own)
                 a["nees2"][:, i] = per_unit(own * own)
@@ -286,7 +306,7 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
                 inv = np.linalg.inv(setup.exact_cov[name][k])
                 a["xnees"][:, i] = per_unit(np.einsum("inb,inm,imb->ib", err, inv, err))
         x = m.F @ x + Lq @ plant.standard_normal((n,)).T
-    return {"sums": acc, "token": token, "paths": paths, "sizes": sizes, "steps": np.array(steps)}
+    return {"sums": acc, "token": token, "paths": paths, "sizes": sizes, "steps": np.array(steps), "seconds": seconds}
 
 
 def _factor(Q: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ import numpy as np
 
 from .link_models import Topology
 
-__all__ = ["Mixer", "heard"]
+__all__ = ["Mixer", "heard", "link_count"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,6 +58,18 @@ class Mixer:
         """W for one trial's working edges (E,) bool (tests, exact recursions)."""
         inc = self.topology.incidence
         return np.eye(self.topology.n_nodes) - (inc * (self.weights * mask_column)) @ inc.T
+
+
+def link_count(topology: Topology, mask: np.ndarray | None, B: int) -> np.ndarray:
+    """(N, B) float: the node's working links in the round."""
+    if mask is None:
+        return np.broadcast_to(topology.degrees.astype(float)[:, None], (topology.n_nodes, B))
+    cache = topology.__dict__.setdefault("_sparse_node_edges", [])
+    if not cache:
+        import scipy.sparse as sp
+
+        cache.append(sp.csr_matrix(topology.node_edges.astype(float)))
+    return cache[0] @ mask.astype(float)
 
 
 def heard(topology: Topology, mask: np.ndarray | None, B: int) -> np.ndarray:

@@ -18,7 +18,7 @@ import numpy as np
 
 from .link_models import StepLinks
 
-__all__ = ["StepContext", "innovation", "apply_gain", "predict"]
+__all__ = ["StepContext", "slice_context", "innovation", "apply_gain", "predict"]
 
 
 @dataclass
@@ -28,10 +28,28 @@ class StepContext:
     links: StepLinks
     heard: list = field(default_factory=list)          # per synchronous round: (N, B) bool
     step_heard: np.ndarray | None = None                # (N, B) bool for once-per-step exchanges
+    step_count: np.ndarray | None = None                # (N, B) working links of every node in that exchange
     noise: list | None = None                           # per round (N, n, B) standard normals, or None
     event_noise: np.ndarray | None = None               # (C, 2, n, B) or None
     gossip_priority: np.ndarray | None = None           # (E, B) uniforms for the swap matching
     node_noise: np.ndarray | None = None                # (N, n, B) for once-per-step exchanges
+    swap: tuple | None = None                           # (source, hops), each (N, B): the GIKF's permutation
+
+
+def _cut(a, sl: slice):
+    return None if a is None else a[..., sl]
+
+
+def slice_context(ctx: StepContext, sl: slice) -> StepContext:
+    """The same step for the trials `sl` only (every array's last axis is the trial axis)."""
+    links = StepLinks(rounds=[_cut(m, sl) for m in ctx.links.rounds], events=_cut(ctx.links.events, sl),
+                      step_mask=_cut(ctx.links.step_mask, sl))
+    return StepContext(ctx.k, ctx.y[..., sl], links, heard=[h[..., sl] for h in ctx.heard],
+                       step_heard=_cut(ctx.step_heard, sl), step_count=_cut(ctx.step_count, sl),
+                       noise=None if ctx.noise is None else [u[..., sl] for u in ctx.noise],
+                       event_noise=_cut(ctx.event_noise, sl), gossip_priority=_cut(ctx.gossip_priority, sl),
+                       node_noise=_cut(ctx.node_noise, sl),
+                       swap=None if ctx.swap is None else (ctx.swap[0][..., sl], ctx.swap[1][..., sl]))
 
 
 def innovation(y: np.ndarray, H: np.ndarray, x: np.ndarray) -> np.ndarray:

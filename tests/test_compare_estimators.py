@@ -24,7 +24,7 @@ from estimators.gossip_swap_kalman import GossipSwapRun
 from estimators.information_fusion import InformationFilter, InformationRun
 from estimators.information_fusion import exact_moments as information_exact
 from estimators.link_models import LinkModel, StepLinks, Topology, greedy_matching
-from estimators.network_mixing import heard
+from estimators.network_mixing import heard, link_count
 from estimators.network_step import StepContext
 from estimators.sensor_network import SensorNetworkModel, split_gains
 
@@ -67,6 +67,7 @@ def contexts(model, links, K, B, seed, rounds=1):
             sl.step_mask = sl.rounds[0]
         ctx = StepContext(k, y, sl, heard=[heard(topo, mk, B) for mk in sl.rounds])
         ctx.step_heard = ctx.heard[0]
+        ctx.step_count = link_count(topo, sl.rounds[0], B)
         ctx.noise = [rng.standard_normal((N, n, B)) for _ in range(rounds)]
         ctx.node_noise = ctx.noise[0]
         ctx.gossip_priority = rng.random((topo.E, B))

@@ -8,6 +8,7 @@ depend only on the seed and its index, never on the memory chunk.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -152,13 +153,13 @@ def _filterpy_reference(d: Design) -> dict[str, np.ndarray]:
             "reference__sP": np.array(sP), "reference__steps": np.array(K), "reference__cond": np.array(cond)}
 
 
-def bytes_per_trial(d: Design) -> float:
+def bytes_per_trial(d: Design, estimators: dict | None = None) -> float:
     """Memory of one trial in a chunk: estimates, covariances per node where they depend on the
     trial, and the temporaries of one step (about eight arrays of the largest size)."""
     m = d.model
     N, n = m.N, m.n
     per = 0
-    for est, kind in d.estimators.items():
+    for est, kind in (d.estimators if estimators is None else estimators).items():
         per += N * n
         if kind == "gossip" or (isinstance(kind, InformationFilter) and d.links.random):
             per += 3 * N * n * n
@@ -166,19 +167,67 @@ def bytes_per_trial(d: Design) -> float:
     return 8.0 * (8 * per + N * n * 4 + d.topology.E * 4 + events)
 
 
+#: relative cost per step of an estimator (CPU, 50 nodes, 4 states, random links), for splitting them over workers
+COST_WEIGHT = {"central": 0.5, "local": 1, "gikf": 18, "carli": 5, "reinjection": 5, "pairwise": 5, "kcf": 36,
+               "diffusion": 17, "ci": 37}
+
+
+def estimator_groups(d: Design, workers: int) -> list[list[str]]:
+    """The estimators split into at most `workers` groups of similar cost (longest first), each with
+    the centralized filter (the reference of the distance statistics); the diffusion filter stays with
+    the Kalman-consensus filter, whose covariance recursion it shares."""
+    names = [e for e in d.estimators if e != "central"]
+    if workers <= 1 or len(names) < 2:
+        return [list(d.estimators)]
+    units = []
+    if "kcf" in names and "diffusion" in names:
+        units.append(["kcf", "diffusion"])
+    units += [[e] for e in names if not (e in ("kcf", "diffusion") and "kcf" in names and "diffusion" in names)]
+    units.sort(key=lambda u: -sum(COST_WEIGHT.get(e, 5) for e in u))
+    groups: list[list[str]] = [[] for _ in range(min(workers, len(units)))]
+    load = [0.0] * len(groups)
+    for u in units:
+        g = int(np.argmin(load))
+        groups[g] += u
+        load[g] += sum(COST_WEIGHT.get(e, 5) for e in u)
+    head = ["central"] if "central" in d.estimators else []
+    return [head + [e for e in d.estimators if e in g] for g in groups if g]
+
+
 def simulate(d: Design, opts: RunOptions, trials: int) -> dict[str, Any]:
-    """Every estimator on `trials` trials, chunk by chunk of RNG units, folded in unit order."""
+    """Every estimator on `trials` trials, chunk by chunk of RNG units, folded in unit order. With
+    several workers the estimators are split into groups simulated in parallel processes; every group
+    draws the same random numbers (the streams depend only on the seed and the unit), so the results
+    are those of one process."""
+    from pipeline.simulate import parallel_map
+
+    groups = estimator_groups(d, opts.workers)
+    parts = parallel_map(functools.partial(_simulate_group, d, opts, trials), groups, workers=len(groups))
+    out = parts[0]
+    for p in parts[1:]:
+        out["mc"].update({e: v for e, v in p["mc"].items() if e not in out["mc"]})
+        out["token"].update(p["token"])
+        out["paths"].update({e: v for e, v in p["paths"].items() if e not in out["paths"]})
+        out["seconds"].update({e: v for e, v in p["seconds"].items() if e not in out["seconds"]})
+    order = list(d.estimators)
+    out["mc"] = {e: out["mc"][e] for e in order if e in out["mc"]}
+    return out
+
+
+def _simulate_group(d: Design, opts: RunOptions, trials: int, names: list[str]) -> dict[str, Any]:
     sc = d.scenario
-    setup = Setup(d.model, d.links, sc.steps, d.estimators, exact_cov=_exact_cov(d),
-                  token_times=token_times(sc) if "gikf" in d.estimators else (), n_paths=sc.paths,
+    chosen = {e: k for e, k in d.estimators.items() if e in names}
+    setup = Setup(d.model, d.links, sc.steps, chosen, exact_cov={e: v for e, v in _exact_cov(d).items() if e in chosen},
+                  token_times=token_times(sc) if "gikf" in chosen else (), n_paths=sc.paths,
                   record_steps=recorded(sc))
     n_units = -(-trials // RNG_UNIT)
     sizes = [min(RNG_UNIT, trials - u * RNG_UNIT) for u in range(n_units)]
     seeds = {s: block_seeds(stream_seed(opts.seed, "compare", s), n_units) for s in STREAMS}
-    per_chunk = units_per_chunk(bytes_per_trial(d), opts.chunk_budget_bytes())
+    per_chunk = units_per_chunk(bytes_per_trial(d, chosen), opts.chunk_budget_bytes())
     sums: dict[str, dict[str, list]] = {}
     token: dict[str, list] = {}
     paths = None
+    seconds: dict[str, float] = {}
     for start in range(0, n_units, per_chunk):
         stop = min(start + per_chunk, n_units)
         streams = [UnitStreams(seeds[s][start:stop], sizes[start:stop]) for s in STREAMS]
@@ -191,9 +240,11 @@ def simulate(d: Design, opts: RunOptions, trials: int) -> dict[str, Any]:
         if paths is None:
             paths = out["paths"]
         steps = out["steps"]
+        for est, t in out["seconds"].items():
+            seconds[est] = seconds.get(est, 0.0) + t
     mc = {est: {name: np.concatenate(parts).sum(axis=0) for name, parts in stats.items()} for est, stats in sums.items()}
     return {"mc": mc, "token": {e: np.concatenate(v, axis=1) for e, v in token.items()}, "paths": paths,
-            "steps": steps}
+            "steps": steps, "seconds": seconds}
 
 
 def _exact_cov(d: Design) -> dict[str, np.ndarray]:

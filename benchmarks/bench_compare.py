@@ -1,0 +1,94 @@
+"""The compare family at the issue's scale: 50 nodes, a 4-state plant (two constant-velocity axes),
+one scalar sensor per node (x and y positions alternating, so no node tracks the target alone),
+1,000 trials, 500 steps, every estimator on common random numbers, through the family's stages.
+
+The target (issue 17) is the Monte Carlo of all the estimators under a minute on this 2-core
+machine; the design (gain tuning on the exact steady states) and the exact recursions are timed
+beside it. Run alone: `.venv/bin/python -m benchmarks.bench_compare [--links failures] [--steps 500]`.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+TARGET_S = 60.0
+
+
+def scenario(links: str = "failures", steps: int = 500, trials: int = 1000, nodes: int = 50, noise: float = 0.0,
+             tuned: bool = False) -> dict:
+    import networkx as nx
+
+    dt = 0.1
+    F = np.kron(np.eye(2), [[1.0, dt], [0.0, 1.0]])
+    Q = np.kron(np.eye(2), [[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
+    seed = 0
+    while True:            # the first seed whose random geometric graph is connected
+        G = nx.random_geometric_graph(nodes, 0.25, seed=seed)
+        if nx.is_connected(G):
+            break
+        seed += 1
+    data = {
+        "family": "compare", "name": f"bench-{links}",
+        "plant": {"F": F.tolist(), "Q": Q.tolist(), "P0": np.diag([4.0, 1.0, 4.0, 1.0]).tolist()},
+        "sensors": {"types": [{"H": [[1.0, 0.0, 0.0, 0.0]], "R": [[1.0]]}, {"H": [[0.0, 0.0, 1.0, 0.0]], "R": [[1.0]]}]},
+        "graph": {"kind": "random_geometric", "n": nodes, "radius": 0.25, "seed": seed},
+        "links": {"model": links},
+        "simulation": {"steps": steps, "trials": trials, "quick_trials": trials},
+    }
+    if links in ("failures", "matchings"):
+        data["links"]["p_fail"] = 0.1
+    if links == "poisson":
+        data["links"]["rate"] = 0.5
+    if noise:
+        data["links"]["noise_std"] = noise
+    if not tuned:
+        data["gains"] = {"carli_scale": 0.3, "reinjection_scale": 0.3, "reinjection_zeta": 0.3, "pairwise_scale": 0.3}
+    return data
+
+
+def bench_compare(links: str = "failures", steps: int = 500, trials: int = 1000, tuned: bool = False,
+                  noise: float = 0.0, workers: int = 2) -> dict:
+    """Wall times of the design, the exact recursions and the Monte Carlo of every estimator."""
+    from pipeline.reproduction import RunOptions
+    from reproductions.compare import compute
+    from reproductions.compare.scenario import CompareScenario
+
+    data = scenario(links, steps, trials, noise=noise, tuned=tuned)
+    data.pop("family")
+    sc = CompareScenario.from_dict(data)
+    opts = RunOptions(seed=0, trials=trials, workers=workers)
+    t0 = time.perf_counter()
+    d = compute.compute_design(sc, opts)
+    t1 = time.perf_counter()
+    exact = compute.compute_exact(d)
+    d.__dict__["_exact_blocks"] = {k.split("__")[0]: v for k, v in exact.items() if k.endswith("__blocks")
+                                   and k.split("__")[0] not in ("central", "local")}
+    t2 = time.perf_counter()
+    out = compute.simulate(d, opts, trials)
+    t3 = time.perf_counter()
+    finite = all(np.all(np.isfinite(s["sq"])) for s in out["mc"].values())
+    return {"name": f"compare: {len(d.estimators)} estimators, {sc.N} nodes, n = {sc.n}, {links} links"
+                    + (f", σ_c = {noise:g}" if noise else "") + (", tuned gains" if tuned else ""),
+            "trials": trials, "steps": steps, "workers": workers, "mc_s": t3 - t2,
+            "mc_cpu_s": sum(out["seconds"].values()), "design_s": t1 - t0, "exact_s": t2 - t1,
+            "total_s": t3 - t0, "finite": finite, "target": f"Monte Carlo < {TARGET_S:g} s",
+            "met": (t3 - t2) < TARGET_S,
+            "ms_per_step": {e: round(1e3 * t / steps, 2) for e, t in out["seconds"].items()}}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("--links", default="failures")
+    p.add_argument("--steps", type=int, default=500)
+    p.add_argument("--trials", type=int, default=1000)
+    p.add_argument("--tuned", action="store_true")
+    p.add_argument("--noise", type=float, default=0.0)
+    p.add_argument("--workers", type=int, default=2)
+    a = p.parse_args()
+    print(bench_compare(a.links, a.steps, a.trials, a.tuned, a.noise, a.workers))
+
+
+if __name__ == "__main__":
+    main()

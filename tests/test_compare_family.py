@@ -1,0 +1,139 @@
+"""The compare scenario family: validation, applicability, common random numbers, independence of the
+memory chunk and of the worker split, and the outputs of a run."""
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+import reproductions
+from pipeline.errors import ScenarioError
+from pipeline.reproduction import RunOptions
+from reproductions.compare import compute
+from reproductions.compare.scenario import CompareScenario
+
+
+def tiny(**links) -> dict:
+    data = {
+        "family": "compare", "name": "tiny",
+        "plant": {"F": [[1.0, 0.3], [0.0, 0.97]], "Q": [[0.02, 0.01], [0.01, 0.1]]},
+        "sensors": {"types": [{"H": [[1.0, 0.0]], "R": [[0.5]]}, {"H": [[0.0, 1.0]], "R": [[1.0]]}]},
+        "graph": {"kind": "ring", "n": 4},
+        "links": {"model": "failures", "p_fail": 0.2, "rounds": 2, "noise_std": 0.3, **links},
+        "gains": {"carli_scale": 0.5, "reinjection_scale": 0.5, "reinjection_zeta": 0.5},
+        "simulation": {"steps": 12, "trials": 2000, "quick_trials": 2000, "paths": 1},
+    }
+    if data["links"]["model"] in ("reliable", "poisson"):
+        data["links"].pop("p_fail")
+    return data
+
+
+def scenario(data: dict) -> CompareScenario:
+    d = dict(data)
+    d.pop("family")
+    return CompareScenario.from_dict(d)
+
+
+@pytest.mark.parametrize("path,value,message", [
+    (("plant", "F"), [[1.0, 0.0]], "plant.F: must be square"),
+    (("sensors", "types", 0, "H"), [[1.0, 0.0, 0.0]], "sensors.types[0].H: must have shape"),
+    (("links", "model"), "poisson", "links.rate: missing"),
+    (("links", "rate"), 1.0, "links.rate: only with model = 'poisson'"),
+    (("simulation", "eval_step"), 12, "simulation.eval_step: must be < steps"),
+    (("sensors", "assign"), [0, 1, 2, 0], "sensors.assign: type index 2 out of range"),
+    (("gains", "reinjection_zeta"), 1.5, "gains.reinjection_zeta: must be in [0, 1]"),
+    (("weights", "alpha"), 0.6, "weights.alpha: must be <= 0.5"),
+])
+def test_invalid_scenarios_name_the_field(path, value, message):
+    data = tiny()
+    node = data
+    for p in path[:-1]:
+        node = node.setdefault(p, {}) if isinstance(p, str) else node[p]
+    node[path[-1]] = value
+    with pytest.raises(ScenarioError) as err:
+        reproductions.family_from_dict(data)
+    assert message in str(err.value), str(err.value)
+
+
+def test_shipped_scenarios_load():
+    from pathlib import Path
+
+    from pipeline.scenario import load_toml
+
+    for f in sorted((Path(reproductions.__file__).parent / "compare" / "scenarios").glob("*.toml")):
+        reproductions.family_from_dict(load_toml(f))
+
+
+def test_applicability_follows_the_link_model():
+    d = compute.compute_design(scenario(tiny(model="poisson", rate=0.5)), RunOptions(quick=True))
+    for est in ("carli", "reinjection"):
+        ok, why = d.status[est]
+        assert not ok and "synchronous" in why
+    assert d.status["pairwise"][0] and d.exact["pairwise"][0]
+    d = compute.compute_design(scenario(tiny(model="matchings")), RunOptions(quick=True))
+    assert d.status["carli"][0] and not d.exact["carli"][0]
+    assert not d.exact["kcf"][0] and "random links" in d.exact["kcf"][1]
+    d = compute.compute_design(scenario(tiny(model="reliable")), RunOptions(quick=True))
+    assert all(d.exact[e][0] for e in ("carli", "reinjection", "pairwise", "kcf", "diffusion", "ci"))
+
+
+def _mc(data, opts, trials=2000):
+    d = compute.compute_design(scenario(data), opts)
+    return compute.simulate(d, opts, trials)["mc"]
+
+
+def test_results_do_not_depend_on_the_memory_chunk_or_the_worker_split():
+    data = tiny()
+    a = _mc(data, RunOptions(seed=3, max_memory_mib=16.0))            # one RNG unit per chunk
+    b = _mc(data, RunOptions(seed=3))                                 # both units in one chunk
+    c = _mc(data, RunOptions(seed=3, workers=2))                      # estimators split over two processes
+    for est in a:
+        for name in a[est]:
+            assert np.array_equal(a[est][name], b[est][name]), (est, name)
+            assert np.array_equal(a[est][name], c[est][name]), (est, name)
+
+
+def test_common_random_numbers_an_estimator_sees_the_same_draws_whoever_else_runs():
+    full = tiny()
+    few = copy.deepcopy(full)
+    few["estimators"] = {"include": ["diffusion", "gikf"]}        # diffusion without its Kalman-consensus twin
+    a, b = _mc(full, RunOptions(seed=1), 1000), _mc(few, RunOptions(seed=1), 1000)
+    for est in ("central", "diffusion", "gikf"):
+        assert np.allclose(a[est]["sq"], b[est]["sq"], rtol=1e-12, atol=0), est
+
+
+def test_a_run_has_the_comparison_tables_and_outputs(tmp_path):
+    import dse
+
+    data = tiny(model="reliable")
+    data["simulation"]["quick_trials"] = 600
+    run = dse.run(data, quick=True, seed=2)
+    assert run.counts["fail"] == 0 and run.counts["error"] == 0, run.claims[["id", "verdict", "detail"]]
+    t = run.tables["estimators"]
+    assert set(t["estimator"]) == {"central", "local", "gikf", "carli", "reinjection", "pairwise", "kcf", "diffusion",
+                                   "ci"}
+    assert t.loc[t["estimator"] == "local", "scalars_per_step"].item() == 0
+    assert (t.loc[t["estimator"] != "central", "network_mse"] >= t.loc[t["estimator"] == "central", "network_mse"].item()).all()
+    metrics = run.tables["metrics"]
+    network = metrics[metrics["node"].isna()]
+    assert not network["metric"].duplicated().any()                   # one value per metric: a sweep can use them
+    nodes = run.tables["nodes"]
+    assert len(nodes) == 1 + 8 * 4
+    out = run.write(tmp_path / "tiny")
+    assert (out / "figures" / "error_vs_communication.png").stat().st_size > 0
+    assert (out / "tiny.rrd").stat().st_size > 0
+    from pipeline.record import read_scalars
+
+    series = read_scalars(out / "tiny.rrd", "k")
+    assert any(k.startswith("/mse/kcf") for k in series) and any(k.startswith("/mse/gikf") for k in series)
+
+
+def test_check_reports_hypotheses_and_an_estimate_without_simulating():
+    from pipeline.api import check
+
+    chk = check(tiny(), quick=True)
+    ids = {h["id"] for h in chk.hypotheses}
+    assert "compare.hyp.kar_moura.D1" in ids and "compare.hyp.noisy_links" in ids
+    assert "applicability" in chk.tables
+    assert chk.estimate["seconds"] > 0 and chk.estimate["peak_memory_mib"] > 0
