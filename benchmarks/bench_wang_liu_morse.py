@@ -1,24 +1,36 @@
 """The hybrid observer: batched trials vs one trial at a time, the q-step estimator per
-iteration, and the exhaustive ρ enumeration. Measurements, not tests."""
+iteration, ρ by branch and bound, and the cost model (`dse check`'s estimate) against measured
+runs of small and large scenarios. Measurements, not tests.
+
+    .venv/bin/python -m benchmarks.bench_wang_liu_morse --estimate     # the cost model's calibration
+"""
 from __future__ import annotations
 
 import dataclasses
+import json
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
 import estimators.hybrid_observer as ho
 import estimators.jointly_observable_design as jd
-from reproductions.wang_liu_morse import compute
+from reproductions.wang_liu_morse import bounds
+from reproductions.wang_liu_morse.design import central_gain, observer_design
 from reproductions.wang_liu_morse.scenario import generic_scenario, paper_scenario
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def _simulate(sc, run, x0, w0, xh):
-    d = compute.observer_design(sc)
+    d = observer_design(sc)
     timing = ho.Timing(sc.T, run.q, run.Delta, run.beta, np.asarray(run.offsets, float))
-    return ho.simulate(d, timing, compute.schedule_for(sc, run), x0=x0, w0=w0, xhat0=xh, intervals=run.intervals,
-                       central_gain=compute.central_gain(sc))
+    return ho.simulate(d, timing, bounds.schedule_for(sc, run), x0=x0, w0=w0, xhat0=xh, intervals=run.intervals,
+                       central_gain=central_gain(sc))
 
 
 def bench_hybrid(trials: int = 256, repeats: int = 3) -> list[dict]:
@@ -26,7 +38,7 @@ def bench_hybrid(trials: int = 256, repeats: int = 3) -> list[dict]:
     for sc in (paper_scenario(), generic_scenario()):
         run = next(r for r in sc.runs if r.name == "sync")
         rng = np.random.default_rng(0)
-        d = compute.observer_design(sc)
+        d = observer_design(sc)
         x0 = rng.standard_normal((trials, sc.n))
         w0 = rng.standard_normal((trials, sum(d.n_i)))
         xh = rng.standard_normal((trials, sc.m, sc.n))
@@ -43,10 +55,10 @@ def bench_hybrid(trials: int = 256, repeats: int = 3) -> list[dict]:
         rows.append({"name": f"hybrid observer {sc.name}/sync: m={sc.m}, q={run.q}, {run.intervals} intervals",
                      "trials": trials, "batched_ms_per_trial": 1e3 * b, "single_trial_ms": 1e3 * s,
                      "iterations_per_s_batched": run.q * run.intervals * trials / (b * trials), "ratio": s / b})
-    P = compute.observer_design(paper_scenario()).P
+    P = observer_design(paper_scenario()).P
     t0 = time.perf_counter()
     res = jd.rho_exact(P)
-    rows.append({"name": "ρ by exhaustive enumeration, m = 4 (minimal complete words)", "words": res.words,
+    rows.append({"name": "ρ by exact branch and bound, m = 4", "words": res.words,
                  "wall_ms": 1e3 * (time.perf_counter() - t0)})
     return rows
 
@@ -64,7 +76,7 @@ def bench_hybrid_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
         run = next(r for r in sc.runs if r.name == "sync")
         if intervals is not None:
             run = dataclasses.replace(run, intervals=intervals)
-        d = compute.observer_design(sc)
+        d = observer_design(sc)
         for trials in trial_sizes:
             rng = np.random.default_rng(0)
             x0 = rng.standard_normal((trials, sc.n))
@@ -87,13 +99,84 @@ def bench_hybrid_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
 def bench_rho(repeats: int = 3) -> dict:
     from .common import bound_row, timed
 
-    P = compute.observer_design(paper_scenario()).P
+    P = observer_design(paper_scenario()).P
     words = jd.rho_exact(P).words
     t = timed(lambda: jd.rho_exact(P), repeats, per=1e3)
-    return bound_row(f"wang-liu-morse ρ by exhaustive enumeration, m = 4 ({words} minimal complete words)", fast=t,
-                     fast_what="batched word products")
+    return bound_row(f"wang-liu-morse ρ by exact branch and bound, m = 4 ({words} products evaluated)", fast=t,
+                     fast_what="batched prefix products, pruned by their norms")
+
+
+# -- the cost model against measured runs --------------------------------------------------------------
+
+PAPER_A = [[-0.1, 0.4, 0.0, 0.0], [-0.1, -0.1, 0.0, 0.0], [0.0, 0.0, -0.2, 0.2], [0.0, 0.0, -2.0, 0.1]]
+
+
+def agents_scenario(m: int, *, intervals: int = 20, trials: int = 64, q: int = 30, step: float = 0.01,
+                    name: str = "") -> dict:
+    """m agents on the paper's plant (n = 4): agent i sees coordinate (2i + floor(i/2)) mod 4 (both
+    modes are seen from m = 2 on); a directed ring with every third agent also hearing its second
+    predecessor."""
+    C = [[[1.0 if c == (2 * i + i // 2) % 4 else 0.0 for c in range(4)]] for i in range(m)]
+    neighbors = [[((i - 1) % m) + 1] + ([((i - 2) % m) + 1] if i % 3 == 0 and m > 2 else []) for i in range(m)]
+    return {"family": "hybrid-observer", "name": name or f"agents{m}",
+            "system": {"A": PAPER_A, "C": C}, "design": {"T": 1.0, "q": q, "lambda": 0.5, "lambda_bar": 1.0},
+            "graphs": {"neighbors": [neighbors]},
+            "initial": {"x0": [3.0, 2.0, 4.0, 1.0], "xhat0": [[0.0] * 4 for _ in range(m)]},
+            "monte_carlo": {"trials": trials, "quick_trials": min(trials, 16)}, "sampling": {"step": step},
+            "runs": [{"name": "sync", "intervals": intervals, "monte_carlo": True}]}
+
+
+CASES = {
+    "small": agents_scenario(4, intervals=15, trials=64),
+    "long_horizon": agents_scenario(4, intervals=2000, trials=64, q=20, step=0.05, name="long"),
+    "many_agents": agents_scenario(32, intervals=10, trials=256, q=20, name="agents32"),
+    "many_trials": agents_scenario(4, intervals=15, trials=20_000, q=20, step=0.05, name="trials"),
+}
+
+
+def measure(data: dict, max_memory_mib: float | None = None) -> dict:
+    """Run one scenario in a fresh process (compute, tables, figures and recordings): wall time
+    and peak resident memory, next to the estimate for the same options."""
+    code = ("import json, resource, sys, time\n"
+            "from pipeline import api\n"
+            "from pipeline.reproduction import RunOptions\n"
+            "data = json.loads(sys.argv[1]); mm = json.loads(sys.argv[2])\n"
+            "repro = api.load(data)\n"
+            "opts = RunOptions(max_memory_mib=mm)\n"
+            "est = repro.estimate(opts)\n"
+            "t0 = time.perf_counter()\n"
+            "run = api.execute(repro, opts)\n"
+            "t1 = time.perf_counter()\n"
+            "run.write(sys.argv[3])\n"
+            "t2 = time.perf_counter()\n"
+            "peak = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,\n"
+            "           resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024\n"
+            "print(json.dumps({'estimate_s': est['seconds'], 'estimate_mib': est['peak_memory_mib'],\n"
+            "                  'compute_s': t1 - t0, 'wall_s': t2 - t0, 'peak_mib': peak, 'counts': run.counts}))\n")
+    with tempfile.TemporaryDirectory() as tmp:
+        proc = subprocess.run([sys.executable, "-c", code, json.dumps(data), json.dumps(max_memory_mib), tmp + "/out"],
+                              capture_output=True, text=True, cwd=ROOT,
+                              env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0",
+                                   "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
+    if proc.returncode:
+        raise RuntimeError(proc.stderr[-2000:])
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    out["time_ratio"] = out["wall_s"] / out["estimate_s"]
+    out["memory_ratio"] = out["peak_mib"] / out["estimate_mib"]
+    return out
+
+
+def bench_estimate(cases: dict | None = None) -> list[dict]:
+    rows = []
+    for name, data in (cases or CASES).items():
+        rows.append({"case": name, **measure(data)})
+    return rows
 
 
 if __name__ == "__main__":
-    for row in bench_hybrid_rows(True, 1) + [bench_rho(1)]:
-        print(row)
+    if "--estimate" in sys.argv:
+        for row in bench_estimate():
+            print(row)
+    else:
+        for row in bench_hybrid_rows(True, 1) + [bench_rho(1)]:
+            print(row)

@@ -65,11 +65,17 @@ def _base(sc: HybridScenario) -> dict[str, Any]:
     return {"scenario": sc.key(), "code": code_fingerprint(CODE_MODULES)}
 
 
+#: design arrays that may hold inf or NaN: padding of unequal spectra, c_i of a defective local observer,
+#: the vertex-loss placeholders, and r of (22) beyond the float range for many agents (exact as text beside)
+DESIGN_NONFINITE = ("local_eigs", "vertex_loss_rho", "c_i", "r_lemma5", "r_printed", "r_lemma5_paper",
+                    "r_printed_paper", "one_minus_alpha_log10", "one_minus_alpha_log10_paper")
+
+
 def design_stage(sc: HybridScenario, seed: int, cache: StageCache, extras: bool = False) -> dict:
     """`extras`: the design quantities only the paper's own claims use (see `design_quantities`)."""
     return cache.get_or_compute("design", {**_base(sc), "seed": seed, "extras": extras},
                                 lambda: design_quantities(sc, seed, extras), scenario=sc.name,
-                                allow_nonfinite=("local_eigs", "vertex_loss_rho", "c_i"))
+                                allow_nonfinite=DESIGN_NONFINITE)
 
 
 def _cached_run(cache: StageCache, base: dict, sc: HybridScenario, design: dict, seed: int, trials: int,

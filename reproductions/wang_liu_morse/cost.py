@@ -2,16 +2,18 @@
 non-streamable part does not fit the memory budget): seconds and peak memory from the
 scenario's sizes, without simulating.
 
-Time: the design (ρ's branch and bound, σ's enumeration, the local designs), the sampled
-Lemma 5/6 checks, and per run the interval plan (A(s), B(s), G(s) once per distinct weight
-sequence: q (mn)²(m + n) flops each) and the trials: every sample step propagates the state of
-every trial (B D² flops plus a fixed overhead), every iteration multiplies every trial's
-iterate (B (mn)²), every event index evaluates the bounds (B (mn)² plus an overhead per agent).
-Memory: 200 MiB for the interpreter and libraries, the largest chunk of trials, and what is
-kept whole: trial 0 at every event index and stored sample, statistics per event and sample,
-trial 0's iterates and source sets of the first intervals, and the tables built from them.
-Constants calibrated on this machine (benchmarks/bench_wang_liu_morse.py, `estimate` section):
-the estimate is meant within a factor 2 for runs longer than a few seconds.
+Time: the design (ρ's branch and bound, σ's enumeration), the sampled Lemma 5/6 checks, and
+per run the interval plan (A(s), B(s), G(s) once per distinct weight sequence) and the trials:
+every time instant (sample or event) costs a fixed overhead per chunk of trials and B D² for
+the propagation of the B trials' states, every estimator iteration a fixed overhead and
+B (mn)², and every sample at which the continuous bound is checked or stored B·mn; then the
+tables, figures and recordings. Memory: the interpreter and libraries, the largest chunk of
+trials, and what is kept whole: trial 0 at every event index and stored sample, statistics per
+event and sample, trial 0's iterates and source sets of the first intervals, and the tables
+built from them. The constants are fitted on this machine to measured runs (4 to 32 agents,
+15 to 2,000 intervals, q 20 to 2,000, 8 to 20,000 trials: every fitted time within 0.8-1.15 of
+the measurement; `benchmarks/bench_wang_liu_morse.py --estimate` compares whole runs): the
+estimate is meant within a factor 2.
 """
 from __future__ import annotations
 
@@ -24,17 +26,21 @@ from pipeline.reproduction import RunOptions
 from . import bounds
 from .scenario import SIGMA_MAX_AGENTS, HybridScenario
 
-#: seconds per sample step (fixed), per flop of the batched propagation, per estimator iteration
-#: (fixed), per flop of an iteration, per event index (fixed, per agent), per flop of dense algebra
-STEP_S = 3.0e-5
-PROPAGATION_FLOP_S = 1.2e-9
-ITERATION_S = 4.0e-6
-ITERATION_FLOP_S = 1.2e-9
-EVENT_S = 1.5e-4
-DENSE_FLOP_S = 4e-10
-TABLE_ROW_S = 2.5e-6
-DESIGN_S = 0.15
-BASE_MIB = 200.0
+#: fitted seconds: per time instant and chunk, per trial·D² of the propagation, per iteration and chunk,
+#: per trial·(mn)² of an iteration, per trial·mn of a checked or stored sample
+INSTANT_S = 8.7e-5
+PROPAGATION_S = 2.25e-10
+ITERATION_S = 2.7e-5
+ITERATION_FLOP_S = 6.3e-11
+SAMPLE_CHECK_S = 7.8e-8
+#: design: fixed, per prefix of ρ's branch and bound, per flop of σ and of the Lemma 5/6 samples
+DESIGN_S = 0.1
+RHO_PREFIX_S = 6e-7
+#: outputs: per figure, per recording, per table row (build and write)
+FIGURE_S = 0.7
+RECORDING_S = 0.3
+ROW_S = 5e-6
+BASE_MIB = 330.0
 TABLE_ROW_BYTES = 160.0
 
 
@@ -45,22 +51,30 @@ def _n_i(sc: HybridScenario) -> list[int]:
             for i, C in enumerate(sc.C)]
 
 
+def _flop_s(mn: int) -> float:
+    """Seconds per flop of the dense products of the design checks (BLAS is faster on larger blocks)."""
+    return 2e-10 + 3e-7 / mn ** 2
+
+
 def _design_seconds(sc: HybridScenario, extras: bool) -> float:
     import estimators.jointly_observable_design as jd
+
+    from .design import LEMMA5_FLOPS, LEMMA5_SAMPLES, LEMMA6_FLOPS, LEMMA6_SAMPLES
 
     m, n = sc.m, sc.n
     mn = m * n
     N = (m - 1) ** 2 + 1
-    words = min(jd.count_complete_repeat_free_words(min(m, 8), min(N, 60)), 2_000_000)
-    seconds = DESIGN_S + words * n ** 3 * 40 * DENSE_FLOP_S
+    prefixes = min(jd.count_complete_repeat_free_words(min(m, 6), min(N, 26)), 2_000_000) if m > 4 else 1e4
+    seconds = DESIGN_S + prefixes * RHO_PREFIX_S * (1 + extras * m)
     if m <= SIGMA_MAX_AGENTS:
-        seconds += len(jd.connected_undirected_graphs(m)) * mn ** 3 * 30 * DENSE_FLOP_S
-    from .design import LEMMA5_FLOPS, LEMMA6_FLOPS
-
-    seconds += (2 * LEMMA5_FLOPS + LEMMA6_FLOPS) * DENSE_FLOP_S * 2
-    if extras:
-        seconds += 0.2 + m * words * n ** 3 * 40 * DENSE_FLOP_S
-    return seconds
+        seconds += len(jd.connected_undirected_graphs(m)) * mn ** 3 * _flop_s(mn)
+    per_product = N * mn ** 3
+    pool = 1606 if m == 4 else (4000 if m > 4 else 50)
+    samples = min(LEMMA5_SAMPLES, max(min(pool, LEMMA5_SAMPLES), LEMMA5_FLOPS // per_product))
+    if per_product * min(samples, pool) > 20 * LEMMA5_FLOPS:
+        samples = max(1, 20 * LEMMA5_FLOPS // per_product)
+    lemma6 = max(1, min(LEMMA6_SAMPLES, LEMMA6_FLOPS // mn ** 3)) * mn ** 3
+    return seconds + (samples * per_product + lemma6) * _flop_s(mn) + (0.25 if extras else 0.0)
 
 
 def run_cost(sc: HybridScenario, run, trials: int, n_i: list[int], budget_bytes: float) -> dict[str, float]:
@@ -71,26 +85,23 @@ def run_cost(sc: HybridScenario, run, trials: int, n_i: list[int], budget_bytes:
     D = n + nw + 2 + mn + n
     B = trials if run.mc else 1
     samples = S * sc.T / sc.sample_step + 1
-    steps = samples + S * m
-    distinct = min(S, 2 * max(1, len(sc.graphs)) if run.switching != "fixed" else 1) if not run.leave else min(S, 6)
-    if run.timing == "offset" or run.switching == "alternate_iteration":
-        distinct = min(S, 2 * max(1, len(sc.graphs)))
+    instants = samples + S * m
     per_trial = bounds.bytes_per_trial(sc, n_i)
     chunk = min(B, max(1, int(budget_bytes // max(per_trial * 1000, 1.0))) * 1000)
     chunks = math.ceil(B / chunk)
-    plan = S * (q * m * m * 1e-7 + 2e-4) + distinct * q * mn * mn * (m + n) * DENSE_FLOP_S * 4
-    recursion = chunks * distinct * q * mn * mn * (m + n) * DENSE_FLOP_S * 4
-    propagate = chunks * steps * STEP_S + steps * B * D * D * PROPAGATION_FLOP_S
-    iterate = chunks * S * q * ITERATION_S + S * q * B * mn * mn * ITERATION_FLOP_S
-    events = chunks * S * (m * EVENT_S + 3e-4) + S * B * (3 * mn * mn + 60 * mn) * ITERATION_FLOP_S
+    distinct = min(S, 2 * max(1, len(sc.graphs))) + (6 if run.leave else 0)
+    matrices = distinct * (1 + chunks) * q * mn * mn * (m + n) * _flop_s(mn)
+    checked = samples if (bounds.is_theorem_run(run) and run.timing == "sync") else min(samples, sc.stored_samples)
+    trials_s = (instants * chunks * INSTANT_S + instants * B * D * D * PROPAGATION_S + S * q * chunks * ITERATION_S
+                + S * q * B * mn * mn * ITERATION_FLOP_S + checked * B * mn * SAMPLE_CHECK_S)
     kf = samples * 6e-5 if run.noise else 0.0
     stored = min(samples, sc.stored_samples)
     keep = max(1, min(S, bounds.SOURCE_VALUES // max(q * m * m, 1), bounds.ITERATE_VALUES // max((q + 1) * mn, 1)))
     kept_bytes = 8 * ((S + 1) * (4 * mn + nw + 8 * m + 20) + stored * (n * (m + 2) + 3 * m + 8)
                       + keep * ((q + 1) * mn + q * m * m + m * (q + 1)) + 30 * B + 6 * S)
-    table_rows = ((S + 1) * m * 2 + stored * (m + 1) + min(stored * n * (m + 2), 2_000_000) + keep * (q + 1) * m
+    table_rows = ((S + 1) * m * 3 + stored * (m + 1) + min(stored * n * (m + 2), 2_000_000) + keep * (q + 1) * m
                   + keep * q * m * 2 + S + B + 60)
-    return {"seconds": plan + recursion + propagate + iterate + events + kf + table_rows * TABLE_ROW_S,
+    return {"seconds": S * 2e-4 + matrices + trials_s + kf + table_rows * ROW_S + RECORDING_S + FIGURE_S,
             "chunk_bytes": chunk * per_trial, "kept_bytes": kept_bytes, "table_bytes": table_rows * TABLE_ROW_BYTES,
             "trials": B, "chunks": chunks, "samples": samples}
 
@@ -99,7 +110,7 @@ def estimate(scenarios: dict[str, HybridScenario], opts: RunOptions, *, extras: 
     from .compute import trial_count
 
     budget = opts.chunk_budget_bytes()
-    seconds, kept, tables, chunk, parts = 0.0, 0.0, 0.0, 0.0, []
+    seconds, kept, tables, chunk, parts = 4 * FIGURE_S, 0.0, 0.0, 0.0, []
     for name, sc in scenarios.items():
         n_i = _n_i(sc)
         trials = trial_count(sc, opts)
@@ -111,7 +122,8 @@ def estimate(scenarios: dict[str, HybridScenario], opts: RunOptions, *, extras: 
         tables += sum(c["table_bytes"] for c in costs)
         chunk = max(chunk, max(c["chunk_bytes"] for c in costs) * max(1, min(opts.workers, len(costs))))
         parts.append(f"{name}: design ≈{design_s:.2g} s, {len(costs)} runs ≈{run_s:.3g} s "
-                     f"({sum(c['samples'] for c in costs):,.0f} samples, {max(c['trials'] for c in costs):,} trials)")
+                     f"({sum(c['samples'] for c in costs):,.0f} samples, {max(c['trials'] for c in costs):,} trials, "
+                     f"{max(c['chunks'] for c in costs)} chunk(s))")
     mib = BASE_MIB + (chunk + kept + 2.5 * tables) / 2**20
     return {"seconds": seconds, "peak_memory_mib": mib,
             "detail": "; ".join(parts) + f"; kept whole {kept / 2**20:.3g} MiB, tables {tables / 2**20:.3g} MiB, "
@@ -120,25 +132,30 @@ def estimate(scenarios: dict[str, HybridScenario], opts: RunOptions, *, extras: 
 
 def refuse_beyond_budget(scenarios: dict[str, HybridScenario], opts: RunOptions) -> None:
     """What cannot be streamed (trial 0 and the statistics at every event index and stored sample,
-    and the tables made of them) must fit the memory budget: else one ScenarioError naming the run's
-    `intervals` (or `sampling.stored`) and the estimate, before anything runs."""
+    and the tables made of them) must fit the memory budget: else one ScenarioError naming the
+    largest run's `intervals` (or `sampling.stored` when the stored samples dominate) and the
+    estimate, before anything runs."""
     from .compute import trial_count
 
     budget_mib = opts.memory_budget_mib
     total, worst = BASE_MIB, None
-    for name, sc in scenarios.items():
+    for sc in scenarios.values():
         n_i = _n_i(sc)
         for i, run in enumerate(sc.runs):
             c = run_cost(sc, run, trial_count(sc, opts), n_i, opts.chunk_budget_bytes())
             mib = (c["kept_bytes"] + 2.5 * c["table_bytes"]) / 2**20
             total += mib
             if worst is None or mib > worst[0]:
-                worst = (mib, i, c)
+                worst = (mib, i, c, sc)
     if worst is not None and total > budget_mib:
-        mib, i, c = worst
-        stored_share = min(c["samples"], next(iter(scenarios.values())).stored_samples)
-        field = f"runs[{i}].intervals" if c["samples"] > 4 * stored_share or stored_share < 1000 else "sampling.stored"
+        mib, i, c, sc = worst
+        by_samples = min(c["samples"], sc.stored_samples) * sc.n * (sc.m + 2) > (run_intervals(sc, i) + 1) * sc.m * 3
+        field = "sampling.stored" if by_samples else f"runs[{i}].intervals"
         raise ScenarioError(field, f"the run keeps about {total:,.0f} MiB that cannot be streamed (trial 0 and the "
                                    f"statistics at every event index and stored sample, and their tables; the largest "
                                    f"run {mib:,.0f} MiB), more than the memory budget of {budget_mib:,.0f} MiB "
                                    "(--max-memory)")
+
+
+def run_intervals(sc: HybridScenario, i: int) -> int:
+    return sc.runs[i].intervals

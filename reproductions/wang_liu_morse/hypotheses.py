@@ -101,6 +101,25 @@ def _int(v) -> int:
     return int(str(np.asarray(v)))
 
 
+def big(q: int) -> str:
+    """An integer for people: with thousands separators, or as a power of ten beyond 10^15 (the q of
+    (22) has about (m-1)² log10(m) digits); the exact value is in the design table."""
+    if q < 10**15:
+        return f"{q:,}"
+    digits = str(q)
+    return f"{digits[0]}.{digits[1:4]}e{len(digits) - 1}"
+
+
+def number(q: int) -> int | float:
+    """A hypothesis' value or threshold: the integer itself, or a float beyond 10^15 (inf beyond 1e308)."""
+    if q < 10**15:
+        return q
+    try:
+        return float(q)
+    except OverflowError:
+        return math.inf
+
+
 def q_eq22(r, q: int) -> Holds:
     """q satisfies (22) with α of Lemma 5. With ρ exact the answer is exact; with ρ only
     bracketed (m >= 6) it holds when q meets (22) for the upper bound of ρ, fails when q misses
@@ -114,20 +133,21 @@ def q_eq22(r, q: int) -> Holds:
     rho = f"{float(dz['rho']):.6g}" if exact else f"in [{float(dz['rho']):.6g}, {float(dz['rho_upper']):.6g}]"
     text = (f"q = {q:,}; (22) with the Lemma-5 α = 1 - (m-1)(1-ρ)/m^((m-1)²) = {float(dz['alpha_lemma5']):.12g} "
             f"(m = {m}, N = {N}, ρ {'= ' if exact else ''}{rho}, ||A|| = {float(dz['norm_A']):.6g}, λ = {sc.lam:g}, "
-            f"T = {sc.T:g}) needs q >= {lo:,} "
-            f"[(21) with (19): {_int(dz['q_thm21']):,}; minimal sufficient from the proof of Lemma 4: "
-            f"{_int(dz['q_minimal']):,}; with α as printed in (18): {_int(dz['q_thm22_printed_alpha']):,}]")
+            f"T = {sc.T:g}) needs q >= {big(lo)} "
+            f"[(21) with (19): {big(_int(dz['q_thm21']))}; minimal sufficient from the proof of Lemma 4: "
+            f"{big(_int(dz['q_minimal']))}; with α as printed in (18): {big(_int(dz['q_thm22_printed_alpha']))}]")
     lam_p = float(sc.paper_values.get("lambda", sc.lam))
     if lam_p != sc.lam:
-        text += (f"; for the printed λ = {lam_p:g}: q >= {_int(dz['q_thm22_paper']):,} (α as printed: "
-                 f"{_int(dz['q_thm22_printed_alpha_paper']):,})")
+        text += (f"; for the printed λ = {lam_p:g}: q >= {big(_int(dz['q_thm22_paper']))} (α as printed: "
+                 f"{big(_int(dz['q_thm22_printed_alpha_paper']))})")
     if exact:
-        return Holds(q >= lo, q, lo, text)
+        return Holds(q >= lo, q, number(lo), text)
     if q < lo:
-        return Holds(False, q, lo, text + "; q misses (22) already for the lower bound of ρ")
+        return Holds(False, q, number(lo), text + "; q misses (22) already for the lower bound of ρ")
     if hi is not None and q >= hi:
-        return Holds(True, q, hi, text + f"; q meets (22) for the upper bound of ρ (needs {hi:,})")
-    return Holds(None, q, hi, text + "; ρ is only bracketed and q lies between the two requirements")
+        return Holds(True, q, number(hi), text + f"; q meets (22) for the upper bound of ρ (needs {big(hi)})")
+    return Holds(None, q, number(hi) if hi is not None else None,
+                 text + "; ρ is only bracketed and q lies between the two requirements")
 
 
 def q_eq27(r, q: int) -> Holds:

@@ -39,6 +39,9 @@ MAX_TRIALS = 1_000_000
 MAX_SAMPLES_PER_INTERVAL = 100_000
 #: σ of (26) enumerates every connected graph on m vertices (26,704 for m = 6)
 SIGMA_MAX_AGENTS = 6
+#: an unstable plant grows like e^(αt): α·horizon is kept below this, so that states (and their
+#: squares in the norms) stay inside the floating-point range (e^300 ≈ 1e130)
+MAX_GROWTH_EXPONENT = 300.0
 
 
 def _computed(text: str):
@@ -340,7 +343,7 @@ class HybridScenario:
             raise ScenarioError("sampling.step", f"T / step = {T / step:,.0f} samples per interval, more than the "
                                                  f"supported {MAX_SAMPLES_PER_INTERVAL:,}")
         runs = parse_runs(f.runs, m=m, T=T, q_design=q_design, q_label=q_label, graphs=graphs, noise_b=noise_b,
-                          nA=nA, lam=lam, locs=locs)
+                          nA=nA, lam=lam, locs=locs, growth=float(np.max(np.linalg.eigvals(A).real)))
         pv = {k: v for k, v in (("lambda", f.paper_values.lam), ("lambda_bar", f.paper_values.lambda_bar))
               if v is not None}
         return cls(f.name, A, C, rank_tol, T, q_design, q_label, lam, lam_bar, des.gains, L_given, K_given, poles,
@@ -521,7 +524,7 @@ def default_runs(graphs: np.ndarray) -> list[RunSection]:
 
 
 def parse_runs(value: list[RunSection] | None, *, m: int, T: float, q_design: int, q_label: str, graphs: np.ndarray,
-               noise_b, nA: float, lam: float, locs) -> tuple[RunSpec, ...]:
+               noise_b, nA: float, lam: float, locs, growth: float = 0.0) -> tuple[RunSpec, ...]:
     runs: list[RunSpec] = []
     names: set[str] = set()
     sigma = None
@@ -583,6 +586,12 @@ def parse_runs(value: list[RunSection] | None, *, m: int, T: float, q_design: in
                                                 "reorder)")
         if raw.timing != "sync" and raw.ideal:
             raise ScenarioError(f"{f}.ideal", "only for synchronous runs")
+        horizon = raw.intervals * T + max(abs(x) for x in offsets)
+        if growth * horizon > MAX_GROWTH_EXPONENT:
+            raise ScenarioError(f"{f}.intervals", f"the plant's state grows like e^({growth:.3g} t) (the largest real part "
+                                                  f"of eig(A)); over the horizon {horizon:g} it would leave the "
+                                                  f"floating-point range: at most "
+                                                  f"{int(MAX_GROWTH_EXPONENT / growth / T):,} intervals of T = {T:g}")
         leave = _leave(raw.leave, f"{f}.leave", m, T, offsets, raw.intervals)
         if raw.reference_run and raw.reference_run not in names - {name}:
             raise ScenarioError(f"{f}.reference_run", f"must name an earlier run, got '{raw.reference_run}'")

@@ -164,6 +164,14 @@ METRICS = spec("metrics", "summary metric (sweeps plot the network-wide ones wit
 
 # -- design tables -------------------------------------------------------------------------------------
 
+def as_float(exact: str) -> float:
+    """An exact integer (or decimal) as a float: inf beyond the float range (q of (22) for many agents)."""
+    try:
+        return float(exact)
+    except OverflowError:
+        return math.inf
+
+
 def _agents(name: str, dz: dict, sc) -> pd.DataFrame:
     m = sc.m
     return pd.DataFrame({
@@ -218,7 +226,7 @@ def _design_rows(name: str, dz: dict, sc) -> list[dict]:
         "the word P_i1 ··· P_ik attaining ρ (exact: the agents, in order)", exact=word)
     if "q_thm22_upper" in dz:
         add("alpha_lemma5_upper", dz["alpha_lemma5_upper"], "α of Lemma 5 with ρ's upper bound")
-        add("q_thm22_upper", float(int(str(dz["q_thm22_upper"]))), "q of (22) with ρ's upper bound (sufficient for sure)",
+        add("q_thm22_upper", as_float(str(dz["q_thm22_upper"])), "q of (22) with ρ's upper bound (sufficient for sure)",
             exact=str(dz["q_thm22_upper"]))
     defs = {"q_thm22": "q of (22), N ceil(r) + 1, Lemma-5 α", "q_thm21": "q of (21) with (19), N (ceil(r) + 1), Lemma-5 α",
             "q_minimal": "the smallest q of the proof of Lemma 4, N (floor(r) + 1), Lemma-5 α",
@@ -234,8 +242,8 @@ def _design_rows(name: str, dz: dict, sc) -> list[dict]:
         add("r_printed", dz[f"r_printed{label}"], "r with α as printed in (18)", lam=lam,
             exact=str(dz[f"r_printed_exact{label}"]))
         for k in Q_KEYS:
-            q = int(str(dz[f"{k}{label}"]))
-            add(k, float(q), defs[k], lam=lam, exact=str(q))
+            q = str(dz[f"{k}{label}"])
+            add(k, as_float(q), defs[k], lam=lam, exact=q)
     if "sigma" in dz:
         add("sigma", dz["sigma"], "σ of (26): max over connected graphs G of ||P(M_G ⊗ I)||_2")
         add("sigma_graphs", dz["sigma_graphs"], "connected graphs on m vertices enumerated")
@@ -496,7 +504,7 @@ def _metrics(name: str, r) -> list[dict]:
     dz = r.design
     add("rho", dz["rho"]), add("rho_upper", dz["rho_upper"])
     for k in ("q_thm22", "q_minimal"):
-        add(k, float(int(str(dz[k]))))
+        add(k, as_float(str(dz[k])))
     if "sigma" in dz:
         add("sigma", dz["sigma"])
         if "q27" in dz:
