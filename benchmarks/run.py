@@ -149,6 +149,7 @@ def bench_bounds(quick: bool, repeats: int) -> list[dict]:
 
 def bench_scale(quick: bool, repeats: int) -> list[dict]:
     from . import bench_kar_moura as km
+    from .bench_compare import bench_compare
     from .bench_savas import bench_fig1
     from .bench_tanwani import bench_s2_budget
 
@@ -156,10 +157,12 @@ def bench_scale(quick: bool, repeats: int) -> list[dict]:
     if quick:
         rows.append(bench_fig1(2, trials=20_000))
         rows.append(km.bench_gikf_e1(repeats=1, runs=2_000, slots=50))
+        rows.append(bench_compare("failures", steps=50))
         return rows
     rows += [bench_fig1(1), bench_fig1(2)]
     rows.append(bench_s2_budget(repeats=min(repeats, 2)))
     rows.append(km.bench_gikf_e1(repeats=min(repeats, 2)))
+    rows += [bench_compare("reliable", noise=0.1), bench_compare("failures")]     # the compare family, issue 17
     return rows
 
 
@@ -320,6 +323,10 @@ def _targets(results: dict[str, list[dict]]) -> list[str]:
             lines.append(f"| {r['estimator']} ({r['size']}): {r['target']} | "
                          f"{_fmt(r['batched'])} {r['unit']}" + (f", {_fmt(r['ratio'])}x loop" if "ratio" in r else "")
                          + f" | {_fmt(r['met'])} |")
+    for r in results.get("scale", []):
+        if r.get("target") and "mc_s" in r:
+            lines.append(f"| {r['name']} ({r['trials']:,} trials, {r['steps']} steps): {r['target']} | "
+                         f"{_fmt(r['mc_s'])} s | {_fmt(r['met'])} |")
     for r in results.get("record", []):
         if r.get("target"):
             lines.append(f"| {r['name']}: {r['target']} | {_fmt(r['M_scalars_per_s'])} M/s | {_fmt(r['met'])} |")
