@@ -206,7 +206,8 @@ def linear_gaussian_step(net: NetworkObserver, prepared: Prepared, g) -> tuple[n
 @dataclass
 class Trajectory:
     """Samples every `record_every` steps: t (T,), w (T, p), and per kept trial x (K, T, n),
-    e (K, T, N, q), g (K, T, N); `reduced[name]` (T, R, ...) from the reducer over all trials."""
+    e (K, T, N, q), g (K, T, N); `reduced[name]` (T, R, ...) from a reducer that returns values
+    (a reducer that accumulates on its own returns None and leaves this empty)."""
 
     t: np.ndarray
     w: np.ndarray
@@ -216,18 +217,36 @@ class Trajectory:
     reduced: dict
 
 
+#: steps whose input forcing B w(t) is evaluated at once (bounded memory whatever the horizon)
+CHUNK_STEPS = 2048
+
+
+def _normals(rng, R: int, K: int) -> np.ndarray:
+    """(R, K) standard normals: from a Generator, or from per-unit streams (an object with
+    `standard_normal(tail)` returning its trials' draws stacked, e.g. `pipeline.simulate.UnitStreams`)."""
+    if isinstance(rng, np.random.Generator):
+        return rng.standard_normal((R, K))
+    out = rng.standard_normal((K,))
+    if out.shape != (R, K):
+        raise ValueError(f"the random streams hold {out.shape[0]} trials, the simulation {R}")
+    return out
+
+
 def simulate(net: NetworkObserver, roles, signal: SinusoidalInput, x0, e0, *, t_end: float, h: float,
              record_every: int, n_trials: int = 1, noise: NoiseModel | None = None,
-             rng: np.random.Generator | None = None, keep: int | None = None,
-             reducer: Callable[..., dict] | None = None, prepared: "Prepared | None" = None,
-             allow_nonfinite: bool = False) -> Trajectory:
+             rng=None, keep: int | None = None,
+             reducer: Callable[..., dict | None] | None = None, prepared: "Prepared | None" = None,
+             allow_nonfinite: bool = False, progress: Callable[[int], None] | None = None) -> Trajectory:
     """Integrate process + observers from (x0, e0) (e0 (N, q)) over [0, t_end] with step h.
 
     Deterministic (noise None): ETD2RK. Stochastic: noise increment then ETD2RK, all
-    `n_trials` trials at once. `keep` trials (default all) are stored in full; `reducer(t, x, w,
-    e, g)` is applied to every trial at each recorded time. A run that overflows (an unstable
-    error system) raises FloatingPointError, or with `allow_nonfinite` is returned with its
-    non-finite values (the finite prefix shows where it diverged).
+    `n_trials` trials at once; `rng` is a Generator or per-unit streams (see `_normals`). `keep`
+    trials (default all) are stored in full; `reducer(t, x, w, e, g)` is applied to every trial at
+    each recorded time (its values are stacked in `reduced` unless it returns None). Memory does
+    not grow with the horizon beyond what is recorded: the input forcing is evaluated
+    CHUNK_STEPS steps at a time. `progress(steps_done)` is called after every chunk. A run that
+    overflows (an unstable error system) raises FloatingPointError, or with `allow_nonfinite` is
+    returned with its non-finite values (the finite prefix shows where it diverged).
     """
     n, N, q = net.n, net.N, net.q
     steps = int(round(t_end / h))
@@ -245,7 +264,6 @@ def simulate(net: NetworkObserver, roles, signal: SinusoidalInput, x0, e0, *, t_
     E, Phi1, Phi2 = prepared.phi
     ET, P1T, P2T = E.T.copy(), Phi1.T.copy(), Phi2.T.copy()
     P2xx = Phi2[:n, :n].copy()
-    D = n + N * q
     u = np.tile(np.concatenate([np.asarray(x0, float), np.asarray(e0, float).reshape(-1)]), (R, 1))
     ps = list(getattr(roles, "position_states", (0,)))  # fixed roles ignore positions
     g = roles.initial(u[:, ps])
@@ -273,40 +291,44 @@ def simulate(net: NetworkObserver, roles, signal: SinusoidalInput, x0, e0, *, t_
     def record(k_rec, t):
         xs[:, k_rec], es[:, k_rec], gs[:, k_rec] = u[:keep, :n], u[:keep, n:].reshape(keep, N, q), g[:keep]
         if reducer is not None:
-            for name, val in reducer(t, u[:, :n], signal(t), u[:, n:].reshape(R, N, q), g).items():
+            values = reducer(t, u[:, :n], signal(t), u[:, n:].reshape(R, N, q), g)
+            for name, val in (values or {}).items():
                 reduced.setdefault(name, []).append(val)
 
     B = net.B
-    # the input forcing at every step time, at once (the same values as one call per step)
-    f_all = signal(np.arange(steps + 1) * h) @ B.T
     gq = np.repeat(g, q, axis=1)
     amp = np.ones((R, N + 1))
     with np.errstate(over="ignore", invalid="ignore") if allow_nonfinite else np.errstate():
-        for k in range(steps):
-            t = k * h
-            if k % record_every == 0:
-                record(k // record_every, t)
-            f_now, f_next = f_all[k], f_all[k + 1]
-            x_before = u[:, ps]
-            N0 = drift_part(u, gq, f_now)
-            a = u @ ET
-            a += h * (N0 @ P1T)
-            x1 = a[:, :n] + h * (f_next - f_now) @ P2xx.T
-            g1 = roles.advance(g, x_before, x1[:, ps], h)
-            gq1 = gq if g1 is g else np.repeat(g1, q, axis=1)
-            Na = drift_part(a, gq1, f_next)
-            Na -= N0
-            u = a
-            u += h * (Na @ P2T)
-            if noise is not None:
-                xi = rng.standard_normal((R, len(scale_of)))
-                amp[:, 1:] = g
-                xi *= amp[:, scale_of]
-                kick = xi @ factors
-                # the injection acts on the noise during the step (on average for half of it): first-order correction
-                kick[:, n:] += 0.5 * h * injection(kick, gq)
-                u += kick
-            g, gq = g1, gq1
+        for start in range(0, steps, CHUNK_STEPS):
+            stop = min(start + CHUNK_STEPS, steps)
+            f_chunk = signal(np.arange(start, stop + 1) * h) @ B.T   # the input forcing at the chunk's step times
+            for k in range(start, stop):
+                t = k * h
+                if k % record_every == 0:
+                    record(k // record_every, t)
+                f_now, f_next = f_chunk[k - start], f_chunk[k - start + 1]
+                x_before = u[:, ps]
+                N0 = drift_part(u, gq, f_now)
+                a = u @ ET
+                a += h * (N0 @ P1T)
+                x1 = a[:, :n] + h * (f_next - f_now) @ P2xx.T
+                g1 = roles.advance(g, x_before, x1[:, ps], h)
+                gq1 = gq if g1 is g else np.repeat(g1, q, axis=1)
+                Na = drift_part(a, gq1, f_next)
+                Na -= N0
+                u = a
+                u += h * (Na @ P2T)
+                if noise is not None:
+                    xi = _normals(rng, R, len(scale_of))
+                    amp[:, 1:] = g
+                    xi *= amp[:, scale_of]
+                    kick = xi @ factors
+                    # the injection acts on the noise during the step (on average for half of it): first-order correction
+                    kick[:, n:] += 0.5 * h * injection(kick, gq)
+                    u += kick
+                g, gq = g1, gq1
+            if progress is not None:
+                progress(stop)
         record(n_rec - 1, steps * h)
     if not allow_nonfinite and not np.all(np.isfinite(u)):
         raise FloatingPointError("the simulation produced non-finite values")

@@ -205,6 +205,8 @@ def _type_name(annotation: Any) -> str:
     if origin in (list, tuple):
         args = [a for a in get_args(annotation) if a is not Ellipsis]
         return f"list of {_type_name(args[0])}" if args else "list"
+    if origin is dict:
+        return f"tables of {_type_name(get_args(annotation)[1])}" if get_args(annotation) else "table"
     if origin in (typing.Union, types.UnionType):
         names = [_type_name(a) for a in get_args(annotation) if a is not type(None)]
         return " or ".join(dict.fromkeys(names))
@@ -277,8 +279,9 @@ def reference_rows(model: type[Section], prefix: str = "") -> list[tuple[str, li
         sub = _section_type(info.annotation)
         path = f"{prefix}.{name}" if prefix else name
         kind = _type_name(info.annotation)
-        if sub is not None and kind in ("table", "list of table"):
-            label = path if kind == "table" else f"{path}[]"
+        if sub is not None and kind in ("table", "list of table", "tables of table"):
+            # a list of tables is [[path]] in the file; named tables ([path.<name>]) are documented once
+            label = {"table": path, "list of table": f"{path}[]", "tables of table": f"{path}.<name>"}[kind]
             nested += [(p, rows, d or info.description or "") for p, rows, d in reference_rows(sub, label)]
             continue
         extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}

@@ -20,3 +20,9 @@ def progress_enabled() -> bool:
 def progress(iterable: Iterable[T], *, desc: str = "", total: int | None = None) -> Iterable[T]:
     return tqdm(iterable, desc=desc, total=total, disable=not progress_enabled(), leave=False,
                 dynamic_ncols=True, file=sys.stderr)
+
+
+def counter(total: int, *, desc: str = "", unit: str = "it") -> tqdm:
+    """A progress bar advanced by hand (`bar.update(k)`), with the time left; use as a context manager."""
+    return tqdm(total=total, desc=desc, unit=unit, unit_scale=True, disable=not progress_enabled(), leave=False,
+                dynamic_ncols=True, file=sys.stderr)

@@ -134,3 +134,53 @@ def effective_sample_size(values, axis: int = 0) -> np.ndarray:
     x = np.abs(np.asarray(values, float))
     s1, s2 = x.sum(axis=axis), np.square(x).sum(axis=axis)
     return np.where(s2 > 0, s1 ** 2 / np.where(s2 > 0, s2, 1.0), x.shape[axis])
+
+
+@dataclass(frozen=True)
+class Moments:
+    """Count, mean and sum of squared deviations (M2) of samples on a leading trial axis, merged
+    part by part (Chan, Golub & LeVeque's update), so that trials can stream in units: merged in
+    a fixed order the result does not depend on how the units were grouped in memory. With
+    `outer`, the samples are vectors (last axis) and M2 holds the cross-products (a covariance)."""
+
+    count: int
+    mean: np.ndarray
+    m2: np.ndarray
+    outer: bool = False
+
+    @classmethod
+    def of(cls, x: np.ndarray, outer: bool = False) -> "Moments":
+        x = np.asarray(x, float)
+        mean = x.mean(axis=0)
+        d = x - mean
+        m2 = np.einsum("r...i,r...j->...ij", d, d) if outer else np.einsum("r...,r...->...", d, d)
+        return cls(x.shape[0], mean, m2, outer)
+
+    def merge(self, other: "Moments") -> "Moments":
+        n = self.count + other.count
+        delta = other.mean - self.mean
+        w = self.count * other.count / n
+        cross = delta[..., :, None] * delta[..., None, :] if self.outer else delta * delta
+        return Moments(n, self.mean + delta * (other.count / n), self.m2 + other.m2 + cross * w, self.outer)
+
+    @classmethod
+    def combine(cls, parts: Sequence["Moments"]) -> "Moments":
+        first, *rest = parts
+        for p in rest:
+            first = first.merge(p)
+        return first
+
+    @property
+    def variance(self) -> np.ndarray:
+        """Sample variance (covariance with `outer`), ddof = 1."""
+        return self.m2 / (self.count - 1)
+
+    @property
+    def sd(self) -> np.ndarray:
+        return np.sqrt(np.maximum(self.variance, 0.0))
+
+    @property
+    def mean_se(self) -> np.ndarray:
+        """Standard error of the mean (of each component; the diagonal with `outer`)."""
+        var = np.diagonal(self.variance, axis1=-2, axis2=-1) if self.outer else self.variance
+        return np.sqrt(np.maximum(var, 0.0) / self.count)

@@ -1,5 +1,7 @@
-"""The centralized reference: a Kalman filter (filterpy) on the augmented state s = [x; w] with
-all currently active sensors (a project addition, not in the paper).
+"""The centralized references (project additions, not in the paper).
+
+`central_kalman`: a Kalman filter (filterpy) on the augmented state s = [x; w] with all currently
+active sensors, along the deterministic run and the first stochastic run.
 
 The unknown input is modelled as a random walk ẇ = q_w^{1/2} ξ; the model ṡ = F s + noise,
 F = [[A, B], [0, 0]], is discretised exactly at dt by Van Loan's method. Node i contributes
@@ -7,6 +9,12 @@ y_i = C_i x + noise at a step when g_i(t) > 1/2. In the deterministic example th
 noise-free and a small fictitious R = r I is used; in the stochastic example continuous white
 noise h_i dS_i/dt sampled at dt has covariance h_i h_iᵀ / dt (rank one, plus 1e-9 I jitter), and
 the process noise v dW_v adds v vᵀ to the model's intensity.
+
+`kalman_bucy_reference`: the error covariance of the best estimate of x from every sensor of the
+fixed roles when w is known: the Kalman-Bucy filter of dx = (Ax + Bw)dt + v dW_v with the
+measurements C_i x dt + h_i dS_i (steady state and at the end of the stochastic horizon, P(0) = 0:
+x(0) is known). Every distributed estimate of x from these measurements has an error covariance at
+least this large.
 """
 from __future__ import annotations
 
@@ -14,7 +22,14 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.linalg import expm
 
+from estimators.kalman_bucy import kalman_bucy_riccati, kalman_bucy_steady
+from estimators.lyapunov_bounds import discrete_noise
 from pipeline.seeding import stream_seed
+
+#: the measurement noise blockdiag(h_i h_iᵀ) of the Kalman-Bucy reference is rank one per node; this
+#: fraction of its largest entry (or this value when the noise is zero) is added on the diagonal so that
+#: its Riccati equation is regular (the reference then uses slightly more noise than the true one)
+KB_JITTER = 1e-9
 
 
 def van_loan(F: np.ndarray, Qc: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -39,7 +54,7 @@ def run_kalman(sc, t: np.ndarray, x: np.ndarray, g: np.ndarray, *, noise=None, r
         Qc[:n, :n] += np.outer(v, v)
     Phi, Qd = van_loan(F, Qc, dt)
     kf = KalmanFilter(dim_x=n + p, dim_z=sc.m)
-    kf.x = np.zeros(n + p)
+    kf.x = sc.e0.mean(axis=0)            # the nodes' initial estimates, averaged
     kf.P = 10.0 * np.eye(n + p)
     kf.F, kf.Q = Phi, Qd
     C = sc.per_node("C")
@@ -76,3 +91,22 @@ def central_kalman(sc, det_run: dict, sde_run: dict, noise) -> dict[str, np.ndar
                         noise=noise, rng=rng)
         out.update(sde_t=st["t"], sde_s=st["s"])
     return out
+
+
+def kalman_bucy_reference(sc, noise, g, t_final: float) -> tuple[np.ndarray, np.ndarray]:
+    """(steady-state, final-time) Kalman-Bucy covariance of x with the sensors of the nodes with g_i > 0,
+    R = blockdiag(h_i h_iᵀ) + jitter·I (KB_JITTER), P(0) = 0."""
+    from scipy.linalg import block_diag, solve_continuous_lyapunov
+
+    Bv = noise.process
+    act = np.flatnonzero(np.asarray(g) > 0)
+    if len(act) == 0:    # no sensor: the open-loop covariance of x
+        return solve_continuous_lyapunov(sc.A, -Bv @ Bv.T), discrete_noise(sc.A, Bv @ Bv.T, t_final)[1]
+    C = sc.per_node("C")
+    H = np.vstack([C[i] for i in act])
+    V = block_diag(*[np.outer(noise.measurement[i, :, 0], noise.measurement[i, :, 0]) for i in act])
+    scale = float(np.abs(V).max())
+    V = V + KB_JITTER * (scale if scale > 0 else 1.0) * np.eye(len(V))
+    steady = kalman_bucy_steady(sc.A, Bv, H, V)[0]
+    final = kalman_bucy_riccati(sc.A, Bv, H, V, np.zeros_like(sc.A), t_final, 1)[-1]
+    return steady, final

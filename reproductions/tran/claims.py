@@ -17,7 +17,8 @@ from pipeline.verify import (FAIL, PASS, Claim, Verdict, claim_confidence, errat
                              not_checkable, p_value_test, roundoff_tolerance)
 
 from . import hypotheses as hy
-from .compute import Results, coestimation, gains
+from .compute import Results
+from .design import coestimation, gains, mean_square_constants
 
 EPS = float(np.finfo(float).eps)
 SAFETY = 10.0
@@ -75,14 +76,19 @@ def rms(z: np.ndarray, n: int) -> tuple[float, float]:
     return (float(np.sqrt(np.mean(np.sum(z[..., :n] ** 2, -1)))), float(np.sqrt(np.mean(np.sum(z[..., n:] ** 2, -1)))))
 
 
+def mc_moments(r: dict, name: str) -> tuple[np.ndarray, np.ndarray, int]:
+    """(mean, standard deviation (ddof = 1), trials) of a Monte Carlo statistic kept as moments."""
+    R = int(r["trials"])
+    return r[f"{name}_mean"], np.sqrt(np.maximum(r[f"{name}_m2"], 0.0) / max(R - 1, 1)), R
+
+
 def _with(v: Verdict, **kw) -> Verdict:
     return Verdict(**{**v.__dict__, **kw})
 
 
 def _integration_allowance(res: Results, run: str) -> float:
-    """A bound of ‖z_h(t) − z(t)‖₂ from step halving: √(Nq) · 2·max|Δ| (see hypotheses.integration_error)."""
-    base = run.removesuffix("_half")
-    est, _, _ = hy.integration_error(res, base)
+    """A bound of ‖z_h(t) − z(t)‖₂ from step halving: √(Nq) · 2·max|Δ| (see compute.integration_error)."""
+    est = res.design.integration[run.removesuffix("_half")]["error"]
     return float(np.sqrt(res.scenario.N * (res.scenario.n + res.scenario.p)) * est)
 
 
@@ -223,7 +229,7 @@ def check_S_hurwitz(res: Results) -> Verdict:
     allowance cond(V)·‖S‖·Nq·eps."""
     d = res.design
     v, tol = d["S_max_real"], d["S_tol"]
-    lmi, fixed = hy.vertex_lmi(res).holds, hy.fixed_local(res).holds
+    lmi, fixed = hy.vertex_lmi(res.design).holds, hy.fixed_local(res.design).holds
     cells = np.zeros(len(v), bool)
     if lmi:
         cells[:] = True
@@ -366,12 +372,7 @@ def check_reference_values(res: Results) -> Verdict:
 def _sde_constants(res: Results, fixed: bool) -> dict:
     """κ, η, ψ̄ and (52) of Prop 4.1. r* = max_i ‖r_i‖ over the roles the run can take: the fixed g_i,
     or any g_i ∈ [0, 1] for time-varying roles (‖g_i[−L_ih_i; J_ih_i]‖ ≤ ‖[L_ih_i; J_ih_i]‖)."""
-    d, sc = res.design, res.scenario
-    ex = res.runs["exact_fixed"]
-    qmin = float(d["fixed_qbar_min"]) if fixed else float(d["qbar_single"])
-    r_star = float(ex["r_star"]) if fixed else float(ex["r_star_roles"])
-    c = lb.mean_square_constants(res.P, qmin, float(d["phibar"]), float(ex["v_star"]), r_star, sc.N)
-    return {**c, "qmin": qmin, "r_star": r_star}
+    return mean_square_constants(res.design, fixed)
 
 
 def _one_sided_upper(mean: np.ndarray, sd: np.ndarray, bound: np.ndarray, R: int, what: str, *,
@@ -407,30 +408,29 @@ def _one_sided_upper(mean: np.ndarray, sd: np.ndarray, bound: np.ndarray, R: int
 
 def _law_cells(res: Results, run: str, key: str):
     """p-values of the exact law of the simulated fixed-role error along the principal directions u_j (see
-    compute.exact_fixed_moments): y_k = u_jᵀz_k over the R trials are independent N(u_jᵀm_h, s_j²), m_h the
+    design.fixed_law): y_k = u_jᵀz_k over the R trials are independent N(u_jᵀm_h, s_j²), m_h the
     noise-free run at the simulation's step and s_j² the variance of the simulated recursion, so
     Σ(y_k − ȳ)²/s_j² ~ χ²(R − 1) and (ȳ − u_jᵀm_h)/(s_j²/R)^{1/2} ~ N(0, 1), exactly at any R ≥ 2. The mean test
     allows the round-off of the simulation (steps·D·eps·cond(V)·|u|·max|z|: per-step rounding, at most cond(V)
     amplified by the stable recursion; subtracted from |ȳ − u_jᵀm_h| before the p-value); directions whose
     standard deviation is below 1e3 times that (where round-off could change a sum of squares by 0.2 %) are
-    not tested. None when no direction qualifies."""
+    not tested. None when no direction qualifies. The Monte Carlo keeps ȳ and Σ(y_k − ȳ)² per cell, merged
+    over the units of trials."""
     sc = res.scenario
-    ex, r = res.runs["exact_fixed"], res.runs[run]
-    if "red_proj" not in r:
+    law, ex, r = res.design.law, res.runs["exact_fixed"], res.runs[run]
+    if "proj_mean" not in r:
         return None
-    sel = np.isin(ex["probe_index"], r["probe_index"])
-    dirs, var, mu = ex["probe_dirs"][sel], ex[f"sim_var_{key}"][sel], ex[f"mean_proj_{key}"][sel]
-    y = r["red_proj"]                                              # (times, R, k)
-    R = y.shape[1]
+    sel = np.isin(law["probe_index"], r["probe_index"])
+    dirs, var, mu = law["probe_dirs"][sel], law[f"sim_var_{key}"][sel], ex[f"mean_proj_{key}"][sel]
+    ybar, ss = r["proj_mean"], r["proj_m2"]                        # (times, k)
+    R = int(r["trials"])
     steps = int(round(float(r["t"][-1]) / sc.sde_step)) * (2 if key == "half" else 1)
-    zmax = float(np.nanmax(np.sqrt(r["red_V"] / float(res.design["lamP_min"]))))
+    zmax = float(np.sqrt(float(r["V_max"]) / float(res.design["lamP_min"])))
     growth = float(res.design["S_fixed_cond"])      # ‖e^{St}‖ ≤ cond(V) for a stable, diagonalisable S
     rnd = SAFETY * steps * dirs.shape[-1] * EPS * growth * np.linalg.norm(dirs, axis=-1) * zmax     # (times, k)
     use = (var > 0) & (np.sqrt(var) > 1e3 * rnd)
     if not use.any():
         return None
-    ybar = y.mean(1)
-    ss = ((y - ybar[:, None, :]) ** 2).sum(1)
     with np.errstate(divide="ignore", invalid="ignore"):
         zmean = np.maximum(np.abs(ybar - mu) - rnd, 0.0) / np.sqrt(var / R)
         chi = ss / var
@@ -439,7 +439,7 @@ def _law_cells(res: Results, run: str, key: str):
 
 def check_exact_law(res: Results) -> Verdict:
     """The Monte Carlo of the fixed-role SDE (at h and h/2) against the exact law (45)/(60)."""
-    ex = res.runs["exact_fixed"]
+    law = res.design.law
     parts, pvals, trials, detail = [], [], [], []
     for run, key in (("sde_fixed", "h"), ("sde_fixed_half", "half")):
         cells = _law_cells(res, run, key)
@@ -451,15 +451,15 @@ def check_exact_law(res: Results) -> Verdict:
         trials.append(R)
         detail.append(f"{run}: {k} (time, direction) cells, smallest p: mean {pm.min():.3g}, spread {pc.min():.3g}")
     if not pvals:
-        if float(np.max(ex["tr_PSigma"])) == 0.0:
+        if float(np.max(law["tr_PSigma"])) == 0.0:
             return _deterministic_moments(res)
         return not_checkable("the noise is below the simulation's round-off along every principal direction: "
                              + "; ".join(detail))
-    frac = float(np.nanmin(np.sum(ex["probe_var"], axis=1) / np.maximum(ex["tr_PSigma"][ex["probe_index"]], 1e-300)))
+    frac = float(np.nanmin(np.sum(law["probe_var"], axis=1) / np.maximum(law["tr_PSigma"][law["probe_index"]], 1e-300)))
     return p_value_test(np.concatenate(pvals), trials=min(trials), min_trials=2,
                         detail=f"exact tests of the Monte Carlo against the Gaussian law of the simulated recursion "
-                               f"(fixed roles), along the {ex['probe_dirs'].shape[1]} principal directions of "
-                               f"E{{zᵀPz}} under (60) (≥ {frac:.0%} of tr(PΣ)) at {len(ex['probe_index'])} times: mean "
+                               f"(fixed roles), along the {law['probe_dirs'].shape[1]} principal directions of "
+                               f"E{{zᵀPz}} under (60) (≥ {frac:.0%} of tr(PΣ)) at {len(law['probe_index'])} times: mean "
                                f"(normal) and spread (χ²(R − 1)), exact at any R ≥ 2; the recursion's law against "
                                f"(60) itself is {hy.H_SDE}. " + "; ".join(detail))
 
@@ -468,10 +468,11 @@ def _deterministic_moments(res: Results) -> Verdict:
     """No noise: every trial is the noise-free run, so E{V} = V of that run, to the round-off of the
     recursion (steps·D·eps relative)."""
     ex, r = res.runs["exact_fixed"], res.runs["sde_fixed"]
-    mean = r["red_V"].mean(1)
+    mean = r["V_mean"]
     EV = ex["EV"][:len(mean)]
     steps = int(round(float(r["t"][-1]) / res.scenario.sde_step))
-    tol, sentence = roundoff_tolerance(scale=float(np.nanmax(np.abs(EV))) or 1.0, operations=steps * ex["probe_dirs"].shape[-1],
+    D = res.scenario.N * res.scenario.q
+    tol, sentence = roundoff_tolerance(scale=float(np.nanmax(np.abs(EV))) or 1.0, operations=steps * D,
                                        condition=float(res.design["S_fixed_cond"]))
     return inequality(np.abs(mean - EV), np.full_like(EV, tol),
                       detail=f"zero noise intensities: Monte Carlo E{{V}} equals the noise-free run's V; {sentence}")
@@ -501,10 +502,10 @@ def check_prop41_roles(res: Results) -> Verdict:
     fixed-role law (hypotheses.sde_deviation)."""
     c = _sde_constants(res, fixed=False)
     r = res.runs["sde_roles"]
-    V = r["red_V"]
-    dev = hy.sde_deviation(res)[0]
-    bound = lb.mean_square_bound(r["t"], float(V[0].mean()), c["kappa"], c["eta"]) * (1 + dev)
-    return _one_sided_upper(V.mean(1), V.std(1, ddof=1), bound, V.shape[1],
+    mean, sd, R = mc_moments(r, "V")
+    dev = hy.sde_deviation(res.design)[0]
+    bound = lb.mean_square_bound(r["t"], float(mean[0]), c["kappa"], c["eta"]) * (1 + dev)
+    return _one_sided_upper(mean, sd, bound, R,
                             f"E{{V(t)}} (time-varying roles, Monte Carlo) ≤ (46) at every recorded time, κ = "
                             f"{c['kappa']:.4g}, η/κ = {c['eta'] / c['kappa']:.4g}, r* = {c['r_star']:.4g}; bound × "
                             f"(1 + {dev:.3g}) for the scheme's discretisation of the noise")
@@ -517,14 +518,14 @@ def check_limit52(res: Results) -> Verdict:
     c = _sde_constants(res, fixed=False)
     r = res.runs["sde_roles"]
     t = r["t"]
-    late = t >= min(res.scenario.tail_start, t[-1] / 2)
+    late = t >= float(r["late_start"])
     lmin = float(res.design["lamP_min"])
-    V0 = float(r["red_V"][0].mean())
-    dev = hy.sde_deviation(res)[0]
+    V0 = float(r["V_mean"][0])
+    dev = hy.sde_deviation(res.design)[0]
     b_t = np.sqrt(lb.mean_square_bound(t[late], V0, c["kappa"], c["eta"]) * (1 + dev) / lmin)
-    per_trial = r["red_znorm"][late].mean(0)
-    return _one_sided_upper(np.array([per_trial.mean()]), np.array([per_trial.std(ddof=1)]), np.array([b_t.mean()]),
-                            len(per_trial), f"late-window mean of E‖z(t)‖ (t ≥ {t[late][0]:g}) ≤ the time-dependent form "
+    mean, sd, R = mc_moments(r, "late")
+    return _one_sided_upper(np.atleast_1d(mean), np.atleast_1d(sd), np.array([b_t.mean()]),
+                            R, f"late-window mean of E‖z(t)‖ (t ≥ {t[late][0]:g}) ≤ the time-dependent form "
                                             f"of (52), window mean {b_t.mean():.4g} (second moments widened by "
                                             f"1 + {dev:.3g} for the scheme's discretisation); (52) = {c['limit52']:.4g}")
 
@@ -603,8 +604,8 @@ def check_central(res: Results) -> Verdict:
 
 
 def check_step_halving(res: Results) -> Verdict:
-    h = hy.integration(res)
-    est, scale, _ = hy.integration_error(res, "coest")
+    h = hy.integration(res.design)
+    est, scale = (res.design.integration["coest"][k] for k in ("error", "scale"))
     return inequality(np.array([est]), np.array([hy.STEP_RTOL * scale]),
                       detail=f"ETD2RK at h = {res.scenario.step:g} vs h/2, error estimate 2·max|Δ(x̂, ŵ)| (first-order "
                              f"Richardson, conservative) ≤ {hy.STEP_RTOL:g} × the trajectories' size {scale:.3g}. "

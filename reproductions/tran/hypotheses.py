@@ -9,6 +9,9 @@ status and margin are reported with it, and an unstable Ā_i(g) as an infeasibil
 The checks built on simulated trajectories also need the integration to be accurate (step
 halving). Connectivity and collective observability are stated by the paper but used by no
 proof: they are reported, and no claim rests on them.
+
+Every check takes the scenario's `Design` (`design.py`); the step-halving hypothesis needs the
+deterministic runs and is undecided before them (`dse check`).
 """
 from __future__ import annotations
 
@@ -42,14 +45,13 @@ def _decide(margin: np.ndarray, tol: np.ndarray) -> bool | None:
     return None
 
 
-def a_hurwitz(res) -> Holds:
-    v = float(res.design["A_max_real"])
+def a_hurwitz(d) -> Holds:
+    v = float(d["A_max_real"])
     return Holds(v < 0, value=v, threshold=0.0, detail=f"max Re λ(A) = {v:.4g} (a standing assumption: passive nodes "
                                                       "run open loop)")
 
 
-def input_bound(res) -> Holds:
-    d = res.design
+def input_bound(d) -> Holds:
     method = str(d["w_method"])
     how = {"period": f"by branch and bound over the whole period {float(d['w_period']):.6g} of the norm",
            "torus": "by branch and bound over independent phases of the incommensurate frequencies (an upper bound "
@@ -64,8 +66,8 @@ def input_bound(res) -> Holds:
                         f"are used (slack {w - wl:.2g}, {wd - wdl:.2g})")
 
 
-def _lmi_solver_text(res) -> str:
-    d, sc = res.design, res.scenario
+def _lmi_solver_text(d) -> str:
+    sc = d.scenario
     parts = []
     for t, ty in enumerate(sc.types):
         hur = float(np.max(d["lmi_hurwitz_sweep"][t]))
@@ -76,8 +78,7 @@ def _lmi_solver_text(res) -> str:
     return "; ".join(parts)
 
 
-def vertex_lmi(res) -> Holds:
-    d, sc = res.design, res.scenario
+def vertex_lmi(d) -> Holds:
     cert, tol, eps = d["certified_eps"], d["certified_tol"], d["eps_nodes"]
     margin = cert - eps
     worst = int(np.argmin(margin))
@@ -86,11 +87,11 @@ def vertex_lmi(res) -> Holds:
                  detail=f"P_i used ({', '.join(src)}): certified ε (−max eig of Ā_i(g)ᵀP_i + P_iĀ_i(g), g ∈ {{0, 1}}, "
                         f"numpy) per node {np.round(cert, 8).tolist()} against the required ε_i "
                         f"{eps.tolist()}; worst node {worst + 1}: margin {margin[worst]:.4g} (round-off allowance "
-                        f"{tol[worst]:.2g}). Solver: {_lmi_solver_text(res)}")
+                        f"{tol[worst]:.2g}). Solver: {_lmi_solver_text(d)}")
 
 
-def fixed_local(res) -> Holds:
-    d, sc = res.design, res.scenario
+def fixed_local(d) -> Holds:
+    sc = d.scenario
     qmin, tol = d["fixed_Qi_min"], d["fixed_Qi_tol"]
     worst = int(np.argmin(qmin))
     return Holds(_decide(qmin, tol), value=qmin.tolist(), threshold=0.0,
@@ -99,96 +100,83 @@ def fixed_local(res) -> Holds:
                         f"λ_min(Q̄) = {float(d['fixed_qbar_min']):.4g}")
 
 
-def qstar_positive(res) -> Holds:
-    q = float(res.design["qstar"])
+def qstar_positive(d) -> Holds:
+    q = float(d["qstar"])
     if not np.isfinite(q):
         return Holds(None, value=q, threshold=0.0, detail="q* not computed (the 2^N vertex enumeration is skipped for "
                                                           "this many nodes)")
-    d, sc = res.design, res.scenario
+    sc = d.scenario
     q_dim = sc.n + sc.p
     # entries of −(Ā(g)ᵀP + PĀ(g)) + 2α(L⊗I): at most 2·q·max|Ā|·λ_max(P) + ‖2α(L⊗I)‖ in size
     tol = roundoff_tolerance(scale=2 * q_dim * float(np.abs(d["S_fixed"]).max()) * float(d["lamP_max"]) +
                              float(d["qbar_single_norm"]), operations=sc.N * q_dim)[0]
     return Holds(_decide(np.array([q]), np.array([tol])), value=q, threshold=0.0,
                  detail=f"q* = min over g ∈ {{0,1}}^N of λ_min(−(Ā(g)ᵀP + PĀ(g)) + 2α(L⊗I)) = {q:.4g} at g = "
-                        f"{res.design['qstar_g'].tolist()}")
+                        f"{d['qstar_g'].tolist()}")
 
 
-def graph_undirected(res) -> Holds:
-    d = res.design
+def graph_undirected(d) -> Holds:
     asym, lmin = float(d["lap_asymmetry"]), float(d["lap_min_eig"])
     tol = 1e-12 * max(1.0, float(d["lap_max_eig"]))
     return Holds(asym == 0.0 and lmin > -tol, value=lmin, threshold=0.0,
                  detail=f"Laplacian symmetric (max |L − Lᵀ| = {asym:g}) and positive semidefinite (λ_min = {lmin:.3g})")
 
 
-def graph_connected(res) -> Holds:
-    f = float(res.design["lap_fiedler"])
-    tol = 1e-9 * max(1.0, float(res.design["lap_max_eig"]))
-    return Holds(res.scenario.N == 1 or f > tol, value=f, threshold=0.0,
+def graph_connected(d) -> Holds:
+    f = float(d["lap_fiedler"])
+    tol = 1e-9 * max(1.0, float(d["lap_max_eig"]))
+    return Holds(f > tol, value=f, threshold=0.0,
                  detail=f"λ₂(L) = {f:.4g}. Stated by the theorems, used by none of their proofs (only L ⪰ 0 is): "
                         "no claim rests on it")
 
 
-def collective_observability(res) -> Holds:
-    d, n = res.design, res.scenario.n
+def collective_observability(d) -> Holds:
+    n = d.scenario.n
     coll = int(d["rank_obsv_collective"])
     return Holds(coll == n, value=coll, threshold=n,
                  detail=f"rank obsv(A, [C_1; …; C_N]) = {coll} (n = {n}); per node type {d['rank_obsv_local'].tolist()}. "
                         "A well-posedness assumption (footnote 2) that no proof uses: no claim rests on it")
 
 
-def s_fixed_hurwitz(res) -> Holds:
+def s_fixed_hurwitz(d) -> Holds:
     """S at the fixed roles Hurwitz: the fixed-role error (and the simulation's rounding errors) do not grow.
     Decided on the computed eigenvalues up to the Bauer-Fike allowance cond(V)·‖S‖·Nq·eps."""
-    d = res.design
     v, tol = float(d["S_max_real"][2]), float(d["S_tol"][2])
     return Holds(_decide(np.array([-v]), np.array([tol])), value=v, threshold=0.0,
                  detail=f"max Re λ(S) at the fixed roles = {v:.4g} (Bauer-Fike allowance {tol:.2g}; eigenvector "
                         f"condition {float(d['S_fixed_cond']):.3g})")
 
 
-def sde_deviation(res) -> tuple[float, float]:
+def sde_deviation(d) -> tuple[float, float]:
     """Largest relative difference of var(u_jᵀz) between the simulated recursion (at h, at h/2) and (60), over
     the principal directions and check times of the fixed-role law; (0, 0) without noise."""
-    ex = res.runs["exact_fixed"]
-    lam = ex["probe_var"]
+    law = d.law
+    lam = law["probe_var"]
     ok = lam > 0
     if not np.any(ok):
         return 0.0, 0.0
-    return tuple(float(np.max(np.abs(ex[f"sim_var_{k}"][ok] / lam[ok] - 1.0))) for k in ("h", "half"))
+    return tuple(float(np.max(np.abs(law[f"sim_var_{k}"][ok] / lam[ok] - 1.0))) for k in ("h", "half"))
 
 
-def sde_step(res) -> Holds:
+def sde_step(d) -> Holds:
     """The stochastic step is in the scheme's convergent regime: halving it at least halves the difference
     between the simulated recursion's law and (60) (or both are at round-off level, below 1e-6)."""
-    dh, dhalf = sde_deviation(res)
+    dh, dhalf = sde_deviation(d)
     ok = bool(np.isfinite(dh) and np.isfinite(dhalf) and (dh <= 1e-6 or dhalf <= 0.5 * dh))
     return Holds(ok, value=[dh, dhalf], threshold=0.5,
                  detail=f"largest relative difference of var(u_jᵀz) between the simulated recursion and (60) along the "
-                        f"principal directions: {dh:.3g} at h = {res.scenario.sde_step:g}, {dhalf:.3g} at h/2 (halving h "
+                        f"principal directions: {dh:.3g} at h = {d.scenario.sde_step:g}, {dhalf:.3g} at h/2 (halving h "
                         "must at least halve it: the scheme converges to (60) and the step is in that regime)")
 
 
-def integration_error(res, run: str) -> tuple[float, float, float]:
-    """(error estimate of the run at step h, scale of the run, first non-finite time): 2·max|Δ| between the
-    run at h and at h/2 on the recorded samples (a first-order Richardson estimate, conservative for the
-    second-order scheme and for role switches)."""
-    a, b = res.runs[run], res.runs[f"{run}_half"]
-    bad = ~np.isfinite(a["e"]).all(axis=(1, 2)) | ~np.isfinite(b["e"]).all(axis=(1, 2))
-    t_bad = float(a["t"][np.argmax(bad)]) if bad.any() else float("nan")
-    if bad.any():
-        return float("nan"), float("nan"), t_bad
-    est = 2.0 * float(np.abs(a["e"] - b["e"]).max())
-    scale = max(1.0, float(np.abs(a["x"]).max()), float(np.abs(a["w"]).max()), float(np.abs(a["e"]).max()))
-    return est, scale, t_bad
-
-
-def integration(res) -> Holds:
+def integration(d) -> Holds:
+    if d.integration is None:
+        return Holds(None, value=None, threshold=STEP_RTOL,
+                     detail="decided by the run: the deterministic runs at h and h/2 are compared (not simulated here)")
     parts, ok = [], True
     worst = 0.0
     for run in ("coest", "fixed"):
-        est, scale, t_bad = integration_error(res, run)
+        est, scale, t_bad = (d.integration[run][k] for k in ("error", "scale", "t_bad"))
         if not np.isfinite(est):
             ok = False
             parts.append(f"{run}: not finite from t = {t_bad:g} (the error system diverges)")
@@ -198,13 +186,13 @@ def integration(res) -> Holds:
         ok &= rel <= STEP_RTOL
         parts.append(f"{run}: 2·max|Δ(x̂, ŵ)| = {est:.3g} against scale {scale:.3g} (relative {rel:.2g})")
     return Holds(ok, value=worst if ok else float("nan"), threshold=STEP_RTOL,
-                 detail=f"ETD2RK at h = {res.scenario.step:g} against h/2, error estimate relative to the trajectories' "
+                 detail=f"ETD2RK at h = {d.scenario.step:g} against h/2, error estimate relative to the trajectories' "
                         f"size ≤ {STEP_RTOL:g}: " + "; ".join(parts))
 
 
-def noise_bounded(res) -> Holds:
-    ex = res.runs["exact_fixed"]
-    v, h, r = float(ex["v_star"]), float(ex["h_star"]), float(ex["r_star_roles"])
+def noise_bounded(d) -> Holds:
+    law = d.law
+    v, h, r = float(law["v_star"]), float(law["h_star"]), float(law["r_star_roles"])
     return Holds(True, value=[v, h], threshold=None,
                  detail=f"constant intensities: v* = ‖v‖ = {v:.4g}, h* = max‖h_i‖ = {h:.4g}, r* = max_i ‖[L_ih_i; J_ih_i]‖ "
                         f"= {r:.4g} (any role g_i ∈ [0, 1])")

@@ -1,10 +1,12 @@
-"""Figures (PNG) and the Rerun recording of the coestimation family.
+"""Figures (PNG) and the Rerun recording of the coestimation family, drawn from the run's tables.
 
 Figures 2-11 of the paper (Fig. 2 reconstructed) for the paper's example, the same views with
-plain names and titles for users' scenarios, plus roles, bounds and Monte Carlo figures. One recording `<scenario>.rrd` on timeline `t` (duration): the graph at fixed
-positions with each node's role g_i(t) as colour and size, the target and each node's
-estimate in the plane, states and inputs against truth, errors against the bounds, the
-stochastic Monte Carlo against (46) and the exact moments, the LMI results and the claims.
+plain names and titles for users' scenarios, plus roles, bounds and Monte Carlo figures. One
+recording `<scenario>.rrd` on timeline `t` (duration): the graph at fixed positions with each
+node's role g_i(t) as colour and size, the target and each node's estimate in the plane, states
+and inputs against truth, errors against the bounds, the stochastic Monte Carlo against (46) and
+the exact moments, the LMI results and the claims. Every number comes from the tables
+(`tables.py`); the scenario gives only the layout (graph, positions, names).
 """
 from __future__ import annotations
 
@@ -15,12 +17,13 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-import estimators.lyapunov_bounds as lb
+import pandas as pd
+
 from pipeline import record as rec_
 from pipeline.figures import new_figure, save_figure, sequential_colors
 from pipeline.stats import z_for_confidence
+from pipeline.tables import Tables
 
-from .claims import _sde_constants, errors, lyapunov_values
 from .compute import Results
 
 PAPER_STATE_LABELS = ("x₁ (x position)", "x₂ (x velocity)", "x₃ (y position)", "x₄ (y velocity)")
@@ -62,6 +65,48 @@ def state_labels(res: Results, paper: bool) -> list[str]:
 
 def _node_colors(N: int):
     return sequential_colors(N, "tab20") if N <= 20 else sequential_colors(N, "viridis")
+
+
+# -- reading the tables -------------------------------------------------------------------------
+
+def trajectory(tables: Tables, run: str) -> dict[str, np.ndarray] | None:
+    """A run's samples from the tables: t (T,), x (T, n), w (T, p), e (T, N, n+p), g (T, N); None if absent.
+    Noise-free runs share the truth ("deterministic") and the roles of the scenario's run ("coest")."""
+    est = tables["estimates"]
+    est = est[est["run"] == run]
+    if est.empty:
+        return None
+    stochastic = run.startswith("stochastic")
+    truth = tables["truth"]
+    truth = truth[truth["run"] == (run if stochastic else "deterministic")].sort_values(["t", "component"])
+    roles = tables["roles"]
+    roles = roles[roles["run"] == (run if stochastic else "coest")].sort_values(["t", "node"])
+    est = est.sort_values(["t", "node", "component"])
+    t = np.unique(est["t"].to_numpy())
+    T, N, q = len(t), int(est["node"].max()) + 1, int(est["component"].max()) + 1
+    xw = truth["value"].to_numpy().reshape(T, q)
+    return {"t": t, "xw": xw, "e": est["value"].to_numpy().reshape(T, N, q),
+            "g": roles["g"].to_numpy().reshape(T, N) if run != "fixed" else None}
+
+
+def run_arrays(res: Results, tables: Tables, run: str) -> dict[str, np.ndarray] | None:
+    """`trajectory` split into x and w with the scenario's n, and the fixed roles for the fixed run."""
+    tr = trajectory(tables, run)
+    if tr is None:
+        return None
+    n = res.scenario.n
+    g = tr["g"] if tr["g"] is not None else np.broadcast_to(np.asarray(res.scenario.fixed_active), tr["e"].shape[:2])
+    return {"t": tr["t"], "x": tr["xw"][:, :n], "w": tr["xw"][:, n:], "e": tr["e"], "g": g}
+
+
+def bound_values(tables: Tables) -> dict[tuple[str, str], float]:
+    b = tables["bounds"]
+    return {(q, v): float(x) for q, v, x in zip(b["quantity"], b["variant"], b["value"])}
+
+
+def network_errors(tables: Tables, run: str) -> pd.DataFrame:
+    e = tables["errors"]
+    return e[(e["run"] == run) & e["node"].isna()].sort_values("t")
 
 
 # -- figures ----------------------------------------------------------------------------------
@@ -142,11 +187,10 @@ def _draw_network(ax, res: Results, g: np.ndarray | None = None, tag_active: boo
         ax.annotate(f"{i + 1}{tag}", pos[i], xytext=(5, 5), textcoords="offset points", fontsize=7)
 
 
-def _graph_figure(res: Results, path: Path, title: str, labels: list[str]) -> None:
+def _graph_figure(res: Results, run: dict, path: Path, title: str, labels: list[str]) -> None:
     sc = res.scenario
     fig, axes = new_figure(width=6.4, height=5.4)
     ax = axes[0, 0]
-    run = res.runs["coest"]
     _draw_network(ax, res, run["g"], tag_active=False)
     a, b = sc.position_states
     ax.plot(run["x"][:, a], run["x"][:, b], "k--", lw=1, label="target path (deterministic run)")
@@ -159,9 +203,8 @@ def _graph_figure(res: Results, path: Path, title: str, labels: list[str]) -> No
     save_figure(fig, path)
 
 
-def _roles_figure(res: Results, path: Path) -> None:
+def _roles_figure(res: Results, run: dict, path: Path) -> None:
     sc = res.scenario
-    run = res.runs["coest"]
     cols = _node_colors(sc.N)
     fig, axes = new_figure(nrows=2, width=9, height=2.6)
     for i in range(sc.N):
@@ -174,40 +217,37 @@ def _roles_figure(res: Results, path: Path) -> None:
     save_figure(fig, path)
 
 
-def _bounds_figure(res: Results, path: Path) -> None:
-    d = res.design
+def _bounds_figure(tables: Tables, path: Path) -> None:
+    b = bound_values(tables)
     fig, axes = new_figure(ncols=2, width=5.4, height=4)
     for ax, run, label, bounds in (
             (axes[0, 0], "coest", "time-varying roles",
-             [("(18), single ε", d["bound18_single"]), ("(18), per-node ε_i", d["bound18_pernode"]),
-              ("(18), certified ε_i", d["bound18_certified"]), ("(18), vertex q*", d["bound18_qstar"])]),
-            (axes[0, 1], "fixed", "fixed roles (Thm 2.1)", [("(18), Q̄ = Q + 2αL⊗I", d["fixed_bound18"])])):
-        z = errors(res, run)
-        t = res.runs[run]["t"]
-        ax.semilogy(t, np.linalg.norm(z.reshape(len(z), -1), axis=1), "k-", label="‖z(t)‖")
+             [("(18), single ε", b[("bound18", "single")]), ("(18), per-node ε_i", b[("bound18", "pernode")]),
+              ("(18), certified ε_i", b[("bound18", "certified")]), ("(18), vertex q*", b[("bound18", "qstar")])]),
+            (axes[0, 1], "fixed", "fixed roles (Thm 2.1)", [("(18), Q̄ = Q + 2αL⊗I", b[("bound18", "fixed")])])):
+        e = network_errors(tables, run)
+        ax.semilogy(e["t"], e["norm_z"], "k-", label="‖z(t)‖")
         for (name, val), col in zip(bounds, sequential_colors(len(bounds), "plasma")):
-            if np.isfinite(float(val)):
-                ax.axhline(float(val), color=col, ls="--", label=f"{name} = {float(val):.3g}")
+            if np.isfinite(val):
+                ax.axhline(val, color=col, ls="--", label=f"{name} = {val:.3g}")
         ax.set_xlabel("t (s)")
         ax.set_title(label, fontsize=9)
         ax.legend(fontsize=7)
     save_figure(fig, path)
 
 
-def _mc_figure(res: Results, path: Path) -> None:
+def _mc_figure(tables: Tables, path: Path) -> None:
     fig, axes = new_figure(ncols=2, width=5.4, height=4)
     z = z_for_confidence(0.95)
+    mc = tables["mc_series"]
     for ax, run, fixed in ((axes[0, 0], "sde_fixed", True), (axes[0, 1], "sde_roles", False)):
-        r = res.runs[run]
-        V = r["red_V"]
-        m, se = V.mean(1), V.std(1, ddof=1) / np.sqrt(V.shape[1])
-        ax.semilogy(r["t"], m, "b-", label=f"Monte Carlo mean ({V.shape[1]} trials)")
-        ax.fill_between(r["t"], np.maximum(m - z * se, 1e-3), m + z * se, color="b", alpha=0.25, label="95% CI")
+        r = mc[mc["run"] == run].sort_values("t")
+        t, m, se = r["t"].to_numpy(), r["V_mean"].to_numpy(), r["V_se"].to_numpy()
+        ax.semilogy(t, m, "b-", label=f"Monte Carlo mean ({int(r['trials'].iloc[0])} trials)")
+        ax.fill_between(t, np.maximum(m - z * se, 1e-3), m + z * se, color="b", alpha=0.25, label="95% CI")
         if fixed:
-            ex = res.runs["exact_fixed"]
-            ax.semilogy(ex["t"], ex["EV"], "k--", lw=1, label="exact moments")
-        c = _sde_constants(res, fixed=fixed)
-        ax.semilogy(r["t"], lb.mean_square_bound(r["t"], m[0], c["kappa"], c["eta"]), "r:", label="bound (46)")
+            ax.semilogy(t, r["exact_EV"], "k--", lw=1, label="exact moments")
+        ax.semilogy(t, r["bound46"], "r:", label="bound (46)")
         ax.set_xlabel("t (s)")
         ax.set_ylabel("E{zᵀPz}")
         ax.set_title("fixed roles" if fixed else "time-varying roles", fontsize=9)
@@ -215,42 +255,45 @@ def _mc_figure(res: Results, path: Path) -> None:
     save_figure(fig, path)
 
 
-def _stochastic_run(res: Results, k: int = 0) -> dict:
-    r = res.runs["sde_roles"]
-    return {"t": r["t"], "w": r["w"], "x": r["kept_x"][k], "e": r["kept_e"][k], "g": r["kept_g"][k]}
+def _stochastic_runs(res: Results, tables: Tables) -> list[dict]:
+    runs, k = [], 0
+    while (r := run_arrays(res, tables, f"stochastic_{k}")) is not None:
+        runs.append(r)
+        k += 1
+    return runs
 
 
-def write_figures(res: Results, out_dir: Path, paper: bool = True) -> None:
+def write_figures(res: Results, tables: Tables, out_dir: Path, paper: bool = True) -> None:
     figs = out_dir / "figures"
     sc = res.scenario
-    co = res.runs["coest"]
+    co = run_arrays(res, tables, "coest")
     labels = state_labels(res, paper)
 
     def where(key):
         name, title = _figure(key, paper)
         return title, figs / f"{name}.png"
 
-    _graph_figure(res, where("graph")[1], where("graph")[0], labels)
+    _graph_figure(res, co, where("graph")[1], where("graph")[0], labels)
     _states_figure(res, co, *where("states"), labels)
     _inputs_figure(res, co, *where("inputs"))
     _plane_figure(res, co, *where("plane"), labels)
-    if "comparison" in res.runs:
-        cp = res.runs["comparison"]
+    cp = run_arrays(res, tables, "comparison")
+    if cp is not None:
         _states_figure(res, cp, *where("comp_states"), labels)
         _inputs_figure(res, cp, *where("comp_inputs"))
         _plane_figure(res, cp, *where("comp_plane"), labels)
-    r = res.runs["sde_roles"]
-    if r["kept_x"].size:
-        run0 = _stochastic_run(res)
-        band = (r["kept_x"].min(0), r["kept_x"].max(0), r["kept_x"].shape[0])
+    runs = _stochastic_runs(res, tables)
+    if runs:
+        xs = np.stack([r["x"] for r in runs])
+        band = (xs.min(0), xs.max(0), len(runs))
         a, b = sc.position_states
         others = [k for k in range(sc.n) if k not in (a, b)]
-        _states_figure(res, run0, *where("sde_pos"), labels, states=[a, b], band=band)
-        _states_figure(res, run0, *where("sde_other"), labels, states=others or [a], band=band)
-        _inputs_figure(res, run0, *where("sde_inputs"))
-    _roles_figure(res, figs / "roles.png")
-    _bounds_figure(res, figs / "bounds.png")
-    _mc_figure(res, figs / "mean_square.png")
+        _states_figure(res, runs[0], *where("sde_pos"), labels, states=[a, b], band=band)
+        _states_figure(res, runs[0], *where("sde_other"), labels, states=others or [a], band=band)
+        _inputs_figure(res, runs[0], *where("sde_inputs"))
+    _roles_figure(res, co, figs / "roles.png")
+    _bounds_figure(tables, figs / "bounds.png")
+    _mc_figure(tables, figs / "mean_square.png")
 
 
 # -- recording --------------------------------------------------------------------------------
@@ -259,45 +302,47 @@ def _rgb(c) -> tuple[int, int, int]:
     return tuple(int(255 * x) for x in c[:3])
 
 
-def lmi_markdown(res: Results) -> str:
-    d, sc = res.design, res.scenario
+def lmi_markdown(tables: Tables) -> str:
+    nt, b = tables["node_types"], bound_values(tables)
+    cells = tables["s_cells"].set_index("cell")
+    spectra = tables["spectra"]
     lines = ["# LMI results", "", "## (28)-(29): coestimation, per node type", "",
              "| type | ε | Clarabel status | normalised margin t* | verified max eig at P* | given P: max eig g=0 | g=1 |",
              "|---|---|---|---|---|---|---|"]
-    for t, ty in enumerate(sc.types):
-        pg = d["given_sweep"][t] if "given_sweep" in d else None
-        lines.append(f"| {ty.name} | {ty.eps:g} | {d['lmi_status'][t]} | {float(d['lmi_margin'][t]):.4g} | "
-                     f"{float(d['lmi_verified'][t]):.4g} | {'' if pg is None else f'{pg[0]:.4g}'} | "
-                     f"{'' if pg is None else f'{pg[-1]:.4g}'} |")
+    for r in nt.itertuples():
+        lines.append(f"| {r.type} | {r.eps:g} | {r.lmi_status} | {r.lmi_margin:.4g} | {r.lmi_verified:.4g} | "
+                     f"{'' if np.isnan(r.given_max_eig_g0) else f'{r.given_max_eig_g0:.4g}'} | "
+                     f"{'' if np.isnan(r.given_max_eig_g1) else f'{r.given_max_eig_g1:.4g}'} |")
     lines += ["", "## (38)-(39): the comparison architecture", ""]
-    if "comp_status" in d:   # the LMIs at the coestimation σ and the smallest feasible σ: the paper's example only
+    if (nt["comparison_status_at_sigma"] != "").any():   # at the coestimation σ: the paper's example only
         lines += ["| type | σ (coestimation) | status | t* | smallest feasible σ | σ_b used | status | t* |",
                   "|---|---|---|---|---|---|---|---|"]
-        for t, ty in enumerate(sc.types):
-            lines.append(f"| {ty.name} | {ty.sigma:g} | {d['comp_status'][t]} | {float(d['comp_margin'][t]):.4g} | "
-                         f"{float(d['comp_sigma_min'][t]):.4g} | {ty.comparison_sigma:g} | {d['comp_status_b'][t]} | "
-                         f"{float(d['comp_margin_b'][t]):.4g} |")
+        for r in nt.itertuples():
+            lines.append(f"| {r.type} | {r.sigma:g} | {r.comparison_status_at_sigma} | {r.comparison_margin_at_sigma:.4g} | "
+                         f"{r.comparison_sigma_min:.4g} | {r.comparison_sigma:g} | {r.comparison_status} | "
+                         f"{r.comparison_margin:.4g} |")
     else:
         lines += ["| type | σ_b used | status | t* |", "|---|---|---|---|"]
-        for t, ty in enumerate(sc.types):
-            lines.append(f"| {ty.name} | {ty.comparison_sigma:g} | {d['comp_status_b'][t]} | "
-                         f"{float(d['comp_margin_b'][t]):.4g} |")
-    lines += ["", "## Bounds", "", f"- w̄ = {float(d['wbar']):.6g} (sup‖w‖ = {float(d['w_sup']):.6g}, sup‖ẇ‖ = "
-              f"{float(d['wdot_sup']):.6g}); φ̄ = {float(d['phibar']):.6g} (tight {float(d['phibar_tight']):.6g})",
-              f"- λ_min(P) = {float(d['lamP_min']):.5g}, λ_max(P) = {float(d['lamP_max']):.5g}",
-              f"- (18) single ε: {float(d['bound18_single']):.4g}; per-node ε_i: {float(d['bound18_pernode']):.4g}; "
-              f"certified: {float(d['bound18_certified']):.4g}; vertex q* ({float(d['qstar']):.4g}): "
-              f"{float(d['bound18_qstar']):.4g}",
-              f"- fixed roles: λ_min(Q̄) = {float(d['fixed_qbar_min']):.4g}, (18) = {float(d['fixed_bound18']):.4g}",
-              f"- max Re λ(S) at g ≡ 0 / g ≡ 1: {float(d['S_max_real'][0]):.4g} / {float(d['S_max_real'][1]):.4g}; "
-              f"min Re λ: {d['S_min_real'].round(1).tolist()}"]
+        for r in nt.itertuples():
+            lines.append(f"| {r.type} | {r.comparison_sigma:g} | {r.comparison_status} | {r.comparison_margin:.4g} |")
+    smin = [float(spectra[spectra["matrix"] == f"S_{c}"]["real"].min()) for c in ("all_passive", "all_active")]
+    lines += ["", "## Bounds", "", f"- w̄ = {b[('wbar', '')]:.6g} (sup‖w‖ = {b[('w_sup', '')]:.6g}, sup‖ẇ‖ = "
+              f"{b[('wdot_sup', '')]:.6g}); φ̄ = {b[('phibar', 'paper')]:.6g} (tight {b[('phibar', 'tight')]:.6g})",
+              f"- λ_min(P) = {b[('lamP_min', '')]:.5g}, λ_max(P) = {b[('lamP_max', '')]:.5g}",
+              f"- (18) single ε: {b[('bound18', 'single')]:.4g}; per-node ε_i: {b[('bound18', 'pernode')]:.4g}; "
+              f"certified: {b[('bound18', 'certified')]:.4g}; vertex q* ({b[('qbar_min', 'qstar')]:.4g}): "
+              f"{b[('bound18', 'qstar')]:.4g}",
+              f"- fixed roles: λ_min(Q̄) = {b[('qbar_min', 'fixed')]:.4g}, (18) = {b[('bound18', 'fixed')]:.4g}",
+              f"- max Re λ(S) at g ≡ 0 / g ≡ 1: {cells.loc['all_passive', 'max_real']:.4g} / "
+              f"{cells.loc['all_active', 'max_real']:.4g}; min Re λ: {np.round(smin, 1).tolist()}"]
     return "\n".join(lines)
 
 
-def write_recording(res: Results, path: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:
-    sc, d = res.scenario, res.design
+def write_recording(res: Results, tables: Tables, path: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:
+    sc = res.scenario
     n, p, N = sc.n, sc.p, sc.N
-    co = res.runs["coest"]
+    co = run_arrays(res, tables, "coest")
+    bv = bound_values(tables)
     t_ns = np.round(co["t"] * 1e9).astype(np.int64)
     idx = rec_.duration_index("t", t_ns)
     cols = [_rgb(c) for c in _node_colors(N)]
@@ -367,67 +412,62 @@ def write_recording(res: Results, path: Path, claims: list[dict], prov: dict, pa
             rec_.send_series(rec, f"states/w{k + 1}/nodes", idx, co["e"][:, :, n + k], names=names, colors=cols, width=1)
             rec_.send_series(rec, f"states/w{k + 1}/truth", idx, co["w"][:, k], names="true", colors=[(0, 0, 0)], width=2.5)
             rec_.send_series(rec, f"truth/w{k + 1}", idx, co["w"][:, k], names=f"w{k + 1}", colors=[(0, 0, 0)])
-        z = errors(res, "coest")
+        err = tables["errors"]
         for i in range(N):
             rec_.send_series(rec, f"nodes/{i}/estimate", idx, co["e"][:, i],
                              names=[f"x̂{k + 1}" for k in range(n)] + [f"ŵ{k + 1}" for k in range(p)])
-            rec_.send_series(rec, f"nodes/{i}/error", idx, np.c_[np.linalg.norm(z[:, i, :n], axis=1),
-                                                                  np.linalg.norm(z[:, i, n:], axis=1)],
-                             names=["‖x̃_i‖", "‖w̃_i‖"])
-        if "comparison" in res.runs:
-            cp = res.runs["comparison"]
+            ei = err[(err["run"] == "coest") & (err["node"] == i)].sort_values("t")
+            rec_.send_series(rec, f"nodes/{i}/error", idx, ei[["norm_x", "norm_w"]].to_numpy(), names=["‖x̃_i‖", "‖w̃_i‖"])
+        cp = run_arrays(res, tables, "comparison")
+        if cp is not None:
             for k in range(n):
                 rec_.send_series(rec, f"comparison/x{k + 1}/nodes", idx, cp["e"][:, :, k], names=names, colors=cols, width=1)
                 rec_.send_series(rec, f"comparison/x{k + 1}/truth", idx, cp["x"][:, k], names="true", colors=[(0, 0, 0)],
                                  width=2.5)
-            zc = errors(res, "comparison")
-            rec_.send_series(rec, "errors/comparison", idx, np.c_[np.linalg.norm(zc[..., :n], axis=-1).mean(1),
-                                                                  np.linalg.norm(zc[..., n:], axis=-1).mean(1)],
+            rec_.send_series(rec, "errors/comparison", idx, network_errors(tables, "comparison")[["norm_x", "norm_w"]].to_numpy(),
                              names=["comparison mean ‖x̃‖", "comparison mean ‖w̃‖"], colors=[(214, 39, 40), (255, 152, 150)])
-        rec_.send_series(rec, "errors/coestimation", idx, np.c_[np.linalg.norm(z[..., :n], axis=-1).mean(1),
-                                                                np.linalg.norm(z[..., n:], axis=-1).mean(1)],
+        net = network_errors(tables, "coest")
+        rec_.send_series(rec, "errors/coestimation", idx, net[["norm_x", "norm_w"]].to_numpy(),
                          names=["coestimation mean ‖x̃‖", "coestimation mean ‖w̃‖"], colors=[(31, 119, 180), (174, 199, 232)])
-        c = res.runs["central"]
-        kidx = rec_.duration_index("t", np.round(c["det_t"] * 1e9).astype(np.int64))
-        stride = int(round(sc.kf_dt / sc.record_dt))
-        truth = np.c_[co["x"], co["w"]][::stride]
-        rec_.send_series(rec, "central/estimate", kidx, c["det_s"], names=[f"KF x̂{k + 1}" for k in range(n)] +
+        c = tables["central"]
+        c = c[c["run"] == "deterministic"].sort_values(["t", "component"])
+        kt = np.unique(c["t"].to_numpy())
+        kidx = rec_.duration_index("t", np.round(kt * 1e9).astype(np.int64))
+        est, truth = c["estimate"].to_numpy().reshape(len(kt), -1), c["truth"].to_numpy().reshape(len(kt), -1)
+        rec_.send_series(rec, "central/estimate", kidx, est, names=[f"KF x̂{k + 1}" for k in range(n)] +
                          [f"KF ŵ{k + 1}" for k in range(p)])
-        rec_.send_series(rec, "errors/central_kf", kidx, np.c_[np.linalg.norm(c["det_s"][:, :n] - truth[:, :n], axis=1),
-                                                                np.linalg.norm(c["det_s"][:, n:] - truth[:, n:], axis=1)],
+        rec_.send_series(rec, "errors/central_kf", kidx, np.c_[np.linalg.norm(est[:, :n] - truth[:, :n], axis=1),
+                                                                np.linalg.norm(est[:, n:] - truth[:, n:], axis=1)],
                          names=["central KF ‖x̃‖", "central KF ‖w̃‖"], colors=[(0, 0, 0), (127, 127, 127)])
         # bounds
-        nz = np.linalg.norm(z.reshape(len(z), -1), axis=1)
+        nz = net["norm_z"].to_numpy()
         rec_.send_series(rec, "bounds/roles/norm_z", idx, nz, names="‖z(t)‖", colors=[(0, 0, 0)], width=2)
         for name in ("single", "pernode", "certified", "qstar"):
-            val = float(d[f"bound18_{name}"])
+            val = bv[("bound18", name)]
             if np.isfinite(val):
                 rec_.send_series(rec, f"bounds/roles/bound18_{name}", idx, np.full(len(nz), val), names=f"(18) {name}")
-        zf = errors(res, "fixed")
-        rec_.send_series(rec, "bounds/fixed/norm_z", idx, np.linalg.norm(zf.reshape(len(zf), -1), axis=1), names="‖z(t)‖",
-                         colors=[(0, 0, 0)], width=2)
-        rec_.send_series(rec, "bounds/fixed/bound18", idx, np.full(len(zf), float(d["fixed_bound18"])), names="(18)")
-        rec_.send_series(rec, "bounds/roles/V", idx, lyapunov_values(res, z), names="V = zᵀPz", colors=[(44, 160, 44)])
+        nzf = network_errors(tables, "fixed")["norm_z"].to_numpy()
+        rec_.send_series(rec, "bounds/fixed/norm_z", idx, nzf, names="‖z(t)‖", colors=[(0, 0, 0)], width=2)
+        rec_.send_series(rec, "bounds/fixed/bound18", idx, np.full(len(nzf), bv[("bound18", "fixed")]), names="(18)")
+        rec_.send_series(rec, "bounds/roles/V", idx, net["V"].to_numpy(), names="V = zᵀPz", colors=[(44, 160, 44)])
         # Monte Carlo
-        for run, fixed in (("sde_fixed", True), ("sde_roles", False)):
-            r = res.runs[run]
-            sidx = rec_.duration_index("t", np.round(r["t"] * 1e9).astype(np.int64))
-            V = r["red_V"]
-            m, se = V.mean(1), V.std(1, ddof=1) / np.sqrt(V.shape[1])
-            zc95 = z_for_confidence(0.95)
+        mc = tables["mc_series"]
+        zc95 = z_for_confidence(0.95)
+        for run in ("sde_fixed", "sde_roles"):
+            r = mc[mc["run"] == run].sort_values("t")
+            sidx = rec_.duration_index("t", np.round(r["t"].to_numpy() * 1e9).astype(np.int64))
+            m, se = r["V_mean"].to_numpy(), r["V_se"].to_numpy()
             rec_.send_series(rec, f"mc/{run}/mean_V", sidx, np.c_[m, m - zc95 * se, m + zc95 * se],
                              names=[f"{run}: mean V", f"{run}: 95% low", f"{run}: 95% high"])
-            cst = _sde_constants(res, fixed=fixed)
-            rec_.send_series(rec, f"mc/{run}/bound46", sidx, lb.mean_square_bound(r["t"], m[0], cst["kappa"], cst["eta"]),
-                             names=f"{run}: (46)")
-        ex = res.runs["exact_fixed"]
-        rec_.send_series(rec, "mc/sde_fixed/exact", rec_.duration_index("t", np.round(ex["t"] * 1e9).astype(np.int64)),
-                         ex["EV"], names="fixed roles: exact E{V}", colors=[(0, 0, 0)])
-        rec_.log_markdown(rec, "lmi", lmi_markdown(res))
+            rec_.send_series(rec, f"mc/{run}/bound46", sidx, r["bound46"].to_numpy(), names=f"{run}: (46)")
+            if run == "sde_fixed":
+                rec_.send_series(rec, "mc/sde_fixed/exact", sidx, r["exact_EV"].to_numpy(), names="fixed roles: exact E{V}",
+                                 colors=[(0, 0, 0)])
+        rec_.log_markdown(rec, "lmi", lmi_markdown(tables))
         counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
         rec_.log_claims(rec, claims, f"# {sc.name}: {counts}")
 
 
-def write_outputs(res: Results, out_dir: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:
-    write_figures(res, out_dir, paper)
-    write_recording(res, out_dir / f"{res.scenario.name}.rrd", claims, prov, paper)
+def write_outputs(res: Results, tables: Tables, out_dir: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:
+    write_figures(res, tables, out_dir, paper)
+    write_recording(res, tables, out_dir / f"{res.scenario.name}.rrd", claims, prov, paper)

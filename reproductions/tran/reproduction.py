@@ -8,13 +8,27 @@ from typing import Any
 from pipeline.cache import StageCache
 from pipeline.reproduction import RunOptions
 
-from . import claims as claims_mod
-from . import compute as compute_mod
-from . import hypotheses as hypotheses_mod
-from . import outputs
-from .scenario import CoestimationScenario, paper_scenario, scenario_from_dict
+from .scenario import CoestimationFile, CoestimationScenario, paper_scenario, scenario_from_dict
+
+# compute, claims and outputs (cvxpy, scipy, matplotlib, rerun) are imported when first needed, so that
+# validating a scenario file and reporting its errors stays fast.
 
 TITLE = "Tran, Yucelen, Jagannathan & Casbeer: Distributed coestimation in heterogeneous sensor networks"
+
+#: the whole scenario file, declared (docs/scenarios.md is generated from it)
+SCENARIO_MODEL = CoestimationFile
+
+FAMILY_INTRO = """A linear process ẋ = Ax + Bw with an unknown input w(t) (a sum of sinusoids), observed by N nodes
+of several types (each its own C_i, gains L_i, J_i, K_i, σ_i) on an undirected graph. Every node runs the
+coestimation architecture (3)-(4)/(22)-(23): it estimates x and w, weighs its measurement by its role g_i(t)
+(fixed, or by proximity of the target) and couples to its neighbours through H_i = P_i⁻¹, with the P_i given,
+from the vertex LMIs (28)-(29), or from the Lyapunov equation (10). Checked: the LMIs and their certificates,
+the ultimate bounds (18) with fixed and time-varying roles, the mean-square bound (46) and the limit (52) of
+the stochastic variant (40)-(41) by Monte Carlo and against the exact Gaussian law of the fixed-role error
+(60). Tables: `node_types`, `node_design`, `bounds`, `matrices`, `spectra`, `role_sweep`, `noise`
+(design; also from `dse check`), `nodes`, `node_covariance`, `truth`, `estimates`, `roles`, `errors`,
+`mc_series`, `central` and `metrics`. Networks of 2 to 40 nodes (N(n + p) <= 240); horizons up to 10⁴ s at
+steps down to 10⁻⁵ s (the runs stream over time and trials; samples are kept every `simulation.record_dt`)."""
 
 NOTES = """Reconstructions (values the paper does not give), all configurable in paper.toml:
 Figure 2 graph = 4-neighbour 4×3 grid (17 edges) with nodes at x ∈ {−2, 0, 2, 4}, y ∈ {3, 0.5, −2} (row-major);
@@ -56,7 +70,12 @@ the smallest feasible σ is ≈ 0.296 / 0.161); the text after (52) drops a λ_m
 "necessary condition" is false in general (two-node counterexample). The centralized KF of Ex. 5.2 is nearly exact
 because the paper's measurement noise h_i dS_i is rank one per node (one noise-free combination of each node's two
 outputs); the distributed estimators do not exploit this. Not implemented: a redraw-per-run option for the Ex. 5.2
-noise intensities (they are drawn once per seed)."""
+noise intensities (they are drawn once per seed). See docs/papers/tran.md."""
+
+FAMILY_NOTES = """Hypotheses first: each theorem's conditions are decided on the design (certified LMI margins, Q_i > 0 at
+the fixed roles, a certified w̄, accurate integration by step halving); a claim whose hypotheses do not hold is not
+checkable. Statistical verdicts: exact normal and χ² tests against the Gaussian law of the simulated fixed-role error,
+one-sided t tests for the mean-square bounds, under the report's family-wise confidence. See docs/papers/tran.md."""
 
 
 class CoestimationReproduction:
@@ -70,22 +89,67 @@ class CoestimationReproduction:
         return [self.scenario.name]
 
     def claims(self):
-        return claims_mod.catalogue()
+        from . import claims
+
+        return claims.catalogue()
 
     def hypotheses(self):
-        return hypotheses_mod.catalogue()
+        from . import hypotheses
+
+        return hypotheses.catalogue()
 
     def trials(self, opts: RunOptions) -> int:
-        return compute_mod.trial_count(self.scenario, opts)
+        from . import compute
 
-    def compute(self, opts: RunOptions, cache: StageCache) -> compute_mod.Results:
-        return compute_mod.compute(self.scenario, opts, cache, paper=self.is_paper)
+        return compute.trial_count(self.scenario, opts)
 
-    def write_outputs(self, results, out_dir: Path, claims: list[dict], prov: dict) -> None:
-        outputs.write_outputs(results, out_dir, claims, prov, paper=self.is_paper)
+    def design(self, opts: RunOptions):
+        """The deterministic design (LMIs, bounds, spectra, the noise of the seed and the exact fixed-role
+        law), no simulation."""
+        from . import compute
+
+        return compute.design(self.scenario, opts.quick, opts.seed, paper=self.is_paper)
+
+    @staticmethod
+    def design_of(results):
+        return results.design
+
+    @staticmethod
+    def design_tables(design):
+        from . import tables
+
+        return tables.design_tables(design)
+
+    def estimate(self, opts: RunOptions) -> dict[str, Any]:
+        from . import cost
+
+        c = cost.estimate(self.scenario, opts, paper=self.is_paper)
+        return {"seconds": c.seconds, "peak_memory_mib": c.peak_mib, "detail": c.detail}
+
+    def compute(self, opts: RunOptions, cache: StageCache):
+        from . import compute
+
+        return compute.compute(self.scenario, opts, cache, paper=self.is_paper)
+
+    @staticmethod
+    def tables(results):
+        from . import tables
+
+        return tables.run_tables(results)
+
+    def write_outputs(self, results, out_dir: Path, claims: list[dict], prov: dict, tables=None) -> None:
+        from . import outputs
+
+        if tables is None:
+            from pipeline.tables import Tables
+
+            tables = Tables()
+            for spec, frame in self.tables(results):
+                tables.add(spec, frame)
+        outputs.write_outputs(results, tables, out_dir, claims, prov, paper=self.is_paper)
 
     def notes(self) -> str:
-        return NOTES if self.is_paper else "User scenario of the coestimation family; see the paper's report for the method notes."
+        return NOTES if self.is_paper else FAMILY_NOTES
 
 
 def paper() -> CoestimationReproduction:

@@ -1,0 +1,141 @@
+"""Time and memory of a coestimation run, estimated from the scenario before anything runs.
+
+A cost model: each stage's work counted from the scenario's sizes (integration steps, trials,
+recorded samples, the stacked dimension D = n + N(n + p), nodes, role vertices), times constants
+measured on the development machine (CPU seconds; docs/papers/tran.md gives the measured ratios).
+Memory: the interpreter and libraries, what the run keeps (the recorded samples of every
+deterministic run and of the stored stochastic trials, the per-time Monte Carlo moments, the
+claims' temporaries over the samples, the tables built from them) and one Monte Carlo chunk per
+worker (streamed: bounded by the budget). A run whose kept part exceeds the budget is refused
+before it starts, naming the key that sizes it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pipeline.errors import ScenarioError
+from pipeline.reproduction import RunOptions
+from pipeline.simulate import RNG_UNIT, units_per_chunk
+
+from .scenario import CoestimationScenario
+
+MIB = 2.0**20
+#: a run estimated longer than this says so when it starts
+LONG_RUN_S = 60.0
+#: resident memory before any array: Python, numpy, scipy, cvxpy, pandas, pyarrow, matplotlib, rerun
+BASE_MIB = 330.0
+#: CPU seconds: interpreter start and imports
+STARTUP_S = 2.5
+#: CPU seconds: the LMIs of one node type (feasibility, margin, the comparison LMIs)
+LMI_TYPE_S = 0.35
+#: CPU seconds: the paper's extra LMIs (smallest feasible σ by bisection, the J sweep), per node type
+EXTRAS_TYPE_S = 2.5
+#: CPU seconds per node: certified margins, the Lemma 3.1 sweep over 101 roles, Q_i
+DESIGN_NODE_S = 0.02
+#: CPU seconds per cubed stacked dimension: one dense eigen-decomposition or exponential of size Nq
+EIG_CUBE_S = 4.0e-9
+#: CPU seconds per role vertex and cubed stacked dimension (batched symmetric eigenvalues), two enumerations
+VERTEX_CUBE_S = 1.2e-9
+#: CPU seconds per recorded sample of the stochastic horizon and cubed stacked dimension (the exact law)
+LAW_CUBE_S = 5.0e-9
+#: CPU seconds per integration step of one trajectory: Python and numpy calls, and per squared dimension
+STEP_CALL_S = 25e-6
+STEP_D2_S = 1.2e-9
+#: CPU seconds per trial-step: per squared dimension, per noise draw and dimension
+TRIAL_D2_S = 1.0e-9
+TRIAL_NOISE_S = 1.2e-9
+#: CPU seconds per trial, recorded sample and stacked dimension (the reduction)
+TRIAL_RECORD_S = 8e-9
+#: CPU seconds per recorded sample and stacked dimension: the claims' checks along the runs
+CLAIM_SAMPLE_S = 2.0e-7
+#: CPU seconds per recorded sample of the central Kalman filter (filterpy, Python loop)
+KF_SAMPLE_S = 3e-4
+#: CPU seconds: figures, recording and report of a small scenario; per table row
+OUTPUTS_S = 6.0
+ROW_S = 1.5e-6
+
+
+@dataclass(frozen=True)
+class Cost:
+    seconds: float
+    peak_mib: float
+    kept_mib: float       # what cannot be streamed (recorded samples, moments, tables)
+    chunk_mib: float      # one Monte Carlo chunk, per worker
+    detail: str
+
+
+def human_seconds(s: float) -> str:
+    for unit, size in (("days", 86400.0), ("hours", 3600.0), ("minutes", 60.0)):
+        if s >= 2 * size:
+            return f"{s / size:.3g} {unit}"
+    return f"{s:.3g} s"
+
+
+def estimate(sc: CoestimationScenario, opts: RunOptions, *, paper: bool = False) -> Cost:
+    from .compute import trial_count, sde_bytes_per_trial
+    from .design import QUICK_VERTEX_NODES, VERTEX_NODES, t_stochastic
+
+    trials = trial_count(sc, opts)
+    N, n, p, m, q = sc.N, sc.n, sc.p, sc.m, sc.q
+    Dz = N * q                      # the error system
+    D = n + Dz                      # the simulated state
+    T = len(sc.types)
+    n_rec = int(round(sc.t_end / sc.record_dt)) + 1
+    t_sde = t_stochastic(sc, opts.quick)
+    n_rec_sde = int(round(t_sde / sc.record_dt)) + 1
+    vertex_nodes = QUICK_VERTEX_NODES if opts.quick else VERTEX_NODES
+    # design: LMIs, per-node sweeps, spectra of S at 23 role vectors, the vertex enumerations
+    t_design = T * (LMI_TYPE_S + (EXTRAS_TYPE_S if paper else 0.0)) + N * DESIGN_NODE_S + 30 * EIG_CUBE_S * Dz ** 3
+    if N <= vertex_nodes:
+        t_design += 2 * 2 ** N * VERTEX_CUBE_S * Dz ** 3
+    # the exact law: tr(PΣ) at every sample, the noise factors and φ-functions at h and h/2
+    n_noise = n + N * m
+    t_law = n_rec_sde * LAW_CUBE_S * Dz ** 3 + 2 * (27 + 8 * N * m) * EIG_CUBE_S * D ** 3
+    # deterministic runs: coest, fixed and comparison at h; coest and fixed at h/2 (twice the steps)
+    steps = sc.t_end / sc.step
+    det_steps = 7 * steps + (6 * sc.t_end / sc.sde_step if sc.sde_step != sc.step else 0.0)
+    t_det = det_steps * (STEP_CALL_S + 6 * STEP_D2_S * D * D)
+    # Monte Carlo: three runs (time-varying and fixed roles at the stochastic step, fixed at half the step)
+    budget = opts.chunk_budget_bytes()
+    per_trial = sde_bytes_per_trial(sc, 2 * n_noise)
+    units = -(-trials // RNG_UNIT)
+    chunks = -(-units // units_per_chunk(per_trial, budget))
+    sde_steps = [t_sde / sc.sde_step, t_sde / sc.sde_step, 2 * min(t_sde, sc.quick_t_end) / sc.sde_step]
+    t_runs = [trials * s * (6 * TRIAL_D2_S * D * D + 2 * n_noise * TRIAL_NOISE_S * D) + chunks * s * STEP_CALL_S
+              + trials * n_rec_sde * Dz * TRIAL_RECORD_S for s in sde_steps]
+    workers = max(1, min(opts.workers, 3))
+    t_mc = max(sum(t_runs) / workers, max(t_runs))
+    t_claims = 6 * n_rec * Dz * CLAIM_SAMPLE_S + (n_rec + n_rec_sde) / max(1, round(sc.kf_dt / sc.record_dt)) * KF_SAMPLE_S
+    rows = n_rec * N * (q + 2) * (3 + sc.runs) + (Dz ** 2) * 3
+    t_out = OUTPUTS_S + rows * ROW_S * 3
+    seconds = STARTUP_S + t_design + t_law + t_det + t_mc + t_claims + t_out
+    # memory: the recorded runs, the kept trials, the moments, the claims' temporaries and the tables
+    sample = 8.0 * (n + Dz + N + p)
+    runs_bytes = n_rec * sample * 7 + sc.runs * n_rec_sde * sample * 3
+    moments = 8.0 * n_rec_sde * 12 * 3 + 8.0 * 3 * N * q * q
+    claims = 16 * 8.0 * n_rec * Dz
+    tables = 56.0 * rows
+    design = 8.0 * Dz * Dz * (40 + 256 * (N <= vertex_nodes)) + 8.0 * D * D * (6 + 2 * n_noise)
+    kept = (runs_bytes + moments + claims + tables + design) / MIB
+    chunk_units = min(units_per_chunk(per_trial, budget), units)
+    chunk = chunk_units * RNG_UNIT * per_trial / MIB
+    peak = BASE_MIB + kept + chunk * workers
+    detail = (f"{steps:,.0f} steps of h = {sc.step:g} over T = {sc.t_end:g} s ({n_rec:,} recorded samples), stochastic "
+              f"{trials:,} trials x {t_sde / sc.sde_step:,.0f} steps, D = {D}; design {t_design:.2g} s, exact law "
+              f"{t_law:.2g} s, deterministic runs {t_det:.3g} s, Monte Carlo {t_mc:.3g} s on {workers} worker(s), claims "
+              f"{t_claims:.2g} s, tables and outputs {t_out:.2g} s; memory {BASE_MIB:.0f} MiB base + {kept:,.0f} MiB "
+              f"kept + {chunk:,.0f} MiB per Monte Carlo chunk")
+    return Cost(seconds, peak, kept, chunk, detail)
+
+
+def refuse_if_too_large(sc: CoestimationScenario, opts: RunOptions) -> None:
+    """Refuse, before anything runs, a run whose kept part does not fit the memory budget."""
+    c = estimate(sc, opts)
+    budget = opts.memory_budget_mib
+    if BASE_MIB + c.kept_mib + c.chunk_mib > budget:
+        n_rec = int(round(sc.t_end / sc.record_dt)) + 1
+        raise ScenarioError("simulation.record_dt", f"the run keeps {n_rec:,} recorded samples of every trajectory "
+                            f"(t_end / record_dt), about {c.kept_mib:,.0f} MiB with the stored trials, moments and "
+                            f"tables, besides {BASE_MIB:.0f} MiB of libraries and a {c.chunk_mib:.0f} MiB chunk: more "
+                            f"than the memory budget of {budget:,.0f} MiB; use a larger record_dt (or leave it to its "
+                            "default), or raise --max-memory")
