@@ -29,6 +29,7 @@ All functions are deterministic; equation numbers refer to Savas, Srivastava & L
 
 from __future__ import annotations
 
+import functools
 import numbers
 from dataclasses import dataclass
 
@@ -301,20 +302,32 @@ def _check_step_list(steps) -> np.ndarray:
     return k.astype(np.int64)
 
 
-def _modal_terms(Q: np.ndarray, ell, m, sigma_c, q, r, zeta, reinjection, g):
+@functools.lru_cache(maxsize=4)
+def _eigh_of(shape: tuple[int, int], data: bytes):
+    Q = np.frombuffer(data, dtype=np.float64).reshape(shape)
+    lam, V = np.linalg.eigh(Q)
+    lam.flags.writeable = V.flags.writeable = False
+    return lam, V
+
+
+def _modal_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection):
     """The recursion (22) mode by mode, when ``Q`` is symmetric and ``1`` lies in one of its eigenvectors
-    (a simple unit eigenvalue): ``(V, V^T 1, b, alpha)`` with ``p_h(k+1) = alpha_h p_h(k) + b_h``; else None."""
+    (a simple unit eigenvalue): ``(V, V^T 1, b, alpha, ell)`` with ``p_h(k+1) = alpha_h p_h(k) + b_h``; else
+    None. Needs no N x N product (the eigendecomposition of ``Q`` is computed once and kept)."""
+    Q = _as_consensus_matrix(Q)
     if not np.array_equal(Q, Q.T):
         return None
-    lam, V = np.linalg.eigh(Q)
+    m, ell, zeta = _check_rounds(m), float(_check_ell(ell)), float(_check_zeta(zeta))
+    sigma_c, q, r = _check_nonneg(sigma_c, "sigma_c"), _check_nonneg(q, "q"), _check_nonneg(r, "r")
+    lam, V = _eigh_of(Q.shape, np.ascontiguousarray(Q).tobytes())
     ones = V.T @ np.ones(Q.shape[0])
     spread = np.sort(np.abs(ones))[:-1]
     if spread.size and spread.max() > 1e-10 * np.sqrt(Q.shape[0]):
         return None
-    m, zeta = int(m), float(zeta)
+    g = communication_noise_gain(m, zeta, reinjection=reinjection)
     mu = zeta + (1.0 - zeta) / (m + 1) * _power_sum(lam, m) if reinjection else lam**m
-    b = ell**2 * float(r) * mu**2 + (g * float(sigma_c)) ** 2 * geometric_gram_sum(lam, m) + float(q) * ones**2
-    return V, ones, b, (1.0 - ell) ** 2 * mu**2
+    b = ell**2 * r * mu**2 + (g * sigma_c) ** 2 * geometric_gram_sum(lam, m) + q * ones**2
+    return V, ones, b, (1.0 - ell) ** 2 * mu**2, ell
 
 
 @dataclass(frozen=True, eq=False)
@@ -338,12 +351,12 @@ def asymptotic_covariance_summary(
     with a simple unit eigenvalue (modes ``p_h = b_h/(1 - alpha_h)``, O(N) after the eigendecomposition;
     then ``P_inf - reference 1 1^T`` has eigenvalues ``p_h`` off the consensus mode and
     ``p_0 - N reference`` on it); otherwise from :func:`asymptotic_covariance_lyapunov`."""
-    Q_, A, _, _, g, ell_f = _recursion_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection)
-    _check_stable(A, ell_f)
     reference = float(reference)
-    modes = _modal_terms(Q_, ell_f, m, sigma_c, q, r, zeta, reinjection, g)
+    modes = _modal_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection)
     if modes is not None:
-        V, ones, b, alpha = modes
+        V, ones, b, alpha, _ = modes
+        if alpha.max() >= 1.0:
+            raise ValueError(f"no steady state: spectral radius of (1-ell) A is {np.sqrt(alpha.max()):.6g} >= 1")
         p = b / (1.0 - alpha)
         shifted = p - reference * ones**2
         P = (V * p) @ V.T if with_matrix else None
@@ -370,13 +383,12 @@ def predictive_covariance_at_steps(
     ``P -> Ã P Ã^T + B`` (``Ã = (1-ell) A``) is applied in jumps between consecutive steps, each jump
     ``j`` composed by repeated squaring from ``(Ã, B)``: ``log2(j)`` matrix products instead of ``j``.
     """
-    Q_, A, B, _, g, ell = _recursion_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection)
     sigma0 = _check_nonneg(sigma0, "sigma0")
     k = _check_step_list(steps)
-    n = A.shape[0]
-    modes = _modal_terms(Q_, ell, m, sigma_c, q, r, zeta, reinjection, g)
+    modes = _modal_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection)
     if modes is not None:
-        V, ones, b, alpha = modes
+        V, ones, b, alpha, ell = modes
+        n = V.shape[0]
         kk = k[:, None].astype(float)
         with np.errstate(divide="ignore"):
             log_alpha = np.log(np.where(alpha > 0, alpha, 1.0))
@@ -388,6 +400,8 @@ def predictive_covariance_at_steps(
             out.diag[0], out.trace[0], out.eigenvalues[0] = sigma0, n * sigma0, 0.0
             out.eigenvalues[0, -1] = n * sigma0
         return out
+    _, A, B, _, _, ell = _recursion_terms(Q, ell, m, sigma_c, q, r, zeta, reinjection)
+    n = A.shape[0]
     At = (1.0 - ell) * A
     jumps: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for gap in set(np.diff(np.concatenate([[0], k])).tolist()) - {0}:

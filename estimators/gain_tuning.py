@@ -252,6 +252,22 @@ def _cost(cells: _Cells, ell, zeta):
     return _cost_and_gradient(cells, ell, zeta)[0]
 
 
+#: points per block of `_at`: a block's per-mode arrays stay near 2 MB whatever the number of modes
+_BLOCK_ELEMENTS = 2**18
+
+
+def _at(cells: _Cells, rows, ell, zeta):
+    """``J`` and its gradient at points (P,) of the cells ``rows`` (P,), in blocks of bounded memory."""
+    rows, ell, zeta = np.asarray(rows), np.asarray(ell, float), np.asarray(zeta, float)
+    step = max(1, _BLOCK_ELEMENTS // max(1, cells.lam_bar.shape[1]))
+    out = [np.empty(rows.size) for _ in range(3)]
+    for a in range(0, rows.size, step):
+        sl = slice(a, a + step)
+        for o, v in zip(out, _cost_and_gradient(cells.take(rows[sl]), ell[sl], zeta[sl])):
+            o[sl] = v
+    return out
+
+
 def _grid_parts(lam_bar, s_variants, m, n, q, r, grid_ell, grid_zeta, reinjection):
     """For one ``m``: ``J = base + sigma_c^2 noise_v`` on the grid, for each noise bracket ``s_v`` (V, H).
 
@@ -418,8 +434,7 @@ def _optimise_cells(cells: _Cells, starts, lo, hi, n_free):
     rows = np.repeat(np.arange(C), K)
 
     def fun_grad(x, idx=None):
-        sub = cells.take(rows if idx is None else rows[idx])
-        J, de, dz = _cost_and_gradient(sub, x[:, 0], x[:, 1])
+        J, de, dz = _at(cells, rows if idx is None else rows[idx], x[:, 0], x[:, 1])
         g = np.stack([de, dz if n_free == 2 else np.zeros_like(dz)], axis=1)
         return J, g
 
@@ -431,8 +446,8 @@ def _optimise_cells(cells: _Cells, starts, lo, hi, n_free):
     return x.reshape(C, K, 2)[np.arange(C), best], J[np.arange(C), best]
 
 
-def _zoom(cells: _Cells, ell0, zeta0, d_ell, d_zeta, reinjection, n=11, levels=2):
-    """Refine grid points (P,) of cells (P,) on successively finer local grids (cheap, vectorised)."""
+def _zoom(cells: _Cells, rows0, ell0, zeta0, d_ell, d_zeta, reinjection, n=11, levels=2):
+    """Refine grid points (P,) of the cells ``rows0`` (P,) on successively finer local grids (vectorised)."""
     P = ell0.size
     off = np.linspace(-1.0, 1.0, n)
     for _ in range(levels):
@@ -440,8 +455,7 @@ def _zoom(cells: _Cells, ell0, zeta0, d_ell, d_zeta, reinjection, n=11, levels=2
         ze = np.clip(zeta0[:, None] + d_zeta * off[None, :], *ZETA_BOUNDS) if reinjection else zeta0[:, None] * np.ones(n)
         E = np.broadcast_to(le[:, :, None], (P, n, n)).reshape(P, -1)
         Z = np.broadcast_to(ze[:, None, :], (P, n, n)).reshape(P, -1)
-        rows = np.repeat(np.arange(P), n * n)
-        G = _cost(cells.take(rows), E.ravel(), Z.ravel()).reshape(P, -1)
+        G = _at(cells, np.repeat(rows0, n * n), E.ravel(), Z.ravel())[0].reshape(P, -1)
         best = np.argmin(G, axis=1)
         ell0, zeta0 = E[np.arange(P), best], Z[np.arange(P), best]
         d_ell, d_zeta = 2.0 * d_ell / (n - 1), 2.0 * d_zeta / (n - 1)
@@ -541,14 +555,14 @@ def reinjection_gain_tables(Q, *, ms, sigma_c, q, r, formulas=("corrected",), gr
         x0 = np.array(starts)                                                          # (C, K, 2)
         C, K = x0.shape[:2]
         rows = np.repeat(np.arange(C), K)
-        ze, zz = _zoom(cells.take(rows), x0[:, :, 0].ravel(), x0[:, :, 1].ravel(), grid_ell[1] - grid_ell[0],
+        ze, zz = _zoom(cells, rows, x0[:, :, 0].ravel(), x0[:, :, 1].ravel(), grid_ell[1] - grid_ell[0],
                        grid_zeta[1] - grid_zeta[0], True)
         lo, hi = np.array([ELL_BOUNDS[0], ZETA_BOUNDS[0]]), np.array([ELL_BOUNDS[1], ZETA_BOUNDS[1]])
         x, J = _optimise_cells(cells, np.stack([ze, zz], axis=1).reshape(C, K, 2), lo, hi, 2)
         gmin = grid_min[f_idx, s_idx, j_idx]
         worse = ~(J <= gmin)   # never return worse than the grid (the grid minimum is the first start)
         x[worse] = x0[worse, 0]
-        J[worse] = _cost(cells.take(np.flatnonzero(worse)), x[worse, 0], x[worse, 1])
+        J[worse] = _at(cells, np.flatnonzero(worse), x[worse, 0], x[worse, 1])[0]
         ell[f_idx, s_idx, j_idx], zeta[f_idx, s_idx, j_idx], Jopt[f_idx, s_idx, j_idx] = x[:, 0], x[:, 1], J
     out = {}
     for f_i, formula in enumerate(formulas):
@@ -613,7 +627,7 @@ def carli_gain_table(Q, *, ms, sigma_c, q, r, n_grid=2000, keep_grids=False) -> 
     flatG = G.reshape(S * M, -1)
     i0 = np.argmin(flatG, axis=1)
     ones = np.ones(S * M)
-    e0, _ = _zoom(cells, grid_ell[i0], ones, grid_ell[1] - grid_ell[0], 0.0, False)
+    e0, _ = _zoom(cells, np.arange(S * M), grid_ell[i0], ones, grid_ell[1] - grid_ell[0], 0.0, False)
     lo, hi = np.array([ELL_BOUNDS[0], 1.0]), np.array([ELL_BOUNDS[1], 1.0])
     x, J = _optimise_cells(cells, np.stack([e0, ones], axis=1)[:, None, :], lo, hi, 1)
     grid_best = flatG[np.arange(S * M), i0]

@@ -214,20 +214,24 @@ def check_unrolled(res: Results) -> Verdict:
     sc = res.scenario
     a, b, t = [], [], []
     steps = 20
+    entries = 0
     for cell in res.cells:
         kw = {**filter_kwargs(sc, cell), "n_steps": steps}
         seq = cc.predictive_covariance_sequence(sc.Q, **kw)
         tol = _tol(scale=float(np.abs(seq).max()), operations=steps * (3 * sc.n + 4))
-        a.append(seq.ravel()), b.append(cc.predictive_covariance_unrolled(sc.Q, **kw).ravel())
-        t.append(np.full(seq.size, tol))
         ex = res.exact(cell)
         early = ex.steps < steps
-        a.append(np.diagonal(seq[ex.steps[early]], axis1=1, axis2=2).ravel()), b.append(ex.diag[early].ravel())
-        t.append(np.full(int(early.sum()) * sc.n, tol))
-    return _close(np.concatenate(a), np.concatenate(b), np.concatenate(t),
+        pairs = ((seq, cc.predictive_covariance_unrolled(sc.Q, **kw)),
+                 (np.diagonal(seq[ex.steps[early]], axis1=1, axis2=2), ex.diag[early]))
+        for x, y in pairs:   # the worst entry of each comparison (one allowance per cell): memory O(N²) per cell
+            if x.size:
+                w = np.unravel_index(int(np.argmax(np.abs(x - y))), x.shape)
+                a.append(x[w]), b.append(y[w]), t.append(tol)
+                entries += x.size
+    return _close(a, b, t,
                   detail=(f"(23) vs (22) for k < {steps}, and the per-agent variances at the recorded steps (modal or "
-                          "squaring closed form, used by the exact laws) vs (22), every cell; allowance 20·(3N+4) "
-                          "operations on the entries' scale"))
+                          f"squaring closed form, used by the exact laws) vs (22), every cell ({entries} entries; the worst "
+                          "of each comparison is listed); allowance 20·(3N+4) operations on the entries' scale"))
 
 
 def _reinjection_params(res: Results):
@@ -245,10 +249,11 @@ def check_thm1_i(res: Results) -> Verdict:
         others = [cc.asymptotic_covariance_series(sc.Q, **kw)]
         if symmetric:
             others.append(cc.asymptotic_covariance_modal(sc.Q, **kw))
-        for o in others:
-            got.append(o.ravel()), want.append(lyap.ravel()), tols.append(np.full(o.size, tol))
-    return _close(np.concatenate(got), np.concatenate(want), np.concatenate(tols),
-                  detail=(f"series (15) {'and modal form ' if symmetric else ''}vs Lyapunov solution, "
+        for o in others:   # the worst entry of each comparison (one allowance per cell)
+            w = np.unravel_index(int(np.argmax(np.abs(o - lyap))), o.shape)
+            got.append(o[w]), want.append(lyap[w]), tols.append(tol)
+    return _close(got, want, tols,
+                  detail=(f"series (15) {'and modal form ' if symmetric else ''}vs Lyapunov solution, worst entry of each, "
                           f"{len(_reinjection_params(res))} cells; allowance N²+10 operations × the Stein condition "
                           "(1+(1−ℓ)²)/(1−(1−ℓ)²) × the largest entry"))
 

@@ -39,8 +39,8 @@ LONG_RUN_STEPS = 60
 QUICK_GRID = (100, 101)
 #: steady-state covariance matrices are tabulated entry by entry up to this many agents
 MATRIX_TABLE_AGENTS = 50
-#: trials simulated together at most (measured fastest here: larger arrays leave the caches)
-CHUNK_UNITS = 10
+#: a chunk's arrays at most (measured fastest here: larger arrays leave the processor's caches)
+CHUNK_BYTES = 32 * 2**20
 CODE_MODULES = ("estimators.consensus_covariance", "estimators.consensus_filter", "estimators.gain_tuning",
                 "pipeline.stats", "pipeline.simulate", "pipeline.seeding", "reproductions.savas.compute")
 
@@ -298,7 +298,7 @@ def simulate_group(sc: NoisyConsensusScenario, seed: int, trials: int, steps: np
 
     per_trial = bytes_per_trial(C, sc.n, len(steps))
     total = run_units(chunk, fold, trials, group_streams(seed, cells), bytes_per_trial=per_trial,
-                      budget_bytes=min(budget_bytes, CHUNK_UNITS * RNG_UNIT * per_trial))
+                      budget_bytes=min(budget_bytes, CHUNK_BYTES))
     arrays: dict[str, np.ndarray] = {}
     paths = total.pop("paths", None)
     for j, c in enumerate(cells):

@@ -33,17 +33,19 @@ OUTPUTS_S = 1.5
 # seconds of CPU per unit of work, measured on this machine (docs/papers/savas.md gives the ratios)
 GRID_POINT_MODE_S = 5.0e-9       # one grid point of (16), one mode, one m
 GRID_POINT_S = 6.0e-9            # one grid point per (σ_c, formula): J, its minimum and local minima
-CELL_DESIGN_S = 0.003            # per cell: gains, exact covariances at the recorded steps, steady state
-TRIAL_CONFIG_S = 7.9e-9          # per trial, step, configuration and agent: the update and the errors
-TRIAL_DRAW_S = 8.4e-9            # per trial, step and agent, per draw (measurement and each round)
-TRIAL_Q_TERM_S = 0.5e-9          # one term of the row-sparse product with Q, per trial, round and agent
-TRIAL_A_TERM_S = 2.0e-9          # one term of the product with A, per trial, step, configuration and agent
-TRIAL_RECORD_S = 9.7e-9          # per trial, recorded step, configuration and agent: powers and their sums
-STEP_CALL_S = 1.5e-6             # Python overhead per numpy call, per step of a chunk
+CELL_DESIGN_S = 0.003            # per cell and (1 + N/10): exact covariances at the recorded steps, steady state
+TRIAL_CONFIG_S = 6.0e-9          # per trial, step, configuration and agent: the update and the errors
+TRIAL_DRAW_S = 9.6e-9            # per trial, step and agent, per draw (measurement and each round)
+TRIAL_Q_TERM_S = 0.3e-9          # one term of the row-sparse product with Q, per trial, round and agent
+TRIAL_A_TERM_S = 2.1e-9          # one term of the product with A, per trial, step, configuration and agent
+TRIAL_RECORD_S = 8.9e-9          # per trial, recorded step, configuration and agent: powers and their sums
+RECORD_CALL_S = 3.6e-6           # Python overhead per numpy call of a recorded step, per chunk (12 calls)
 CELL_CLAIMS_S = 0.005            # per cell: the claims' solves and exact laws
+CELL_CLAIMS_N3_S = 3.2e-8        # per cell and N³: the claims' dense N x N solves (Lyapunov, series, (23))
+NODE_OUTPUT_S = 6.0e-3           # per agent: the recordings' series
+FILTERPY_N3_S = 2.0e-9           # per sample trial, sample step and N³: filterpy's reference filter (N x N inverse)
 CELL_TABLES_S = 0.006            # per cell: its rows of the tables (pandas)
 ROW_S = 2.0e-6                   # one row of the per-step tables: the exact laws, pandas, Parquet
-MODE_CLAIMS_S = 2.0e-7           # per cell and agent squared: the claims' N x N solves (Lyapunov, series)
 
 
 @dataclass(frozen=True)
@@ -74,14 +76,14 @@ def _a_nnz(sc: NoisyConsensusScenario, m: int) -> int:
 
 
 def estimate(sc: NoisyConsensusScenario, opts: RunOptions) -> Cost:
-    from .compute import CHUNK_UNITS, LARGE_M, LONG_RUN_STEPS, bytes_per_trial, gain_grid, recorded_steps, trial_count
+    from .compute import CHUNK_BYTES, LARGE_M, LONG_RUN_STEPS, bytes_per_trial, gain_grid, recorded_steps, trial_count
 
     trials = trial_count(sc, opts)
     N, S_c, M = sc.n, len(sc.sigma_c), len(sc.rounds)
     S = len(recorded_steps(sc.n_steps, sc.recorded_steps, sc.eval_step))
     n_cells = 2 * M * S_c + (1 if sc.n_steps < LONG_RUN_STEPS else 0)
     # design: gain grids (symmetric Q only), then per-cell covariances
-    t_design = n_cells * CELL_DESIGN_S * max(1.0, N / 30.0)
+    t_design = n_cells * CELL_DESIGN_S * (1.0 + N / 10.0)
     if sc.symmetric:
         n_ell, n_zeta = gain_grid(sc, opts.quick)
         tables = sc.rounds_max + 1 + len(LARGE_M)
@@ -91,30 +93,31 @@ def estimate(sc: NoisyConsensusScenario, opts: RunOptions) -> Cost:
     groups = [(m, sc.n_steps, S_c, S) for alg in ("carli", "reinjection") for m in sc.rounds]
     if sc.n_steps < LONG_RUN_STEPS:
         groups.append((next((m for m in sc.rounds if m > 0), sc.rounds[-1]), LONG_RUN_STEPS, 1, LONG_RUN_STEPS))
-    chunk_trials = min(trials, CHUNK_UNITS * RNG_UNIT)
-    group_s = []
+    budget_bytes = min(opts.chunk_budget_bytes(), CHUNK_BYTES)
+    group_s, chunk_bytes = [], []
     for m, K, C, S_g in groups:
+        per_trial = bytes_per_trial(C, N, S_g)
+        units = max(1, min(int(budget_bytes // (per_trial * RNG_UNIT)), -(-trials // RNG_UNIT)))
+        chunk_bytes.append(units * RNG_UNIT * per_trial)
         a_nnz = _a_nnz(sc, m) if m else 0
         per_trial_step = (C * N * TRIAL_CONFIG_S + (1 + m) * N * TRIAL_DRAW_S + m * N * qnnz * TRIAL_Q_TERM_S
                           + C * N * a_nnz * TRIAL_A_TERM_S)
-        calls = 25 + m * (2 + 3 * qnnz) + 3 * a_nnz
-        group_s.append(trials * K * per_trial_step + -(-trials // chunk_trials) * (K * calls + S_g * 12) * STEP_CALL_S
+        chunks = -(-trials // (units * RNG_UNIT))
+        group_s.append(trials * K * per_trial_step + chunks * S_g * 12 * RECORD_CALL_S
                        + trials * S_g * C * N * TRIAL_RECORD_S)
     workers = max(1, min(opts.workers, len(groups)))
     t_mc = max(sum(group_s) / workers, max(group_s))
     rows = n_cells * S * (N + 1)
-    t_claims = CLAIMS_S + n_cells * (CELL_CLAIMS_S + MODE_CLAIMS_S * N * N) + rows * ROW_S
-    t_out = OUTPUTS_S + n_cells * CELL_TABLES_S + rows * ROW_S
+    t_claims = (CLAIMS_S + n_cells * (CELL_CLAIMS_S + CELL_CLAIMS_N3_S * N**3) + rows * ROW_S
+                + sc.sample_paths * min(sc.n_steps, sc.sample_steps) * FILTERPY_N3_S * N**3)
+    t_out = OUTPUTS_S + n_cells * CELL_TABLES_S + rows * ROW_S + N * NODE_OUTPUT_S
     seconds = STARTUP_S + t_design + t_mc + t_claims + t_out
     # memory: what stays (recorded sums, exact series, paths, tables) and one chunk per worker
     per_cell = 8.0 * S * (2 * (3 * N + 2) + 2 * N + 1) * 3   # sums, exact diag/eig/trace; x3 for the tables built
     paths = 8.0 * sc.sample_paths * min(sc.n_steps, sc.sample_steps) * N * (max(sc.rounds) + 8) * n_cells
     steady = 8.0 * N * N * n_cells if N <= 50 else 0.0
     fixed = (n_cells * per_cell + paths + steady + 8.0 * max(sc.n_steps, LONG_RUN_STEPS)) / MIB
-    per_trial = max(bytes_per_trial(S_c, N, S), bytes_per_trial(1, N, LONG_RUN_STEPS))
-    budget_bytes = opts.chunk_budget_bytes()
-    chunk_units = max(1, min(CHUNK_UNITS, int(budget_bytes // (per_trial * RNG_UNIT)), -(-trials // RNG_UNIT)))
-    chunk = chunk_units * RNG_UNIT * per_trial * 1.5 / MIB   # temporaries of the moment sums
+    chunk = max(chunk_bytes) * 1.5 / MIB   # with the temporaries of the moment sums
     if sc.symmetric:
         n_ell, n_zeta = gain_grid(sc, opts.quick)
         fixed += 8.0 * n_ell * n_zeta * (2 * 2 + 4) / MIB
