@@ -351,8 +351,8 @@ def steady_state(f: FusionFilter, *, radius: bool = True, max_iter: int = 20_000
     """Steady state of the exact mean recursion: the fused second moment Σ∞ and its network MSE
     (node average of tr), or inf when the mean-square recursion is unstable.
 
-    Reliable links: a discrete Lyapunov equation (Bartels–Stewart on N n x N n), stable iff the
-    transition's spectral radius is < 1. Random links: (I − L) S = W solved by GMRES, L the linear
+    Reliable links: the discrete Lyapunov equation S = A S Aᵀ + W on N n x N n (`stein_doubling`), stable
+    iff the transition's spectral radius is < 1. Random links: (I − L) S = W solved by GMRES, L the linear
     part of the mean step, a positive map; stability is certified by solving once more with
     W + δ I ≻ 0: a positive definite solution X with X − L(X) ≻ 0 exists iff ρ(L) < 1. `radius`:
     also compute ρ(L) (an eigenvalue problem; the tuning skips it). `max_iter` bounds the terms summed
@@ -367,9 +367,7 @@ def steady_state(f: FusionFilter, *, radius: bool = True, max_iter: int = 20_000
         rho = float(np.max(np.abs(np.linalg.eigvals(A)))) ** 2
         if not rho < 1.0:
             return {"rho": rho, "network": np.inf, "fused": None}
-        Wc = jm.as_matrix(step(zero))
-        S = sla.solve_discrete_lyapunov(A, Wc)
-        S = jm.from_matrix(0.5 * (S + S.T), m.N)
+        S = jm.from_matrix(stein_doubling(A, jm.as_matrix(step(zero))), m.N)
     else:
         S = _solve_random(f, step(zero), _linear_part(f), max_iter=max_iter, rtol=rtol)
         if S is None:
@@ -405,6 +403,20 @@ def radius_bounds(lin, shape, iterations: int = 300, gap: float = 1e-3, decide: 
             break
         X = Y / nrm + 1e-12 * np.eye(Nn)
     return lo, hi
+
+
+def stein_doubling(A: np.ndarray, W: np.ndarray, max_doublings: int = 64) -> np.ndarray:
+    """S = Σ_k A^k W (A^k)ᵀ for ρ(A) < 1 by doubling (Smith): S ← S + A S Aᵀ, A ← A², until A is
+    negligible (each term is PSD, so the partial sums increase to S)."""
+    S = 0.5 * (W + W.T)
+    Ak = A.copy()
+    for _ in range(max_doublings):
+        S = S + Ak @ S @ Ak.T
+        S = 0.5 * (S + S.T)
+        Ak = Ak @ Ak
+        if float(np.abs(Ak).max()) < 1e-18:
+            break
+    return S
 
 
 def _solve_random(f: FusionFilter, W: np.ndarray, lin, *, rtol: float = 1e-10, max_iter: int = 5000

@@ -20,6 +20,7 @@ Per-unit sums over trials, each (U, S, N) at the S recorded steps unless stated:
 ``cross2`` (the orthogonality of the centralized error to every other estimate), ``nees``
 Σ e_iᵀP_i⁻¹e_i with the estimator's own covariance and ``nees2``, ``xnees`` the same with a given
 exact covariance, ``dis`` and ``dis2`` (U, S) the per-trial disagreement (1/N) Σ_i ‖x̂_i − mean_j x̂_j‖²,
+``dis_node`` (U, S, N) its terms ‖x̂_i − mean_j x̂_j‖² per node,
 ``net`` and ``net2`` (U, S) the per-trial node average of ‖e_i‖²,
 ``msgs`` and ``scalars`` (U, N) messages and scalars sent over the whole run (every step).
 """
@@ -210,7 +211,8 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
     for name in runs:
         width = 1 if kinds[name] == "central" else N
         acc[name] = {s: np.zeros((U, S, width)) for s in STATS}
-        acc[name].update(dis=np.zeros((U, S)), dis2=np.zeros((U, S)), net=np.zeros((U, S)), net2=np.zeros((U, S)),
+        acc[name].update(dis=np.zeros((U, S)), dis2=np.zeros((U, S)), dis_node=np.zeros((U, S, width)),
+                         net=np.zeros((U, S)), net2=np.zeros((U, S)),
                          msgs=np.zeros((U, N)), scalars=np.zeros((U, N)))
     q_node = gossip.integers(0, N) if has_gossip else None
     token = {name: np.zeros((len(setup.token_times), B)) for name, kd in kinds.items() if kd == "gossip"}
@@ -294,9 +296,11 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
                 a["cross2"][:, i] = per_unit(cr * cr)
             if err.shape[0] > 1:
                 dev = err - err.mean(axis=0, keepdims=True)
-                dis = np.einsum("inb,inb->b", dev, dev) / N
+                dn = np.einsum("inb,inb->ib", dev, dev)                 # ‖x̂_i − mean_j x̂_j‖² per node
+                dis = dn.mean(axis=0)
                 a["dis"][:, i] = per_unit(dis)
                 a["dis2"][:, i] = per_unit(dis * dis)
+                a["dis_node"][:, i] = per_unit(dn)
             own = [_own_nees(r, err[..., c], k) for r, c in zip(parts, cuts)]
             own = None if own[0] is None else np.concatenate(own, axis=-1)
             if own is not None:

@@ -157,7 +157,7 @@ def test_mean_random_round_equals_enumeration():
 def test_poisson_exchange_moment_equals_enumeration_of_exchange_sequences():
     model = small_model(3)
     topo = Topology.from_edges(3, [(0, 1), (1, 2)])
-    links = LinkModel(topo, "poisson", rate=0.15, noise_std=0.4)
+    links = LinkModel(topo, "poisson", rate=0.02, noise_std=0.4)
     f = FusionFilter(model, links, 0.3 * split_gains(model), np.array([0.3, 0.45]), "pairwise")
     law = links.poisson_count_law()
     rng = np.random.default_rng(1)

@@ -204,6 +204,7 @@ def simulate(d: Design, opts: RunOptions, trials: int) -> dict[str, Any]:
     groups = estimator_groups(d, opts.workers)
     parts = parallel_map(functools.partial(_simulate_group, d, opts, trials), groups, workers=len(groups))
     out = parts[0]
+    out["group_cpu_s"] = [p["cpu_s"] for p in parts]
     for p in parts[1:]:
         out["mc"].update({e: v for e, v in p["mc"].items() if e not in out["mc"]})
         out["token"].update(p["token"])
@@ -215,6 +216,9 @@ def simulate(d: Design, opts: RunOptions, trials: int) -> dict[str, Any]:
 
 
 def _simulate_group(d: Design, opts: RunOptions, trials: int, names: list[str]) -> dict[str, Any]:
+    import time
+
+    cpu0 = time.process_time()
     sc = d.scenario
     chosen = {e: k for e, k in d.estimators.items() if e in names}
     setup = Setup(d.model, d.links, sc.steps, chosen, exact_cov={e: v for e, v in _exact_cov(d).items() if e in chosen},
@@ -244,7 +248,7 @@ def _simulate_group(d: Design, opts: RunOptions, trials: int, names: list[str]) 
             seconds[est] = seconds.get(est, 0.0) + t
     mc = {est: {name: np.concatenate(parts).sum(axis=0) for name, parts in stats.items()} for est, stats in sums.items()}
     return {"mc": mc, "token": {e: np.concatenate(v, axis=1) for e, v in token.items()}, "paths": paths,
-            "steps": steps, "seconds": seconds}
+            "steps": steps, "seconds": seconds, "cpu_s": time.process_time() - cpu0}
 
 
 def _exact_cov(d: Design) -> dict[str, np.ndarray]:

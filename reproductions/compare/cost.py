@@ -15,10 +15,13 @@ from pipeline.reproduction import RunOptions
 
 from .scenario import CompareScenario
 
-#: seconds per step and estimator (overhead), per trial·node·state, per trial·node·state² (trial-wise covariances)
+#: CPU seconds per step and estimator (overhead), per trial·node·state·round, per trial·node·state² (trial-wise
+#: covariances), per trial·node for drawing the step and its statistics, per Poisson exchange, per flop of the
+#: exact recursions; measured with benchmarks/bench_compare.py (50 nodes, 4 states, 1,000 trials)
 OVERHEAD_S = 4e-4
-PER_STATE_S = 2.5e-9
-PER_COV_S = 6e-9
+PER_STATE_S = 2e-8
+PER_COV_S = 4e-8
+PER_TRIAL_NODE_S = 3e-7
 PER_EVENT_S = 2e-5
 PER_FLOP_S = 1.5e-9
 
@@ -34,10 +37,11 @@ def estimate(sc: CompareScenario, opts: RunOptions) -> dict[str, Any]:
     cov_trialwise = sum(1 for e in ests if e == "gikf" or (random_links and e in ("kcf", "diffusion", "ci")))
     plain = len(ests) - cov_trialwise
     rounds = sc.rounds if sc.link_model != "poisson" else 1
-    per_step = len(ests) * OVERHEAD_S + B * N * (plain * n * PER_STATE_S * rounds + cov_trialwise * n * n * PER_COV_S)
+    per_step = len(ests) * OVERHEAD_S + B * N * (plain * n * PER_STATE_S * rounds + cov_trialwise * n * n * PER_COV_S
+                                                 + PER_TRIAL_NODE_S)
     if sc.link_model == "poisson":
         per_step += sc.rate * E * PER_EVENT_S * sum(1 for e in ests if e in ("gikf", "pairwise", "ci"))
-    mc = K * per_step
+    mc = K * per_step / max(1, min(opts.workers, 3 if cov_trialwise else 1))
     Nn = N * n
     exact = K * (Nn ** 3) * PER_FLOP_S * sum(1 for e in ests if e not in ("gikf",)) if Nn <= sc.exact_max_dimension else 0.0
     solves = 60 if "optimal" in (sc.carli_scale, sc.reinjection_scale, sc.reinjection_zeta) else 3

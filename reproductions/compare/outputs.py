@@ -32,38 +32,84 @@ def _rgb(c):
 
 
 def error_vs_communication(res, tables, path: Path) -> None:
+    """Left: network MSE against the numbers each node sends per step (symlog), the centralized filter
+    as the floor and the frontier of the lowest error for a budget; estimators far off the scale
+    (a diverging filter) are drawn on the top edge with their value. Right: the same estimators
+    ranked by their MSE relative to the centralized filter, each bar labelled with its budget."""
     t = tables["estimators"]
     app = tables["applicability"]
-    fig, axes = new_figure(ncols=1, width=10.0, height=5.0)
-    ax = axes[0, 0]
+    fig, axes = new_figure(ncols=2, width=7.0, height=5.6)
+    ax, bx = axes[0, 0], axes[0, 1]
     central = t[t["estimator"] == "central"]
     floor = float(central["network_mse"].iloc[0]) if len(central) else np.nan
     z = z_for_confidence(BAND)
-    for _, r in t.iterrows():
-        est = r["estimator"]
-        if est == "central":
-            continue
-        y = r["network_mse"]
-        if not np.isfinite(y):
+    rows = t[(t["estimator"] != "central") & np.isfinite(t["network_mse"])]
+    vals = rows["network_mse"].to_numpy()
+    top = _top(vals, floor)
+    for _, r in rows.iterrows():
+        est, y = r["estimator"], r["network_mse"]
+        c = _rgb(COLORS[est])
+        if y > top:
+            ax.plot([r["scalars_per_step"]], [top * 1.15], marker="^", color=c, ms=9, ls="none",
+                    label=f"{LABELS[est]} (off scale: {y:.3g})")
             continue
         err = None if r["exact"] else z * r["network_mse_mc_se"]
-        ax.errorbar([r["scalars_per_step"]], [y], yerr=err, fmt=MARKERS[est], color=_rgb(COLORS[est]), ms=8,
-                    capsize=3, label=f"{LABELS[est]}" + ("" if r["exact"] else " (Monte Carlo)"))
+        ax.errorbar([r["scalars_per_step"]], [y], yerr=err, fmt=MARKERS[est], color=c, ms=8, capsize=3,
+                    label=f"{LABELS[est]}" + ("" if r["exact"] else " (Monte Carlo)"))
     if np.isfinite(floor):
         ax.axhline(floor, color="k", ls="--", lw=1, label="centralized KF (all measurements at one place)")
+    front = _pareto(rows)
+    if len(front) > 1:
+        ax.step(front[:, 0], np.minimum(front[:, 1], top), where="post", color="0.5", lw=0.8, ls=":",
+                label="lowest error for a communication budget")
     ax.set_xscale("symlog", linthresh=1.0)
     ax.set_yscale("log")
+    ax.set_ylim(top=top * 1.35)
     ax.set_xlabel("real numbers sent per node and step")
     ax.set_ylabel(f"network mean-square error at k = {res.scenario.eval_step}")
-    skipped = app[~app["applies"] & (app["reason"] != "not requested (estimators.include)")]
     title = f"{res.scenario.name}: error against communication ({res.scenario.link_model} links"
     title += f", σ_c = {res.scenario.noise_std:g})" if res.scenario.noise_std else ")"
     ax.set_title(title)
+    skipped = app[~app["applies"] & (app["reason"] != "not requested (estimators.include)")]
     if len(skipped):
         ax.text(0.01, 0.01, "not applicable: " + ", ".join(skipped["estimator"]), transform=ax.transAxes, fontsize=7,
                 va="bottom")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, borderaxespad=0)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), fontsize=7, ncol=2, borderaxespad=0)
+    ranked = rows.sort_values("network_mse")
+    ratio = ranked["network_mse"].to_numpy() / floor if np.isfinite(floor) else ranked["network_mse"].to_numpy()
+    ypos = np.arange(len(ranked))[::-1]
+    bx.barh(ypos, ratio, color=[_rgb(COLORS[e]) for e in ranked["estimator"]])
+    for yv, rv, (_, r) in zip(ypos, ratio, ranked.iterrows()):
+        bx.text(rv, yv, f"  {rv:.3g}×, {r['scalars_per_step']:.3g} numbers/step", va="center", fontsize=7)
+    bx.set_yticks(ypos, [LABELS[e] for e in ranked["estimator"]], fontsize=7)
+    bx.set_xscale("log")
+    bx.axvline(1.0, color="k", ls="--", lw=1)
+    bx.set_xlabel("network MSE / centralized KF's")
+    bx.set_title("ranked (label: error ratio, communication per node and step)")
     save_figure(fig, path)
+
+
+def _top(vals: np.ndarray, floor: float) -> float:
+    """The top of the error axis: the largest value, leaving out those more than 30 times the median of
+    the smaller ones (diverging filters, drawn on the top edge)."""
+    v = np.sort(vals[np.isfinite(vals)])
+    if len(v) < 3:
+        return float(v[-1]) if len(v) else 1.0
+    rest = v[:-1]
+    while len(rest) > 1 and v[len(rest)] > 30 * np.median(rest):
+        v, rest = rest, rest[:-1]
+    return float(max(v[-1], floor if np.isfinite(floor) else 0.0))
+
+
+def _pareto(t) -> np.ndarray:
+    """(budget, error) of the estimators no other beats on both, by increasing budget."""
+    pts = sorted(zip(t["scalars_per_step"], t["network_mse"]))
+    front, best = [], np.inf
+    for x, y in pts:
+        if y < best:
+            front.append((x, y))
+            best = y
+    return np.array(front)
 
 
 def mse_vs_time(res, tables, path: Path) -> None:

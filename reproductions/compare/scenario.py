@@ -102,8 +102,10 @@ class WeightsSection(Section):
         "metropolis", doc="metropolis: q_ij = 1/(1 + max(d_i, d_j)); laplacian: q_ij = eps on every link")
     eps: Real | None = key(None, doc="the Laplacian weight (kind = laplacian)", gt=0,
                            constraint="required with kind = laplacian, only then; < 1/d_max")
-    alpha: Real | None = key(_computed("min(1/2, 1/d_max)"), doc="weight α of Tanwani's pairwise averaging (6), "
-                             "Π = I − α L", gt=0, le=0.5, constraint="<= 1/d_max")
+    alpha: Real | None = key(_computed("1/(1 + d_max)"), doc="weight α of Tanwani's pairwise averaging (6), "
+                             "Π = I − α L (the paper allows up to 1/d_max; at 1/d_max a synchronous round on a "
+                             "bipartite graph has an eigenvalue −1 that never averages out)", gt=0, le=0.5,
+                             constraint="<= 1/d_max")
     kcf_epsilon: Real = key(0.1, doc="ε of the Kalman-consensus filter's consensus gain γ = ε/(1 + ‖M‖)", gt=0, le=10)
 
     @model_validator(mode="after")
@@ -288,7 +290,7 @@ class CompareScenario:
         w = f.weights
         if w.kind == "laplacian" and w.eps >= 1.0 / dmax:
             raise ScenarioError("weights.eps", f"must be < 1/d_max = {1.0 / dmax:.6g}, got {w.eps:g}")
-        alpha = w.alpha if w.alpha is not None else min(0.5, 1.0 / dmax)
+        alpha = w.alpha if w.alpha is not None else 1.0 / (1.0 + dmax)
         if alpha > 1.0 / dmax + 1e-15:
             raise ScenarioError("weights.alpha", f"must be <= 1/d_max = {1.0 / dmax:.6g}, got {alpha:g}")
         g = f.gains

@@ -28,6 +28,7 @@ class Stats:
     nees_se: np.ndarray | None
     disagreement: np.ndarray           # (S,)
     disagreement_se: np.ndarray
+    disagreement_node: np.ndarray      # (S, W) mean of ‖x̂_i − mean_j x̂_j‖²
     network: np.ndarray                # (S,) node average of the MSE
     network_se: np.ndarray
     messages: np.ndarray               # (N,) per node and step
@@ -54,7 +55,8 @@ def stats(res, est: str) -> Stats:
         nees, nees_se = _mean_se(s["nees"], s["nees2"], B)
     dis, dis_se = _mean_se(s["dis"], s["dis2"], B)
     net, net_se = _mean_se(s["net"], s["net2"], B)
-    return Stats(mse, mse_se, excess, excess_se, cross, cross_se, nees, nees_se, dis, dis_se, net, net_se,
+    return Stats(mse, mse_se, excess, excess_se, cross, cross_se, nees, nees_se, dis, dis_se, s["dis_node"] / B,
+                 net, net_se,
                  s["msgs"] / (B * K), s["scalars"] / (B * K))
 
 

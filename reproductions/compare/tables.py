@@ -46,7 +46,7 @@ ESTIMATOR_TABLE = spec("estimators", "estimator at the evaluation step", [
     ("network_mse_mc_se", "state²", "its standard error"),
     ("excess", "state²", "network_mse minus the centralized filter's (= mean-square distance to it)"),
     ("excess_mc", "state²", "Monte Carlo node average of ‖x̂_i − x̂_c‖²"),
-    ("excess_mc_se", "state²", "its standard error"),
+    ("excess_mc_se", "state²", "the node average of the nodes' standard errors (an upper bound of its standard error)"),
     ("nees", "1", "Monte Carlo node average of the NEES e_iᵀ P_i⁻¹ e_i with the estimator's own covariance (n when "
                   "consistent); empty when it has none"),
     ("disagreement", "state²", "mean over trials of (1/N) Σ_i ‖x̂_i − mean_j x̂_j‖²"),
@@ -65,6 +65,8 @@ NODES = spec("nodes", "estimator and node at the evaluation step", [
     ("nees_mc", "1", "Monte Carlo mean NEES with the estimator's own covariance"),
     ("nees_lo", "1", f"lower end of the {NEES_BAND:.0%} χ² band of the mean NEES of a consistent filter"),
     ("nees_hi", "1", "upper end of that band"),
+    ("disagreement_mc", "state²", "Monte Carlo mean of ‖x̂_i − mean_j x̂_j‖², the node's distance from the network "
+                                  "average estimate"),
     ("messages_per_step", "1", "messages sent by the node per step"),
     ("scalars_per_step", "1", "real numbers sent by the node per step")])
 
@@ -153,6 +155,7 @@ def run_tables(res) -> list:
                 "excess_mc": st.excess[i, node] if st.excess is not None else (0.0 if est == "central" else np.nan),
                 "excess_mc_se": st.excess_se[i, node] if st.excess_se is not None else 0.0,
                 "nees_mc": st.nees[i, node] if st.nees is not None else np.nan, "nees_lo": lo, "nees_hi": hi,
+                "disagreement_mc": st.disagreement_node[i, node],
                 "messages_per_step": st.messages[node] if est != "central" else 0.0,
                 "scalars_per_step": st.scalars[node] if est != "central" else 0.0})
         dis_ex = exact_disagreement_at(res, est)
