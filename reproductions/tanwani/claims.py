@@ -94,7 +94,8 @@ def path_mean_pvalues(s1, s2, n: int, mu, var, *, side: str = "two") -> np.ndarr
     eps = mu - xbar
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         p_lo = np.where(eps > 0, np.exp(-n * eps ** 2 / (2 * v + 2 * np.abs(mu) * eps / 3)), 1.0)
-        t = np.where(sample_var > 0, (xbar - mu) / np.sqrt(sample_var / n), np.sign(xbar - mu) * np.inf)
+        t = np.where(sample_var > 0, (xbar - mu) / np.sqrt(sample_var / n),
+                     np.where(xbar == mu, 0.0, np.sign(xbar - mu) * np.inf))
         p_t = sps.t.sf(t, n - 1)
         p_z = sps.norm.sf((xbar - mu) / np.sqrt(v / n))
     p_up = np.maximum(p_t, p_z)
