@@ -351,6 +351,23 @@ class FullRecord(Monitor):
                          self.z0, self.pi0_max, self.piq_max, self.layout.participating, self.violations)
 
 
+def row_norms(v: np.ndarray) -> np.ndarray:
+    """Euclidean norms along the last axis, each summed in a fixed order (a trial's value does not
+    depend on the batch); cheaper than np.linalg.norm on the short axes of agents' states."""
+    return np.sqrt(np.einsum("...i,...i->...", v, v))
+
+
+def row_max(v: np.ndarray) -> np.ndarray:
+    """The maximum along the last axis (NaN propagates), column by column for short axes (numpy's
+    reduction over a short last axis goes one row at a time)."""
+    if v.shape[-1] > 32:
+        return v.max(axis=-1)
+    out = v[..., 0].copy()
+    for j in range(1, v.shape[-1]):
+        np.maximum(out, v[..., j], out=out)
+    return out
+
+
 def rowwise_matmul(X: np.ndarray, M: np.ndarray) -> np.ndarray:
     """X @ M with a fixed summation order per row: a trial's numbers do not depend on how many
     trials run beside it (BLAS blocks differently for different batch sizes), so a run of one
@@ -576,8 +593,8 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
             traj[k + 1] = zf[0]
         z = zf.reshape(B, m, n)
         zq[s] = [z, 0]
-        monitor.interval(IntervalData(s, Wk, Sk, N_nom, bad, tau, np.linalg.norm(pi0, axis=-1).max(axis=-1),
-                                      np.linalg.norm(np.where(pp[None, :, None], z - xs, 0.0), axis=-1).max(axis=-1),
+        monitor.interval(IntervalData(s, Wk, Sk, N_nom, bad, tau, row_max(row_norms(pi0)),
+                                      row_max(row_norms(np.where(pp[None, :, None], z - xs, 0.0))),
                                       traj.reshape(q + 1, m, n)))
 
     def capture(i: int, s: int, xt: np.ndarray) -> None:
@@ -639,7 +656,7 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
                     buf["x_event"][:, i] = xt
                     wi = X[:, n + W_slices[i].start: n + W_slices[i].stop]
                     buf["ebar"][:, W_slices[i]] = wi - rowwise_matmul(xt, d.L[i].T)
-                    buf["central"][:, i] = np.linalg.norm(X[:, D - n:] - xt, axis=-1)
+                    buf["central"][:, i] = row_norms(X[:, D - n:] - xt)
                     buf["done"] += 1
                     next_s[i] += 1
                     if s < S:

@@ -380,9 +380,17 @@ class ChunkMonitor(ho.Monitor):
         self.s_last = -1
         self.kf = c["make_kf"]() if (self.has0 and c["run"].noise) else None
         self.z_keep = c["iter_keep"]
+        self.w_starts = np.array([w.start for w in L.w_slices])
 
     def units(self):
         return [(a, b) for a, b in zip(self.edges[:-1], self.edges[1:])]
+
+    def unit_moments(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per RNG unit: the mean and the sum of squared deviations from it of every column, (U, k)."""
+        sizes = np.diff(self.edges)
+        means = np.add.reduceat(values, self.edges[:-1], axis=0) / sizes[:, None]
+        dev = values - np.repeat(means, sizes, axis=0)
+        return means, np.add.reduceat(dev * dev, self.edges[:-1], axis=0)
 
     # -- samples ----------------------------------------------------------------------------------
     def sample(self, k: int, t_ns: int, X: np.ndarray) -> None:
@@ -405,7 +413,7 @@ class ChunkMonitor(ho.Monitor):
         xnorm = np.sqrt(np.einsum("bi,bi->b", x, x))
         if c["continuous"]:
             s_now = int(min(max(math.floor(t_ns / ho.NS / c["T"] + 1e-9), 0), L.S))
-            emax = err.max(axis=1)
+            emax = rowmax(err)
             floor = c["tol"] * np.maximum(1.0, xnorm + emax) + c["enAT"] * self.ef_at(s_now)
             t = t_ns / ho.NS
             for j_, extra in enumerate((0.0, c["lam"] * c["T"])):
@@ -421,7 +429,7 @@ class ChunkMonitor(ho.Monitor):
             t0["cerr"][j] = np.linalg.norm(xc[0] - x[0])
             if kf_err is not None:
                 t0["kf"][j] = kf_err
-        cerr = np.linalg.norm(xc - x, axis=-1)
+        cerr = rownorm(xc - x)
         for a, b in self.units():
             acc.g_sum[j] += err[a:b].sum(axis=0)
             acc.g_csum[j] += cerr[a:b].sum()
@@ -450,14 +458,16 @@ class ChunkMonitor(ho.Monitor):
         c, acc, L = self.ctx, self.acc, self.L
         s, m, n, B = ev.s, L.m, L.n, L.B
         sl = L.w_slices
-        e_i = np.linalg.norm(ev.e_post, axis=-1)                                   # (B, m)
-        pre_i = np.linalg.norm(ev.e_pre, axis=-1)
-        eb_i = np.stack([np.linalg.norm(ev.ebar[:, w], axis=-1) for w in sl], axis=1)
-        e_mix, eb_mix = e_i.max(axis=1), eb_i.max(axis=1)
-        e2 = np.linalg.norm(ev.e_post.reshape(B, -1), axis=-1)
-        eb2 = np.linalg.norm(ev.ebar, axis=-1)
-        xs = np.linalg.norm(ev.x_event, axis=-1).max(axis=-1)
-        xh = np.linalg.norm(ev.e_post + ev.x_event, axis=-1).max(axis=-1)
+        starts = self.w_starts
+        e_i = rownorm(ev.e_post)                                                   # (B, m)
+        pre_i = rownorm(ev.e_pre)
+        eb_sq = np.add.reduceat(ev.ebar * ev.ebar, starts, axis=1)                 # (B, m): ||ē_i||²
+        eb_i = np.sqrt(eb_sq)
+        e_mix, eb_mix = rowmax(e_i), rowmax(eb_i)
+        e2 = np.sqrt(np.einsum("bi,bi->b", e_i, e_i))
+        eb2 = np.sqrt(eb_sq.sum(axis=1))
+        xs = rowmax(rownorm(ev.x_event))
+        xh = rowmax(rownorm(ev.e_post + ev.x_event))
         scale = np.nan_to_num(np.maximum.reduce([xs, xh, eb2, np.ones(B)]), nan=1.0)
         floor = c["tol"] * scale
         # δē(s) = ē(s) - e^(F_i sT) ē(0): the simulation's round-off in the local observer errors
@@ -467,11 +477,11 @@ class ChunkMonitor(ho.Monitor):
             dev_i = np.zeros((B, m))
             self.ef_now, self.efs_now = np.zeros(B), np.zeros(B)
         else:
-            for i, w in enumerate(sl):
-                self.exact[:, w] = ho.rowwise_matmul(self.exact[:, w], c["steps"][i].T)
-            dev_i = np.stack([np.linalg.norm(ev.ebar[:, w] - self.exact[:, w], axis=-1) for w in sl], axis=1)
+            self.exact = ho.rowwise_matmul(self.exact, c["steps_block"])        # e^(F_i sT) ē_i(0), every agent
+            gap = ev.ebar - self.exact
+            dev_i = np.sqrt(np.add.reduceat(gap * gap, starts, axis=1))
             self.ef_now, self.efs_now = self.ef_next, self.efs_next
-        dev, dev2 = dev_i.max(axis=1), np.sqrt((dev_i ** 2).sum(axis=1))
+        dev, dev2 = rowmax(dev_i), np.sqrt(np.einsum("bi,bi->b", dev_i, dev_i))
         lamT = c["lam"] * c["T"]
         # carried round-off of ē: EF(s+1) = e^(-λT) EF(s) + b δē(s)  (and its 2-norm analogue)
         self.ef_next = math.exp(-lamT) * self.ef_now + c["b"] * dev
@@ -481,11 +491,10 @@ class ChunkMonitor(ho.Monitor):
         self.maxima["eb_max"] = np.fmax(self.maxima["eb_max"], eb_mix)
         # statistics over trials, unit by unit in unit order
         cen = ev.central
-        for a, b in self.units():
-            k = b - a
-            mu, cm, nm = e_i[a:b].mean(axis=0), cen[a:b].mean(axis=0), e_mix[a:b].mean()
-            acc.merge_moments(s, k, mu, ((e_i[a:b] - mu) ** 2).sum(axis=0), cm, ((cen[a:b] - cm) ** 2).sum(axis=0), nm,
-                              float(((e_mix[a:b] - nm) ** 2).sum()))
+        means, m2s = self.unit_moments(np.concatenate([e_i, cen, e_mix[:, None]], axis=1))
+        for u, (a, b) in enumerate(self.units()):
+            acc.merge_moments(s, b - a, means[u, :m], m2s[u, :m], means[u, m:2 * m], m2s[u, m:2 * m], means[u, -1],
+                              m2s[u, -1])
         acc.ev_max[s] = np.maximum(acc.ev_max[s], e_i.max(axis=0))
         acc.net_max[s] = max(acc.net_max[s], float(e_mix.max()))
         # per-trial fingerprint of e(s), for the bitwise comparison of Theorem 2
@@ -522,12 +531,10 @@ class ChunkMonitor(ho.Monitor):
         base = rm(pev.e_post.reshape(B, m * n), mats.A.T) + rm(pev.ebar, mats.B.T)
         xg = rm(pev.x_nominal, mats.G.T)
         cur = ev.e_post.reshape(B, m * n)
-        res_scale = np.maximum.reduce([np.linalg.norm(ev.x_event, axis=-1).max(axis=-1),
-                                       np.linalg.norm(pev.x_event, axis=-1).max(axis=-1),
-                                       np.abs(pev.e_post).reshape(B, -1).max(axis=1),
-                                       np.linalg.norm(pev.ebar, axis=-1), np.ones(B)])
-        self.maxima["res_minus"] = np.maximum(self.maxima["res_minus"], np.abs(cur - (base - xg)).max(axis=1) / res_scale)
-        self.maxima["res_plus"] = np.maximum(self.maxima["res_plus"], np.abs(cur - (base + xg)).max(axis=1) / res_scale)
+        res_scale = np.maximum.reduce([rowmax(rownorm(ev.x_event)), rowmax(rownorm(pev.x_event)),
+                                       rowmax(np.abs(pev.e_post).reshape(B, -1)), rownorm(pev.ebar), np.ones(B)])
+        self.maxima["res_minus"] = np.maximum(self.maxima["res_minus"], rowmax(np.abs(cur - (base - xg))) / res_scale)
+        self.maxima["res_plus"] = np.maximum(self.maxima["res_plus"], rowmax(np.abs(cur - (base + xg))) / res_scale)
         self.counts["res"] += B
         if self.has0:
             e_prev = np.linalg.norm(pev.e_post[0], axis=-1)
@@ -558,7 +565,7 @@ class ChunkMonitor(ho.Monitor):
                 self.maxima["restart"] = np.maximum(self.maxima["restart"], e_mix / bound)
                 self.counts["restart"] += len(e_mix) * (s - 1)
         if c["continuous"]:                    # the left limits e_i(t_is⁻) against the continuous bound
-            pre = pre_i.max(axis=1)
+            pre = rowmax(pre_i)
             pre_floor = floor + c["enAT"] * self.ef_prev                      # tol·scale(s) + e^(||A||T) EF(s-1)
             for j, extra in enumerate((0.0, lamT)):
                 bound = math.exp(c["nA"] * c["T"] + extra - lamT * s) * self.K0 + pre_floor
@@ -597,7 +604,7 @@ class ChunkMonitor(ho.Monitor):
             with np.errstate(divide="ignore", invalid="ignore"):
                 self.maxima["ratio_sym"] = np.fmax(self.maxima["ratio_sym"], e2 / rhs)
         if c["eq63"]:
-            xn = np.linalg.norm(self.prev[0].x_nominal, axis=-1)
+            xn = rownorm(self.prev[0].x_nominal)
             self.conv = math.exp(-lamT) * self.conv + xn                   # Σ_{k=1}^{s} e^(-λ(s-k)T) ||x((k-1)T)||
             rhs = decay * self.K0 + c["eps"] * c["g"] * self.conv
             self.worst["eq63"].update(e_mix, rhs + bound_floor)
@@ -633,6 +640,9 @@ class ChunkMonitor(ho.Monitor):
             acc.counts[k] += v
         acc.g_count += self.L.B
         return acc
+
+
+rowmax, rownorm = ho.row_max, ho.row_norms
 
 
 def _nanmax(current: float, values: np.ndarray) -> float:
@@ -706,7 +716,8 @@ def simulate_run(sc: HybridScenario, design: dict, run: RunSpec, trials: int, se
            "qQ": run.q * float(design["Q_mixed"]), "B_mixed": plan["B_mixed"],
            "symmetric": run.rule == "symmetric" and run.leave is None and not run.noise,
            "eq63": run.timing == "offset" and theorem,
-           "steps": [sla.expm(d.F(i) * (ho.to_ns(sc.T) / ho.NS)) for i in range(m)], "Cs": Cs, "make_kf": make_kf,
+           "steps_block": sla.block_diag(*[sla.expm(d.F(i) * (ho.to_ns(sc.T) / ho.NS)) for i in range(m)]).T,
+           "Cs": Cs, "make_kf": make_kf,
            "matrices": MatrixCache(sc, d, eAT, offset_exponentials(sc, ev)), "iter_keep": plan["sources0"].shape[0]}
     _, _, grid0, dt_ns, samples = ho.sample_grid(ev[:, 0], ho.to_ns(sc.T), run.intervals, sc.sample_step)
     acc = RunAccumulator(sc, run, samples, grid0, dt_ns, nw)

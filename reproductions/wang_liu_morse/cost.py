@@ -41,6 +41,8 @@ FIGURE_S = 0.7
 RECORDING_S = 0.3
 ROW_S = 5e-6
 BASE_MIB = 330.0
+#: what the pipeline reserves for the interpreter and libraries in a memory budget (RunOptions)
+INTERPRETER_MIB = 200.0
 TABLE_ROW_BYTES = 160.0
 
 
@@ -138,7 +140,7 @@ def refuse_beyond_budget(scenarios: dict[str, HybridScenario], opts: RunOptions)
     from .compute import trial_count
 
     budget_mib = opts.memory_budget_mib
-    total, worst = BASE_MIB, None
+    total, worst = INTERPRETER_MIB, None
     for sc in scenarios.values():
         n_i = _n_i(sc)
         for i, run in enumerate(sc.runs):
@@ -151,10 +153,11 @@ def refuse_beyond_budget(scenarios: dict[str, HybridScenario], opts: RunOptions)
         mib, i, c, sc = worst
         by_samples = min(c["samples"], sc.stored_samples) * sc.n * (sc.m + 2) > (run_intervals(sc, i) + 1) * sc.m * 3
         field = "sampling.stored" if by_samples else f"runs[{i}].intervals"
-        raise ScenarioError(field, f"the run keeps about {total:,.0f} MiB that cannot be streamed (trial 0 and the "
-                                   f"statistics at every event index and stored sample, and their tables; the largest "
-                                   f"run {mib:,.0f} MiB), more than the memory budget of {budget_mib:,.0f} MiB "
-                                   "(--max-memory)")
+        raise ScenarioError(field, f"the run needs about {total:,.0f} MiB ({total - INTERPRETER_MIB:,.0f} MiB that "
+                                   f"cannot be streamed: trial 0 and the statistics at every event index and stored "
+                                   f"sample, and their tables, {mib:,.0f} MiB of it for runs[{i}]), more than the memory "
+                                   f"budget of {budget_mib:,.0f} MiB (--max-memory); fewer intervals or stored samples "
+                                   "fit")
 
 
 def run_intervals(sc: HybridScenario, i: int) -> int:
