@@ -164,14 +164,15 @@ def from_sym_coords(x: np.ndarray, D: int) -> np.ndarray:
     return X
 
 
-def bound_second_moments(sys: GossipSystem, rate: float, step: float, n_steps: int,
-                         weights: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+def bound_second_moments(sys: GossipSystem, rate: float, step: float, n_steps: int, weights: np.ndarray,
+                         check: bool = False) -> tuple | None:
     """Exact mean and second moment over the clock paths of linear functionals c·p of the
     P-process (14), p = [x_1; …; x_N] the stacked symmetric coordinates of P_1..P_N.
 
     `weights` (K, N·q): the functionals (e.g. `vech_weights` of a direction, placed in node i's
     block). Returns (E[c·p], E[(c·p)²]) at the times k·step, arrays (n_steps + 1, K), or None
-    when D = N·q exceeds MAX_SECOND_DIM.
+    when D = N·q exceeds MAX_SECOND_DIM; with `check`, also the relative difference from the same
+    computation on twice the step (an estimate of its rounding error).
 
     Between rings p flows by ṗ = 𝔐p + g (𝔐 = blkdiag of the Lyapunov operators of the A_i on
     symmetric coordinates), and a ring of clock c maps p to 𝒦_cp with 𝒦_c = J_c ⊗ I_q. Hence
@@ -201,10 +202,22 @@ def bound_second_moments(sys: GossipSystem, rate: float, step: float, n_steps: i
     p0 = np.concatenate([Elim @ vec(sys.P0) for _ in range(N)])
     y0 = np.concatenate([E2 @ vec(np.outer(p0, p0)), p0])
     y = affine_flow_grid(big, const, y0, step, n_steps)
-    Wt = unvec(y[:, :E2.shape[0]] @ D2.T, D)                               # (T, D, D)
-    mean = y[:, E2.shape[0]:] @ weights.T
-    second = np.einsum("kd,tde,ke->tk", weights, Wt, weights)
-    return mean, second
+    mean, second = _functionals(y, weights, E2.shape[0], D2, D)
+    if not check:
+        return mean, second
+    # the same flow on twice the step: identical in exact arithmetic, so the difference measures
+    # how much rounding the (possibly very non-normal) exponential has let through
+    y2 = affine_flow_grid(big, const, y0, 2 * step, n_steps // 2)
+    m2, s2 = _functionals(y2, weights, E2.shape[0], D2, D)
+    with np.errstate(invalid="ignore", over="ignore"):
+        rel = max(float(np.abs(m2 - mean[::2][:len(m2)]).max() / max(float(np.abs(mean).max()), 1e-300)),
+                  float(np.abs(s2 - second[::2][:len(s2)]).max() / max(float(np.abs(second).max()), 1e-300)))
+    return mean, second, rel
+
+
+def _functionals(y: np.ndarray, weights: np.ndarray, q2: int, D2: np.ndarray, D: int) -> tuple[np.ndarray, np.ndarray]:
+    Wt = unvec(y[:, :q2] @ D2.T, D)                                        # (T, D, D)
+    return y[:, q2:] @ weights.T, np.einsum("kd,tde,ke->tk", weights, Wt, weights)
 
 
 # -- exact mean joint covariance ----------------------------------------------------------------

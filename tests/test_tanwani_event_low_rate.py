@@ -14,7 +14,6 @@ import itertools
 import math
 
 import numpy as np
-import pytest
 import scipy.linalg as sla
 
 import estimators.gossip_covariance as gc

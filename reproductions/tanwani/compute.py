@@ -227,10 +227,11 @@ def test_cell_references(sc: FilterNetworkScenario, b: dict[str, np.ndarray]) ->
     weights = np.zeros((s.N * q, s.N * q))
     for i in range(s.N):
         weights[i * q:(i + 1) * q, i * q:(i + 1) * q] = w
-    mom = gc.bound_second_moments(s, sc.main_rate, sc.output_step, sc.n_outputs, weights)
+    mom = gc.bound_second_moments(s, sc.main_rate, sc.output_step, sc.n_outputs, weights, check=True)
     if mom is not None:
         out["cell_P_mean"] = mom[0][idx].reshape(len(idx), s.N, q)
         out["cell_P_second"] = mom[1][idx].reshape(len(idx), s.N, q)
+        out["cell_P_accuracy"] = np.array(mom[2])
     return out
 
 
@@ -463,7 +464,7 @@ def _nonfinite_allowed(stage: str, sc: FilterNetworkScenario) -> tuple[str, ...]
     if stage == "bounds":
         return (("sweep_bound", "sweep_joint", "sweep_dev_bound", "sweep_dev_joint", "sweep_absc_joint",
                  "sweep_explicit_faithful", "sweep_explicit_tight", "crit_bound", "crit_joint", "explicit_faithful",
-                 "explicit_tight", "P_kb_t", "cell_bound", "cell_joint", "cell_P_mean", "cell_P_second",
+                 "explicit_tight", "P_kb_t", "cell_bound", "cell_joint", "cell_P_mean", "cell_P_second", "cell_P_accuracy",
                  "scheme_bias_h", "scheme_bias_h2", "sweep_dev_err", "sweep_dev_joint_err", "sweep_cond")
                 + tuple(f"bound_t_{k}" for k in range(len(sc.rates))) + tuple(f"joint_t_{k}" for k in range(len(sc.rates))))
     if stage == "event":
