@@ -77,6 +77,7 @@ def test_degenerate_input_is_rejected_in_one_line():
              (lambda d: d["graphs"].update(neighbors=[[[1], [1]]]), "graphs.neighbors[0][0]: lists agent 1 as its own"),
              (lambda d: d["graphs"].update(neighbors=[[[2, 2], [1]]]), "graphs.neighbors[0][0]: repeats a neighbour"),
              (lambda d: d.update(name="a\u202eb"), "name: must match"),
+             (lambda d: d["graphs"].update(names=["ring\u202e"]), "graphs.names[0]: must be 1 to 64 characters"),
              (lambda d: d["sampling"].update(step=1e-6), "sampling.step: T / step = 500,000 samples per interval"),
              (lambda d: d["runs"][0].update(intervals=20_000), "runs[0].intervals: the plant's state grows like")]
     for mutate, message in cases:

@@ -19,7 +19,7 @@ from pydantic import Field
 
 import estimators.jointly_observable_design as jd
 from pipeline.declare import Matrix, Real, Section, key, matrix, parse
-from pipeline.errors import ScenarioError
+from pipeline.errors import ScenarioError, printable
 from pipeline.scenario import load_toml
 
 TIMINGS = ("sync", "async", "offset")
@@ -105,7 +105,8 @@ class GraphsSection(Section):
     neighbors: list[list[list[int]]] = key(doc="per graph, per agent i = 1..m, the labels j of its neighbours "
                                            "(1..m, without i itself, each at most once)", min_length=1,
                                            constraint="m rows per graph")
-    names: list[str] | None = key(_computed("G1, G2, ..."), doc="a name per graph (figures, tables)")
+    names: list[str] | None = key(_computed("G1, G2, ..."), doc="a name per graph (figures, tables)",
+                                  constraint="1 to 64 characters, no control or format characters")
 
 
 class InitialSection(Section):
@@ -455,6 +456,10 @@ def _graphs(g: GraphsSection, m: int) -> tuple[np.ndarray, tuple[str, ...]]:
     names = tuple(g.names) if g.names is not None else tuple(f"G{k + 1}" for k in range(len(graphs)))
     if len(names) != len(graphs):
         raise ScenarioError("graphs.names", f"must name each of the {len(graphs)} graphs, got {len(names)}")
+    for k, label in enumerate(names):
+        if not label.strip() or len(label) > 64 or printable(label) != label:
+            raise ScenarioError(f"graphs.names[{k}]", "must be 1 to 64 characters without control or format "
+                                                      f"(bidirectional, zero-width) characters, got '{label[:64]}'")
     return np.array(graphs), names
 
 
