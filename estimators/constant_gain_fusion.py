@@ -130,6 +130,10 @@ class FusionRun:
         self.xbar = predict(m.F, est)
         return est
 
+    def shift(self, delta: np.ndarray) -> None:
+        """Add delta (n, B) to every node's prediction (see `network_comparison`: error coordinates)."""
+        self.xbar = self.xbar + delta[None]
+
     def _exchanges(self, x: np.ndarray, ctx: StepContext) -> np.ndarray:
         """Poisson exchanges in time order: both endpoints move towards each other by q_e (6)."""
         x = x.copy()

@@ -113,6 +113,10 @@ class GossipSwapRun:
         self.Pbar = sm.const_sandwich(m.F, P) + m.Q[:, :, None, None]
         return est
 
+    def shift(self, delta: np.ndarray) -> None:
+        """Add delta (n, B) to every node's prediction (see `network_comparison`: error coordinates)."""
+        self.xbar = self.xbar + delta[None]
+
     def nees(self, err: np.ndarray) -> np.ndarray:
         """(N, B): e_iᵀ P_i⁻¹ e_i with P the filter's own posterior covariance."""
         v = np.moveaxis(err, 1, 0)

@@ -190,6 +190,13 @@ class InformationRun:
         self.qbar = np.moveaxis(sm.matvec(self.Obar, np.moveaxis(self.xbar, 1, 0)), 0, 1)
         return x
 
+    def shift(self, delta: np.ndarray) -> None:
+        """Add delta (n, B) to every node's prediction (see `network_comparison`: error coordinates);
+        for CI the information vector moves by Ω̄ delta."""
+        self.xbar = self.xbar + delta[None]
+        if self.f.kind == "information-consensus":
+            self.qbar = self.qbar + np.moveaxis(sm.matvec(self.Obar, delta[:, None, :]), 0, 1)
+
     def nees(self, err: np.ndarray) -> np.ndarray:
         """(N, B): e_iᵀ P_i⁻¹ e_i with the filter's own covariance, through its information matrix."""
         return sm.quad_form(self.info, np.moveaxis(err, 1, 0))

@@ -85,6 +85,9 @@ class _Central:
         self.estimate = est[None]
         return self.estimate
 
+    def shift(self, delta: np.ndarray) -> None:
+        self.xbar = self.xbar + delta
+
 
 class _Local:
     def __init__(self, model: SensorNetworkModel, K: int, B: int):
@@ -101,6 +104,9 @@ class _Local:
         self.xbar = predict(m.F, est)
         self.estimate = est
         return est
+
+    def shift(self, delta: np.ndarray) -> None:
+        self.xbar = self.xbar + delta[None]
 
 
 def _make(kind, setup: Setup, B: int):
@@ -221,12 +227,22 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
     paths.update({name: np.zeros((K, 1 if kinds[name] == "central" else N, n, P)) for name in runs})
 
     seconds = dict.fromkeys(runs, 0.0)
-    x = m.x0[:, None] + _factor(m.P0) @ plant.standard_normal((n,)).T
+    # Error coordinates: every estimator is equivariant under adding the same vector to the state, its
+    # prediction and all its estimates (gains act on innovations, fusion weights sum to one, CI's q = Ω x̂),
+    # so the filters run on x ≡ 0 with measurements y = v, initial estimates x0 − x(0), and each
+    # prediction shifted by −w: their estimates are then the errors x̂ − x exactly, without the
+    # cancellation of x − x̂ when an unstable plant makes x huge. The true state is kept for the sample
+    # trials only (recordings).
+    x0_draw = _factor(m.P0) @ plant.standard_normal((n,)).T
+    for parts in runs.values():
+        for r, c in zip(parts, cuts):
+            r.shift(-x0_draw[:, c])
+    x_true = m.x0[:, None] + x0_draw[:, :setup.n_paths]
     Lq = _factor(m.Q)
     sigma = lm.noise_std
     cols = np.arange(B)
     for k in range(K):
-        y = np.einsum("imn,nb->imb", m.H, x) + _measurement_noise(m, plant.standard_normal((N, m.m)))
+        y = _measurement_noise(m, plant.standard_normal((N, m.m)))          # H x + v with x ≡ 0
         step_links = lm.draw(links)
         ctx = StepContext(k, y, step_links)
         contacts = {}
@@ -253,7 +269,7 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
         if has_gossip:
             ctx.swap = step_permutation(lm, step_links, B, ctx.gossip_priority)
         if P:
-            paths["x"][k] = x[:, :P]
+            paths["x"][k] = x_true
         record = k in where
         e_c = None
         ctxs = [slice_context(ctx, c) for c in cuts] if len(cuts) > 1 else [ctx]
@@ -273,11 +289,11 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
                 a["msgs"] += c
                 a["scalars"] += c * payload
             if P:
-                paths[name][k] = est[:, :, :P]
+                paths[name][k] = x_true[None] + est[:, :, :P]
             if not record:
                 continue
             i = where[k]
-            err = x[None] - est                                       # (N, n, B)
+            err = -est                                                # x − x̂ in error coordinates (N, n, B)
             if kinds[name] == "central":
                 e_c = err
             sq = np.einsum("inb,inb->ib", err, err)
@@ -309,7 +325,11 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
             if name in setup.exact_cov:
                 inv = np.linalg.inv(setup.exact_cov[name][k])
                 a["xnees"][:, i] = per_unit(np.einsum("inb,inm,imb->ib", err, inv, err))
-        x = m.F @ x + Lq @ plant.standard_normal((n,)).T
+        w = Lq @ plant.standard_normal((n,)).T
+        for parts in runs.values():
+            for r, c in zip(parts, cuts):
+                r.shift(-w[:, c])
+        x_true = m.F @ x_true + w[:, :P]
     return {"sums": acc, "token": token, "paths": paths, "sizes": sizes, "steps": np.array(steps), "seconds": seconds}
 
 

@@ -372,3 +372,39 @@ def test_greedy_matching_is_a_maximal_matching_of_the_allowed_edges():
     free = cover == 0
     both_free = free[topo.edges[:, 0]] & free[topo.edges[:, 1]] & allowed
     assert not both_free.any()
+
+
+@pytest.mark.parametrize("link_kind", ["reliable", "failures", "matchings"])
+def test_every_filter_is_equivariant_so_error_coordinates_are_exact(link_kind):
+    """The simulation runs the filters on x ≡ 0 with y = v and predictions shifted by −w
+    (estimators.network_comparison): the estimate it gets must be x̂ − x of the same filter run on the
+    true states, to round-off (relative to the state's size)."""
+    from estimators.network_comparison import _Central, _Local
+
+    model = small_model(4, seed=3)
+    topo = ring(4)
+    links = LinkModel(topo, link_kind, rounds=2, p_fail=0.3 if link_kind != "reliable" else 0.0, noise_std=0.2)
+    w = topo.metropolis_weights()
+    G = 0.5 * split_gains(model)
+    B = 3
+    makers = [lambda: FusionRun(FusionFilter(model, links, G, w, "consensus"), B),
+              lambda: FusionRun(FusionFilter(model, links, G, w, "reinjection", 0.4), B),
+              lambda: FusionRun(FusionFilter(model, links, G, np.full(topo.E, 0.3), "pairwise"), B),
+              lambda: GossipSwapRun(model, links, B), lambda: _Central(model, 6, B), lambda: _Local(model, 6, B)]
+    makers += [lambda kind=kind: InformationRun(InformationFilter(model, links, kind, w, 0.2), B)
+               for kind in ("kalman-consensus", "diffusion", "information-consensus")]
+    ctxs, xs = contexts(model, links, 6, B, 9, rounds=2)
+    rng = np.random.default_rng(9)
+    x0 = model.x0[:, None] + np.linalg.cholesky(model.P0) @ rng.standard_normal((model.n, B))   # as `contexts` draws
+    for make in makers:
+        plain, err = make(), make()
+        err.shift(-x0)
+        for k, (ctx, x) in enumerate(zip(ctxs, xs)):
+            v_ctx = StepContext(ctx.k, ctx.y - np.einsum("imn,nb->imb", model.H, x), ctx.links, heard=ctx.heard,
+                                step_heard=ctx.step_heard, step_count=ctx.step_count, noise=ctx.noise,
+                                node_noise=ctx.node_noise, gossip_priority=ctx.gossip_priority)
+            a = plain.step(ctx)
+            b = err.step(v_ctx)
+            assert np.allclose(a - x[None], b, rtol=0, atol=1e-10 * (1 + np.abs(x).max())), type(plain).__name__
+            if k + 1 < len(xs):
+                err.shift(-(xs[k + 1] - model.F @ x))                 # −w(k)

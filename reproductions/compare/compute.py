@@ -33,6 +33,8 @@ CODE_MODULES = ("estimators.constant_gain_fusion", "estimators.information_fusio
                 "estimators.small_matrix", "estimators.joint_moments", "estimators.sensor_network",
                 "estimators.kalman", "reproductions.compare.design", "reproductions.compare.compute")
 STREAMS = ("plant", "links", "noise", "gossip")
+#: the per-trial sums beside `STATS` (a diverging filter may make any of them infinite: a result, not a failure)
+PER_TRIAL_SUMS = ("dis", "dis2", "dis_node", "net", "net2", "msgs", "scalars")
 
 
 @dataclass
@@ -287,14 +289,21 @@ def compute(sc: CompareScenario, opts: RunOptions, cache: StageCache) -> Results
     d = compute_design(sc, opts, cache)
     code = code_fingerprint(CODE_MODULES)
     base = {"scenario": sc.key(), "quick": opts.quick, "code": code}
-    exact = cache.get_or_compute("exact", base, lambda: compute_exact(d), scenario=sc.name)
+    def run_exact():
+        with np.errstate(over="ignore", invalid="ignore"):     # a mean-square unstable filter's moments may overflow
+            return compute_exact(d)
+
+    exact = cache.get_or_compute("exact", base, run_exact, scenario=sc.name,
+                                 allow_nonfinite=tuple(f"{e}__{k}" for e in d.estimators
+                                                       for k in ("blocks", "mse", "disagreement", "own_cov")))
     d.__dict__["_exact_blocks"] = {k.split("__")[0]: v for k, v in exact.items()
                                    if k.endswith("__blocks") and k.split("__")[0] not in ("central", "local")
                                    and d.status[k.split("__")[0]][0]}
     mc_key = {**base, "seed": opts.seed, "trials": trials}
 
     def run_mc():
-        out = simulate(d, opts, trials)
+        with np.errstate(over="ignore", invalid="ignore"):     # a diverging filter's errors may overflow
+            out = simulate(d, opts, trials)
         arrays = {f"{e}__{k}": v for e, stats in out["mc"].items() for k, v in stats.items()}
         arrays.update({f"token__{e}": v for e, v in out["token"].items()})
         arrays.update({f"path__{e}": v for e, v in out["paths"].items()})
@@ -302,8 +311,9 @@ def compute(sc: CompareScenario, opts: RunOptions, cache: StageCache) -> Results
         return arrays
 
     mc_arrays = cache.get_or_compute("mc", mc_key, run_mc, scenario=sc.name,
-                                     allow_nonfinite=tuple(f"path__{e}" for e in d.estimators) +
-                                     tuple(f"{e}__{s}" for e in d.estimators for s in STATS + ("dis", "dis2")))
+                                     allow_nonfinite=tuple(f"path__{e}" for e in d.estimators) + ("path__x",) +
+                                     tuple(f"{e}__{s}" for e in d.estimators for s in STATS + PER_TRIAL_SUMS)
+                                     + tuple(f"token__{e}" for e in d.estimators))
     res = Results(sc, d, opts.seed, trials, opts.quick, mc_arrays["steps"])
     for key, value in exact.items():
         est, name = key.split("__", 1)
@@ -320,6 +330,7 @@ def compute(sc: CompareScenario, opts: RunOptions, cache: StageCache) -> Results
             res.mc.setdefault(head, {})[name] = value
     if "gikf" in d.estimators:
         tok = cache.get_or_compute("token", {**mc_key, "stage": "token"},
-                                   lambda: {"chain": token_chain(d, opts, trials)}, scenario=sc.name)
+                                   lambda: {"chain": token_chain(d, opts, trials)}, scenario=sc.name,
+                                   allow_nonfinite=("chain",))
         res.token["chain"] = tok["chain"]
     return res

@@ -233,7 +233,7 @@ def write_recording(res, tables, path: Path, claims: list[dict], prov: dict, sum
                              colors=[col])
             if est != "central":
                 rec_.send_series(rec, f"excess/{est}", idx, r["excess_mc"].to_numpy(), names=LABELS[est], colors=[col])
-        if res.paths and "x" in res.paths and res.paths["x"].shape[-1]:
+        if res.paths and "x" in res.paths and res.paths["x"].shape[-1] and np.all(np.isfinite(res.paths["x"][:, 0, 0])):
             K = res.paths["x"].shape[0]
             idx = rec_.sequence_index("k", np.arange(K))
             rec_.send_series(rec, "trial/truth", idx, res.paths["x"][:, 0, 0], names="x₁(k)", colors=[(230, 230, 230)],

@@ -36,9 +36,9 @@ class Stats:
 
 
 def _mean_se(s1, s2, B):
-    mean = s1 / B
-    var = np.maximum(s2 / B - mean * mean, 0.0)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", over="ignore"):      # a diverging filter's sums may be infinite
+        mean = s1 / B
+        var = np.maximum(s2 / B - mean * mean, 0.0)
         return mean, np.sqrt(var * B / max(B - 1, 1) / B)
 
 
