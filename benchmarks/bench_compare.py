@@ -76,7 +76,7 @@ def bench_compare(links: str = "failures", steps: int = 500, trials: int = 1000,
             "trials": trials, "steps": steps, "workers": workers, "mc_s": t3 - t2,
             "mc_cpu_per_worker_s": max(out["group_cpu_s"]), "design_s": t1 - t0, "exact_s": t2 - t1,
             "total_s": t3 - t0, "finite": finite, "target": f"Monte Carlo < {TARGET_S:g} s",
-            "met": (t3 - t2) < TARGET_S,
+            "met": (t3 - t2) < TARGET_S, "met_on_idle_machine": max(out["group_cpu_s"]) < TARGET_S,
             "ms_per_step": {e: round(1e3 * t / steps, 2) for e, t in out["seconds"].items()}}
 
 

@@ -59,8 +59,9 @@ def error_vs_communication(res, tables, path: Path) -> None:
     if np.isfinite(floor):
         ax.axhline(floor, color="k", ls="--", lw=1, label="centralized KF (all measurements at one place)")
     front = _pareto(rows)
+    front = front[front[:, 1] <= top] if len(front) else front
     if len(front) > 1:
-        ax.step(front[:, 0], np.minimum(front[:, 1], top), where="post", color="0.5", lw=0.8, ls=":",
+        ax.step(front[:, 0], front[:, 1], where="post", color="0.5", lw=0.8, ls=":",
                 label="lowest error for a communication budget")
     ax.set_xscale("symlog", linthresh=1.0)
     ax.set_yscale("log")
