@@ -49,7 +49,8 @@ def error_vertices(A, B, C_i, L_i, J_i, sigma_i, K_i) -> tuple[np.ndarray, np.nd
 def comparison_lmi_blocks(A, B, C_i, L_i, J_i, sigma_i, K_i, g: float):
     """The affine map P ↦ R_i(g)(P) of (21)/(38)-(39) as (P ↦ matrix) pieces: returns (Acl, c12, c22)
     with R = [[Aclᵀ P + P Acl, −P B + c12], [(·)ᵀ, c22]], Acl = A − g L C, c12 = g Cᵀ Jᵀ,
-    c22 = −σ (K + Kᵀ). The printed (21) has g Cᵀ Kᵀ in c12, a typo for Jᵀ (spec T8)."""
+    c22 = −σ (K + Kᵀ). The printed (21) has g Cᵀ Kᵀ in c12, a typo for Jᵀ (the block matrix must be
+    symmetric; (39) has Jᵀ)."""
     A, C_i, L_i, J_i, K_i = (np.asarray(a, float) for a in (A, C_i, L_i, J_i, K_i))
     return A - g * L_i @ C_i, g * C_i.T @ J_i.T, -sigma_i * (K_i + K_i.T)
 

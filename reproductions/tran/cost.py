@@ -24,35 +24,41 @@ MIB = 2.0**20
 LONG_RUN_S = 60.0
 #: resident memory before any array: Python, numpy, scipy, cvxpy, pandas, pyarrow, matplotlib, rerun
 BASE_MIB = 330.0
+#: resident memory of the figures and the recording being written (matplotlib canvases, the Rerun buffer)
+OUTPUT_MIB = 90.0
 #: CPU seconds: interpreter start and imports
-STARTUP_S = 2.5
-#: CPU seconds: the LMIs of one node type (feasibility, margin, the comparison LMIs)
-LMI_TYPE_S = 0.35
-#: CPU seconds: the paper's extra LMIs (smallest feasible σ by bisection, the J sweep), per node type
-EXTRAS_TYPE_S = 2.5
-#: CPU seconds per node: certified margins, the Lemma 3.1 sweep over 101 roles, Q_i
-DESIGN_NODE_S = 0.02
-#: CPU seconds per cubed stacked dimension: one dense eigen-decomposition or exponential of size Nq
-EIG_CUBE_S = 4.0e-9
+STARTUP_S = 2.0
+#: CPU seconds: the design's fixed part, the LMIs of one node type (feasibility, margin, the comparison LMIs),
+#: the paper's extra LMIs per type (smallest feasible σ by bisection, the J sweep), the sweeps per node
+DESIGN_S = 0.1
+LMI_TYPE_S = 0.1
+EXTRAS_TYPE_S = 0.5
+DESIGN_NODE_S = 0.012
+#: CPU seconds per cubed stacked dimension: one dense eigen-decomposition of S (30 of them)
+EIG_CUBE_S = 1.0e-9
 #: CPU seconds per role vertex and cubed stacked dimension (batched symmetric eigenvalues), two enumerations
-VERTEX_CUBE_S = 1.2e-9
-#: CPU seconds per recorded sample of the stochastic horizon and cubed stacked dimension (the exact law)
-LAW_CUBE_S = 5.0e-9
-#: CPU seconds per integration step of one trajectory: Python and numpy calls, and per squared dimension
-STEP_CALL_S = 25e-6
-STEP_D2_S = 1.2e-9
-#: CPU seconds per trial-step: per squared dimension, per noise draw and dimension
-TRIAL_D2_S = 1.0e-9
-TRIAL_NOISE_S = 1.2e-9
-#: CPU seconds per trial, recorded sample and stacked dimension (the reduction)
-TRIAL_RECORD_S = 8e-9
-#: CPU seconds per recorded sample and stacked dimension: the claims' checks along the runs
+VERTEX_CUBE_S = 3.6e-10
+#: CPU seconds per cubed dimension of the simulated state: the φ-functions and exact noise factors of one step
+PREPARE_CUBE_S = 1.2e-7
+#: CPU seconds per recorded sample of the stochastic horizon and cubed error dimension (tr(PΣ) of the exact law)
+LAW_CUBE_S = 2.0e-10
+#: CPU seconds per integration step of a deterministic run: calls, and per squared dimension
+STEP_CALL_S = 30e-6
+STEP_D2_S = 3.6e-9
+#: CPU seconds per step of a Monte Carlo chunk (calls), and per trial-step: per squared dimension plus per noise
+#: factor and dimension (matrix products), and a fixed part (draws, reduction)
+CHUNK_STEP_S = 1.0e-4
+TRIAL_D2_S = 2.6e-10
+TRIAL_FIXED_S = 2.5e-7
+#: noise factors per noise column (the numerical rank of each column's one-step covariance, measured)
+FACTORS_PER_COLUMN = 3.7
+#: CPU seconds per recorded sample and error dimension: the claims' checks along the deterministic runs
 CLAIM_SAMPLE_S = 2.0e-7
-#: CPU seconds per recorded sample of the central Kalman filter (filterpy, Python loop)
-KF_SAMPLE_S = 3e-4
-#: CPU seconds: figures, recording and report of a small scenario; per table row
-OUTPUTS_S = 6.0
-ROW_S = 1.5e-6
+#: CPU seconds per step of the central Kalman filter (filterpy, Python loop)
+KF_STEP_S = 5e-5
+#: CPU seconds: figures, recording and report; per table row (building, Parquet, CSV, the figures' reading)
+OUTPUTS_S = 2.0
+ROW_S = 2.0e-6
 
 
 @dataclass(frozen=True)
@@ -85,38 +91,40 @@ def estimate(sc: CoestimationScenario, opts: RunOptions, *, paper: bool = False)
     n_rec_sde = int(round(t_sde / sc.record_dt)) + 1
     vertex_nodes = QUICK_VERTEX_NODES if opts.quick else VERTEX_NODES
     # design: LMIs, per-node sweeps, spectra of S at 23 role vectors, the vertex enumerations
-    t_design = T * (LMI_TYPE_S + (EXTRAS_TYPE_S if paper else 0.0)) + N * DESIGN_NODE_S + 30 * EIG_CUBE_S * Dz ** 3
+    t_design = DESIGN_S + T * (LMI_TYPE_S + (EXTRAS_TYPE_S if paper else 0.0)) + N * DESIGN_NODE_S + 30 * EIG_CUBE_S * Dz ** 3
     if N <= vertex_nodes:
         t_design += 2 * 2 ** N * VERTEX_CUBE_S * Dz ** 3
-    # the exact law: tr(PΣ) at every sample, the noise factors and φ-functions at h and h/2
-    n_noise = n + N * m
-    t_law = n_rec_sde * LAW_CUBE_S * Dz ** 3 + 2 * (27 + 8 * N * m) * EIG_CUBE_S * D ** 3
+    # the exact law: tr(PΣ) at every sample, the step operators at h and h/2
+    n_noise = 1 + N * m
+    K = FACTORS_PER_COLUMN * n_noise
+    t_law = n_rec_sde * LAW_CUBE_S * Dz ** 3 + 2 * PREPARE_CUBE_S * D ** 3
     # deterministic runs: coest, fixed and comparison at h; coest and fixed at h/2 (twice the steps)
     steps = sc.t_end / sc.step
     det_steps = 7 * steps + (6 * sc.t_end / sc.sde_step if sc.sde_step != sc.step else 0.0)
-    t_det = det_steps * (STEP_CALL_S + 6 * STEP_D2_S * D * D)
+    t_det = det_steps * (STEP_CALL_S + STEP_D2_S * D * D)
     # Monte Carlo: three runs (time-varying and fixed roles at the stochastic step, fixed at half the step)
     budget = opts.chunk_budget_bytes()
-    per_trial = sde_bytes_per_trial(sc, 2 * n_noise)
+    per_trial = sde_bytes_per_trial(sc, int(K))
     units = -(-trials // RNG_UNIT)
     chunks = -(-units // units_per_chunk(per_trial, budget))
     sde_steps = [t_sde / sc.sde_step, t_sde / sc.sde_step, 2 * min(t_sde, sc.quick_t_end) / sc.sde_step]
-    t_runs = [trials * s * (6 * TRIAL_D2_S * D * D + 2 * n_noise * TRIAL_NOISE_S * D) + chunks * s * STEP_CALL_S
-              + trials * n_rec_sde * Dz * TRIAL_RECORD_S for s in sde_steps]
+    t_runs = [PREPARE_CUBE_S * D ** 3 + s * (chunks * CHUNK_STEP_S + trials * (TRIAL_D2_S * (D * D + K * D) + TRIAL_FIXED_S))
+              for s in sde_steps]
     workers = max(1, min(opts.workers, 3))
     t_mc = max(sum(t_runs) / workers, max(t_runs))
-    t_claims = 6 * n_rec * Dz * CLAIM_SAMPLE_S + (n_rec + n_rec_sde) / max(1, round(sc.kf_dt / sc.record_dt)) * KF_SAMPLE_S
-    rows = n_rec * N * (q + 2) * (3 + sc.runs) + (Dz ** 2) * 3
-    t_out = OUTPUTS_S + rows * ROW_S * 3
+    kf_steps = (2 * n_rec + n_rec_sde) / max(1, round(sc.kf_dt / sc.record_dt))
+    t_claims = 6 * n_rec * Dz * CLAIM_SAMPLE_S + kf_steps * KF_STEP_S
+    rows = n_rec * N * (q + 2) * 3 + sc.runs * n_rec_sde * N * (q + 1) + 4 * n_rec * N + 3 * Dz ** 2
+    t_out = OUTPUTS_S + rows * ROW_S
     seconds = STARTUP_S + t_design + t_law + t_det + t_mc + t_claims + t_out
     # memory: the recorded runs, the kept trials, the moments, the claims' temporaries and the tables
     sample = 8.0 * (n + Dz + N + p)
     runs_bytes = n_rec * sample * 7 + sc.runs * n_rec_sde * sample * 3
     moments = 8.0 * n_rec_sde * 12 * 3 + 8.0 * 3 * N * q * q
     claims = 16 * 8.0 * n_rec * Dz
-    tables = 56.0 * rows
-    design = 8.0 * Dz * Dz * (40 + 256 * (N <= vertex_nodes)) + 8.0 * D * D * (6 + 2 * n_noise)
-    kept = (runs_bytes + moments + claims + tables + design) / MIB
+    tables = 100.0 * rows
+    design = 8.0 * Dz * Dz * (40 + 256 * (N <= vertex_nodes)) + 8.0 * D * D * 6 + 8.0 * 2 * K * D
+    kept = OUTPUT_MIB + (runs_bytes + moments + claims + tables + design) / MIB
     chunk_units = min(units_per_chunk(per_trial, budget), units)
     chunk = chunk_units * RNG_UNIT * per_trial / MIB
     peak = BASE_MIB + kept + chunk * workers

@@ -27,7 +27,8 @@ from pipeline.tables import Tables
 from .compute import Results
 
 PAPER_STATE_LABELS = ("x₁ (x position)", "x₂ (x velocity)", "x₃ (y position)", "x₄ (y velocity)")
-FRAME_DT = 0.1  # seconds between recorded network/plane frames
+FRAME_DT = 0.1  # seconds between recorded network/plane frames ...
+MAX_FRAMES = 2000  # ... and at most this many of them (long horizons are thinned)
 # (paper file, paper title, user file, user title) of each figure
 FIGURES = {
     "graph": ("fig2", "Fig. 2 (reconstructed): communication graph and sensing discs", "graph",
@@ -379,7 +380,8 @@ def write_recording(res: Results, tables: Tables, path: Path, claims: list[dict]
     with rec_.recording(path, application_id="dse-tran", recording_id=f"tran-{sc.name}-seed{res.seed}",
                         blueprint=blueprint, properties=props) as rec:
         # graph: static edges, per-frame node colours/sizes from g_i(t)
-        frames = np.arange(0, len(co["t"]), max(1, int(round(FRAME_DT / sc.record_dt))))
+        stride = max(1, int(round(FRAME_DT / sc.record_dt)), -(-len(co["t"]) // MAX_FRAMES))
+        frames = np.arange(0, len(co["t"]), stride)
         ids = [str(i) for i in range(N)]
         rec.log("graph", rr.GraphEdges([(str(u), str(v)) for u, v in sc.graph.build().edges()],
                                        graph_type=rr.GraphType.Undirected), static=True)
