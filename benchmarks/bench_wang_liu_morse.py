@@ -162,8 +162,10 @@ def measure(data: dict, max_memory_mib: float | None = None) -> dict:
             "t2 = time.perf_counter()\n"
             "peak = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,\n"
             "           resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024\n"
+            "use = resource.getrusage(resource.RUSAGE_SELF)\n"
             "print(json.dumps({'estimate_s': est['seconds'], 'estimate_mib': est['peak_memory_mib'],\n"
-            "                  'compute_s': t1 - t0, 'wall_s': t2 - t0, 'peak_mib': peak, 'counts': run.counts}))\n")
+            "                  'compute_s': t1 - t0, 'wall_s': t2 - t0, 'cpu_s': use.ru_utime + use.ru_stime,\n"
+            "                  'peak_mib': peak, 'counts': run.counts}))\n")
     with tempfile.TemporaryDirectory() as tmp:
         proc = subprocess.run([sys.executable, "-c", code, json.dumps(data), json.dumps(max_memory_mib), tmp + "/out"],
                               capture_output=True, text=True, cwd=ROOT,
@@ -173,6 +175,7 @@ def measure(data: dict, max_memory_mib: float | None = None) -> dict:
         raise RuntimeError(proc.stderr[-2000:])
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     out["time_ratio"] = out["wall_s"] / out["estimate_s"]
+    out["cpu_ratio"] = out["cpu_s"] / out["estimate_s"]          # the wall time of an unloaded machine
     out["memory_ratio"] = out["peak_mib"] / out["estimate_mib"]
     return out
 

@@ -481,6 +481,25 @@ def _ln1p_neg(u: Decimal) -> Decimal:
     return -(Decimal(1) - u).ln()
 
 
+def exact_text(q: int) -> str:
+    """An integer as decimal text, whatever its size (Python refuses str() beyond 4,300 digits; the
+    q of (22) has about (m-1)² log10(m) digits)."""
+    return str(Decimal(q))
+
+
+def exact_int(text: str) -> int:
+    """The integer written by `exact_text`."""
+    return int(Decimal(text))
+
+
+def readable_int(q: int) -> str:
+    """An integer for people: thousands separators up to 10^15, else a power of ten."""
+    if q < 10**15:
+        return f"{q:,}"
+    digits = exact_text(q)
+    return f"{digits[0]}.{digits[1:4]}e{len(digits) - 1}"
+
+
 def sufficient_q(rho: float, m: int, norm_A: float, lam: float, T: float, *, prec: int | None = None) -> SufficientQ:
     """α = 1 - (m-1)(1-ρ)/m^{(m-1)²} (Lemma 5) and as printed in (18), 1 - (m-1)(1-ρ)/(m(m-1)²);
     r = (λ + ||A||)T / ln(1/α) and the three q variants, all in exact decimal arithmetic so that
@@ -488,19 +507,26 @@ def sufficient_q(rho: float, m: int, norm_A: float, lam: float, T: float, *, pre
     if m < 2:
         raise ValueError("m >= 2 (for m = 1, P_1 = 0 and q = 1 suffices)")
     N = (m - 1) ** 2 + 1
+    def exact(value: float) -> Decimal:
+        return Decimal(repr(float(value)))
+
+    num_f = (exact(lam) + exact(norm_A)) * exact(T)
     with localcontext() as ctx:
-        # r has about (m-1)² log10(m) integer digits: carry 40 more so that ceil/floor are exact
-        ctx.prec = prec or int((m - 1) ** 2 * math.log10(m)) + 60
-        one_minus_rho = Decimal(1) - Decimal(repr(float(rho)))
-        u5 = Decimal(m - 1) * one_minus_rho / Decimal(m) ** ((m - 1) ** 2)
-        up = Decimal(m - 1) * one_minus_rho / (Decimal(m) * Decimal(m - 1) ** 2)
-        num = (Decimal(repr(float(lam))) + Decimal(repr(float(norm_A)))) * Decimal(repr(float(T)))
-        r5 = num / _ln1p_neg(u5)
-        rp = num / _ln1p_neg(up)
-        c5, f5 = int(r5.to_integral_value(rounding="ROUND_CEILING")), int(r5.to_integral_value(rounding="ROUND_FLOOR"))
+        # the printed α is not close to 1: r has few digits, 60 more make ceil/floor exact
+        ctx.prec = prec or int(math.log10(m * (m - 1) ** 2 + 1)) + 60
+        up = Decimal(m - 1) * (Decimal(1) - exact(rho)) / (Decimal(m) * Decimal(m - 1) ** 2)
+        rp = num_f / _ln1p_neg(up)
         cp, fp = int(rp.to_integral_value(rounding="ROUND_CEILING")), int(rp.to_integral_value(rounding="ROUND_FLOOR"))
-        log10_u5 = float(u5.log10())
-        return SufficientQ(Decimal(1) - u5, Decimal(1) - up, log10_u5, r5, rp, N * c5 + 1, N * (c5 + 1), N * (f5 + 1),
+        alpha_p = Decimal(1) - up
+    with localcontext() as ctx:
+        # r of Lemma 5 has about (m-1)² log10(m) integer digits: carry 60 more so that ceil/floor are exact
+        ctx.prec = prec or int((m - 1) ** 2 * math.log10(m)) + 60
+        u5 = Decimal(m - 1) * (Decimal(1) - exact(rho)) / Decimal(m) ** ((m - 1) ** 2)
+        r5 = (exact(lam) + exact(norm_A)) * exact(T) / _ln1p_neg(u5)    # ln by its series: 1 - α is tiny for m >= 4
+        c5, f5 = int(r5.to_integral_value(rounding="ROUND_CEILING")), int(r5.to_integral_value(rounding="ROUND_FLOOR"))
+        # log10(1 - α) from the decimal exponent and the leading digits (Decimal.log10 at thousands of digits is slow)
+        log10_u5 = math.log10(float(u5.scaleb(-u5.adjusted()))) + u5.adjusted() if u5 > 0 else -math.inf
+        return SufficientQ(Decimal(1) - u5, alpha_p, log10_u5, r5, rp, N * c5 + 1, N * (c5 + 1), N * (f5 + 1),
                            N * cp + 1, N * (fp + 1), N * (cp + 1))
 
 

@@ -10,10 +10,10 @@ B (mn)², and every sample at which the continuous bound is checked or stored B�
 tables, figures and recordings. Memory: the interpreter and libraries, the largest chunk of
 trials, and what is kept whole: trial 0 at every event index and stored sample, statistics per
 event and sample, trial 0's iterates and source sets of the first intervals, and the tables
-built from them. The constants are fitted on this machine to measured runs (4 to 32 agents,
-15 to 2,000 intervals, q 20 to 2,000, 8 to 20,000 trials: every fitted time within 0.8-1.15 of
-the measurement; `benchmarks/bench_wang_liu_morse.py --estimate` compares whole runs): the
-estimate is meant within a factor 2.
+built from them. The constants are fitted to the CPU time of measured runs on this machine (2 to
+32 agents, 15 to 2,000 intervals, q 5 to 2,000, 8 to 20,000 trials: every fitted time within
+0.9-1.1 of the measurement; `benchmarks/bench_wang_liu_morse.py --estimate` compares whole runs):
+the estimate is meant within a factor 2 of an unloaded machine's wall time.
 """
 from __future__ import annotations
 
@@ -26,19 +26,24 @@ from pipeline.reproduction import RunOptions
 from . import bounds
 from .scenario import SIGMA_MAX_AGENTS, HybridScenario
 
-#: fitted seconds: per time instant and chunk, per trial·D² of the propagation, per iteration and chunk,
-#: per trial·(mn)² of an iteration, per trial·mn of a checked or stored sample
-INSTANT_S = 8.7e-5
-PROPAGATION_S = 2.25e-10
-ITERATION_S = 2.7e-5
-ITERATION_FLOP_S = 6.3e-11
-SAMPLE_CHECK_S = 7.8e-8
+#: fitted CPU seconds (this machine, one BLAS thread): per time instant and chunk, per trial·D² of the
+#: propagation, per iteration and chunk, per trial·(mn)² of an iteration, per event index and chunk, per
+#: trial·((mn)² + 20 mn) of an event's bounds, per trial·mn of a checked or stored sample
+INSTANT_S = 2.2e-5
+PROPAGATION_S = 7.3e-11
+ITERATION_S = 9.5e-6
+ITERATION_FLOP_S = 5e-11
+EVENT_S = 3.8e-4
+EVENT_FLOP_S = 9.1e-11
+SAMPLE_CHECK_S = 4.2e-8
 #: design: fixed, per prefix of ρ's branch and bound, per flop of σ and of the Lemma 5/6 samples
 DESIGN_S = 0.1
 RHO_PREFIX_S = 6e-7
 #: outputs: per figure, per recording, per table row (build and write)
-FIGURE_S = 0.7
-RECORDING_S = 0.3
+FIGURE_S = 0.3
+RECORDING_S = 0.25
+#: importing the numeric, table, plotting and recording libraries
+IMPORT_S = 1.5
 ROW_S = 5e-6
 BASE_MIB = 330.0
 #: what the pipeline reserves for the interpreter and libraries in a memory budget (RunOptions)
@@ -55,7 +60,7 @@ def _n_i(sc: HybridScenario) -> list[int]:
 
 def _flop_s(mn: int) -> float:
     """Seconds per flop of the dense products of the design checks (BLAS is faster on larger blocks)."""
-    return 2e-10 + 3e-7 / mn ** 2
+    return 6e-11 + 1.5e-7 / mn ** 2
 
 
 def _design_seconds(sc: HybridScenario, extras: bool) -> float:
@@ -95,7 +100,8 @@ def run_cost(sc: HybridScenario, run, trials: int, n_i: list[int], budget_bytes:
     matrices = distinct * (1 + chunks) * q * mn * mn * (m + n) * _flop_s(mn)
     checked = samples if (bounds.is_theorem_run(run) and run.timing == "sync") else min(samples, sc.stored_samples)
     trials_s = (instants * chunks * INSTANT_S + instants * B * D * D * PROPAGATION_S + S * q * chunks * ITERATION_S
-                + S * q * B * mn * mn * ITERATION_FLOP_S + checked * B * mn * SAMPLE_CHECK_S)
+                + S * q * B * mn * mn * ITERATION_FLOP_S + S * chunks * EVENT_S + S * B * (mn * mn + 20 * mn) * EVENT_FLOP_S
+                + checked * B * mn * SAMPLE_CHECK_S)
     kf = samples * 6e-5 if run.noise else 0.0
     stored = min(samples, sc.stored_samples)
     keep = max(1, min(S, bounds.SOURCE_VALUES // max(q * m * m, 1), bounds.ITERATE_VALUES // max((q + 1) * mn, 1)))
@@ -112,7 +118,7 @@ def estimate(scenarios: dict[str, HybridScenario], opts: RunOptions, *, extras: 
     from .compute import trial_count
 
     budget = opts.chunk_budget_bytes()
-    seconds, kept, tables, chunk, parts = 4 * FIGURE_S, 0.0, 0.0, 0.0, []
+    seconds, kept, tables, chunk, parts = IMPORT_S + 4 * FIGURE_S, 0.0, 0.0, 0.0, []
     for name, sc in scenarios.items():
         n_i = _n_i(sc)
         trials = trial_count(sc, opts)

@@ -120,7 +120,7 @@ def design_quantities(sc: HybridScenario, seed: int, extras: bool = False) -> di
     if rho.upper < 1:           # (22) from the proven upper bound on ρ: a q that is sufficient for sure
         sq = jd.sufficient_q(rho.upper, m, nA, sc.lam, sc.T)
         out["alpha_lemma5_upper"] = np.array(float(sq.alpha_lemma5))
-        out["q_thm22_upper"] = np.array(str(sq.q_thm22))
+        out["q_thm22_upper"] = np.array(jd.exact_text(sq.q_thm22))
     for label, lam in lambda_variants(sc):
         sq = jd.sufficient_q(rho.rho, m, nA, lam, sc.T)
         out[f"alpha_lemma5{label}"] = np.array(float(sq.alpha_lemma5))
@@ -131,7 +131,7 @@ def design_quantities(sc: HybridScenario, seed: int, extras: bool = False) -> di
         out[f"r_lemma5_exact{label}"] = np.array(str(sq.r_lemma5))
         out[f"r_printed_exact{label}"] = np.array(str(sq.r_printed))
         for k in Q_KEYS:
-            out[f"{k}{label}"] = np.array(str(getattr(sq, k)))
+            out[f"{k}{label}"] = np.array(jd.exact_text(getattr(sq, k)))
     graphs = jd.connected_undirected_graphs(m) if m <= SIGMA_MAX_AGENTS else None
     if graphs is not None and len(graphs) * (m * n) ** 3 <= SIGMA_FLOPS:
         sig, worst, vals = jd.sigma_symmetric(d.P, graphs)
@@ -248,7 +248,7 @@ def section5_design(sc: HybridScenario, d: ho.ObserverDesign, nA: float) -> dict
         if red_obs[i] and m - 1 >= 2:
             rd = jd.rho_exact(d.P[keep]).upper
             rho_d.append(rd)
-            q_d.append(str(jd.sufficient_q(rd, m - 1, nA, lam_p, sc.T).q_thm22) if rd < 1 else "")
+            q_d.append(jd.exact_text(jd.sufficient_q(rd, m - 1, nA, lam_p, sc.T).q_thm22) if rd < 1 else "")
         else:
             rho_d.append(-1.0)
             q_d.append("")

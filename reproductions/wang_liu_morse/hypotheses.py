@@ -98,16 +98,11 @@ def local_observers(r) -> Holds:
 
 
 def _int(v) -> int:
-    return int(str(np.asarray(v)))
+    return jd.exact_int(str(np.asarray(v)))
 
 
-def big(q: int) -> str:
-    """An integer for people: with thousands separators, or as a power of ten beyond 10^15 (the q of
-    (22) has about (m-1)² log10(m) digits); the exact value is in the design table."""
-    if q < 10**15:
-        return f"{q:,}"
-    digits = str(q)
-    return f"{digits[0]}.{digits[1:4]}e{len(digits) - 1}"
+#: an integer for people (the q of (22) has about (m-1)² log10(m) digits; the exact value is in the design table)
+big = jd.readable_int
 
 
 def number(q: int) -> int | float:

@@ -470,7 +470,7 @@ def _design_q(q_raw: int | str, m: int, nA: float, lam: float, T: float, locs) -
         # (22) grows with ρ: its value at ρ = 0 is a lower bound, enough to refuse without computing ρ
         q = jd.sufficient_q(0.0, m, nA, lam, T).q_thm22
         if q > MAX_Q:
-            raise ScenarioError("design.q", f"the theory q is {q:,} or more (> {MAX_Q:,}): too many iterations to "
+            raise ScenarioError("design.q", f"the theory q is {jd.readable_int(q)} or more (> {MAX_Q:,}): too many iterations to "
                                             "simulate; give an integer q (the hypotheses report the required q)")
         rho = jd.rho_exact(np.array([loc.P for loc in locs]))
         if rho.upper >= 1:
@@ -482,7 +482,7 @@ def _design_q(q_raw: int | str, m: int, nA: float, lam: float, T: float, locs) -
             raise ScenarioError("design.q", f"'symmetric' needs m <= {SIGMA_MAX_AGENTS} (σ of (26) by enumeration)")
         q = symmetric_q(jd.sigma_symmetric(np.array([loc.P for loc in locs]))[0], nA, lam, T, "design.q")
     if q > MAX_Q:
-        raise ScenarioError("design.q", f"the {q_raw} q is {q:,} (> {MAX_Q:,}): too many iterations to simulate; "
+        raise ScenarioError("design.q", f"the {q_raw} q is {jd.readable_int(q)} (> {MAX_Q:,}): too many iterations to simulate; "
                                         "give an integer q (the hypotheses report the required q)")
     return q, q_raw
 
@@ -558,7 +558,7 @@ def parse_runs(value: list[RunSection] | None, *, m: int, T: float, q_design: in
                 sigma = jd.sigma_symmetric(np.array([loc.P for loc in locs]))[0]
             q, q_lab = symmetric_q(sigma, nA, lam, T, f"{f}.q"), "symmetric"
             if q > MAX_Q:
-                raise ScenarioError(f"{f}.q", f"q of (27) is {q:,} (> {MAX_Q:,}); give an integer")
+                raise ScenarioError(f"{f}.q", f"q of (27) is {jd.readable_int(q)} (> {MAX_Q:,}); give an integer")
         else:
             q, q_lab = int(raw.q), "given"
         eps = tuple(float(x) for x in raw.epsilon) if raw.epsilon is not None else (0.0,) * m

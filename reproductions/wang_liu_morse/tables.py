@@ -14,6 +14,7 @@ cases the claims are decided on (`checks`) and the summary `metrics` of sweeps.
 from __future__ import annotations
 
 import math
+from decimal import Decimal
 
 import numpy as np
 import pandas as pd
@@ -166,10 +167,7 @@ METRICS = spec("metrics", "summary metric (sweeps plot the network-wide ones wit
 
 def as_float(exact: str) -> float:
     """An exact integer (or decimal) as a float: inf beyond the float range (q of (22) for many agents)."""
-    try:
-        return float(exact)
-    except OverflowError:
-        return math.inf
+    return float(Decimal(exact))
 
 
 def _agents(name: str, dz: dict, sc) -> pd.DataFrame:
