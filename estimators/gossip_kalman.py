@@ -30,12 +30,14 @@ is simulated instead, with w(t) common to all sensors.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 
-__all__ = ["GossipSystem", "MatchingDistribution", "NodeInitiatedGossip", "GreedyMatchingGossip", "riccati_step",
+__all__ = ["GossipSystem", "MatchingDistribution", "SingleEdgeGossip", "MatchingSequence", "NodeInitiatedGossip",
+           "GreedyMatchingGossip", "matching_at", "riccati_step",
            "lyapunov_step", "factor_psd", "riccati_sqrt_step", "factor_features", "riccati_roundoff",
            "lyapunov_roundoff", "propagate_error", "error_norm",
            "gikf_covariance_step", "gikf_error_step", "covariance_features", "FEATURES"]
@@ -309,6 +311,87 @@ class MatchingDistribution:
         k = np.searchsorted(cum, rng.random(size), side="right")
         table = np.vstack([self.partners, np.arange(self.n)[None]])
         return table[k]
+
+
+@dataclass(frozen=True)
+class SingleEdgeGossip:
+    """Each edge is the slot's only swap with probability `edge_prob` (E·edge_prob ≤ 1; else no
+    communication). The same draws as `MatchingDistribution.single_edge`, without its (E, N) table
+    of partner arrays (a complete graph of 1,000 nodes has 499,500 edges)."""
+
+    n_nodes: int
+    edges: tuple[tuple[int, int], ...]
+    edge_prob: float
+    label: str = "single-edge"
+
+    @property
+    def n(self) -> int:
+        return self.n_nodes
+
+    @property
+    def probs(self) -> np.ndarray:
+        return np.full(len(self.edges), self.edge_prob)
+
+    def mean_matrix(self) -> np.ndarray:
+        """Ā = I − p Σ_(u,v) (e_u − e_v)(e_u − e_v)ᵀ, eq (6)."""
+        e = np.asarray(self.edges, dtype=np.int64).reshape(-1, 2)
+        A = np.eye(self.n_nodes)
+        np.add.at(A, (e[:, 0], e[:, 0]), -self.edge_prob)
+        np.add.at(A, (e[:, 1], e[:, 1]), -self.edge_prob)
+        A[e[:, 0], e[:, 1]] += self.edge_prob
+        A[e[:, 1], e[:, 0]] += self.edge_prob
+        return A
+
+    def sample(self, size: int, rng: np.random.Generator) -> np.ndarray:
+        """(size, N) partner arrays."""
+        e = np.asarray(self.edges, dtype=np.int64).reshape(-1, 2)
+        k = np.searchsorted(np.cumsum(self.probs), rng.random(size), side="right")
+        out = np.tile(np.arange(self.n_nodes), (size, 1))
+        rows = np.flatnonzero(k < len(e))
+        u, v = e[k[rows], 0], e[k[rows], 1]
+        out[rows, u] = v
+        out[rows, v] = u
+        return out
+
+
+@dataclass(frozen=True)
+class MatchingSequence:
+    """A given matching for each slot t = 1, 2, ... (repeated cyclically), the same in every run:
+    a replayed protocol or trace. Nothing is random, so the theorems' i.i.d. protocol does not
+    apply; `mean_matrix` is the average of A(t) over one cycle (the empirical law of the matchings).
+    partners: (L, N), partners[k, n] = partner of n in slot k + 1."""
+
+    partners: np.ndarray
+    label: str = "sequence"
+
+    @classmethod
+    def from_matchings(cls, n: int, matchings: Sequence[Sequence[tuple[int, int]]]) -> "MatchingSequence":
+        return cls(MatchingDistribution.from_matchings(n, matchings, [0.0] * len(matchings)).partners)
+
+    @property
+    def n(self) -> int:
+        return self.partners.shape[1]
+
+    def mean_matrix(self) -> np.ndarray:
+        L, n = self.partners.shape
+        A = np.zeros((n, n))
+        for row in self.partners:
+            A[np.arange(n), row] += 1.0 / L
+        return A
+
+    def at(self, t: int, size: int) -> np.ndarray:
+        """(size, N) partner arrays of slot t ≥ 1."""
+        return np.broadcast_to(self.partners[(t - 1) % len(self.partners)], (size, self.n)).copy()
+
+
+def matching_at(protocol, t: int, size: int, rng: np.random.Generator) -> np.ndarray:
+    """The partners of the step from slot t to t + 1 for `size` runs: A(0) = I, then a fresh draw
+    of a random protocol (or the given matching of a sequence)."""
+    if t == 0:
+        return np.tile(np.arange(protocol.n), (size, 1))
+    if isinstance(protocol, MatchingSequence):
+        return protocol.at(t, size)
+    return protocol.sample(size, rng)
 
 
 @dataclass(frozen=True)
@@ -611,148 +694,290 @@ def factor_features(S: np.ndarray) -> np.ndarray:
 # -- batched GIKF run with on-line statistics -----------------------------------------------------------
 
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95, 0.99)
+#: at most this many slots carry the per-slot series of the sample runs, and at most STAT_SLOTS the
+#: statistics over runs (quantiles, tail counts, Loewner margins): memory does not grow with the horizon
+SERIES_SLOTS = 1000
+STAT_SLOTS = 250
+#: the matching of the sample runs is kept at every slot up to this one (the matching animation)
+PARTNER_SLOTS = 1000
 
 
-def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: np.random.Generator, *,
-                  record_times: Sequence[int], P_central: np.ndarray, K_central: np.ndarray,
-                  envelope: np.ndarray, j_grid: np.ndarray, n_paths: int = 3, check_runs: int = 1000,
-                  nees_window: tuple[int, int] = (20, 60), token_steps: int = 20,
-                  nees_level: float = 0.99, stat_stride: int = 1, P_floor: np.ndarray | None = None,
-                  floor_err: np.ndarray | None = None, envelope_err: np.ndarray | None = None,
-                  nees_slots: Sequence[int] = ()) -> dict[str, np.ndarray]:
-    """n_runs independent GIKF runs of n_slots slots (covariances and the error recursion).
+def decimated_slots(T: int, record_times: Sequence[int], stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(series slots, statistic slots) of a run of T slots: every slot (series) and every `stride`-th slot
+    (statistics) while they fit in SERIES_SLOTS and STAT_SLOTS, else evenly thinned; both always hold
+    0, T − 1, T and the record times (statistics: from slot 1 on)."""
+    times = {int(t) for t in record_times if 0 <= t <= T}
+    k1 = max(1, -(-T // SERIES_SLOTS))
+    series = set(range(0, T + 1, k1)) | times | {0, max(T - 1, 0), T}
+    k2 = max(stride, -(-T // STAT_SLOTS))
+    k2 = -(-k2 // k1) * k1                      # statistics on series slots
+    stats = set(range(0, T + 1, k2)) | times | {T}
+    return np.array(sorted(series)), np.array(sorted(stats))
+
+
+def _units_draw(units, draw) -> np.ndarray:
+    parts = [draw(g, m) for g, m in units]
+    return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=0)
+
+
+#: how per-unit results combine: per-run arrays are concatenated along the given axis, counts and
+#: float sums added (in unit order, so sums do not depend on how units are chunked), minima taken
+RUN_AXIS = {"q": 0, "feat_q": 2, "feat_n": 2, "log_trace": 1, "nees_q": 1, "nees_c": 1, "nees_run": 1}
+SUMS = ("exceed", "nees", "trans", "token0", "token0_final", "final_sum", "final_sq", "runs")
+MINS = ("margins", "slack")
+
+
+def gikf_units(sys: GossipSystem, protocol, units: Sequence[tuple[np.random.Generator, int]], n_slots: int, *,
+               record_times: Sequence[int], P_central: np.ndarray, K_central: np.ndarray, envelope: np.ndarray,
+               j_grid: np.ndarray, envelope_log: np.ndarray | None = None, n_paths: int = 3, check: bool = True,
+               paths: bool = True, nees_window: tuple[int, int] = (20, 60), token_steps: int = 20,
+               nees_level: float = 0.99, stat_stride: int = 1, P_floor: np.ndarray | None = None,
+               floor_index: np.ndarray | None = None, floor_err: np.ndarray | None = None,
+               envelope_err: np.ndarray | None = None, nees_slots: Sequence[int] = (),
+               x0: np.ndarray | None = None) -> list[dict[str, np.ndarray]]:
+    """GIKF runs (covariances and the error recursion) for units of runs, each unit drawing from its own
+    generator (`units`: (generator, runs) pairs, simulated together): one dict of statistics per unit,
+    which depend only on that unit's draws. Combine them with `fold_gikf` and `finish_gikf`.
 
     P_central (T+1, M, M) and K_central (T, M, N m) are the centralized filter's prior covariances
-    and update gains; envelope (T+1, M, M) is f_0^t(P0). Returns on-line statistics:
-    features of a uniformly random sensor q and of every sensor at record_times, per-(t, n)
-    quantiles of log tr P over runs, exceedance counts of ‖P‖ over j_grid, relative Loewner
-    margins against a lower bound P_floor (default P_c(t); (T+1, N, M, M) gives one per sensor), Q
-    and the envelope, NEES sums, token-chain counts and a few full sample paths (trace per
-    sensor, errors, matchings, centralized error).
+    and update gains; envelope (T+1, M, M) is f_0^t(P0), divided by exp(envelope_log[t]) when
+    envelope_log is given (a rescaled envelope stays finite over any horizon). Statistics:
+    features (`covariance_features`) of a uniformly random sensor q and of every sensor at the record
+    times; log tr P̂_n(t) of every run at the statistic slots (`decimated_slots`: quantiles over runs),
+    exceedance counts of ‖P̂_n(t)‖ over j_grid there; NEES sums; token-chain counts; sums of P̂_n(T) and of
+    its squares; with `paths`, the first n_paths runs of the first unit whole at the series slots.
 
-    Loewner margins come in two forms (T+1, 3, N): `margins`, min over runs of
-    λ_min(difference) / max(1, ‖P̂‖) per sensor, and `slack`, the same with the round-off allowance of both
-    sides added before the minimum: the first-order bound of `riccati_roundoff` carried along every
-    run (for the first `check_runs` runs) plus `floor_err` / `envelope_err` (the bounds of the
-    reference matrices) plus eps·‖Q‖. A margin is a counterexample only where its slack is < 0.
-    `nees_slots`: slots at which the NEES of the random sensor q and of the centralized filter are
-    kept per run (`nees_q`, `nees_c`, (len(nees_slots), runs)): given the gossip path each is exactly
-    χ²_M and independent across runs.
+    With `check` (the first unit of a run), relative Loewner margins at the statistic slots, (S, 3, N):
+    `margins`, min over the unit's runs of λ_min(difference) / max(1, ‖P̂‖) per sensor, against a lower bound
+    P_floor (a matrix per class, (T+1, C, M, M), sensor n in class floor_index[n]; default P_c(t)), against Q
+    and below the envelope; `slack`, the same with the round-off allowance of both sides added before the
+    minimum (the first-order bound of `riccati_roundoff` carried along every run, `floor_err` /
+    `envelope_err` of the references, eps·‖Q‖). A margin is a counterexample only where its slack is < 0.
+    `nees_slots`: slots at which the NEES of the random sensor q and of the centralized filter are kept
+    per run (given the gossip path each is exactly χ²_M and independent across runs).
+
+    When a covariance leaves float64 the covariance work stops for these units (the draws go on, so every
+    unit's token counts stay its own); `overflow` is the slot, and `finish_gikf` blanks what follows it.
     """
     from scipy.stats import chi2
 
     N, M, m = sys.N, sys.M, sys.C.shape[1]
-    B, T = n_runs, n_slots
+    sizes = [size for _, size in units]
+    B, T = sum(sizes), n_slots
+    edges = np.cumsum([0, *sizes])
+    sl = [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
     times = sorted(set(int(t) for t in record_times if 0 <= t <= T))
-    q = rng.integers(0, N, B)
+    series, stat = decimated_slots(T, times, stat_stride)
+    series_i = {int(t): i for i, t in enumerate(series)}
+    stat_i = {int(t): i for i, t in enumerate(stat)}
+    q = _units_draw(units, lambda g, k: g.integers(0, N, k))
     rows = np.arange(B)
     P = np.broadcast_to(sys.P0, (B, N, M, M)).copy()
-    e = np.broadcast_to(rng.standard_normal((B, 1, M)) @ factor_psd(sys.P0).T, (B, N, M)).copy()
+    e = np.broadcast_to(_units_draw(units, lambda g, k: g.standard_normal((k, 1, M))) @ factor_psd(sys.P0).T,
+                        (B, N, M)).copy()
     e_c = e[:, 0].copy()
     Lr = sys.R_chol
     Lq = np.linalg.cholesky(sys.Q)
     nf = len(FEATURES) + M
+    n_units = len(units)
     feat_q = np.full((len(times), nf, B), np.nan)
     feat_n = np.full((len(times), nf, B, N), np.nan)
-    quant = np.full((T + 1, N, len(QUANTILES)), np.nan)
-    exceed = np.full((T + 1, N, len(j_grid)), -1, dtype=np.int64)  # -1: slot not evaluated (stride)
-    margins = np.full((T + 1, 3, N), np.nan)  # per sensor: vs P_floor(t), vs Q (t ≥ 1), envelope − P
-    slack = np.full((T + 1, 3, N), np.nan)
-    P_floor = P_central if P_floor is None else P_floor
-    floor_err = np.zeros(P_floor.shape[:-2]) if floor_err is None else np.asarray(floor_err, float)
+    log_trace = np.full((len(stat), B, N), np.nan)
+    exceed = np.zeros((n_units, len(stat), N, len(j_grid)), dtype=np.int64)
+    margins = np.full((len(stat), 3, N), np.nan)
+    slack = np.full((len(stat), 3, N), np.nan)
+    if P_floor is None:
+        P_floor, floor_index = P_central[:, None], np.zeros(N, dtype=np.int64)
+    floor_err = np.zeros(P_floor.shape[:2]) if floor_err is None else np.asarray(floor_err, float)
     envelope_err = np.zeros(T + 1) if envelope_err is None else np.asarray(envelope_err, float)
+    envelope_log = np.zeros(T + 1) if envelope_log is None else np.asarray(envelope_log, float)
     q_norm = EPS * float(np.linalg.norm(sys.Q, 2))
     nees_slots = [int(t) for t in nees_slots if 1 <= t <= T]
     nees_q = np.full((len(nees_slots), B), np.nan)
     nees_cq = np.full((len(nees_slots), B), np.nan)
-    sp = min(n_paths, B)
-    path_trace = np.full((sp, T + 1, N), np.nan)
-    path_err = np.full((sp, T + 1, N, M), np.nan)
-    path_partners = np.tile(np.arange(N), (sp, T + 1, 1))
-    path_err_c = np.full((sp, T + 1, M), np.nan)
+    sp = min(n_paths, sizes[0]) if paths else 0
+    n_part = min(T, PARTNER_SLOTS) + 1
+    path_trace = np.full((sp, len(series), N), np.nan)
+    path_err = np.full((sp, len(series), N, M), np.nan)
+    path_err_c = np.full((sp, len(series), M), np.nan)
+    path_state = np.full((sp, len(series), M), np.nan)
+    path_partners = np.tile(np.arange(N), (sp, n_part, 1))
     nees_thr = chi2.ppf(nees_level, M)
-    nees = np.zeros(4)  # sum of NEES over (runs, sensors, window), count above threshold, n, central sum
-    nees_c = np.zeros(2)  # central count above, n
-    nees_run = np.zeros((4, B))  # per run: NEES sum and exceedances (sensors), NEES sum and exceedances (central)
+    nees = np.zeros((n_units, 6))  # per unit: NEES sum, count above, n (sensors); sum, count above, n (central)
+    nees_run = np.zeros((4, B))   # per run: NEES sum and exceedances (sensors), NEES sum and exceedances (central)
     loc = np.tile(np.arange(N), (B, 1))  # token locations p_n(t)
-    trans = np.zeros((N, N), dtype=np.int64)
-    tok0 = np.zeros((token_steps + 1, N), dtype=np.int64)
-    tok0[0, 0] = B
+    trans = np.zeros((n_units, N, N), dtype=np.int64)
+    tok0 = np.zeros((n_units, token_steps + 1, N), dtype=np.int64)
+    for u, s_ in enumerate(sl):
+        tok0[u, 0, 0] = s_.stop - s_.start
     overflow = -1
-    cr = min(check_runs, B)
-    err = np.zeros((cr, N, M, M))  # first-order round-off bound of P̂_n(t), runs [0, cr) (see propagate_error)
+    cr = sizes[0] if check else 0
+    err = np.zeros((cr, N, M, M))  # first-order round-off bound of P̂_n(t) of the checked runs (see propagate_error)
+    x = (np.zeros(M) if x0 is None else np.asarray(x0, float)) + e[:sp, 0]   # states of the sample runs
+    unit_of = np.repeat(np.arange(n_units), sizes)
+
+    def per_unit(values: np.ndarray) -> np.ndarray:
+        return np.array([values[s_].sum(axis=0) for s_ in sl])
 
     def record(t: int) -> None:
-        tr = np.trace(P, axis1=-2, axis2=-1)
-        quant[t] = np.quantile(np.log(tr), QUANTILES, axis=0).T
-        path_trace[:, t] = tr[:sp]
-        path_err[:, t] = e[:sp]
-        path_err_c[:, t] = e_c[:sp]
+        if t in series_i:
+            i = series_i[t]
+            path_trace[:, i] = np.trace(P[:sp], axis1=-2, axis2=-1)
+            path_err[:, i] = e[:sp]
+            path_err_c[:, i] = e_c[:sp]
+            path_state[:, i] = x
         if t in nees_slots:
             k = nees_slots.index(t)
             eq = e[rows, q]
             nees_q[k] = np.einsum("bm,bm->b", eq, np.linalg.solve(P[rows, q], eq[..., None])[..., 0])
             nees_cq[k] = np.einsum("bm,bm->b", e_c, np.linalg.solve(P_central[t], e_c.T).T)
-        if t % stat_stride and t not in times and t != T:
-            return
-        eig = np.linalg.eigvalsh(P)
-        lam_max = eig[..., -1]
-        exceed[t] = (lam_max[..., None] >= j_grid).sum(axis=0)
-        scale = np.maximum(1.0, lam_max[:cr])
-        env_scale = max(1.0, float(np.linalg.norm(envelope[t], 2)))
-        e_P = error_norm(err)
-        for col, (D, tol, sc_) in enumerate(((P[:cr] - P_floor[t], e_P + floor_err[t], scale),
-                                             (P[:cr] - sys.Q, e_P + q_norm, scale),
-                                             (envelope[t] - P[:cr], e_P + envelope_err[t], env_scale))):
-            if col == 1 and t == 0:
-                continue
-            lam_min = np.linalg.eigvalsh(D)[..., 0]
-            margins[t, col] = (lam_min / sc_).min(axis=0)
-            slack[t, col] = ((lam_min + tol) / sc_).min(axis=0)
+        if t in stat_i:
+            i = stat_i[t]
+            log_trace[i] = np.log(np.trace(P, axis1=-2, axis2=-1))
+            lam_max = np.linalg.eigvalsh(P)[..., -1]
+            hit = lam_max[..., None] >= j_grid
+            exceed[:, i] = per_unit(hit)
+            if cr:
+                _margins(i, t, lam_max[:cr])
         if t in times:
             i = times.index(t)
-            feat_n[i] = np.moveaxis(covariance_features(P), -1, -1)
+            feat_n[i] = covariance_features(P)
             feat_q[i] = feat_n[i][:, rows, q]
         if max(1, nees_window[0]) <= t < nees_window[1]:
             z = np.einsum("bnm,bnm->bn", e, np.linalg.solve(P, e[..., None])[..., 0])
-            nees[0] += z.sum()
-            nees[1] += (z > nees_thr).sum()
-            nees[2] += z.size
             zc = np.einsum("bm,bm->b", e_c, np.linalg.solve(P_central[t], e_c.T).T)
-            nees[3] += zc.sum()
-            nees_c[0] += (zc > nees_thr).sum()
-            nees_c[1] += zc.size
+            nees[:, 0] += per_unit(z.sum(axis=1))
+            nees[:, 1] += per_unit((z > nees_thr).sum(axis=1))
+            nees[:, 2] += np.array(sizes) * N
+            nees[:, 3] += per_unit(zc)
+            nees[:, 4] += per_unit(zc > nees_thr)
+            nees[:, 5] += sizes
             nees_run[0] += z.sum(axis=1)
             nees_run[1] += (z > nees_thr).sum(axis=1)
             nees_run[2] += zc
             nees_run[3] += zc > nees_thr
 
+    def _margins(i: int, t: int, lam_max: np.ndarray) -> None:
+        scale = np.maximum(1.0, lam_max)
+        # the envelope is exp(envelope_log[t]) · envelope[t]: divide both sides by max(1, ‖envelope‖)
+        env_log = envelope_log[t] + math.log(max(float(np.linalg.norm(envelope[t], 2)), np.finfo(float).tiny))
+        shift = max(0.0, env_log)
+        env_unit = math.exp(envelope_log[t] - shift) * envelope[t]
+        e_P = error_norm(err)
+        floor, f_err = P_floor[t][floor_index], floor_err[t][floor_index]
+        for col, (D, tol, sc_) in enumerate(((P[:cr] - floor, e_P + f_err, scale),
+                                             (P[:cr] - sys.Q, e_P + q_norm, scale),
+                                             (env_unit - math.exp(-shift) * P[:cr],
+                                              math.exp(-shift) * e_P + math.exp(envelope_log[t] - shift) * envelope_err[t],
+                                              1.0))):
+            if col == 1 and t == 0:
+                continue
+            lam_min = np.linalg.eigvalsh(D)[..., 0]
+            margins[i, col] = (lam_min / sc_).min(axis=0)
+            slack[i, col] = ((lam_min + tol) / sc_).min(axis=0)
+
     with np.errstate(over="ignore", invalid="ignore"):
         record(0)
         for t in range(T):
-            partners = np.tile(np.arange(N), (B, 1)) if t == 0 else protocol.sample(B, rng)
-            path_partners[:, t] = partners[:sp]
+            partners = _units_draw(units, lambda g, k: matching_at(protocol, t, k, g))
+            if t < n_part - 1:
+                path_partners[:, t] = partners[:sp]
             new_loc = partners[rows[:, None], loc]
-            trans += np.bincount((loc * N + new_loc).ravel(), minlength=N * N).reshape(N, N) if t > 0 else 0
+            if t > 0:
+                flat = (unit_of[:, None] * N + loc) * N + new_loc
+                trans += np.bincount(flat.ravel(), minlength=n_units * N * N).reshape(n_units, N, N)
             loc = new_loc
             if 1 <= t <= token_steps:
-                tok0[t] = np.bincount(loc[:, 0], minlength=N)  # law of p_0(t) (A(0) = I: p_0(0) = 0)
+                tok0[:, t] = np.bincount(unit_of * N + loc[:, 0], minlength=n_units * N).reshape(n_units, N)
+            w = _units_draw(units, lambda g, k: g.standard_normal((k, M))) @ Lq.T
+            v = np.einsum("nij,bnj->bni", Lr, _units_draw(units, lambda g, k: g.standard_normal((k, N, m))))
+            if overflow >= 0:
+                continue            # the draws go on (token counts), the covariances have left float64
             X_in = swap(P[:cr], partners[:cr])
             P, K = gikf_covariance_step(P, partners, sys, return_gain=True)
-            delta, G = riccati_roundoff(X_in, K[:cr], sys.C, sys.R, sys.F, sys.Q)
-            err = propagate_error(err[rows[:cr, None], partners[:cr]], G, delta)
-            w = rng.standard_normal((B, M)) @ Lq.T
-            v = np.einsum("nij,bnj->bni", Lr, rng.standard_normal((B, N, m)))
+            if cr:
+                delta, G = riccati_roundoff(X_in, K[:cr], sys.C, sys.R, sys.F, sys.Q)
+                err = propagate_error(err[rows[:cr, None], partners[:cr]], G, delta)
             e = gikf_error_step(e, partners, K, sys, w, v)
             e_c = (e_c - (np.einsum("bi,mi->bm", np.einsum("ij,bj->bi", sys.C_all, e_c) + v.reshape(B, -1),
                                     K_central[t]))) @ sys.F.T + w
+            x = x @ sys.F.T + w[:sp]
             if not np.isfinite(P).all():
                 overflow = t + 1
-                break
+                continue
             record(t + 1)
-    return {"times": np.array(times), "q": q, "feat_q": feat_q, "feat_n": feat_n, "quantiles": quant,
-            "exceed": exceed, "margins": margins, "slack": slack, "nees_q": nees_q, "nees_c": nees_cq,
-            "nees_slots": np.array(nees_slots, dtype=np.int64), "path_trace": path_trace, "path_err": path_err,
-            "path_partners": path_partners, "path_err_c": path_err_c, "nees": np.concatenate([nees, nees_c]), "nees_run": nees_run,
-            "nees_threshold": np.array(nees_thr), "trans": trans, "token0": tok0,
-            "token0_final": np.bincount(loc[:, 0], minlength=N), "overflow": np.array(overflow)}
+    final = P if overflow < 0 else np.full_like(P, np.nan)
+    common = {"times": np.array(times), "series_slots": series, "stat_slots": stat, "nees_slots":
+              np.array(nees_slots, dtype=np.int64), "nees_threshold": np.array(nees_thr), "overflow": np.array(overflow)}
+    out = []
+    for u, s_ in enumerate(sl):
+        part = {**common, "q": q[s_], "feat_q": feat_q[..., s_], "feat_n": feat_n[:, :, s_], "log_trace": log_trace[:, s_],
+                "exceed": exceed[u], "nees": nees[u], "trans": trans[u], "token0": tok0[u],
+                "token0_final": np.bincount(loc[s_, 0], minlength=N), "nees_q": nees_q[:, s_], "nees_c": nees_cq[:, s_],
+                "nees_run": nees_run[:, s_], "final_sum": final[s_].sum(axis=0),
+                "final_sq": np.square(final[s_]).sum(axis=0), "runs": np.array(s_.stop - s_.start)}
+        if u == 0 and check:
+            part.update(margins=margins, slack=slack)
+        if u == 0 and paths:
+            part.update(path_trace=path_trace, path_err=path_err, path_err_c=path_err_c, path_state=path_state,
+                        path_partners=path_partners)
+        out.append(part)
+    return out
+
+
+def fold_gikf(acc: dict | None, part: dict) -> dict:
+    """Accumulate one unit's statistics (in unit order): see RUN_AXIS, SUMS, MINS."""
+    if acc is None:
+        acc = {k: ([v] if k in RUN_AXIS else v) for k, v in part.items()}
+        acc["overflow"] = part["overflow"]
+        return acc
+    for k, v in part.items():
+        if k in RUN_AXIS:
+            acc[k].append(v)
+        elif k in SUMS:
+            acc[k] = acc[k] + v
+        elif k in MINS:
+            acc[k] = np.fmin(acc[k], v) if k in acc else v
+        elif k == "overflow":
+            a, b = int(acc[k]), int(v)
+            acc[k] = np.array(min(a, b) if a >= 0 and b >= 0 else max(a, b))
+        elif k not in acc:
+            acc[k] = v
+    return acc
+
+
+def finish_gikf(acc: dict) -> dict[str, np.ndarray]:
+    """The folded statistics as arrays: per-run arrays joined, quantiles over runs of log tr P̂_n(t) at the
+    statistic slots (`quantiles`, (S, N, len(QUANTILES)); the per-run log traces are dropped), and, after an
+    overflow at slot t₀, every statistic of a slot ≥ t₀ blanked (NaN; counts −1), so that nothing depends on
+    which units were simulated together."""
+    out = {k: (np.concatenate(v, axis=RUN_AXIS[k]) if k in RUN_AXIS else np.asarray(v)) for k, v in acc.items()}
+    lt = out.pop("log_trace")
+    with np.errstate(invalid="ignore"):
+        out["quantiles"] = np.moveaxis(np.quantile(lt, QUANTILES, axis=1), 0, -1)
+    t0 = int(out["overflow"])
+    if t0 >= 0:
+        late = out["stat_slots"] >= t0
+        out["quantiles"][late] = np.nan
+        out["exceed"][late] = -1
+        for k in MINS:
+            if k in out:
+                out[k][late] = np.nan
+        for k in ("feat_q", "feat_n"):
+            out[k][out["times"] >= t0] = np.nan
+        for k in ("nees_q", "nees_c"):
+            out[k][out["nees_slots"] >= t0] = np.nan
+        for k in ("path_trace", "path_err", "path_err_c", "path_state"):
+            if k in out:
+                out[k][:, out["series_slots"] >= t0] = np.nan
+        out["nees"][:] = np.nan
+        out["nees_run"][:] = np.nan
+    return out
+
+
+def simulate_gikf(sys: GossipSystem, protocol, n_runs: int, n_slots: int, rng: np.random.Generator,
+                  **kw) -> dict[str, np.ndarray]:
+    """All runs as one unit drawn from `rng` (see `gikf_units`); the Loewner margins on the first
+    `check_runs` (default all) runs are not split off: every run is checked."""
+    kw.pop("check_runs", None)
+    return finish_gikf(fold_gikf(None, gikf_units(sys, protocol, [(rng, n_runs)], n_slots, **kw)[0]))

@@ -29,38 +29,71 @@ import numpy as np
 from .gossip_kalman import (GossipSystem, covariance_features, error_norm, factor_features, factor_psd,
                             propagate_error, riccati_roundoff, riccati_sqrt_step, riccati_step)
 
-__all__ = ["sample_chain", "sample_protocol_chain", "switched_riccati", "pullback", "coupling_gap", "exact_small_t_law"]
+__all__ = ["LazyChain", "sample_chain", "sample_protocol_chain", "switched_riccati", "pullback", "coupling_gap", "exact_small_t_law"]
+
+
+class LazyChain:
+    """(size, steps) states of a chain, generated column by column as they are read in increasing t
+    (`path[:, t]`, `path.shape`): a long horizon costs one column of memory, not size × steps, and the
+    generator sees exactly the draws of the eager sampler (read every column before drawing from the same
+    generator again; `array()` materialises the whole path)."""
+
+    def __init__(self, start: np.ndarray, steps: int, advance, rng: np.random.Generator, *, last_draw: bool):
+        self._p, self._t, self._steps = start, 0, steps
+        self._advance, self._rng, self._last_draw = advance, rng, last_draw
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (len(self._p), self._steps)
+
+    def __getitem__(self, index):
+        rows, t = index
+        if rows != slice(None) or not isinstance(t, (int, np.integer)):
+            raise IndexError("a LazyChain is read one column at a time: path[:, t]")
+        t = int(t)
+        if t < 0:
+            t += self._steps
+        if t == self._t - 1:
+            return self._prev
+        if t != self._t:
+            raise IndexError(f"a LazyChain is read in increasing t (column {self._t} or {self._t - 1} next, asked {t})")
+        col = self._p
+        if t + 1 < self._steps or self._last_draw:
+            self._p = self._advance(col, self._rng)
+        self._prev, self._t = col, t + 1
+        return col
+
+    def array(self) -> np.ndarray:
+        """The whole (size, steps) path (of a chain not read yet)."""
+        return np.stack([self[:, t] for t in range(self._steps)], axis=1)
 
 
 def sample_chain(Abar: np.ndarray, size: int, steps: int, rng: np.random.Generator,
-                 start: np.ndarray | int | None = None) -> np.ndarray:
-    """(size, steps) states of the Ā-chain; start uniform (stationary) unless given."""
+                 start: np.ndarray | int | None = None, *, lazy: bool = False):
+    """(size, steps) states of the Ā-chain; start uniform (stationary) unless given. `lazy`: a LazyChain."""
     n = len(Abar)
     cum = np.cumsum(Abar, axis=1)
     cum[:, -1] = 1.0
-    path = np.empty((size, steps), dtype=np.int64)
     p = rng.integers(0, n, size) if start is None else np.broadcast_to(np.asarray(start), (size,)).copy()
-    for t in range(steps):
-        path[:, t] = p
+
+    def advance(p, rng):
         u = rng.random(size)
-        p = (cum[p] <= u[:, None]).sum(axis=1)
-    return path
+        return (cum[p] <= u[:, None]).sum(axis=1)
+
+    chain = LazyChain(p, steps, advance, rng, last_draw=True)
+    return chain if lazy else chain.array()
 
 
 def sample_protocol_chain(protocol, size: int, steps: int, rng: np.random.Generator,
-                          start: np.ndarray | int | None = None) -> np.ndarray:
+                          start: np.ndarray | int | None = None, *, lazy: bool = False):
     """(size, steps) states of a Ā-chain driven by the protocol itself (sampler S3):
     p̃(t+1) = partner of p̃(t) in a fresh matching A' ~ D. P(p̃(t+1) = l | p̃(t) = k) = E[A'_kl] = Ā_kl
     exactly, so no estimate of Ā enters (an estimated Ā would bias μ). Start uniform unless given."""
     n = protocol.n
-    path = np.empty((size, steps), dtype=np.int64)
     p = rng.integers(0, n, size) if start is None else np.broadcast_to(np.asarray(start), (size,)).copy()
     rows = np.arange(size)
-    for t in range(steps):
-        path[:, t] = p
-        if t + 1 < steps:
-            p = protocol.sample(size, rng)[rows, p]
-    return path
+    chain = LazyChain(p, steps, lambda p, rng: protocol.sample(size, rng)[rows, p], rng, last_draw=False)
+    return chain if lazy else chain.array()
 
 
 def apply_maps(sys: GossipSystem, X: np.ndarray, nodes: np.ndarray) -> np.ndarray:

@@ -25,7 +25,8 @@ import scipy.sparse.csgraph as csg
 
 from .gossip_kalman import GossipSystem, riccati_step
 
-__all__ = ["ChainCheck", "check_chain", "tv_to_uniform", "pbh_undetectable", "unobservable_modes", "walk_gramian",
+__all__ = ["ChainCheck", "check_chain", "singular_ratios", "observability_matrix", "tv_to_uniform", "pbh_undetectable",
+           "unobservable_modes", "walk_gramian",
            "WitnessSearch", "search_witness", "D1Decision", "decide_d1", "sigma_sub", "sigma_sub_printed", "compose_walk",
            "k_of_J", "tail_bound_single", "tail_bound_multi", "lifted_chain_stationary", "CERTAIN_RATIO", "SINGULAR_RATIO"]
 
@@ -121,6 +122,9 @@ def _singular_ratios(A: np.ndarray, M: int) -> np.ndarray:
     s = np.linalg.svd(A, compute_uv=False) if A.size else np.zeros(0)
     s = np.concatenate([s, np.zeros(max(0, M - len(s)))])[:M]
     return s / s[0] if len(s) and s[0] > 0 else np.zeros(M)
+
+
+singular_ratios = _singular_ratios
 
 
 def observable(F: np.ndarray, C: np.ndarray) -> bool | None:

@@ -30,7 +30,8 @@ from pipeline.verify import (EPS, ERRATUM, FAIL, PASS, Claim, Holds, Hypothesis,
                              not_checkable, p_value_test, roundoff_tolerance)
 
 from . import stats as kst
-from .compute import J_GRID, WITNESS_MAX_LEN, Results, ScenarioResults, accurate_range, chain_sampler
+from .compute import (J_GRID, WITNESS_MAX_LEN, Results, ScenarioResults, accurate_range, chain_sampler, envelope_error,
+                      envelope_matrix)
 
 PAPER = "kar-moura"
 FEAT = {name: i for i, name in enumerate(gk.FEATURES)}
@@ -213,6 +214,16 @@ def hyp_same_abar(r: ScenarioResults) -> Holds:
     return Holds(d <= tol, value=d, threshold=tol, detail=f"max |Ā₁ − Ā₂| = {d:.3g} ({how})")
 
 
+def hyp_random_protocol(r: ScenarioResults) -> Holds:
+    p = r.scenario.protocol
+    return Holds(p.random, value=None, threshold=None,
+                 detail=(f"protocol '{p.kind}': a fresh matching drawn independently at every slot, as Section II assumes"
+                         if p.random else
+                         f"protocol 'sequence': {len(p.matchings)} given matching(s) replayed in every run; nothing is "
+                         "random, so the laws of the theorems (and the token chain) do not apply; Ā is the average of "
+                         "A(t) over one cycle"))
+
+
 def _exact_mean(spec, sc):
     prot = spec.build(sc.graph)
     if isinstance(prot, gk.GreedyMatchingGossip):
@@ -225,7 +236,9 @@ HYPOTHESES = (("c1", "C.1: Ā irreducible and aperiodic (SLEM < 1)", hyp_c1),
               ("d1", "D.1: some Ā-walk has an invertible observability Gramian", hyp_d1),
               ("witness", "a witness walk w0 of D.1 is recorded (search depth 6)", hyp_witness),
               ("exact-abar", "Ā = E[A(t)] known exactly", hyp_exact_abar),
-              ("undetectable-class", "some class of Ā cannot detect a mode |λ| ≥ 1", hyp_undetectable))
+              ("undetectable-class", "some class of Ā cannot detect a mode |λ| ≥ 1", hyp_undetectable),
+              ("random-protocol", "the matchings A(t) are i.i.d. draws of one law (not a replayed sequence)",
+               hyp_random_protocol))
 
 
 def hyp_id(what: str, name: str) -> str:
@@ -411,8 +424,8 @@ def check_eq29(r: ScenarioResults) -> Verdict:
 
 def check_filterpy(r: ScenarioResults) -> Verdict:
     b = r.bounds
-    ours, fp = b["P_central"], b["P_central_filterpy"]
-    err = np.asarray(b["P_central_err"], float)
+    fp = b["P_central_filterpy"]
+    ours, err = b["P_central"][:len(fp)], np.asarray(b["P_central_err"], float)[:len(fp)]
     diff = _norm(ours - fp)
     tol = 2.0 * err + 10.0 * EPS * np.maximum(_norm(ours), _norm(fp))
     v = inequality(diff, tol, detail=(f"centralized prior covariance P_c(t), t = 0..{len(ours) - 1}: ‖ours − filterpy‖ ≤ twice "
@@ -421,9 +434,10 @@ def check_filterpy(r: ScenarioResults) -> Verdict:
                                       + ROUNDOFF_SENTENCE))
     if "P_central_inf" in b:
         dare = b["P_central_inf"]
-        rel = float(_norm(ours[-1] - dare) / max(1.0, float(_norm(dare))))
+        last = b["P_central"][-1]
+        rel = float(_norm(last - dare) / max(1.0, float(_norm(dare))))
         v = _with(v, f" Convergence to the limit (scipy solve_discrete_are), reported: ‖P_c(T) − P_c∞‖/max(1, ‖P_c∞‖) = "
-                     f"{rel:.2e} at T = {len(ours) - 1}; P_c∞ diagonal {np.round(np.diag(dare), 5).tolist()}.")
+                     f"{rel:.2e} at T = {len(b['P_central']) - 1}; P_c∞ diagonal {np.round(np.diag(dare), 5).tolist()}.")
     return v
 
 
@@ -434,11 +448,13 @@ def check_domination(r: ScenarioResults) -> Verdict:
     slack, raw = g["slack"][:, 0], g["margins"][:, 0]
     ref = r.reference
     last = ref["last"][-1]
-    floor = b["P_floor"][-1][np.maximum(last, 0)]
-    s_ref, m_ref = loewner_slack(floor, ref["final"], ref["final_err"] + b["P_floor_err"][-1][np.maximum(last, 0)])
+    cls = b["class_of"][np.maximum(last, 0)]
+    floor = b["P_floor"][-1][cls]
+    s_ref, m_ref = loewner_slack(floor, ref["final"], ref["final_err"] + b["P_floor_err"][-1][cls])
     classes = int(b["n_classes"])
     return slack_verdict(np.concatenate([slack.ravel(), s_ref]), np.concatenate([raw.ravel(), m_ref]),
-                         (f"GIKF: every sensor, slot (every 5th) and run (first 1000); Theorem-8 samples at T against the "
+                         (f"GIKF: every sensor, statistic slot ({len(g['stat_slots'])} of {r.slots + 1}) and run of the "
+                          f"first unit ({min(r.runs, 1000)}); Theorem-8 samples at T against the "
                           f"floor of their last node's class. The floor P_c^(c) is the centralized filter (same P0) of the "
                           f"sensors of the class of Ā (" + ("all sensors: C.1's single class" if classes == 1 else
                                                             f"{classes} classes") + "). " + ROUNDOFF_SENTENCE))
@@ -448,9 +464,10 @@ def check_support(r: ScenarioResults) -> Verdict:
     """Lemma 16 / eq (43): every P̂_n(t) (t ≥ 1) and every Theorem-8 sample is ⪰ Q; envelope (73) P̂ ⪯ f_0^t(P0)."""
     g, ref, Q = r.gikf, r.reference, r.scenario.Q
     s_ref, m_ref = loewner_slack(Q, ref["final"], ref["final_err"] + EPS * _fro(Q))
-    slack = np.concatenate([g["slack"][1:, 1].ravel(), g["slack"][:, 2].ravel(), s_ref])
-    raw = np.concatenate([g["margins"][1:, 1].ravel(), g["margins"][:, 2].ravel(), m_ref])
-    return slack_verdict(slack, raw, (f"P̂_n(t) − Q (t ≥ 1) {np.nanmin(g['margins'][1:, 1]):.3e}; f_0^t(P0) − P̂_n(t) "
+    later = g["stat_slots"] >= 1
+    slack = np.concatenate([g["slack"][later, 1].ravel(), g["slack"][:, 2].ravel(), s_ref])
+    raw = np.concatenate([g["margins"][later, 1].ravel(), g["margins"][:, 2].ravel(), m_ref])
+    return slack_verdict(slack, raw, (f"P̂_n(t) − Q (t ≥ 1) {np.nanmin(g['margins'][later, 1]):.3e}; f_0^t(P0) − P̂_n(t) "
                                       f"(Lyapunov envelope (73)) {np.nanmin(g['margins'][:, 2]):.3e}; P̃(T) − Q (Theorem-8 "
                                       f"samples) {m_ref.min():.3e} (raw relative margins). " + ROUNDOFF_SENTENCE))
 
@@ -483,9 +500,9 @@ def check_nees(r: ScenarioResults) -> Verdict:
 # -- Theorem 10[iii], Lemma 15: tails ------------------------------------------------------------------------
 
 def _exceed_curve(r: ScenarioResults, t0: int) -> np.ndarray:
-    """S_n(J) = max_{t0 ≤ t ≤ T} P̂(‖P̂_n(t)‖ ≥ J), shape (N, len(J_GRID))."""
+    """S_n(J) = max over the statistic slots t0 ≤ t ≤ T of P̂(‖P̂_n(t)‖ ≥ J), shape (N, len(J_GRID))."""
     ex = r.gikf["exceed"].astype(float)
-    rows = [t for t in range(t0, ex.shape[0]) if ex[t, 0, 0] >= 0]
+    rows = (r.gikf["stat_slots"] >= t0) & (ex[:, 0, 0] >= 0)
     return ex[rows].max(axis=0) / r.runs
 
 
@@ -726,14 +743,14 @@ def check_divergence(r: ScenarioResults) -> Verdict:
     g, b = r.gikf, r.bounds
     blind = np.asarray(b["blind"], bool)
     slack, raw = g["slack"][:, 0][:, blind], g["margins"][:, 0][:, blind]
-    floor = b["P_floor"][:, blind]
+    floor = b["P_floor"][:, b["class_of"][blind]]
     T = floor.shape[0] - 1
     growth = np.log(_norm(floor[-1]) / _norm(floor[T // 2]))
     rate = b["divergence_rate"][blind]
-    q = g["quantiles"]
-    med = q[:, blind, gk.QUANTILES.index(0.5)]
-    t = np.arange(T // 2, T + 1)
-    slopes = [float(np.polyfit(t, med[T // 2:, i], 1)[0]) for i in range(med.shape[1])] if T >= 4 else []
+    med = g["quantiles"][:, blind, gk.QUANTILES.index(0.5)]
+    late = g["stat_slots"] >= T // 2
+    t = g["stat_slots"][late]
+    slopes = [float(np.polyfit(t, med[late, i], 1)[0]) for i in range(med.shape[1])] if late.sum() >= 3 else []
     detail = (f"sensors {np.flatnonzero(blind).tolist()} (their class cannot see a mode |λ| ≥ 1): P̂_n(t) ⪰ P_c^(c)(t), "
               f"the centralized filter of the class. Reported: log ‖P_c^(c)‖ grows by {np.round(growth, 3).tolist()} "
               f"over t ∈ [{T // 2}, {T}] (prediction 2 log|λ|·{T - T // 2} = {np.round(rate * (T - T // 2), 3).tolist()}); "
@@ -866,7 +883,7 @@ def check_pathwise(r: ScenarioResults) -> Verdict:
     protocol = sc.protocol.build(sc.graph)
     rng = np.random.default_rng(7)
     B, T, N = 64, min(40, r.slots), sc.N
-    partners = np.array([np.tile(np.arange(N), (B, 1))] + [protocol.sample(B, rng) for _ in range(1, T)])
+    partners = np.array([gk.matching_at(protocol, t, B, rng) for t in range(T)])
     P = np.broadcast_to(sc.P0, (B, N, sc.M, sc.M)).copy()
     sensors = [P]
     for t in range(T):
@@ -918,7 +935,7 @@ def check_eq74(r: ScenarioResults) -> Verdict:
     sys_ = sc.system()
     T = min(r.slots, 120)
     limit = accurate_range(sc)
-    s_list = [s for s in EQ74_S if s < T and float(_norm(b["envelope"][s])) <= limit]
+    s_list = [s for s in EQ74_S if s < T and float(b["envelope_log"][s]) <= math.log(limit)]
     if not s_list:
         return not_checkable(f"f_0^s(P0) exceeds the accurate range of the Joseph form ({limit:.2g}) for every s")
     chain = chain_sampler(sc, b)
@@ -933,8 +950,8 @@ def check_eq74(r: ScenarioResults) -> Verdict:
         Ps: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for t in range(T + 1):
             if t in s_list:
-                Ps[t] = (np.broadcast_to(b["envelope"][t], (B, sc.M, sc.M)).copy(),
-                         np.broadcast_to(float(b["envelope_err"][t]) * np.eye(sc.M), (B, sc.M, sc.M)).copy())
+                Ps[t] = (np.broadcast_to(envelope_matrix(b, t), (B, sc.M, sc.M)).copy(),
+                         np.broadcast_to(envelope_error(b, t) * np.eye(sc.M), (B, sc.M, sc.M)).copy())
             for s_, (X, eX) in Ps.items():
                 sl, m = loewner_slack(P, X, _enorm(eP) + _enorm(eX))
                 slack.append(sl)
@@ -985,7 +1002,7 @@ def check_tv_step(r: ScenarioResults) -> Verdict:
         for L in TV_LEN:
             paths, w = _kernel_paths(Abar, L)
             n_sum = max(n_sum, len(paths))
-            X = np.broadcast_to(b["envelope"][s], (len(paths), sc.M, sc.M)).copy()
+            X = np.broadcast_to(envelope_matrix(b, s), (len(paths), sc.M, sc.M)).copy()
             for k in range(L):
                 X = sr.apply_maps(sys_, X, paths[:, k])
             _, atom = np.unique(X.reshape(len(X), -1), axis=0, return_inverse=True)
@@ -1145,10 +1162,10 @@ def check_d1_not_necessary(r: ScenarioResults) -> Verdict:
     b, ref = r.bounds, r.reference
     lam = np.exp(feat(ref["features"][-1], "log_trace"))
     q = np.quantile(lam, [0.5, 0.99, 0.999])
-    qq = r.gikf["quantiles"]
-    T = qq.shape[0] - 1
-    t = np.arange(T // 2, T + 1)
-    drift = max(abs(np.polyfit(t, qq[T // 2:, n, k], 1)[0]) for n in range(r.scenario.N)
+    qq, slots = r.gikf["quantiles"], r.gikf["stat_slots"]
+    late = slots >= r.slots // 2
+    t = slots[late]
+    drift = max(abs(np.polyfit(t, qq[late, n, k], 1)[0]) for n in range(r.scenario.N)
                 for k in (gk.QUANTILES.index(0.5), gk.QUANTILES.index(0.95)))
     limit = 0.1 * 2 * np.log(max(np.abs(np.linalg.eigvals(r.scenario.F)).max(), 1.0 + 1e-9))
     ok = (r.assume.d1.holds is False) and bool(b["central_observable"]) and drift < limit
@@ -1298,9 +1315,10 @@ def scenario_claims(name: str, roles: dict) -> list[Claim]:
         "and as the scenario expects", "qualitative", check_d1)
     add("thm10-i", "weak-consensus", "Theorem 10[i], eq (22); exact form eqs (60)-(67)",
         "A uniformly random sensor's P̂_q(t) has the law of the Theorem-8 process P̃(t), exactly at every t", "statistical",
-        check_weak_consensus)
+        check_weak_consensus, ("random-protocol",))
     add("thm10-i", "per-sensor-laws", "derived from eqs (60)-(67)",
-        "Sensor n's P̂_n(t) has the law of P̃(t) conditioned on the last switch p̃(t−1) = n", "statistical", check_per_sensor)
+        "Sensor n's P̂_n(t) has the law of P̃(t) conditioned on the last switch p̃(t−1) = n", "statistical", check_per_sensor,
+        ("random-protocol",))
     add("centralized", "filterpy", "reference computation", "Centralized P_c(t): our batched recursion = filterpy's KalmanFilter",
         "identity", check_filterpy)
     add("centralized", "domination", "derived (monotone Riccati maps)",
@@ -1315,7 +1333,7 @@ def scenario_claims(name: str, roles: dict) -> list[Claim]:
             "Compositions of f_n are order preserving, strongly sublinear; f_n concave, f_n ⪯ f_0", "inequality", check_lemma11,
             ("s1",))
         add("prop6", "token-chain", "Proposition 6[i], [ii]", "Token locations form a Ā-Markov chain (law e_nᵀĀᵗ → uniform)",
-            "statistical", check_token_chain, ("exact-abar",))
+            "statistical", check_token_chain, ("exact-abar", "random-protocol"))
         add("prop7-ii", "pathwise", "Proposition 7[ii], eq (19), with (13)/(17)",
             "Token recursion equals the sensors' covariances pathwise", "identity", check_pathwise)
         add("eq74", "comparison", "eqs (71)-(74)",
@@ -1331,12 +1349,12 @@ def scenario_claims(name: str, roles: dict) -> list[Claim]:
         "from 0 along every path", "inequality", check_dichotomy_divergent, ("c1", "undetectable-class"))
     add("thm10-iii", "bounded", "Theorem 10[iii], eqs (26), (27)",
         "P(P̂_n(t) ∈ S) ≤ N μ_t(S) for S = {‖X‖ ≥ J} (exact finite-t form of (27)); tightness (26) reported", "statistical",
-        check_bounded, THEOREM)
+        check_bounded, THEOREM + ("random-protocol",))
     add("thm10-ii", "token-domination", "Theorem 10[ii], eqs (23)-(25), proof (72)-(84)",
         "P(P_n(T) ∈ S) ≤ P(Q^s(T) ∈ S) + d_v(p_n(s), U) for upward-closed S (finite-T form of limsup_t P(P_n(t) ∈ S) ≤ μ(S))",
-        "statistical", check_token_domination, THEOREM + ("exact-abar",))
+        "statistical", check_token_domination, THEOREM + ("exact-abar", "random-protocol"))
     add("eq29", "sensor-sum", "eq (29)", "Σ_n P(P̂_n(t) ∈ S) = N μ_t(S) (the unproven (29) holds with equality)",
-        "statistical", check_eq29, THEOREM)
+        "statistical", check_eq29, THEOREM + ("random-protocol",))
     add("thm8", "initial-law", "Theorem 8 / Theorem 12", "P̃(t) ⇒ μ from any initial law (δ0, δ_cI, Wishart; finite-T allowance "
         "from coupling)", "statistical", check_initial_law, THEOREM)
     add("lemma23", "pullback", "Lemma 23, eq (108); Theorem 26(b)",

@@ -21,7 +21,7 @@ import estimators.walk_detectability as wd
 from pipeline.cache import StageCache, check_finite, code_fingerprint
 from pipeline.reproduction import RunOptions
 from pipeline.seeding import stream_seed
-from pipeline.simulate import block_generator, parallel_map, run_blocks
+from pipeline.simulate import block_generator, parallel_map, run_units
 
 from .scenario import GossipKalmanScenario
 
@@ -34,6 +34,9 @@ PULLBACK_PATH_T = (16, 32, 64, 128, 256)
 WITNESS_MAX_LEN = 6
 STAT_STRIDE = 5
 EPS = float(np.finfo(float).eps)
+#: filterpy (the oracle of our centralized recursion) is run over the first slots only: the claim compares two
+#: recursions, and filterpy inverts an N m x N m innovation covariance per step
+FILTERPY_STEPS = 300
 ABAR_DRAWS = 200_000  # Monte Carlo Ā when no exact form is feasible (greedy matching on a large graph)
 
 
@@ -69,29 +72,31 @@ def support_matrix(sc: GossipKalmanScenario) -> np.ndarray:
 
 
 def chain_sampler(sc: GossipKalmanScenario, bounds: dict):
-    """sample(size, steps, rng, start=None) -> (size, steps) Ā-chain paths: from Ā (S1) when it is
-    exact, else driven by an independent copy of the protocol (S3)."""
+    """sample(size, steps, rng, start=None, lazy=False) -> (size, steps) Ā-chain paths (a LazyChain, read
+    column by column, with `lazy`): from Ā (S1) when it is exact, else driven by an independent copy of the
+    protocol (S3)."""
     if bool(bounds["Abar_exact"]):
         Abar = bounds["Abar"]
-        return lambda size, steps, rng, start=None: sr.sample_chain(Abar, size, steps, rng, start=start)
+        return lambda size, steps, rng, start=None, lazy=False: sr.sample_chain(Abar, size, steps, rng, start=start,
+                                                                               lazy=lazy)
     protocol = sc.protocol.build(sc.graph)
-    return lambda size, steps, rng, start=None: sr.sample_protocol_chain(protocol, size, steps, rng, start=start)
+    return lambda size, steps, rng, start=None, lazy=False: sr.sample_protocol_chain(protocol, size, steps, rng,
+                                                                                    start=start, lazy=lazy)
 
 
 @dataclass
-class ScenarioResults:
+class ScenarioDesign:
+    """The deterministic quantities of one scenario (no Monte Carlo): the hypotheses' decisions
+    (`assume`) and the `bounds` stage (Ā, spectra, witness walks and the constants of the bounds, the
+    centralized filter, the class floors, the Lyapunov envelope)."""
+
     scenario: GossipKalmanScenario
-    seed: int
+    slots: int
     runs: int
     reference_runs: int
-    slots: int
     quick: bool
+    assume: "Assumptions"
     bounds: dict[str, np.ndarray]
-    gikf: dict[str, np.ndarray]
-    reference: dict[str, np.ndarray]
-    aux: dict[str, np.ndarray] = field(default_factory=dict)
-    comparison: dict[str, np.ndarray] | None = None
-    assume: "Assumptions | None" = None
 
     @property
     def name(self) -> str:
@@ -112,6 +117,30 @@ class ScenarioResults:
 
 
 @dataclass
+class ScenarioResults(ScenarioDesign):
+    seed: int = 0
+    gikf: dict[str, np.ndarray] = field(default_factory=dict)
+    reference: dict[str, np.ndarray] = field(default_factory=dict)
+    aux: dict[str, np.ndarray] = field(default_factory=dict)
+    comparison: dict[str, np.ndarray] | None = None
+
+    def design(self) -> ScenarioDesign:
+        return ScenarioDesign(self.scenario, self.slots, self.runs, self.reference_runs, self.quick, self.assume,
+                              self.bounds)
+
+
+@dataclass
+class Design:
+    """The design of every scenario of a run (what `dse check` computes; hypotheses evaluate on it)."""
+
+    quick: bool
+    scenarios: dict[str, ScenarioDesign]
+
+    def get(self, name: str) -> ScenarioDesign | None:
+        return self.scenarios.get(name)
+
+
+@dataclass
 class Results:
     seed: int
     quick: bool
@@ -119,6 +148,9 @@ class Results:
 
     def get(self, name: str) -> ScenarioResults | None:
         return self.scenarios.get(name)
+
+    def design(self) -> Design:
+        return Design(self.quick, {k: r.design() for k, r in self.scenarios.items()})
 
 
 def sizes(sc: GossipKalmanScenario, opts: RunOptions) -> tuple[int, int, int]:
@@ -200,14 +232,18 @@ def _centralized(F, C, Q, R, P0, steps: int) -> tuple[np.ndarray, np.ndarray, np
     return cov.P_prior, cov.gains, gk.error_norm(E)
 
 
-def compute_bounds(sc: GossipKalmanScenario, slots: int, assume: Assumptions) -> dict[str, np.ndarray]:
+def compute_bounds(sc: GossipKalmanScenario, slots: int, assume: Assumptions, *, checks: bool = True) -> dict[str, np.ndarray]:
+    """The design quantities of a scenario over `slots` slots; with `checks`, also the independent computations
+    that only claims use (filterpy's centralized filter, the lifted chain's stationary law)."""
     sys_ = sc.system()
     Abar, Abar_se, Abar_exact, Abar_draws = mean_adjacency(sc)
     chk = wd.check_chain(Abar)
     out: dict[str, Any] = {"Abar": Abar, "Abar_se": Abar_se, "Abar_exact": Abar_exact, "Abar_draws": Abar_draws,
                            "irreducible": assume.irreducible, "aperiodic": assume.aperiodic, "c1": assume.c1,
                            "n_classes": len(assume.classes), "unit_multiplicity": chk.unit_multiplicity, "slem": chk.slem,
-                           "min_eig_Abar": chk.min_eig, "tv": wd.tv_to_uniform(Abar, 200)}
+                           "min_eig_Abar": chk.min_eig, "tv": wd.tv_to_uniform(Abar, 200),
+                           "Abar_eigenvalues": np.linalg.eigvalsh(0.5 * (Abar + Abar.T)),
+                           "random_protocol": sc.protocol.random, "slots": slots}
     labels = np.zeros(sc.N, dtype=np.int64)
     for c, cls in enumerate(assume.classes):
         labels[list(cls)] = c
@@ -216,6 +252,12 @@ def compute_bounds(sc: GossipKalmanScenario, slots: int, assume: Assumptions) ->
     out["sensor_detectable"] = np.array([not wd.pbh_undetectable(F, sys_.C[n]) for n in range(sc.N)])
     out["central_detectable"] = bool(assume.central_detectable)
     out["central_observable"] = wd.observable(F, sys_.C_all) is True
+    ratios = wd.singular_ratios(wd.observability_matrix(F, sys_.C_all), sc.M)
+    out["observability_rank"] = int((ratios > wd.SINGULAR_RATIO).sum())
+    out["observability_ratio"] = float(ratios[-1])
+    out["class_observability_rank"] = np.array([
+        int((wd.singular_ratios(wd.observability_matrix(F, sys_.C[list(cls)].reshape(-1, sc.M)), sc.M)
+             > wd.SINGULAR_RATIO).sum()) for cls in assume.classes])
     rates = np.zeros(sc.N)
     for cls, unseen in zip(assume.classes, assume.blind):
         rates[list(cls)] = max([0.0] + [2 * np.log(abs(x)) for x in (unseen or ())])
@@ -223,45 +265,76 @@ def compute_bounds(sc: GossipKalmanScenario, slots: int, assume: Assumptions) ->
     out["blind"] = np.array([bool(b) for b in assume.blind])[labels]
     search = assume.d1.search
     out["d1"] = assume.d1.holds is True
+    out["d1_decided"] = assume.d1.holds is not None
+    out["d1_certificate_ratio"] = float(assume.d1.certificate_ratio)
     out["d1_covering"] = search.witness is not None and assume.irreducible
     out["witness"] = np.array(search.witness if search.witness else [], dtype=np.int64)
+    out["witness_ratio"] = float(search.ratio)
     out["witness_max_rank"] = search.max_rank
     out["walks_checked"] = search.walks_checked
     out["q_pd"] = bool(np.linalg.eigvalsh(sc.Q).min() > 0)
     out["alpha"] = float(np.linalg.norm(F, 2))
     out["qnorm"] = float(np.linalg.norm(sc.Q, 2))
+    out["accurate_range"] = accurate_range(sc)
     if search.witness is not None:
-        _witness_bounds(out, sys_, search, Abar, Abar_exact, slots)
+        _witness_bounds(out, sys_, search, Abar, Abar_exact, slots, checks)
     # centralized reference (same P0): our recursion with its round-off bound, filterpy, and the DARE
     P_c, K_c, err_c = _centralized(F, sys_.C_all, sc.Q, sys_.R_all, sc.P0, slots + 1)
     out["P_central"], out["K_central"], out["P_central_err"] = P_c, K_c, err_c
-    out["P_central_filterpy"] = _filterpy_prior(sc, sys_, slots + 1)
+    if checks:
+        out["P_central_filterpy"] = _filterpy_prior(sc, sys_, min(slots, FILTERPY_STEPS) + 1)
     if assume.central_detectable:
         out["P_central_inf"] = kal.steady_state_prior_covariance(F, sys_.C_all, sc.Q, sys_.R_all)
-    # the lower bound of each sensor: the centralized filter of its class (tokens never leave a class)
-    floor, floor_err = np.empty((slots + 1, sc.N, sc.M, sc.M)), np.empty((slots + 1, sc.N))
-    for cls in assume.classes:
+    # the lower bound of each sensor: the centralized filter of its class (tokens never leave a class), one per class
+    floor, floor_err = np.empty((slots + 1, len(assume.classes), sc.M, sc.M)), np.empty((slots + 1, len(assume.classes)))
+    for c, cls in enumerate(assume.classes):
         idx = list(cls)
         if len(assume.classes) == 1:
             Pk, ek = P_c, err_c
         else:
-            Pk, _, ek = _centralized(F, sys_.C[idx].reshape(-1, sc.M), sc.Q, scipy.linalg.block_diag(*sys_.R[idx]),
-                                     sc.P0, slots + 1)
-        floor[:, idx], floor_err[:, idx] = Pk[:, None], ek[:, None]
+            with np.errstate(over="ignore", invalid="ignore"):
+                Pk, _, ek = _centralized(F, sys_.C[idx].reshape(-1, sc.M), sc.Q, scipy.linalg.block_diag(*sys_.R[idx]),
+                                         sc.P0, slots + 1)
+        floor[:, c], floor_err[:, c] = Pk, ek
     out["P_floor"], out["P_floor_err"] = floor, floor_err
-    env, env_E = [sc.P0], [np.zeros_like(sc.P0)]
-    with np.errstate(over="ignore", invalid="ignore"):  # a fast-growing envelope may leave float64 (then NaN margins)
-        for _ in range(slots):
-            delta, G = gk.lyapunov_roundoff(env[-1], F, sc.Q)
-            env_E.append(gk.propagate_error(env_E[-1], G, delta))
-            env.append(gk.lyapunov_step(env[-1], F, sc.Q))
-    out["envelope"] = np.array(env)
-    out["envelope_err"] = np.array([np.linalg.eigvalsh(E)[-1] if np.all(np.isfinite(E)) else np.inf for E in env_E])
+    out["envelope_log"], out["envelope"], out["envelope_err"] = lyapunov_envelope(F, sc.Q, sc.P0, slots)
     return {k: np.asarray(v) for k, v in out.items()}
 
 
+def lyapunov_envelope(F: np.ndarray, Q: np.ndarray, P0: np.ndarray, slots: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """f_0^t(P0), t = 0..slots (eq (73)), rescaled: (log s_t, E_t, e_t) with f_0^t(P0) = s_t E_t, ‖E_t‖ = 1
+    (or E_t = 0 when P0 = 0 at t = 0), and e_t a bound of the round-off of E_t (relative to s_t). The scaled
+    recursion E' = (F E Fᵀ + Q/s_t)/‖·‖ stays finite over any horizon, however fast F grows."""
+    M = F.shape[0]
+    logs, units, errs = np.empty(slots + 1), np.empty((slots + 1, M, M)), np.empty(slots + 1)
+    n0 = float(np.linalg.norm(P0, 2))
+    logs[0], units[0] = (math.log(n0), P0 / n0) if n0 > 0 else (0.0, np.zeros((M, M)))
+    E_err = np.zeros((M, M))
+    errs[0] = 0.0
+    for t in range(slots):
+        Qs = math.exp(-logs[t]) * Q
+        delta, G = gk.lyapunov_roundoff(units[t], F, Qs)
+        Y = gk.lyapunov_step(units[t], F, Qs)
+        norm = float(np.linalg.norm(Y, 2))
+        E_err = gk.propagate_error(E_err, G, delta) / norm
+        logs[t + 1], units[t + 1] = logs[t] + math.log(norm), Y / norm
+        errs[t + 1] = float(gk.error_norm(E_err))
+    return logs, units, errs
+
+
+def envelope_matrix(bounds: dict, t: int) -> np.ndarray:
+    """f_0^t(P0) from the rescaled envelope (inf entries where it leaves float64)."""
+    with np.errstate(over="ignore"):
+        return np.exp(float(bounds["envelope_log"][t])) * bounds["envelope"][t]
+
+
+def envelope_error(bounds: dict, t: int) -> float:
+    with np.errstate(over="ignore"):
+        return float(np.exp(float(bounds["envelope_log"][t])) * float(bounds["envelope_err"][t]))
+
+
 def _witness_bounds(out: dict, sys_: gk.GossipSystem, search: wd.WitnessSearch, Abar: np.ndarray, Abar_exact: bool,
-                    slots: int) -> None:
+                    slots: int, checks: bool) -> None:
     """Lemma 14's constant along the witness and every witness window, and Lemma 15's tail bounds."""
     w = search.witness
     out["gramian"] = search.gramian
@@ -290,7 +363,8 @@ def _witness_bounds(out: dict, sys_: gk.GossipSystem, search: wd.WitnessSearch, 
                                   if small else np.nan for k in km])
     support = (Abar > 1e-12).astype(float)
     n_windows = float(np.linalg.matrix_power(support, ell - 1).sum())
-    if n_windows <= 5000 and Abar_exact:
+    out["n_walks_length_ell"] = n_windows
+    if checks and n_windows <= 5000 and Abar_exact:
         Z, pi, corr, printed = wd.lifted_chain_stationary(Abar, ell)
         out["lifted_pi"], out["lifted_corrected"], out["lifted_printed"] = pi, corr, printed
         out["lifted_states"] = len(Z)
@@ -319,28 +393,40 @@ def nees_slots(slots: int) -> list[int]:
 
 
 def simulate_gikf_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, runs: int, slots: int,
-                        which: str = "protocol") -> dict[str, np.ndarray]:
+                        which: str = "protocol", budget_bytes: float = 192 * 2**20) -> dict[str, np.ndarray]:
+    """The GIKF Monte Carlo in RNG units of 1,000 runs, as many per chunk as `budget_bytes` allows: every
+    statistic is made per unit and folded in unit order, so the numbers do not depend on the budget. The
+    first unit carries the Loewner margins (with their round-off bounds) and the sample runs."""
+    from .cost import gikf_bytes_per_run
+
     spec = sc.protocol if which == "protocol" else sc.comparison
     protocol = spec.build(sc.graph)
     sys_ = sc.system()
+    done = [0]
 
-    def block(size, rng):
-        return gk.simulate_gikf(sys_, protocol, size, slots, rng, record_times=record_times(sc, slots),
-                                P_central=bounds["P_central"], K_central=bounds["K_central"],
-                                envelope=bounds["envelope"], j_grid=J_GRID, n_paths=sc.sample_paths,
-                                nees_window=(max(1, min(20, slots // 3)), min(60, slots)), stat_stride=STAT_STRIDE,
-                                P_floor=bounds["P_floor"], floor_err=bounds["P_floor_err"],
-                                envelope_err=bounds["envelope_err"], nees_slots=nees_slots(slots))
+    def chunk(streams):
+        first = done[0] == 0
+        done[0] += len(streams.sizes)
+        return gk.gikf_units(sys_, protocol, list(zip(streams.generators, streams.sizes)), slots,
+                             record_times=record_times(sc, slots), P_central=bounds["P_central"],
+                             K_central=bounds["K_central"], envelope=bounds["envelope"],
+                             envelope_log=bounds["envelope_log"], envelope_err=bounds["envelope_err"], j_grid=J_GRID,
+                             n_paths=sc.sample_paths, check=first, paths=first,
+                             nees_window=(max(1, min(20, slots // 3)), min(60, slots)), stat_stride=STAT_STRIDE,
+                             P_floor=bounds["P_floor"], floor_index=bounds["class_of"], floor_err=bounds["P_floor_err"],
+                             nees_slots=nees_slots(slots), x0=sc.x0)
 
-    # one block: the per-(t, n) quantiles over runs need every run at once (memory is O(runs N M²))
-    return run_blocks(block, lambda parts: parts[0], runs, stream_seed(seed, sc.name, "gikf", which), block=runs)
+    acc = run_units(chunk, gk.fold_gikf, runs, stream_seed(seed, sc.name, "gikf", which),
+                    bytes_per_trial=gikf_bytes_per_run(sc, slots, spec), budget_bytes=budget_bytes)
+    return gk.finish_gikf(acc)
 
 
 def reference_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_runs: int, slots: int) -> dict[str, np.ndarray]:
-    """Theorem-8 process from P0 (sampler S1) with its last switch at each record time."""
+    """Theorem-8 process from P0 (sampler S1) with its last switch at each record time; the chain is drawn
+    slot by slot (memory does not grow with the horizon)."""
     sys_ = sc.system()
     rng = block_generator(stream_seed(seed, sc.name, "theorem8"))
-    path = chain_sampler(sc, bounds)(ref_runs, slots, rng)
+    path = chain_sampler(sc, bounds)(ref_runs, slots, rng, lazy=True)
     out = sr.switched_riccati(sys_, path, sc.P0, record_times(sc, slots), keep_final=True)
     return out
 
@@ -375,30 +461,32 @@ def theorem_aux_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_run
     c = max(COUPLING_C, 10.0 * float(np.linalg.norm(sc.P0, 2)))  # the sandwich 0 ⪯ X0 ⪯ cI must contain P0
     out["coupling_c"] = np.array(c)
     for label, X0 in (("zero", np.zeros((M, M))), ("huge", c * np.eye(M)), ("wishart", wish)):
-        path = chain(half, slots, rng)
+        path = chain(half, slots, rng, lazy=True)
         sqrt = float(np.max(np.linalg.norm(X0, 2, axis=(-2, -1)))) > accurate_range(sc)  # Joseph where it is accurate
         run = sr.switched_riccati(sys_, path, X0, [slots], sqrt=sqrt, track_error=not sqrt)
         out[f"init_{label}"] = run["features"][0]
         out[f"init_{label}_err"] = run["err"][0] if not sqrt else np.zeros(half)
     tokens = sorted({0, min(1, sc.N - 1)})
     for n in tokens:
-        path = chain(half, slots, rng, start=n)
+        path = chain(half, slots, rng, start=n, lazy=True)
         tok = sr.switched_riccati(sys_, path, sc.P0, times, track_error=True)
         out[f"token{n}"], out[f"token{n}_err"] = tok["features"], tok["err"][-1]
     if bool(bounds["Abar_exact"]):
         s, dv = restart_slot(bounds["Abar"], slots, tokens)
-        path = chain(half, slots - s, rng)
+        path = chain(half, slots - s, rng, lazy=True)
         out["restart_s"], out["restart_dv"] = np.array(s), dv
         # the same arithmetic as the tokens (Joseph form) unless f_0^s(P0) is beyond its accurate range
-        huge = float(np.linalg.norm(bounds["envelope"][s], 2)) > accurate_range(sc)
-        rs = sr.switched_riccati(sys_, path, bounds["envelope"][s], [slots - s], sqrt=huge, track_error=not huge)
+        start = envelope_matrix(bounds, s)
+        huge = float(bounds["envelope_log"][s]) > math.log(accurate_range(sc))
+        rs = sr.switched_riccati(sys_, path, start, [slots - s], sqrt=huge, track_error=not huge)
         out["restart"] = rs["features"][0]
-        out["restart_err"] = rs["err"][0] + float(bounds["envelope_err"][s]) if not huge else np.zeros(half)
+        out["restart_err"] = rs["err"][0] + envelope_error(bounds, s) if not huge else np.zeros(half)
     cpl_times = [t for t in (10, 20, 40, 80, 160, 320) if t <= slots] or [slots]
-    path = chain(min(2000, ref_runs), slots, rng)
+    path = chain(min(2000, ref_runs), slots, rng, lazy=True)
     out["coupling_times"] = np.array(cpl_times)
-    out["coupling"] = sr.coupling_gap(sys_, path, c, cpl_times)
-    out["coupling_final"] = sr.coupling_gap(sys_, path, c, [slots])[0]
+    gaps = sr.coupling_gap(sys_, path, c, sorted(set(cpl_times) | {slots}))
+    out["coupling"] = gaps[[sorted(set(cpl_times) | {slots}).index(t) for t in cpl_times]]
+    out["coupling_final"] = gaps[-1]
     law_T = [t for t in PULLBACK_LAW_T if t <= slots]
     if law_T:
         back = chain(half, max(law_T), rng)  # Ā symmetric: the reversed stationary chain is again a Ā-chain
@@ -459,7 +547,7 @@ def divergent_pullback_stage(sc: GossipKalmanScenario, bounds: dict, seed: int) 
 
 
 GIKF_PARTIAL = ("margins", "slack", "feat_q", "feat_n", "quantiles", "path_trace", "path_err", "path_err_c", "nees_q",
-                "nees_c")
+                "nees_c", "path_state", "nees", "nees_run", "final_sum", "final_sq")
 #: round-off bounds may exceed float64 (a bound that large says only that nothing is resolved: an infinite allowance)
 ERROR_BOUNDS = ("final_err", "pullback_err", "pullback_monotone_err", "central_from_zero_err", "token0_err", "token1_err",
                 "restart_err", "init_zero_err", "init_huge_err", "init_wishart_err")
@@ -478,7 +566,8 @@ def _checked_gikf(fn, scenario: str):
     def run():
         out = fn()
         if int(out["overflow"]) < 0:
-            check_finite({k: v for k, v in out.items() if k not in ("margins", "slack", "nees_q", "nees_c")},
+            # the sample runs' states grow with an unstable F (their estimates are the states minus the errors)
+            check_finite({k: v for k, v in out.items() if k not in ("margins", "slack", "nees_q", "nees_c", "path_state")},
                          stage="gikf", scenario=scenario)
         return out
     return run
@@ -511,18 +600,33 @@ def horizon(sc: GossipKalmanScenario, slots: int, assume: Assumptions) -> int:
     return int(min(slots, max(10, budget // rate)))
 
 
-def compute_scenario(sc: GossipKalmanScenario, opts: RunOptions, cache: StageCache) -> ScenarioResults:
+def scenario_design(sc: GossipKalmanScenario, opts: RunOptions, *, checks: bool = False,
+                    cache: StageCache | None = None) -> ScenarioDesign:
+    """Sizes, hypotheses and the bounds stage of one scenario (through the stage cache when given)."""
     assume = assumptions(sc)
     runs, ref_runs, slots = sizes(sc, opts)
     slots = horizon(sc, slots, assume)
-    code = code_fingerprint(CODE_MODULES)
-    base = {"scenario": sc.key(), "code": code, "slots": slots}
-    bounds = _stage(cache, base, "bounds", lambda: compute_bounds(sc, slots, assume), sc.name, BOUNDS_PARTIAL)
-    mc = {**base, "seed": opts.seed, "runs": runs, "ref_runs": ref_runs}
-    gikf = _stage(cache, mc, "gikf", _checked_gikf(lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots), sc.name),
+    if cache is None:
+        bounds = compute_bounds(sc, slots, assume, checks=checks)
+    else:
+        base = {"scenario": sc.key(), "code": code_fingerprint(CODE_MODULES), "slots": slots}
+        bounds = _stage(cache, base, "bounds", lambda: compute_bounds(sc, slots, assume, checks=True), sc.name,
+                        BOUNDS_PARTIAL)
+    return ScenarioDesign(sc, slots, runs, ref_runs, opts.quick, assume, bounds)
+
+
+def compute_scenario(sc: GossipKalmanScenario, opts: RunOptions, cache: StageCache) -> ScenarioResults:
+    d = scenario_design(sc, opts, cache=cache)
+    runs, ref_runs, slots, assume, bounds = d.runs, d.reference_runs, d.slots, d.assume, d.bounds
+    budget = opts.chunk_budget_bytes()
+    mc = {"scenario": sc.key(), "code": code_fingerprint(CODE_MODULES), "slots": slots, "seed": opts.seed,
+          "runs": runs, "ref_runs": ref_runs}
+    gikf = _stage(cache, mc, "gikf", _checked_gikf(lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots,
+                                                                               budget_bytes=budget), sc.name),
                   sc.name, GIKF_PARTIAL)
     comparison = (_stage(cache, mc, "gikf_comparison",
-                         _checked_gikf(lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots, "comparison"), sc.name),
+                         _checked_gikf(lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots, "comparison",
+                                                                   budget_bytes=budget), sc.name),
                          sc.name, GIKF_PARTIAL)
                   if sc.comparison is not None else None)
     reference = _stage(cache, mc, "theorem8", lambda: reference_stage(sc, bounds, opts.seed, ref_runs, slots), sc.name,
@@ -534,14 +638,19 @@ def compute_scenario(sc: GossipKalmanScenario, opts: RunOptions, cache: StageCac
     if assume.c1 and assume.undetectable is True:
         aux.update(_stage(cache, mc, "pullback_divergent", lambda: divergent_pullback_stage(sc, bounds, opts.seed),
                           sc.name, ERROR_BOUNDS))
-    return ScenarioResults(sc, opts.seed, runs, ref_runs, slots, opts.quick, bounds, gikf, reference, aux, comparison,
-                           assume)
+    return ScenarioResults(sc, slots, runs, ref_runs, opts.quick, assume, bounds, seed=opts.seed, gikf=gikf,
+                           reference=reference, aux=aux, comparison=comparison)
 
 
 def compute(scenarios: list[GossipKalmanScenario], opts: RunOptions, cache: StageCache) -> Results:
     work = functools.partial(compute_scenario, opts=opts, cache=cache)
     outs = parallel_map(work, scenarios, workers=opts.workers, desc="gossip-kalman scenarios")
     return Results(opts.seed, opts.quick, {o.name: o for o in outs})
+
+
+def design(scenarios: list[GossipKalmanScenario], opts: RunOptions) -> Design:
+    """The design of every scenario, without Monte Carlo and without the claims' own reference computations."""
+    return Design(opts.quick, {sc.name: scenario_design(sc, opts) for sc in scenarios})
 
 
 def roles(sc: GossipKalmanScenario) -> dict[str, bool]:
