@@ -44,11 +44,13 @@ FIGURE_S = 0.3
 RECORDING_S = 0.25
 #: importing the numeric, table, plotting and recording libraries
 IMPORT_S = 1.5
-ROW_S = 5e-6
+ROW_S = 2e-6
 BASE_MIB = 330.0
 #: what the pipeline reserves for the interpreter and libraries in a memory budget (RunOptions)
 INTERPRETER_MIB = 200.0
 TABLE_ROW_BYTES = 160.0
+#: the tables' frames and their Parquet and CSV encodings alive at once, at the peak
+TABLE_COPIES = 1.5
 
 
 def _n_i(sc: HybridScenario) -> list[int]:
@@ -109,7 +111,7 @@ def run_cost(sc: HybridScenario, run, trials: int, n_i: list[int], budget_bytes:
                       + keep * ((q + 1) * mn + q * m * m + m * (q + 1)) + 30 * B + 6 * S)
     table_rows = ((S + 1) * m * 3 + stored * (m + 1) + min(stored * n * (m + 2), 2_000_000) + keep * (q + 1) * m
                   + keep * q * m * 2 + S + B + 60)
-    return {"seconds": S * 2e-4 + matrices + trials_s + kf + table_rows * ROW_S + RECORDING_S + FIGURE_S,
+    return {"seconds": S * 2e-4 + matrices + trials_s + kf + table_rows * ROW_S + RECORDING_S,
             "chunk_bytes": chunk * per_trial, "kept_bytes": kept_bytes, "table_bytes": table_rows * TABLE_ROW_BYTES,
             "trials": B, "chunks": chunks, "samples": samples}
 
@@ -118,7 +120,9 @@ def estimate(scenarios: dict[str, HybridScenario], opts: RunOptions, *, extras: 
     from .compute import trial_count
 
     budget = opts.chunk_budget_bytes()
-    seconds, kept, tables, chunk, parts = IMPORT_S + 4 * FIGURE_S, 0.0, 0.0, 0.0, []
+    runs = sum(len(sc.runs) for sc in scenarios.values())
+    figures = 9 if extras else 4 + runs                  # the paper's figures; a user's: 4 and one per run
+    seconds, kept, tables, chunk, parts = IMPORT_S + figures * FIGURE_S, 0.0, 0.0, 0.0, []
     for name, sc in scenarios.items():
         n_i = _n_i(sc)
         trials = trial_count(sc, opts)
@@ -132,7 +136,7 @@ def estimate(scenarios: dict[str, HybridScenario], opts: RunOptions, *, extras: 
         parts.append(f"{name}: design ≈{design_s:.2g} s, {len(costs)} runs ≈{run_s:.3g} s "
                      f"({sum(c['samples'] for c in costs):,.0f} samples, {max(c['trials'] for c in costs):,} trials, "
                      f"{max(c['chunks'] for c in costs)} chunk(s))")
-    mib = BASE_MIB + (chunk + kept + 2.5 * tables) / 2**20
+    mib = BASE_MIB + (chunk + kept + TABLE_COPIES * tables) / 2**20
     return {"seconds": seconds, "peak_memory_mib": mib,
             "detail": "; ".join(parts) + f"; kept whole {kept / 2**20:.3g} MiB, tables {tables / 2**20:.3g} MiB, "
                       f"largest chunk {chunk / 2**20:.3g} MiB"}
@@ -151,7 +155,7 @@ def refuse_beyond_budget(scenarios: dict[str, HybridScenario], opts: RunOptions)
         n_i = _n_i(sc)
         for i, run in enumerate(sc.runs):
             c = run_cost(sc, run, trial_count(sc, opts), n_i, opts.chunk_budget_bytes())
-            mib = (c["kept_bytes"] + 2.5 * c["table_bytes"]) / 2**20
+            mib = (c["kept_bytes"] + TABLE_COPIES * c["table_bytes"]) / 2**20
             total += mib
             if worst is None or mib > worst[0]:
                 worst = (mib, i, c, sc)
