@@ -24,7 +24,6 @@ import estimators.consensus_covariance as cc
 import estimators.consensus_filter as cf
 import estimators.gain_tuning as gt
 from pipeline.cache import StageCache, code_fingerprint
-from pipeline.errors import ScenarioError
 from pipeline.reproduction import RunOptions
 from pipeline.seeding import stream_seed
 from pipeline.simulate import RNG_UNIT, parallel_map, run_units
@@ -39,7 +38,9 @@ LONG_RUN_STEPS = 60
 QUICK_GRID = (100, 101)
 #: steady-state covariance matrices are tabulated entry by entry up to this many agents
 MATRIX_TABLE_AGENTS = 50
-#: a chunk's arrays at most (measured fastest here: larger arrays leave the processor's caches)
+#: a chunk holds at most this many trials and bytes (measured fastest here: larger arrays leave the
+#: processor's caches); the memory budget may make it smaller, never larger
+CHUNK_TRIALS = 10_000
 CHUNK_BYTES = 32 * 2**20
 CODE_MODULES = ("estimators.consensus_covariance", "estimators.consensus_filter", "estimators.gain_tuning",
                 "pipeline.stats", "pipeline.simulate", "pipeline.seeding", "reproductions.savas.compute")
@@ -298,7 +299,7 @@ def simulate_group(sc: NoisyConsensusScenario, seed: int, trials: int, steps: np
 
     per_trial = bytes_per_trial(C, sc.n, len(steps))
     total = run_units(chunk, fold, trials, group_streams(seed, cells), bytes_per_trial=per_trial,
-                      budget_bytes=min(budget_bytes, CHUNK_BYTES))
+                      budget_bytes=min(budget_bytes, CHUNK_BYTES, CHUNK_TRIALS * per_trial))
     arrays: dict[str, np.ndarray] = {}
     paths = total.pop("paths", None)
     for j, c in enumerate(cells):
@@ -389,6 +390,3 @@ def compute(sc: NoisyConsensusScenario, opts: RunOptions, cache: StageCache) -> 
 
 def _call(f):
     return f()
-
-
-__all__ = ["ALGORITHMS", "Cell", "Design", "Results", "compute", "design", "ScenarioError"]

@@ -23,6 +23,8 @@ from .scenario import NoisyConsensusScenario
 MIB = 2.0**20
 #: resident memory of a run before any array: Python, numpy, scipy, pandas, pyarrow, matplotlib, rerun
 BASE_MIB = 300.0
+#: the share of a process the pipeline leaves to the interpreter when it sizes chunks (RunOptions)
+INTERPRETER_MIB = 200.0
 #: seconds of CPU: interpreter start and imports
 STARTUP_S = 0.6
 #: seconds of CPU: the claims' fixed part (scipy.stats, filterpy, the large-m and optimiser checks)
@@ -54,6 +56,7 @@ class Cost:
     peak_mib: float
     fixed_mib: float      # what cannot be streamed
     chunk_mib: float      # one Monte Carlo chunk, per worker
+    unit_mib: float       # the smallest chunk: one RNG unit of 1,000 trials
     detail: str
 
 
@@ -76,7 +79,8 @@ def _a_nnz(sc: NoisyConsensusScenario, m: int) -> int:
 
 
 def estimate(sc: NoisyConsensusScenario, opts: RunOptions) -> Cost:
-    from .compute import CHUNK_BYTES, LARGE_M, LONG_RUN_STEPS, bytes_per_trial, gain_grid, recorded_steps, trial_count
+    from .compute import (CHUNK_BYTES, CHUNK_TRIALS, LARGE_M, LONG_RUN_STEPS, bytes_per_trial, gain_grid,
+                          recorded_steps, trial_count)
 
     trials = trial_count(sc, opts)
     N, S_c, M = sc.n, len(sc.sigma_c), len(sc.rounds)
@@ -90,15 +94,17 @@ def estimate(sc: NoisyConsensusScenario, opts: RunOptions) -> Cost:
         t_design += tables * n_ell * n_zeta * ((N - 1) * GRID_POINT_MODE_S + 2 * S_c * GRID_POINT_S)
     # Monte Carlo: per group (algorithm, m) of S_c configurations over the horizon
     qnnz = _nnz_rows(sc.Q)
-    groups = [(m, sc.n_steps, S_c, S) for alg in ("carli", "reinjection") for m in sc.rounds]
+    groups = [(m, sc.n_steps, S_c, S) for m in sc.rounds for _filter in ("carli", "reinjection")]
     if sc.n_steps < LONG_RUN_STEPS:
         groups.append((next((m for m in sc.rounds if m > 0), sc.rounds[-1]), LONG_RUN_STEPS, 1, LONG_RUN_STEPS))
     budget_bytes = min(opts.chunk_budget_bytes(), CHUNK_BYTES)
-    group_s, chunk_bytes = [], []
+    group_s, chunk_bytes, unit_bytes = [], [], []
     for m, K, C, S_g in groups:
         per_trial = bytes_per_trial(C, N, S_g)
-        units = max(1, min(int(budget_bytes // (per_trial * RNG_UNIT)), -(-trials // RNG_UNIT)))
+        units = max(1, min(int(budget_bytes // (per_trial * RNG_UNIT)), CHUNK_TRIALS // RNG_UNIT,
+                           -(-trials // RNG_UNIT)))
         chunk_bytes.append(units * RNG_UNIT * per_trial)
+        unit_bytes.append(min(trials, RNG_UNIT) * per_trial)
         a_nnz = _a_nnz(sc, m) if m else 0
         per_trial_step = (C * N * TRIAL_CONFIG_S + (1 + m) * N * TRIAL_DRAW_S + m * N * qnnz * TRIAL_Q_TERM_S
                           + C * N * a_nnz * TRIAL_A_TERM_S)
@@ -121,21 +127,23 @@ def estimate(sc: NoisyConsensusScenario, opts: RunOptions) -> Cost:
     if sc.symmetric:
         n_ell, n_zeta = gain_grid(sc, opts.quick)
         fixed += 8.0 * n_ell * n_zeta * (2 * 2 + 4) / MIB
-    peak = BASE_MIB + fixed + chunk * workers
+    peak = BASE_MIB + fixed + chunk   # the largest process (what getrusage reports); each worker holds one chunk
     detail = (f"{n_cells} cells x {trials:,} trials x {sc.n_steps:,} steps x {N} agents, {S} recorded steps; design "
               f"{t_design:.2g} s, Monte Carlo {t_mc:.3g} s on {workers} worker(s), claims {t_claims:.2g} s, tables and "
-              f"outputs {t_out:.2g} s; memory {BASE_MIB:.0f} MiB base + {fixed:.0f} MiB kept + {chunk:.0f} MiB per "
-              "Monte Carlo chunk")
-    return Cost(seconds, peak, fixed, chunk, detail)
+              f"outputs {t_out:.2g} s; memory of the largest process: {BASE_MIB:.0f} MiB base + {fixed:.0f} MiB kept + "
+              f"{chunk:.0f} MiB per Monte Carlo chunk (one per worker)")
+    return Cost(seconds, peak, fixed, chunk, max(unit_bytes) * 1.5 / MIB, detail)
 
 
 def refuse_if_too_large(sc: NoisyConsensusScenario, opts: RunOptions) -> None:
-    """Refuse, before anything runs, a run whose unstreamable part does not fit the memory budget."""
+    """Refuse, before anything runs, a run whose unstreamable part (the recorded statistics and the tables
+    built from them) and one unit of trials do not fit the memory budget left beside the interpreter
+    (the pipeline's allowance of INTERPRETER_MIB per process, as in RunOptions.chunk_budget_bytes)."""
     c = estimate(sc, opts)
-    budget = opts.memory_budget_mib
-    if BASE_MIB + c.fixed_mib + c.chunk_mib > budget:
+    room = opts.memory_budget_mib - INTERPRETER_MIB
+    if c.fixed_mib + c.unit_mib > room:
         raise ScenarioError("sweep.recorded_steps", f"the run keeps about {c.fixed_mib:,.0f} MiB of per-step statistics "
-                            f"and tables (cells x {sc.n} agents x the "
-                            f"recorded steps) besides {BASE_MIB:.0f} MiB of libraries and a {c.chunk_mib:.0f} MiB "
-                            f"chunk: more than the memory budget of {budget:,.0f} MiB; record fewer steps, or raise "
+                            f"and tables (cells x {sc.n} agents x the recorded steps) and needs {c.unit_mib:,.0f} MiB per "
+                            f"1,000 trials, more than the {room:,.0f} MiB the memory budget of "
+                            f"{opts.memory_budget_mib:,.0f} MiB leaves beside the interpreter; record fewer steps, or raise "
                             "--max-memory")
