@@ -22,7 +22,7 @@ import pandas as pd
 from pipeline.tables import matrix_rows, spec
 
 from . import bounds
-from .design import Q_KEYS, Design, MultiDesign, constants, lambda_variants
+from .design import Q_KEYS, MultiDesign, constants, lambda_variants
 
 SC = ("scenario", "", "scenario name (the paper's reproduction has 'paper' and 'generic')")
 RUN = ("run", "", "run name")
