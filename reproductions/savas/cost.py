@@ -64,18 +64,18 @@ def _nnz_rows(M: np.ndarray) -> int:
     return int(max(1, (M != 0).sum(axis=1).max()))
 
 
-def _a_nnz(sc: NoisyConsensusScenario, m: int) -> int:
-    """Widest row of A = Σ_{j<=m} Q^j (or Q^m): the agents within m hops, the terms of its row-sparse product."""
-    import scipy.sparse as sp
+def _a_widths(sc: NoisyConsensusScenario, ms) -> dict[int, int]:
+    """Widest row of A = Σ_{j<=m} Q^j (or Q^m) for each m: the agents within m hops, the terms of the
+    row-sparse product with A, from the graph's hop distances (one breadth-first search per agent)."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import shortest_path
 
-    step = sp.csr_matrix(sc.Q != 0, dtype=np.int8)
-    reach = sp.identity(sc.n, dtype=np.int8, format="csr")
-    for _ in range(min(m, sc.n)):
-        wider = ((reach + reach @ step) > 0).astype(np.int8)
-        if wider.nnz == reach.nnz:
-            break
-        reach = wider
-    return int(np.diff(reach.indptr).max())
+    hops = shortest_path(csr_matrix(sc.Q != 0), unweighted=True)
+    hops = np.where(np.isfinite(hops), hops, sc.n).astype(np.int64)
+    counts = np.zeros((sc.n, int(hops.max()) + 1))
+    np.add.at(counts, (np.repeat(np.arange(sc.n), sc.n), hops.ravel()), 1.0)
+    within = np.cumsum(counts, axis=1).max(axis=0)          # the most agents within d hops of one agent
+    return {m: int(within[min(m, within.size - 1)]) for m in ms}
 
 
 def estimate(sc: NoisyConsensusScenario, opts: RunOptions) -> Cost:
@@ -94,6 +94,7 @@ def estimate(sc: NoisyConsensusScenario, opts: RunOptions) -> Cost:
         t_design += tables * n_ell * n_zeta * ((N - 1) * GRID_POINT_MODE_S + 2 * S_c * GRID_POINT_S)
     # Monte Carlo: per group (algorithm, m) of S_c configurations over the horizon
     qnnz = _nnz_rows(sc.Q)
+    a_width = _a_widths(sc, sc.rounds)
     groups = [(m, sc.n_steps, S_c, S) for m in sc.rounds for _filter in ("carli", "reinjection")]
     if sc.n_steps < LONG_RUN_STEPS:
         groups.append((next((m for m in sc.rounds if m > 0), sc.rounds[-1]), LONG_RUN_STEPS, 1, LONG_RUN_STEPS))
@@ -105,7 +106,7 @@ def estimate(sc: NoisyConsensusScenario, opts: RunOptions) -> Cost:
                            -(-trials // RNG_UNIT)))
         chunk_bytes.append(units * RNG_UNIT * per_trial)
         unit_bytes.append(min(trials, RNG_UNIT) * per_trial)
-        a_nnz = _a_nnz(sc, m) if m else 0
+        a_nnz = a_width[m] if m else 0
         per_trial_step = (C * N * TRIAL_CONFIG_S + (1 + m) * N * TRIAL_DRAW_S + m * N * qnnz * TRIAL_Q_TERM_S
                           + C * N * a_nnz * TRIAL_A_TERM_S)
         chunks = -(-trials // (units * RNG_UNIT))
