@@ -264,7 +264,7 @@ def group_streams(seed: int, cells: tuple[Cell, ...]) -> np.random.SeedSequence:
 
 
 def simulate_group(sc: NoisyConsensusScenario, seed: int, trials: int, steps: np.ndarray, budget_bytes: float,
-                   cells: tuple[Cell, ...]) -> dict[str, np.ndarray]:
+                   cells: tuple[Cell, ...], desc: str = "") -> dict[str, np.ndarray]:
     """All trials of cells that differ only in (σ_c, ℓ, ζ), streamed over trials (units of 1,000) and
     time (moments at `steps` only). Returns moment sums per cell (keys ``<label>__pred_s1``, ...)
     and the sample paths of the first trials over the first steps."""
@@ -299,7 +299,7 @@ def simulate_group(sc: NoisyConsensusScenario, seed: int, trials: int, steps: np
 
     per_trial = bytes_per_trial(C, sc.n, len(steps))
     total = run_units(chunk, fold, trials, group_streams(seed, cells), bytes_per_trial=per_trial,
-                      budget_bytes=min(budget_bytes, CHUNK_BYTES, CHUNK_TRIALS * per_trial))
+                      budget_bytes=min(budget_bytes, CHUNK_BYTES, CHUNK_TRIALS * per_trial), desc=desc)
     arrays: dict[str, np.ndarray] = {}
     paths = total.pop("paths", None)
     for j, c in enumerate(cells):
@@ -362,9 +362,10 @@ class Results:
         return {k.removeprefix("path_"): v for k, v in self.mc[cell.label].items() if k.startswith("path_")}
 
 
-def _cached_group(cache: StageCache, key: dict[str, Any], sc, seed, trials, steps, budget, cells) -> dict[str, np.ndarray]:
+def _cached_group(cache: StageCache, key: dict[str, Any], sc, seed, trials, steps, budget, desc, cells
+                  ) -> dict[str, np.ndarray]:
     return cache.get_or_compute("mc", {**key, "cells": [c.__dict__ for c in cells], "steps": steps},
-                                functools.partial(simulate_group, sc, seed, trials, steps, budget, cells),
+                                functools.partial(simulate_group, sc, seed, trials, steps, budget, cells, desc),
                                 scenario=sc.name)
 
 
@@ -377,7 +378,9 @@ def compute(sc: NoisyConsensusScenario, opts: RunOptions, cache: StageCache) -> 
     base = {"scenario": sc.key(), "code": code_fingerprint(CODE_MODULES), "seed": opts.seed, "trials": trials}
     budget = opts.chunk_budget_bytes()
     groups = sorted(cell_groups(d.cells + [d.long_cell]), key=lambda g: -(g[0].m + 2) * g[0].n_steps)  # longest first
-    work = [functools.partial(_cached_group, cache, base, sc, opts.seed, trials, d.steps_of(g[0]), budget, g)
+    # in one process, each group shows its chunks (with the time left); with workers, the groups are counted
+    desc = (lambda g: f"{sc.name}: {g[0].alg} m = {g[0].m}, {trials:,} trials") if opts.workers <= 1 else (lambda g: "")
+    work = [functools.partial(_cached_group, cache, base, sc, opts.seed, trials, d.steps_of(g[0]), budget, desc(g), g)
             for g in groups]
     outputs = parallel_map(_call, work, workers=opts.workers, desc=f"{sc.name}: Monte Carlo (algorithm, m) groups")
     mc: dict[str, dict[str, np.ndarray]] = {}
