@@ -670,11 +670,13 @@ FEATURES = ("log_trace", "log_lam_max", "log_lam_min", "log_det")
 
 
 def covariance_features(P: np.ndarray) -> np.ndarray:
-    """(len(FEATURES) + M, …): log tr, log λmax, log λmin, log det, then the diagonal entries."""
+    """(len(FEATURES) + M, …): log tr, log λmax, log λmin, log det, then the diagonal entries (logs of
+    values below the smallest positive float, a zero P0, are taken at that float)."""
     eig = np.linalg.eigvalsh(P)
     tiny = np.finfo(float).tiny
     diag = np.moveaxis(np.diagonal(P, axis1=-2, axis2=-1), -1, 0)
-    return np.concatenate([np.stack([np.log(np.trace(P, axis1=-2, axis2=-1)), np.log(np.maximum(eig[..., -1], tiny)),
+    return np.concatenate([np.stack([np.log(np.maximum(np.trace(P, axis1=-2, axis2=-1), tiny)),
+                                     np.log(np.maximum(eig[..., -1], tiny)),
                                      np.log(np.maximum(eig[..., 0], tiny)),
                                      np.log(np.maximum(eig, tiny)).sum(-1)]), diag])
 
@@ -833,7 +835,7 @@ def gikf_units(sys: GossipSystem, protocol, units: Sequence[tuple[np.random.Gene
             nees_cq[k] = np.einsum("bm,bm->b", e_c, np.linalg.solve(P_central[t], e_c.T).T)
         if t in stat_i:
             i = stat_i[t]
-            log_trace[i] = np.log(np.trace(P, axis1=-2, axis2=-1))
+            log_trace[i] = np.log(np.maximum(np.trace(P, axis1=-2, axis2=-1), np.finfo(float).tiny))
             lam_max = np.linalg.eigvalsh(P)[..., -1]
             hit = lam_max[..., None] >= j_grid
             exceed[:, i] = per_unit(hit)

@@ -1074,7 +1074,8 @@ def check_tv_decay(r: ScenarioResults) -> Verdict:
     bound = np.minimum(1.0, 0.5 * math.sqrt(N) * float(b["slem"]) ** s)
     tol, how = roundoff_tolerance(scale=1.0, operations=len(tv) * N)
     return inequality(tv, bound, tolerance=tol,
-                      detail=(f"eq (83): d_v(p_n(s), U) ≤ (√N/2) SLEM^s for s < {len(tv)} (‖e_n − U‖₂ ≤ 1); {how}; "
+                      detail=(f"eq (83): d_v(p_n(s), U) ≤ (√N/2) SLEM^s for s < {len(tv)} (‖e_n − U‖₂ ≤ 1), "
+                              f"{len(wd.tv_rows(N))} start nodes n; {how}; "
                               f"d_v(s=50) = {tv[min(50, len(tv) - 1)]:.3e}"))
 
 

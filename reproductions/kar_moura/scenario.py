@@ -48,13 +48,14 @@ Pairs = list[list[int]]
 
 
 class ModelSection(Section):
-    """The signal x(t+1) = F x(t) + w(t), w ~ N(0, Q), x(0) ~ N(x0, P0) (eqs (1)-(2))."""
+    """The signal x(t+1) = F x(t) + w(t), w ~ N(0, Q), x(0) ~ N(x0, P0) (eqs (2)-(3))."""
 
     F: Matrix = key(doc="system matrix F (M x M)", constraint=f"square; M <= {MAX_STATE}")
     Q: Matrix = key(doc="process noise covariance Q (M x M)", unit="state²",
                     constraint="positive definite (S.1: the proofs use Q ≻ 0)")
     P0: Matrix | None = key(_computed("identity"), doc="covariance of x(0), the covariance every sensor starts from",
-                            unit="state²", constraint="positive semidefinite (a singular P0 is allowed)")
+                            unit="state²", constraint="positive semidefinite (a singular P0 is allowed; eigenvalues "
+                                                      "within the tolerance below 0 are set to 0)")
     x0: list[Real] | None = key(_computed("zeros"), doc="prior mean of x(0): every sensor's estimate starts there (the "
                                 "errors do not depend on it; the sample runs' states and estimates do)", unit="state",
                                 constraint="M entries")
@@ -248,6 +249,17 @@ class ProtocolSpec:
         return cls(s.kind, matchings=matchings, probs=tuple(float(p) for p in (s.probs or ())))
 
 
+def _psd(P: np.ndarray) -> np.ndarray:
+    """A covariance accepted within the shared tolerance (eigenvalues down to −1e-10 relative) projected onto the
+    PSD cone: its negative eigenvalues set to 0, so that every map sees a true covariance (a −1e-12 eigenvalue of P0
+    would otherwise show as P̂(1) − Q = −1e-12, a violation of Lemma 16 made by the input)."""
+    lam, V = np.linalg.eigh(P)
+    if lam.min() >= 0:
+        return P
+    Pp = (V * np.maximum(lam, 0.0)) @ V.T
+    return 0.5 * (Pp + Pp.T)
+
+
 def _matching(pairs: Pairs, field: str, n: int, edges: set[tuple[int, int]]) -> tuple[tuple[int, int], ...]:
     out, used = [], set()
     for i, e in enumerate(pairs):
@@ -322,7 +334,7 @@ class GossipKalmanScenario:
         if M > MAX_STATE:
             raise ScenarioError("model.F", f"state dimension {M}; this family handles at most {MAX_STATE}")
         Q = covariance(m.Q, "model.Q", n=M, definite=True)
-        P0 = covariance(m.P0, "model.P0", n=M) if m.P0 is not None else np.eye(M)
+        P0 = _psd(covariance(m.P0, "model.P0", n=M)) if m.P0 is not None else np.eye(M)
         if m.x0 is not None and len(m.x0) != M:
             raise ScenarioError("model.x0", f"must have {M} entries (state dimension), got {len(m.x0)}")
         x0 = np.array(m.x0, float) if m.x0 is not None else np.zeros(M)

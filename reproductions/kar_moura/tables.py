@@ -74,7 +74,8 @@ TAIL_BOUNDS = spec("tail_bounds", "threshold J of Lemma 15's tail bound", [
     ("beta_single", "1", "β_t(J) with the single witness walk (NaN: not computed, Ā estimated or too large)"),
     ("beta_multi", "1", "β_t(J) over every witness window (NaN: not computed)")])
 TV_DECAY = spec("tv_decay", "slot s of the token chain's total-variation decay (eq (83))", [
-    SC, ("s", "slot", "steps of the Ā-chain"), ("tv_max", "1", "max over n of d_v(e_nᵀ Āˢ, uniform)"),
+    SC, ("s", "slot", "steps of the Ā-chain"), ("tv_max", "1", "max over n of d_v(e_nᵀ Āˢ, uniform) (every n when N ≤ 64, "
+                                                           "else 64 start nodes, 0 and 1 among them)"),
     ("bound", "1", "(√N/2) SLEM^s")])
 REFERENCE_SERIES = spec("reference_series", "slot and reference curve", [
     SC, ("t", "slot", "slot"), ("series", "", "central (prior covariance of the centralized filter, same P0), floor "
