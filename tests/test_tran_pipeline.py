@@ -91,6 +91,7 @@ def test_the_paper_file_comments_every_key():
     ({"graph": {"kind": "edges", "n": 4, "edges": [[0, 1], [1, 0]]}}, "graph.edges[1]", "repeats"),
     ({"graph": {"kind": "ring", "n": 41}}, "graph.n", "at most 40"),
     ({"name": "a\u202eb"}, "name", "must match"),
+    ({"node_type__pos__name": "pos\u202eition"}, "node_type.pos.name", "control or format"),
     ({"nodes__xhat0": [[0.0, 0.0], [1.0, 1.0]]}, "nodes.xhat0", "1 row (every node) or one row per node"),
     ({"nodes__what0": [[0.0, 1.0]]}, "nodes.what0", "shape"),
     ({"node_type__pos__Q": [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]]}, "node_type.pos.Q", "positive definite"),
@@ -326,7 +327,7 @@ def test_unstreamable_samples_beyond_the_budget_are_refused_before_running():
     assert time.process_time() - start < 5
 
 
-def test_the_issue_horizon_is_estimated_in_days_and_checked_quickly():
+def test_the_issue_horizon_is_estimated_in_days_and_checked_quickly(capsys):
     """The paper's file with t_end = 1e4 and step = 1e-5 (10⁹ steps): valid, recorded samples thinned to
     10,001, estimated in days, and `dse check` answers without simulating."""
     data = tomllib.loads(PAPER.read_text())
@@ -337,11 +338,17 @@ def test_the_issue_horizon_is_estimated_in_days_and_checked_quickly():
     check = api.check(repro, quick=True)
     assert time.process_time() - start < 10
     assert check.estimate["seconds"] > 86400 and check.estimate["peak_memory_mib"] < 4000
+    assert "days" in check.estimate["detail"]
+    compute._announce(repro.scenario, RunOptions(quick=True))      # what `dse run` prints before it starts
+    assert "days" in capsys.readouterr().err
 
 
 def _peak_of(args, cwd) -> tuple[int, str, float]:
-    code = ("import resource, sys; from pipeline.cli import main; rc = main(sys.argv[1:]); "
-            "print('PEAK', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss); sys.exit(rc)")
+    """Exit code, output and peak resident memory (MiB) of `dse ARGS` in a fresh process. The peak is the
+    process's own high-water mark (VmHWM): getrusage's ru_maxrss also carries the high-water mark of the
+    process that forked it across exec on Linux, i.e. of this test process."""
+    code = ("import re, sys; from pipeline.cli import main; rc = main(sys.argv[1:]); "
+            "print('PEAK', re.search(r'VmHWM:\\s*(\\d+)', open('/proc/self/status').read()).group(1)); sys.exit(rc)")
     proc = subprocess.run([sys.executable, "-c", code, *args], cwd=cwd, capture_output=True, text=True, timeout=600,
                           env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0",
                                "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "Agg"})

@@ -128,7 +128,7 @@ def estimate(sc: CoestimationScenario, opts: RunOptions, *, paper: bool = False)
     chunk_units = min(units_per_chunk(per_trial, budget), units)
     chunk = chunk_units * RNG_UNIT * per_trial / MIB
     peak = BASE_MIB + kept + chunk * workers
-    detail = (f"{steps:,.0f} steps of h = {sc.step:g} over T = {sc.t_end:g} s ({n_rec:,} recorded samples), stochastic "
+    detail = (f"{human_seconds(seconds)} in all: {steps:,.0f} steps of h = {sc.step:g} over T = {sc.t_end:g} s ({n_rec:,} recorded samples), stochastic "
               f"{trials:,} trials x {t_sde / sc.sde_step:,.0f} steps, D = {D}; design {t_design:.2g} s, exact law "
               f"{t_law:.2g} s, deterministic runs {t_det:.3g} s, Monte Carlo {t_mc:.3g} s on {workers} worker(s), claims "
               f"{t_claims:.2g} s, tables and outputs {t_out:.2g} s; memory {BASE_MIB:.0f} MiB base + {kept:,.0f} MiB "

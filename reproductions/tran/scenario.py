@@ -17,7 +17,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from pipeline.declare import Matrix, Real, Section, covariance, key, matrix, parse
-from pipeline.errors import ScenarioError
+from pipeline.errors import ScenarioError, printable
 from pipeline.graphs import GraphSection, GraphSpec, graph_from_section, laplacian
 from pipeline.scenario import load_toml
 
@@ -97,7 +97,7 @@ class NodeTypeSection(Section):
     named freely ([node_type.position], [node_type.velocity], ...) and referred to by nodes.type."""
 
     name: str | None = key(_computed("the table's name"), doc="name shown in the figures and tables",
-                           max_length=80)
+                           max_length=80, constraint="no control or format characters (also in the table's name)")
     C: Matrix = key(doc="output matrix C_i (m x n); every type has the same m", constraint="n columns")
     L: Matrix = key(doc="state injection gain L_i (n x m) of (3)", constraint="n x m")
     J: Matrix = key(doc="input injection gain J_i (p x m) of (4)", constraint="p x m")
@@ -447,6 +447,9 @@ def scenario_from_dict(data: Any) -> CoestimationScenario:
     names = list(f.node_type)
     types: list[NodeType] = []
     for k, t in f.node_type.items():
+        for field, text in ((f"node_type.{printable(k)}", k), (f"node_type.{printable(k)}.name", t.name or "")):
+            if printable(text) != text:
+                raise ScenarioError(field, f"must not contain control or format characters, got '{printable(text)}'")
         types.append(_node_type(t, f"node_type.{k}", k, n, p, types[0].C.shape[0] if types else None))
     nodes = f.nodes
     if len(nodes.type) != N:
