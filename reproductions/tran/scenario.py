@@ -174,10 +174,10 @@ class SimulationSection(Section):
     step (the integration check)."""
 
     t_end: Real = key(40.0, doc="horizon T", unit="s", gt=0, le=MAX_T_END,
-                      constraint="a multiple of record_dt")
+                      constraint="a multiple of step, of stochastic.step and of record_dt")
     step: Real = key(0.005, doc="integration step h", unit="s", ge=MIN_STEP, le=MAX_STEP)
-    record_dt: Real | None = key(_computed(f"{BASE_RECORD_DT:g}, or the smallest multiple of step that divides t_end "
-                                           f"and keeps at most {DEFAULT_RECORDS:,} samples"),
+    record_dt: Real | None = key(_computed(f"{BASE_RECORD_DT:g}, or the smallest common multiple of the two steps that "
+                                           f"divides t_end and keeps at most {DEFAULT_RECORDS:,} samples"),
                                  doc="interval of the recorded samples: the trajectories, tables, figures and every "
                                      "check along a run use these samples", unit="s",
                                  constraint="a multiple of step and of stochastic.step, dividing t_end")
@@ -195,7 +195,7 @@ class StochasticSection(Section):
     runs: int = key(5, doc="trials stored whole (the repeated runs of the figures)", ge=1, le=50)
     trials: int = key(200, doc="Monte Carlo trials of each stochastic run (time-varying roles, fixed roles, fixed "
                       "roles at half the step)", ge=10, le=100_000, constraint=">= runs")
-    quick_trials: int | None = key(_computed("min(trials, 40)"), doc="trials in quick runs", ge=10, le=100_000,
+    quick_trials: int | None = key(_computed("max(min(trials, 40), runs)"), doc="trials in quick runs", ge=10, le=100_000,
                                    constraint=">= runs")
     step: Real | None = key(_computed("simulation.step"), doc="integration step of the stochastic runs", unit="s",
                             ge=MIN_STEP, le=MAX_STEP)

@@ -164,8 +164,10 @@ CENTRAL = spec("central", "run of the centralized Kalman filter, its time and co
     ("truth", "state or input", "the true value")])
 METRICS = spec("metrics", "metric, run and node (empty node: the whole network)", [
     SC, ("metric", "", "name: <run>_err_final_max, <run>_err_tail_rms, <run>_gain_final_max, <run>_err_final (per node), "
-                       "<run>_tail_rms_x / _w (per node); bound18_single, mu_single, qbar_single, lamP_max, lamP_min, "
-                       "lmi_margin_min; exact_EV_final, mc_EV_final (fixed roles)"),
+                       "<run>_tail_rms_x / _w (per node); <run>_integration_error (2·max|Δ| between the run at h and "
+                       "h/2) and _integration_scale (the trajectories' size it is compared with); bound18_single, "
+                       "mu_single, qbar_single, lamP_max, lamP_min, lmi_margin_min; exact_EV_final, mc_EV_final (fixed "
+                       "roles)"),
     ("node", "1", "node, empty for the network"), ("run", "", "the run it describes (empty for design quantities)"),
     ("value", "as the metric", "value")])
 
@@ -581,6 +583,9 @@ def metrics_frame(res: Results) -> pd.DataFrame:
             add(f"{run}_err_final", norm[-1, i], run, i)
             add(f"{run}_tail_rms_x", rms_x[i], run, i)
             add(f"{run}_tail_rms_w", rms_w[i], run, i)
+    for run, e in d.integration.items():
+        add(f"{run}_integration_error", e["error"], run)
+        add(f"{run}_integration_scale", e["scale"], run)
     add("exact_EV_final", res.runs["exact_fixed"]["EV"][-1], "sde_fixed")
     add("mc_EV_final", res.runs["sde_fixed"]["V_mean"][-1], "sde_fixed")
     frame = pd.DataFrame(rows, columns=METRICS.column_names)
