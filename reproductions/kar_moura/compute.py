@@ -309,16 +309,18 @@ def lyapunov_envelope(F: np.ndarray, Q: np.ndarray, P0: np.ndarray, slots: int) 
     logs, units, errs = np.empty(slots + 1), np.empty((slots + 1, M, M)), np.empty(slots + 1)
     n0 = float(np.linalg.norm(P0, 2))
     logs[0], units[0] = (math.log(n0), P0 / n0) if n0 > 0 else (0.0, np.zeros((M, M)))
-    E_err = np.zeros((M, M))
-    errs[0] = 0.0
+    # the rescaling rounds too: each division by the norm (eps relative), and exp(log s_t) carries the rounding of
+    # log s_t, eps·|log s_t| relative
+    E_err = EPS * np.eye(M)
+    errs[0] = float(gk.error_norm(E_err)) + M * EPS * (2 + abs(logs[0]))
     for t in range(slots):
         Qs = math.exp(-logs[t]) * Q
         delta, G = gk.lyapunov_roundoff(units[t], F, Qs)
         Y = gk.lyapunov_step(units[t], F, Qs)
         norm = float(np.linalg.norm(Y, 2))
-        E_err = gk.propagate_error(E_err, G, delta) / norm
+        E_err = gk.propagate_error(E_err, G, delta) / norm + EPS * np.eye(M)
         logs[t + 1], units[t + 1] = logs[t] + math.log(norm), Y / norm
-        errs[t + 1] = float(gk.error_norm(E_err))
+        errs[t + 1] = float(gk.error_norm(E_err)) + M * EPS * (2 + abs(logs[t + 1]))
     return logs, units, errs
 
 

@@ -18,7 +18,11 @@ counterexample:
   ``singular-f`` (an unstable mode plus a null space that every sensor sees only in part: D.1 can
   fail although (F, C_all) is observable);
 * ``actuators``: some nodes observe nothing (C = []), others have two-row sensors;
-* ``comparison``: a second protocol with the same Ā (single edges against matchings).
+* ``comparison``: a second protocol with the same Ā (single edges against matchings);
+* ``sequence``: a replayed cycle of random matchings (nothing random: the law claims are not checkable,
+  the pathwise ones are).
+
+Every scenario has a random prior mean x0 (drawn from its own stream, so the other draws do not move).
 
 Scenarios are small (N ≤ 6, M ≤ 3, ≤ 60 slots, a few hundred runs) so that a quick run takes
 a few seconds.
@@ -30,7 +34,7 @@ import numpy as np
 FAMILY = "gossip-kalman"
 EDGES = ("c1-fail-oblique", "d1-fail-oblique", "shared-unobserved", "shared-c-different-r", "periodic",
          "node-initiated", "greedy-links", "greedy-perfect", "greedy-estimated", "small-noise", "large-noise",
-         "stable-f", "unstable-f", "marginal-f", "singular-f", "actuators", "comparison")
+         "stable-f", "unstable-f", "marginal-f", "singular-f", "actuators", "comparison", "sequence")
 
 
 def _rotation(rng: np.random.Generator, M: int) -> np.ndarray:
@@ -201,4 +205,19 @@ def generate(seed: int, edge: str | None = None) -> dict:
         gamma = float(rng.uniform(0.2, 1.0) / N2)
         data["protocol"] = {"kind": "single-edge", "edge_prob": gamma}
         data["comparison_protocol"] = {"kind": "matchings", "matchings": _ring_matchings(N2), "probs": [gamma, gamma]}
+    extra = np.random.default_rng([seed, 7])
+    data["model"]["x0"] = [float(v) for v in extra.normal(0.0, 10.0, M)]
+    if edge == "sequence":
+        import networkx as nx
+
+        from pipeline.graphs import GraphSection
+
+        G = GraphSection(**graph).spec().build()
+        slots = []
+        for _ in range(int(extra.integers(1, 8))):
+            order = extra.permutation(G.number_of_edges())
+            edges = [sorted(e) for e in G.edges()]
+            slots.append([edges[i] for i in order[: int(extra.integers(0, len(edges) + 1))]])
+        data["protocol"] = {"kind": "sequence", "sequence": [[list(map(int, e)) for e in nx.maximal_matching(
+            nx.Graph([tuple(e) for e in slot]))] for slot in slots]}
     return data
