@@ -98,6 +98,7 @@ def design_quantities(sc: HybridScenario, seed: int, extras: bool = False) -> di
     out["P"] = d.P
     out["n_i"] = np.array(d.n_i)
     out.update(local_design_checks(sc, d, seed))
+    out["joint_rank"] = np.array(jd.observable_basis(sc.A, np.vstack(sc.C), sc.rank_tol).rows.shape[0])
     stack = np.vstack([np.eye(n) - d.P[i] for i in range(m)])
     out["sigma_min_16"] = np.array(np.linalg.svd(stack, compute_uv=False).min())
     F = [d.F(i) for i in range(m)]

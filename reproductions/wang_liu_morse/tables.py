@@ -211,6 +211,8 @@ def _design_rows(name: str, dz: dict, sc) -> list[dict]:
     add("lambda_bar", sc.lam_bar, "λ̄ of (15)", "1/time")
     add("q_design", sc.q_design, f"the design q ({sc.q_label})", exact=str(sc.q_design))
     add("norm_A", dz["norm_A"], "||A||_2", "1/time"), add("norm_eAT", dz["norm_eAT"], "||e^(AT)||_2")
+    add("joint_rank", dz["joint_rank"], "dimension of the observable space of the stacked outputs (= n: (C, A) "
+                                        "jointly observable)")
     add("sigma_min_16", dz["sigma_min_16"], "σ_min([I - P_1; ...; I - P_m]): > 0 iff (16) holds")
     add("rank_tol", sc.rank_tol, "relative tolerance of the rank decisions")
     add("Q_mixed", dz["Q_mixed"], "|Q| (mixed norm of diag(Q_i))"), add("Q_2", dz["Q_2"], "||Q||_2")
