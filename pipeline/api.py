@@ -13,10 +13,12 @@ that lets a later run resume). The `dse` command line is a thin layer over these
 """
 from __future__ import annotations
 
+import hashlib
 import inspect
 import json
 import os
 import shutil
+import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field
@@ -59,15 +61,24 @@ def paper(paper_id: str) -> Reproduction:
 
 @dataclass
 class Run:
-    """A computed and checked run. DataFrames are built on first access."""
+    """A computed and checked run: its evaluation (hypotheses and claims), its tables, and the
+    stage results behind them (loaded from the stage cache on first use when the run was
+    answered from a memo of an identical earlier run)."""
 
     reproduction: Reproduction
     options: RunOptions
-    results: Any = field(repr=False)
+    _results: Any = field(repr=False)
     evaluation: Evaluation = field(repr=False)
     tables: Tables = field(repr=False)
     provenance: dict[str, Any] = field(repr=False)
     source: dict[str, Any] | None = field(default=None, repr=False)
+    run_key: str | None = field(default=None, repr=False)
+
+    @property
+    def results(self) -> Any:
+        if callable(self._results):
+            self._results = self._results()
+        return self._results
 
     @property
     def counts(self) -> dict[str, int]:
@@ -89,11 +100,14 @@ class Run:
         try:
             start = time.perf_counter()
             self.tables.write(staging / "tables")
-            write_outputs = self.reproduction.write_outputs
-            if "tables" in inspect.signature(write_outputs).parameters:  # figures and recordings drawn from the tables
-                write_outputs(self.results, staging, self.evaluation.claims, self.provenance, tables=self.tables)
-            else:
-                write_outputs(self.results, staging, self.evaluation.claims, self.provenance)
+            outputs = _reuse_outputs(out_dir, staging, self.run_key)
+            if outputs is None:
+                write_outputs = self.reproduction.write_outputs
+                if "tables" in inspect.signature(write_outputs).parameters:  # figures and recordings from the tables
+                    write_outputs(self.results, staging, self.evaluation.claims, self.provenance, tables=self.tables)
+                else:
+                    write_outputs(self.results, staging, self.evaluation.claims, self.provenance)
+                outputs = _manifest(staging)
             write_s = time.perf_counter() - start
             prov = {**self.provenance, "write_s": write_s, "wall_s": self.provenance["compute_s"] + write_s,
                     "peak_memory_mib": peak_memory_mib()}
@@ -103,7 +117,7 @@ class Run:
             atomic_write_text(staging / "run.json", json.dumps({
                 "paper": self.reproduction.paper_id, "options": asdict(self.options),
                 "out_root": os.path.relpath(root, out_dir) if root is not None else None,
-                "scenario": self.source}, indent=1))
+                "scenario": self.source, "run_key": self.run_key, "outputs": outputs}, indent=1))
             _replace_dir(staging, out_dir)
         finally:
             shutil.rmtree(staging, ignore_errors=True)
@@ -112,24 +126,130 @@ class Run:
 
 def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLike | None = None,
             source: dict[str, Any] | None = None) -> Run:
-    """Compute (through the stage cache when `cache_dir` is given), verify and tabulate."""
+    """Compute (through the stage cache when `cache_dir` is given), verify and tabulate.
+
+    With a `cache_dir`, the evaluation and the tables are also kept as a memo keyed by
+    everything that determines them (the paper or the scenario as given, seed, trials, quick,
+    and a fingerprint of the project's code and scenario files): an identical later run reads
+    them back instead of re-checking, and loads the stage results only if it needs them."""
     start = time.perf_counter()
-    if cache_dir is None:
-        with tempfile.TemporaryDirectory(prefix="dse-cache-") as tmp:
-            results = repro.compute(opts, StageCache(Path(tmp)))
+    key = run_key(repro, opts, source)
+    memo = _load_memo(Path(cache_dir), key) if cache_dir is not None else None
+    if memo is not None:
+        ev, tables = memo
+        results: Any = lambda: repro.compute(opts, StageCache(Path(cache_dir)))  # noqa: E731 - loaded when needed
     else:
-        results = repro.compute(opts, StageCache(Path(cache_dir)))
-    ev = evaluate_claims(repro, results)
-    tables = evaluation_tables(ev)
-    family_tables = getattr(repro, "tables", None)
-    if family_tables is not None:
-        for table_spec, frame in family_tables(results):
-            tables.add(table_spec, frame)
+        if cache_dir is None:
+            with tempfile.TemporaryDirectory(prefix="dse-cache-") as tmp:
+                results = repro.compute(opts, StageCache(Path(tmp)))
+        else:
+            results = repro.compute(opts, StageCache(Path(cache_dir)))
+        ev = evaluate_claims(repro, results)
+        tables = evaluation_tables(ev)
+        family_tables = getattr(repro, "tables", None)
+        if family_tables is not None:
+            for table_spec, frame in family_tables(results):
+                tables.add(table_spec, frame)
+        if cache_dir is not None:
+            _save_memo(Path(cache_dir), key, ev, tables)
     prov = provenance(seed=opts.seed, trials=repro.trials(opts), quick=opts.quick, workers=opts.workers)
     prov["compute_s"] = time.perf_counter() - start
     prov["wall_s"] = prov["compute_s"]
     prov["peak_memory_mib"] = peak_memory_mib()
-    return Run(repro, opts, results, ev, tables, prov, source)
+    prov["memo"] = memo is not None
+    return Run(repro, opts, results, ev, tables, prov, source, key)
+
+
+def run_key(repro: Reproduction, opts: RunOptions, source: dict[str, Any] | None) -> str:
+    """What determines a run's evaluation, tables, figures and recordings (the number of workers
+    and the memory budget do not: results are identical whatever they are)."""
+    from .cache import canonical_json, project_fingerprint
+
+    what = {"paper": repro.paper_id, "is_paper": repro.is_paper, "source": source, "seed": opts.seed,
+            "trials": opts.trials, "quick": opts.quick}
+    ident = hashlib.sha256(canonical_json(what).encode()).hexdigest()[:16]
+    return f"{ident}-{hashlib.sha256((ident + project_fingerprint()).encode()).hexdigest()[:16]}"
+
+
+def _memo_dir(cache_dir: Path, key: str) -> Path:
+    """runs/<what was run>/<that with this code>: a new memo replaces those of older code."""
+    ident, code = key.split("-")
+    return cache_dir / "runs" / ident / code
+
+
+def _save_memo(cache_dir: Path, key: str, ev: Evaluation, tables: Tables) -> None:
+    from .cache import remove_path
+
+    target = _memo_dir(cache_dir, key)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{key}.staging-", dir=target.parent))
+    try:
+        tables.write(staging / "tables")
+        atomic_write_text(staging / "memo.json", json.dumps({"evaluation": asdict(ev), "files": _manifest(staging, everything=True)},
+                                                            allow_nan=False))
+        for old in target.parent.iterdir():  # memos of the same run made by older code
+            if old.name != staging.name:
+                remove_path(old)
+        os.replace(staging, target)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _load_memo(cache_dir: Path, key: str) -> tuple[Evaluation, Tables] | None:
+    d = _memo_dir(cache_dir, key)
+    if not d.is_dir():
+        return None
+    try:
+        memo = json.loads((d / "memo.json").read_text())
+        if _manifest(d, everything=True) != memo["files"]:
+            raise ValueError("checksum mismatch")
+        return Evaluation(**memo["evaluation"]), Tables.read(d / "tables")
+    except Exception as exc:  # a damaged memo is recomputed, like any cache entry
+        from .cache import remove_path
+
+        print(f"dse: run memo {key} is damaged ({type(exc).__name__}: {exc}); recomputing", file=sys.stderr)
+        remove_path(d)
+        return None
+
+
+def _manifest(directory: Path, everything: bool = False) -> dict[str, str]:
+    """sha256 of every file under `directory`: of the figures and recordings of a run directory
+    (not its report, run.json or tables), or of everything but memo.json."""
+    skip = {"memo.json"} if everything else {"report.json", "report.md", "run.json", "memo.json"}
+    return {str(p.relative_to(directory)): _sha256(p) for p in sorted(directory.rglob("*"))
+            if p.is_file() and p.name not in skip and (everything or "tables" not in p.relative_to(directory).parts)}
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _reuse_outputs(out_dir: Path, staging: Path, key: str | None) -> dict[str, str] | None:
+    """Figures and recordings of the previous run in `out_dir`, hard-linked (or copied) into
+    `staging`, when that run had the same run key and its files are intact; else None."""
+    if key is None:
+        return None
+    try:
+        meta = json.loads((out_dir / "run.json").read_text())
+        if meta.get("run_key") != key or not isinstance(meta.get("outputs"), dict) or not meta["outputs"]:
+            return None
+        for rel, digest in meta["outputs"].items():
+            if _sha256(out_dir / rel) != digest:
+                return None
+        for rel in meta["outputs"]:
+            target = staging / rel
+            target.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                os.link(out_dir / rel, target)
+            except OSError:
+                shutil.copy2(out_dir / rel, target)
+        return dict(meta["outputs"])
+    except (OSError, ValueError, TypeError):
+        return None
 
 
 def run(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,

@@ -7,6 +7,7 @@ not match is reported, deleted and recomputed, never used.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import io
 import json
@@ -48,6 +49,25 @@ def code_fingerprint(modules: Iterable[str]) -> str:
         if path:
             h.update(name.encode())
             h.update(Path(path).read_bytes())
+    return h.hexdigest()[:16]
+
+
+PROJECT_PACKAGES = ("dse", "estimators", "pipeline", "reproductions")
+
+
+@functools.lru_cache(maxsize=1)
+def project_fingerprint() -> str:
+    """Hash of every source and scenario file of the project's packages: any code change makes
+    stored sweep points and run memos stale (a result may depend on any estimator, claim or
+    pipeline module, and the papers' scenarios are files)."""
+    import importlib
+
+    h = hashlib.sha256()
+    for package in PROJECT_PACKAGES:
+        root = Path(importlib.import_module(package).__file__).parent
+        for path in sorted([*root.rglob("*.py"), *root.rglob("*.toml")]):
+            h.update(str(path.relative_to(root.parent)).encode())
+            h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
 

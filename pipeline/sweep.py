@@ -27,14 +27,13 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from .atomic import atomic_write_text
-from .cache import StageCache, canonical_json
+from .cache import StageCache, canonical_json, project_fingerprint
 from .errors import NumericalError, ScenarioError
 from .progress import progress_enabled
 from .sweep_spec import Point, SweepSpec
 
 #: environment of every worker: one BLAS thread (the tasks are the parallelism), no inner bars
 WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "DSE_PROGRESS": "0"}
-PROJECT_PACKAGES = ("estimators", "pipeline", "reproductions")
 #: the fields of a claim's row kept per point (all of them but none of the report's layout)
 POINT_CLAIM_FIELDS = ("id", "source", "statement", "kind", "verdict", "measured", "reference", "tolerance", "margin",
                       "confidence", "trials", "printed", "corrected", "detail")
@@ -60,20 +59,6 @@ def _registry():
     import reproductions
 
     return reproductions
-
-
-def project_fingerprint() -> str:
-    """Hash of every source file of the project's packages: any code change makes the stored
-    points stale (a point's result may depend on any estimator, claim or pipeline module)."""
-    import importlib
-
-    h = hashlib.sha256()
-    for package in PROJECT_PACKAGES:
-        root = Path(importlib.import_module(package).__file__).parent
-        for path in sorted(root.rglob("*.py")):
-            h.update(str(path.relative_to(root.parent)).encode())
-            h.update(path.read_bytes())
-    return h.hexdigest()[:16]
 
 
 def build_tasks(spec: SweepSpec, log: Callable[[str], None] | None = None) -> list[Task]:

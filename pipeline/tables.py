@@ -20,8 +20,9 @@ from typing import Any, Iterable, Iterator, Mapping
 
 import numpy as np
 
-#: a table with at most this many cells also gets a CSV twin (spreadsheet users)
-CSV_CELLS = 200_000
+#: a table with at most this many cells also gets a CSV twin (spreadsheet users); floats in the
+#: CSV are written as Python's shortest round-trip repr, so they read back to the same bits
+CSV_CELLS = 20_000
 
 
 @dataclass(frozen=True)
@@ -69,6 +70,8 @@ class Tables:
 
     specs: dict[str, TableSpec] = field(default_factory=dict)
     frames: dict[str, Any] = field(default_factory=dict)
+    #: the directory these tables were read from, unchanged since (see `read`)
+    source: Path | None = None
 
     def add(self, table: TableSpec, frame) -> None:
         """Add (or extend, with the same declaration) a table; its columns must match the spec exactly."""
@@ -80,6 +83,7 @@ class Tables:
             extra = [c for c in frame.columns if c not in table.column_names]
             raise ValueError(f"table {table.name}: columns differ from the declaration (missing {missing}, "
                              f"undeclared {extra}, or another order)")
+        self.source = None
         if table.name in self.specs:
             if self.specs[table.name] != table:
                 raise ValueError(f"table {table.name}: declared twice differently")
@@ -104,7 +108,10 @@ class Tables:
         return pd.DataFrame([(c.name, c.unit, c.definition) for c in s.columns], columns=["column", "unit", "definition"])
 
     def write(self, directory: Path) -> list[Path]:
-        """Write every table (Parquet, CSV twin when small) and the index; returns the paths."""
+        """Write every table (Parquet, CSV twin when small) and the index; returns the paths.
+        Tables read from a directory by `read` are copied from there, not rewritten."""
+        if self.source is not None and (self.source / "schema.json").exists():
+            return _copy_tree(self.source, directory)
         from .atomic import atomic_path, atomic_write_text
 
         directory.mkdir(parents=True, exist_ok=True)
@@ -117,11 +124,25 @@ class Tables:
             written.append(target)
             if frame.size <= CSV_CELLS:
                 target = directory / f"{name}.csv"
-                atomic_write_text(target, frame.to_csv(index=False, float_format="%.17g"))
+                atomic_write_text(target, frame.to_csv(index=False))
                 written.append(target)
         atomic_write_text(directory / "README.md", self.index_markdown())
         atomic_write_text(directory / "schema.json", json.dumps(self.schema(), indent=1))
         return written
+
+    @classmethod
+    def read(cls, directory: Path) -> "Tables":
+        """The tables `write` wrote into `directory` (declarations from schema.json)."""
+        import pandas as pd
+
+        tables = cls()
+        for name, doc in json.loads((directory / "schema.json").read_text()).items():
+            table = TableSpec(name, doc["row"], tuple(Column(c["name"], c["unit"], c["definition"]) for c in doc["columns"]),
+                              doc["description"])
+            tables.specs[name] = table
+            tables.frames[name] = pd.read_parquet(directory / f"{name}.parquet")
+        tables.source = directory
+        return tables
 
     def schema(self) -> dict[str, Any]:
         return {name: {"row": s.row, "description": s.description, "rows": int(len(self.frames[name])),
@@ -138,6 +159,21 @@ class Tables:
             lines += [f"| `{c.name}` | {c.unit} | {c.definition} |" for c in s.columns]
             lines.append("")
         return "\n".join(lines)
+
+
+def _copy_tree(source: Path, target: Path) -> list[Path]:
+    """Copy every file of `source` into `target` (copies, not links: a user editing an output
+    file must not change the cache it came from)."""
+    import shutil
+
+    out = []
+    for path in sorted(source.rglob("*")):
+        if path.is_file():
+            dest = target / path.relative_to(source)
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(path, dest)
+            out.append(dest)
+    return out
 
 
 def _write_parquet(s: TableSpec, frame, path: Path) -> None:

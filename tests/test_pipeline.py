@@ -1,4 +1,5 @@
 """The shared pipeline machinery: scenario readers, graphs, seeding, statistics, cache, verdicts."""
+import json
 import math
 
 import networkx as nx
@@ -323,3 +324,34 @@ def test_shipped_glyph_ranges_match_the_viewer_font():
 
     shipped = {c for a, b in INTER_RANGES for c in range(a, b + 1)}
     assert shipped == embedded_font_coverage()
+
+
+def test_an_identical_run_is_answered_from_its_memo_and_reuses_its_outputs(tmp_path, monkeypatch):
+    import pipeline.api as api
+    from pipeline import cache
+    from pipeline.reproduction import run
+    from test_cli import GOOD
+
+    monkeypatch.setattr(cache, "project_fingerprint", lambda: "fixed-code")
+    (tmp_path / "s.toml").write_text(GOOD)
+    repro = api.load(tmp_path / "s.toml")
+    from pipeline.reproduction import RunOptions
+
+    opts = RunOptions(quick=True)
+    first = run(repro, tmp_path / "o", opts, out_dir=tmp_path / "o/run/x")
+    report = (tmp_path / "o/run/x/report.json").read_text()
+    figures = sorted(p.name for p in (tmp_path / "o/run/x").rglob("*.png"))
+    calls = []
+    monkeypatch.setattr(type(repro), "compute", lambda self, o, c: calls.append(1))
+    again = run(repro, tmp_path / "o", opts, out_dir=tmp_path / "o/run/x")
+    assert not calls, "the memo should answer without loading the stage results"
+    assert {k: again[k] for k in ("pass", "fail")} == {k: first[k] for k in ("pass", "fail")}
+    meta = json.loads((tmp_path / "o/run/x/run.json").read_text())
+    assert sorted(p.name for p in (tmp_path / "o/run/x").rglob("*.png")) == figures and meta["outputs"]
+    assert json.loads((tmp_path / "o/run/x/report.json").read_text())["claims"] == json.loads(report)["claims"]
+    memo = next((tmp_path / "o/.cache").rglob("memo.json"))
+    memo.parent.joinpath("tables", "claims.parquet").write_bytes(b"tampered")
+    monkeypatch.undo()
+    monkeypatch.setattr(cache, "project_fingerprint", lambda: "fixed-code")
+    run(repro, tmp_path / "o", opts, out_dir=tmp_path / "o/run/x")  # detected, recomputed
+    assert json.loads((tmp_path / "o/run/x/report.json").read_text())["counts"] == json.loads(report)["counts"]
