@@ -192,9 +192,9 @@ def run_stochastic(sc: CoestimationScenario, d: Design, *, fixed: bool, trials: 
         R, edges = streams.n, np.cumsum([0, *streams.sizes])
         U = len(streams.sizes)
         starts = edges[:-1]
-        acc = {"V_sum": np.zeros((U, n_rec)), "V_m2": np.zeros((U, n_rec)), "V_max": np.full(U, -np.inf),
-               "xerr": np.zeros((U, n_rec)), "werr": np.zeros((U, n_rec)), "late": np.zeros(R), "proj": {},
-               "final": None}
+        # per unit and recorded time: mean and M2 of V, sums of the mean node errors ‖x̃_i‖ and ‖w̃_i‖
+        acc = {"V_mean": np.zeros((U, n_rec)), "V_m2": np.zeros((U, n_rec)), "V_max": np.full(U, -np.inf),
+               "err_sums": np.zeros((U, 2, n_rec)), "late": np.zeros(R), "proj": {}, "final": None}
         sizes = np.asarray(streams.sizes, float)
 
         def reduce(t_now, x, w, e, g):
@@ -203,12 +203,12 @@ def run_stochastic(sc: CoestimationScenario, d: Design, *, fixed: bool, trials: 
             zf = z.reshape(R, -1)
             V = np.einsum("ri,ri->r", zf @ Pbig, zf)
             mean = np.add.reduceat(V, starts) / sizes
-            acc["V_sum"][:, k] = mean
+            acc["V_mean"][:, k] = mean
             acc["V_m2"][:, k] = np.add.reduceat(np.square(V - np.repeat(mean, streams.sizes)), starts)
             acc["V_max"] = np.maximum(acc["V_max"], np.maximum.reduceat(V, starts))
             sq = np.square(z)
-            acc["xerr"][:, k] = np.add.reduceat(np.sqrt(sq[..., :sc.n].sum(-1)).mean(-1), starts) / sizes
-            acc["werr"][:, k] = np.add.reduceat(np.sqrt(sq[..., sc.n:].sum(-1)).mean(-1), starts) / sizes
+            acc["err_sums"][:, 0, k] = np.add.reduceat(np.sqrt(sq[..., :sc.n].sum(-1)).mean(-1), starts)
+            acc["err_sums"][:, 1, k] = np.add.reduceat(np.sqrt(sq[..., sc.n:].sum(-1)).mean(-1), starts)
             if late[k]:
                 acc["late"] += np.sqrt(sq.reshape(R, -1).sum(-1))
             if k in probes:
@@ -235,10 +235,8 @@ def run_stochastic(sc: CoestimationScenario, d: Design, *, fixed: bool, trials: 
         parts = []
         for u, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
             m = int(b - a)
-            parts.append({"V": Moments(m, acc["V_sum"][u], acc["V_m2"][u]), "V_max": float(acc["V_max"][u]),
-                          "xerr": Moments(m, acc["xerr"][u], np.zeros(n_rec)),
-                          "werr": Moments(m, acc["werr"][u], np.zeros(n_rec)),
-                          "late": Moments.of(late_mean[a:b]),
+            parts.append({"V": Moments(m, acc["V_mean"][u], acc["V_m2"][u]), "V_max": float(acc["V_max"][u]),
+                          "err_sums": acc["err_sums"][u], "late": Moments.of(late_mean[a:b]),
                           "proj": {k: v[u] for k, v in acc["proj"].items()},
                           "final": final[u], "final_sq": final_sq[u]})
         return parts
@@ -247,8 +245,7 @@ def run_stochastic(sc: CoestimationScenario, d: Design, *, fixed: bool, trials: 
         if total is None:
             return part
         return {"V": total["V"].merge(part["V"]), "V_max": max(total["V_max"], part["V_max"]),
-                "xerr": total["xerr"].merge(part["xerr"]), "werr": total["werr"].merge(part["werr"]),
-                "late": total["late"].merge(part["late"]),
+                "err_sums": total["err_sums"] + part["err_sums"], "late": total["late"].merge(part["late"]),
                 "proj": {k: total["proj"][k].merge(part["proj"][k]) for k in total["proj"]},
                 "final": total["final"].merge(part["final"]), "final_sq": total["final_sq"].merge(part["final_sq"])}
 
@@ -260,7 +257,8 @@ def run_stochastic(sc: CoestimationScenario, d: Design, *, fixed: bool, trials: 
     order = sorted(acc["proj"])
     out = {"t": t, "w": signal(t), "trials": np.array(acc["V"].count), "V_mean": acc["V"].mean, "V_m2": acc["V"].m2,
            "V_max": np.array(acc["V_max"]), "late_mean": np.array(acc["late"].mean), "late_m2": np.array(acc["late"].m2),
-           "late_start": np.array(t[late][0]), "xerr_mean": acc["xerr"].mean, "werr_mean": acc["werr"].mean,
+           "late_start": np.array(t[late][0]), "xerr_mean": acc["err_sums"][0] / trials,
+           "werr_mean": acc["err_sums"][1] / trials,
            "final_mean": acc["final"].mean, "final_m2": acc["final"].m2, "final_sq_mean": acc["final_sq"].mean,
            "final_sq_m2": acc["final_sq"].m2, "probe_index": np.array(order, dtype=int)}
     if order:

@@ -47,9 +47,9 @@ STEP_CALL_S = 30e-6
 STEP_D2_S = 3.6e-9
 #: CPU seconds per step of a Monte Carlo chunk (calls), and per trial-step: per squared dimension plus per noise
 #: factor and dimension (matrix products), and a fixed part (draws, reduction)
-CHUNK_STEP_S = 1.0e-4
+CHUNK_STEP_S = 0.9e-4
 TRIAL_D2_S = 2.6e-10
-TRIAL_FIXED_S = 2.5e-7
+TRIAL_FIXED_S = 1.8e-7
 #: noise factors per noise column (the numerical rank of each column's one-step covariance, measured)
 FACTORS_PER_COLUMN = 3.7
 #: CPU seconds per recorded sample and error dimension: the claims' checks along the deterministic runs
@@ -122,7 +122,7 @@ def estimate(sc: CoestimationScenario, opts: RunOptions, *, paper: bool = False)
     runs_bytes = n_rec * sample * 7 + sc.runs * n_rec_sde * sample * 3
     moments = 8.0 * n_rec_sde * 12 * 3 + 8.0 * 3 * N * q * q
     claims = 16 * 8.0 * n_rec * Dz
-    tables = 100.0 * rows
+    tables = 150.0 * rows
     design = 8.0 * Dz * Dz * (40 + 256 * (N <= vertex_nodes)) + 8.0 * D * D * 6 + 8.0 * 2 * K * D
     kept = OUTPUT_MIB + (runs_bytes + moments + claims + tables + design) / MIB
     chunk_units = min(units_per_chunk(per_trial, budget), units)
