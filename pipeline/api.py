@@ -140,8 +140,9 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
         results: Any = lambda: repro.compute(opts, StageCache(Path(cache_dir)))  # noqa: E731 - loaded when needed
     else:
         if cache_dir is None:
-            with tempfile.TemporaryDirectory(prefix="dse-cache-") as tmp:
-                results = repro.compute(opts, StageCache(Path(tmp)))
+            from .cache import MemoryCache
+
+            results = repro.compute(opts, MemoryCache())
         else:
             results = repro.compute(opts, StageCache(Path(cache_dir)))
         ev = evaluate_claims(repro, results)

@@ -138,6 +138,21 @@ class StageCache:
         return arrays
 
 
+class MemoryCache(StageCache):
+    """Stage results kept in this process only, for a run without a cache directory (a sweep
+    point, `dse.run` in a script): nothing is encoded or written; the finiteness check stays."""
+
+    def __init__(self) -> None:
+        super().__init__(".")
+        self._entries: dict[str, dict[str, np.ndarray]] = {}
+
+    def load(self, stage: str, params: dict[str, Any]) -> dict[str, np.ndarray] | None:
+        return self._entries.get(self.key(stage, params))
+
+    def save(self, stage: str, params: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+        self._entries[self.key(stage, params)] = arrays
+
+
 def remove_path(path: Path) -> None:
     """Remove a file or a directory tree at `path`, if any."""
     if path.is_dir() and not path.is_symlink():

@@ -1,6 +1,7 @@
 """What produced a result: seed, trials, package versions, git commit, time, memory."""
 from __future__ import annotations
 
+import functools
 import os
 import platform
 import subprocess
@@ -11,17 +12,27 @@ from typing import Any
 PACKAGES = ("numpy", "scipy", "networkx", "control", "filterpy", "pandas", "matplotlib", "rerun-sdk", "dse")
 
 
-def package_versions() -> dict[str, str]:
+@functools.lru_cache(maxsize=1)
+def _versions() -> tuple[tuple[str, str], ...]:
     out = {"python": platform.python_version()}
     for name in PACKAGES:
         try:
             out[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
             out[name] = "not installed"
-    return out
+    return tuple(out.items())
 
 
+def package_versions() -> dict[str, str]:
+    """Python's and every numeric dependency's version (read once per process: sweep points and
+    scripts that run many scenarios pay for it once)."""
+    return dict(_versions())
+
+
+@functools.lru_cache(maxsize=1)
 def git_revision() -> str:
+    """The commit, with "-dirty" when tracked files differ from it (once per process, like
+    `pipeline.cache.project_fingerprint`)."""
     root = Path(__file__).resolve().parent.parent
     try:
         rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=5)
