@@ -609,9 +609,12 @@ class GreedyMatchingGossip:
                     final[kept] = final.get(kept, 0.0) + p * w
         return final
 
-    def estimate_mean_matrix(self, draws: int, rng: np.random.Generator, chunk: int = 50_000) -> tuple[np.ndarray, np.ndarray]:
-        """Monte Carlo Ā from `draws` matchings and the standard error of each entry."""
+    def estimate_mean_matrix(self, draws: int, rng: np.random.Generator, chunk: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Monte Carlo Ā from `draws` matchings and the standard error of each entry; by default in chunks of about
+        64 MiB of edge priorities and orders (a function of the graph only, so the draws do not depend on memory)."""
         N = self.n_nodes
+        if chunk is None:
+            chunk = int(min(50_000, max(1_000, 2**26 // (40 * len(self.edges)))))
         counts = np.zeros((N, N))
         done = 0
         while done < draws:

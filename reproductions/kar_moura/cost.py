@@ -10,12 +10,16 @@ log tr P̂ of every run at the statistic slots for the quantiles, the NEES sampl
 Theorem-8 samples, and the design arrays that grow with the horizon (the centralized filter's
 covariances and gains, the class floors, the envelope). Only the kept part can be refused.
 
-Time: per GIKF run, sensor and slot a Riccati step and an error step (their cost per matrix
-grows with M and m), per statistic slot an eigen-decomposition of every covariance, the round-off
-bounds of the first unit, the Theorem-8 and auxiliary samples per run and slot, the greedy
-matching per run, slot and edge, and the design (walk search, tail bounds, the Monte Carlo Ā of a
-large greedy graph). The constants are fitted on this machine (see the tests and
-`benchmarks/bench_kar_moura.py --estimate`); the estimate is meant within a factor 2.
+Time: per GIKF run, sensor and slot a Riccati step, an error step and their statistics (a + b·M²),
+per slot a fixed overhead per chunk; per Theorem-8 run and slot a step (a + b·M²) and per slot a
+fixed overhead per chain; the auxiliary samples (where C.1 and D.1 hold) about 3.1 Theorem-8 runs
+and eight more chains; the greedy matching per draw and edge (in the GIKF, in protocol-driven chains
+and in the Monte Carlo Ā); the lifted chain's dense solve; the claims, tables, figures and recording
+per scenario and sensor. Fitted on this machine against whole runs (CPU time of `dse run`, estimate
+/ measured): E1 1.01 (4,000 runs × 300 slots, 20,000 Theorem-8 runs), E1 quick 1.03, E2 quick 1.02,
+E9 quick 1.43 (greedy, 30 nodes, M = 6), a 200-node greedy ring 1.11, E1 over 2,000 slots 0.91, the
+paper quick 1.3 and default 1.17; peak memory 0.8-1.15. The estimate is meant within a factor 1.5
+(2 for small runs, where the fixed costs dominate).
 """
 from __future__ import annotations
 
@@ -28,18 +32,24 @@ from pipeline.simulate import RNG_UNIT
 
 from .scenario import GossipKalmanScenario, ProtocolSpec
 
-#: seconds per (run · sensor · slot) of the GIKF step, by observation rows m = 1 and m > 1, per M² (fitted)
-STEP_S = 2.0e-8
-#: seconds per (run · sensor) of an eigen-decomposition at a statistic slot, per M
-EIG_S = 6e-8
-#: seconds per (run · slot) of a Theorem-8 / auxiliary step, per M²
-CHAIN_S = 1.2e-8
-#: seconds per (run · slot · edge) of the greedy matching
-GREEDY_S = 4e-9
-#: seconds per slot of fixed overhead (Python) per chunk of the GIKF, per slot of a Theorem-8 sampler
-SLOT_S = 4e-4
-#: fixed seconds: imports, design, report, tables, figures and recording per scenario
-SCENARIO_S = 3.0
+#: fitted seconds (this machine, one process): per GIKF (run · sensor · slot) a + b·M² (Riccati and error steps,
+#: statistics), per Theorem-8 (run · slot) a + b·M², per (draw · edge) of the greedy matching
+GIKF_S = (3e-8, 8.5e-8)
+CHAIN_S = (2.5e-7, 4.5e-8)
+GREEDY_S = 1.3e-7
+#: fixed seconds per slot: of a GIKF chunk, and of one chain (the Theorem-8 run; the auxiliary samples are AUX_CHAINS)
+GIKF_SLOT_S = 6e-4
+CHAIN_STEP_S = 2e-4
+AUX_CHAINS = 8
+#: the auxiliary samples (run where C.1 and D.1 hold) cost about AUX_FACTOR Theorem-8 runs, plus pull-backs b·M²
+AUX_FACTOR = 3.1
+PULLBACK_S = 0.03
+#: the lifted window chain's dense stationary solve, per state³
+LIFTED_S = 2e-9
+#: fixed: interpreter and imports; claims, tables, figures and the recording, per scenario and per sensor
+IMPORT_S = 3.5
+OUTPUT_S = 1.5
+OUTPUT_NODE_S = 0.02
 BASE_MIB = 300.0
 INTERPRETER_MIB = 200.0
 
@@ -82,49 +92,67 @@ def kept_bytes_per_run(sc: GossipKalmanScenario, slots: int) -> float:
 
 
 def _kept_mib(sc: GossipKalmanScenario, runs: int, ref_runs: int, slots: int) -> tuple[float, float, float]:
-    """(GIKF per-run samples, Theorem-8 samples, design arrays) in MiB, at their peak (joined and sorted)."""
+    """(GIKF per-run samples, Theorem-8 samples, design arrays) in MiB, at their peak (the per-unit parts and
+    their join)."""
     import estimators.gossip_kalman as gk
 
     N, M = sc.N, sc.M
     m = max([1] + [c.shape[0] for c in sc.C_types])
-    gikf = 3.0 * runs * kept_bytes_per_run(sc, slots) * (2 if sc.comparison is not None else 1)
+    gikf = 2.0 * runs * kept_bytes_per_run(sc, slots) * (2 if sc.comparison is not None else 1)
     nf = len(gk.FEATURES) + M
-    ref = 8.0 * ref_runs * (_times(sc, slots) * (nf + 1) + 2 * M * M + 4) * 3
+    ref = 8.0 * ref_runs * (_times(sc, slots) * (nf + 1) + 2 * M * M + 4) * 2
     design = 8.0 * (slots + 1) * (M * N * m + 4 * M * M * 2 + 4) + 8.0 * N * N * 6
+    if sc.protocol.kind == "greedy-matching" and _n_edges(sc) > 40:     # the Monte Carlo Ā, in 64 MiB chunks
+        design += 2**26
     return gikf / 2**20, ref / 2**20, design / 2**20
+
+
+def _lifted_states(sc: GossipKalmanScenario, assume) -> float:
+    """Ā-walks of the witness length (the states of the lifted chain), approximated from the mean degree."""
+    w = assume.d1.search.witness
+    if w is None:
+        return 0.0
+    degree = 2.0 * _n_edges(sc) / sc.N + 1
+    states = sc.N * degree ** (len(w) - 1)
+    return states if states <= 5000 else 0.0
 
 
 def scenario_cost(sc: GossipKalmanScenario, opts: RunOptions) -> dict[str, float]:
     from .compute import assumptions, horizon, sizes
 
+    assume = assumptions(sc)
     runs, ref_runs, slots = sizes(sc, opts)
-    slots = horizon(sc, slots, assumptions(sc))
+    slots = horizon(sc, slots, assume)
     N, M = sc.N, sc.M
-    m = max([1] + [c.shape[0] for c in sc.C_types])
     budget = opts.chunk_budget_bytes()
     per_run = gikf_bytes_per_run(sc, slots)
     chunk_runs = min(runs, max(1, int(budget // (per_run * RNG_UNIT))) * RNG_UNIT)
     chunks = math.ceil(runs / chunk_runs)
+    E = _n_edges(sc)
+    greedy = GREEDY_S * E if sc.protocol.kind == "greedy-matching" else 0.0
     protocols = 2 if sc.comparison is not None else 1
-    step = STEP_S * M * M * (1 if m == 1 else 2.5)
-    greedy = GREEDY_S * _n_edges(sc) if sc.protocol.kind == "greedy-matching" else 0.0
-    gikf_s = protocols * (runs * slots * (N * step + greedy) + runs * _stat_slots(sc, slots) * N * EIG_S * M
-                          + chunks * slots * SLOT_S + min(runs, RNG_UNIT) * slots * N * step * 3)
-    aux = 6 if sc.protocol.random else 1
-    chain_s = aux * ref_runs * slots * CHAIN_S * M * M * (1 + N * greedy / max(N, 1)) + aux * slots * SLOT_S
+    gikf_s = protocols * (runs * slots * (N * (GIKF_S[0] + GIKF_S[1] * M * M) + greedy) + chunks * slots * GIKF_SLOT_S)
+    exact = sc.protocol.kind != "greedy-matching" or E <= 40
+    step = CHAIN_S[0] + CHAIN_S[1] * M * M + (0.0 if exact else greedy)
+    ref_s = ref_runs * slots * step + slots * CHAIN_STEP_S
+    aux_s = (AUX_FACTOR * ref_s + PULLBACK_S * M * M + AUX_CHAINS * slots * CHAIN_STEP_S) if assume.theorem else 0.0
+    design_s = 0.1 + (0.0 if exact else 200_000 * greedy) + (LIFTED_S * _lifted_states(sc, assume) ** 3 if exact else 0.0)
+    out_s = OUTPUT_S + OUTPUT_NODE_S * N
     gikf_mib, ref_mib, design_mib = _kept_mib(sc, runs, ref_runs, slots)
-    return {"seconds": SCENARIO_S + gikf_s + chain_s, "chunk_mib": chunk_runs * per_run / 2**20,
-            "kept_mib": gikf_mib + ref_mib + design_mib, "gikf_mib": gikf_mib, "runs": runs, "ref_runs": ref_runs,
-            "slots": slots, "chunks": chunks, "unit_mib": RNG_UNIT * per_run / 2**20}
+    return {"seconds": design_s + gikf_s + ref_s + aux_s + out_s, "design_s": design_s, "gikf_s": gikf_s,
+            "chain_s": ref_s + aux_s, "chunk_mib": chunk_runs * per_run / 2**20, "kept_mib": gikf_mib + ref_mib + design_mib,
+            "gikf_mib": gikf_mib, "runs": runs, "ref_runs": ref_runs, "slots": slots, "chunks": chunks,
+            "unit_mib": RNG_UNIT * per_run / 2**20}
 
 
 def estimate(scenarios: list[GossipKalmanScenario], opts: RunOptions) -> dict[str, Any]:
     costs = {sc.name: scenario_cost(sc, opts) for sc in scenarios}
     workers = max(1, min(opts.workers, len(scenarios)))
-    seconds = sum(c["seconds"] for c in costs.values()) / workers
+    seconds = IMPORT_S + sum(c["seconds"] for c in costs.values()) / workers
     mib = BASE_MIB + max(c["chunk_mib"] + c["kept_mib"] for c in costs.values()) * workers
-    parts = [f"{name}: {c['runs']:,} runs × {c['slots']:,} slots in {c['chunks']} chunk(s) of ≤ {c['chunk_mib']:.3g} "
-             f"MiB, {c['ref_runs']:,} Theorem-8 runs, kept {c['kept_mib']:.3g} MiB, ≈{c['seconds']:.3g} s"
+    parts = [f"{name}: design ≈{c['design_s']:.2g} s; {c['runs']:,} GIKF runs × {c['slots']:,} slots ≈{c['gikf_s']:.3g} s "
+             f"in {c['chunks']} chunk(s) of ≤ {c['chunk_mib']:.3g} MiB; {c['ref_runs']:,} Theorem-8 runs and the "
+             f"auxiliary samples ≈{c['chain_s']:.3g} s; kept {c['kept_mib']:.3g} MiB"
              for name, c in costs.items()]
     return {"seconds": seconds, "peak_memory_mib": mib, "detail": "; ".join(parts)}
 
