@@ -54,10 +54,10 @@ def bound_generator(sys: GossipSystem, rate: float) -> tuple[np.ndarray, np.ndar
 
 
 def bound_transient(sys: GossipSystem, rate: float, step: float, n_steps: int, P_init=None) -> np.ndarray:
-    """𝒫_i(k·step), (n_steps + 1, N, n, n), 𝒫_i(0) = P_init[i] (default E[e_i(0)e_i(0)ᵀ] = P0)."""
+    """𝒫_i(k·step), (n_steps + 1, N, n, n), 𝒫_i(0) = P_init[i] (default the system's P_i(0))."""
     M, g = bound_generator(sys, rate)
     if P_init is None:
-        P_init = np.broadcast_to(sys.P0, (sys.N, sys.n, sys.n))
+        P_init = sys.P_init
     p = affine_flow_grid(M, g, np.concatenate([vec(P) for P in P_init]), step, n_steps)
     return unvec(p.reshape(n_steps + 1, sys.N, -1), sys.n)
 
@@ -199,7 +199,7 @@ def bound_second_moments(sys: GossipSystem, rate: float, step: float, n_steps: i
     big[:E2.shape[0], E2.shape[0]:] = E2 @ Cm
     big[E2.shape[0]:, E2.shape[0]:] = M1
     const = np.concatenate([np.zeros(E2.shape[0]), g])
-    p0 = np.concatenate([Elim @ vec(sys.P0) for _ in range(N)])
+    p0 = np.concatenate([Elim @ vec(P) for P in sys.P_init])
     y0 = np.concatenate([E2 @ vec(np.outer(p0, p0)), p0])
     y = affine_flow_grid(big, const, y0, step, n_steps)
     mean, second = _functionals(y, weights, E2.shape[0], D2, D)
@@ -399,7 +399,7 @@ def path_bound_and_covariance(sys: GossipSystem, event_times: np.ndarray, event_
     Ablk = sla.block_diag(*sys.Ai)
     Gblk = sys.joint_noise[n:, n:]
     Sig = joint_initial(sys).copy()
-    P = diagonal_blocks(Sig, N, n).copy()
+    P = np.array(sys.P_init, float)
     marks = sorted([(t, 0, int(c)) for t, c in zip(event_times, event_clocks) if t <= times[-1]] +
                    [(t, 1, k) for k, t in enumerate(times)])
     outP, outS = np.zeros((len(times), N, n, n)), np.zeros((len(times), N * n, N * n))

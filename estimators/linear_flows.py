@@ -267,20 +267,26 @@ class DenseFlow:
 
     def _both(self, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Batched Van Loan with the same scaling and doubling as `van_loan`: every δ is divided by
-        2^k (k from the largest ‖A‖₁δ of the batch) and the k doublings are applied to all rows."""
+        2^k (k from its own ‖A‖₁δ, so that a row's result does not depend on the batch) and
+        doubled k times, the rows with the same k together."""
         d = self._generator.shape[0] // 2
         delta = np.asarray(delta, float)
-        norm = float(np.abs(self._generator[d:, d:]).sum(axis=0).max()) * float(delta.max(initial=0.0))
-        k = int(math.ceil(math.log2(norm / 0.5))) if norm > 0.5 else 0
-        E = sla.expm(self._generator[None] * (delta / 2 ** k)[:, None, None])
-        Phi = E[:, d:, d:].transpose(0, 2, 1)
-        Q = Phi @ E[:, :d, d:]
-        Q = (Q + Q.transpose(0, 2, 1)) / 2
-        for _ in range(k):
-            Q = Q + Phi @ Q @ Phi.transpose(0, 2, 1)
+        norm = float(np.abs(self._generator[d:, d:]).sum(axis=0).max()) * delta
+        with np.errstate(divide="ignore"):
+            ks = np.where(norm > 0.5, np.ceil(np.log2(np.maximum(norm, 1e-300) / 0.5)), 0).astype(int)
+        Phi_all, Q_all = np.empty((len(delta), d, d)), np.empty((len(delta), d, d))
+        for k in np.unique(ks):
+            rows = np.flatnonzero(ks == k)
+            E = sla.expm(self._generator[None] * (delta[rows] / 2 ** k)[:, None, None])
+            Phi = E[:, d:, d:].transpose(0, 2, 1)
+            Q = Phi @ E[:, :d, d:]
             Q = (Q + Q.transpose(0, 2, 1)) / 2
-            Phi = Phi @ Phi
-        return Phi, Q
+            for _ in range(k):
+                Q = Q + Phi @ Q @ Phi.transpose(0, 2, 1)
+                Q = (Q + Q.transpose(0, 2, 1)) / 2
+                Phi = Phi @ Phi
+            Phi_all[rows], Q_all[rows] = Phi, Q
+        return Phi_all, Q_all
 
     def transition(self, delta: np.ndarray) -> np.ndarray:
         Phi, _ = self._both(delta)

@@ -100,9 +100,10 @@ def _results(sc, K, seed, tmp_path):
 
 def test_low_rate_event_checks_pass_and_keep_power(tmp_path):
     sc = _scenario(output_step=0.1, sample_trials=1)
-    res = _results(sc, 200, 0, tmp_path)
+    res = _results(sc, 200, 9, tmp_path)
     r = res.scenarios[sc.name]
-    # the plain plug-in z-test of the old check fails on this sample (|z| ≈ 22 at t = 0.1)
+    # the plain plug-in z-test of the old check fails on this sample (|z| ≈ 24; seeds 1, 8, 9 and 11 of the
+    # first twelve give |z| > 10, the rare route missed by the sample)
     ev, n = r.event, int(r.event["n"])
     rb = ev["qS1"] / n
     se = np.sqrt(np.maximum(ev["qS2"] / n - rb ** 2, 0) / n)

@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 import scipy.linalg as sla
-from scipy import stats as sps
 
 import estimators.gossip_covariance as gc
 from estimators.linear_flows import van_loan
@@ -33,6 +32,15 @@ from pipeline.verify import (EPS, ERRATUM, FAIL, PASS, Claim, Holds, Hypothesis,
 
 from . import reference_values as ref
 from .compute import MAX_SCHEME_DIM, Results, ScenarioResults, directions, test_times
+from .design import CARE_COND_MAX
+from .scenario import GRID_ASYMPTOTIC  # h·(max‖A_i‖₂ + λ d_max) of the splitting's h² regime
+
+def _sps():
+    """scipy.stats, imported when a claim first needs it (it takes a second to import; `dse check` does not)."""
+    from scipy import stats
+
+    return stats
+
 
 MIN_PATHS = 50          # below: a Monte Carlo mean over clock paths is not tested
 MIN_TRIALS = 2          # exact-law tests keep their level at any sample size
@@ -96,8 +104,8 @@ def path_mean_pvalues(s1, s2, n: int, mu, var, *, side: str = "two") -> np.ndarr
         p_lo = np.where(eps > 0, np.exp(-n * eps ** 2 / (2 * v + 2 * np.abs(mu) * eps / 3)), 1.0)
         t = np.where(sample_var > 0, (xbar - mu) / np.sqrt(sample_var / n),
                      np.where(xbar == mu, 0.0, np.sign(xbar - mu) * np.inf))
-        p_t = sps.t.sf(t, n - 1)
-        p_z = sps.norm.sf((xbar - mu) / np.sqrt(v / n))
+        p_t = _sps().t.sf(t, n - 1)
+        p_z = _sps().norm.sf((xbar - mu) / np.sqrt(v / n))
     p_up = np.maximum(p_t, p_z)
     if side == "upper":
         return p_up
@@ -121,17 +129,14 @@ def _worst(p, est, refv):
 
 
 def chi2_lower_p(stat, dof) -> np.ndarray:
-    return sps.chi2.cdf(np.asarray(stat, float), np.asarray(dof, float))
+    return _sps().chi2.cdf(np.asarray(stat, float), np.asarray(dof, float))
 
 
 def chi2_upper_p(stat, dof) -> np.ndarray:
-    return sps.chi2.sf(np.asarray(stat, float), np.asarray(dof, float))
+    return _sps().chi2.sf(np.asarray(stat, float), np.asarray(dof, float))
 
 
-# -- hypotheses --------------------------------------------------------------------------------------------
-
-GRID_ASYMPTOTIC = 1.0   # h·(max‖A_i‖₂ + λ d_max) below which the splitting error is in its h² regime
-
+# -- hypotheses (decided on the design: `res` is a compute.Results or a design.Design) ----------------------
 
 def _alpha(res: Results, name: str) -> Holds:
     s = _scenario(res, name).sys
@@ -148,13 +153,17 @@ def _connected(res: Results, name: str) -> Holds:
     return Holds(bool(fied > tol), fied, tol, f"σ₂(𝓛) = {fied:.6g} (round-off level {tol:.2g})")
 
 
-def _initial(res: Results, name: str) -> Holds:
+def _initial(res, name: str) -> Holds:
     s = _scenario(res, name).sys
-    E0 = s.joint_second_moment0()[s.n:, s.n:]
-    gap = min(float(min_eig(s.P0 - E0[i * s.n:(i + 1) * s.n, i * s.n:(i + 1) * s.n])) for i in range(s.N))
-    tol = 10 * s.n * EPS * max(1.0, float(np.abs(s.P0).max()))
-    return Holds(bool(gap >= -tol), gap, -tol, f"P_i(0) = 𝒫_i(0) = P0 = E[e_i(0)e_i(0)ᵀ] (x̂_i(0) = m0): smallest eigenvalue of "
-                                         f"the difference {gap:.3g}")
+    E0 = gc.diagonal_blocks(s.joint_second_moment0()[s.n:, s.n:], s.N, s.n)
+    gaps = min_eig(np.asarray(s.P_init) - E0)
+    gap, worst = float(gaps.min()), int(np.argmin(gaps))
+    tol = 10 * s.n * EPS * max(1.0, float(np.abs(s.P_init).max()), float(np.abs(E0).max()))
+    given = not np.array_equal(np.asarray(s.P_init), np.broadcast_to(s.P0, np.shape(s.P_init)))
+    how = "P_i(0) as given per node" if given else "P_i(0) = 𝒫_i(0) = P0"
+    return Holds(bool(gap >= -tol), gap, -tol, f"{how}, E[e_i(0)e_i(0)ᵀ] = P0 (x̂_i(0) = m0): smallest eigenvalue of "
+                                               f"P_i(0) − E[e_i(0)e_i(0)ᵀ] {gap:.3g} (node {worst}; round-off level "
+                                               f"{tol:.2g})")
 
 
 def _abar(res: Results, name: str) -> Holds:
@@ -185,28 +194,13 @@ def _above_critical(res: Results, name: str) -> Holds:
     return Holds(bool(lam > c), lam, c, f"simulated λ = {lam:g}, λ_crit of (9) = {_fmt(c)}")
 
 
-CARE_COND_MAX = 1e8       # relative condition number of the filter CARE above which its solution is not trusted
-
-
-def care_condition(s, P: np.ndarray) -> float:
-    """First-order relative condition number of the filter CARE at its solution P:
-    ‖L⁻¹‖₂(2‖A‖‖P‖ + ‖BBᵀ‖ + ‖PSP‖)/‖P‖ with L(Y) = A_cY + YA_cᵀ the closed-loop Lyapunov operator."""
-    Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
-    S = Hs.T @ np.linalg.solve(Vs, Hs)
-    Ac = s.A - P @ S
-    inv_norm = 1.0 / float(np.linalg.svd(gc.lyapunov_generator(Ac), compute_uv=False)[-1])
-    terms = 2 * np.linalg.norm(s.A, 2) * np.linalg.norm(P, 2) + np.linalg.norm(s.B @ s.B.T, 2) \
-        + np.linalg.norm(P @ S @ P, 2)
-    return float(inv_norm * terms / np.linalg.norm(P, 2))
-
-
-def _kalman_bucy(res: Results, name: str) -> Holds:
+def _kalman_bucy(res, name: str) -> Holds:
     r = _scenario(res, name)
     b = r.bounds
     if "P_kb" not in b:
         return Holds(False, None, None, "no stabilising solution of the filter CARE ((A, H) not detectable or (A, B) "
                                         "not stabilisable)")
-    kappa = care_condition(r.sys, b["P_kb"])
+    kappa = float(b["kb_condition"])
     if not kappa <= CARE_COND_MAX:
         return Holds(None, kappa, CARE_COND_MAX, f"the filter CARE is too ill-conditioned for double precision "
                                                   f"(relative condition number {kappa:.3g})")
@@ -229,24 +223,27 @@ def _path_references(r: ScenarioResults) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(measured), np.concatenate(reference)
 
 
-def _numerics(res: Results, name: str) -> Holds:
-    m, ref_ = _path_references(_scenario(res, name))
+def _numerics(res, name: str) -> Holds:
+    b = _scenario(res, name).bounds
+    m = np.concatenate([b["numerics_pbound"].ravel(), b["numerics_sigma"].ravel()])
+    ref_ = np.concatenate([b["numerics_ref_pbound"].ravel(), b["numerics_ref_sigma"].ravel()])
     with np.errstate(invalid="ignore", over="ignore"):
         rel = float(np.abs(m - ref_).max() / max(float(np.abs(ref_).max()), 1e-300))
+    paths, t_end = b["numerics_pbound"].shape[0], float(b["numerics_times"][-1])
     if not np.isfinite(rel):
         return Holds(False, rel, NUMERICS_RTOL, "the per-path covariances overflow")
     return Holds(bool(rel <= NUMERICS_RTOL), rel, NUMERICS_RTOL,
                  f"the batched per-path covariances and an independent per-interval Van Loan computation agree to "
-                 f"{rel:.2g} relative on the stored paths (a model too ill-conditioned for double precision, e.g. "
-                 "strongly non-normal A_i, makes them disagree)")
+                 f"{rel:.2g} relative on {paths} clock paths drawn from the seed over [0, {t_end:g}] (a model too "
+                 "ill-conditioned for double precision, e.g. strongly non-normal A_i, makes them disagree)")
 
 
-def _grid_asymptotic(res: Results, name: str) -> Holds:
+def _grid_asymptotic(res, name: str) -> Holds:
     r = _scenario(res, name)
-    s, sc = r.sys, r.scenario
-    rho = sc.grid_step * (max(np.linalg.norm(A, 2) for A in s.Ai) + sc.main_rate * int(s.degrees.max()))
-    return Holds(bool(rho <= GRID_ASYMPTOTIC), float(rho), GRID_ASYMPTOTIC,
-                 f"h·(max‖A_i‖₂ + λ d_max) = {rho:.3g} with h = {sc.grid_step:g}")
+    sc = r.scenario
+    rho = float(r.bounds["grid_regime_0"])
+    return Holds(bool(rho <= GRID_ASYMPTOTIC), rho, GRID_ASYMPTOTIC,
+                 f"h·(max‖A_i‖₂ + λ d_max) = {rho:.3g} with h = {sc.grid_step:.6g} ({sc.grid_rule})")
 
 
 HYPOTHESES = {
@@ -320,9 +317,9 @@ def check_poisson(res: Results, name: str) -> Verdict:
     n = int(ev["n"])
     mu = s.degrees * sc.main_rate * sc.horizon
     total, zeros = np.asarray(ev["c1"], float), np.asarray(ev["c0"], float)
-    p_sum = _two_sided_discrete(sps.poisson.cdf(total, n * mu), sps.poisson.sf(total - 1, n * mu))
+    p_sum = _two_sided_discrete(_sps().poisson.cdf(total, n * mu), _sps().poisson.sf(total - 1, n * mu))
     p0 = np.exp(-mu)
-    p_zero = _two_sided_discrete(sps.binom.cdf(zeros, n, p0), sps.binom.sf(zeros - 1, n, p0))
+    p_zero = _two_sided_discrete(_sps().binom.cdf(zeros, n, p0), _sps().binom.sf(zeros - 1, n, p0))
     spacing = float(ev["spacing"])
     v = p_value_test(np.concatenate([p_sum, p_zero]), trials=n, min_trials=MIN_TRIALS,
                      measured=float((total / n)[np.argmin(p_sum)]), reference=float(mu[np.argmin(p_sum)]),
@@ -391,15 +388,21 @@ def check_prop32_reference(res: Results, name: str) -> Verdict:
 
 def check_prop32_flow(res: Results, name: str) -> Verdict:
     """Proof step (a) with the corrected (13a): between events E[e_ie_iᵀ | τ] follows the same
-    Lyapunov flow as P_i, so the two coincide until node i's first event."""
+    Lyapunov flow as P_i, so until node i's first event their difference is the initial one carried
+    by the homogeneous flow, P_i(t) − Σ_ii(t) = e^{A_it}(P_i(0) − E[e_i(0)e_i(0)ᵀ])e^{A_iᵀt} (zero when P_i(0)
+    is the initial second moment)."""
     r = _scenario(res, name)
+    s = r.sys
     first = _first_event_times(r)
     times = r.scenario.output_times
+    D0 = np.asarray(s.P_init) - s.P0
     a, b = [], []
     for p in range(first.shape[0]):
-        for i in range(r.sys.N):
+        for i in range(s.N):
             k = times < first[p, i]
-            a.append(r.event["sample_sigma"][p, k, i].ravel())
+            Phi = np.array([sla.expm(s.Ai[i] * t) for t in times[k]]) if np.any(D0[i]) else None
+            carried = 0.0 if Phi is None else Phi @ D0[i] @ np.swapaxes(Phi, 1, 2)
+            a.append((r.event["sample_sigma"][p, k, i] + carried).ravel())
             b.append(r.event["sample_pbound"][p, k, i].ravel())
     a, b = np.concatenate(a), np.concatenate(b)
     tol, how = _path_tolerance(r, float(np.abs(b).max()) if b.size else 0.0)
@@ -512,7 +515,8 @@ def _transient_tolerance(r: ScenarioResults, *arrays) -> tuple[float, str]:
     s, sc = r.sys, r.scenario
     vals = np.concatenate([np.ravel(a) for a in arrays])
     vals = vals[np.isfinite(vals)]
-    growth = float(np.max(np.abs(vals)) / max(float(np.abs(s.P0).max()), 1e-300)) if vals.size else 1.0
+    start = max(float(np.abs(s.P0).max()), float(np.abs(s.P_init).max()), 1e-300)
+    growth = float(np.max(np.abs(vals)) / start) if vals.size else 1.0
     return _flow_tolerance(vals, sc.n_outputs, (s.N * s.n) ** 2, growth)
 
 

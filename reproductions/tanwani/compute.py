@@ -1,6 +1,14 @@
-"""Stages of the random-comm-filter family, each cached: deterministic bounds per scenario,
-the gridded Monte Carlo per (scenario, λ), the exact event-driven Monte Carlo and the
-frozen-clock-path Monte Carlo per scenario, and (paper only) the topology sweep S4."""
+"""Stages of the random-comm-filter family, each cached: the design per scenario (`design.py`),
+the exact references of the checks per scenario, the gridded Monte Carlo per (scenario, λ), the
+exact event-driven Monte Carlo and the frozen-clock-path Monte Carlo per scenario, and (paper
+only) the topology sweep S4.
+
+Monte Carlo is streamed: trials in RNG units of 1,000 (`pipeline.simulate.run_units`, as many
+units per chunk as the memory budget allows; every reduction is made per unit and folded in unit
+order, so the numbers do not depend on the budget), and time output by output (gridded) or window
+by window (event-driven), accumulating second moments and the test-cell statistics as it goes:
+only the moments per output time, the few sample trials and the paired trials are kept.
+"""
 from __future__ import annotations
 
 import functools
@@ -13,35 +21,46 @@ import scipy.linalg as sla
 import estimators.gossip_covariance as gc
 import estimators.gossip_filter as gf
 import estimators.kalman_bucy as kb
-from estimators.linear_flows import abscissa_tolerance, van_loan
+from estimators.linear_flows import van_loan
 from pipeline.cache import StageCache, code_fingerprint
 from pipeline.graphs import GraphSpec
 from pipeline.matrix_moments import MatrixMoments
 from pipeline.reproduction import RunOptions
 from pipeline.seeding import stream_seed
-from pipeline.simulate import parallel_map, run_blocks
+from pipeline.simulate import BLOCK_MEMORY_BYTES, block_generator, parallel_map, run_units
 
+from .design import Design, ScenarioDesign, joint_ok, nonfinite_allowed, scenario_design
 from .scenario import FilterNetworkScenario, with_graph
 
 CODE_MODULES = ("estimators.gossip_covariance", "estimators.gossip_filter", "estimators.kalman_bucy",
                 "estimators.linear_flows", "pipeline.matrix_moments", "pipeline.simulate", "pipeline.seeding",
-                "reproductions.tanwani.compute")
+                "reproductions.tanwani.compute", "reproductions.tanwani.design")
 FILTERPY_FRACTIONS = (1.0, 0.5, 0.25, 0.125)
-GRID_BLOCK = 2_500
-EVENT_BLOCK = 1000
 TOPOLOGIES = {"path": {"kind": "line", "n": 4}, "ring": {"kind": "ring", "n": 4},
               "star": {"kind": "edges", "n": 4, "edges": [[0, 1], [0, 2], [0, 3]]}, "complete": {"kind": "complete", "n": 4}}
+QUICK_TOPOLOGY_POINTS = 8
+MAX_TEST_TIMES = 10        # output times at which the Monte Carlo means are tested
+MAX_SCHEME_DIM = 20        # N·n above which the gridded scheme's own mean covariance is not formed
+PAIR_MAX = 5000            # trials kept one by one for the paired comparison of the two simulators
+EPS = float(np.finfo(float).eps)
 
 
 @dataclass
 class ScenarioResults:
     scenario: FilterNetworkScenario
-    bounds: dict[str, np.ndarray]
+    design: ScenarioDesign
+    refs: dict[str, np.ndarray]
     gridded: dict[float, dict[str, np.ndarray]]
     event: dict[str, np.ndarray]
     frozen: dict[str, np.ndarray]
     trials: int
     event_trials: int
+    #: the design arrays and the references of the checks, in one dict
+    bounds: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self):
+        if not self.bounds:
+            self.bounds = {**self.design.bounds, **self.refs}
 
     @property
     def sys(self) -> gf.GossipSystem:
@@ -60,8 +79,7 @@ class ScenarioResults:
         return self.bounds[f"bound_t_{self.scenario.rates.index(rate)}"]
 
     def joint(self, rate: float) -> np.ndarray | None:
-        key = f"joint_t_{self.scenario.rates.index(rate)}"
-        return self.bounds.get(key)
+        return self.bounds.get(f"joint_t_{self.scenario.rates.index(rate)}")
 
 
 @dataclass
@@ -72,26 +90,14 @@ class Results:
     scenarios: dict[str, ScenarioResults]
     topology: dict[str, np.ndarray] | None = field(default=None)
 
+    def design(self) -> Design:
+        return Design({name: r.design for name, r in self.scenarios.items()})
+
 
 def trial_counts(sc: FilterNetworkScenario, opts: RunOptions) -> tuple[int, int]:
     if opts.trials is not None:
         return opts.trials, max(50, opts.trials // 5)
     return (sc.quick_trials, sc.quick_event_trials) if opts.quick else (sc.trials, sc.event_trials)
-
-
-def joint_ok(sys: gf.GossipSystem) -> bool:
-    return sys.N * sys.n <= gc.MAX_JOINT_DIM
-
-
-# -- bounds ----------------------------------------------------------------------------------------
-
-QUICK_SWEEP_POINTS = 15
-QUICK_TOPOLOGY_POINTS = 8
-MAX_TEST_TIMES = 10        # output times at which the Monte Carlo means are tested
-MAX_SWEEP_RATE = 1e9       # above it the abscissa of M_9 cannot be told from 0 (rounding ~ eps·λ)
-MAX_SCHEME_DIM = 20        # N·n above which the gridded scheme's own mean covariance is not formed
-PAIR_MAX = 5000            # trials kept one by one for the paired comparison of the two simulators
-EPS = float(np.finfo(float).eps)
 
 
 def directions(n: int) -> np.ndarray:
@@ -118,97 +124,28 @@ def quadratic_forms(U: np.ndarray, X: np.ndarray) -> np.ndarray:
     return np.einsum("da,...ab,db->...d", U, X, U)
 
 
-def compute_bounds(sc: FilterNetworkScenario, quick: bool = False) -> dict[str, np.ndarray]:
-    """Everything deterministic of one scenario (quick: a coarser λ sweep)."""
+# -- the exact references of the checks ----------------------------------------------------------------
+
+def compute_references(sc: FilterNetworkScenario) -> dict[str, np.ndarray]:
+    """What the claims compare the Monte Carlo and the references with, beyond the design: the test-cell
+    references (with the second moments of the P-process), the gridded scheme's exact bias and filterpy's
+    sampled filter."""
     s = sc.system
-    N, n = s.N, s.n
-    out: dict[str, np.ndarray] = {}
     Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
-    T = sc.n_outputs
+    base = {"bound_t_0": gc.bound_transient(s, sc.main_rate, sc.output_step, sc.n_outputs),
+            "P_kb_t": kb.kalman_bucy_riccati(s.A, s.B, Hs, Vs, s.P0, sc.output_step, sc.n_outputs)}
+    if joint_ok(s):
+        base["joint_t_0"] = gc.joint_transient(s, sc.main_rate, sc.output_step, sc.n_outputs)
+    out = test_cell_references(sc, base)
+    out.update(scheme_bias(sc))
     try:
         P_kb, K_kb = kb.kalman_bucy_steady(s.A, s.B, Hs, Vs)
-        Ac = s.A - K_kb @ Hs
-        if np.all(np.isfinite(P_kb)) and np.max(np.linalg.eigvals(Ac).real) < 0:
-            out["P_kb"], out["K_kb"] = P_kb, K_kb
+        stable = np.all(np.isfinite(P_kb)) and np.max(np.linalg.eigvals(s.A - K_kb @ Hs).real) < 0
     except (np.linalg.LinAlgError, ValueError):
-        pass
-    out["P_kb_t"] = kb.kalman_bucy_riccati(s.A, s.B, Hs, Vs, s.P0, sc.output_step, T)
-    for r, lam in enumerate(sc.rates):
-        out[f"bound_t_{r}"] = gc.bound_transient(s, lam, sc.output_step, T)
-        if joint_ok(s):
-            out[f"joint_t_{r}"] = gc.joint_transient(s, lam, sc.output_step, T)
-    out["crit_bound"] = np.array(gc.critical_rate_bound(s))
-    if joint_ok(s):
-        out["crit_joint"] = np.array(gc.critical_rate_joint(s, upper=float(out["crit_bound"])))
-    out.update(test_cell_references(sc, out))
-    abar = float(np.max(np.linalg.eigvals(s.Abar).real))
-    out["abar_abscissa"] = np.array(abar)
-    out["abar_tolerance"] = np.array(abscissa_tolerance(s.Abar))
-    hurwitz = abar < -float(out["abar_tolerance"])
-    if hurwitz:
-        out["S"], out["R"] = gc.lyapunov_S(s), gc.lyapunov_R(s.Abar)
-        out["S_true"] = gc.lyapunov_S_true(s)
-        out["first_order"] = gc.first_order_deviation(s)
-    lo, hi, pts = sc.sweep
-    pts = min(pts, QUICK_SWEEP_POINTS) if quick else pts
-    lams = np.geomspace(lo, hi, pts)
-    extra = []
-    if hurwitz:
-        for variant in ("faithful", "tight"):
-            c = gc.explicit_bound(s, variant)
-            out[f"explicit_{variant}"] = np.array([c.C0, c.C1, c.C2, c.C3, c.a1, c.a2, c.sigma_G, c.sigma1_R, c.sigman_R,
-                                                   c.kappa, c.fiedler, c.S_norm, c.threshold])
-            if math.isfinite(c.threshold) and c.threshold > 0:
-                extra += [c.threshold * f for f in (1.5, 3.0, 10.0, 30.0, 100.0)]
-    lams = np.unique(np.concatenate([lams, [x for x in extra if x <= MAX_SWEEP_RATE]]))
-    out["sweep"] = lams
-    L = len(lams)
-    P_inf, J_inf = np.full((L, N, n, n), np.nan), np.full((L, N, n, n), np.nan)
-    dev_P, dev_J = np.full((L, N, n, n), np.nan), np.full((L, N, n, n), np.nan)
-    err_P, err_J, cond_J = np.full(L, np.nan), np.full(L, np.nan), np.full(L, np.nan)
-    absc9, tol9 = np.zeros(L), np.zeros(L)
-    abscS = np.full(L, np.nan)
-    for k, lam in enumerate(lams):
-        absc9[k], tol9[k] = gc.bound_abscissa(s, lam), gc.bound_abscissa_tolerance(s, lam)
-        p = gc.bound_steady(s, lam)
-        if p is not None:
-            P_inf[k] = p
-        if hurwitz and (d := gc.bound_steady_deviation(s, lam, out["S"])) is not None:
-            dev_P[k] = d
-            err_P[k] = deviation_error(gc.bound_generator(s, lam)[0], d, s, out["S"])
-        if joint_ok(s):
-            M, g = gc.joint_generator_sym(s, lam)
-            abscS[k] = float(np.max(np.linalg.eigvals(M).real))
-            if abscS[k] < -abscissa_tolerance(M):
-                lu = sla.lu_factor(M)
-                cond_J[k] = 1.0 / max(sla.lapack.dgecon(lu[0], float(np.abs(M).sum(axis=0).max()), norm="1")[0], 1e-300)
-                J_inf[k] = gc.diagonal_blocks(gc.from_sym_coords(sla.lu_solve(lu, -g), N * n), N, n)
-                if hurwitz and s.mode == "edge":
-                    dj = gc.joint_steady_deviation(s, lam, out["S_true"])
-                    dev_J[k] = gc.diagonal_blocks(dj, N, n)
-                    # as `deviation_error`: the residual's rounding is ~‖𝒜‖‖11ᵀ⊗S_true‖ ≤ ‖M‖‖S_true‖·N
-                    err_J[k] = 10 * M.shape[0] * EPS * cond_J[k] * (np.abs(dj).max() + N * np.abs(out["S_true"]).max())
-    out.update(sweep_bound=P_inf, sweep_joint=J_inf, sweep_dev_bound=dev_P, sweep_dev_joint=dev_J,
-               sweep_dev_err=err_P, sweep_dev_joint_err=err_J, sweep_cond=cond_J,
-               sweep_absc_bound=absc9, sweep_absc_tol=tol9, sweep_absc_joint=abscS)
-    if hurwitz:
-        for variant in ("faithful", "tight"):
-            eb = gc.explicit_bound(s, variant)
-            out[f"sweep_explicit_{variant}"] = np.array([eb.value(l) for l in lams])
-    out.update(scheme_bias(sc))
-    out.update(filterpy_reference(s, Hs, Vs, out.get("P_kb")))
+        stable = False
+    if stable:
+        out.update(filterpy_reference(s, Hs, Vs, P_kb))
     return out
-
-
-def deviation_error(M: np.ndarray, D: np.ndarray, s, S: np.ndarray) -> float:
-    """Round-off bound of the deviation D = 𝒫^∞ − S solved from M vec D = −r (`bound_steady_deviation`):
-    10·dim·eps·κ(M)·(‖D‖ + ‖r‖/‖M‖) with the residual's own rounding ‖r‖ ~ 2‖A_i‖‖S‖ + ‖G_i‖
-    and κ the 1-norm condition number (LAPACK estimate)."""
-    lu = sla.lu_factor(M)
-    norm = float(np.abs(M).sum(axis=0).max())
-    kappa = 1.0 / max(sla.lapack.dgecon(lu[0], norm, norm="1")[0], 1e-300)
-    r = max(2 * np.linalg.norm(A, 2) * np.linalg.norm(S, 2) + np.linalg.norm(G, 2) for A, G in zip(s.Ai, s.Gi))
-    return 10 * M.shape[0] * EPS * kappa * (float(np.abs(D).max()) + r / norm)
 
 
 def test_cell_references(sc: FilterNetworkScenario, b: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -258,7 +195,7 @@ def _dare_residual(F, Qd, Hs, R, X) -> np.ndarray:
     return F @ X @ F.T - F @ X @ Hs.T @ np.linalg.solve(Inn, Hs @ X @ F.T) + Qd - X
 
 
-def filterpy_reference(s, Hs: np.ndarray, Vs: np.ndarray, P_kb: np.ndarray | None) -> dict[str, np.ndarray]:
+def filterpy_reference(s, Hs: np.ndarray, Vs: np.ndarray, P_kb: np.ndarray) -> dict[str, np.ndarray]:
     """filterpy's discrete filter on the sampled model at four sampling steps h, each run until its
     covariance stops changing (at most FILTERPY_MAX_STEPS steps; `filterpy_steady` says whether it
     did), with scipy's DARE solution X and what their difference may be: to first order an
@@ -269,8 +206,6 @@ def filterpy_reference(s, Hs: np.ndarray, Vs: np.ndarray, P_kb: np.ndarray | Non
     The steps scale with the fastest mode ν of the Kalman–Bucy closed loop A − P_KB HᵀV⁻¹H:
     h = min(0.1, 0.5/ν)·(1, 1/2, 1/4, 1/8), so that hν ≤ 1/2 (the first-order regime of
     the sampled filter)."""
-    if P_kb is None:
-        return {}
     Ac = s.A - P_kb @ Hs.T @ np.linalg.solve(Vs, Hs)
     nu = float(np.abs(np.linalg.eigvals(Ac)).max())
     hs = min(0.1, 0.5 / max(nu, 1e-12)) * np.array(FILTERPY_FRACTIONS)
@@ -294,39 +229,90 @@ def filterpy_reference(s, Hs: np.ndarray, Vs: np.ndarray, P_kb: np.ndarray | Non
 
 # -- Monte Carlo ------------------------------------------------------------------------------------
 
-def simulate_gridded_rate(sc: FilterNetworkScenario, seed: int, trials: int, rate: float,
-                          pair: int = 0) -> dict[str, np.ndarray]:
-    """The gridded simulator at one rate: second-moment sums of the errors (MatrixMoments), a
-    few sample trials, and (`pair` > 0, main rate) the test-cell values (uᵀe_i)² of the first
-    `pair` trials one by one, for the paired comparison with the event-driven simulator."""
+def _spans(streams) -> list[tuple[int, int]]:
+    edges = np.cumsum([0, *streams.sizes])
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def _errors(z: np.ndarray, N: int, n: int) -> np.ndarray:
+    """The errors e_i of sampled states z (…, (N+1)n) as (…, N, n)."""
+    return z[..., n:].reshape(*z.shape[:-1], N, n)
+
+
+def gridded_bytes_per_trial(sc: FilterNetworkScenario) -> float:
+    """Memory of one gridded trial in a chunk: the state and its copies, the noise draws, the ring counts."""
+    s = sc.system
+    d = (s.N + 1) * s.n
+    return 8.0 * (8 * d + 2 * d + 2 * len(s.clocks)) + 64.0
+
+
+def simulate_gridded_rate(sc: FilterNetworkScenario, seed: int, trials: int, rate: float, pair: int = 0,
+                          budget_bytes: float = BLOCK_MEMORY_BYTES) -> dict[str, np.ndarray]:
+    """The gridded simulator at one rate: second-moment sums of the errors at every output time
+    (MatrixMoments), the first sample trials whole, and (`pair` > 0, main rate) the test-cell values
+    (uᵀe_i)² of the first `pair` trials one by one, for the paired comparison with the event-driven
+    simulator."""
     s = sc.system
     n, N = s.n, s.N
-    n_steps = int(round(sc.horizon / sc.grid_step))
+    T = sc.n_outputs + 1
+    n_steps = sc.grid_steps
     every = int(round(sc.output_step / sc.grid_step))
-    U, idx = directions(n), test_times(sc)
-    samples: dict[str, np.ndarray] = {}
-    kept: list[np.ndarray] = []
+    U, cells = directions(n), test_times(sc)
+    cell_at = {int(k): c for c, k in enumerate(cells)}
+    keep_n = min(sc.sample_trials, trials)
+    samples = np.zeros((keep_n, T, (N + 1) * n))
+    pair_n = min(pair, trials)
+    pairs = np.zeros((pair_n, len(cells), N, len(U)))
+    start = [0]                                            # first trial of the chunk
 
-    def block(size, rng):
-        keep = 0 if samples else min(sc.sample_trials, size)
-        run = gf.simulate_gridded(s, rate, sc.grid_step, n_steps, every, size, rng, keep_events=keep)
-        if keep:
-            samples["sample_z"] = run.z[:keep]
-            samples["sample_events"] = run.events
-        e = run.z[:, :, n:].reshape(size, -1, N, n)
-        room = pair - sum(len(k) for k in kept)
-        if room > 0:
-            kept.append(np.square(e[:room, idx] @ U.T))
-        return MatrixMoments.of(e)
+    def chunk(streams):
+        spans = _spans(streams)
+        parts = [MatrixMoments.zeros(b - a, T, N, n) for a, b in spans]
+        first = start[0]
 
-    mom = run_blocks(block, MatrixMoments.combine, trials, stream_seed(seed, "gridded", sc.name, rate), GRID_BLOCK)
-    out = {**mom.arrays("e_"), **samples}
+        def record(k, z):
+            e = _errors(z, N, n)
+            for part, (a, b) in zip(parts, spans):
+                part.add([k], e[a:b, None])
+            rows = min(keep_n - first, len(z))
+            if rows > 0:
+                samples[first:first + rows, k] = z[:rows]
+            rows = min(pair_n - first, len(z))
+            if rows > 0 and k in cell_at:
+                pairs[first:first + rows, cell_at[k]] = np.square(e[:rows] @ U.T)
+
+        gf.simulate_gridded(s, rate, sc.grid_step, n_steps, every, streams.n, streams, on_record=record)
+        start[0] += streams.n
+        return parts
+
+    mom = run_units(chunk, lambda acc, part: part if acc is None else MatrixMoments.combine([acc, part]), trials,
+                    stream_seed(seed, "gridded", sc.name, rate), bytes_per_trial=gridded_bytes_per_trial(sc),
+                    budget_bytes=budget_bytes)
+    out = {**mom.arrays("e_"), "sample_z": samples}
     if pair:
-        out["pair_values"] = np.concatenate(kept)
+        out["pair_values"] = pairs
     return out
 
 
-def simulate_event_rate(sc: FilterNetworkScenario, seed: int, trials: int) -> dict[str, np.ndarray]:
+def event_bytes_per_trial(sc: FilterNetworkScenario, *, sample: bool = True) -> float:
+    """Memory of one event-driven trial in a chunk: its window of outputs (and the copies the reductions
+    make), the window's events, the joint covariance and the per-event temporaries (flows, noise
+    covariances, jump matrices)."""
+    s = sc.system
+    N, n = s.N, s.n
+    d = (N + 1) * n
+    L = event_window(sc)
+    per_output = ((d if sample else 0) + 2 * N * n * n) * 8.0
+    events = 3 * (gf.EVENTS_PER_WINDOW + 8 * math.sqrt(gf.EVENTS_PER_WINDOW)) * 16.0
+    return 2.5 * L * per_output + events + 8.0 * (9 * d * d + 6 * N * n * n + 4 * d) + 256.0
+
+
+def event_window(sc: FilterNetworkScenario) -> int:
+    return gf.default_window(sc.system, sc.main_rate, sc.output_step, sc.n_outputs)
+
+
+def simulate_event_rate(sc: FilterNetworkScenario, seed: int, trials: int,
+                        budget_bytes: float = BLOCK_MEMORY_BYTES) -> dict[str, np.ndarray]:
     """The exact event-driven simulator at the main rate. Besides the second-moment sums of the
     sampled errors and a few sample paths, it accumulates per test cell (`test_times` × node ×
     `directions`): sums of uᵀP_i(t; τ)u, uᵀΣ_ii(t; τ)u, (uᵀe_i)² and their squares; the sampled
@@ -337,56 +323,105 @@ def simulate_event_rate(sc: FilterNetworkScenario, seed: int, trials: int) -> di
     n, N = s.n, s.N
     rate = sc.main_rate
     times = sc.output_times
-    U, idx = directions(n), test_times(sc)
+    T = len(times)
+    U, cells = directions(n), test_times(sc)
+    q, C = len(U), len(cells)
     pairs = gc.vech_pairs(n)
-    samples: dict[str, np.ndarray] = {}
-    kept: list[np.ndarray] = []
+    cell_of = np.full(T, -1)
+    cell_of[cells] = np.arange(C)
+    keep_n = min(sc.sample_trials, trials)
+    kept = {"z": np.zeros((keep_n, T, (N + 1) * n)), "sigma": np.zeros((keep_n, T, N, n, n)),
+            "pbound": np.zeros((keep_n, T, N, n, n)), "t": [[] for _ in range(keep_n)], "c": [[] for _ in range(keep_n)]}
+    pair_n = min(PAIR_MAX, trials)
+    pair_values = np.zeros((pair_n, C, N, q))
+    start = [0]
 
-    def block(size, rng):
-        run = gf.simulate_event_driven(s, rate, times, size, rng)
-        if not samples:
-            k = min(sc.sample_trials, size)
-            samples.update(sample_z=run.z[:k], sample_sigma=run.sigma[:k], sample_pbound=run.pbound[:k],
-                           sample_event_times=run.event_times[:k], sample_event_clocks=run.event_clocks[:k])
-        e = run.z[:, :, n:].reshape(size, -1, N, n)
-        counts = np.zeros((size, N))
-        valid = run.event_clocks >= 0
-        for c, (i, j) in enumerate(s.clocks):
-            hits = ((run.event_clocks == c) & valid).sum(axis=1)
-            counts[:, i] += hits
-            if s.mode == "edge":
-                counts[:, j] += hits
-        with np.errstate(invalid="ignore"):
-            gaps = np.diff(run.event_times, axis=1)
-        min_spacing = float(np.min(np.where(np.isfinite(gaps), gaps, np.inf))) if gaps.size else math.inf
-        qP = quadratic_forms(U, run.pbound[:, idx])
-        qS = quadratic_forms(U, run.sigma[:, idx])
-        qE = np.square(e[:, idx] @ U.T)
-        room = PAIR_MAX - sum(len(k) for k in kept)
-        if room > 0:
-            kept.append(qE[:room])
-        w2, cnt = whitened_squares(run.sigma[:, idx], e[:, idx], pairs)
-        return {"mom": MatrixMoments.of(e), "qP1": qP.sum(0), "qP2": np.square(qP).sum(0), "qS1": qS.sum(0),
-                "qS2": np.square(qS).sum(0), "qE1": qE.sum(0), "qE2": np.square(qE).sum(0), "white": w2,
-                "white_n": cnt, "c1": counts.sum(0), "c0": (counts == 0).sum(0), "spacing": min_spacing,
-                "min_gap": run.min_gap.min(), "min_rel_gap": (run.min_gap / np.maximum(1.0, run.scale)).min(),
-                "max_scale": run.scale.max(), "max_events": int(valid.sum(axis=1).max(initial=0)),
-                "condition": run.condition, "n": size}
+    def chunk(streams):
+        spans = _spans(streams)
+        K = streams.n
+        first = start[0]
+        parts = [{"mom": MatrixMoments.zeros(b - a, T, N, n), **{k: np.zeros((C, N, q)) for k in
+                 ("qP1", "qP2", "qS1", "qS2", "qE1", "qE2", "white", "white_n")}} for a, b in spans]
+        counts = np.zeros((K, N))
+        events = np.zeros(K, dtype=np.int64)
+        last = np.full(K, -np.inf)
+        spacing = np.full(K, np.inf)
 
-    def combine(parts):
-        out = {"mom": MatrixMoments.combine([p["mom"] for p in parts])}
+        def on_window(w: gf.EventWindow):
+            e = _errors(w.z, N, n)
+            sel = cell_of[w.index] >= 0
+            ci, wi = cell_of[w.index][sel], np.flatnonzero(sel)
+            for part, (a, b) in zip(parts, spans):
+                part["mom"].add(w.index, e[a:b])
+                if ci.size:
+                    qP = quadratic_forms(U, w.pbound[a:b, wi])
+                    qS = quadratic_forms(U, w.sigma[a:b, wi])
+                    qE = np.square(e[a:b, wi] @ U.T)
+                    for key, v in (("qP", qP), ("qS", qS), ("qE", qE)):
+                        part[f"{key}1"][ci] = v.sum(0)
+                        part[f"{key}2"][ci] = np.square(v).sum(0)
+                    part["white"][ci], part["white_n"][ci] = whitened_squares(w.sigma[a:b, wi], e[a:b, wi], pairs)
+            if ci.size:
+                rows = min(pair_n - first, K)
+                if rows > 0:
+                    pair_values[first:first + rows, ci] = np.square(e[:rows, wi] @ U.T)
+            valid = w.event_clocks >= 0
+            if valid.size:
+                for c, (i, j) in enumerate(s.clocks):
+                    hits = ((w.event_clocks == c) & valid).sum(axis=1)
+                    counts[:, i] += hits
+                    if s.mode == "edge":
+                        counts[:, j] += hits
+                events[:] += valid.sum(axis=1)
+                t_all = np.concatenate([last[:, None], np.where(valid, w.event_times, np.inf)], axis=1)
+                with np.errstate(invalid="ignore"):
+                    gaps = np.diff(t_all, axis=1)
+                spacing[:] = np.minimum(spacing, np.min(np.where(np.isfinite(gaps), gaps, np.inf), axis=1))
+                has = valid.any(axis=1)
+                last[has] = np.max(np.where(valid, w.event_times, -np.inf), axis=1)[has]
+            rows = min(keep_n - first, K)
+            if rows > 0:
+                g = slice(first, first + rows)
+                kept["z"][g, w.index], kept["sigma"][g, w.index] = w.z[:rows], w.sigma[:rows]
+                kept["pbound"][g, w.index] = w.pbound[:rows]
+                for r in range(rows):
+                    ok = valid[r] if valid.size else np.zeros(0, bool)
+                    kept["t"][first + r].append(w.event_times[r][ok])
+                    kept["c"][first + r].append(w.event_clocks[r][ok])
+
+        run = gf.simulate_event_driven(s, rate, times, K, streams, window=event_window(sc), on_window=on_window)
+        start[0] += K
+        for part, (a, b) in zip(parts, spans):
+            part.update(c1=counts[a:b].sum(0), c0=(counts[a:b] == 0).sum(0), spacing=float(spacing[a:b].min()),
+                        min_gap=float(run.min_gap[a:b].min()),
+                        min_rel_gap=float((run.min_gap[a:b] / np.maximum(1.0, run.scale[a:b])).min()),
+                        max_scale=float(run.scale[a:b].max()), max_events=int(events[a:b].max(initial=0)),
+                        condition=float(run.condition), n=b - a)
+        return parts
+
+    def fold(acc, part):
+        if acc is None:
+            return part
+        out = {"mom": MatrixMoments.combine([acc["mom"], part["mom"]])}
         for key in ("qP1", "qP2", "qS1", "qS2", "qE1", "qE2", "white", "white_n", "c1", "c0", "n"):
-            out[key] = sum(p[key] for p in parts)
+            out[key] = acc[key] + part[key]
         for key in ("spacing", "min_gap", "min_rel_gap"):
-            out[key] = min(p[key] for p in parts)
+            out[key] = min(acc[key], part[key])
         for key in ("max_scale", "max_events", "condition"):
-            out[key] = max(p[key] for p in parts)
+            out[key] = max(acc[key], part[key])
         return out
 
-    res = run_blocks(block, combine, trials, stream_seed(seed, "event", sc.name, rate), EVENT_BLOCK)
+    res = run_units(chunk, fold, trials, stream_seed(seed, "event", sc.name, rate),
+                    bytes_per_trial=event_bytes_per_trial(sc), budget_bytes=budget_bytes)
     arrays = res.pop("mom").arrays("e_")
     arrays.update({k: np.asarray(v) for k, v in res.items()})
-    arrays.update(samples, pair_values=np.concatenate(kept))
+    width = max([1] + [sum(len(x) for x in ts) for ts in kept["t"]])
+    ev_t, ev_c = np.full((keep_n, width), np.inf), np.full((keep_n, width), -1, dtype=np.int64)
+    for r in range(keep_n):
+        t, c = np.concatenate(kept["t"][r] or [np.zeros(0)]), np.concatenate(kept["c"][r] or [np.zeros(0, int)])
+        ev_t[r, :len(t)], ev_c[r, :len(c)] = t, c
+    arrays.update(sample_z=kept["z"], sample_sigma=kept["sigma"], sample_pbound=kept["pbound"],
+                  sample_event_times=ev_t, sample_event_clocks=ev_c, pair_values=pair_values)
     return arrays
 
 
@@ -408,22 +443,45 @@ def whitened_squares(sigma: np.ndarray, e: np.ndarray, pairs) -> tuple[np.ndarra
     return sq.sum(0), cnt.sum(0)
 
 
-def simulate_frozen(sc: FilterNetworkScenario, seed: int, trials: int) -> dict[str, np.ndarray]:
-    """One clock path, drawn once, shared by every trial: MC over (x0, ω, v) only."""
+def frozen_path(sc: FilterNetworkScenario, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The one clock path of the frozen-path Monte Carlo (main rate, whole horizon), drawn from the seed."""
+    rng = block_generator(stream_seed(seed, "frozen-path", sc.name))
+    t, c = gf.sample_clock_events(len(sc.system.clocks), sc.main_rate, sc.horizon, 1, rng)
+    return t[0][np.isfinite(t[0])], c[0][c[0] >= 0]
+
+
+def simulate_frozen(sc: FilterNetworkScenario, seed: int, trials: int,
+                    budget_bytes: float = BLOCK_MEMORY_BYTES) -> dict[str, np.ndarray]:
+    """One clock path, drawn once, shared by every trial: Monte Carlo over (x0, ω, v) only."""
     s = sc.system
     n, N = s.n, s.N
-    rng = np.random.Generator(np.random.SFC64(stream_seed(seed, "frozen-path", sc.name)))
-    t, c = gf.sample_clock_events(len(s.clocks), sc.main_rate, sc.horizon, 1, rng)
-    path = (t[0][np.isfinite(t[0])], c[0][c[0] >= 0])
-    keep: dict[str, np.ndarray] = {}
+    T = sc.n_outputs + 1
+    path = frozen_path(sc, seed)
+    keep = {"path_sigma": np.zeros((T, N, n, n)), "path_pbound": np.zeros((T, N, n, n))}
+    start = [0]
 
-    def block(size, rng):
-        run = gf.simulate_event_driven(s, sc.main_rate, sc.output_times, size, rng, clock_path=path)
-        if not keep:
-            keep.update(path_sigma=run.sigma[0], path_pbound=run.pbound[0], path_min_gap=run.min_gap.min(axis=0))
-        return MatrixMoments.of(run.z[:, :, n:].reshape(size, -1, N, n))
+    def chunk(streams):
+        spans = _spans(streams)
+        parts = [MatrixMoments.zeros(b - a, T, N, n) for a, b in spans]
+        first = start[0]
 
-    mom = run_blocks(block, MatrixMoments.combine, trials, stream_seed(seed, "frozen", sc.name), 4 * EVENT_BLOCK)
+        def on_window(w: gf.EventWindow):
+            e = _errors(w.z, N, n)
+            for part, (a, b) in zip(parts, spans):
+                part.add(w.index, e[a:b])
+            if first == 0:
+                keep["path_sigma"][w.index], keep["path_pbound"][w.index] = w.sigma[0], w.pbound[0]
+
+        run = gf.simulate_event_driven(s, sc.main_rate, sc.output_times, streams.n, streams, clock_path=path,
+                                       window=event_window(sc), on_window=on_window)
+        if first == 0:
+            keep["path_min_gap"] = run.min_gap.min(axis=0)
+        start[0] += streams.n
+        return parts
+
+    mom = run_units(chunk, lambda acc, part: part if acc is None else MatrixMoments.combine([acc, part]), trials,
+                    stream_seed(seed, "frozen", sc.name), bytes_per_trial=event_bytes_per_trial(sc),
+                    budget_bytes=budget_bytes)
     return {**mom.arrays("e_"), **keep, "path_times": path[0], "path_clocks": path[1]}
 
 
@@ -460,13 +518,12 @@ def _nonfinite_allowed(stage: str, sc: FilterNetworkScenario) -> tuple[str, ...]
     rate, an explicit bound below its threshold, the inf padding of event lists, Monte Carlo
     states that overflow on a strongly unstable scenario over a long horizon (the claims then
     say that nothing finite was compared)."""
-    mc = ("e_s2", "e_s4", "sample_z", "pair_values")
-    if stage == "bounds":
-        return (("sweep_bound", "sweep_joint", "sweep_dev_bound", "sweep_dev_joint", "sweep_absc_joint",
-                 "sweep_explicit_faithful", "sweep_explicit_tight", "crit_bound", "crit_joint", "explicit_faithful",
-                 "explicit_tight", "P_kb_t", "cell_bound", "cell_joint", "cell_P_mean", "cell_P_second", "cell_P_accuracy",
-                 "scheme_bias_h", "scheme_bias_h2", "sweep_dev_err", "sweep_dev_joint_err", "sweep_cond")
-                + tuple(f"bound_t_{k}" for k in range(len(sc.rates))) + tuple(f"joint_t_{k}" for k in range(len(sc.rates))))
+    mc = ("e_s2", "e_s4_trace", "e_s4_entry", "sample_z", "pair_values")
+    if stage == "design":
+        return nonfinite_allowed(sc)
+    if stage == "references":
+        return ("cell_bound", "cell_joint", "cell_P_mean", "cell_P_second", "cell_P_accuracy", "cell_kb",
+                "scheme_bias_h", "scheme_bias_h2")
     if stage == "event":
         return mc + ("sample_event_times", "spacing", "sample_sigma", "sample_pbound", "qP1", "qP2", "qS1", "qS2",
                      "qE1", "qE2", "white", "min_gap", "min_rel_gap", "max_scale", "condition")
@@ -482,33 +539,40 @@ def _work(item):
     return cache.get_or_compute(stage, params, fn, scenario=sc.name, allow_nonfinite=_nonfinite_allowed(stage, sc))
 
 
+def design(scenarios: list[FilterNetworkScenario], opts: RunOptions) -> Design:
+    """Every scenario's design, in memory (a run caches it as the stage `design`)."""
+    return Design({sc.name: ScenarioDesign(sc, scenario_design(sc, opts.quick, opts.seed)) for sc in scenarios})
+
+
 def compute(scenarios: list[FilterNetworkScenario], opts: RunOptions, cache: StageCache, *, is_paper: bool) -> Results:
     code = code_fingerprint(CODE_MODULES)
+    budget = opts.chunk_budget_bytes()
     items, index = [], []
     for sc in scenarios:
         trials, ev_trials = trial_counts(sc, opts)
         base = {"scenario": sc.key(), "code": code}
         mc = {**base, "seed": opts.seed}
-        items.append((cache, "bounds", {**base, "quick": opts.quick}, functools.partial(compute_bounds, sc, opts.quick),
-                      sc))
-        index.append((sc.name, "bounds", None))
+        items.append((cache, "design", {**mc, "quick": opts.quick},
+                      functools.partial(scenario_design, sc, opts.quick, opts.seed), sc))
+        index.append((sc.name, "design", None))
+        items.append((cache, "references", base, functools.partial(compute_references, sc), sc))
+        index.append((sc.name, "references", None))
         for rate in sc.rates:
             pair = min(ev_trials, trials, PAIR_MAX) if rate == sc.main_rate else 0
             items.append((cache, "gridded", {**mc, "trials": trials, "rate": rate, "samples": sc.sample_trials,
                                              "pair": pair},
-                          functools.partial(simulate_gridded_rate, sc, opts.seed, trials, rate, pair), sc))
+                          functools.partial(simulate_gridded_rate, sc, opts.seed, trials, rate, pair, budget), sc))
             index.append((sc.name, "gridded", rate))
         items.append((cache, "event", {**mc, "trials": ev_trials, "samples": sc.sample_trials},
-                      functools.partial(simulate_event_rate, sc, opts.seed, ev_trials), sc))
+                      functools.partial(simulate_event_rate, sc, opts.seed, ev_trials, budget), sc))
         index.append((sc.name, "event", None))
         items.append((cache, "frozen", {**mc, "trials": ev_trials},
-                      functools.partial(simulate_frozen, sc, opts.seed, ev_trials), sc))
+                      functools.partial(simulate_frozen, sc, opts.seed, ev_trials, budget), sc))
         index.append((sc.name, "frozen", None))
     if is_paper:
         s2 = next(sc for sc in scenarios if sc.name == "s2")
         items.append((cache, "topology", {"scenario": s2.key(), "code": code, "quick": opts.quick},
-                      functools.partial(compute_topology, s2, opts.quick),
-                      s2))
+                      functools.partial(compute_topology, s2, opts.quick), s2))
         index.append(("s2", "topology", None))
     # the longest stages first, so that two workers finish together
     order = sorted(range(len(items)), key=lambda k: {"event": 0, "gridded": 1, "frozen": 2}.get(index[k][1], 3))
@@ -517,7 +581,8 @@ def compute(scenarios: list[FilterNetworkScenario], opts: RunOptions, cache: Sta
     results: dict[str, ScenarioResults] = {}
     for sc in scenarios:
         trials, ev_trials = trial_counts(sc, opts)
-        results[sc.name] = ScenarioResults(sc, got[(sc.name, "bounds", None)],
+        results[sc.name] = ScenarioResults(sc, ScenarioDesign(sc, got[(sc.name, "design", None)]),
+                                           got[(sc.name, "references", None)],
                                            {r: got[(sc.name, "gridded", r)] for r in sc.rates},
                                            got[(sc.name, "event", None)], got[(sc.name, "frozen", None)],
                                            trials, ev_trials)
