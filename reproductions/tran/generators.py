@@ -7,8 +7,9 @@ designer would pick them: L_i and J_i from an observer design of the augmented s
 (28)-(29) are then usually, not always, feasible. The edge cases: gains that make (28)-(29)
 infeasible (J_i far too large, or an unstable Ā_i(1)); inputs with several frequencies whose norm
 repeats long after t_end (beats, incommensurate frequencies); fixed and time-varying roles; 2 to 6
-nodes; P from the LMI, from (10) or given; no noise (the stochastic runs are deterministic), very
-small and very large noise; a disconnected graph.
+nodes; P from the LMI, from (10) (with a random Q_i) or given; no noise (the stochastic runs are
+deterministic), very small and very large noise; a disconnected graph. Some scenarios start the nodes'
+estimates away from zero.
 """
 from __future__ import annotations
 
@@ -203,4 +204,13 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
     }
     if P_mode == "lyapunov":   # (10) is solved at the roles of the run
         data["fixed_roles"] = {"active": active}
+    # the initial estimates and the Q_i of (10), from a stream of their own (the draws above do not change)
+    extra = np.random.default_rng([seed, zlib.crc32((edge or "random").encode()), 1])
+    if P_mode == "lyapunov":
+        for ty in types.values():
+            M = extra.standard_normal((n + p, n + p))
+            ty["Q"] = _f(np.round(M @ M.T / (n + p) + 0.5 * np.eye(n + p), 4))
+    if edge in ("lyapunov_P", "two_nodes", "six_nodes") or extra.random() < 0.3:
+        data["nodes"]["xhat0"] = _f(np.round(extra.uniform(-1.0, 1.0, (N, n)), 3))
+        data["nodes"]["what0"] = _f(np.round(extra.uniform(-1.0, 1.0, (1, p)), 3))
     return data
