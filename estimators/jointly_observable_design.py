@@ -19,8 +19,6 @@ from decimal import Decimal, getcontext, localcontext
 
 import numpy as np
 import scipy.linalg as sla
-from scipy.optimize import minimize_scalar
-from scipy.signal import place_poles
 
 
 # -- per-agent quantities ---------------------------------------------------------------------
@@ -139,6 +137,8 @@ def same_kernel(L: np.ndarray, A: np.ndarray, C: np.ndarray, rank_tol: float = 1
 
 def place_gain(Abar: np.ndarray, Cbar: np.ndarray, poles) -> np.ndarray:
     """K with eig(Ā + K C̄) = poles (note the + sign of (3))."""
+    from scipy.signal import place_poles      # imported here: scipy.signal costs 0.3 s (it loads scipy.stats)
+
     return -place_poles(Abar.T, Cbar.T, np.asarray(poles)).gain_matrix.T
 
 
@@ -178,6 +178,8 @@ def transient_constant(F: np.ndarray, rate: float, *, horizon: float | None = No
     best = float(vals[k])
     lo, hi = max(k - 1, 0) * h, min(k + 1, samples - 1) * h
     if hi > lo:
+        from scipy.optimize import minimize_scalar
+
         res = minimize_scalar(lambda t: -np.linalg.norm(sla.expm(G * t), 2), bounds=(lo, hi), method="bounded",
                               options={"xatol": 1e-12})
         best = max(best, float(-res.fun))

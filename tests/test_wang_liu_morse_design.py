@@ -202,18 +202,21 @@ def test_lemma6_on_random_instances(seed):
 
 
 def repeat_free_rho(P, max_len=None):
-    """ρ by growing every repeat-free word (no pruning, no first/last-letter reduction)."""
+    """ρ by growing every repeat-free word (no pruning, no first/last-letter reduction), the words of
+    one length as one stack: their products, last letters and sets of letters used."""
     m = len(P)
     N = (m - 1) ** 2 + 1 if max_len is None else max_len
-    best, frontier = 0.0, [((i,), P[i]) for i in range(m)]
+    best = 0.0
+    M, last, used = np.array(P, float), np.arange(m), 1 << np.arange(m)
     for length in range(1, N + 1):
-        nxt = []
-        for w, M in frontier:
-            if len(set(w)) == m:
-                best = max(best, np.linalg.norm(M, 2))
-            if length < N:
-                nxt += [(w + (a,), M @ P[a]) for a in range(m) if a != w[-1]]
-        frontier = nxt
+        complete = used == (1 << m) - 1
+        if complete.any():
+            best = max(best, float(np.linalg.norm(M[complete], 2, axis=(1, 2)).max()))
+        if length < N:
+            ext = [(last != a, a) for a in range(m)]
+            M = np.concatenate([M[keep] @ P[a] for keep, a in ext])
+            used = np.concatenate([used[keep] | (1 << a) for keep, a in ext])
+            last = np.concatenate([np.full(keep.sum(), a) for keep, a in ext])
     return best
 
 
