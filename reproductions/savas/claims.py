@@ -377,20 +377,24 @@ _MC_TESTS = {
 def _mc_vs_exact(res: Results, stat: str) -> Verdict:
     """Every cell and step against the exact law of the simulated errors (see `exact_laws`)."""
     sc = res.scenario
-    p, est, refs = [], [], []
+    sums, laws, est, refs = [], [], [], []
+    R = res.moments(res.cells[0]).count   # every cell ran the same trials
     for c in res.cells:
         P = res.exact(c)
         diag = (1 - c.ell) ** 2 * P.diag + c.ell ** 2 * sc.r if stat == "filt" else P.diag   # (18) for P(k|k)
         mom = res.moments(c, "filt" if stat == "filt" else "pred")
-        R = mom.count
         if stat == "trace":
-            p.append(weighted_chi2_p(mom.s2.sum(axis=1), P.eigenvalues, R))
-            est.append(mom.s2.sum(axis=1) / R), refs.append(P.trace)
+            sums.append(mom.s2.sum(axis=1)), laws.append(P.eigenvalues)
+            est.append(sums[-1] / R), refs.append(P.trace)
         elif stat == "mean":
-            p.append(normal_sum_p(mom.s1, diag, R)), est.append(mom.s1 / R), refs.append(np.zeros_like(diag))
+            sums.append(mom.s1), laws.append(diag), est.append(mom.s1 / R), refs.append(np.zeros_like(diag))
         else:
-            p.append(chi2_sum_p(mom.s2, diag, R)), est.append(mom.s2 / R), refs.append(diag)
-    p, est, refs = (np.concatenate([a.ravel() for a in arrs]) for arrs in (p, est, refs))
+            sums.append(mom.s2), laws.append(diag), est.append(mom.s2 / R), refs.append(diag)
+    # one call over every cell and step (each p-value is computed elementwise: the same numbers as cell by cell)
+    total, law = np.concatenate(sums), np.concatenate(laws)
+    p = (weighted_chi2_p(total, law, R) if stat == "trace" else
+         normal_sum_p(total, law, R) if stat == "mean" else chi2_sum_p(total, law, R)).ravel()
+    est, refs = (np.concatenate([a.ravel() for a in arrs]) for arrs in (est, refs))
     w = int(np.argmin(p))
     return p_value_test(p, trials=res.trials, min_trials=MIN_TRIALS, measured=float(est[w]), reference=float(refs[w]),
                         detail=(f"{_MC_TESTS[stat]}; exact at any number of trials. {len(res.cells)} cells (algorithm × m "
@@ -532,7 +536,10 @@ def _zeta_bar(res: Results, m: int, G: float) -> float:
     lo, hi = 0.0, Kc  # head decreases on (0, K_c] from +inf to 0
     for _ in range(200):
         mid = 0.5 * (lo + hi)
+        last = mid in (lo, hi)   # adjacent doubles: after this step the bisections change nothing
         lo, hi = (mid, hi) if head(mid) > G else (lo, mid)
+        if last:
+            break
     budget = G / (lo ** 2 * sc.r) if lo > 0 else np.inf   # lo < ℓ_lo: a larger, safe budget
     b = np.abs(cc._power_sum(cc._split_unit_eigenvalue(np.linalg.eigvalsh(sc.Q)), m)) / (m + 1)
     lhs = lambda z: float(np.sum(np.maximum(z - b, 0.0) ** 2))
@@ -541,7 +548,10 @@ def _zeta_bar(res: Results, m: int, G: float) -> float:
     lo, hi = 0.0, 1.0
     for _ in range(200):
         mid = 0.5 * (lo + hi)
+        last = mid in (lo, hi)
         lo, hi = (mid, hi) if lhs(mid) <= budget else (lo, mid)
+        if last:
+            break
     return hi
 
 

@@ -38,6 +38,8 @@ LONG_RUN_STEPS = 60
 QUICK_GRID = (100, 101)
 #: steady-state covariance matrices are tabulated entry by entry up to this many agents
 MATRIX_TABLE_AGENTS = 50
+#: the arrays of a cell's steady state in the design (see `compute_design`)
+STEADY_ARRAYS = ("diag", "trace", "gap", "matrix")
 #: a chunk holds at most this many trials and bytes (measured fastest here: larger arrays leave the
 #: processor's caches); the memory budget may make it smaller, never larger
 CHUNK_TRIALS = 10_000
@@ -119,7 +121,9 @@ class Design:
                                     a[f"exact:{cell.label}:eig"])
 
     def steady(self, cell: Cell) -> dict[str, np.ndarray]:
-        return {k.rsplit(":", 1)[1]: v for k, v in self.arrays.items() if k.startswith(f"steady:{cell.label}:")}
+        """The exact steady state of the cell: diag, trace, gap (and matrix up to MATRIX_TABLE_AGENTS agents)."""
+        a, label = self.arrays, cell.label
+        return {name: a[key] for name in STEADY_ARRAYS if (key := f"steady:{label}:{name}") in a}
 
     def cell(self, alg: str, m: int, sigma_c: float) -> Cell:
         return next(c for c in self.cells if c.alg == alg and c.m == m and c.sigma_c == sigma_c)

@@ -44,6 +44,12 @@ def normal_sum_p(total, variance, count: int) -> np.ndarray:
     return p
 
 
+def _converged(mid, lo, hi) -> bool:
+    """Every bracket is down to adjacent (or equal) doubles, so that the midpoint is one of its ends:
+    after one more step (which may close the bracket on that end) bisecting changes nothing."""
+    return bool(np.all((mid == lo) | (mid == hi)))
+
+
 def _log_upper_bound(t, lam, dof):
     """log of min_θ P(T ≥ t) Chernoff bound, T = Σ λ_j χ²_j(dof); one value per row of `lam`."""
     mean = dof * lam.sum(axis=-1)
@@ -56,9 +62,12 @@ def _log_upper_bound(t, lam, dof):
     lo, hi = np.zeros(idx.size), np.ones(idx.size)  # θ = u / (2 λ_max), u in (0, 1)
     for _ in range(_BISECTIONS):
         u = 0.5 * (lo + hi)
+        last = _converged(u, lo, hi)
         theta = u / (2 * lam_max)
         grad = dof * np.sum(lam_i / (1 - 2 * theta[:, None] * lam_i), axis=-1) - t_i
         lo, hi = np.where(grad < 0, u, lo), np.where(grad < 0, hi, u)
+        if last:
+            break
     theta = lo / (2 * lam_max)
     out[idx] = -theta * t_i - 0.5 * dof * np.sum(np.log1p(-2 * theta[:, None] * lam_i), axis=-1)
     return np.minimum(out, 0.0)
@@ -78,9 +87,12 @@ def _log_lower_bound(t, lam, dof):
     lo, hi = np.zeros(idx.size), np.log(n_pos * dof / t_i + 1.0)  # θ = expm1(v); at θ = n·dof/t the gradient is > 0
     for _ in range(_BISECTIONS):
         v = 0.5 * (lo + hi)
+        last = _converged(v, lo, hi)
         theta = np.expm1(v)
         grad = t_i - dof * np.sum(lam_i / (1 + 2 * theta[:, None] * lam_i), axis=-1)
         lo, hi = np.where(grad < 0, v, lo), np.where(grad < 0, hi, v)
+        if last:
+            break
     theta = np.expm1(lo)
     out[idx] = theta * t_i - 0.5 * dof * np.sum(np.log1p(2 * theta[:, None] * lam_i), axis=-1)
     return np.minimum(out, 0.0)

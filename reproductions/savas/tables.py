@@ -11,10 +11,12 @@ Theorem 1(i).
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pandas as pd
 
-from pipeline.tables import TableSpec, matrix_rows, spec
+from pipeline.tables import TableSpec, spec
 
 from .compute import LARGE_M, Cell, Design, Results
 
@@ -107,8 +109,28 @@ METRICS = spec("metrics", "metric, cell and agent (empty node: the whole network
     ("value", "as the metric", "value")])
 
 
-def _cell_keys(name: str, c: Cell) -> dict:
-    return {"scenario": name, "alg": c.alg, "m": c.m, "sigma_c": c.sigma_c, "n_steps": c.n_steps}
+def _cell_keys(name: str, cells: list[Cell], rows) -> dict[str, np.ndarray]:
+    """The cell columns (scenario, alg, m, sigma_c, n_steps) of `rows` rows per cell (a count, or one per cell)."""
+    rows = np.broadcast_to(np.asarray(rows, dtype=np.int64), (len(cells),))
+
+    def column(values, dtype):
+        return np.repeat(np.array(values, dtype=dtype), rows)
+
+    return {"scenario": column([name] * len(cells), object), "alg": column([c.alg for c in cells], object),
+            "m": column([c.m for c in cells], np.int64), "sigma_c": column([c.sigma_c for c in cells], np.float64),
+            "n_steps": column([c.n_steps for c in cells], np.int64)}
+
+
+def _matrix_columns(matrices: list[np.ndarray]) -> dict[str, np.ndarray]:
+    """row, col and value of every entry of each matrix, matrix by matrix (row-major)."""
+    rows, cols = zip(*(np.indices(np.shape(a)).reshape(2, -1) for a in matrices)) if matrices else ((), ())
+    return {"row": np.concatenate([np.zeros(0, np.int64), *rows]).astype(np.int64),
+            "col": np.concatenate([np.zeros(0, np.int64), *cols]).astype(np.int64),
+            "value": np.concatenate([np.zeros(0), *(np.asarray(a, float).ravel() for a in matrices)])}
+
+
+def _frame(table: TableSpec, columns: dict[str, Any]) -> pd.DataFrame:
+    return pd.DataFrame(columns, columns=table.column_names)
 
 
 def _all_cells(d: Design) -> list[Cell]:
@@ -122,7 +144,8 @@ def _index(steps: np.ndarray, k: int) -> int:
 def design_tables(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
     sc, a = d.scenario, d.arrays
     name = sc.name
-    out = [(CONSENSUS_MATRIX, pd.DataFrame(matrix_rows(sc.Q, scenario=name), columns=CONSENSUS_MATRIX.column_names))]
+    out = [(CONSENSUS_MATRIX, _frame(CONSENSUS_MATRIX, {"scenario": np.full(sc.Q.size, name, object),
+                                                        **_matrix_columns([sc.Q])}))]
     lam = a["eig_real"] + 1j * a["eig_imag"]
     out.append((SPECTRUM, pd.DataFrame({"scenario": name, "index": np.arange(lam.size), "real": a["eig_real"],
                                         "imag": a["eig_imag"], "modulus": np.abs(lam)})))
@@ -141,78 +164,94 @@ def design_tables(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
             ("recorded_steps", len(d.steps), "steps with per-step statistics")]
     out.append((REFERENCES, pd.DataFrame([{"scenario": name, "quantity": q, "value": float(v), "definition": t}
                                           for q, v, t in refs], columns=REFERENCES.column_names)))
-    rows = []
+    gains: dict[str, list] = {c: [] for c in GAINS.column_names[1:]}
     for objective, prefix, ms in (("corrected", "corrected", range(sc.rounds_max + 1)),
                                   ("printed", "printed", range(sc.rounds_max + 1)),
                                   ("carli", "carli_opt", range(sc.rounds_max + 1)),
                                   ("corrected", "large_m", LARGE_M)):
         if f"{prefix}_ell" not in a:
             continue
-        for s, s_c in enumerate(sc.sigma_c):
-            for j, m in enumerate(ms):
-                if prefix == "large_m" and m <= sc.rounds_max:
-                    continue   # the same optimisation as the row of the m = 0..rounds_max table
-                rows.append({"scenario": name, "objective": objective, "sigma_c": s_c, "m": m,
-                             **{c: float(a[f"{prefix}_{c}"][s, j]) for c in GAINS.column_names[4:]}})
-    out.append((GAINS, pd.DataFrame(rows, columns=GAINS.column_names)))
+        # the large-m rows at m <= rounds_max repeat the optimisation of the m = 0..rounds_max table's row
+        keep = np.array([prefix != "large_m" or m > sc.rounds_max for m in ms], bool)
+        S, M = len(sc.sigma_c), int(keep.sum())
+        gains["objective"].append(np.full(S * M, objective, object))
+        gains["sigma_c"].append(np.repeat(np.array(sc.sigma_c, np.float64), M))
+        gains["m"].append(np.tile(np.array(list(ms), np.int64)[keep], S))
+        for c in GAINS.column_names[4:]:
+            gains[c].append(np.asarray(a[f"{prefix}_{c}"], np.float64)[:, keep].ravel())
+    if gains["m"]:
+        gains = {c: np.concatenate(v) for c, v in gains.items()}
+        out.append((GAINS, _frame(GAINS, {"scenario": np.full(len(gains["m"]), name, object), **gains})))
+    else:   # no gain tables (Q not symmetric)
+        out.append((GAINS, pd.DataFrame([], columns=GAINS.column_names)))
     if "carli_thresholds" in a:
         out.append((THRESHOLDS, pd.DataFrame({
             "scenario": name, "m_from": sc.rounds[:-1], "m_to": sc.rounds[1:], "sigma_c_threshold": a["carli_thresholds"],
             "noise_coef_from": a["carli_noise_coef"][:-1], "noise_coef_to": a["carli_noise_coef"][1:],
             "noise_free_from": a["carli_noise_free"][:-1], "noise_free_to": a["carli_noise_free"][1:]})))
-    cells, steady = [], []
-    for c in _all_cells(d):
+    cells = _all_cells(d)
+    values = np.empty((len(cells), 6))   # trP_steady, trP_eval, trP_final, kf_eval, kf_final, gap
+    for i, c in enumerate(cells):
         ex, st, steps = d.exact(c), d.steady(c), d.steps_of(c)
         ie = _index(steps, sc.eval_step)
         kf = d.kf_prior(steps)
-        cells.append({**_cell_keys(name, c), "ell": c.ell, "zeta": c.zeta, "trP_steady": float(st["trace"]),
-                      "trP_eval": float(ex.trace[ie]), "trP_final": float(ex.trace[-1]), "kf_trP_steady": sc.n * Pc,
-                      "kf_trP_eval": sc.n * float(kf[ie]), "kf_trP_final": sc.n * float(kf[-1]),
-                      "ratio_steady": float(st["trace"]) / (sc.n * Pc), "loewner_gap_steady": float(st["gap"])})
-        if "matrix" in st:
-            steady += matrix_rows(st["matrix"], **_cell_keys(name, c))
-    out.append((CELLS, pd.DataFrame(cells, columns=CELLS.column_names)))
-    if steady:
-        out.append((STEADY, pd.DataFrame(steady, columns=STEADY.column_names)))
+        values[i] = st["trace"], ex.trace[ie], ex.trace[-1], kf[ie], kf[-1], st["gap"]
+    out.append((CELLS, _frame(CELLS, {
+        **_cell_keys(name, cells, 1), "ell": np.array([c.ell for c in cells], np.float64),
+        "zeta": np.array([c.zeta for c in cells], np.float64), "trP_steady": values[:, 0], "trP_eval": values[:, 1],
+        "trP_final": values[:, 2], "kf_trP_steady": np.full(len(cells), sc.n * Pc), "kf_trP_eval": sc.n * values[:, 3],
+        "kf_trP_final": sc.n * values[:, 4], "ratio_steady": values[:, 0] / (sc.n * Pc),
+        "loewner_gap_steady": values[:, 5]})))
+    with_matrix = [c for c in cells if "matrix" in d.steady(c)]
+    if with_matrix:
+        matrices = [d.steady(c)["matrix"] for c in with_matrix]
+        out.append((STEADY, _frame(STEADY, {**_cell_keys(name, with_matrix, [m.size for m in matrices]),
+                                            **_matrix_columns(matrices)})))
     return out
-
-
-def _mc(res: Results, c: Cell, which: str = "pred"):
-    mom = res.moments(c, which)
-    return mom, mom.variance, mom.variance_se
 
 
 def run_tables(res: Results) -> list[tuple[TableSpec, pd.DataFrame]]:
     d, sc = res.design, res.scenario
-    name = sc.name
+    name, N = sc.name, sc.n
     Kc, Pc, _, _ = d.arrays["centralized"]
-    nodes, traces, series = [], [], []
-    for c in _all_cells(d):
-        keys = _cell_keys(name, c)
+    cells = _all_cells(d)
+    nodes = {c: [] for c in ("P_steady", "P_final_exact", "P_final_mc", "P_final_mc_se", "P_eval_exact", "P_eval_mc",
+                             "P_eval_mc_se", "kf_final")}
+    traces = {c: [] for c in TRACE_SERIES.column_names[5:]}
+    series = {c: [] for c in NODE_SERIES.column_names[5:]}
+    n_steps = []
+    for c in cells:
         steps, ex, st = d.steps_of(c), d.exact(c), d.steady(c)
-        mom, var, var_se = _mc(res, c)
-        fmom, fvar, fvar_se = _mc(res, c, "filt")
+        mom, fmom = res.moments(c), res.moments(c, "filt")
+        var, var_se = mom.variance, mom.variance_se
         ie = _index(steps, sc.eval_step)
         kf = d.kf_prior(steps)
-        for i in range(sc.n):
-            nodes.append({**keys, "node": i, "ell": c.ell, "zeta": c.zeta, "P_steady": float(st["diag"][i]),
-                          "P_final_exact": float(ex.diag[-1, i]), "P_final_mc": float(var[-1, i]),
-                          "P_final_mc_se": float(var_se[-1, i]), "P_eval_exact": float(ex.diag[ie, i]),
-                          "P_eval_mc": float(var[ie, i]), "P_eval_mc_se": float(var_se[ie, i]), "kf_steady": Pc,
-                          "kf_final": float(kf[-1]), "ratio_steady": float(st["diag"][i]) / Pc,
-                          "gap_steady": float(st["diag"][i]) - Pc})
-        S, N = len(steps), sc.n
-        traces.append(pd.DataFrame({**{k: [v] * S for k, v in keys.items()}, "k": steps, "trP_exact": ex.trace,
-                                    "trP_mc": mom.trace, "trP_mc_se": mom.trace_se, "kf_trP": N * kf}))
-        series.append(pd.DataFrame({
-            **{k: [v] * (S * N) for k, v in keys.items()}, "k": np.repeat(steps, N), "node": np.tile(np.arange(N), S),
-            "P_exact": ex.diag.ravel(), "var_mc": var.ravel(), "var_mc_se": var_se.ravel(), "mean_mc": mom.mean.ravel(),
-            "mean_mc_se": mom.mean_se.ravel(), "Pfilt_exact": ((1 - c.ell) ** 2 * ex.diag + c.ell ** 2 * sc.r).ravel(),
-            "var_filt_mc": fvar.ravel(), "var_filt_mc_se": fvar_se.ravel()}))
+        for col, v in (("P_steady", st["diag"]), ("P_final_exact", ex.diag[-1]), ("P_final_mc", var[-1]),
+                       ("P_final_mc_se", var_se[-1]), ("P_eval_exact", ex.diag[ie]), ("P_eval_mc", var[ie]),
+                       ("P_eval_mc_se", var_se[ie]), ("kf_final", np.full(N, kf[-1]))):
+            nodes[col].append(v)
+        S = len(steps)
+        n_steps.append(S)
+        for col, v in (("k", steps), ("trP_exact", ex.trace), ("trP_mc", mom.trace), ("trP_mc_se", mom.trace_se),
+                       ("kf_trP", N * kf)):
+            traces[col].append(v)
+        for col, v in (("k", np.repeat(steps, N)), ("node", np.tile(np.arange(N), S)), ("P_exact", ex.diag),
+                       ("var_mc", var), ("var_mc_se", var_se), ("mean_mc", mom.mean), ("mean_mc_se", mom.mean_se),
+                       ("Pfilt_exact", (1 - c.ell) ** 2 * ex.diag + c.ell ** 2 * sc.r), ("var_filt_mc", fmom.variance),
+                       ("var_filt_mc_se", fmom.variance_se)):
+            series[col].append(np.ravel(v))
+    nodes = {col: np.concatenate(v) for col, v in nodes.items()}
     out = design_tables(d)
-    out.append((NODES, pd.DataFrame(nodes, columns=NODES.column_names)))
-    out.append((TRACE_SERIES, pd.concat(traces, ignore_index=True)[TRACE_SERIES.column_names]))
-    out.append((NODE_SERIES, pd.concat(series, ignore_index=True)[NODE_SERIES.column_names]))
+    out.append((NODES, _frame(NODES, {
+        **_cell_keys(name, cells, N), "node": np.tile(np.arange(N), len(cells)),
+        "ell": np.repeat(np.array([c.ell for c in cells], np.float64), N),
+        "zeta": np.repeat(np.array([c.zeta for c in cells], np.float64), N), **nodes,
+        "kf_steady": np.full(len(cells) * N, Pc), "ratio_steady": nodes["P_steady"] / Pc,
+        "gap_steady": nodes["P_steady"] - Pc})))
+    out.append((TRACE_SERIES, _frame(TRACE_SERIES, {**_cell_keys(name, cells, n_steps),
+                                                    **{col: np.concatenate(v) for col, v in traces.items()}})))
+    out.append((NODE_SERIES, _frame(NODE_SERIES, {**_cell_keys(name, cells, np.array(n_steps) * N),
+                                                  **{col: np.concatenate(v) for col, v in series.items()}})))
     out += _path_tables(res)
     out.append((METRICS, metrics_frame(res)))
     return out
@@ -220,27 +259,37 @@ def run_tables(res: Results) -> list[tuple[TableSpec, pd.DataFrame]]:
 
 def _path_tables(res: Results) -> list[tuple[TableSpec, pd.DataFrame]]:
     name = res.scenario.name
-    paths, rounds = [], []
+    cells, paths, rounds = [], {c: [] for c in SAMPLE_PATHS.column_names[5:]}, {c: [] for c in CONSENSUS_ROUNDS.column_names[5:]}
+    path_rows, round_rows = [], []
     for c in _all_cells(res.design):
         p = res.paths(c)
         if "x" not in p or p["x"].size == 0:
             continue
-        keys = _cell_keys(name, c)
+        cells.append(c)
         P, K, N = p["xhat_pred"].shape
         trial, k, node = (a.ravel() for a in np.meshgrid(np.arange(P), np.arange(K), np.arange(N), indexing="ij"))
-        paths.append(pd.DataFrame({**{key: [v] * trial.size for key, v in keys.items()}, "trial": trial, "k": k,
-                                   "node": node, "x": p["x"][trial, k], "y": p["y"].ravel(),
-                                   "xhat_pred": p["xhat_pred"].ravel(), "xhat_filt": p["xhat_filt"].ravel(),
-                                   "w": p["w"][trial, k]}))
+        for col, v in (("trial", trial), ("k", k), ("node", node), ("x", p["x"][trial, k]), ("y", p["y"].ravel()),
+                       ("xhat_pred", p["xhat_pred"].ravel()), ("xhat_filt", p["xhat_filt"].ravel()),
+                       ("w", p["w"][trial, k])):
+            paths[col].append(v)
+        path_rows.append(trial.size)
         z = p["z_rounds"][0]                                    # (K, m+1, N), trial 0
         u = np.concatenate([np.full((K, 1, N), np.nan), p["u"][0]], axis=1)
         kk, hh, nn = (a.ravel() for a in np.meshgrid(np.arange(K), np.arange(z.shape[1]), np.arange(N), indexing="ij"))
-        rounds.append(pd.DataFrame({**{key: [v] * kk.size for key, v in keys.items()}, "k": kk, "round": hh, "node": nn,
-                                    "z": z.ravel(), "u": u.ravel()}))
-    if not paths:
+        for col, v in (("k", kk), ("round", hh), ("node", nn), ("z", z.ravel()), ("u", u.ravel())):
+            rounds[col].append(v)
+        round_rows.append(kk.size)
+    if not cells:
         return []
-    return [(SAMPLE_PATHS, pd.concat(paths, ignore_index=True)[SAMPLE_PATHS.column_names]),
-            (CONSENSUS_ROUNDS, pd.concat(rounds, ignore_index=True)[CONSENSUS_ROUNDS.column_names])]
+    return [(SAMPLE_PATHS, _frame(SAMPLE_PATHS, {**_cell_keys(name, cells, path_rows),
+                                                 **{col: np.concatenate(v) for col, v in paths.items()}})),
+            (CONSENSUS_ROUNDS, _frame(CONSENSUS_ROUNDS, {**_cell_keys(name, cells, round_rows),
+                                                         **{col: np.concatenate(v) for col, v in rounds.items()}}))]
+
+
+#: the metrics of a cell, in their order: network-wide, then per agent (one row each)
+CELL_METRICS = ("trP_exact", "trP_exact_per_agent", "trP_mc", "trP_mc_se", "trP_steady")
+AGENT_METRICS = ("P_exact", "P_mc", "P_mc_se", "P_steady")
 
 
 def metrics_frame(res: Results) -> pd.DataFrame:
@@ -249,30 +298,33 @@ def metrics_frame(res: Results) -> pd.DataFrame:
     variances; the centralized filter's trace. One row each; the cell is in the columns."""
     d, sc = res.design, res.scenario
     _, Pc, _, _ = d.arrays["centralized"]
-    rows = []
-
-    def add(metric, value, alg, m=None, sigma_c=None, node=None):
-        rows.append({"scenario": sc.name, "metric": metric, "node": node, "alg": alg, "m": m, "sigma_c": sigma_c,
-                     "value": float(value)})
-
+    N = sc.n
     ie = _index(d.steps, sc.eval_step)
     kf = float(d.kf_prior([sc.eval_step])[0])
-    add("kf_trP", sc.n * kf, "centralized")
-    add("kf_trP_per_agent", kf, "centralized")
-    add("kf_trP_steady", sc.n * Pc, "centralized")
+    per_cell = len(CELL_METRICS) + len(AGENT_METRICS) * N
+    metric = [np.array(["kf_trP", "kf_trP_per_agent", "kf_trP_steady"], object)]
+    values = [np.array([sc.n * kf, kf, sc.n * Pc], np.float64)]
     for c in d.cells:
         ex, st = d.exact(c), d.steady(c)
         mom = res.moments(c)
-        cell = dict(alg=c.alg, m=c.m, sigma_c=c.sigma_c)
-        add(f"{c.alg}_trP_exact", ex.trace[ie], **cell)
-        add(f"{c.alg}_trP_exact_per_agent", ex.trace[ie] / sc.n, **cell)
-        add(f"{c.alg}_trP_mc", mom.trace[ie], **cell)
-        add(f"{c.alg}_trP_mc_se", mom.trace_se[ie], **cell)
-        add(f"{c.alg}_trP_steady", st["trace"], **cell)
-        for i in range(sc.n):
-            add(f"{c.alg}_P_exact", ex.diag[ie, i], node=i, **cell)
-            add(f"{c.alg}_P_mc", mom.variance[ie, i], node=i, **cell)
-            add(f"{c.alg}_P_mc_se", mom.variance_se[ie, i], node=i, **cell)
-            add(f"{c.alg}_P_steady", st["diag"][i], node=i, **cell)
-    frame = pd.DataFrame(rows, columns=METRICS.column_names)
+        metric.append(np.array([f"{c.alg}_{m}" for m in CELL_METRICS] + [f"{c.alg}_{m}" for m in AGENT_METRICS] * N,
+                               object))
+        values.append(np.concatenate([
+            np.array([ex.trace[ie], ex.trace[ie] / sc.n, mom.trace[ie], mom.trace_se[ie], st["trace"]], np.float64),
+            np.stack([ex.diag[ie], mom.variance[ie], mom.variance_se[ie], st["diag"]], axis=1).ravel()]))
+    C = len(d.cells)
+    cell_node = np.concatenate([np.zeros(len(CELL_METRICS), np.int64), np.repeat(np.arange(N), len(AGENT_METRICS))])
+    node = np.concatenate([np.zeros(3, np.int64), np.tile(cell_node, C)])
+    node_missing = np.concatenate([np.ones(3, bool), np.tile(np.arange(per_cell) < len(CELL_METRICS), C)])
+    m = np.concatenate([np.zeros(3, np.int64), np.repeat(np.array([c.m for c in d.cells], np.int64), per_cell)])
+    m_missing = np.concatenate([np.ones(3, bool), np.zeros(C * per_cell, bool)])
+    frame = _frame(METRICS, {
+        "scenario": np.full(3 + C * per_cell, sc.name, object), "metric": np.concatenate(metric),
+        "node": pd.arrays.IntegerArray(node, node_missing),
+        "alg": np.concatenate([np.full(3, "centralized", object), np.repeat(np.array([c.alg for c in d.cells], object),
+                                                                             per_cell)]),
+        "m": pd.arrays.IntegerArray(m, m_missing),
+        "sigma_c": np.concatenate([np.full(3, np.nan), np.repeat(np.array([c.sigma_c for c in d.cells], np.float64),
+                                                                 per_cell)]),
+        "value": np.concatenate(values)})
     return frame.astype({"node": "Int64", "m": "Int64", "sigma_c": "float64"})
