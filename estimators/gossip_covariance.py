@@ -19,8 +19,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .gossip_filter import GossipSystem
-from .linear_flows import (abscissa_tolerance, affine_flow_grid, affine_steady_state, critical_parameter,
-                           spectral_abscissa)
+from .linear_flows import (abscissa_tolerance, affine_flow_grid, critical_parameter_by_test, spectral_abscissa)
 
 MAX_JOINT_DIM = 40     # N·n above which the dense (Nn)²×(Nn)² generator of Σ̄ is not formed
 MAX_SECOND_DIM = 40    # N·n(n+1)/2 above which the second moments of the P-process are not formed
@@ -44,13 +43,24 @@ def lyapunov_generator(A: np.ndarray) -> np.ndarray:
 
 # -- eq. (9) ------------------------------------------------------------------------------------
 
+def _memo(sys: GossipSystem, name: str, build):
+    """A generator's λ-free parts, built once per system (the generators are affine in λ)."""
+    memo = sys.__dict__.setdefault("_generator_parts", {})
+    if name not in memo:
+        memo[name] = build()
+    return memo[name]
+
+
 def bound_generator(sys: GossipSystem, rate: float) -> tuple[np.ndarray, np.ndarray]:
-    """(M_9(λ), g) with ṗ = M_9 p + g."""
-    n, N = sys.n, sys.N
-    M = sla.block_diag(*[lyapunov_generator(Ai) for Ai in sys.Ai])
-    jump = sum(sys.jump(c) - np.eye(N) for c in range(len(sys.clocks)))
-    M = M + rate * np.kron(jump, np.eye(n * n))
-    return M, np.concatenate([vec(G) for G in sys.Gi])
+    """(M_9(λ), g) with ṗ = M_9 p + g: M_9(λ) = blkdiag(I⊗A_i + A_i⊗I) + λ Σ_c (J_c − I) ⊗ I_{n²}."""
+    def build():
+        n, N = sys.n, sys.N
+        jump = sum(sys.jump(c) - np.eye(N) for c in range(len(sys.clocks)))
+        return (sla.block_diag(*[lyapunov_generator(Ai) for Ai in sys.Ai]), np.kron(jump, np.eye(n * n)),
+                np.concatenate([vec(G) for G in sys.Gi]))
+
+    M0, W, g = _memo(sys, "bound", build)
+    return M0 + rate * W, g
 
 
 def bound_transient(sys: GossipSystem, rate: float, step: float, n_steps: int, P_init=None) -> np.ndarray:
@@ -62,11 +72,26 @@ def bound_transient(sys: GossipSystem, rate: float, step: float, n_steps: int, P
     return unvec(p.reshape(n_steps + 1, sys.N, -1), sys.n)
 
 
+def bound_hurwitz(sys: GossipSystem, rate: float) -> bool:
+    """Whether M_9(λ) is Hurwitz, by one linear solve: M_9 is resolvent positive on N-tuples of symmetric
+    matrices (Lyapunov operators plus the positive coupling λαΣ_j𝒫_j), so it is Hurwitz if and only if
+    −M_9⁻¹(I, …, I) has every block positive definite (see `joint_hurwitz`)."""
+    M, _ = bound_generator(sys, rate)
+    n, N = sys.n, sys.N
+    try:
+        with np.errstate(all="ignore"):
+            X = unvec(np.linalg.solve(M, -np.tile(vec(np.eye(n)), N)).reshape(N, -1), n)
+    except np.linalg.LinAlgError:
+        return False
+    return bool(np.all(np.isfinite(X)) and np.linalg.eigvalsh((X + np.swapaxes(X, 1, 2)) / 2)[:, 0].min() > 0)
+
+
 def bound_steady(sys: GossipSystem, rate: float) -> np.ndarray | None:
     """𝒫_i^∞(λ) (N, n, n), or None when M_9(λ) is not Hurwitz (the bound diverges)."""
+    if not bound_hurwitz(sys, rate):
+        return None
     M, g = bound_generator(sys, rate)
-    p = affine_steady_state(M, g)
-    return None if p is None else unvec(p.reshape(sys.N, -1), sys.n)
+    return unvec(np.linalg.solve(M, -g).reshape(sys.N, -1), sys.n)
 
 
 def bound_abscissa(sys: GossipSystem, rate: float) -> float:
@@ -81,7 +106,8 @@ def bound_abscissa_tolerance(sys: GossipSystem, rate: float) -> float:
 def critical_rate_bound(sys: GossipSystem) -> float:
     """λ_crit of (9): inf{λ : M_9(λ) Hurwitz} (0 if every A_i is Hurwitz, or if M_9(0) is only
     marginally stable and every small λ > 0 is stable; inf if never)."""
-    return critical_parameter(lambda lam: bound_abscissa(sys, lam), tol=lambda lam: bound_abscissa_tolerance(sys, lam))
+    return critical_parameter_by_test(lambda lam: bound_hurwitz(sys, lam), bound_abscissa(sys, 0.0),
+                                      bound_abscissa_tolerance(sys, 0.0))
 
 
 def bound_steady_deviation(sys: GossipSystem, rate: float, S: np.ndarray) -> np.ndarray | None:
@@ -91,9 +117,9 @@ def bound_steady_deviation(sys: GossipSystem, rate: float, S: np.ndarray) -> np.
     deviation D solves M_9(λ) vec D = −r with the λ-free residual r_i = A_iS + SA_iᵀ + G_i: no
     term of size λ‖S‖ is formed and cancelled, and D = O(1/λ) keeps its relative accuracy at
     large λ (forming 𝒫^∞ and subtracting S loses ~log10(λ) digits)."""
-    M, _ = bound_generator(sys, rate)
-    if spectral_abscissa(M) >= -abscissa_tolerance(M):
+    if not bound_hurwitz(sys, rate):
         return None
+    M, _ = bound_generator(sys, rate)
     r = np.concatenate([vec(A @ S + S @ A.T + G) for A, G in zip(sys.Ai, sys.Gi)])
     return unvec(np.linalg.solve(M, -r).reshape(sys.N, -1), sys.n)
 
@@ -222,29 +248,49 @@ def _functionals(y: np.ndarray, weights: np.ndarray, q2: int, D2: np.ndarray, D:
 
 # -- exact mean joint covariance ----------------------------------------------------------------
 
-def joint_generator(sys: GossipSystem, rate: float) -> tuple[np.ndarray, np.ndarray]:
-    """(M_Σ(λ), g_Σ) on vec Σ̄ (Nn × Nn, column-major)."""
+def _joint_parts(sys: GossipSystem) -> tuple[np.ndarray, np.ndarray]:
+    """(𝔄, W) with M_Σ(λ) = 𝔄 + λW on vec Σ̄: 𝔄 = I⊗𝒜 + 𝒜⊗I and W = Σ_c (𝒥_c⊗𝒥_c − I). With
+    𝒥_c = I − αD_c (D_c = E_c ⊗ I_n, E_c = (u_i − u_j)(u_i − u_j)ᵀ for an edge clock, u_i(u_i − u_j)ᵀ for
+    an ordered one, Σ_c E_c = 𝓛): W = −α(I⊗(𝓛⊗I_n) + (𝓛⊗I_n)⊗I) + α²Σ_c D_c⊗D_c, the last sum
+    accumulated from the few nonzero entries of each D_c (no dense Kronecker product per clock)."""
     n, N = sys.n, sys.N
     D = N * n
     if D > MAX_JOINT_DIM:
         raise ValueError(f"N·n = {D} > {MAX_JOINT_DIM}: the dense generator of the joint covariance is too large")
-    Ablk = sla.block_diag(*sys.Ai)
-    M = lyapunov_generator(Ablk)
-    I = np.eye(D * D)
-    for c in range(len(sys.clocks)):
-        Jz = np.kron(sys.jump(c), np.eye(n))
-        M += rate * (np.kron(Jz, Jz) - I)
-    G = sys.joint_noise[n:, n:]
-    return M, vec(G)
+
+    def build():
+        I = np.eye(D)
+        Ln = np.kron(sys.laplacian, np.eye(n))
+        W = -sys.alpha * (np.kron(I, Ln) + np.kron(Ln, I))
+        rows, cols, vals = [], [], []
+        k = np.arange(n)
+        for i, j in sys.clocks:
+            entries = [(i, i, 1.0), (i, j, -1.0)] + ([(j, j, 1.0), (j, i, -1.0)] if sys.mode == "edge" else [])
+            r = np.concatenate([a * n + k for a, _, _ in entries])
+            c = np.concatenate([b * n + k for _, b, _ in entries])
+            v = np.concatenate([np.full(n, x) for _, _, x in entries])
+            rows.append((r[:, None] * D + r[None, :]).ravel())
+            cols.append((c[:, None] * D + c[None, :]).ravel())
+            vals.append((v[:, None] * v[None, :]).ravel())
+        np.add.at(W, (np.concatenate(rows), np.concatenate(cols)), sys.alpha ** 2 * np.concatenate(vals))
+        return lyapunov_generator(sla.block_diag(*sys.Ai)), W
+
+    return _memo(sys, "joint", build)
+
+
+def joint_generator(sys: GossipSystem, rate: float) -> tuple[np.ndarray, np.ndarray]:
+    """(M_Σ(λ), g_Σ) on vec Σ̄ (Nn × Nn, column-major)."""
+    M0, W = _joint_parts(sys)
+    return M0 + rate * W, vec(sys.joint_noise[sys.n:, sys.n:])
 
 
 def joint_generator_sym(sys: GossipSystem, rate: float) -> tuple[np.ndarray, np.ndarray]:
     """`joint_generator` on the symmetric coordinates of Σ̄ (the flow and the jumps keep Σ̄
     symmetric; the spectral abscissa of the full operator is attained there, on the positive
     semidefinite cone the flow preserves)."""
-    M, _ = joint_generator(sys, rate)
     D = sys.N * sys.n
-    return sym_reduce(M, D), sym_coords(sys.joint_noise[sys.n:, sys.n:])
+    M0, W = _memo(sys, "joint_sym", lambda: tuple(sym_reduce(X, D) for X in _joint_parts(sys)))
+    return M0 + rate * W, sym_coords(sys.joint_noise[sys.n:, sys.n:])
 
 
 def joint_initial(sys: GossipSystem) -> np.ndarray:
@@ -259,10 +305,28 @@ def joint_transient(sys: GossipSystem, rate: float, step: float, n_steps: int) -
     return from_sym_coords(p, D)
 
 
+def joint_hurwitz(sys: GossipSystem, rate: float) -> bool:
+    """Whether M_Σ(λ) is Hurwitz, by one linear solve instead of an eigenvalue problem.
+
+    M_Σ(λ) is resolvent positive on the symmetric matrices (a Lyapunov operator plus the positive
+    map λΣ_c𝒥_c·𝒥_cᵀ, shifted): such an operator is Hurwitz if and only if X = −M_Σ⁻¹(I) is positive
+    definite (if it is Hurwitz, −M_Σ⁻¹ = ∫e^{M_Σt}dt maps I into the interior of the cone; if
+    X ≻ 0 solves M_Σ(X) = −I ≺ 0, X is a Lyapunov certificate)."""
+    M, _ = joint_generator_sym(sys, rate)
+    D = sys.N * sys.n
+    try:
+        with np.errstate(all="ignore"):
+            X = from_sym_coords(np.linalg.solve(M, -sym_coords(np.eye(D))), D)
+    except np.linalg.LinAlgError:
+        return False
+    return bool(np.all(np.isfinite(X)) and np.linalg.eigvalsh(X)[0] > 0)
+
+
 def joint_steady(sys: GossipSystem, rate: float) -> np.ndarray | None:
+    if not joint_hurwitz(sys, rate):
+        return None
     M, g = joint_generator_sym(sys, rate)
-    p = affine_steady_state(M, g)
-    return None if p is None else from_sym_coords(p, sys.N * sys.n)
+    return from_sym_coords(np.linalg.solve(M, -g), sys.N * sys.n)
 
 
 def joint_abscissa(sys: GossipSystem, rate: float) -> tuple[float, float]:
@@ -271,14 +335,15 @@ def joint_abscissa(sys: GossipSystem, rate: float) -> tuple[float, float]:
     return spectral_abscissa(M), abscissa_tolerance(M)
 
 
-def critical_rate_joint(sys: GossipSystem, upper: float | None = None) -> float:
-    """λ_crit of the exact mean covariance; `upper` (e.g. λ_crit of (9), which is never smaller:
-    𝒫_i ⪰ E[e_ie_iᵀ]) narrows the bisection."""
-    f = lambda lam: joint_abscissa(sys, lam)[0]
-    tol = lambda lam: abscissa_tolerance(joint_generator_sym(sys, lam)[0])
-    if upper is not None and math.isfinite(upper) and upper > 0 and f(upper * (1 + 1e-9)) < -tol(upper * (1 + 1e-9)):
-        return critical_parameter(f, tol=tol, start=upper * (1 + 1e-9))
-    return critical_parameter(f, tol=tol)
+def critical_rate_joint(sys: GossipSystem, upper: float | None = None, *, rtol: float = 1e-10,
+                        limit: float = 1e9) -> float:
+    """λ_crit of the exact mean covariance: inf{λ : M_Σ(λ) Hurwitz}, by bisection on `joint_hurwitz`
+    (0 when M_Σ(0) is Hurwitz, or only marginally stable at λ = 0 (abscissa zero to round-off) with
+    every small λ > 0 stable; inf when no λ up to `limit` is stable). `upper` (e.g. λ_crit of (9),
+    which is never smaller: 𝒫_i ⪰ E[e_ie_iᵀ]) narrows the bisection."""
+    a0, t0 = joint_abscissa(sys, 0.0)
+    return critical_parameter_by_test(lambda lam: joint_hurwitz(sys, lam), a0, t0, upper=limit, rtol=rtol,
+                                      start=None if upper is None else upper * (1 + 1e-9))
 
 
 def joint_steady_deviation(sys: GossipSystem, rate: float, S_lim: np.ndarray) -> np.ndarray | None:
@@ -286,9 +351,9 @@ def joint_steady_deviation(sys: GossipSystem, rate: float, S_lim: np.ndarray) ->
 
     As for `bound_steady_deviation`: 𝒥_c(11ᵀ⊗S)𝒥_cᵀ = 11ᵀ⊗S, so only the λ-free residual
     𝒜X + X𝒜ᵀ + 𝒢 of X = 11ᵀ⊗S_lim enters the right-hand side."""
-    M, _ = joint_generator_sym(sys, rate)
-    if spectral_abscissa(M) >= -abscissa_tolerance(M):
+    if not joint_hurwitz(sys, rate):
         return None
+    M, _ = joint_generator_sym(sys, rate)
     X = np.kron(np.ones((sys.N, sys.N)), S_lim)
     Ablk = sla.block_diag(*sys.Ai)
     R = Ablk @ X + X @ Ablk.T + sys.joint_noise[sys.n:, sys.n:]

@@ -86,6 +86,28 @@ def critical_parameter(abscissa: Callable[[float], float], *, tol: Callable[[flo
     return 0.0 if lo == 0.0 and a0 <= level(0.0) else hi
 
 
+def critical_parameter_by_test(hurwitz: Callable[[float], bool], a0: float, t0: float, *, upper: float = 1e9,
+                               rtol: float = 1e-10, start: float | None = None) -> float:
+    """As `critical_parameter`, with stability decided by `hurwitz(λ)` (e.g. one linear solve for a
+    resolvent positive generator) instead of an abscissa; a0 ± t0 is the abscissa at λ = 0 and its
+    round-off level (0 when a0 < −t0; 0 too when a0 is zero to round-off and a small λ > 0 is stable)."""
+    if a0 < -t0:
+        return 0.0
+    if abs(a0) <= t0 and hurwitz(1e-9):
+        return 0.0
+    lo, hi = 0.0, 1e-3
+    if start is not None and math.isfinite(start) and start > 0 and hurwitz(start):
+        hi = start
+    while not hurwitz(hi):
+        lo, hi = hi, hi * 4
+        if hi > upper:
+            return math.inf
+    while hi - lo > rtol * hi:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if hurwitz(mid) else (mid, hi)
+    return hi
+
+
 def abscissa_tolerance(M: np.ndarray) -> float:
     """Rounding level of the computed spectral abscissa of M: 10·dim·eps·‖M‖₁ (backward error of
     the eigenvalue solver; eigenvalues of a normal matrix move by at most that much)."""
