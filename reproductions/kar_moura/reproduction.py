@@ -27,7 +27,7 @@ node-initiated gossip, a given law over matchings, random greedy maximal matchin
 matching sequence replayed in every run (a protocol or a trace; the theorems, which assume i.i.d. matchings, are then
 not checkable and the pathwise statements still are). A disconnected graph is accepted: C.1 (Ā irreducible and
 aperiodic) then fails and is reported as a hypothesis that does not hold, like D.1 (a walk of Ā with an invertible
-observability Gramian). Monte Carlo runs are streamed in units of 1,000 (the numbers do not depend on the memory
+observability Gramian). At most 1,000 sensors (Ā is dense). Monte Carlo runs are streamed in units of 1,000 (the numbers do not depend on the memory
 budget); per-slot statistics are kept at a bounded set of slots, so horizons up to 20,000 slots fit. Tables: design
 (`design`, `f_eigenvalues`, `abar`, `abar_spectrum`, `sensors`, `classes`, `witness_walks`, `matrices`,
 `tail_bounds`, `tv_decay`, `reference_series`; also from `dse check`) and run (`nodes`, `node_entries`,
