@@ -1,6 +1,7 @@
 """Matplotlib figures written atomically as PNG, one consistent style."""
 from __future__ import annotations
 
+import math
 import os
 
 import matplotlib
@@ -20,12 +21,49 @@ def new_figure(ncols: int = 1, nrows: int = 1, width: float = 6.4, height: float
     return fig, axes
 
 
-def save_figure(fig, path: str | os.PathLike) -> None:
+def save_figure(fig, path: str | os.PathLike, *, tight: bool = True) -> None:
+    """Write `fig` as PNG and close it. `tight=False` keeps the figure's own margins (see
+    `set_margins`): `tight_layout` measures every text of the figure in an extra draw, about a
+    third of the time of a figure with a few axes."""
     with plt.rc_context(STYLE):
-        fig.tight_layout()
+        if tight:
+            fig.tight_layout()
         with atomic_path(path) as tmp:
             fig.savefig(tmp, format="png")
     plt.close(fig)
+
+
+def set_margins(fig, *, left: float = 0.7, right: float = 0.15, bottom: float = 0.5, top: float = 0.35,
+                wspace: float = 0.75, hspace: float = 0.7) -> None:
+    """Fixed margins and gaps between the axes of a grid figure, in inches (whatever the figure's
+    size), for `save_figure(fig, path, tight=False)`."""
+    w, h = fig.get_size_inches()
+    nrows, ncols = fig.axes[0].get_subplotspec().get_gridspec().get_geometry()
+    axis_w = (w - left - right - (ncols - 1) * wspace) / ncols
+    axis_h = (h - bottom - top - (nrows - 1) * hspace) / nrows
+    fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
+                        wspace=wspace / axis_w, hspace=hspace / axis_h)
+
+
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def _decade_label(value: float, _pos=None) -> str:
+    if not value > 0:
+        return ""
+    e = math.log10(value)
+    return "10" + str(round(e)).translate(_SUPERSCRIPT) if abs(e - round(e)) < 1e-9 else f"{value:g}"
+
+
+def plain_log_labels(fig) -> None:
+    """Major tick labels of every log-scale axis of `fig` as plain text (10⁻⁵ in superscript
+    digits) instead of mathtext, which matplotlib parses label by label (about 10 ms each)."""
+    from matplotlib.ticker import FuncFormatter
+
+    for ax in fig.axes:
+        for axis in (ax.xaxis, ax.yaxis):
+            if axis.get_scale() == "log":
+                axis.set_major_formatter(FuncFormatter(_decade_label))
 
 
 def sequential_colors(n: int, cmap: str = "viridis"):

@@ -8,6 +8,7 @@ character map, read from the font embedded in the viewer binary (see
 from __future__ import annotations
 
 import bisect
+import functools
 import unicodedata
 
 INTER_RANGES: tuple[tuple[int, int], ...] = (
@@ -57,9 +58,11 @@ def drawable(ch: str) -> bool:
     return i >= 0 and INTER_RANGES[i][0] <= c <= INTER_RANGES[i][1]
 
 
+@functools.lru_cache(maxsize=4096)
 def viewer_text(text: str) -> str:
     """`text` with every character the viewer cannot draw replaced: a readable stand-in for
-    common mathematical symbols, else its compatibility form (𝒫 -> P), else '?'."""
+    common mathematical symbols, else its compatibility form (𝒫 -> P), else '?'. Remembered:
+    the same claims go into every recording of a run."""
     if text.isascii():
         return text
     out = []

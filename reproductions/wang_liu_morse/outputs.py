@@ -20,7 +20,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from pipeline import record as rec_
-from pipeline.figures import draw_all, new_figure, save_figure
+from pipeline.figures import draw_all, new_figure, plain_log_labels, save_figure, set_margins
 
 from . import bounds
 from . import claims as cl
@@ -42,26 +42,55 @@ def log10_safe(v: np.ndarray) -> np.ndarray:
     return np.log10(np.maximum(np.asarray(v, float), TINY))
 
 
-def rows(tables, name: str, scenario: str, run: str | None = None) -> pd.DataFrame:
-    """The rows of one table for a scenario (and a run)."""
-    f = tables[name]
-    sel = f["scenario"] == scenario
-    if run is not None:
-        sel &= f["run"] == run
-    return f[sel]
+class TableView:
+    """The run's tables, each split once into its rows per scenario (and run) on first use:
+    figures and recordings select the same rows many times, and a boolean mask over the
+    580,000 rows of `state_series` costs about as much as splitting the whole table."""
+
+    def __init__(self, tables):
+        self.tables = tables
+        self._parts: dict[tuple[str, bool], dict] = {}
+
+    def __getitem__(self, name: str) -> pd.DataFrame:
+        return self.tables[name]
+
+    def rows(self, name: str, scenario: str, run: str | None = None) -> pd.DataFrame:
+        """The rows of one table for a scenario (and a run), in table order."""
+        key = (name, run is not None)
+        if key not in self._parts:
+            by = ["scenario", "run"] if run is not None else ["scenario"]
+            self._parts[key] = dict(iter(self.tables[name].groupby(by, sort=False)))
+        return self._parts[key].get((scenario, run) if run is not None else (scenario,), self.tables[name].iloc[:0])
 
 
 def _pivot(frame: pd.DataFrame, column: str, index: str = "t", by: str = "node") -> tuple[np.ndarray, np.ndarray]:
-    """(index values, matrix index x by) of a tidy frame."""
+    """(index values, matrix index x by) of a tidy frame; a frame already in (index, by) order
+    (as the tables are written) is reshaped without pandas' pivot."""
+    idx, keys, vals = frame[index].to_numpy(float), frame[by].to_numpy(), frame[column].to_numpy(float)
+    labels = np.unique(keys)
+    k = len(labels)
+    if k and len(vals) % k == 0:
+        first = idx[::k]
+        if (np.array_equal(keys, np.tile(labels, len(vals) // k)) and np.all(np.diff(first) > 0)
+                and np.array_equal(idx.reshape(-1, k), np.repeat(first[:, None], k, axis=1))):
+            return first, vals.reshape(-1, k)
     p = frame.pivot(index=index, columns=by, values=column).sort_index()
     return p.index.to_numpy(float), p.to_numpy(float)
 
 
 # -- figures --------------------------------------------------------------------------------------
 
+def _save(fig, path: Path, **margins) -> None:
+    """Fixed margins (inches) instead of tight_layout's extra measuring draw; log-axis labels
+    without mathtext."""
+    set_margins(fig, **margins)
+    plain_log_labels(fig)
+    save_figure(fig, path, tight=False)
+
+
 def _trace_figure(tables, scenario: str, run: str, m: int, title: str, path: Path, agents=(0,), component: int = 2,
                   shade: tuple[float, float] | None = None) -> None:
-    st = rows(tables, "state_series", scenario, run)
+    st = tables.rows("state_series", scenario, run)
     st = st[st["component"] == component + 1]
     truth = st[st["source"] == "truth"]
     fig, axes = new_figure(ncols=2, width=5.6)
@@ -74,10 +103,10 @@ def _trace_figure(tables, scenario: str, run: str, m: int, title: str, path: Pat
     ax.set_title(title, fontsize=9)
     ax.legend()
     ax = axes[0, 1]
-    t, err = _pivot(rows(tables, "node_series", scenario, run), "error_trial0")
+    t, err = _pivot(tables.rows("node_series", scenario, run), "error_trial0")
     for i in range(m):
         ax.semilogy(t, np.maximum(err[:, i], TINY), color=_mpl(i), lw=1, label=f"||e_{i + 1}(t)||")
-    net = rows(tables, "network_series", scenario, run)
+    net = tables.rows("network_series", scenario, run)
     if np.isfinite(net["kalman_trial0"]).any():
         ax.semilogy(net["t"], np.maximum(net["kalman_trial0"], TINY), "k:", lw=1, label="centralized KF (filterpy)")
     else:
@@ -88,7 +117,7 @@ def _trace_figure(tables, scenario: str, run: str, m: int, title: str, path: Pat
     ax.set_xlabel("t")
     ax.set_title("estimation errors (log scale)", fontsize=9)
     ax.legend(ncol=2)
-    save_figure(fig, path)
+    _save(fig, path)
 
 
 def _fig1(path: Path) -> None:
@@ -113,13 +142,13 @@ def _fig1(path: Path) -> None:
     ax.set_xlabel("time (Δ = 1, β = 0.3, ε = 0.1)")
     ax.set_title("Fig. 1: j's broadcast falls inside i's reception interval [τ_i(k-1), τ_i(k)) under (10)", fontsize=9)
     ax.legend(loc="lower right")
-    save_figure(fig, path)
+    _save(fig, path, left=0.2, right=0.2)
 
 
 def _graph_figure(tables, scenario: str, path: Path) -> None:
-    props = rows(tables, "graph_properties", scenario)
-    arcs = rows(tables, "graphs", scenario)
-    m = int(rows(tables, "agents", scenario)["node"].max())
+    props = tables.rows("graph_properties", scenario)
+    arcs = tables.rows("graphs", scenario)
+    m = int(tables.rows("agents", scenario)["node"].max())
     fig, axes = new_figure(ncols=len(props), width=3.4, height=3.4)
     ang = np.pi / 2 - 2 * np.pi * np.arange(m) / m
     pos = np.column_stack([np.cos(ang), np.sin(ang)])
@@ -136,7 +165,7 @@ def _graph_figure(tables, scenario: str, path: Path) -> None:
         ax.set_ylim(-1.4, 1.4)
         ax.set_aspect("equal")
         ax.axis("off")
-    save_figure(fig, path)
+    _save(fig, path, left=0.1, right=0.1, bottom=0.1, wspace=0.2)
 
 
 def _bounds_figure(res, tables, scenario: str, path: Path) -> None:
@@ -149,7 +178,7 @@ def _bounds_figure(res, tables, scenario: str, path: Path) -> None:
         sync = next((s for s in r.scenario.runs if s.timing == "sync" and bounds.is_theorem_run(s)), None)
     ax = axes[0, 0]
     if sync is not None:
-        ev = rows(tables, "events", scenario, sync.name)
+        ev = tables.rows("events", scenario, sync.name)
         ev = ev[ev["s"] >= 1]
         ts = ev["s"].to_numpy() * r.scenario.T
         ax.semilogy(ts, np.maximum(ev["error_max"], TINY), "o-", ms=3, label=f"max over {int(ev['trials'].iloc[0])} "
@@ -164,7 +193,7 @@ def _bounds_figure(res, tables, scenario: str, path: Path) -> None:
     ideal = next((s for s in r.scenario.runs if s.ideal and bounds.is_theorem_run(s)), None)
     ax = axes[0, 1]
     if ideal is not None:
-        net = rows(tables, "network_series", scenario, ideal.name)
+        net = tables.rows("network_series", scenario, ideal.name)
         T = r.scenario.T
         sel = net["t"].to_numpy() <= 3 * T
         t, err = net["t"].to_numpy()[sel], net["error_trial0"].to_numpy()[sel]
@@ -172,7 +201,7 @@ def _bounds_figure(res, tables, scenario: str, path: Path) -> None:
                 label="||e(t)|| / printed bound e^(||A||T-λt)(...)")
         ax.plot(t, err / net["bound_corrected_trial0"].to_numpy()[sel], color="k",
                 label="||e(t)|| / corrected bound (× e^(λT))")
-        nd = rows(tables, "nodes", scenario, ideal.name)
+        nd = tables.rows("nodes", scenario, ideal.name)
         pre = nd.groupby("s")["error_before_reset"].max()
         pre = pre[(pre.index >= 1) & (pre.index * T <= 3 * T)]
         pts = pre.index.to_numpy() * T
@@ -182,7 +211,7 @@ def _bounds_figure(res, tables, scenario: str, path: Path) -> None:
         ax.set_title(f"{scenario}/{ideal.name} (ē(0) = 0): continuous-time bound ratio, trial 0", fontsize=9)
         ax.set_xlabel("t")
         ax.legend(fontsize=7)
-    save_figure(fig, path)
+    _save(fig, path)
 
 
 def _decay_figure(res, tables, path: Path) -> None:
@@ -192,7 +221,7 @@ def _decay_figure(res, tables, path: Path) -> None:
         sync = next((s for s in r.scenario.runs if s.timing == "sync" and not s.ideal and bounds.is_theorem_run(s)), None)
         if sync is None:
             continue
-        ev = rows(tables, "events", name, sync.name)
+        ev = tables.rows("events", name, sync.name)
         t, e, fl = ev["t"].to_numpy(), ev["error_trial0"].to_numpy(), ev["floor_trial0"].to_numpy()
         rate, first, stop = cl.fit_rate(t, e, fl)
         c = _mpl(idx)
@@ -206,7 +235,7 @@ def _decay_figure(res, tables, path: Path) -> None:
     ax.set_xlabel("t")
     ax.set_title("decay rate fits stop where round-off starts", fontsize=9)
     ax.legend(fontsize=7)
-    save_figure(fig, path)
+    _save(fig, path)
 
 
 def _anorm_figure(res, tables, path: Path) -> None:
@@ -218,7 +247,7 @@ def _anorm_figure(res, tables, path: Path) -> None:
     for ax, (name, r) in zip(axes[0], parts):
         k = 0
         for s in r.scenario.runs:
-            iv = rows(tables, "intervals", name, s.name)
+            iv = tables.rows("intervals", name, s.name)
             key = "A_2" if s.rule == "symmetric" else "A_mixed"
             v = iv[key].to_numpy()
             if np.all(np.isnan(v)) or s.noise:
@@ -230,7 +259,7 @@ def _anorm_figure(res, tables, path: Path) -> None:
         ax.set_xlabel("event interval s")
         ax.set_title(f"{name}: |A(s)| per interval, Lemma 4 (44) and (54)", fontsize=9)
         ax.legend(fontsize=6, ncol=2)
-    save_figure(fig, path)
+    _save(fig, path)
 
 
 def figure_jobs(res, tables, out_dir: Path, paper: bool) -> list:
@@ -299,47 +328,49 @@ def write_run_recording(res, tables, scenario: str, run_name: str, path: Path, c
         rrb.TimePanel(timeline="t", expanded=False),
         collapse_panels=True,
     )
-    ev = rows(tables, "events", scenario, run_name)
+    ev = tables.rows("events", scenario, run_name)
     props = {"seed": r.seed, "trials": int(ev["trials"].iloc[0]), "system": sc.name, "run": run_name, "q": float(spec.q),
              "T": sc.T, "timing": spec.timing, "switching": spec.switching, "rule": spec.rule,
              "versions": json.dumps(prov.get("versions", {})), "git": prov.get("git", "")}
     with rec_.recording(path, application_id="dse-wang-liu-morse", recording_id=f"wlm-{sc.name}-{run_name}-seed{r.seed}",
                         blueprint=blueprint, properties=props) as rec:
-        st = rows(tables, "state_series", scenario, run_name)
+        st = tables.rows("state_series", scenario, run_name)
         truth = st[st["source"] == "truth"]
         ts, x = _pivot(truth, "value", by="component")
         idx = rec_.duration_index("t", _ns(ts))
         rec_.send_series(rec, "truth/x", idx, x, names=[f"x^({c + 1})" for c in range(n)], colors=[(0, 0, 0)] * n,
                          width=2.0)
-        tn, err = _pivot(rows(tables, "node_series", scenario, run_name), "error_trial0")
-        _, emean = _pivot(rows(tables, "node_series", scenario, run_name), "error_mean")
-        _, emax = _pivot(rows(tables, "node_series", scenario, run_name), "error_max")
+        series = tables.rows("node_series", scenario, run_name)
+        tn, err = _pivot(series, "error_trial0")
+        _, emean = _pivot(series, "error_mean")
+        _, emax = _pivot(series, "error_max")
         nidx = rec_.duration_index("t", _ns(tn))
-        nodes = rows(tables, "nodes", scenario, run_name)
-        its = rows(tables, "iterates", scenario, run_name)
+        nodes = tables.rows("nodes", scenario, run_name)
+        its = tables.rows("iterates", scenario, run_name)
+        estimates = dict(iter(st[st["source"] == "agent"].groupby("node", sort=False)))
+        nodes_of, its_of = dict(iter(nodes.groupby("node", sort=False))), dict(iter(its.groupby("node", sort=False)))
         for i in range(m):
             lab = f"agent {i + 1}"
-            est = st[(st["source"] == "agent") & (st["node"] == i + 1)]
-            te, xe = _pivot(est, "value", by="component")
+            te, xe = _pivot(estimates[i + 1], "value", by="component")
             rec_.send_series(rec, f"nodes/{i + 1}/estimate", rec_.duration_index("t", _ns(te)), xe,
                              names=[f"{lab} x_{i + 1}^({c + 1})" for c in range(n)], colors=[_col(i)] * n)
             rec_.send_series(rec, f"nodes/{i + 1}/error", nidx, err[:, i], names=f"||e_{i + 1}(t)||", colors=[_col(i)])
             rec_.send_series(rec, f"nodes/{i + 1}/log10_error", nidx, log10_safe(err[:, i]),
                              names=f"log10 ||e_{i + 1}(t)||", colors=[_col(i)])
-            nd = nodes[nodes["node"] == i + 1]
+            nd = nodes_of[i + 1]
             eidx = rec_.duration_index("t", _ns(nd["t"]))
             rec_.send_series(rec, f"nodes/{i + 1}/reset/before", eidx, log10_safe(nd["error_before_reset"]),
                              names=f"log10 ||e_{i + 1}(t_is⁻)|| (before reset)", colors=[(120, 120, 120)], points=True)
             rec_.send_series(rec, f"nodes/{i + 1}/reset/after", eidx, log10_safe(nd["error_trial0"]),
                              names=f"log10 ||e_{i + 1}(t_is)|| (after reset)", colors=[_col(i)], points=True)
-            it = its[its["node"] == i + 1].sort_values("t", kind="stable")
+            it = its_of.get(i + 1, its.iloc[:0]).sort_values("t", kind="stable")
             if len(it):
                 rec_.send_series(rec, f"nodes/{i + 1}/iterates", rec_.duration_index("t", _ns(it["t"])),
                                  log10_safe(it["error"]), names=f"agent {i + 1} log10 ||π_is(k)||", colors=[_col(i)],
                                  points=True)
             rec.send_columns(f"events/reset/{i + 1}", indexes=eidx,
                              columns=rr.TextLog.columns(text=[f"agent {i + 1}: event s = {int(s)}" for s in nd["s"]]))
-        net = rows(tables, "network_series", scenario, run_name)
+        net = tables.rows("network_series", scenario, run_name)
         gidx = rec_.duration_index("t", _ns(net["t"]))
         rec_.send_series(rec, "central/error", gidx, net["central_trial0"].to_numpy(),
                          names="centralized observer ||x_c - x||", colors=[(0, 0, 0)])
@@ -365,11 +396,11 @@ def write_run_recording(res, tables, scenario: str, run_name: str, path: Path, c
                                                   log10_safe(net["bound_corrected_trial0"])]),
                                  names=["printed continuous bound", "corrected continuous bound (× e^(λT))"],
                                  colors=[(214, 39, 40), (0, 0, 0)], width=1.0)
-        iv = rows(tables, "intervals", scenario, run_name)
+        iv = tables.rows("intervals", scenario, run_name)
         key = "A_2" if spec.rule == "symmetric" else "A_mixed"
         vals = iv[key].to_numpy()
         ok = ~np.isnan(vals)
-        t_end = nodes[nodes["node"] == 1].set_index("s")["t"]
+        t_end = nodes_of[1].set_index("s")["t"]
         if ok.any():
             times = t_end.reindex(iv["s"].to_numpy()[ok]).to_numpy()
             rec_.send_series(rec, "bounds/A_norm", rec_.duration_index("t", _ns(times)),
@@ -381,7 +412,7 @@ def write_run_recording(res, tables, scenario: str, run_name: str, path: Path, c
         rec.log("graph", rr.GraphNodes([str(i + 1) for i in range(m)], positions=np.column_stack([np.cos(ang), np.sin(ang)]) * 100,
                                        labels=[f"agent {i + 1}" for i in range(m)], colors=[_col(i) for i in range(m)],
                                        radii=12.0, show_labels=True), static=True)
-        src = rows(tables, "source_sets", scenario, run_name)
+        src = tables.rows("source_sets", scenario, run_name)
         src = src[src["used"]]
         times, edges = [], []
         if len(src):
@@ -392,25 +423,34 @@ def write_run_recording(res, tables, scenario: str, run_name: str, path: Path, c
             masks[slot, i_, j_] = True
             change = np.r_[True, (masks[1:] != masks[:-1]).any(axis=(1, 2))]
             start = t_end.to_dict()
+            labels = np.array([str(i + 1) for i in range(m)])
             for g in np.nonzero(change)[0]:
                 s, k = divmod(int(g), spec.q)
                 times.append(int(round((start[s] + k * spec.Delta) * 1e9)))
                 ii, jj = np.nonzero(masks[g])
-                edges.append([(str(j + 1), str(i + 1)) for i, j in zip(ii, jj)])
+                edges.append(np.column_stack([labels[jj], labels[ii]]))        # (sender, receiver) pairs
         if times:
+            sizes = [len(es) for es in edges]
             rec.send_columns("graph", indexes=rec_.duration_index("t", np.array(times)),
-                             columns=rr.GraphEdges.columns(edges=[e for es in edges for e in es],
-                                                           graph_type=[rr.GraphType.Directed] * sum(len(es) for es in edges)
-                                                           ).partition([len(es) for es in edges]))
+                             columns=rr.GraphEdges.columns(edges=np.concatenate(edges),
+                                                           graph_type=[rr.GraphType.Directed] * sum(sizes)
+                                                           ).partition(sizes))
         rec_.log_claims(rec, claims, summary, width=30)
 
 
+#: the tables figures and recordings select per run, split before the workers fork (each would split its own)
+SPLIT = ("state_series", "node_series", "network_series", "nodes", "events", "intervals", "iterates", "source_sets")
+
+
 def write_outputs(res, tables, out_dir: Path, claims: list[dict], prov: dict, *, paper: bool) -> None:
-    draw_all(figure_jobs(res, tables, out_dir, paper), workers=int(prov.get("workers", 1) or 1))
+    """The figures and one recording per (system, run), drawn together in forked workers."""
+    view = TableView(tables)
+    for name in SPLIT:
+        view.rows(name, "", "")
     counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
     summary = (f"# hybrid observer: {counts['pass']} pass, {counts['fail']} fail, {counts['erratum']} erratum, "
                f"{counts['not-checkable']} not checkable, {counts['error']} error")
-    for name, r in res.parts.items():
-        for s in r.scenario.runs:
-            fname = f"{name}_{s.name}.rrd" if paper else f"{s.name}.rrd"
-            write_run_recording(res, tables, name, s.name, out_dir / fname, claims, prov, summary)
+    recordings = [lambda name=name, s=s: write_run_recording(
+        res, view, name, s.name, out_dir / (f"{name}_{s.name}.rrd" if paper else f"{s.name}.rrd"), claims, prov, summary)
+        for name, r in res.parts.items() for s in r.scenario.runs]
+    draw_all(figure_jobs(res, view, out_dir, paper) + recordings, workers=int(prov.get("workers", 1) or 1))
