@@ -134,6 +134,27 @@ def discrete_noise(S: np.ndarray, Qc: np.ndarray, dt: float) -> tuple[np.ndarray
     return Phi, Qd
 
 
+def discrete_noise_columns(S: np.ndarray, B: np.ndarray, dt: float, nodes: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """(Φ, Q) with Q[c] = ∫_0^dt e^{Ss} b_c b_cᵀ e^{Sᵀs} ds for every column b_c of B, at once.
+
+    As `discrete_noise`, at δ = dt/2^k with ‖S‖₁δ ≤ 1/2 and then k doublings Q ← ΦQΦᵀ + Q (positive
+    semidefinite sums only); at δ the integral is taken by Gauss-Legendre with `nodes` points, e^{Ss}b_c
+    being analytic with ‖S‖δ ≤ 1/2 (the quadrature error of 10 points is below 1e-30 relative), so one
+    exponential per node serves every column instead of one block exponential per column."""
+    S, B = np.asarray(S, float), np.asarray(B, float)
+    norm = float(np.abs(S).sum(axis=0).max()) * dt
+    k = max(0, int(np.ceil(np.log2(norm / 0.5)))) if norm > 0.5 else 0
+    delta = dt / 2 ** k
+    x, w = np.polynomial.legendre.leggauss(nodes)
+    Y = np.stack([expm(S * (delta * (xj + 1) / 2)) @ B for xj in x])          # (nodes, d, C)
+    Q = np.einsum("j,jdc,jec->cde", w * delta / 2, Y, Y)
+    Phi = expm(S * delta)
+    for _ in range(k):
+        Q = np.matmul(np.matmul(Phi, Q), Phi.T) + Q
+        Phi = Phi @ Phi
+    return Phi, (Q + np.swapaxes(Q, 1, 2)) / 2
+
+
 def noise_covariance_sequence(S: np.ndarray, G: np.ndarray, dt: float, n_steps: int) -> np.ndarray:
     """Σ(k dt) for dΣ/dt = S Σ + Σ Sᵀ + G Gᵀ, Σ(0) = 0 (the centred part of (60)), exactly:
     Σ_{k+1} = Φ Σ_k Φᵀ + Q_d with (Φ, Q_d) by Van Loan's matrix exponential. Returns (n_steps+1, d, d)."""

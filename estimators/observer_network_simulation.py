@@ -123,7 +123,7 @@ def noise_factors(M: np.ndarray, net: NetworkObserver, noise: NoiseModel, h: flo
     kick e^{Mh} b ΔW would lose the variance of modes with |λ| h ≳ 1 (the graph-coupling modes).
     Returns (factors (K, D), scale_of (K,)): scale 0 means 1, scale 1 + i means g_i.
     """
-    from .lyapunov_bounds import discrete_noise
+    from .lyapunov_bounds import discrete_noise_columns
 
     n, N, q = net.n, net.N, net.q
     D = M.shape[0]
@@ -141,8 +141,8 @@ def noise_factors(M: np.ndarray, net: NetworkObserver, noise: NoiseModel, h: flo
             cols.append(b)
             scales.append(1 + i)
     rows, scale_of = [], []
-    for b, sc in zip(cols, scales):
-        _, Q = discrete_noise(M, np.outer(b, b), h)
+    Qs = discrete_noise_columns(M, np.array(cols).T, h)[1] if cols else []
+    for Q, sc in zip(Qs, scales):
         lam, U = np.linalg.eigh(Q)
         keep = lam > rel_tol * max(lam.max(), 1e-300)
         for j in np.flatnonzero(keep):

@@ -32,7 +32,7 @@ from pipeline.stats import Moments
 
 from .central_reference import central_kalman
 from .design import (DESIGN_MAY_BE_NAN, LAW_MAY_BE_NAN, Design, coestimation, compute_design, fixed_law, gains,
-                     input_signal, t_stochastic)
+                     input_signal, step_operators, t_stochastic)
 from .scenario import CoestimationScenario
 
 CODE_MODULES = ("estimators.common_lyapunov", "estimators.input_state_coestimation", "estimators.lyapunov_bounds",
@@ -175,7 +175,7 @@ def run_stochastic(sc: CoestimationScenario, d: Design, *, fixed: bool, trials: 
     P = d.P
     net = coestimation(sc, P)
     noise = d.noise
-    prepared = sim.prepare(net, h, noise)
+    prepared = step_operators(sc, P, noise, h)
     every = int(round(sc.record_dt / h))
     n_rec = int(round(t_end / sc.record_dt)) + 1
     t = np.arange(n_rec) * sc.record_dt

@@ -39,7 +39,7 @@ EIG_CUBE_S = 1.0e-9
 #: CPU seconds per role vertex and cubed stacked dimension (batched symmetric eigenvalues), two enumerations
 VERTEX_CUBE_S = 3.6e-10
 #: CPU seconds per cubed dimension of the simulated state: the φ-functions and exact noise factors of one step
-PREPARE_CUBE_S = 1.2e-7
+PREPARE_CUBE_S = 5.0e-8
 #: CPU seconds per recorded sample of the stochastic horizon and cubed error dimension (tr(PΣ) of the exact law)
 LAW_CUBE_S = 2.0e-10
 #: CPU seconds per integration step of a deterministic run: calls, and per squared dimension
@@ -51,7 +51,7 @@ CHUNK_STEP_S = 0.9e-4
 TRIAL_D2_S = 2.6e-10
 TRIAL_FIXED_S = 1.8e-7
 #: noise factors per noise column (the numerical rank of each column's one-step covariance, measured)
-FACTORS_PER_COLUMN = 3.7
+FACTORS_PER_COLUMN = 4.0
 #: CPU seconds per recorded sample and error dimension: the claims' checks along the deterministic runs
 CLAIM_SAMPLE_S = 2.0e-7
 #: CPU seconds per step of the central Kalman filter (filterpy, Python loop)

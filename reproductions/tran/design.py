@@ -389,6 +389,21 @@ def coestimation(sc: CoestimationScenario, P: np.ndarray) -> ce.NetworkObserver:
     return ce.coestimation_network(sc.A, sc.B, G["C"], G["L"], G["J"], G["K"], G["sigma"], P, sc.lap, sc.alpha)
 
 
+#: step operators (φ-functions and exact noise factors) of the last few (network, noise, step) triples: the
+#: exact law and the Monte Carlo at the same step share them (forked workers inherit them)
+_STEP_OPERATORS: dict[tuple, sim.Prepared] = {}
+
+
+def step_operators(sc: CoestimationScenario, P: np.ndarray, noise: sim.NoiseModel, h: float) -> sim.Prepared:
+    """`sim.prepare` of the coestimation network with these P_i, noise and step, computed once per process."""
+    key = (sc.name, repr(sc.key()), P.tobytes(), noise.process.tobytes(), noise.measurement.tobytes(), float(h))
+    if key not in _STEP_OPERATORS:
+        while len(_STEP_OPERATORS) >= 4:
+            _STEP_OPERATORS.pop(next(iter(_STEP_OPERATORS)))
+        _STEP_OPERATORS[key] = sim.prepare(coestimation(sc, P), h, noise)
+    return _STEP_OPERATORS[key]
+
+
 def noise_model(sc: CoestimationScenario, seed: int) -> sim.NoiseModel:
     """v ~ U(0, v_range)^n (one scalar Brownian motion) and h_i ~ U(0, h_range)^m per node (Sec. 5.2)."""
     rng = np.random.default_rng(stream_seed(seed, "tran", "noise-intensities"))
@@ -452,7 +467,7 @@ def simulated_error_covariance(sc: CoestimationScenario, P: np.ndarray, noise: s
     sequence from its step): the recursion u⁺ = Φu + κ, κ ~ N(0, Q) of `sim.linear_gaussian_step`,
     composed over the record step and over the stride between checks (positive semidefinite sums only)."""
     net = coestimation(sc, P)
-    Phi, Q = sim.linear_gaussian_step(net, sim.prepare(net, h, noise), np.asarray(sc.fixed_active, float))
+    Phi, Q = sim.linear_gaussian_step(net, step_operators(sc, P, noise, h), np.asarray(sc.fixed_active, float))
     with np.errstate(over="ignore", invalid="ignore"):
         Phi, Q = _power_sum(Phi, Q, int(round(sc.record_dt / h)))
         Phi, Q = _power_sum(Phi, Q, int(idx[0]))

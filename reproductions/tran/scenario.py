@@ -28,6 +28,7 @@ MAX_NODES = 40
 MAX_STACKED = 240
 MAX_STATE = 12
 MAX_INPUT = 6
+MAX_OUTPUT = 12
 MAX_SINUSOIDS = 50
 #: the horizon and step limits: at most 10⁹ integration steps (the run streams over time; its time grows)
 MAX_T_END = 1e4
@@ -98,7 +99,7 @@ class NodeTypeSection(Section):
 
     name: str | None = key(_computed("the table's name"), doc="name shown in the figures and tables",
                            max_length=80, constraint="no control or format characters (also in the table's name)")
-    C: Matrix = key(doc="output matrix C_i (m x n); every type has the same m", constraint="n columns")
+    C: Matrix = key(doc="output matrix C_i (m x n); every type has the same m", constraint=f"n columns, m <= {MAX_OUTPUT}")
     L: Matrix = key(doc="state injection gain L_i (n x m) of (3)", constraint="n x m")
     J: Matrix = key(doc="input injection gain J_i (p x m) of (4)", constraint="p x m")
     K: Matrix = key(doc="input leakage matrix K_i (p x p) of (4)", constraint="p x p; σ_i K_i with eigenvalues of "
@@ -372,6 +373,8 @@ def _node_type(t: NodeTypeSection, field: str, key_name: str, n: int, p: int, m:
     if m is not None and C.shape[0] != m:
         raise ScenarioError(f"{field}.C", f"every node type needs the same output dimension m = {m}, got {C.shape[0]}")
     mm = C.shape[0]
+    if mm > MAX_OUTPUT:
+        raise ScenarioError(f"{field}.C", f"m = {mm} outputs; this family handles at most {MAX_OUTPUT}")
     L = matrix(t.L, f"{field}.L", shape=(n, mm))
     J = matrix(t.J, f"{field}.J", shape=(p, mm))
     K = matrix(t.K, f"{field}.K", shape=(p, p))
