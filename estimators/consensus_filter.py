@@ -226,44 +226,54 @@ def consensus_filter_moments(
     U, C, S, N = sizes.size, setup.C, steps.size, setup.N
     where = np.full(setup.K, -1)
     where[steps] = np.arange(S)
-    sums = {kind: {name: np.zeros((U, C, S, N)) for name in ("s1", "s2", "s4")} | {name: np.zeros((U, C, S))
-                                                                                 for name in ("t1", "t2")}
-            for kind in ("pred", "filt")}
+    # per kind (pred, filt): sums of e, e², e⁴ per agent (C, S, N, U) and of t = Σ_i e_i², t² (C, S, U), streams last
+    # while accumulating (one reduction per statistic group and step), moved first at the end
+    node_sums = np.zeros((2, 3, C, S, N, U))
+    trace_sums = np.zeros((2, 2, C, S, U))
+    powers = np.empty((2, C, N, setup.R))   # e², e⁴ of one kind (reused)
+    traces = np.empty((2, C, setup.R))      # t, t²
+    per_stream = _stream_reducer(sizes)
 
     def accumulate(k, ep, ef):
         j = where[k]
         if j < 0:
             return
-        for kind, e in (("pred", ep), ("filt", ef)):
-            out = sums[kind]
-            sq = e * e
-            tr = sq.sum(axis=1)
-            out["s1"][:, :, j] = _per_stream(e, sizes)
-            out["s2"][:, :, j] = _per_stream(sq, sizes)
-            sq *= sq
-            out["s4"][:, :, j] = _per_stream(sq, sizes)
-            out["t1"][:, :, j] = _per_stream(tr, sizes)
-            tr *= tr
-            out["t2"][:, :, j] = _per_stream(tr, sizes)
+        for kind, e in enumerate((ep, ef)):
+            np.multiply(e, e, out=powers[0])
+            np.sum(powers[0], axis=1, out=traces[0])
+            np.multiply(powers[0], powers[0], out=powers[1])
+            np.multiply(traces[0], traces[0], out=traces[1])
+            node_sums[kind, 0, :, j] = per_stream(e)
+            node_sums[kind, 1:, :, j] = per_stream(powers)
+            trace_sums[kind, :, :, j] = per_stream(traces)
 
     paths = _simulate(setup, accumulate, path_steps=P_steps)
     counts = sizes.astype(np.int64)
-    return ConsensusFilterMoments(steps.astype(np.int64), StreamMoments(counts, **sums["pred"]),
-                                  StreamMoments(counts, **sums["filt"]), ConsensusFilterRun(**paths))
+
+    def moments(kind: int) -> StreamMoments:
+        first = lambda a: np.ascontiguousarray(np.moveaxis(a, -1, 0))   # noqa: E731 - streams on the leading axis
+        return StreamMoments(counts, *(first(node_sums[kind, i]) for i in range(3)),
+                             *(first(trace_sums[kind, i]) for i in range(2)))
+
+    return ConsensusFilterMoments(steps.astype(np.int64), moments(0), moments(1), ConsensusFilterRun(**paths))
 
 
-def _per_stream(a: np.ndarray, sizes: np.ndarray) -> np.ndarray:
-    """Sums over the trials (last axis) of each stream: (..., R) -> (U, ...). Each stream's sum is the
-    same pairwise sum over its own trials wherever it sits in the array."""
+def _stream_reducer(sizes: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """The sums over the trials (last axis) of each stream: (..., R) -> (..., U). Each stream's sum is the
+    same pairwise sum over its own trials wherever it sits in the array (streams of one size are summed
+    as rows of a reshaped view, the others one by one)."""
     full = int(np.argmin(np.append(sizes, -1) == sizes[0]))   # the leading streams of the first stream's size
+    size = int(sizes[0])
     if full == sizes.size:
-        out = a.reshape(a.shape[:-1] + (sizes.size, int(sizes[0]))).sum(axis=-1)
-        return np.moveaxis(out, -1, 0)
+        return lambda a: a.reshape(a.shape[:-1] + (full, size)).sum(axis=-1)
     edges = np.concatenate([[0], np.cumsum(sizes)])
-    head = a[..., : edges[full]].reshape(a.shape[:-1] + (full, int(sizes[0]))).sum(axis=-1) if full else None
-    rest = [a[..., edges[u]:edges[u + 1]].sum(axis=-1) for u in range(full, sizes.size)]
-    parts = ([np.moveaxis(head, -1, 0)] if head is not None else []) + [r[None] for r in rest]
-    return np.concatenate(parts, axis=0)
+
+    def reduce(a: np.ndarray) -> np.ndarray:
+        head = a[..., : edges[full]].reshape(a.shape[:-1] + (full, size)).sum(axis=-1) if full else None
+        rest = [a[..., edges[u]:edges[u + 1]].sum(axis=-1)[..., None] for u in range(full, sizes.size)]
+        return np.concatenate(([head] if head is not None else []) + rest, axis=-1)
+
+    return reduce
 
 
 # --------------------------------------------------------------------------------------
@@ -422,7 +432,7 @@ def _simulate(s: _Setup, visit: Callable[[int, np.ndarray, np.ndarray], None], *
     btmp = np.empty((N, R))
 
     def paths_of(a):  # (C, N, R) -> (P, C, N) for the first P trials
-        return np.moveaxis(a[:, :, :P], 2, 0)
+        return a[:, :, :P].transpose(2, 0, 1)
 
     for k in range(K):
         np.subtract(x, xp, out=e_pred)
@@ -456,7 +466,7 @@ def _simulate(s: _Setup, visit: Callable[[int, np.ndarray, np.ndarray], None], *
             if on_path:
                 paths["u"][:, k, h] = noise[:, :P].T
                 zp = np.einsum("ij,cjp->cip", s.Q, zp) + sigma_b * noise[:, :P] + (xf[:, :, :P] if s.reinjection else 0.0)
-                paths["z_rounds"][:, :, k, h + 1] = np.moveaxis(zp, 2, 0)
+                paths["z_rounds"][:, :, k, h + 1] = zp.transpose(2, 0, 1)
         if m:
             A_op.apply(xf, z, spare)
             if noisy:

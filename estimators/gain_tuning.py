@@ -216,8 +216,9 @@ class _Cells:
                       self.reinjection)
 
 
-def _cost_and_gradient(cells: _Cells, ell, zeta):
-    """``J``, ``dJ/dell``, ``dJ/dzeta`` at points (P,) of cells (P,) (analytic; eq. (16) or J_C)."""
+def _cost_and_gradient(cells: _Cells, ell, zeta, gradient: bool = True):
+    """``J``, ``dJ/dell``, ``dJ/dzeta`` at points (P,) of cells (P,) (analytic; eq. (16) or J_C); ``(J,)``
+    without the gradient."""
     ell, zeta = np.asarray(ell, float), np.asarray(zeta, float)
     a = (1.0 - ell) ** 2
     one_minus_a = 1.0 - a
@@ -239,6 +240,8 @@ def _cost_and_gradient(cells: _Cells, ell, zeta):
     den = 1.0 - a[:, None] * mu2
     num = lr[:, None] * mu2 + pref[:, None] * cells.s
     J = head_num / one_minus_a + np.sum(num / den, axis=1)
+    if not gradient:
+        return (J,)
     da = -2.0 * (1.0 - ell)
     dJ_dell = (2.0 * ell * cells.r / one_minus_a + head_num * da / one_minus_a**2
                + np.sum(2.0 * ell[:, None] * cells.r * mu2 / den + num * mu2 * da[:, None] / den**2, axis=1))
@@ -249,21 +252,22 @@ def _cost_and_gradient(cells: _Cells, ell, zeta):
 
 
 def _cost(cells: _Cells, ell, zeta):
-    return _cost_and_gradient(cells, ell, zeta)[0]
+    return _cost_and_gradient(cells, ell, zeta, gradient=False)[0]
 
 
 #: points per block of `_at`: a block's per-mode arrays stay near 2 MB whatever the number of modes
 _BLOCK_ELEMENTS = 2**18
 
 
-def _at(cells: _Cells, rows, ell, zeta):
-    """``J`` and its gradient at points (P,) of the cells ``rows`` (P,), in blocks of bounded memory."""
+def _at(cells: _Cells, rows, ell, zeta, gradient: bool = True):
+    """``J`` and its gradient (``[J]`` without it) at points (P,) of the cells ``rows`` (P,), in blocks of
+    bounded memory."""
     rows, ell, zeta = np.asarray(rows), np.asarray(ell, float), np.asarray(zeta, float)
     step = max(1, _BLOCK_ELEMENTS // max(1, cells.lam_bar.shape[1]))
-    out = [np.empty(rows.size) for _ in range(3)]
+    out = [np.empty(rows.size) for _ in range(3 if gradient else 1)]
     for a in range(0, rows.size, step):
         sl = slice(a, a + step)
-        for o, v in zip(out, _cost_and_gradient(cells.take(rows[sl]), ell[sl], zeta[sl])):
+        for o, v in zip(out, _cost_and_gradient(cells.take(rows[sl]), ell[sl], zeta[sl], gradient)):
             o[sl] = v
     return out
 
@@ -307,9 +311,12 @@ def _grid_local_minima(G: np.ndarray, n_best: int) -> np.ndarray:
     fewer local minima repeats its minimum. The minima along rows are found first (two
     comparisons over the grid); only they are compared with the rows above and below."""
     B, n0, n1 = G.shape
-    inf = np.full((B, n0, 1), np.inf)
-    padded = np.concatenate([inf, G, inf], axis=2)
-    b, i, j = np.nonzero((G <= padded[:, :, :-2]) & (G <= padded[:, :, 2:]))
+    row_min = np.empty(G.shape, bool)   # not above either neighbour in its row (a missing neighbour is +inf)
+    np.less_equal(G[:, :, 1:-1], G[:, :, :-2], out=row_min[:, :, 1:-1])
+    row_min[:, :, 1:-1] &= G[:, :, 1:-1] <= G[:, :, 2:]
+    row_min[:, :, 0] = G[:, :, 0] <= G[:, :, 1]
+    row_min[:, :, -1] = G[:, :, -1] <= G[:, :, -2]
+    b, i, j = np.unravel_index(np.flatnonzero(row_min), G.shape)
     v = G[b, i, j]
     ok = np.ones(b.size, bool)
     for di in (-1, 1):
@@ -369,23 +376,32 @@ def _minimise_box(fun_grad, x, lo, hi, scale):
     analytic gradient (steps ``1e-5 * scale``). A coordinate at a bound whose gradient points out of
     the box is held; the Newton step on the others (a scaled gradient step where the Hessian is not
     positive definite) is followed along the projected path with Armijo backtracking. Each problem
-    stops when no step is accepted."""
+    stops when no step is accepted, after _NEWTON_ITERATIONS iterations, or when it returns to a point
+    it visited before (rounding can make the last steps cycle): then with the point the remaining
+    iterations of the cycle would have left it at, the same as iterating them."""
     x = np.clip(np.array(x, float), lo, hi)
     P, d = x.shape
     active_rows = np.arange(P)
     J, g = fun_grad(x)
     halvings = 0.5 ** np.arange(_LINE_SEARCH_HALVINGS)
+    seen_x = np.full((_NEWTON_ITERATIONS + 1, P, d), np.nan)   # the point of every problem after each iteration
+    seen_J = np.full((_NEWTON_ITERATIONS + 1, P), np.nan)
+    seen_x[0], seen_J[0], t = x, J, 0
     for _ in range(_NEWTON_ITERATIONS):
         if active_rows.size == 0:
             break
         xa, Ja, ga = x[active_rows], J[active_rows], g[active_rows]
         sa = scale[active_rows]
         h = _FD_STEP * sa
+        # the 2d shifted points of every problem in one evaluation (each point's gradient is computed on its own)
+        shifted = np.repeat(xa[None], 2 * d, axis=0)                       # (2d, A, d): +h_i, -h_i per coordinate
+        for i in range(d):
+            shifted[2 * i, :, i] += h[:, i]
+            shifted[2 * i + 1, :, i] -= h[:, i]
+        g_shifted = fun_grad(shifted.reshape(-1, d), np.tile(active_rows, 2 * d))[1].reshape(2 * d, -1, d)
         H = np.empty((active_rows.size, d, d))
         for i in range(d):
-            e = np.zeros((active_rows.size, d))
-            e[:, i] = h[:, i]
-            H[:, :, i] = (fun_grad(xa + e, active_rows)[1] - fun_grad(xa - e, active_rows)[1]) / (2 * h[:, i:i + 1])
+            H[:, :, i] = (g_shifted[2 * i] - g_shifted[2 * i + 1]) / (2 * h[:, i:i + 1])
         H = 0.5 * (H + np.swapaxes(H, 1, 2))
         held = ((xa <= lo + _BOUND_TOL) & (ga > 0)) | ((xa >= hi - _BOUND_TOL) & (ga < 0)) | (lo >= hi)
         free = ~held
@@ -406,7 +422,18 @@ def _minimise_box(fun_grad, x, lo, hi, scale):
         moved = ~np.isnan(Jn) & np.any(xn != xa, axis=1)
         upd = active_rows[moved]
         x[upd], J[upd], g[upd] = xn[moved], Jn[moved], gn[moved]
-        active_rows = upd
+        t += 1
+        seen_x[t, upd], seen_J[t, upd] = x[upd], J[upd]
+        # A problem back at a point it visited before cycles from there on (an iteration depends on the
+        # point only: J and the gradient are functions of it, and every problem is computed on its own),
+        # so where the last iteration leaves it is known now; it stops here with that point.
+        again = np.all(seen_x[:t, upd] == x[upd][None], axis=2)          # (t, rows): visits of the new points
+        cycling = again.any(axis=0)
+        if cycling.any():
+            rows, first = upd[cycling], np.argmax(again[:, cycling], axis=0)
+            last = first + (_NEWTON_ITERATIONS - first) % (t - first)
+            x[rows], J[rows] = seen_x[last, rows], seen_J[last, rows]
+        active_rows = upd[~cycling]
     return x, J
 
 
@@ -455,7 +482,7 @@ def _zoom(cells: _Cells, rows0, ell0, zeta0, d_ell, d_zeta, reinjection, n=11, l
         ze = np.clip(zeta0[:, None] + d_zeta * off[None, :], *ZETA_BOUNDS) if reinjection else zeta0[:, None] * np.ones(n)
         E = np.broadcast_to(le[:, :, None], (P, n, n)).reshape(P, -1)
         Z = np.broadcast_to(ze[:, None, :], (P, n, n)).reshape(P, -1)
-        G = _at(cells, np.repeat(rows0, n * n), E.ravel(), Z.ravel())[0].reshape(P, -1)
+        G = _at(cells, np.repeat(rows0, n * n), E.ravel(), Z.ravel(), gradient=False)[0].reshape(P, -1)
         best = np.argmin(G, axis=1)
         ell0, zeta0 = E[np.arange(P), best], Z[np.arange(P), best]
         d_ell, d_zeta = 2.0 * d_ell / (n - 1), 2.0 * d_zeta / (n - 1)
@@ -562,7 +589,7 @@ def reinjection_gain_tables(Q, *, ms, sigma_c, q, r, formulas=("corrected",), gr
         gmin = grid_min[f_idx, s_idx, j_idx]
         worse = ~(J <= gmin)   # never return worse than the grid (the grid minimum is the first start)
         x[worse] = x0[worse, 0]
-        J[worse] = _at(cells, np.flatnonzero(worse), x[worse, 0], x[worse, 1])[0]
+        J[worse] = _at(cells, np.flatnonzero(worse), x[worse, 0], x[worse, 1], gradient=False)[0]
         ell[f_idx, s_idx, j_idx], zeta[f_idx, s_idx, j_idx], Jopt[f_idx, s_idx, j_idx] = x[:, 0], x[:, 1], J
     out = {}
     for f_i, formula in enumerate(formulas):
