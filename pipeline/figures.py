@@ -1,21 +1,30 @@
 """Matplotlib figures written atomically as PNG, one consistent style."""
 from __future__ import annotations
 
+import functools
 import math
 import os
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-from .atomic import atomic_path  # noqa: E402
+from .atomic import atomic_path
 
 STYLE = {"figure.dpi": 110, "savefig.dpi": 150, "axes.grid": True, "grid.alpha": 0.3, "font.size": 10,
          "legend.fontsize": 8, "axes.spines.top": False, "axes.spines.right": False}
 
 
+@functools.lru_cache(maxsize=1)
+def _pyplot():
+    """matplotlib.pyplot on the Agg backend, imported on first use (about 0.5 s): a process that
+    draws nothing, or leaves its figures to forked workers (`draw_all`), does not pay for it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def new_figure(ncols: int = 1, nrows: int = 1, width: float = 6.4, height: float = 4.2):
+    plt = _pyplot()
     with plt.rc_context(STYLE):
         fig, axes = plt.subplots(nrows, ncols, figsize=(width * ncols, height * nrows), squeeze=False)
     return fig, axes
@@ -25,6 +34,7 @@ def save_figure(fig, path: str | os.PathLike, *, tight: bool = True) -> None:
     """Write `fig` as PNG and close it. `tight=False` keeps the figure's own margins (see
     `set_margins`): `tight_layout` measures every text of the figure in an extra draw, about a
     third of the time of a figure with a few axes."""
+    plt = _pyplot()
     with plt.rc_context(STYLE):
         if tight:
             fig.tight_layout()
@@ -67,7 +77,10 @@ def plain_log_labels(fig) -> None:
 
 
 def sequential_colors(n: int, cmap: str = "viridis"):
-    cm = plt.get_cmap(cmap)
+    """n colours of a colormap (without pyplot: recordings take their colours from here too)."""
+    import matplotlib
+
+    cm = matplotlib.colormaps[cmap]
     return [cm(x) for x in ([0.0] if n == 1 else [0.9 * i / (n - 1) for i in range(n)])]
 
 

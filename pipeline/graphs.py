@@ -118,8 +118,10 @@ def _edge_list(value: Any, field: str, n: int) -> tuple[tuple[int, int], ...]:
 
 
 def laplacian(G: nx.Graph) -> np.ndarray:
-    """Combinatorial Laplacian L = D - A with unit edge weights, nodes in order 0..n-1."""
-    return nx.laplacian_matrix(G, nodelist=range(G.number_of_nodes())).toarray().astype(float)
+    """Combinatorial Laplacian L = D - A with unit edge weights, nodes in order 0..n-1 (dense, as
+    networkx's laplacian_matrix gives it, without importing scipy.sparse)."""
+    A = nx.to_numpy_array(G, nodelist=range(G.number_of_nodes()))
+    return np.diag(A.sum(axis=1)) - A
 
 
 def laplacian_consensus_weights(G: nx.Graph, eps: float) -> np.ndarray:

@@ -268,10 +268,11 @@ def group_streams(seed: int, cells: tuple[Cell, ...]) -> np.random.SeedSequence:
 
 
 def simulate_group(sc: NoisyConsensusScenario, seed: int, trials: int, steps: np.ndarray, budget_bytes: float,
-                   cells: tuple[Cell, ...], desc: str = "") -> dict[str, np.ndarray]:
+                   cells: tuple[Cell, ...], desc: str = "", reference: bool = False) -> dict[str, np.ndarray]:
     """All trials of cells that differ only in (σ_c, ℓ, ζ), streamed over trials (units of 1,000) and
     time (moments at `steps` only). Returns moment sums per cell (keys ``<label>__pred_s1``, ...)
-    and the sample paths of the first trials over the first steps."""
+    and the sample paths of the first trials over the first steps; with `reference`, also filterpy's
+    Kalman filter on the first cell's sample measurements (`filterpy_priors`)."""
     first = cells[0]
     assert all((c.alg, c.m, c.n_steps) == (first.alg, first.m, first.n_steps) for c in cells)
     C = len(cells)
@@ -316,7 +317,29 @@ def simulate_group(sc: NoisyConsensusScenario, seed: int, trials: int, steps: np
                 arrays[f"{c.label}__path_{name}"] = np.asarray(getattr(paths, name))
             for name in ("xhat_pred", "xhat_filt", "z_rounds"):
                 arrays[f"{c.label}__path_{name}"] = np.asarray(getattr(paths, name)[:, j])
+    if reference and paths is not None:
+        arrays[f"{first.label}__filterpy_x"], arrays[f"{first.label}__filterpy_P"] = filterpy_priors(sc, paths.y)
     return arrays
+
+
+def filterpy_priors(sc: NoisyConsensusScenario, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """x̂(k|k-1) and P(k|k-1) (P, K) of filterpy's KalmanFilter (update, then predict) on the stacked
+    measurements y (P, K, N) of each sample trial: the independent reference of the claim
+    savas.reference.filterpy, computed with the sample paths (in a Monte Carlo worker, where importing
+    filterpy, and with it scipy.stats, overlaps the other workers' trials)."""
+    from filterpy.kalman import KalmanFilter
+
+    F, H_, Qw, R = np.eye(1), np.ones((sc.n, 1)), np.array([[sc.q]]), sc.r * np.eye(sc.n)
+    xs, Ps = np.empty(y.shape[:2]), np.empty(y.shape[:2])
+    for p in range(y.shape[0]):
+        kf = KalmanFilter(dim_x=1, dim_z=sc.n)
+        kf.F, kf.H, kf.Q, kf.R = F.copy(), H_.copy(), Qw.copy(), R.copy()
+        kf.x, kf.P = np.array([[sc.x0_mean]]), np.array([[sc.sigma0]])
+        for k in range(y.shape[1]):
+            xs[p, k], Ps[p, k] = kf.x[0, 0], kf.P[0, 0]
+            kf.update(y[p, k])
+            kf.predict()
+    return xs, Ps
 
 
 def cell_groups(cells: list[Cell]) -> list[tuple[Cell, ...]]:
@@ -366,10 +389,10 @@ class Results:
         return {k.removeprefix("path_"): v for k, v in self.mc[cell.label].items() if k.startswith("path_")}
 
 
-def _cached_group(cache: StageCache, key: dict[str, Any], sc, seed, trials, steps, budget, desc, cells
+def _cached_group(cache: StageCache, key: dict[str, Any], sc, seed, trials, steps, budget, desc, reference, cells
                   ) -> dict[str, np.ndarray]:
-    return cache.get_or_compute("mc", {**key, "cells": [c.__dict__ for c in cells], "steps": steps},
-                                functools.partial(simulate_group, sc, seed, trials, steps, budget, cells, desc),
+    return cache.get_or_compute("mc", {**key, "cells": [c.__dict__ for c in cells], "steps": steps, "reference": reference},
+                                functools.partial(simulate_group, sc, seed, trials, steps, budget, cells, desc, reference),
                                 scenario=sc.name)
 
 
@@ -381,11 +404,13 @@ def compute(sc: NoisyConsensusScenario, opts: RunOptions, cache: StageCache) -> 
     d = design(sc, opts.quick, cache)
     base = {"scenario": sc.key(), "code": code_fingerprint(CODE_MODULES), "seed": opts.seed, "trials": trials}
     budget = opts.chunk_budget_bytes()
-    groups = sorted(cell_groups(d.cells + [d.long_cell]), key=lambda g: -(g[0].m + 2) * g[0].n_steps)  # longest first
+    # the group of the first cell also runs filterpy's reference filter on its sample paths: first, so that
+    # importing filterpy overlaps the other groups; then the longest first
+    groups = sorted(cell_groups(d.cells + [d.long_cell]), key=lambda g: (g[0] != d.cells[0], -(g[0].m + 2) * g[0].n_steps))
     # in one process, each group shows its chunks (with the time left); with workers, the groups are counted
     desc = (lambda g: f"{sc.name}: {g[0].alg} m = {g[0].m}, {trials:,} trials") if opts.workers <= 1 else (lambda g: "")
-    work = [functools.partial(_cached_group, cache, base, sc, opts.seed, trials, d.steps_of(g[0]), budget, desc(g), g)
-            for g in groups]
+    work = [functools.partial(_cached_group, cache, base, sc, opts.seed, trials, d.steps_of(g[0]), budget, desc(g),
+                              g[0] == d.cells[0], g) for g in groups]
     outputs = parallel_map(_call, work, workers=opts.workers, desc=f"{sc.name}: Monte Carlo (algorithm, m) groups")
     mc: dict[str, dict[str, np.ndarray]] = {}
     for out in outputs:

@@ -12,14 +12,14 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import rerun.blueprint as rrb
 
-from pipeline import record as rec_
-from pipeline.figures import new_figure, save_figure, sequential_colors
 from pipeline.stats import z_for_confidence
 from pipeline.tables import Tables
 
 from .compute import Results
+
+# matplotlib (pipeline.figures) and rerun (pipeline.record) are imported by the functions that draw: the
+# figures and the recordings are drawn in forked workers, each importing only what it draws with.
 
 BAND_CONFIDENCE = 0.95
 
@@ -54,6 +54,8 @@ def _cell_rows(frame: pd.DataFrame, sc, alg: str, m: int, s_c: float) -> pd.Data
 # -- figures --------------------------------------------------------------------------------------
 
 def _metric_figure(tables: Tables, sc, trials: int, alg: str, title: str, path: Path) -> None:
+    from pipeline.figures import new_figure, save_figure, sequential_colors
+
     exact, mc, se = eval_trace_table(tables, sc, alg)
     z = z_for_confidence(BAND_CONFIDENCE)
     fig, axes = new_figure(width=8.0)
@@ -78,6 +80,8 @@ def _gains(tables: Tables, sc, objective: str, key: str) -> np.ndarray:
 
 
 def _gains_figure(tables: Tables, sc, path: Path) -> None:
+    from pipeline.figures import new_figure, save_figure, sequential_colors
+
     ms = np.arange(sc.rounds_max + 1)
     fig, axes = new_figure(ncols=3, width=4.6)
     cols = sequential_colors(len(sc.sigma_c), "plasma")
@@ -99,6 +103,8 @@ def _gains_figure(tables: Tables, sc, path: Path) -> None:
 
 
 def _trace_over_k_figure(tables: Tables, sc, path: Path) -> None:
+    from pipeline.figures import new_figure, save_figure
+
     m, s_c = showcase(sc)
     fig, axes = new_figure()
     ax = axes[0, 0]
@@ -153,6 +159,10 @@ def _q_matrix(tables: Tables, n: int) -> np.ndarray:
 
 
 def write_trials_recording(res: Results, tables: Tables, path: Path, claims: list[dict], prov: dict, summary: str) -> None:
+    import rerun.blueprint as rrb
+
+    from pipeline import record as rec_
+
     sc = res.scenario
     m, s_c = showcase(sc)
     n = sc.n
@@ -229,6 +239,11 @@ def write_trials_recording(res: Results, tables: Tables, path: Path, claims: lis
 
 def write_figures_recording(res: Results, tables: Tables, path: Path, claims: list[dict], prov: dict, summary: str,
                             paper: bool = False) -> None:
+    import rerun.blueprint as rrb
+
+    from pipeline import record as rec_
+    from pipeline.figures import sequential_colors
+
     sc = res.scenario
     metric = f"tr P({sc.eval_step}|{sc.eval_step - 1})"
     has_gains = "gains" in tables and len(tables["gains"]) > 0
@@ -271,10 +286,18 @@ def write_figures_recording(res: Results, tables: Tables, path: Path, claims: li
 
 
 def write_outputs(res: Results, tables: Tables, out_dir: Path, claims: list[dict], prov: dict, paper: bool = False) -> None:
-    write_figures(res, tables, out_dir, paper)
+    """The figures and the two recordings, drawn in two forked workers when the run has them (the
+    figures in one, the recordings in the other: each imports its library once)."""
+    from pipeline.figures import draw_all
+
     counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
     summary = (f"# {res.scenario.name}: {counts['pass']} pass, {counts['fail']} fail, {counts['erratum']} erratum, "
                f"{counts['not-checkable']} not checkable, {counts['error']} error\n\nseed {res.seed}, "
                f"{res.trials:,} trials per cell")
-    write_trials_recording(res, tables, out_dir / f"{res.scenario.name}.rrd", claims, prov, summary)
-    write_figures_recording(res, tables, out_dir / f"{res.scenario.name}_figures.rrd", claims, prov, summary, paper)
+    name = res.scenario.name
+
+    def recordings():
+        write_trials_recording(res, tables, out_dir / f"{name}.rrd", claims, prov, summary)
+        write_figures_recording(res, tables, out_dir / f"{name}_figures.rrd", claims, prov, summary, paper)
+
+    draw_all([lambda: write_figures(res, tables, out_dir, paper), recordings], workers=int(prov.get("workers", 1) or 1))
