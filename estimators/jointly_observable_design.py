@@ -137,17 +137,33 @@ def same_kernel(L: np.ndarray, A: np.ndarray, C: np.ndarray, rank_tol: float = 1
 
 def place_gain(Abar: np.ndarray, Cbar: np.ndarray, poles) -> np.ndarray:
     """K with eig(Ā + K C̄) = poles (note the + sign of (3))."""
-    from scipy.signal import place_poles      # imported here: scipy.signal costs 0.3 s (it loads scipy.stats)
+    from scipy.signal import place_poles      # imported here: scipy.signal costs 0.5 s (it loads scipy.stats)
 
     return -place_poles(Abar.T, Cbar.T, np.asarray(poles)).gain_matrix.T
+
+
+def unplaceable(poles, rank: int) -> str | None:
+    """Why real `poles` cannot be placed for an observable pair whose output matrix has rank
+    `rank` (a pole repeated more often than the rank: scipy's place_poles, below `place_gain`,
+    refuses it), or None; decided without placing (and without importing scipy.signal)."""
+    values, counts = np.unique(np.asarray(poles, float), return_counts=True)
+    k = int(np.argmax(counts))
+    if counts[k] > rank:
+        return f"pole {values[k]:g} is repeated {counts[k]} times, more than the rank {rank} of the outputs allows"
+    return None
+
+
+def stacked_rank(C: np.ndarray, rank_tol: float = 1e-9) -> tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The rank r of C (singular values above rank_tol relative) and its SVD U S V'."""
+    U, sv, Vt = np.linalg.svd(np.asarray(C, float), full_matrices=False)
+    return int(np.sum(sv > rank_tol * max(sv[0], 1e-300))), (U, sv, Vt)
 
 
 def stacked_gain(A: np.ndarray, C: np.ndarray, poles, rank_tol: float = 1e-9) -> np.ndarray:
     """K with eig(A + K C) = poles for a C whose rows may be dependent (agents sharing outputs):
     the poles are placed for the orthonormal rows V_r' of C = U S V' (rank r), and K = K_r S_r^-1 U_r',
     so that K C = K_r V_r'."""
-    U, sv, Vt = np.linalg.svd(np.asarray(C, float), full_matrices=False)
-    r = int(np.sum(sv > rank_tol * max(sv[0], 1e-300)))
+    r, (U, sv, Vt) = stacked_rank(C, rank_tol)
     K_r = place_gain(A, Vt[:r], poles)
     return K_r @ (U[:, :r] / sv[:r]).T
 

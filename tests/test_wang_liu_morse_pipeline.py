@@ -88,6 +88,19 @@ def test_degenerate_input_is_rejected_in_one_line():
         assert message in str(exc.value) and "\n" not in str(exc.value), str(exc.value)
 
 
+def test_poles_that_cannot_be_placed_are_rejected_at_load():
+    """Decided without placing (the gains are placed with the design): agent 1 of the generic system
+    has one output and n_1 = 2, so a double pole cannot be placed; poles short of -λ̄ cannot satisfy (15)."""
+    data = tomllib.loads((PKG / "generic.toml").read_text())
+    data["design"]["poles"] = [[-2.0, -2.0], [-2.0], [-3.0, -4.0]]
+    with pytest.raises(ScenarioError, match=r"^design\.poles\[0\]: pole placement fails: pole -2 is repeated 2 times, "
+                                            r"more than the rank 1"):
+        api.load(data)
+    data["design"]["poles"] = [[-2.0, -3.0], [-1.2], [-3.0, -4.0]]
+    with pytest.raises(ScenarioError, match=r"^design\.lambda_bar: agent 2's local observer has spectral abscissa -1\.2"):
+        api.load(data)
+
+
 # -- the design stage ------------------------------------------------------------------------------------
 
 def test_check_design_tables_against_independent_values():
@@ -312,13 +325,15 @@ def test_results_do_not_depend_on_the_memory_chunk():
 
 
 def test_long_horizon_runs_in_bounded_memory(tmp_path):
-    """2,000 event intervals of 2,100 trials (three RNG units) under a 300 MiB budget (chunks of
-    25 MiB): the run streams over trials and time, stays within the budget and within the estimate
-    (the reconstruction notes report a 20,000-interval run)."""
+    """500 event intervals of 2,100 trials (three RNG units) under a 300 MiB budget (chunks of
+    25 MiB): the run streams over trials and time, stays within the budget and within the estimate.
+    Keeping every trial's errors and states at every event index and sample would take about
+    470 kB per interval, 235 MiB beyond the interpreter's 230 MiB here (`make bench` runs 2,000
+    intervals; the reconstruction notes report a 20,000-interval run)."""
     data = {**TWO, "name": "long", "monte_carlo": {"trials": 2100, "scale": 1.0},
             "system": {"A": [[-0.2, 0.3], [0.0, -0.1]], "C": [[[1.0, -1.0]], [[0.0, 1.0]]]},
             "design": {**TWO["design"], "q": 2, "T": 0.02}, "sampling": {"step": 0.02, "stored": 1001},
-            "runs": [{"name": "sync", "intervals": 2000, "monte_carlo": True}]}
+            "runs": [{"name": "sync", "intervals": 500, "monte_carlo": True}]}
     code = ("import json, sys\n"
             "from pipeline import api\n"
             "from pipeline.reproduction import RunOptions\n"
@@ -335,7 +350,7 @@ def test_long_horizon_runs_in_bounded_memory(tmp_path):
                                             "OPENBLAS_NUM_THREADS": "1"})
     assert proc.returncode == 0, proc.stderr[-2000:]
     out = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert out["rows"] == 2 * 2001 and out["counts"]["error"] == 0 and out["counts"]["fail"] == 0
+    assert out["rows"] == 2 * 501 and out["counts"]["error"] == 0 and out["counts"]["fail"] == 0
     assert out["peak"] < 300 and out["peak"] < 1.5 * out["estimate"], out
 
 

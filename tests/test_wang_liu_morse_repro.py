@@ -67,7 +67,7 @@ reference_run = "sync"
 @pytest.fixture(scope="module")
 def paper_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("wlm")
-    summary = run(paper(), out, RunOptions(quick=True))
+    summary = run(paper(), out, RunOptions(quick=True, workers=2))
     return out / "wang-liu-morse", summary
 
 
@@ -144,7 +144,7 @@ def test_paper_outputs(paper_run):
 def test_user_scenario_against_independent_design(tmp_path):
     data = tomllib.loads(USER)
     repro = from_dict(copy.deepcopy(data))
-    summary = run(repro, tmp_path, RunOptions(seed=5))
+    summary = run(repro, tmp_path, RunOptions(seed=5, workers=2))
     d = tmp_path / "two_agents"
     v = _verdicts(d)
     for claim in ("eq41.error_recursion", "thm1.event_bound", "thm2.async_equals_sync", "lemma4.eq44", "thm1.rate",

@@ -15,7 +15,7 @@ from pipeline.reproduction import RunOptions
 from pipeline.simulate import parallel_map
 
 from . import bounds
-from .design import Design, MultiDesign, design_quantities, lemma_samples, observer_design
+from .design import Design, MultiDesign, design_quantities, lemma_samples, model_mismatch, observer_design
 from .scenario import HybridScenario, RunSpec
 
 CODE_MODULES = ("estimators.hybrid_observer", "estimators.jointly_observable_design",
@@ -72,9 +72,10 @@ DESIGN_NONFINITE = ("local_eigs", "vertex_loss_rho", "c_i", "r_lemma5", "r_print
 
 
 def design_stage(sc: HybridScenario, seed: int, cache: StageCache, extras: bool = False) -> dict:
-    """`extras`: the design quantities only the paper's own claims use (see `design_quantities`)."""
-    return cache.get_or_compute("design", {**_base(sc), "seed": seed, "extras": extras},
-                                lambda: design_quantities(sc, seed, extras), scenario=sc.name,
+    """`extras`: the design quantities only the paper's own claims use (see `design_quantities`),
+    but Section 4's model-mismatch demonstration (a task of its own in `compute_all`)."""
+    return cache.get_or_compute("design", {**_base(sc), "seed": seed, "extras": extras, "mismatch": False},
+                                lambda: design_quantities(sc, seed, extras, mismatch=False), scenario=sc.name,
                                 allow_nonfinite=DESIGN_NONFINITE)
 
 
@@ -100,14 +101,47 @@ def _result_keys() -> list[str]:
     return names
 
 
-def compute(sc: HybridScenario, opts: RunOptions, cache: StageCache, *, is_paper: bool = False,
-            extras: bool = False) -> Results:
-    trials = trial_count(sc, opts)
-    design = design_stage(sc, opts.seed, cache, extras)
-    samples = cache.get_or_compute("samples", {**_base(sc), "seed": opts.seed},
-                                   lambda: lemma_samples(sc, opts.seed), scenario=sc.name)
-    work = functools.partial(_cached_run, cache, _base(sc), sc, design, opts.seed, trials,
-                             opts.chunk_budget_bytes())
-    outs = parallel_map(work, list(sc.runs), workers=opts.workers, desc=f"{sc.name}: hybrid observer runs")
-    return Results(sc, opts.seed, trials, opts.quick, design, samples, {r.name: o for r, o in zip(sc.runs, outs)},
-                   is_paper)
+def _samples(cache: StageCache, sc: HybridScenario, seed: int) -> dict[str, np.ndarray]:
+    return cache.get_or_compute("samples", {**_base(sc), "seed": seed}, lambda: lemma_samples(sc, seed),
+                                scenario=sc.name)
+
+
+def _task(cache: StageCache, scenarios: dict, designs: dict, seed: int, trials: dict, budget: float,
+          task: tuple[str, RunSpec | str]) -> dict[str, np.ndarray]:
+    """One task of `compute_all`: a scenario's sampled Lemma 5/6 checks ("samples"), its model-mismatch
+    demonstration ("mismatch") or one of its runs."""
+    key, what = task
+    sc = scenarios[key]
+    if what == "samples":
+        return _samples(cache, sc, seed)
+    if what == "mismatch":
+        return cache.get_or_compute("mismatch", {**_base(sc), "seed": seed}, lambda: model_mismatch(sc, seed),
+                                    scenario=sc.name)
+    return _cached_run(cache, _base(sc), sc, designs[key], seed, trials[key], budget, what)
+
+
+def compute_all(scenarios: dict[str, HybridScenario], opts: RunOptions, cache: StageCache, *,
+                extras: bool = False) -> MultiResults:
+    """Every scenario's design, then its sampled lemma checks and its runs as one set of tasks over
+    the workers, the longest first (by the cost model) so that the workers finish together."""
+    from .cost import MISMATCH_S, run_cost, sample_seconds
+
+    designs = {k: design_stage(sc, opts.seed, cache, extras) for k, sc in scenarios.items()}
+    trials = {k: trial_count(sc, opts) for k, sc in scenarios.items()}
+    budget = opts.chunk_budget_bytes()
+    tasks, costs = [], []
+    for k, sc in scenarios.items():
+        n_i = [int(v) for v in designs[k]["n_i"]]
+        tasks += [(k, "samples")] + ([(k, "mismatch")] if extras else [])
+        costs += [sample_seconds(sc)] + ([MISMATCH_S] if extras else [])
+        for run in sc.runs:
+            tasks.append((k, run))
+            costs.append(run_cost(sc, run, trials[k], n_i, budget)["seconds"])
+    order = sorted(range(len(tasks)), key=lambda i: -costs[i])
+    outs = parallel_map(functools.partial(_task, cache, scenarios, designs, opts.seed, trials, budget),
+                        [tasks[i] for i in order], workers=opts.workers,
+                        desc=f"hybrid observer: {sum(len(sc.runs) for sc in scenarios.values())} runs, lemma samples")
+    done = {(tasks[i][0], getattr(tasks[i][1], "name", tasks[i][1])): out for i, out in zip(order, outs)}
+    return MultiResults({k: Results(sc, opts.seed, trials[k], opts.quick, {**designs[k], **done.get((k, "mismatch"), {})},
+                                    done[(k, "samples")], {r.name: done[(k, r.name)] for r in sc.runs}, k == "paper")
+                         for k, sc in scenarios.items()})

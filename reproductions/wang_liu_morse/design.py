@@ -41,7 +41,8 @@ def observer_design(sc: HybridScenario) -> ho.ObserverDesign:
     if sc.gains == "given":
         K = tuple(np.asarray(k, float) for k in sc.K_given)
     else:
-        K = tuple(jd.place_gain(loc.Abar, loc.Cbar, p) for loc, p in zip(locs, sc.poles))
+        K = tuple(_placed(f"design.poles[{i}]", jd.place_gain, loc.Abar, loc.Cbar, p)
+                  for i, (loc, p) in enumerate(zip(locs, sc.poles)))
     return ho.ObserverDesign(sc.A, tuple(sc.C), tuple(loc.L for loc in locs), tuple(loc.Abar for loc in locs),
                              tuple(loc.Cbar for loc in locs), K, tuple(loc.Q for loc in locs),
                              np.array([loc.P for loc in locs]))
@@ -49,7 +50,18 @@ def observer_design(sc: HybridScenario) -> ho.ObserverDesign:
 
 def central_gain(sc: HybridScenario) -> np.ndarray:
     """Centralized observer on the stacked outputs: x_c' = (A + K_c C) x_c - K_c y (see `jd.stacked_gain`)."""
-    return jd.stacked_gain(sc.A, np.vstack(sc.C), sc.central_poles, sc.rank_tol)
+    return _placed("design.central_poles", jd.stacked_gain, sc.A, np.vstack(sc.C), sc.central_poles, sc.rank_tol)
+
+
+def _placed(field: str, place, *args) -> np.ndarray:
+    """A gain placed with the design (the scenario's load checked that the poles can be placed,
+    without placing them); a numerical failure of the placement names the field."""
+    try:
+        return place(*args)
+    except ValueError as exc:
+        from pipeline.errors import ScenarioError
+
+        raise ScenarioError(field, f"pole placement failed: {exc}") from None
 
 
 @dataclass
@@ -85,9 +97,11 @@ def lambda_variants(sc: HybridScenario) -> list[tuple[str, float]]:
     return [("", sc.lam)] + ([("_paper", lam_p)] if lam_p != sc.lam else [])
 
 
-def design_quantities(sc: HybridScenario, seed: int, extras: bool = False) -> dict[str, np.ndarray]:
+def design_quantities(sc: HybridScenario, seed: int, extras: bool = False, mismatch: bool = True
+                      ) -> dict[str, np.ndarray]:
     """Every deterministic design quantity; `extras` adds the ones only the paper's claims use
-    (Section 5's vertex-loss design, the model-mismatch demonstration of Section 4)."""
+    (Section 5's vertex-loss design, and with `mismatch` the model-mismatch demonstration of
+    Section 4, which a run computes beside its simulations)."""
     d = observer_design(sc)
     m, n = d.m, d.n
     out: dict[str, np.ndarray] = {}
@@ -149,7 +163,8 @@ def design_quantities(sc: HybridScenario, seed: int, extras: bool = False) -> di
                                                   for i in range(m)) for G in sc.graphs])
     if extras:
         out.update(section5_design(sc, d, nA))
-        out.update(model_mismatch(sc, seed))
+        if mismatch:
+            out.update(model_mismatch(sc, seed))
     return out
 
 

@@ -79,9 +79,7 @@ class HybridObserverReproduction:
         from .cost import refuse_beyond_budget
 
         refuse_beyond_budget(self.scenarios, opts)
-        return compute_mod.MultiResults({k: compute_mod.compute(sc, opts, cache, is_paper=(k == "paper"),
-                                                                extras=self.is_paper)
-                                         for k, sc in self.scenarios.items()})
+        return compute_mod.compute_all(self.scenarios, opts, cache, extras=self.is_paper)
 
     # -- the design stage (`dse check`) --------------------------------------------------------------
     def design(self, opts: RunOptions):
