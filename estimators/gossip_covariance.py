@@ -411,8 +411,9 @@ class ExplicitBound:
 
     @property
     def threshold(self) -> float:
-        """λ_thr: the explicit 'λ sufficiently large' (b > 0 beyond it)."""
-        return (self.C1 + self.a2 ** 2 / (2 * self.a1)) / (self.alpha * self.fiedler)
+        """λ_thr: the explicit 'λ sufficiently large' (b > 0 beyond it; inf on a disconnected graph)."""
+        coupling = self.alpha * self.fiedler
+        return (self.C1 + self.a2 ** 2 / (2 * self.a1)) / coupling if coupling > 0 else math.inf
 
     def value(self, rate: float) -> float:
         """B_12(λ) ≥ limsup ‖𝒫_i(t) − S‖_F; inf below the threshold."""

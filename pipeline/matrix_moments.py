@@ -30,10 +30,11 @@ class MatrixMoments:
 
     def add(self, index, e: np.ndarray) -> None:
         """Add the trials' e (count, L, N, n) to the time slots `index` (L of them), in place."""
-        sq = e * e
-        self.s2[index] += np.einsum("ktna,ktnb->tnab", e, e)
-        self.s4_trace[index] += np.square(sq.sum(axis=-1)).sum(axis=0)
-        self.s4_entry[index] += np.einsum("ktna,ktnb->tnab", sq, sq)
+        et = np.ascontiguousarray(np.moveaxis(e, 0, -1))           # (L, N, n, trials): one product per (t, group)
+        sq = et * et
+        self.s2[index] += et @ np.swapaxes(et, -1, -2)
+        self.s4_trace[index] += np.square(sq.sum(axis=-2)).sum(axis=-1)
+        self.s4_entry[index] += sq @ np.swapaxes(sq, -1, -2)
 
     @classmethod
     def of(cls, e: np.ndarray) -> "MatrixMoments":

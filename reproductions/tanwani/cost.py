@@ -1,19 +1,26 @@
 """Time and memory of a random-comm-filter run, estimated from the scenario before anything runs
 (`dse check`, and the refusal of runs whose non-streamable part does not fit the memory budget).
 
-Time (CPU seconds, constants fitted on the development machine; docs/papers/tanwani.md gives the
-measured ratios): the design (eigenvalue problems of the generators of (9), of size D9 = N·n², and
-of the exact mean covariance, of size DS = Nn(Nn+1)/2, at every sweep rate and along the two
-critical-rate bisections; the transients), the references (the second moments of the P-process, the
-gridded scheme's bias, filterpy), the gridded Monte Carlo (per trial and step: two flows of the
-(N+1)n state; per step and clock: the rings), the event-driven and frozen-path Monte Carlo (per
-trial and event or output time: the exact flow of the joint covariance, dense products of size
-(N+1)n), the claims (per-interval Van Loan along the stored paths) and the tables and outputs.
+Time: each stage's work is counted from the scenario's sizes (`features`) and multiplied by CPU
+seconds per unit (`COEF`, fitted on the development machine by least squares over the stages of
+measured runs; docs/papers/tanwani.md gives the scenarios and the ratios):
 
-Memory: the interpreter and libraries, what the run keeps (moments per output time of every
-Monte Carlo stage, the sample trials and their clock paths, the paired trials, the frozen path, the
-design arrays and the dense generators, the tables) and one Monte Carlo chunk per worker
-(streamed: bounded by the budget, at least one RNG unit of 1,000 trials).
+* design: dense eigenvalue problems and solves of the generators of (9) (size D9 = N·n²) and of
+  the exact mean covariance (DS = Nn(Nn+1)/2) along the two critical-rate bisections and at every
+  sweep rate, the transients (matrix-vector products per output step), the clock paths of the
+  `numerics` hypothesis (a matrix exponential per ring);
+* references: the second moments of the P-process (a dense exponential of size ~(N·q)²/2), the
+  gridded scheme's bias, filterpy's sampled filter;
+* gridded Monte Carlo: per trial and step two flows of the (N+1)n state; per unit and step the
+  draws; per chunk, step and clock the rings; per unit and output the moments;
+* event-driven and frozen-path Monte Carlo: per trial and mark (ring or output time) the exact
+  flow of the joint covariance (dense products of size (N+1)n); per chunk and mark the Python loop;
+* claims (per-interval Van Loan along the stored paths, the Kalman–Bucy references), tables and outputs.
+
+Memory: the interpreter and libraries, what the run keeps (moments per output time of every Monte
+Carlo stage, the sample trials and their clock paths, the paired trials, the frozen path, the design
+arrays and dense generators, the tables) and one Monte Carlo chunk per worker (streamed: bounded by
+the budget, at least one RNG unit of 1,000 trials).
 """
 from __future__ import annotations
 
@@ -31,38 +38,25 @@ MIB = 2.0**20
 BASE_MIB = 300.0
 #: resident memory of the figures and recordings being written
 OUTPUT_MIB = 60.0
-#: CPU seconds: interpreter start and imports; the claims' fixed part; figures, recordings, report per scenario
-STARTUP_S = 2.5
-CLAIMS_S = 0.6
-OUTPUTS_S = 2.5
-#: CPU seconds per cubed dimension of a dense eigenvalue problem or solve (the design's generators)
-EIG_CUBE_S = 2.5e-9
-#: CPU seconds per design call (Python overhead of building a generator and its abscissa)
-DESIGN_CALL_S = 4e-4
-#: CPU seconds per squared dimension of building a dense generator (kron products per clock)
-BUILD_SQ_S = 2e-9
-#: CPU seconds per output step and squared dimension of a transient (matrix-vector products)
-STEP_SQ_S = 2e-9
-#: gridded: per trial, step and squared state dimension (two flows); per step (Python, per unit); per step and clock
-GRID_TRIAL_S = 1.5e-9
-GRID_STEP_S = 6e-5
-GRID_CLOCK_S = 4e-6
-GRID_RECORD_S = 6e-5
-#: event-driven: per trial, mark (event or output) and cubed joint dimension; per trial and mark (fixed); per mark
-EVENT_CUBE_S = 1.2e-9
-EVENT_TRIAL_S = 6e-6
-EVENT_MARK_S = 1.5e-3
-#: claims: per-interval Van Loan along the stored paths, per interval and cubed doubled dimension
-PATH_CUBE_S = 3e-9
-PATH_INTERVAL_S = 1.5e-4
-#: CPU seconds per table row (building, Parquet, CSV, the figures' reading)
-ROW_S = 3e-6
-#: topology sweep of the paper
-TOPOLOGY_S = 3.0
 #: bytes of one table row in memory (frames, Arrow copies)
 ROW_BYTES = 200.0
+#: CPU seconds per unit of each feature (see `features`), fitted on measured stages
+COEF = {
+    "design": {"base": 0.0372, "eig": 1.23e-09, "solve": 0.0, "build": 0.0, "steps": 1.3e-08, "outputs": 4.98e-05, "intervals": 3.08e-06},
+    "refs": {"base": 0.453, "kron": 2.4e-09, "second": 3.65e-10, "scheme": 4.3e-09, "steps": 9.08e-10, "filterpy": 3.96e-06},
+    "grid": {"trial_steps": 1.14e-10, "unit_steps": 0.000112, "chunk_steps": 2.68e-05, "unit_outputs": 4.75e-05},
+    "event": {"d3": 0.0, "d2": 5.56e-08, "marks": 7.33e-07, "chunk_marks": 0.000542},
+    "frozen": {"d3": 0.0, "d2": 1.98e-08, "marks": 3.04e-07, "chunk_marks": 0.000378},
+    "claims": {"base": 0.571, "intervals": 1e-06, "outputs": 9.39e-06},
+    "out": {"base": 1.49, "rows": 0.0, "nodes": 0.104},
+}
+#: CPU seconds: interpreter start and imports; the paper's topology sweep
+STARTUP_S = 2.5
+TOPOLOGY_S = 3.0
 #: a run estimated longer than this says so when it starts
 LONG_RUN_S = 60.0
+#: flops of a dense nonsymmetric eigenvalue problem and of an LU solve, per cubed dimension
+EIG_FLOPS, SOLVE_FLOPS = 25.0, 0.7
 
 
 @dataclass(frozen=True)
@@ -83,105 +77,141 @@ def human_seconds(s: float) -> str:
     return f"{s:.3g} s"
 
 
-def _sizes(sc: FilterNetworkScenario) -> dict:
+def features(sc: FilterNetworkScenario, opts: RunOptions) -> dict[str, dict[str, float]]:
+    """The work of every stage, in the units of COEF."""
+    from .compute import MAX_SCHEME_DIM, event_bytes_per_trial, event_window, gridded_bytes_per_trial, trial_counts
+    from .design import NUMERICS_PATHS, QUICK_SWEEP_POINTS, SWEEP_EIG_MAX, joint_ok, numerics_times
+
     s = sc.system
     N, n = s.N, s.n
-    return {"N": N, "n": n, "d": (N + 1) * n, "D9": N * n * n, "DS": N * n * (N * n + 1) // 2, "Nn": N * n,
-            "C": len(s.clocks), "T": sc.n_outputs + 1}
-
-
-def scenario_cost(sc: FilterNetworkScenario, opts: RunOptions, *, paper: bool = False) -> dict:
-    from .compute import (MAX_SCHEME_DIM, PAIR_MAX, event_bytes_per_trial, event_window, gridded_bytes_per_trial,
-                          trial_counts)
-    from .design import QUICK_SWEEP_POINTS, joint_ok, numerics_times
-
-    z = _sizes(sc)
-    N, n, d, D9, DS, Nn, C, T = (z[k] for k in ("N", "n", "d", "D9", "DS", "Nn", "C", "T"))
+    d, Nn, C, T = (N + 1) * n, N * n, len(s.clocks), sc.n_outputs + 1
+    D9, DS = N * n * n, N * n * (N * n + 1) // 2
+    joint = joint_ok(s)
     trials, ev_trials = trial_counts(sc, opts)
-    joint = joint_ok(sc.system)
     R = len(sc.rates)
-    # design: sweep points and bisections, each an eigenvalue problem (and a solve) of each generator
-    pts = sc.sweep[2] if not opts.quick else min(sc.sweep[2], QUICK_SWEEP_POINTS)
-    pts += 5
-    evals9 = 4 * pts + 90 + 3 * R
-    evalsS = (3 * pts + 90 + 2 * R) if joint else 0
-    t_design = (evals9 * (DESIGN_CALL_S + EIG_CUBE_S * D9 ** 3 + BUILD_SQ_S * C * D9 ** 2)
-                + evalsS * (DESIGN_CALL_S + EIG_CUBE_S * DS ** 3 + BUILD_SQ_S * (C + 2) * Nn ** 4)
-                + R * T * STEP_SQ_S * (D9 ** 2 + (DS ** 2 if joint else 0)))
+    pts = (min(sc.sweep[2], QUICK_SWEEP_POINTS) if opts.quick else sc.sweep[2]) + 5
+    bisect = 45
+    eig = (pts + 2 + R) * D9 ** 3 + ((pts if DS <= SWEEP_EIG_MAX else 0) + R + 1) * DS ** 3 * joint
+    solve = (4 * pts + bisect + 3 * R) * D9 ** 3 + (4 * pts + bisect + 2 * R) * DS ** 3 * joint
     nt = numerics_times(sc)
-    path_marks = sc.main_rate * C * nt[-1] + len(nt)
-    t_design += 3 * path_marks * (PATH_INTERVAL_S + PATH_CUBE_S * (2 * Nn) ** 3)
-    # references: second moments of the P-process, the gridded scheme's bias, filterpy
+    path_intervals = NUMERICS_PATHS * (sc.main_rate * C * nt[-1] + len(nt))
+    design = {"base": 1.0, "eig": eig, "solve": solve, "build": (C + 4) * Nn ** 4 * joint,
+              "steps": R * T * (D9 ** 2 + (DS ** 2 if joint else 0)), "outputs": (R + 1) * T,
+              "intervals": path_intervals * (1 + (2 * Nn) ** 3 / 1000.0)}
     q = n * (n + 1) // 2
     Dq = N * q
     big = Dq * (Dq + 1) // 2 + Dq
-    t_refs = 0.5
-    if Dq <= 40:
-        t_refs += 2 * EIG_CUBE_S * 6 * big ** 3 + 1.5 * T * STEP_SQ_S * big ** 2
-    if Nn <= MAX_SCHEME_DIM:
-        t_refs += 3 * C * EIG_CUBE_S * 4 * DS ** 3 + 2 * T * STEP_SQ_S * DS ** 2
-    # gridded Monte Carlo, every rate
+    second = Dq <= 40
+    scheme = Nn <= MAX_SCHEME_DIM
+    every = max(1, int(round(sc.output_step / sc.grid_step)))
+    refs = {"base": 1.0, "kron": second * C * Dq ** 4, "second": second * (2 * big ** 3 + 1.5 * T * big ** 2),
+            "scheme": scheme * (C * 10 * Nn ** 4 + 2 * (C + math.log2(2 * every + 1)) * DS ** 3 + 2 * T * DS ** 2),
+            "steps": 2.0 * T * (D9 ** 2 + (DS ** 2 if joint else 0)), "filterpy": _filterpy_steps(sc)}
     budget = opts.chunk_budget_bytes()
-    g_bytes = gridded_bytes_per_trial(sc)
     g_units = -(-trials // RNG_UNIT)
-    g_chunks = -(-g_units // units_per_chunk(g_bytes, budget))
+    g_chunks = -(-g_units // units_per_chunk(gridded_bytes_per_trial(sc), budget))
     steps = sc.grid_steps
-    t_grid = R * (steps * (trials * GRID_TRIAL_S * (d * d + 4 * d) + g_units * GRID_STEP_S
-                           + g_chunks * C * GRID_CLOCK_S * 2) + T * g_units * GRID_RECORD_S)
-    # event-driven and frozen path: every trial visits every ring and output time
-    e_bytes = event_bytes_per_trial(sc)
+    grid = {"trial_steps": R * trials * steps * 4 * d * d, "unit_steps": R * g_units * steps,
+            "chunk_steps": R * g_chunks * steps * (C + 4), "unit_outputs": R * g_units * T}
     e_units = -(-ev_trials // RNG_UNIT)
-    e_chunks = -(-e_units // units_per_chunk(e_bytes, budget))
+    e_chunks = -(-e_units // units_per_chunk(event_bytes_per_trial(sc), budget))
     events = sc.main_rate * C * sc.horizon
     L = event_window(sc)
     windows = math.ceil((T - 1) / L)
-    spread = 3.0 * math.sqrt(max(events / windows, 1.0))
-    marks = events + T + windows * spread                  # lock-step marks of a chunk (the slowest trial per window)
-    per_mark = EVENT_CUBE_S * d ** 3 + EVENT_TRIAL_S
-    t_event = ev_trials * marks * per_mark + e_chunks * marks * EVENT_MARK_S
-    t_frozen = ev_trials * (events + T) * (EVENT_CUBE_S * d ** 3 * 0.6 + EVENT_TRIAL_S) + e_chunks * (events + T) * \
-        EVENT_MARK_S
-    # claims: per-interval Van Loan along the stored sample paths
+    marks = events + T + windows * 3.0 * math.sqrt(max(events / windows, 1.0))
+    event = {"d3": ev_trials * (events + T) * d ** 3, "d2": ev_trials * (events + T) * d * d,
+             "marks": ev_trials * (events + T), "chunk_marks": e_chunks * marks}
+    frozen = {"d3": ev_trials * (events + T) * d ** 3, "d2": ev_trials * (events + T) * d * d,
+              "marks": ev_trials * (events + T), "chunk_marks": e_chunks * (events + T)}
     S = min(sc.sample_trials, ev_trials)
-    t_claims = CLAIMS_S + S * (events + T) * (PATH_INTERVAL_S + PATH_CUBE_S * (2 * Nn) ** 3)
-    rows = (R * T * N * 3 + S * T * N * (2 * n + 1) + 2 * S * T * N * n + pts * N + 10 * (N * n) ** 2
-            + min(PAIR_MAX, ev_trials) * 0 + S * events)
-    t_out = OUTPUTS_S + rows * ROW_S
-    workers = max(1, opts.workers)
-    stages = [t_design, t_refs, t_event, t_frozen] + [t_grid / R] * R
-    wall_mc = max(sum(stages) / workers, max(stages))
-    seconds = wall_mc + t_claims + t_out
-    # memory kept: moments, samples and paths, design arrays and generators, tables
+    claims = {"base": 1.0, "intervals": S * (events + T) * (1 + (2 * Nn) ** 3 / 1000.0), "outputs": T * (1 + n ** 3)}
+    rows = (R * T * N * 2 + 2 * S * T * N * n + S * T * N + 2 * T * N + (pts + 5) * N + 12 * Nn * Nn
+            + (S + 1) * events + 10 * N * q * 10)
+    out = {"base": 1.0, "rows": rows, "nodes": N * (1 + R)}
+    return {"design": design, "refs": refs, "grid": grid, "event": event, "frozen": frozen, "claims": claims, "out": out}
+
+
+def _filterpy_steps(sc: FilterNetworkScenario) -> float:
+    """Steps of filterpy's sampled filter until its covariance settles, at the four sampling steps of
+    `compute.filterpy_reference`: about 14 time constants of the slowest Kalman–Bucy mode (the Riccati difference contracts at twice its rate), at most 6,000."""
+    import numpy as np
+    import scipy.linalg as sla
+
+    from .compute import FILTERPY_FRACTIONS, FILTERPY_MAX_STEPS
+
+    s = sc.system
+    Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
+    try:
+        P = sla.solve_continuous_are(s.A.T, Hs.T, s.B @ s.B.T, Vs)
+        eig = np.linalg.eigvals(s.A - P @ Hs.T @ np.linalg.solve(Vs, Hs))
+    except (np.linalg.LinAlgError, ValueError):
+        return 0.0
+    if not np.all(np.isfinite(eig)) or eig.real.max() >= 0:
+        return 0.0
+    nu, mu = float(np.abs(eig).max()), float(-eig.real.max())
+    hs = min(0.1, 0.5 / max(nu, 1e-12)) * np.array(FILTERPY_FRACTIONS)
+    return float(sum(min(FILTERPY_MAX_STEPS, 14.0 / (h * mu)) for h in hs))
+
+
+def stage_seconds(feat: dict[str, dict[str, float]]) -> dict[str, float]:
+    return {stage: sum(COEF[stage][k] * v for k, v in f.items()) for stage, f in feat.items()}
+
+
+def scenario_cost(sc: FilterNetworkScenario, opts: RunOptions) -> dict:
+    from .compute import PAIR_MAX, event_bytes_per_trial, gridded_bytes_per_trial, trial_counts
+    from .design import QUICK_SWEEP_POINTS, joint_ok
+
+    feat = features(sc, opts)
+    sec = stage_seconds(feat)
+    s = sc.system
+    N, n = s.N, s.n
+    d, Nn, T = (N + 1) * n, N * n, sc.n_outputs + 1
+    D9 = N * n * n
+    trials, ev_trials = trial_counts(sc, opts)
+    joint = joint_ok(s)
+    R = len(sc.rates)
+    S = min(sc.sample_trials, ev_trials)
+    q = n * (n + 1) // 2
+    events = sc.main_rate * len(s.clocks) * sc.horizon
+    pts = (min(sc.sweep[2], QUICK_SWEEP_POINTS) if opts.quick else sc.sweep[2]) + 5
     mom = 8.0 * T * N * (2 * n * n + 1)
     kept = ((R + 2) * mom * 2 + 8.0 * S * T * (2 * d + 4 * N * n * n) + 16.0 * (S + 1) * events
             + 8.0 * min(PAIR_MAX, ev_trials, trials) * 10 * N * q * 2)
     design = (8.0 * R * T * ((Nn * Nn if joint else 0) + 2 * D9) + 8.0 * pts * N * n * n * 8
-              + (8.0 * 4 * Nn ** 4 if joint else 0) + 8.0 * 4 * D9 ** 2)
+              + (8.0 * 5 * Nn ** 4 if joint else 0) + 8.0 * 4 * D9 ** 2)
+    Dq = N * q
     if Dq <= 40:
+        big = Dq * (Dq + 1) // 2 + Dq
         design += 8.0 * 3 * big ** 2 + 8.0 * T * big
-    tables = ROW_BYTES * rows
-    kept_mib = OUTPUT_MIB + (kept + design + tables) / MIB
-    unit_mib = RNG_UNIT * max(g_bytes, e_bytes) / MIB
+    tables = ROW_BYTES * feat["out"]["rows"]
+    budget = opts.chunk_budget_bytes()
+    g_bytes, e_bytes = gridded_bytes_per_trial(sc), event_bytes_per_trial(sc)
+    g_units, e_units = -(-trials // RNG_UNIT), -(-ev_trials // RNG_UNIT)
     chunk_mib = max(min(units_per_chunk(g_bytes, budget), g_units) * RNG_UNIT * g_bytes,
                     min(units_per_chunk(e_bytes, budget), e_units) * RNG_UNIT * e_bytes) / MIB
-    return {"seconds": seconds, "design_s": t_design, "refs_s": t_refs, "grid_s": t_grid, "event_s": t_event,
-            "frozen_s": t_frozen, "claims_s": t_claims, "out_s": t_out, "kept_mib": kept_mib, "chunk_mib": chunk_mib,
-            "unit_mib": unit_mib, "trials": trials, "ev_trials": ev_trials, "steps": steps, "events": events,
-            "rows": rows}
+    return {**{f"{k}_s": v for k, v in sec.items()}, "stages": [sec["design"], sec["refs"], sec["event"],
+                                                                sec["frozen"]] + [sec["grid"] / R] * R,
+            "kept_mib": OUTPUT_MIB + (kept + design + tables) / MIB, "chunk_mib": chunk_mib,
+            "unit_mib": RNG_UNIT * max(g_bytes, e_bytes) / MIB, "trials": trials, "ev_trials": ev_trials,
+            "steps": sc.grid_steps, "events": events}
 
 
 def estimate(scenarios: list[FilterNetworkScenario], opts: RunOptions, *, paper: bool = False) -> Cost:
-    costs = {sc.name: scenario_cost(sc, opts, paper=paper) for sc in scenarios}
+    costs = {sc.name: scenario_cost(sc, opts) for sc in scenarios}
     workers = max(1, opts.workers)
-    seconds = STARTUP_S + sum(c["seconds"] for c in costs.values()) + (TOPOLOGY_S if paper else 0.0)
+    stages = [t for c in costs.values() for t in c["stages"]] + ([TOPOLOGY_S] if paper else [])
+    compute = max(sum(stages) / workers, max(stages))         # the stages run in `workers` processes
+    serial = sum(c["claims_s"] + c["out_s"] for c in costs.values())
+    seconds = STARTUP_S + compute + serial
     kept = sum(c["kept_mib"] for c in costs.values())
     chunk = max(c["chunk_mib"] for c in costs.values())
     unit = max(c["unit_mib"] for c in costs.values())
     peak = BASE_MIB + kept + chunk * min(workers, 2)
-    parts = [f"{name}: design {c['design_s']:.2g} s, gridded {c['trials']:,} trials × {c['steps']:,} steps per rate "
-             f"{c['grid_s']:.3g} s, event-driven {c['ev_trials']:,} paths × {c['events']:,.0f} expected rings "
-             f"{c['event_s']:.3g} s, frozen path {c['frozen_s']:.2g} s, claims {c['claims_s']:.2g} s, tables and "
-             f"outputs {c['out_s']:.2g} s; kept {c['kept_mib']:,.0f} MiB" for name, c in costs.items()]
+    parts = [f"{name}: design {c['design_s']:.2g} s, references {c['refs_s']:.2g} s, gridded {c['trials']:,} trials × "
+             f"{c['steps']:,} steps per rate {c['grid_s']:.3g} s, event-driven {c['ev_trials']:,} paths × "
+             f"{c['events']:,.0f} expected rings {c['event_s']:.3g} s, frozen path {c['frozen_s']:.2g} s, claims "
+             f"{c['claims_s']:.2g} s, tables and outputs {c['out_s']:.2g} s; kept {c['kept_mib']:,.0f} MiB"
+             for name, c in costs.items()]
     detail = (f"{human_seconds(seconds)} in all on {workers} worker(s); memory {BASE_MIB:.0f} MiB base + {kept:,.0f} MiB "
               f"kept + {chunk:,.0f} MiB per Monte Carlo chunk. " + "; ".join(parts))
     return Cost(seconds, peak, kept, chunk, unit, detail, costs)
@@ -189,18 +219,23 @@ def estimate(scenarios: list[FilterNetworkScenario], opts: RunOptions, *, paper:
 
 def refuse_if_too_large(scenarios: list[FilterNetworkScenario], opts: RunOptions, *, paper: bool = False) -> None:
     """What cannot be streamed must fit the memory budget, and so must one RNG unit of trials: else one
-    ScenarioError naming the field and the estimate, before anything runs."""
+    ScenarioError naming the field and the estimate, before anything runs. A long run says so when it starts."""
     budget = opts.memory_budget_mib
     c = estimate(scenarios, opts, paper=paper)
-    if BASE_MIB + c.kept_mib + c.unit_mib > budget:
-        worst = max(c.parts.items(), key=lambda kv: kv[1]["kept_mib"])
-        name, p = worst
-        sc = next(s for s in scenarios if s.name == name)
-        field = "simulation.horizon" if p["events"] * (sc.sample_trials + 1) * 16 > 0.5 * p["kept_mib"] * MIB \
-            else "simulation.output_step"
-        raise ScenarioError(field, f"'{name}' keeps about {c.kept_mib:,.0f} MiB that cannot be streamed (moments at "
-                                   f"{sc.n_outputs + 1:,} output times, {sc.sample_trials} sample trials with about "
-                                   f"{p['events']:,.0f} rings each, the frozen clock path, the design arrays and the "
-                                   f"tables), besides {BASE_MIB:.0f} MiB of libraries and a {c.unit_mib:,.0f} MiB unit of "
-                                   f"trials: more than the memory budget of {budget:,.0f} MiB (--max-memory); a shorter "
-                                   "horizon, a larger output_step or fewer rings fit")
+    if BASE_MIB + c.kept_mib + c.unit_mib <= budget:
+        if c.seconds > LONG_RUN_S and not paper:
+            import sys
+
+            print(f"{scenarios[0].name}: estimated {human_seconds(c.seconds)} and {c.peak_mib:,.0f} MiB peak memory "
+                  f"({c.detail})", file=sys.stderr)
+        return
+    name, p = max(c.parts.items(), key=lambda kv: kv[1]["kept_mib"])
+    sc = next(s for s in scenarios if s.name == name)
+    paths_mib = (16.0 + ROW_BYTES) * (sc.sample_trials + 1) * p["events"] / MIB      # the stored rings and their rows
+    field = "communication.rates" if paths_mib > 0.5 * p["kept_mib"] else "simulation.output_step"
+    raise ScenarioError(field, f"'{name}' keeps about {c.kept_mib:,.0f} MiB that cannot be streamed (moments at "
+                               f"{sc.n_outputs + 1:,} output times, {sc.sample_trials} sample trials with about "
+                               f"{p['events']:,.0f} rings each, the frozen clock path, the design arrays and the tables), "
+                               f"besides {BASE_MIB:.0f} MiB of libraries and a {c.unit_mib:,.0f} MiB unit of trials: more "
+                               f"than the memory budget of {budget:,.0f} MiB (--max-memory); fewer rings (a lower rate or "
+                               "a shorter horizon) or fewer output times fit")
