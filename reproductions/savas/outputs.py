@@ -54,7 +54,7 @@ def _cell_rows(frame: pd.DataFrame, sc, alg: str, m: int, s_c: float) -> pd.Data
 # -- figures --------------------------------------------------------------------------------------
 
 def _metric_figure(tables: Tables, sc, trials: int, alg: str, title: str, path: Path) -> None:
-    from pipeline.figures import new_figure, save_figure, sequential_colors
+    from pipeline.figures import new_figure, save_figure, sequential_colors, set_margins
 
     exact, mc, se = eval_trace_table(tables, sc, alg)
     z = z_for_confidence(BAND_CONFIDENCE)
@@ -70,7 +70,8 @@ def _metric_figure(tables: Tables, sc, trials: int, alg: str, title: str, path: 
                  fontsize=9)
     ax.set_xticks(sc.rounds)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-    save_figure(fig, path)
+    set_margins(fig, left=0.8, right=2.7, top=0.6, bottom=0.55)   # the legend right of the axes
+    save_figure(fig, path, tight=False)
 
 
 def _gains(tables: Tables, sc, objective: str, key: str) -> np.ndarray:
@@ -80,7 +81,7 @@ def _gains(tables: Tables, sc, objective: str, key: str) -> np.ndarray:
 
 
 def _gains_figure(tables: Tables, sc, path: Path) -> None:
-    from pipeline.figures import new_figure, save_figure, sequential_colors
+    from pipeline.figures import new_figure, save_figure, sequential_colors, set_margins
 
     ms = np.arange(sc.rounds_max + 1)
     fig, axes = new_figure(ncols=3, width=4.6)
@@ -99,11 +100,12 @@ def _gains_figure(tables: Tables, sc, path: Path) -> None:
                        label="N P_c⁻ (centralized)")
     axes[0, 0].set_title("solid: corrected (16); dashed: (16) as printed", fontsize=9)
     axes[0, 2].legend(ncol=1)
-    save_figure(fig, path)
+    set_margins(fig, left=0.75, right=0.15, top=0.35, bottom=0.55, wspace=0.85)
+    save_figure(fig, path, tight=False)
 
 
 def _trace_over_k_figure(tables: Tables, sc, path: Path) -> None:
-    from pipeline.figures import new_figure, save_figure
+    from pipeline.figures import new_figure, save_figure, set_margins
 
     m, s_c = showcase(sc)
     fig, axes = new_figure()
@@ -122,7 +124,8 @@ def _trace_over_k_figure(tables: Tables, sc, path: Path) -> None:
     ax.set_ylabel("tr P(k|k−1)")
     ax.set_title(f"m = {m}, σ_c = {s_c:g}", fontsize=9)
     ax.legend()
-    save_figure(fig, path)
+    set_margins(fig, left=0.75, right=0.15, top=0.35, bottom=0.55)
+    save_figure(fig, path, tight=False)
 
 
 def _fig(paper: bool, number: int) -> str:
