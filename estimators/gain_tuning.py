@@ -166,6 +166,12 @@ class GainTable:
         return KKTResiduals(float(g[0]), float(g[1]), (float(proj[0]), float(proj[1])),
                             float(self.d2J_dell2[s, j]), float(self.d2J_dzeta2[s, j]))
 
+    def optimum(self, s: int, j: int) -> GainOptimum:
+        """The optimum of one cell with its grid (of a table made with ``keep_grids``); the same as
+        :func:`optimal_reinjection_gains` of that cell alone (the cells are optimised independently)."""
+        return GainOptimum(float(self.ell[s, j]), float(self.zeta[s, j]), float(self.J[s, j]), self.grid_ell,
+                           self.grid_zeta, self.grids[s, j], self.kkt(s, j))
+
 
 def optimal_gain_no_communication(q, r, n_agents) -> tuple[float, float]:
     """``(ell*_0, J*_0)`` minimising ``J_0(ell) = N (ell^2 r + q)/(1-(1-ell)^2)`` (§V-B, ``m = 0``, ``zeta := 1``).
@@ -427,7 +433,7 @@ def _minimise_box(fun_grad, x, lo, hi, scale):
         # A problem back at a point it visited before cycles from there on (an iteration depends on the
         # point only: J and the gradient are functions of it, and every problem is computed on its own),
         # so where the last iteration leaves it is known now; it stops here with that point.
-        again = np.all(seen_x[:t, upd] == x[upd][None], axis=2)          # (t, rows): visits of the new points
+        again = _revisits(seen_x[:t, upd], x[upd])
         cycling = again.any(axis=0)
         if cycling.any():
             rows, first = upd[cycling], np.argmax(again[:, cycling], axis=0)
@@ -435,6 +441,11 @@ def _minimise_box(fun_grad, x, lo, hi, scale):
             x[rows], J[rows] = seen_x[last, rows], seen_J[last, rows]
         active_rows = upd[~cycling]
     return x, J
+
+
+def _revisits(seen: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(t, P): where the points x (P, d) of the problems were before (their points `seen` (t, P, d))."""
+    return np.all(seen == x[None], axis=2)
 
 
 def _fd_kkt(cost, x, lo, hi, scale, n_free):
@@ -674,10 +685,8 @@ def optimal_reinjection_gains(
     Q, *, m, sigma_c, q, r, formula="corrected", grid=(400, 401), n_starts=4
 ) -> GainOptimum:
     """The optimum of one cell (see :func:`reinjection_gain_tables`), with its grid."""
-    t = reinjection_gain_tables(Q, ms=[m], sigma_c=[sigma_c], q=q, r=r, formulas=(formula,), grid=grid,
-                                n_starts=n_starts, keep_grids=True)[formula]
-    return GainOptimum(float(t.ell[0, 0]), float(t.zeta[0, 0]), float(t.J[0, 0]), t.grid_ell, t.grid_zeta,
-                       t.grids[0, 0], t.kkt(0, 0))
+    return reinjection_gain_tables(Q, ms=[m], sigma_c=[sigma_c], q=q, r=r, formulas=(formula,), grid=grid,
+                                   n_starts=n_starts, keep_grids=True)[formula].optimum(0, 0)
 
 
 def optimal_carli_gain(Q, *, m, sigma_c, q, r, n_grid=2000) -> CarliGainOptimum:

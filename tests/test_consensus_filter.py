@@ -40,10 +40,13 @@ from estimators.consensus_covariance import (
     trace_formula_printed,
 )
 from estimators.consensus_filter import ConsensusFilterRun, simulate_consensus_filter
+import estimators.gain_tuning as gain_tuning
 from estimators.gain_tuning import (
+    carli_gain_table,
     optimal_carli_gain,
     optimal_gain_no_communication,
     optimal_reinjection_gains,
+    reinjection_gain_tables,
 )
 
 Q_PATH = np.eye(3) - 0.4 * np.array([[1.0, -1.0, 0.0], [-1.0, 2.0, -1.0], [0.0, -1.0, 1.0]])
@@ -472,7 +475,9 @@ FIG2_PRINTED = {  # paper-verbatim (16): (ell*, zeta*) for m = 1, 2, 3
 
 @pytest.fixture(scope="module")
 def fig2_corrected():
-    return {(s, m): optimal_reinjection_gains(Q_PATH, m=m, sigma_c=s, **QR) for s in SIGMA_C_GRID for m in range(21)}
+    """Every cell of Fig. 2 (corrected J) from one table: the same optima as cell by cell (checked below)."""
+    table = reinjection_gain_tables(Q_PATH, ms=range(21), sigma_c=SIGMA_C_GRID, keep_grids=True, **QR)["corrected"]
+    return {(s, m): table.optimum(i, m) for i, s in enumerate(SIGMA_C_GRID) for m in range(21)}
 
 
 def test_v12_no_communication_optimum_closed_form():
@@ -492,6 +497,26 @@ def test_v12_no_communication_optimum_closed_form():
     # with the corrected (16), J at m = 0 does not depend on zeta
     Js = trace_formula_corrected(Q_PATH, ell=0.3, zeta=np.linspace(0, 1, 7), m=0, sigma_c=2.0, **QR)
     np.testing.assert_allclose(Js, Js[0], rtol=1e-14)
+
+
+def test_a_table_cell_is_the_optimum_of_that_cell_alone(fig2_corrected):
+    for s, m in ((0.25, 0), (1.5, 1), (3.0, 7)):
+        alone = optimal_reinjection_gains(Q_PATH, m=m, sigma_c=s, **QR)
+        assert (alone.ell, alone.zeta, alone.J, alone.kkt) == (fig2_corrected[(s, m)].ell, fig2_corrected[(s, m)].zeta,
+                                                               fig2_corrected[(s, m)].J, fig2_corrected[(s, m)].kkt)
+        assert np.array_equal(alone.grid_J, fig2_corrected[(s, m)].grid_J)
+
+
+def test_newton_stopped_at_a_revisited_point_gives_what_iterating_to_the_cap_gives(monkeypatch):
+    """The optimiser stops a problem that returns to a point it visited (its last steps cycle in the last
+    bit) with the point the remaining iterations would leave it at: the same tables as iterating them."""
+    kw = dict(ms=[0, 1, 2, 3, 50, 200], sigma_c=SIGMA_C_GRID, grid=(100, 101), formulas=("corrected", "printed"), **QR)
+    shortcut = (reinjection_gain_tables(Q_PATH, **kw), carli_gain_table(Q_PATH, ms=[0, 1, 4], sigma_c=SIGMA_C_GRID, **QR))
+    monkeypatch.setattr(gain_tuning, "_revisits", lambda seen, x: np.zeros(seen.shape[:2], bool))
+    iterated = (reinjection_gain_tables(Q_PATH, **kw), carli_gain_table(Q_PATH, ms=[0, 1, 4], sigma_c=SIGMA_C_GRID, **QR))
+    for a, b in [*zip(shortcut[0].values(), iterated[0].values()), (shortcut[1], iterated[1])]:
+        for name in ("ell", "zeta", "J", "dJ_dell", "dJ_dzeta", "kkt_scaled", "grid_min"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
 
 
 def test_fig2_corrected_table(fig2_corrected):

@@ -4,7 +4,6 @@ and streaming Monte Carlo (identical whatever the memory budget; bounded memory 
 from __future__ import annotations
 
 import re
-import resource
 import subprocess
 import sys
 import time
@@ -197,8 +196,9 @@ def test_monte_carlo_is_identical_whatever_the_memory_budget():
 
 
 def _peak_of(args, tmp_path) -> tuple[int, float, str, int]:
-    code = ("import resource, sys; from pipeline.cli import main; rc = main(sys.argv[1:]); "
-            "print('PEAK', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss); sys.exit(rc)")
+    # VmHWM: this process's own high-water mark (ru_maxrss would keep the forking test process's size across exec)
+    code = ("import re, sys; from pipeline.cli import main; rc = main(sys.argv[1:]); "
+            "print('PEAK', re.search(r'VmHWM:\\s*(\\d+)', open('/proc/self/status').read()).group(1)); sys.exit(rc)")
     start = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", code, *args], cwd=tmp_path, capture_output=True, text=True, timeout=600,
                           env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0",
