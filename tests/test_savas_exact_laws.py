@@ -32,6 +32,18 @@ def batches():
     return e, P
 
 
+def test_bisections_stopped_once_the_bracket_cannot_change_give_what_all_of_them_give(monkeypatch):
+    from reproductions.savas import exact_laws
+
+    rng = np.random.default_rng(3)
+    weights = np.abs(rng.standard_normal((400, 5))) * rng.choice([1e-6, 1.0, 1e3], (400, 1))
+    weights[::7, 1:] = 0.0                               # one weight: the exact χ² branch
+    totals = weights.sum(axis=1) * 50 * rng.choice([0.0, 0.3, 0.9, 1.0, 1.1, 3.0], 400)
+    stopped = weighted_chi2_p(totals, weights, 50)
+    monkeypatch.setattr(exact_laws, "_converged", lambda mid, lo, hi: False)
+    assert np.array_equal(weighted_chi2_p(totals, weights, 50), stopped)
+
+
 def test_per_agent_chi2_and_mean_p_values_are_uniform(batches):
     e, P = batches
     p_var = chi2_sum_p(np.square(e).sum(axis=1), np.diag(P), BATCH).ravel()
