@@ -188,7 +188,7 @@ METRICS = spec("metrics", "metric, node and rate (empty node: the whole network;
     SC, ("metric", "", "mse_final (tr Ê[e_ie_iᵀ](T), gridded; network: mse_final_mean, mse_final_max), mse_time_avg "
                        "(over the output grid and nodes), bound_final (tr 𝒫_i(T); network: bound_final_mean), "
                        "exact_final, exact_steady, bound_steady (per node), kb_trP (tr P_KB), abar_abscissa, "
-                       "crit_bound, crit_joint"),
+                       "crit_bound (λ_crit of (9); that of the exact covariance is in `design`)"),
     NODE, RATE, ("value", "as the metric", "value")])
 
 
@@ -634,8 +634,6 @@ def _metrics_rows(r: ScenarioResults) -> list[dict]:
         add("kb_trP", np.trace(b["P_kb"]))
     add("abar_abscissa", b["abar_abscissa"])
     add("crit_bound", b["crit_bound"])
-    if "crit_joint" in b:
-        add("crit_joint", b["crit_joint"])
     return rows
 
 
