@@ -173,7 +173,7 @@ def _fro2(A: np.ndarray) -> np.ndarray:
 
 
 def riccati_roundoff(X: np.ndarray, K: np.ndarray, C: np.ndarray, R: np.ndarray, F: np.ndarray,
-                     Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                     Q: np.ndarray, r_min=None) -> tuple[np.ndarray, np.ndarray]:
     """Round-off of one Joseph-form step f(X) (as computed by `riccati_step`), to first order.
 
     Returns (delta, G), batched. `delta` bounds the spectral norm of the error the step itself
@@ -194,7 +194,8 @@ def riccati_roundoff(X: np.ndarray, K: np.ndarray, C: np.ndarray, R: np.ndarray,
     # with ‖dK S^½‖ ≤ (‖E₁‖ + ‖K‖‖E₂‖)/√λ_min(S) + ‖K‖ γ κ(S) √‖S‖ for the errors E₁ of X Cᵀ and E₂ of S
     aX, aC = np.abs(X), np.abs(C)
     S = C @ X @ np.swapaxes(C, -1, -2) + R
-    s_min = np.maximum(_lambda_min_psd(R), np.finfo(float).tiny)      # S ⪰ R
+    # S ⪰ R; r_min = λ_min(R) when the caller has it (a centralized R of 1,000 sensors is constant over the slots)
+    s_min = np.maximum(_lambda_min_psd(R) if r_min is None else r_min, np.finfo(float).tiny)
     s_max = np.trace(S, axis1=-2, axis2=-1)                          # ≥ λ_max(S), S ⪰ 0
     E1 = gamma * np.sqrt(_fro2(aX @ np.swapaxes(aC, -1, -2)))
     E2 = gamma * np.sqrt(_fro2(aC @ aX @ np.swapaxes(aC, -1, -2) + np.abs(R)))

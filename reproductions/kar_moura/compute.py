@@ -226,8 +226,9 @@ def _centralized(F, C, Q, R, P0, steps: int) -> tuple[np.ndarray, np.ndarray, np
     (Joseph form, `riccati_roundoff` carried along the recursion)."""
     cov = kal.kalman_covariances(F, C, Q, R, P0, steps)
     E = np.zeros_like(cov.P_prior)
+    r_min = float(np.linalg.eigvalsh(R)[0])
     for t in range(steps - 1):
-        delta, G = gk.riccati_roundoff(cov.P_prior[t], cov.gains[t], C, R, F, Q)
+        delta, G = gk.riccati_roundoff(cov.P_prior[t], cov.gains[t], C, R, F, Q, r_min=r_min)
         E[t + 1] = gk.propagate_error(E[t], G, delta)
     return cov.P_prior, cov.gains, gk.error_norm(E)
 

@@ -44,8 +44,11 @@ AUX_CHAINS = 8
 #: the auxiliary samples (run where C.1 and D.1 hold) cost about AUX_FACTOR Theorem-8 runs, plus pull-backs b·M²
 AUX_FACTOR = 3.1
 PULLBACK_S = 0.03
-#: the lifted window chain's dense stationary solve, per state³
+#: the lifted window chain's dense stationary solve, per state³; the centralized filter's solve per slot and (N m)³;
+#: dense products of N x N matrices (the token chain's total variation, Ā's spectrum) per flop
 LIFTED_S = 2e-9
+CENTRAL_S = 2e-11
+DENSE_S = 2e-10
 #: fixed: interpreter and imports; claims, tables, figures and the recording, per scenario and per sensor
 IMPORT_S = 3.5
 OUTPUT_S = 1.5
@@ -136,7 +139,9 @@ def scenario_cost(sc: GossipKalmanScenario, opts: RunOptions) -> dict[str, float
     step = CHAIN_S[0] + CHAIN_S[1] * M * M + (0.0 if exact else greedy)
     ref_s = ref_runs * slots * step + slots * CHAIN_STEP_S
     aux_s = (AUX_FACTOR * ref_s + PULLBACK_S * M * M + AUX_CHAINS * slots * CHAIN_STEP_S) if assume.theorem else 0.0
-    design_s = 0.1 + (0.0 if exact else 200_000 * greedy) + (LIFTED_S * _lifted_states(sc, assume) ** 3 if exact else 0.0)
+    m_all = sum(sc.C_types[k].shape[0] for k in sc.types)
+    design_s = (0.1 + (0.0 if exact else 200_000 * greedy) + (LIFTED_S * _lifted_states(sc, assume) ** 3 if exact else 0.0)
+                + slots * m_all ** 3 * CENTRAL_S + 200 * min(N, 64) * N * N * DENSE_S + 3 * N ** 3 * DENSE_S * 5)
     out_s = OUTPUT_S + OUTPUT_NODE_S * N
     gikf_mib, ref_mib, design_mib = _kept_mib(sc, runs, ref_runs, slots)
     return {"seconds": design_s + gikf_s + ref_s + aux_s + out_s, "design_s": design_s, "gikf_s": gikf_s,
