@@ -192,6 +192,7 @@ def _save_memo(cache_dir: Path, key: str, ev: Evaluation, tables: Tables) -> Non
             if old.name != staging.name:
                 remove_path(old)
         os.replace(staging, target)
+        tables.source = target / "tables"   # the run's own tables/ are copied from here, not encoded again
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 
