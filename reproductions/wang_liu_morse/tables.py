@@ -165,6 +165,14 @@ METRICS = spec("metrics", "summary metric (sweeps plot the network-wide ones wit
 
 # -- design tables -------------------------------------------------------------------------------------
 
+def labels(names: list[str], codes: np.ndarray) -> pd.arrays.ArrowStringArray:
+    """The string column names[codes] built in Arrow (a column of repeated Python strings is
+    converted one object at a time: 17 ms per 200,000 rows, against 1 ms)."""
+    import pyarrow as pa
+
+    return pd.array(pa.array(names, pa.large_string()).take(pa.array(codes)), dtype="str")
+
+
 def as_float(exact: str) -> float:
     """An exact integer (or decimal) as a float: inf beyond the float range (q of (22) for many agents)."""
     return float(Decimal(exact))
@@ -432,13 +440,14 @@ def _state_series(name: str, r, run) -> pd.DataFrame:
     t = a["g_t_ns"] / 1e9
     keep = np.arange(0, len(t), max(1, -(-len(t) * n * (m + 2) // STATE_ROWS)))
     t = t[keep]
-    blocks = [("truth", None, a["t0_x"][keep])] + [("agent", i + 1, a["t0_xhat"][keep, i]) for i in range(m)] \
-        + [("central", None, a["t0_xc"][keep])]
-    frames = [pd.DataFrame({"scenario": name, "run": run.name, "t": np.repeat(t, n), "source": src,
-                            "node": pd.array([node] * (len(t) * n), dtype="Int64"),
-                            "component": np.tile(np.arange(1, n + 1), len(t)), "value": vals.ravel()})
-              for src, node, vals in blocks]
-    return pd.concat(frames, ignore_index=True)
+    # blocks truth, agent 1..m, central, each (time, component) in row order
+    values = np.concatenate([a["t0_x"][keep][None], a["t0_xhat"][keep].transpose(1, 0, 2), a["t0_xc"][keep][None]])
+    per_block = len(t) * n
+    node = np.repeat(np.arange(m + 2), per_block)
+    return pd.DataFrame({"scenario": name, "run": run.name, "t": np.tile(np.repeat(t, n), m + 2),
+                         "source": labels(["truth", "agent", "central"], np.repeat(np.r_[0, [1] * m, 2], per_block)),
+                         "node": pd.arrays.IntegerArray(node, (node == 0) | (node == m + 1)),
+                         "component": np.tile(np.arange(1, n + 1), (m + 2) * len(t)), "value": values.ravel()})
 
 
 def _iterates(name: str, r, run) -> pd.DataFrame:
