@@ -349,36 +349,42 @@ def write_run_recording(res, tables, scenario: str, run_name: str, path: Path, c
         its = tables.rows("iterates", scenario, run_name)
         estimates = dict(iter(st[st["source"] == "agent"].groupby("node", sort=False)))
         nodes_of, its_of = dict(iter(nodes.groupby("node", sort=False))), dict(iter(its.groupby("node", sort=False)))
+        # series sharing their times are columns of one entity (a fixed cost per entity dominates short series)
+        rec_.send_series(rec, "nodes/error", nidx, err, names=[f"||e_{i + 1}(t)||" for i in range(m)],
+                         colors=[_col(i) for i in range(m)])
         for i in range(m):
             lab = f"agent {i + 1}"
             te, xe = _pivot(estimates[i + 1], "value", by="component")
             rec_.send_series(rec, f"nodes/{i + 1}/estimate", rec_.duration_index("t", _ns(te)), xe,
                              names=[f"{lab} x_{i + 1}^({c + 1})" for c in range(n)], colors=[_col(i)] * n)
-            rec_.send_series(rec, f"nodes/{i + 1}/error", nidx, err[:, i], names=f"||e_{i + 1}(t)||", colors=[_col(i)])
             rec_.send_series(rec, f"nodes/{i + 1}/log10_error", nidx, log10_safe(err[:, i]),
                              names=f"log10 ||e_{i + 1}(t)||", colors=[_col(i)])
             nd = nodes_of[i + 1]
-            eidx = rec_.duration_index("t", _ns(nd["t"]))
-            rec_.send_series(rec, f"nodes/{i + 1}/reset/before", eidx, log10_safe(nd["error_before_reset"]),
-                             names=f"log10 ||e_{i + 1}(t_is⁻)|| (before reset)", colors=[(120, 120, 120)], points=True)
-            rec_.send_series(rec, f"nodes/{i + 1}/reset/after", eidx, log10_safe(nd["error_trial0"]),
-                             names=f"log10 ||e_{i + 1}(t_is)|| (after reset)", colors=[_col(i)], points=True)
+            rec_.send_series(rec, f"nodes/{i + 1}/reset", rec_.duration_index("t", _ns(nd["t"])),
+                             np.column_stack([log10_safe(nd["error_before_reset"]), log10_safe(nd["error_trial0"])]),
+                             names=[f"log10 ||e_{i + 1}(t_is⁻)|| (before reset)",
+                                    f"log10 ||e_{i + 1}(t_is)|| (after reset)"],
+                             colors=[(120, 120, 120), _col(i)], points=True)
             it = its_of.get(i + 1, its.iloc[:0]).sort_values("t", kind="stable")
             if len(it):
                 rec_.send_series(rec, f"nodes/{i + 1}/iterates", rec_.duration_index("t", _ns(it["t"])),
                                  log10_safe(it["error"]), names=f"agent {i + 1} log10 ||π_is(k)||", colors=[_col(i)],
                                  points=True)
-            rec.send_columns(f"events/reset/{i + 1}", indexes=eidx,
-                             columns=rr.TextLog.columns(text=[f"agent {i + 1}: event s = {int(s)}" for s in nd["s"]]))
+        resets = nodes.sort_values(["t", "node"], kind="stable")
+        rec.send_columns("events/reset", indexes=rec_.duration_index("t", _ns(resets["t"])),
+                         columns=rr.TextLog.columns(text=[f"agent {int(i)}: event s = {int(s)}"
+                                                          for i, s in zip(resets["node"], resets["s"])]))
         net = tables.rows("network_series", scenario, run_name)
         gidx = rec_.duration_index("t", _ns(net["t"]))
         rec_.send_series(rec, "central/error", gidx, net["central_trial0"].to_numpy(),
                          names="centralized observer ||x_c - x||", colors=[(0, 0, 0)])
-        rec_.send_series(rec, "central/log10/error", gidx, log10_safe(net["central_trial0"]),
-                         names="log10 centralized observer error", colors=[(90, 90, 90)])
-        if np.isfinite(net["kalman_trial0"]).any():
-            rec_.send_series(rec, "central/log10/kalman", gidx, log10_safe(net["kalman_trial0"]),
-                             names="log10 centralized Kalman filter error (filterpy)", colors=[(0, 0, 0)])
+        kalman = np.isfinite(net["kalman_trial0"]).any()
+        rec_.send_series(rec, "central/log10", gidx,
+                         np.column_stack([log10_safe(net["central_trial0"])]
+                                         + ([log10_safe(net["kalman_trial0"])] if kalman else [])),
+                         names=["log10 centralized observer error"]
+                         + (["log10 centralized Kalman filter error (filterpy)"] if kalman else []),
+                         colors=[(90, 90, 90), (0, 0, 0)][:1 + kalman])
         trials = int(ev["trials"].iloc[0])
         if trials > 1:
             rec_.send_series(rec, "mc/log10/max_error", nidx,
