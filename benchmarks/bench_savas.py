@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import functools
 import time
+from pathlib import Path
 
 import numpy as np
 
 import estimators.consensus_covariance as cc
 import estimators.consensus_filter as cf
+from pipeline.reproduction import RunOptions
 from pipeline.simulate import parallel_map
 from reproductions.savas import compute
 from reproductions.savas.scenario import paper_scenario
@@ -17,6 +19,8 @@ from reproductions.savas.scenario import paper_scenario
 from .common import bound_row, estimator_row, timed
 
 TARGET_US = 0.3
+#: one Carli and one re-injection cell at 2,000 trials per point (the sweep-scaling benchmark's points)
+SWEEP_POINTS = Path(__file__).with_name("sweep_scaling.toml")
 
 
 def _loop_filter(Q, *, ell, m, sigma_c, q, r, sigma0, n_steps, n_trials, rng, reinjection=False, zeta=1.0):
@@ -111,13 +115,53 @@ def bench_fig1(workers: int, trials: int = 200_000) -> dict:
     σ_c values of one m share their random draws (one run per m)."""
     sc = paper_scenario()
     cells = [compute.Cell("carli", m, s, sc.carli_ell, 1.0, sc.n_steps) for m in sc.rounds for s in sc.sigma_c]
-
+    steps = compute.recorded_steps(sc.n_steps, sc.recorded_steps, sc.eval_step)
+    budget = RunOptions(workers=workers).chunk_budget_bytes()
     groups = sorted(compute.cell_groups(cells), key=lambda g: -g[0].m)
     t0 = time.perf_counter()
-    parallel_map(functools.partial(compute.simulate_group, sc, 0, trials), groups, workers=workers)
+    parallel_map(functools.partial(compute.simulate_group, sc, 0, trials, steps, budget), groups, workers=workers)
     wall = time.perf_counter() - t0
     return {"name": f"Fig. 1 Monte Carlo, {len(cells)} cells × {trials:,} trials, workers={workers}", "wall_s": wall,
             "us_per_trial_node_step": wall / (len(cells) * trials * 10 * sc.n) * 1e6}
+
+
+def bench_sweep_point(points: int = 40, sweep: Path = SWEEP_POINTS) -> dict:
+    """The per-point path of `dse sweep` in process (`pipeline.sweep.run_point`: compute, claims, tables,
+    metrics; no figures, no recordings) on the points of `sweep`, after one warm-up point: wall and CPU
+    per point, the Monte Carlo kernel's share (the filters' simulation, `consensus_filter_moments`) and the
+    rest (design with the gain optimisation, filterpy's reference, claims, tables), the overhead."""
+    from pipeline import sweep as sw
+    from pipeline.scenario import load_toml
+    from pipeline.sweep_spec import parse_sweep
+
+    spec = parse_sweep(load_toml(sweep), base_dir=sweep.parent)
+    tasks = sw.build_tasks(spec)[: points + 1]
+    kernel = np.zeros(2)   # wall, CPU
+    original = cf.consensus_filter_moments
+
+    def timed_kernel(*args, **kwargs):
+        t = np.array([time.perf_counter(), time.process_time()])
+        try:
+            return original(*args, **kwargs)
+        finally:
+            kernel[:] += np.array([time.perf_counter(), time.process_time()]) - t
+
+    cf.consensus_filter_moments = timed_kernel
+    try:
+        sw.run_point(tasks[0].payload())
+        kernel[:] = 0.0
+        w, c = time.perf_counter(), time.process_time()
+        for task in tasks[1:]:
+            sw.run_point(task.payload())
+        wall, cpu, n = time.perf_counter() - w, time.process_time() - c, len(tasks) - 1
+    finally:
+        cf.consensus_filter_moments = original
+    ms = 1e3 / n
+    kernel = [float(k) for k in kernel]
+    return {"name": f"sweep point in process ({sweep.name}, {n} points)", "wall_ms": wall * ms, "cpu_ms": cpu * ms,
+            "monte_carlo_ms": kernel[0] * ms, "monte_carlo_cpu_ms": kernel[1] * ms, "overhead_ms": (wall - kernel[0]) * ms,
+            "overhead_cpu_ms": (cpu - kernel[1]) * ms, "target": "overhead <= 10 ms",
+            "met": (wall - kernel[0]) / n <= 0.010}
 
 
 if __name__ == "__main__":
@@ -125,3 +169,4 @@ if __name__ == "__main__":
         print(row)
     for w in (1, 2):
         print(bench_fig1(w))
+    print(bench_sweep_point())
