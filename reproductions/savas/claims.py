@@ -528,39 +528,47 @@ def check_large_m(res: Results) -> Verdict:
                            f"{np.array2string(ell[:, -1], precision=4)} vs K_c = {Kc:.6f}. {v.detail}"))
 
 
-def _zeta_bar(res: Results, m: int, G: float) -> float:
-    """Largest ζ compatible with a gap <= G: J − N P_c⁻ >= [(ℓ²r+qN)/(1−(1−ℓ)²) − N P_c⁻] + ℓ²r Σ_h μ_h², so ℓ >= ℓ_lo
-    (where the first bracket reaches G) and Σ_h (ζ − |λ̄_h|/(m+1))₊² <= Σ_h μ_h² <= G/(ℓ_lo² r)."""
+def _zeta_bars(res: Results, ms, gaps: np.ndarray) -> np.ndarray:
+    """Largest ζ compatible with a gap <= G, for every gap G = gaps[s, j] at m = ms[j]: J − N P_c⁻ >=
+    [(ℓ²r+qN)/(1−(1−ℓ)²) − N P_c⁻] + ℓ²r Σ_h μ_h², so ℓ >= ℓ_lo (where the first bracket reaches G) and
+    Σ_h (ζ − |λ̄_h|/(m+1))₊² <= Σ_h μ_h² <= G/(ℓ_lo² r). Both by bisection, the second for every (s, j) at once."""
     sc = res.scenario
     Kc, NPc, _ = _centralized(res)
     head = lambda ell: (ell ** 2 * sc.r + sc.q * sc.n) / (1 - (1 - ell) ** 2) - NPc
-    lo, hi = 0.0, Kc  # head decreases on (0, K_c] from +inf to 0
+
+    def ell_lo(G: float) -> float:
+        lo, hi = 0.0, Kc  # head decreases on (0, K_c] from +inf to 0
+        for _ in range(200):
+            mid = 0.5 * (lo + hi)
+            last = mid in (lo, hi)   # adjacent doubles: after this step the bisections change nothing
+            lo, hi = (mid, hi) if head(mid) > G else (lo, mid)
+            if last:
+                break
+        return lo
+
+    lows = np.array([ell_lo(float(G)) for G in gaps.ravel()])
+    with np.errstate(divide="ignore"):
+        budget = np.where(lows > 0, gaps.ravel() / (lows ** 2 * sc.r), np.inf)   # lo < ℓ_lo: a larger, safe budget
+    lam = cc._split_unit_eigenvalue(np.linalg.eigvalsh(sc.Q))
+    b = np.stack([np.abs(cc._power_sum(lam, m)) / (m + 1) for m in ms])[np.tile(np.arange(len(ms)), len(gaps))]
+    lhs = lambda z: np.sum(np.maximum(z[:, None] - b, 0.0) ** 2, axis=1)
+    full = lhs(np.ones(len(b))) <= budget
+    lo, hi = np.zeros(len(b)), np.ones(len(b))
     for _ in range(200):
         mid = 0.5 * (lo + hi)
-        last = mid in (lo, hi)   # adjacent doubles: after this step the bisections change nothing
-        lo, hi = (mid, hi) if head(mid) > G else (lo, mid)
+        last = bool(np.all((mid == lo) | (mid == hi)))
+        inside = lhs(mid) <= budget
+        lo, hi = np.where(inside, mid, lo), np.where(inside, hi, mid)
         if last:
             break
-    budget = G / (lo ** 2 * sc.r) if lo > 0 else np.inf   # lo < ℓ_lo: a larger, safe budget
-    b = np.abs(cc._power_sum(cc._split_unit_eigenvalue(np.linalg.eigvalsh(sc.Q)), m)) / (m + 1)
-    lhs = lambda z: float(np.sum(np.maximum(z - b, 0.0) ** 2))
-    if lhs(1.0) <= budget:
-        return 1.0
-    lo, hi = 0.0, 1.0
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        last = mid in (lo, hi)
-        lo, hi = (mid, hi) if lhs(mid) <= budget else (lo, mid)
-        if last:
-            break
-    return hi
+    return np.where(full, 1.0, hi).reshape(gaps.shape)
 
 
 def check_zeta_to_zero(res: Results) -> Verdict:
     """§IV/§V-B: ζ*(m) → 0. ζ*(m) <= ζ̄(m), the largest ζ whose cost can be within G(m) of N P_c⁻; ζ̄(m) = O(m^(-1/2))."""
     sc, b = res.scenario, res.bounds
     z = b["large_m_zeta"]
-    bar = np.array([[_zeta_bar(res, m, _gap_bounds(res, m, s_c)[0]) for m in LARGE_M] for s_c in sc.sigma_c])
+    bar = _zeta_bars(res, LARGE_M, np.array([[_gap_bounds(res, m, s_c)[0] for m in LARGE_M] for s_c in sc.sigma_c]))
     tol = 10 * SQRT_EPS
     v = _below(z, bar, np.full(z.shape, tol), detail="")
     return Verdict(v.status, measured=float(z[:, -1].max()), reference=float(bar[:, -1].max()), tolerance=tol,
