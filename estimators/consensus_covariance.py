@@ -113,6 +113,8 @@ def _check_nonneg(value, name: str) -> float:
 
 def _check_ell(ell, name: str = "ell"):
     """``ell`` in (0, 1] (scalar or array); ``ell = 0`` has no steady state (q 11^T diverges)."""
+    if isinstance(ell, (float, int)) and not isinstance(ell, bool) and 0.0 < ell <= 1.0:
+        return float(ell)   # the common case without numpy's overhead (the claims validate thousands)
     a = np.asarray(ell, dtype=np.float64)
     if not np.all(np.isfinite(a)) or np.any(a <= 0.0) or np.any(a > 1.0):
         raise ValueError(f"{name} must lie in (0, 1], got {ell!r}")
@@ -120,6 +122,8 @@ def _check_ell(ell, name: str = "ell"):
 
 
 def _check_zeta(zeta, name: str = "zeta"):
+    if isinstance(zeta, (float, int)) and not isinstance(zeta, bool) and 0.0 <= zeta <= 1.0:
+        return float(zeta)
     a = np.asarray(zeta, dtype=np.float64)
     if not np.all(np.isfinite(a)) or np.any(a < 0.0) or np.any(a > 1.0):
         raise ValueError(f"{name} must lie in [0, 1], got {zeta!r}")
