@@ -1,8 +1,11 @@
 """The hybrid observer: batched trials vs one trial at a time, the q-step estimator per
-iteration, ρ by branch and bound, and the cost model (`dse check`'s estimate) against measured
-runs of small and large scenarios. Measurements, not tests.
+iteration, ρ by branch and bound, the cost model (`dse check`'s estimate) against measured
+runs of small and large scenarios (and a long streamed run under a 300 MiB budget), and the
+commands people wait on (`dse list`, `dse check`, `dse run --quick`, `dse reproduce`) with
+wall and CPU time. Measurements, not tests.
 
     .venv/bin/python -m benchmarks.bench_wang_liu_morse --estimate     # the cost model's calibration
+    .venv/bin/python -m benchmarks.bench_wang_liu_morse --commands     # where people wait
 """
 from __future__ import annotations
 
@@ -137,12 +140,26 @@ def agents_scenario(m: int, *, intervals: int = 20, trials: int = 64, q: int = 3
             "runs": [{"name": "sync", "intervals": intervals, "monte_carlo": True}]}
 
 
+def streaming_scenario(intervals: int = 2000, trials: int = 2100) -> dict:
+    """Two agents, T = 0.02, q = 2, one sample per interval: the streamed run of
+    tests/test_wang_liu_morse_pipeline.py (500 intervals there) over a longer horizon."""
+    return {"family": "hybrid-observer", "name": "streaming",
+            "system": {"A": [[-0.2, 0.3], [0.0, -0.1]], "C": [[[1.0, -1.0]], [[0.0, 1.0]]]},
+            "design": {"T": 0.02, "q": 2, "lambda": 0.8, "lambda_bar": 1.2}, "graphs": {"neighbors": [[[2], [1]]]},
+            "initial": {"x0": [1.0, -2.0], "xhat0": [[0.0, 0.0], [0.5, 0.5]]},
+            "monte_carlo": {"trials": trials, "scale": 1.0}, "sampling": {"step": 0.02, "stored": 1001},
+            "runs": [{"name": "sync", "intervals": intervals, "monte_carlo": True}]}
+
+
 CASES = {
     "small": agents_scenario(4, intervals=15, trials=64),
     "long_horizon": agents_scenario(4, intervals=2000, trials=64, q=20, step=0.05, name="long"),
     "many_agents": agents_scenario(32, intervals=10, trials=256, q=20, name="agents32"),
     "many_trials": agents_scenario(4, intervals=15, trials=20_000, q=20, step=0.05, name="trials"),
+    "long_streaming": streaming_scenario(),
 }
+#: memory budgets (MiB) of the cases measured under one: the streamed run must stay within it
+BUDGETS = {"long_streaming": 300.0}
 
 
 def measure(data: dict, max_memory_mib: float | None = None) -> dict:
@@ -183,13 +200,96 @@ def measure(data: dict, max_memory_mib: float | None = None) -> dict:
 def bench_estimate(cases: dict | None = None) -> list[dict]:
     rows = []
     for name, data in (cases or CASES).items():
-        rows.append({"case": name, **measure(data)})
+        row = {"case": name, **measure(data, BUDGETS.get(name))}
+        if name in BUDGETS:
+            row.update(budget_mib=BUDGETS[name], met=row["peak_mib"] < BUDGETS[name])
+        rows.append(row)
     return rows
+
+
+# -- the commands people wait on ---------------------------------------------------------------------------
+
+def _command(args: list[str]) -> tuple[float, float]:
+    """Wall and CPU seconds (the process and its workers) of one `dse` command."""
+    import resource
+
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "pipeline.cli", *args], check=True, capture_output=True, cwd=ROOT,
+                   env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(ROOT), "DSE_PROGRESS": "0"})
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def bench_commands(repeats: int = 3, reproduce: bool = True) -> list[dict]:
+    """Median wall and CPU time of the family's commands: `dse list` and `dse check` (target 0.5 s),
+    `dse run --quick` cold and memoised on the shipped files and a user's small scenario (target
+    3 s cold), and `dse reproduce wang-liu-morse` cold and cached, quick and default."""
+    import shutil
+
+    pkg = ROOT / "reproductions" / "wang_liu_morse"
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        small = Path(tmp) / "small.toml"
+        small.write_text(_toml(agents_scenario(4, intervals=15, trials=64, name="small")))
+        cases = [("dse list", ["list"], None, 0.5)]
+        cases += [(f"dse check {f.name}", ["check", str(f)], None, 0.5) for f in (pkg / "paper.toml", pkg / "generic.toml")]
+        for f in (pkg / "paper.toml", pkg / "generic.toml", small):
+            cases.append((f"dse run --quick {f.name}", ["run", "--quick", str(f)], "run", 3.0))
+        if reproduce:
+            cases += [("dse reproduce wang-liu-morse --quick", ["reproduce", "wang-liu-morse", "--quick"], "reproduce", None),
+                      ("dse reproduce wang-liu-morse", ["reproduce", "wang-liu-morse"], "reproduce", None)]
+        for name, args, out, target in cases:
+            cold, warm = [], []
+            for r in range(repeats):
+                root = Path(tmp) / f"out{r}"
+                extra = ["--out", str(root)] if out else []
+                cold.append(_command(args + extra))
+                if out:
+                    warm.append(_command(args + extra))
+                shutil.rmtree(root, ignore_errors=True)
+            for label, times in (("", cold), (" (memo: an identical re-run)", warm)):
+                if not times:
+                    continue
+                wall = statistics.median(t[0] for t in times)
+                row = {"command": name + label, "wall_s": wall, "cpu_s": statistics.median(t[1] for t in times)}
+                if target is not None and not label:
+                    row.update(target=f"<= {target:g} s", met=wall <= target)
+                rows.append(row)
+    return rows
+
+
+def _toml(data: dict) -> str:
+    """A scenario dict as TOML (the few value types the scenarios above use)."""
+    def value(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        if isinstance(v, dict):
+            return "{" + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + "}"
+        return repr(v)
+
+    lines = [f"{k} = {value(v)}" for k, v in data.items() if not isinstance(v, (dict, list))]
+    for k, v in data.items():
+        if isinstance(v, dict):
+            lines += [f"[{k}]"] + [f"{a} = {value(b)}" for a, b in v.items()]
+    for k, v in data.items():
+        if isinstance(v, list):
+            for item in v:
+                lines += [f"[[{k}]]"] + [f"{a} = {value(b)}" for a, b in item.items()]
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":
     if "--estimate" in sys.argv:
         for row in bench_estimate():
+            print(row)
+    elif "--commands" in sys.argv:
+        for row in bench_commands():
             print(row)
     else:
         for row in bench_hybrid_rows(True, 1) + [bench_rho(1)]:

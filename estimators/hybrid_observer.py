@@ -585,12 +585,15 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
         pi0 = np.where(pp[None, :, None], z - xs, 0.0)
         Wk, Sk, N_nom, bad, tau = interval_sources(schedule, timing, event_ns, pp, s, rule, m_rule)
         c = np.where(pp[None, :, None], Qw, 0.0).reshape(B, m * n)
-        zf = z.reshape(B, m * n)
+        zf = np.ascontiguousarray(z.reshape(B, m * n))
         traj = np.empty((q + 1, m * n))
         traj[0] = zf[0]
-        for k in range(q):
-            zf = rowwise_matmul(zf, step_T(Wk[k], pp)) + c
-            traj[k + 1] = zf[0]
+        # the step matrices of the interval (one when the weights do not change within it, as in
+        # synchronous runs); each step is `rowwise_matmul` on contiguous operands
+        steps = [step_T(Wk[0], pp)] * q if q and (Wk == Wk[:1]).all() else [step_T(w, pp) for w in Wk]
+        for k, M in enumerate(steps, 1):
+            zf = np.einsum("bk,kj->bj", zf, M) + c
+            traj[k] = zf[0]
         z = zf.reshape(B, m, n)
         zq[s] = [z, 0]
         monitor.interval(IntervalData(s, Wk, Sk, N_nom, bad, tau, row_max(row_norms(pi0)),
