@@ -22,6 +22,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 SOLVER = "CLARABEL"
+#: the status of a feasibility problem that was not asked for (`feasibility=False`)
+NOT_SOLVED = "not solved"
 
 
 @dataclass(frozen=True)
@@ -63,8 +65,9 @@ def vertex_margin(vertices: Sequence[np.ndarray], P: np.ndarray) -> float:
     return float(max(np.linalg.eigvalsh((X + X.T) / 2).max() for X in lyapunov_matrices(vertices, P)))
 
 
-def common_lyapunov(vertices: Sequence[np.ndarray], eps: float) -> LmiResult:
-    """Decide A_kᵀ P + P A_k ≤ −ε I (all k), P > 0; see the module docstring."""
+def common_lyapunov(vertices: Sequence[np.ndarray], eps: float, *, feasibility: bool = True) -> LmiResult:
+    """Decide A_kᵀ P + P A_k ≤ −ε I (all k), P > 0; see the module docstring. `feasibility=False` solves the
+    margin problem only (status "not solved")."""
     import cvxpy as cp
 
     vertices = [np.asarray(A, float) for A in vertices]
@@ -76,18 +79,22 @@ def common_lyapunov(vertices: Sequence[np.ndarray], eps: float) -> LmiResult:
     margin_status = _solve(margin_prob)
     Pm = None if P.value is None else (P.value + P.value.T) / 2
     margin = float(t.value) if t.value is not None else float("nan")
+    verified = vertex_margin(vertices, Pm) if Pm is not None else float("nan")
+    if not feasibility:
+        return LmiResult(NOT_SOLVED, margin, Pm, verified, margin_status)
     # the paper's feasibility problem (objective 0) with ε inflated by 10% against solver tolerance
     Pf = cp.Variable((d, d), symmetric=True)
     feas = cp.Problem(cp.Minimize(0), [Pf >> eps * I] + [A.T @ Pf + Pf @ A << -1.1 * eps * I for A in vertices])
     status = _solve(feas)
     Pfv = None if Pf.value is None or status not in ("optimal", "optimal_inaccurate") else (Pf.value + Pf.value.T) / 2
-    verified = vertex_margin(vertices, Pm) if Pm is not None else float("nan")
     return LmiResult(status, margin, Pm, verified, margin_status, Pfv)
 
 
-def affine_lmi(blocks: Sequence[Callable], d: int, *, lower: float = 0.0, cap: float = 1e4) -> LmiResult:
+def affine_lmi(blocks: Sequence[Callable], d: int, *, lower: float = 0.0, cap: float = 1e4,
+               feasibility: bool = True) -> LmiResult:
     """Decide R_k(P) ⪯ 0 (all k), P ⪰ lower·I, for affine maps R_k given as cvxpy expression builders
-    `R_k(P) -> expression` (symmetric). Also returns the max-margin P over lower·I ⪯ P, tr P ≤ cap."""
+    `R_k(P) -> expression` (symmetric). Also returns the max-margin P over lower·I ⪯ P, tr P ≤ cap.
+    `feasibility=False` solves the margin problem only (status "not solved")."""
     import cvxpy as cp
 
     P, t = cp.Variable((d, d), symmetric=True), cp.Variable()
@@ -96,8 +103,10 @@ def affine_lmi(blocks: Sequence[Callable], d: int, *, lower: float = 0.0, cap: f
     margin_status = _solve(cp.Problem(cp.Maximize(t), cons))
     Pm = None if P.value is None else (P.value + P.value.T) / 2
     margin = float(t.value) if t.value is not None else float("nan")
+    verified = float(max(np.linalg.eigvalsh(np.asarray(R(Pm), float)).max() for R in blocks)) if Pm is not None else float("nan")
+    if not feasibility:
+        return LmiResult(NOT_SOLVED, margin, Pm, verified, margin_status)
     Pf = cp.Variable((d, d), symmetric=True)
     status = _solve(cp.Problem(cp.Minimize(0), [Pf >> lower * np.eye(d)] + [R(Pf) << 0 for R in blocks]))
     Pfv = None if Pf.value is None or status not in ("optimal", "optimal_inaccurate") else (Pf.value + Pf.value.T) / 2
-    verified = float(max(np.linalg.eigvalsh(np.asarray(R(Pm), float)).max() for R in blocks)) if Pm is not None else float("nan")
     return LmiResult(status, margin, Pm, verified, margin_status, Pfv)

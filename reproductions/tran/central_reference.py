@@ -19,7 +19,6 @@ least this large.
 from __future__ import annotations
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
 from scipy.linalg import expm
 
 from estimators.kalman_bucy import kalman_bucy_riccati, kalman_bucy_steady
@@ -44,6 +43,8 @@ def van_loan(F: np.ndarray, Qc: np.ndarray, dt: float) -> tuple[np.ndarray, np.n
 
 def run_kalman(sc, t: np.ndarray, x: np.ndarray, g: np.ndarray, *, noise=None, rng=None) -> dict[str, np.ndarray]:
     """Filter the truth x (T, n) sampled at t (uniform, step = sc.kf_dt); returns the estimates (T, n + p)."""
+    from filterpy.kalman import KalmanFilter   # imports scipy.stats (about 1 s): only where the filter runs
+
     n, p = sc.n, sc.p
     dt = float(t[1] - t[0])
     F = np.block([[sc.A, sc.B], [np.zeros((p, n + p))]])

@@ -383,7 +383,7 @@ def _one_sided_upper(mean: np.ndarray, sd: np.ndarray, bound: np.ndarray, R: int
     form of a Gaussian vector; norms are bounded below by 0) a large mean comes with a large standard
     deviation, so its upper tail is lighter than Student's and the level is conservative; a sample
     dominated by a few large draws makes t ≈ 1, never a rejection. Needs ≥ MIN_TRIALS_ONE_SIDED trials."""
-    from scipy.stats import t as student
+    from scipy.special import stdtrit   # Student's t quantile (scipy.stats.t.ppf's own), without scipy.stats
 
     conf = claim_confidence() if confidence is None else confidence
     if R < MIN_TRIALS_ONE_SIDED:
@@ -391,7 +391,7 @@ def _one_sided_upper(mean: np.ndarray, sd: np.ndarray, bound: np.ndarray, R: int
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(sd)) and np.all(np.isfinite(bound))):
         return not_checkable(f"non-finite Monte Carlo values or bound (a diverging run). {what}")
     cells = mean.size
-    crit = float(student.ppf(1 - (1 - conf) / cells, R - 1))
+    crit = float(stdtrit(R - 1, 1 - (1 - conf) / cells))
     se = sd / np.sqrt(R)
     with np.errstate(divide="ignore", invalid="ignore"):
         tstat = np.where(se > 0, (mean - bound) / np.where(se > 0, se, 1.0), np.where(mean > bound, np.inf, -np.inf))

@@ -13,7 +13,6 @@ directions at the check times, the final-time moments of every node's error, and
 """
 from __future__ import annotations
 
-import functools
 import sys
 from dataclasses import dataclass, field
 from typing import Any
@@ -288,13 +287,28 @@ def fixed_means(sc: CoestimationScenario, d: Design, runs: dict) -> dict[str, np
             "mean_final": zf["h"][-1]}
 
 
-def _sde_job(cache, key, sc, d, trials, seed, t_ends, probes, budget, job):
-    name, fixed, h = job
-    t_end = t_ends[name]
-    return cache.get_or_compute(name, {**key, "t_end": t_end, "h": h},
-                                lambda: run_stochastic(sc, d, fixed=fixed, trials=trials, seed=seed, t_end=t_end,
-                                                       keep=sc.runs, h=h, probes=probes.get(name), budget_bytes=budget),
-                                scenario=sc.name, allow_nonfinite=RUN_MAY_BE_NAN)
+#: the jobs of the current `compute`, run by index in forked workers (the closures are inherited, not pickled)
+_JOBS: list = []
+
+
+def _run_job(index: int):
+    return _JOBS[index]()
+
+
+def run_jobs(jobs: list[tuple[float, Any]], workers: int, desc: str) -> list:
+    """Run (weight, callable) jobs in `workers` forked processes, the heaviest first (so that the light ones fill
+    in around them); results in the order given."""
+    global _JOBS
+    order = sorted(range(len(jobs)), key=lambda i: -jobs[i][0])
+    _JOBS = [jobs[i][1] for i in order]
+    try:
+        outs = parallel_map(_run_job, range(len(order)), workers=workers, desc=desc)
+    finally:
+        _JOBS = []
+    results = [None] * len(jobs)
+    for i, o in zip(order, outs):
+        results[i] = o
+    return results
 
 
 def _announce(sc: CoestimationScenario, opts: RunOptions) -> None:
@@ -308,18 +322,14 @@ def _announce(sc: CoestimationScenario, opts: RunOptions) -> None:
 
 
 def compute(sc: CoestimationScenario, opts: RunOptions, cache: StageCache, *, paper: bool = True) -> Results:
-    from .cost import refuse_if_too_large
+    from . import cost
 
-    refuse_if_too_large(sc, opts)
+    cost.refuse_if_too_large(sc, opts)
     _announce(sc, opts)
     trials = trial_count(sc, opts)
     d = design(sc, opts.quick, opts.seed, cache, paper=paper)
     res = Results(sc, opts.seed, trials, opts.quick, d)
     base = {"scenario": sc.key(), "code": code()}
-    for name, job in deterministic_jobs(sc, d).items():
-        res.runs[name] = cache.get_or_compute(f"det-{name}", base, job, scenario=sc.name, allow_nonfinite=RUN_MAY_BE_NAN)
-    d.integration = {run: integration_error(res.runs, run) for run in ("coest", "fixed")}
-    res.runs["exact_fixed"] = fixed_means(sc, d, res.runs)
     t_sde = t_stochastic(sc, opts.quick)
     t_half = min(t_sde, sc.quick_t_end)
     law = d.law
@@ -327,13 +337,25 @@ def compute(sc: CoestimationScenario, opts: RunOptions, cache: StageCache, *, pa
               "sde_fixed_half": {int(k): u for k, u in zip(law["probe_index"], law["probe_dirs"])
                                  if k * sc.record_dt <= t_half + 1e-9}}
     sde_key = {**base, "seed": opts.seed, "trials": trials}
-    sde_jobs = [("sde_roles", False, sc.sde_step), ("sde_fixed", True, sc.sde_step), ("sde_fixed_half", True, sc.sde_step / 2)]
-    outs = parallel_map(functools.partial(_sde_job, cache, sde_key, sc, d, trials, opts.seed,
-                                          {"sde_roles": t_sde, "sde_fixed": t_sde, "sde_fixed_half": t_half}, probes,
-                                          opts.chunk_budget_bytes()),
-                        sde_jobs, workers=opts.workers, desc=f"{sc.name}: stochastic Monte Carlo")
-    for (name, _, _), o in zip(sde_jobs, outs):
-        res.runs[name] = o
+    budget = opts.chunk_budget_bytes()
+
+    def stage(name, key, fn):
+        return lambda: cache.get_or_compute(name, key, fn, scenario=sc.name, allow_nonfinite=RUN_MAY_BE_NAN)
+
+    def sde_job(name, fixed, h, t_end):
+        return (cost.sde_seconds(sc, trials, t_end / h, fixed, budget),
+                stage(name, {**sde_key, "t_end": t_end, "h": h},
+                      lambda: run_stochastic(sc, d, fixed=fixed, trials=trials, seed=opts.seed, t_end=t_end, keep=sc.runs,
+                                             h=h, probes=probes.get(name), budget_bytes=budget)))
+    det = deterministic_jobs(sc, d)
+    jobs = {name: (cost.deterministic_seconds(sc, name), stage(f"det-{name}", base, job)) for name, job in det.items()}
+    jobs.update(sde_roles=sde_job("sde_roles", False, sc.sde_step, t_sde),
+                sde_fixed=sde_job("sde_fixed", True, sc.sde_step, t_sde),
+                sde_fixed_half=sde_job("sde_fixed_half", True, sc.sde_step / 2, t_half))
+    # every run at once: the deterministic runs fill in around the Monte Carlo
+    res.runs.update(zip(jobs, run_jobs(list(jobs.values()), opts.workers, f"{sc.name}: runs and Monte Carlo")))
+    d.integration = {run: integration_error(res.runs, run) for run in ("coest", "fixed")}
+    res.runs["exact_fixed"] = fixed_means(sc, d, res.runs)
     res.runs["central"] = cache.get_or_compute("central", {**base, "seed": opts.seed, "t_end": t_sde}, lambda: central_kalman(
         sc, res.runs["coest"], res.runs["sde_roles"], d.noise), scenario=sc.name, allow_nonfinite=RUN_MAY_BE_NAN)
     return res

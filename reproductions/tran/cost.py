@@ -42,14 +42,20 @@ VERTEX_CUBE_S = 3.6e-10
 PREPARE_CUBE_S = 5.0e-8
 #: CPU seconds per recorded sample of the stochastic horizon and cubed error dimension (tr(PΣ) of the exact law)
 LAW_CUBE_S = 2.0e-10
-#: CPU seconds per integration step of a deterministic run: calls, and per squared dimension
+#: CPU seconds per integration step of a deterministic run with time-varying roles: calls, and per squared
+#: dimension; with fixed roles (one composed step operator)
 STEP_CALL_S = 30e-6
 STEP_D2_S = 3.6e-9
+FIXED_STEP_S = 4e-6
+FIXED_D2_S = 0.5e-9
 #: CPU seconds per step of a Monte Carlo chunk (calls), and per trial-step: per squared dimension plus per noise
-#: factor and dimension (matrix products), and a fixed part (draws, reduction)
+#: factor and dimension (matrix products), and a fixed part (draws, reduction); with fixed roles the step is
+#: one product by the composed operator and one by the noise map
 CHUNK_STEP_S = 0.9e-4
 TRIAL_D2_S = 2.0e-10
 TRIAL_FIXED_S = 1.8e-7
+FIXED_CHUNK_STEP_S = 0.3e-4
+FIXED_TRIAL_D2_S = 0.6e-10
 #: noise factors per noise column (the numerical rank of each column's one-step covariance, measured)
 FACTORS_PER_COLUMN = 4.0
 #: CPU seconds per recorded sample and error dimension: the claims' checks along the deterministic runs
@@ -77,6 +83,32 @@ def human_seconds(s: float) -> str:
     return f"{s:.3g} s"
 
 
+def _dims(sc: CoestimationScenario) -> tuple[int, float]:
+    """(D, K): the simulated state's dimension and the number of noise factors."""
+    return sc.n + sc.N * sc.q, FACTORS_PER_COLUMN * (1 + sc.N * sc.m)
+
+
+def deterministic_seconds(sc: CoestimationScenario, run: str) -> float:
+    """CPU seconds of one deterministic run (`compute.deterministic_jobs`): its φ-functions and its steps."""
+    D, _ = _dims(sc)
+    h = (sc.sde_step if "_sde" in run else sc.step) / (2 if run.endswith("_half") else 1)
+    per_step = FIXED_STEP_S + FIXED_D2_S * D * D if run.startswith("fixed") else STEP_CALL_S + STEP_D2_S * D * D
+    return sc.t_end / h * per_step + PREPARE_CUBE_S * D ** 3 / 2
+
+
+def sde_seconds(sc: CoestimationScenario, trials: int, steps: float, fixed: bool, budget_bytes: float) -> float:
+    """CPU seconds of one Monte Carlo run of `trials` trials over `steps` steps, in chunks of RNG units that fit the
+    budget."""
+    from .compute import sde_bytes_per_trial
+
+    D, K = _dims(sc)
+    units = -(-trials // RNG_UNIT)
+    chunks = -(-units // units_per_chunk(sde_bytes_per_trial(sc, int(K)), budget_bytes))
+    if fixed:
+        return steps * (chunks * FIXED_CHUNK_STEP_S + trials * (FIXED_TRIAL_D2_S * (D * D + K * D) + TRIAL_FIXED_S))
+    return steps * (chunks * CHUNK_STEP_S + trials * (TRIAL_D2_S * (D * D + K * D) + TRIAL_FIXED_S))
+
+
 def estimate(sc: CoestimationScenario, opts: RunOptions, *, paper: bool = False) -> Cost:
     from .compute import trial_count, sde_bytes_per_trial
     from .design import QUICK_VERTEX_NODES, VERTEX_NODES, t_stochastic
@@ -98,25 +130,28 @@ def estimate(sc: CoestimationScenario, opts: RunOptions, *, paper: bool = False)
     n_noise = 1 + N * m
     K = FACTORS_PER_COLUMN * n_noise
     t_law = n_rec_sde * LAW_CUBE_S * Dz ** 3 + 2 * PREPARE_CUBE_S * D ** 3
-    # deterministic runs: coest, fixed and comparison at h; coest and fixed at h/2 (twice the steps)
+    # deterministic runs: coest, fixed and comparison at h; coest and fixed at h/2 (twice the steps); the fixed-role
+    # runs at the stochastic step when it differs
     steps = sc.t_end / sc.step
-    det_steps = 7 * steps + (6 * sc.t_end / sc.sde_step if sc.sde_step != sc.step else 0.0)
-    t_det = det_steps * (STEP_CALL_S + STEP_D2_S * D * D)
-    # Monte Carlo: three runs (time-varying and fixed roles at the stochastic step, fixed at half the step)
+    det_runs = ["coest", "coest_half", "fixed", "fixed_half", "comparison"]
+    det_runs += ["fixed_sde", "fixed_sde_half"] if sc.sde_step != sc.step else []
+    t_dets = [deterministic_seconds(sc, r) for r in det_runs]
+    t_det = sum(t_dets)
+    # Monte Carlo: three runs (time-varying and fixed roles at the stochastic step, fixed at half the step), in the
+    # same pool of workers as the deterministic runs
     budget = opts.chunk_budget_bytes()
     per_trial = sde_bytes_per_trial(sc, int(K))
     units = -(-trials // RNG_UNIT)
-    chunks = -(-units // units_per_chunk(per_trial, budget))
-    sde_steps = [t_sde / sc.sde_step, t_sde / sc.sde_step, 2 * min(t_sde, sc.quick_t_end) / sc.sde_step]
-    t_runs = [s * (chunks * CHUNK_STEP_S + trials * (TRIAL_D2_S * (D * D + K * D) + TRIAL_FIXED_S))   # operators: the law's
-              for s in sde_steps]
-    workers = max(1, min(opts.workers, 3))
-    t_mc = max(sum(t_runs) / workers, max(t_runs))
+    t_runs = [sde_seconds(sc, trials, t_sde / sc.sde_step, False, budget),
+              sde_seconds(sc, trials, t_sde / sc.sde_step, True, budget),
+              sde_seconds(sc, trials, 2 * min(t_sde, sc.quick_t_end) / sc.sde_step, True, budget)]
+    workers = max(1, opts.workers)
+    t_mc = max((sum(t_runs) + t_det) / workers, max(t_runs + t_dets))
     kf_steps = (2 * n_rec + n_rec_sde) / max(1, round(sc.kf_dt / sc.record_dt))
     t_claims = 6 * n_rec * Dz * CLAIM_SAMPLE_S + kf_steps * KF_STEP_S
     rows = n_rec * N * (q + 2) * 3 + sc.runs * n_rec_sde * N * (q + 1) + 4 * n_rec * N + 3 * Dz ** 2
     t_out = OUTPUTS_S + rows * ROW_S
-    seconds = STARTUP_S + t_design + t_law + t_det + t_mc + t_claims + t_out
+    seconds = STARTUP_S + t_design + t_law + t_mc + t_claims + t_out
     # memory: the recorded runs, the kept trials, the moments, the claims' temporaries and the tables
     sample = 8.0 * (n + Dz + N + p)
     runs_bytes = n_rec * sample * 7 + sc.runs * n_rec_sde * sample * 3
@@ -130,7 +165,8 @@ def estimate(sc: CoestimationScenario, opts: RunOptions, *, paper: bool = False)
     peak = BASE_MIB + kept + chunk * workers
     detail = (f"{human_seconds(seconds)} in all: {steps:,.0f} steps of h = {sc.step:g} over T = {sc.t_end:g} s ({n_rec:,} recorded samples), stochastic "
               f"{trials:,} trials x {t_sde / sc.sde_step:,.0f} steps, D = {D}; design {t_design:.2g} s, exact law "
-              f"{t_law:.2g} s, deterministic runs {t_det:.3g} s, Monte Carlo {t_mc:.3g} s on {workers} worker(s), claims "
+              f"{t_law:.2g} s, deterministic runs {t_det:.3g} s and Monte Carlo {sum(t_runs):.3g} s: {t_mc:.3g} s on {workers} "
+              f"worker(s), claims "
               f"{t_claims:.2g} s, tables and outputs {t_out:.2g} s; memory {BASE_MIB:.0f} MiB base + {kept:,.0f} MiB "
               f"kept + {chunk:,.0f} MiB per Monte Carlo chunk")
     return Cost(seconds, peak, kept, chunk, detail)

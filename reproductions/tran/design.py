@@ -104,6 +104,14 @@ def _node(sc: CoestimationScenario, i: int):
     return ty.C, ty.L, ty.J, ty.sigma, ty.K
 
 
+def obsv(A: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """The observability matrix [C; CA; …; CAⁿ⁻¹] (as python-control's `obsv`, without importing it)."""
+    blocks = [np.asarray(C, float)]
+    for _ in range(1, A.shape[0]):
+        blocks.append(blocks[-1] @ A)
+    return np.vstack(blocks)
+
+
 def _lyapunov_rounding(A: np.ndarray, P: np.ndarray) -> float:
     """Round-off allowance of an eigenvalue of AᵀP + PA: products of length d with inputs of size
     ‖|A|ᵀ|P|‖₂, then a symmetric eigenvalue problem of size d (backward stable)."""
@@ -136,7 +144,7 @@ def _min_feasible_sigma(sc: CoestimationScenario, t: int, lo: float, hi: float, 
     """Bisection on σ for the smallest σ with (38)-(39) feasible (normalised margin ≥ 0); nan if
     infeasible at `hi`."""
     def ok(s):
-        r = cl.affine_lmi(_comparison_blocks(sc, t, s), sc.n, lower=sc.comparison_P_lower)
+        r = cl.affine_lmi(_comparison_blocks(sc, t, s), sc.n, lower=sc.comparison_P_lower, feasibility=False)
         return np.isfinite(r.margin) and r.margin >= 0
     if not ok(hi):
         return float("nan")
@@ -308,7 +316,7 @@ def compute_design(sc: CoestimationScenario, quick: bool, extras: bool = True) -
             cstat.append(r0.status)
             cmargin.append(r0.margin)
             sig_min.append(_min_feasible_sigma(sc, t, ty.sigma, max(10.0, 10 * ty.comparison_sigma), 6 if quick else 10))
-        jm = np.array([[cl.common_lyapunov(vertices(sc, t, s), sc.types[t].eps).margin for s in J_SWEEP]
+        jm = np.array([[cl.common_lyapunov(vertices(sc, t, s), sc.types[t].eps, feasibility=False).margin for s in J_SWEEP]
                        for t in range(T)])
         out.update(comp_status=np.array(cstat), comp_margin=np.array(cmargin, float), comp_sigma_min=np.array(sig_min),
                    J_sweep=np.array(J_SWEEP), J_sweep_margin=jm)
@@ -364,7 +372,6 @@ def compute_design(sc: CoestimationScenario, quick: bool, extras: bool = True) -
     top, ttol = _thm31_vertex_check(sc, P, np.full(N, eps_nodes.min()), max_nodes=QUICK_VERTEX_NODES if quick else VERTEX_NODES)
     out.update(thm31_vertex_max=top, thm31_vertex_tol=ttol)
     # observability facts
-    from control import obsv
     out["rank_obsv_local"] = np.array([np.linalg.matrix_rank(obsv(sc.A, ty.C)) for ty in sc.types])
     out["rank_obsv_collective"] = np.array(np.linalg.matrix_rank(obsv(sc.A, np.vstack([ty.C for ty in sc.types]))))
     Aaug = np.block([[sc.A, sc.B], [np.zeros((p, n + p))]])

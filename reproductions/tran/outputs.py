@@ -20,7 +20,7 @@ import rerun.blueprint as rrb
 import pandas as pd
 
 from pipeline import record as rec_
-from pipeline.figures import new_figure, save_figure, sequential_colors
+from pipeline.figures import draw_all, new_figure, plain_log_labels, save_figure, sequential_colors, set_margins
 from pipeline.stats import z_for_confidence
 from pipeline.tables import Tables
 
@@ -70,34 +70,99 @@ def _node_colors(N: int):
 
 # -- reading the tables -------------------------------------------------------------------------
 
-def trajectory(tables: Tables, run: str) -> dict[str, np.ndarray] | None:
-    """A run's samples from the tables: t (T,), x (T, n), w (T, p), e (T, N, n+p), g (T, N); None if absent.
-    Noise-free runs share the truth ("deterministic") and the roles of the scenario's run ("coest")."""
-    est = tables["estimates"]
-    est = est[est["run"] == run]
-    if est.empty:
+def _segments(frame: pd.DataFrame, column: str) -> dict[str, slice] | None:
+    """{value: its rows} of a table whose rows of each `column` value are contiguous (as the tables are
+    written); None when they are not."""
+    codes, labels = pd.factorize(frame[column], sort=False)
+    if not len(codes):
+        return {}
+    starts = np.r_[0, np.flatnonzero(np.diff(codes)) + 1]
+    stops = np.r_[starts[1:], len(codes)]
+    first = codes[starts]
+    if len(np.unique(first)) != len(first):
         return None
-    stochastic = run.startswith("stochastic")
-    truth = tables["truth"]
-    truth = truth[truth["run"] == (run if stochastic else "deterministic")].sort_values(["t", "component"])
-    roles = tables["roles"]
-    roles = roles[roles["run"] == (run if stochastic else "coest")].sort_values(["t", "node"])
-    est = est.sort_values(["t", "node", "component"])
-    t = np.unique(est["t"].to_numpy())
-    T, N, q = len(t), int(est["node"].max()) + 1, int(est["component"].max()) + 1
-    xw = truth["value"].to_numpy().reshape(T, q)
-    return {"t": t, "xw": xw, "e": est["value"].to_numpy().reshape(T, N, q),
-            "g": roles["g"].to_numpy().reshape(T, N) if run != "fixed" else None}
+    return {str(labels[c]): slice(int(a), int(b)) for c, a, b in zip(first, starts, stops)}
 
 
-def run_arrays(res: Results, tables: Tables, run: str) -> dict[str, np.ndarray] | None:
-    """`trajectory` split into x and w with the scenario's n, and the fixed roles for the fixed run."""
-    tr = trajectory(tables, run)
-    if tr is None:
-        return None
-    n = res.scenario.n
-    g = tr["g"] if tr["g"] is not None else np.broadcast_to(np.asarray(res.scenario.fixed_active), tr["e"].shape[:2])
-    return {"t": tr["t"], "x": tr["xw"][:, :n], "w": tr["xw"][:, n:], "e": tr["e"], "g": g}
+def _grid(frame: pd.DataFrame, keys: tuple[str, ...], value: str) -> tuple[np.ndarray, np.ndarray]:
+    """(t (T,), values (T, *sizes)) of a tidy frame with one row per (t, *keys), keys 0-based integers. Rows
+    in (t, *keys) order, as the tables are written, are reshaped directly; others are sorted first."""
+    def parts(f):
+        return f["t"].to_numpy(float), [f[k].to_numpy(dtype=np.int64) for k in keys]
+    t, ks = parts(frame)
+    sizes = tuple(int(k.max()) + 1 for k in ks)
+    per = int(np.prod(sizes))
+    T = len(t) // per
+    if T * per != len(t) or not _in_order(t, ks, sizes, T, per):
+        frame = frame.sort_values(["t", *keys])
+        t, ks = parts(frame)
+    return t[::per], frame[value].to_numpy(float).reshape((T, *sizes))
+
+
+def _in_order(t, ks, sizes, T: int, per: int) -> bool:
+    grid = np.indices(sizes).reshape(len(sizes), per)
+    tt = t.reshape(T, per)
+    return (all(np.array_equal(k.reshape(T, per), np.broadcast_to(g, (T, per))) for k, g in zip(ks, grid))
+            and bool(np.all(tt == tt[:, :1])) and bool(np.all(np.diff(tt[:, 0]) > 0)))
+
+
+class RunView:
+    """The trajectories of the tables as arrays, per run, each table split once: figures and the recording
+    read the same runs many times (a boolean mask over the 1.6 million rows of `estimates` costs as much as
+    splitting it). Built before the figure workers fork, so that they share it."""
+
+    def __init__(self, res: Results, tables: Tables):
+        self.res, self.tables = res, tables
+        self._split = {name: _segments(tables[name], "run") for name in ("estimates", "truth", "roles")}
+        self._runs: dict[str, dict | None] = {}
+
+    def _rows(self, name: str, run: str) -> pd.DataFrame:
+        frame, parts = self.tables[name], self._split[name]
+        if parts is None:
+            return frame[frame["run"] == run]
+        return frame.iloc[parts[run]] if run in parts else frame.iloc[:0]
+
+    def run(self, run: str) -> dict[str, np.ndarray] | None:
+        """A run's samples: t (T,), x (T, n), w (T, p), e (T, N, q), g (T, N); None if absent. Noise-free runs
+        share the truth ("deterministic") and the roles of the scenario's run ("coest"); the fixed run has the
+        scenario's fixed roles."""
+        if run not in self._runs:
+            self._runs[run] = self._read(run)
+        return self._runs[run]
+
+    def _read(self, run: str) -> dict[str, np.ndarray] | None:
+        est = self._rows("estimates", run)
+        if est.empty:
+            return None
+        sc = self.res.scenario
+        stochastic = run.startswith("stochastic")
+        t, e = _grid(est, ("node", "component"), "value")
+        xw = _grid(self._rows("truth", run if stochastic else "deterministic"), ("component",), "value")[1]
+        if run == "fixed":
+            g = np.broadcast_to(np.asarray(sc.fixed_active, float), e.shape[:2])
+        else:
+            g = _grid(self._rows("roles", run if stochastic else "coest"), ("node",), "g")[1]
+        return {"t": t, "x": xw[:, :sc.n], "w": xw[:, sc.n:], "e": e, "g": g}
+
+    def stochastic_runs(self) -> list[dict]:
+        runs, k = [], 0
+        while (r := self.run(f"stochastic_{k}")) is not None:
+            runs.append(r)
+            k += 1
+        return runs
+
+
+    def errors(self, run: str) -> tuple[pd.DataFrame, dict[str, np.ndarray]]:
+        """The `errors` rows of a run: the network's (by time) and, per node, norm_x and norm_w as (T, N)."""
+        if "errors" not in self._split:
+            self._split["errors"] = _segments(self.tables["errors"], "run")
+        rows = self._rows("errors", run)
+        net = rows["node"].isna().to_numpy()
+        whole = rows[net]
+        if not np.all(np.diff(whole["t"].to_numpy(float)) > 0):
+            whole = whole.sort_values("t")
+        per = rows[~net]
+        return whole, {c: _grid(per, ("node",), c)[1] for c in ("norm_x", "norm_w")}
 
 
 def bound_values(tables: Tables) -> dict[tuple[str, str], float]:
@@ -105,12 +170,24 @@ def bound_values(tables: Tables) -> dict[tuple[str, str], float]:
     return {(q, v): float(x) for q, v, x in zip(b["quantity"], b["variant"], b["value"])}
 
 
-def network_errors(tables: Tables, run: str) -> pd.DataFrame:
-    e = tables["errors"]
-    return e[(e["run"] == run) & e["node"].isna()].sort_values("t")
-
-
 # -- figures ----------------------------------------------------------------------------------
+
+def _save(fig, path: Path, **margins) -> None:
+    """Fixed margins (inches) instead of tight_layout's extra measuring draw; log-axis labels without mathtext."""
+    set_margins(fig, **margins)
+    plain_log_labels(fig)
+    save_figure(fig, path, tight=False)
+
+
+def _legend_below(fig, ax, fontsize: float = 6, max_columns: int = 13) -> float:
+    """The legend of `ax` centred at the bottom of the figure, clear of the data (a legend placed "best" tests
+    every vertex of every line); returns the bottom margin (inches) the axes then need."""
+    handles, labels = ax.get_legend_handles_labels()
+    ncol = max(1, min(len(labels), max_columns))
+    rows = -(-len(labels) // ncol)
+    fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=fontsize, frameon=False)
+    return 0.6 + rows * 1.5 * fontsize / 72
+
 
 def _states_figure(res: Results, run: dict, title: str, path: Path, labels: list[str], states=None, band=None) -> None:
     sc = res.scenario
@@ -131,9 +208,8 @@ def _states_figure(res: Results, run: dict, title: str, path: Path, labels: list
         ax.set_ylabel(labels[k])
     for ax in axes.flat[len(states):]:
         ax.set_visible(False)
-    axes.flat[0].legend(ncol=5, fontsize=5, loc="best", framealpha=0.6)
     fig.suptitle(title, fontsize=9)
-    save_figure(fig, path)
+    _save(fig, path, top=0.45, bottom=_legend_below(fig, axes.flat[0]))
 
 
 def _inputs_figure(res: Results, run: dict, title: str, path: Path) -> None:
@@ -147,9 +223,8 @@ def _inputs_figure(res: Results, run: dict, title: str, path: Path) -> None:
         ax.plot(run["t"], run["w"][:, k], "k--", lw=1.4, label="true" if k == 0 else None)
         ax.set_xlabel("t (s)")
         ax.set_ylabel(f"w{k + 1}")
-    axes[0, 0].legend(ncol=4, fontsize=6)
     fig.suptitle(title, fontsize=9)
-    save_figure(fig, path)
+    _save(fig, path, top=0.45, bottom=_legend_below(fig, axes[0, 0]))
 
 
 def _plane_figure(res: Results, run: dict, title: str, path: Path, labels: list[str]) -> None:
@@ -167,7 +242,7 @@ def _plane_figure(res: Results, run: dict, title: str, path: Path, labels: list[
     ax.set_aspect("equal", adjustable="datalim")
     ax.legend(fontsize=7, loc="lower left")
     ax.set_title(title, fontsize=9)
-    save_figure(fig, path)
+    _save(fig, path)
 
 
 def _draw_network(ax, res: Results, g: np.ndarray | None = None, tag_active: bool = True) -> None:
@@ -198,10 +273,10 @@ def _graph_figure(res: Results, run: dict, path: Path, title: str, labels: list[
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(labels[a])
     ax.set_ylabel(labels[b])
-    ax.set_title(f"{title}\nmarker size and opacity = fraction of time active in the deterministic run; "
+    ax.set_title(f"{title}\nmarker size and opacity = fraction of time active in the deterministic run\n"
                  f"circles = {sc.types[0].name}, squares = other types", fontsize=8)
-    ax.legend(fontsize=7)
-    save_figure(fig, path)
+    ax.legend(fontsize=7, loc="lower left")
+    _save(fig, path, top=0.65)
 
 
 def _roles_figure(res: Results, run: dict, path: Path) -> None:
@@ -211,30 +286,29 @@ def _roles_figure(res: Results, run: dict, path: Path) -> None:
     for i in range(sc.N):
         axes[0, 0].plot(run["t"], run["g"][:, i], color=cols[i], lw=1, label=f"node {i + 1}")
     axes[0, 0].set_ylabel("g_i(t)")
-    axes[0, 0].legend(ncol=6, fontsize=6)
     axes[1, 0].plot(run["t"], (run["g"] > 0.5).sum(1), "k-")
     axes[1, 0].set_ylabel("# active (g > 1/2)")
     axes[1, 0].set_xlabel("t (s)")
-    save_figure(fig, path)
+    _save(fig, path, hspace=0.55, top=0.2, bottom=_legend_below(fig, axes[0, 0], max_columns=14))
 
 
-def _bounds_figure(tables: Tables, path: Path) -> None:
-    b = bound_values(tables)
+def _bounds_figure(view: RunView, path: Path) -> None:
+    b = bound_values(view.tables)
     fig, axes = new_figure(ncols=2, width=5.4, height=4)
     for ax, run, label, bounds in (
             (axes[0, 0], "coest", "time-varying roles",
              [("(18), single ε", b[("bound18", "single")]), ("(18), per-node ε_i", b[("bound18", "pernode")]),
               ("(18), certified ε_i", b[("bound18", "certified")]), ("(18), vertex q*", b[("bound18", "qstar")])]),
             (axes[0, 1], "fixed", "fixed roles (Thm 2.1)", [("(18), Q̄ = Q + 2αL⊗I", b[("bound18", "fixed")])])):
-        e = network_errors(tables, run)
+        e = view.errors(run)[0]
         ax.semilogy(e["t"], e["norm_z"], "k-", label="‖z(t)‖")
         for (name, val), col in zip(bounds, sequential_colors(len(bounds), "plasma")):
             if np.isfinite(val):
                 ax.axhline(val, color=col, ls="--", label=f"{name} = {val:.3g}")
         ax.set_xlabel("t (s)")
         ax.set_title(label, fontsize=9)
-        ax.legend(fontsize=7)
-    save_figure(fig, path)
+        ax.legend(fontsize=7, loc="center right")
+    _save(fig, path)
 
 
 def _mc_figure(tables: Tables, path: Path) -> None:
@@ -252,49 +326,44 @@ def _mc_figure(tables: Tables, path: Path) -> None:
         ax.set_xlabel("t (s)")
         ax.set_ylabel("E{zᵀPz}")
         ax.set_title("fixed roles" if fixed else "time-varying roles", fontsize=9)
-        ax.legend(fontsize=7)
-    save_figure(fig, path)
+        ax.legend(fontsize=7, loc="center right")
+    _save(fig, path, left=0.8)
 
 
-def _stochastic_runs(res: Results, tables: Tables) -> list[dict]:
-    runs, k = [], 0
-    while (r := run_arrays(res, tables, f"stochastic_{k}")) is not None:
-        runs.append(r)
-        k += 1
-    return runs
-
-
-def write_figures(res: Results, tables: Tables, out_dir: Path, paper: bool = True) -> None:
+def figure_jobs(view: RunView, out_dir: Path, paper: bool = True) -> list:
+    """One callable per figure (see `pipeline.figures.draw_all`)."""
+    res = view.res
     figs = out_dir / "figures"
     sc = res.scenario
-    co = run_arrays(res, tables, "coest")
     labels = state_labels(res, paper)
 
     def where(key):
         name, title = _figure(key, paper)
         return title, figs / f"{name}.png"
 
-    _graph_figure(res, co, where("graph")[1], where("graph")[0], labels)
-    _states_figure(res, co, *where("states"), labels)
-    _inputs_figure(res, co, *where("inputs"))
-    _plane_figure(res, co, *where("plane"), labels)
-    cp = run_arrays(res, tables, "comparison")
+    co = view.run("coest")
+    jobs = [lambda: _graph_figure(res, co, where("graph")[1], where("graph")[0], labels),
+            lambda: _states_figure(res, co, *where("states"), labels),
+            lambda: _inputs_figure(res, co, *where("inputs")),
+            lambda: _plane_figure(res, co, *where("plane"), labels),
+            lambda: _roles_figure(res, co, figs / "roles.png"),
+            lambda: _bounds_figure(view, figs / "bounds.png"),
+            lambda: _mc_figure(view.tables, figs / "mean_square.png")]
+    cp = view.run("comparison")
     if cp is not None:
-        _states_figure(res, cp, *where("comp_states"), labels)
-        _inputs_figure(res, cp, *where("comp_inputs"))
-        _plane_figure(res, cp, *where("comp_plane"), labels)
-    runs = _stochastic_runs(res, tables)
+        jobs += [lambda: _states_figure(res, cp, *where("comp_states"), labels),
+                 lambda: _inputs_figure(res, cp, *where("comp_inputs")),
+                 lambda: _plane_figure(res, cp, *where("comp_plane"), labels)]
+    runs = view.stochastic_runs()
     if runs:
         xs = np.stack([r["x"] for r in runs])
         band = (xs.min(0), xs.max(0), len(runs))
         a, b = sc.position_states
         others = [k for k in range(sc.n) if k not in (a, b)]
-        _states_figure(res, runs[0], *where("sde_pos"), labels, states=[a, b], band=band)
-        _states_figure(res, runs[0], *where("sde_other"), labels, states=others or [a], band=band)
-        _inputs_figure(res, runs[0], *where("sde_inputs"))
-    _roles_figure(res, co, figs / "roles.png")
-    _bounds_figure(tables, figs / "bounds.png")
-    _mc_figure(tables, figs / "mean_square.png")
+        jobs += [lambda: _states_figure(res, runs[0], *where("sde_pos"), labels, states=[a, b], band=band),
+                 lambda: _states_figure(res, runs[0], *where("sde_other"), labels, states=others or [a], band=band),
+                 lambda: _inputs_figure(res, runs[0], *where("sde_inputs"))]
+    return jobs
 
 
 # -- recording --------------------------------------------------------------------------------
@@ -339,10 +408,11 @@ def lmi_markdown(tables: Tables) -> str:
     return "\n".join(lines)
 
 
-def write_recording(res: Results, tables: Tables, path: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:
+def write_recording(view: RunView, path: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:
+    res, tables = view.res, view.tables
     sc = res.scenario
     n, p, N = sc.n, sc.p, sc.N
-    co = run_arrays(res, tables, "coest")
+    co = view.run("coest")
     bv = bound_values(tables)
     t_ns = np.round(co["t"] * 1e9).astype(np.int64)
     idx = rec_.duration_index("t", t_ns)
@@ -382,26 +452,35 @@ def write_recording(res: Results, tables: Tables, path: Path, claims: list[dict]
         # graph: static edges, per-frame node colours/sizes from g_i(t)
         stride = max(1, int(round(FRAME_DT / sc.record_dt)), -(-len(co["t"]) // MAX_FRAMES))
         frames = np.arange(0, len(co["t"]), stride)
-        ids = [str(i) for i in range(N)]
+        ids = np.array([str(i) for i in range(N)])
         rec.log("graph", rr.GraphEdges([(str(u), str(v)) for u, v in sc.graph.build().edges()],
                                        graph_type=rr.GraphType.Undirected), static=True)
+        rec.log("graph", rr.GraphNodes.from_fields(show_labels=True), static=True)
         rec.log("plane/target_path", rr.LineStrips2D([co["x"][:, [a, b]]], colors=[(0, 0, 0)], radii=0.02), static=True)
         if sc.role_mode == "proximity":
             circ = np.linspace(0, 2 * np.pi, 60)
             rec.log("plane/sensing_discs", rr.LineStrips2D([sc.positions[i] + sc.radius * np.c_[np.cos(circ), np.sin(circ)]
                                                              for i in range(N)], colors=[(200, 200, 200)], radii=0.01),
                     static=True)
-        for k in frames:
-            g = co["g"][k]
-            rec.set_time("t", duration=np.timedelta64(int(t_ns[k]), "ns"))
-            node_cols = [(int(60 + 195 * gi), int(120 * (1 - gi)), int(200 * (1 - gi))) for gi in g]
-            rec.log("graph", rr.GraphNodes(ids, positions=rec_.display_positions(sc.positions), colors=node_cols, radii=(8 + 14 * g).tolist(),
-                                           labels=[f"{i + 1}{'·A' if g[i] > 0.5 else ''}" for i in range(N)],
-                                           show_labels=True))
-            rec.log("plane/nodes", rr.Points2D(sc.positions, colors=node_cols, radii=(0.08 + 0.17 * g).tolist(),
-                                               labels=[str(i + 1) for i in range(N)]))
-            rec.log("plane/target", rr.Points2D(co["x"][k:k + 1, [a, b]], colors=[(0, 0, 0)], radii=0.12))
-            rec.log("plane/estimates", rr.Points2D(co["e"][k, :, [a, b]].T, colors=cols, radii=0.07))
+        # one column send per entity for all frames (N nodes per frame)
+        F = len(frames)
+        g = co["g"][frames]
+        node_cols = np.stack([60 + 195 * g, 120 * (1 - g), 200 * (1 - g)], axis=-1).astype(np.uint8).reshape(F * N, 3)
+        fidx = rec_.duration_index("t", t_ns[frames])
+        per_frame = [N] * F
+        names = np.array([str(i + 1) for i in range(N)])
+        rec.send_columns("graph", indexes=fidx, columns=rr.GraphNodes.columns(
+            node_ids=np.tile(ids, F), positions=np.tile(rec_.display_positions(sc.positions), (F, 1)), colors=node_cols,
+            radii=(8 + 14 * g).ravel(), labels=np.char.add(np.tile(names, F), np.where(g > 0.5, "·A", "").ravel())
+        ).partition(per_frame))
+        rec.send_columns("plane/nodes", indexes=fidx, columns=rr.Points2D.columns(
+            positions=np.tile(sc.positions, (F, 1)), colors=node_cols, radii=(0.08 + 0.17 * g).ravel(),
+            labels=np.tile(names, F)).partition(per_frame))
+        rec.send_columns("plane/target", indexes=fidx, columns=rr.Points2D.columns(
+            positions=co["x"][frames][:, [a, b]], colors=np.zeros((F, 3), np.uint8), radii=np.full(F, 0.12)))
+        rec.send_columns("plane/estimates", indexes=fidx, columns=rr.Points2D.columns(
+            positions=co["e"][frames][:, :, [a, b]].reshape(F * N, 2), colors=np.tile(np.array(cols, np.uint8), (F, 1)),
+            radii=np.full(F * N, 0.07)).partition(per_frame))
         rec_.send_series(rec, "roles", idx, co["g"], names=[f"g_{i + 1}" for i in range(N)], colors=cols)
         rec_.send_series(rec, "roles/n_active", idx, (co["g"] > 0.5).sum(1), names="# active", colors=[(0, 0, 0)], width=2)
         # truth and per-node estimates (by state, and by node)
@@ -414,21 +493,20 @@ def write_recording(res: Results, tables: Tables, path: Path, claims: list[dict]
             rec_.send_series(rec, f"states/w{k + 1}/nodes", idx, co["e"][:, :, n + k], names=names, colors=cols, width=1)
             rec_.send_series(rec, f"states/w{k + 1}/truth", idx, co["w"][:, k], names="true", colors=[(0, 0, 0)], width=2.5)
             rec_.send_series(rec, f"truth/w{k + 1}", idx, co["w"][:, k], names=f"w{k + 1}", colors=[(0, 0, 0)])
-        err = tables["errors"]
+        net, per_node = view.errors("coest")
         for i in range(N):
             rec_.send_series(rec, f"nodes/{i}/estimate", idx, co["e"][:, i],
                              names=[f"x̂{k + 1}" for k in range(n)] + [f"ŵ{k + 1}" for k in range(p)])
-            ei = err[(err["run"] == "coest") & (err["node"] == i)].sort_values("t")
-            rec_.send_series(rec, f"nodes/{i}/error", idx, ei[["norm_x", "norm_w"]].to_numpy(), names=["‖x̃_i‖", "‖w̃_i‖"])
-        cp = run_arrays(res, tables, "comparison")
+            rec_.send_series(rec, f"nodes/{i}/error", idx, np.c_[per_node["norm_x"][:, i], per_node["norm_w"][:, i]],
+                             names=["‖x̃_i‖", "‖w̃_i‖"])
+        cp = view.run("comparison")
         if cp is not None:
             for k in range(n):
                 rec_.send_series(rec, f"comparison/x{k + 1}/nodes", idx, cp["e"][:, :, k], names=names, colors=cols, width=1)
                 rec_.send_series(rec, f"comparison/x{k + 1}/truth", idx, cp["x"][:, k], names="true", colors=[(0, 0, 0)],
                                  width=2.5)
-            rec_.send_series(rec, "errors/comparison", idx, network_errors(tables, "comparison")[["norm_x", "norm_w"]].to_numpy(),
+            rec_.send_series(rec, "errors/comparison", idx, view.errors("comparison")[0][["norm_x", "norm_w"]].to_numpy(),
                              names=["comparison mean ‖x̃‖", "comparison mean ‖w̃‖"], colors=[(214, 39, 40), (255, 152, 150)])
-        net = network_errors(tables, "coest")
         rec_.send_series(rec, "errors/coestimation", idx, net[["norm_x", "norm_w"]].to_numpy(),
                          names=["coestimation mean ‖x̃‖", "coestimation mean ‖w̃‖"], colors=[(31, 119, 180), (174, 199, 232)])
         c = tables["central"]
@@ -448,7 +526,7 @@ def write_recording(res: Results, tables: Tables, path: Path, claims: list[dict]
             val = bv[("bound18", name)]
             if np.isfinite(val):
                 rec_.send_series(rec, f"bounds/roles/bound18_{name}", idx, np.full(len(nz), val), names=f"(18) {name}")
-        nzf = network_errors(tables, "fixed")["norm_z"].to_numpy()
+        nzf = view.errors("fixed")[0]["norm_z"].to_numpy()
         rec_.send_series(rec, "bounds/fixed/norm_z", idx, nzf, names="‖z(t)‖", colors=[(0, 0, 0)], width=2)
         rec_.send_series(rec, "bounds/fixed/bound18", idx, np.full(len(nzf), bv[("bound18", "fixed")]), names="(18)")
         rec_.send_series(rec, "bounds/roles/V", idx, net["V"].to_numpy(), names="V = zᵀPz", colors=[(44, 160, 44)])
@@ -471,5 +549,12 @@ def write_recording(res: Results, tables: Tables, path: Path, claims: list[dict]
 
 
 def write_outputs(res: Results, tables: Tables, out_dir: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:
-    write_figures(res, tables, out_dir, paper)
-    write_recording(res, tables, out_dir / f"{res.scenario.name}.rrd", claims, prov, paper)
+    """The figures and the recording, drawn together in forked workers (`prov["workers"]`) from one view of the
+    tables (split before the workers fork)."""
+    view = RunView(res, tables)
+    view.stochastic_runs()
+    for run in ("coest", "comparison", "fixed"):
+        if view.run(run) is not None:
+            view.errors(run)
+    record = lambda: write_recording(view, out_dir / f"{res.scenario.name}.rrd", claims, prov, paper)  # noqa: E731
+    draw_all([record] + figure_jobs(view, out_dir, paper), workers=int(prov.get("workers", 1) or 1))
