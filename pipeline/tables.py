@@ -132,15 +132,15 @@ class Tables:
 
     @classmethod
     def read(cls, directory: Path) -> "Tables":
-        """The tables `write` wrote into `directory` (declarations from schema.json)."""
-        import pandas as pd
-
-        tables = cls()
+        """The tables `write` wrote into `directory` (declarations from schema.json; each frame
+        read when first used: a cached re-run that copies the files and reuses its figures and
+        recordings reads none, and does not import pandas)."""
+        tables = cls(frames=_FramesOnDisk(directory))
         for name, doc in json.loads((directory / "schema.json").read_text()).items():
             table = TableSpec(name, doc["row"], tuple(Column(c["name"], c["unit"], c["definition"]) for c in doc["columns"]),
                               doc["description"])
             tables.specs[name] = table
-            tables.frames[name] = pd.read_parquet(directory / f"{name}.parquet")
+            tables.frames[name] = None
         tables.source = directory
         return tables
 
@@ -159,6 +159,32 @@ class Tables:
             lines += [f"| `{c.name}` | {c.unit} | {c.definition} |" for c in s.columns]
             lines.append("")
         return "\n".join(lines)
+
+
+class _FramesOnDisk(dict):
+    """name -> DataFrame, each read from `directory/<name>.parquet` on first access (None until then)."""
+
+    def __init__(self, directory: Path):
+        super().__init__()
+        self.directory = directory
+
+    def __getitem__(self, name: str):
+        frame = super().__getitem__(name)
+        if frame is None:
+            import pandas as pd
+
+            frame = pd.read_parquet(self.directory / f"{name}.parquet")
+            super().__setitem__(name, frame)
+        return frame
+
+    def get(self, name: str, default=None):
+        return self[name] if name in self else default
+
+    def values(self):
+        return [self[name] for name in self]
+
+    def items(self):
+        return [(name, self[name]) for name in self]
 
 
 def _copy_tree(source: Path, target: Path) -> list[Path]:
