@@ -136,10 +136,37 @@ def same_kernel(L: np.ndarray, A: np.ndarray, C: np.ndarray, rank_tol: float = 1
 
 
 def place_gain(Abar: np.ndarray, Cbar: np.ndarray, poles) -> np.ndarray:
-    """K with eig(Ā + K C̄) = poles (note the + sign of (3))."""
-    from scipy.signal import place_poles      # imported here: scipy.signal costs 0.5 s (it loads scipy.stats)
+    """K with eig(Ā + K C̄) = poles (note the + sign of (3)): scipy.signal.place_poles on the dual
+    system. Real poles with one output or outputs of full rank (the eigenvector choice is unique,
+    or the identity) take `_place_direct`, the same computation without importing scipy.signal
+    (0.5 s: it loads scipy.stats); other cases iterate (method YT) in scipy itself."""
+    A, B = np.asarray(Abar, float).T, np.asarray(Cbar, float).T
+    P = np.asarray(poles)
+    rank = np.linalg.matrix_rank(B)
+    if np.isrealobj(P) and P.ndim == 1 and len(P) == len(A) and (rank == 1 or rank == len(A)) and not unplaceable(P, rank):
+        return -_place_direct(A, B, np.sort(P.astype(float)), rank).T
+    from scipy.signal import place_poles
 
-    return -place_poles(Abar.T, Cbar.T, np.asarray(poles)).gain_matrix.T
+    return -place_poles(A, B, P).gain_matrix.T
+
+
+def _place_direct(A: np.ndarray, B: np.ndarray, poles: np.ndarray, rank: int) -> np.ndarray:
+    """scipy.signal.place_poles(A, B, poles).gain_matrix (scipy 1.17, `_ltisys.py`) for sorted real
+    poles and B of rank 1 or of full row rank, where no iteration runs: the same operations in the
+    same order (tests compare the two bit for bit)."""
+    if B.shape[0] == rank:       # K = lstsq(B, diag(poles) - A): the transfer matrix is the identity
+        return -np.real(np.linalg.lstsq(B, np.diag(poles) - A, rcond=-1)[0])
+    u, z = sla.qr(B, mode="full")
+    u0, u1, z = u[:, :rank], u[:, rank:], z[:rank, :]
+    columns = []
+    for p in poles:              # one vector of the kernel of u1'(A - p I) per pole (unique up to scale)
+        pole_space = np.dot(u1.T, A - p * np.eye(B.shape[0])).T
+        Q, _ = sla.qr(pole_space, mode="full")
+        x = np.sum(Q[:, pole_space.shape[1]:], axis=1)[:, np.newaxis]
+        columns.append(x / np.linalg.norm(x))
+    X = np.hstack(columns).astype(complex)
+    M = np.linalg.solve(X.T, np.dot(np.diag(poles), X.T)).T
+    return -np.real(np.linalg.solve(z, np.dot(u0.T, M - A)))
 
 
 def unplaceable(poles, rank: int) -> str | None:

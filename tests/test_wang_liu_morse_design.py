@@ -334,3 +334,19 @@ def test_stacked_gain_with_repeated_outputs():
     C = np.vstack(Cs + Cs)                                    # every output twice
     K = jd.stacked_gain(A, C, [-1.0, -1.5, -2.0, -2.5])
     assert np.allclose(np.sort(np.linalg.eigvals(A + K @ C).real), [-2.5, -2.0, -1.5, -1.0], atol=1e-8)
+
+
+@pytest.mark.parametrize("rank", ["one", "full"])
+def test_place_gain_is_scipys_place_poles_bit_for_bit(rank):
+    """One output or outputs of full rank take the scipy-free path (no iteration to reproduce):
+    the same gain as scipy.signal.place_poles to the last bit (other ranks call scipy itself)."""
+    from scipy.signal import place_poles
+
+    rng = np.random.default_rng({"one": 1, "full": 2}[rank])
+    for case in range(60):
+        n = int(rng.integers(2, 7))
+        r = 1 if rank == "one" else n
+        A = rng.standard_normal((n, n)) * [0.1, 1.0, 10.0][case % 3]
+        C = rng.standard_normal((r, n))
+        poles = -rng.permutation(np.arange(1, n + 1) * rng.uniform(0.5, 2.0))
+        np.testing.assert_array_equal(jd.place_gain(A, C, poles), -place_poles(A.T, C.T, poles).gain_matrix.T)
