@@ -1,5 +1,7 @@
 """Coestimation simulator: ETD2RK (the stiff coupling integrated exactly) against scipy's Radau
-on Example 5.1 with fixed roles, and the batched stochastic simulator's cost per trial-step."""
+on Example 5.1 with fixed roles, the batched stochastic simulator's cost per trial-step (time-varying
+roles; fixed roles through the composed step operator), the LMIs and the design stage, and the
+commands people wait on (`dse check`, `dse run --quick`, `dse reproduce tran`) with wall and CPU time."""
 from __future__ import annotations
 
 import time
@@ -58,8 +60,8 @@ def bench_stochastic(trials: int = 100, t_end: float = 4.0) -> dict:
 
 def bench_stochastic_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
     """Side-by-side rows: µs per trial-node-step of the stochastic coestimation simulator
-    (role switching, Euler-Maruyama noise on the exact ETD2RK drift), batched trials vs one
-    trial per call."""
+    (role switching, Euler-Maruyama noise on the exact ETD2RK drift; and fixed roles, where the
+    whole step is one composed operator), batched trials vs one trial per call."""
     from .common import estimator_row, timed
 
     sc = paper_scenario()
@@ -77,10 +79,11 @@ def bench_stochastic_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
     def reducer(t, x, w, e, g):             # V = zᵀPz of every trial, as the Monte Carlo computes it
         zf = errors_from_estimates(x, w, e, sc.n).reshape(len(x), -1)
         np.einsum("ri,ri->r", zf @ Pbig, zf)
-    roles, signal = compute.role_law(sc, False), design.input_signal(sc)
+    signal = design.input_signal(sc)
     e0 = np.zeros((sc.N, sc.n + sc.p))
     rows = []
-    for trials in ((100,) if quick else (100, 1000)):
+    for fixed, trials in [(False, k) for k in ((100,) if quick else (100, 1000))] + [(True, 100 if quick else 1000)]:
+        roles = compute.role_law(sc, fixed)
         loop_trials = 2 if quick else 5
         rng = np.random.Generator(np.random.SFC64(0))
         run = lambda k: sim.simulate(net, roles, signal, sc.x0, e0, t_end=t_end, h=sc.sde_step,  # noqa: E731
@@ -88,12 +91,15 @@ def bench_stochastic_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
                                      prepared=prepared)
         batched = timed(lambda: run(trials), repeats, per=trials * steps * sc.N, warmup=True)
         loop = timed(lambda: [run(1) for _ in range(loop_trials)], repeats, per=loop_trials * steps * sc.N)
-        rows.append(estimator_row(f"coestimation SDE (tran), role switching, h={sc.sde_step:g}",
+        rows.append(estimator_row(f"coestimation SDE (tran), {'fixed roles' if fixed else 'role switching'}, "
+                                  f"h={sc.sde_step:g}",
                                   f"N={sc.N}, n+p={sc.n + sc.p}, {trials:,} trials, t≤{t_end:g}", nodes=sc.N,
                                   state_dim=sc.n + sc.p, trials=trials, steps=steps, batched=batched, loop=loop,
                                   loop_what="same simulator, 1 trial per call", loop_trials=loop_trials,
                                   target="<= 0.3 µs", met=batched[0] <= 0.3,
-                                  note="simulate(): ETD2RK + exact noise factors (86 normals/trial-step) + V every 2 steps"))
+                                  note=("simulate(): one composed step operator (FixedRoleStep) + " if fixed else
+                                        "simulate(): ETD2RK + ") + "exact noise factors (86 normals/trial-step) + V every 2 "
+                                  "steps"))
     return rows
 
 
@@ -127,7 +133,107 @@ def bench_deterministic_rows(t_end: float = 10.0) -> list[dict]:
             for r in rows[1:]]
 
 
+def bench_commands(repeats: int = 3, reproduce: bool = True) -> list[dict]:
+    """Median wall and CPU time of the family's commands: `dse check` (target 0.5 s) and `dse run --quick`
+    (target 3 s cold; and memoised) on the paper's file and a user's 4-node scenario, and `dse reproduce tran`
+    cold and cached, quick and default."""
+    import shutil
+    import statistics
+    import tempfile
+    from pathlib import Path
+
+    from .bench_wang_liu_morse import _command
+
+    paper = Path(compute.__file__).parent / "paper.toml"
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        small = Path(tmp) / "ring4.toml"
+        small.write_text(SMALL_TOML)
+        cases = [(f"dse check {f.name}", ["check", str(f)], False, 0.5) for f in (paper, small)]
+        cases += [(f"dse run --quick {f.name}", ["run", "--quick", str(f)], True, 3.0) for f in (paper, small)]
+        if reproduce:
+            cases += [("dse reproduce tran --quick", ["reproduce", "tran", "--quick"], True, None),
+                      ("dse reproduce tran", ["reproduce", "tran"], True, None)]
+        for name, args, out, target in cases:
+            cold, warm = [], []
+            for r in range(repeats):
+                root = Path(tmp) / f"out{r}"
+                extra = ["--out", str(root)] if out else []
+                cold.append(_command(args + extra))
+                if out:
+                    warm.append(_command(args + extra))
+                shutil.rmtree(root, ignore_errors=True)
+            for label, times in (("", cold), (" (memo: an identical re-run)", warm)):
+                if times:
+                    wall = statistics.median(t[0] for t in times)
+                    row = {"command": name + label, "wall_s": wall, "cpu_s": statistics.median(t[1] for t in times)}
+                    if target is not None and not label:
+                        row.update(target=f"<= {target:g} s", met=wall <= target)
+                    rows.append(row)
+    return rows
+
+
+#: a user's small scenario: 4 nodes on a ring, LMI-designed P, proximity roles
+SMALL_TOML = """family = "coestimation"
+name = "ring4"
+[process]
+A = [[0.0, 1.0], [-2.0, -1.5]]
+B = [[0.0], [2.0]]
+x0 = [1.0, -0.5]
+[input]
+offset = [0.5]
+amplitude = [[1.0]]
+frequency = [[0.8]]
+phase = [[0.0]]
+[graph]
+kind = "ring"
+n = 4
+[nodes]
+positions = [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0]]
+type = ["pos", "vel", "pos", "vel"]
+[node_type.pos]
+C = [[1.0, 0.0]]
+L = [[4.0], [2.0]]
+J = [[3.0]]
+K = [[2.0]]
+sigma = 0.2
+eps = 1e-4
+[node_type.vel]
+C = [[0.0, 1.0]]
+L = [[0.5], [3.0]]
+J = [[2.0]]
+K = [[2.0]]
+sigma = 0.2
+eps = 1e-4
+[coupling]
+alpha = 10.0
+P = "lmi"
+[roles]
+mode = "proximity"
+radius = 1.2
+beta = 3.0
+position_states = [0, 1]
+[fixed_roles]
+active = [1, 1, 0, 0]
+[simulation]
+t_end = 6.0
+step = 0.005
+tail_start = 3.0
+[stochastic]
+trials = 40
+quick_trials = 20
+runs = 2
+quick_t_end = 3.0
+"""
+
+
 if __name__ == "__main__":
+    import sys
+
+    if "--commands" in sys.argv:
+        for row in bench_commands(1, reproduce="--no-reproduce" not in sys.argv):
+            print(row)
+        sys.exit()
     for row in bench_stochastic_rows(True, 1) + bench_lmis(1):
         print(row)
     for row in bench_deterministic():

@@ -154,6 +154,34 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, 
     return results
 
 
+#: the jobs of the current `run_jobs`, run by index in forked workers (closures are inherited, not pickled)
+_JOBS: list = []
+
+
+def _run_job(index: int):
+    return _JOBS[index]()
+
+
+def run_jobs(jobs: Sequence[tuple[float, Callable[[], R]]], workers: int = 1, *, desc: str = "") -> list[R]:
+    """Run (weight, callable) jobs in `workers` forked processes, the heaviest first (the light ones then fill in
+    around them), and return their results in the order given. The callables need not be picklable: workers
+    inherit them through fork and receive an index; their results come back pickled."""
+    global _JOBS
+    order = sorted(range(len(jobs)), key=lambda i: -jobs[i][0])
+    if workers <= 1 or len(jobs) <= 1:
+        outs = [jobs[i][1]() for i in order]
+    else:
+        previous, _JOBS = _JOBS, [jobs[i][1] for i in order]
+        try:
+            outs = parallel_map(_run_job, range(len(order)), workers=workers, desc=desc)
+        finally:
+            _JOBS = previous
+    results: list = [None] * len(jobs)
+    for i, o in zip(order, outs):
+        results[i] = o
+    return results
+
+
 def peak_memory_mib() -> float:
     """Peak resident memory of this process and its finished children, in MiB."""
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline import record
+from pipeline import api, record
 from pipeline.errors import ScenarioError
 from pipeline.reproduction import RunOptions, run
 from pipeline.scenario import load_toml
@@ -44,7 +44,7 @@ USER = {
 @pytest.fixture(scope="module")
 def quick_paper(tmp_path_factory):
     out = tmp_path_factory.mktemp("tran")
-    summary = run(tran.paper(), out, RunOptions(quick=True, workers=1))
+    summary = run(tran.paper(), out, RunOptions(quick=True, workers=2))   # as `dse reproduce`: forked workers
     return out, summary
 
 
@@ -114,23 +114,21 @@ def test_user_scenario_runs_and_is_consistent(tmp_path):
     assert (out / "ring5.rrd").exists()
 
 
-def test_user_scenario_with_infeasible_lmi_is_not_checkable(tmp_path):
+def test_user_scenario_with_infeasible_lmi_is_not_checkable():
     """A node type whose Ā_i(1) is unstable: (28)-(29) infeasible. The hypothesis says so, with the solver
     status and the eigenvalue certificate; the theorems' conclusions are not checkable; no fail."""
     data = copy.deepcopy(USER)
     data["node_type"]["vel"]["L"] = [[-6.0], [-6.0]]
     data["coupling"]["P"] = "lmi"
-    repro = tran.from_dict(data)
-    summary = run(repro, tmp_path, RunOptions(quick=True, workers=1), out_dir=tmp_path / "run" / "bad")
-    doc = json.loads((tmp_path / "run" / "bad" / "report.json").read_text())
-    hyp = next(h for h in doc["hypotheses"] if h["id"] == "tran.hyp.vertex_lmi")
+    result = api.run(tran.from_dict(data), quick=True)      # the report's contents, without figures and recordings
+    hyp = next(h for h in result.evaluation.hypotheses if h["id"] == "tran.hyp.vertex_lmi")
     assert hyp["holds"] is False
     assert "infeasible" in hyp["detail"] or "solver_error" in hyp["detail"]
     assert "unstable at some g" in hyp["detail"]
-    v = {c["id"]: c for c in doc["claims"]}
+    v = {c["id"]: c for c in result.evaluation.claims}
     for cid in ("tran.thm31.vertices", "tran.cor31.ultimate_bound", "tran.lemma31.vertex_lmis", "tran.rem22.small_sigmaK"):
         assert v[cid]["verdict"] == "not-checkable" and "tran.hyp.vertex_lmi" in v[cid]["detail"], v[cid]
-    assert summary["fail"] == 0 and summary["error"] == 0
+    assert result.counts["fail"] == 0 and result.counts["error"] == 0
 
 
 def test_lyapunov_P_leaves_thm31_not_checkable(tmp_path):

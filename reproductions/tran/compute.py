@@ -26,12 +26,12 @@ from pipeline.cache import StageCache, code_fingerprint
 from pipeline.progress import counter
 from pipeline.reproduction import RunOptions
 from pipeline.seeding import stream_seed
-from pipeline.simulate import parallel_map, run_units
+from pipeline.simulate import run_jobs, run_units
 from pipeline.stats import Moments
 
 from .central_reference import central_kalman
-from .design import (DESIGN_MAY_BE_NAN, LAW_MAY_BE_NAN, Design, coestimation, compute_design, fixed_law, gains,
-                     input_signal, step_operators, t_stochastic)
+from .design import (DESIGN_MAY_BE_NAN, LAW_MAY_BE_NAN, Design, coestimation, design_core, design_parts, fixed_law,
+                     gains, input_signal, merge_design, step_operators, t_stochastic)
 from .scenario import CoestimationScenario
 
 CODE_MODULES = ("estimators.common_lyapunov", "estimators.input_state_coestimation", "estimators.lyapunov_bounds",
@@ -75,16 +75,26 @@ def code() -> str:
 # -- the design -----------------------------------------------------------------------------------
 
 def design(sc: CoestimationScenario, quick: bool, seed: int, cache: StageCache | None = None, *,
-           paper: bool = False) -> Design:
-    """The design of the scenario for these options (through the stage cache when given)."""
-    base = {"scenario": sc.key(), "code": code()}
+           paper: bool = False, workers: int = 1) -> Design:
+    """The design of the scenario for these options (through the stage cache when given); its independent parts
+    in `workers` forked processes."""
+    core, parts, law = design_stages(sc, quick, seed, cache, paper=paper)
+    done = dict(zip(parts, run_jobs(list(parts.values()), workers, desc=f"{sc.name}: design")))
+    return Design(sc, quick, seed, merge_design(core, done), law)
+
+
+def design_stages(sc: CoestimationScenario, quick: bool, seed: int, cache: StageCache | None = None, *,
+                  paper: bool = False) -> tuple[dict, dict[str, tuple], dict]:
+    """(the design's core, its parts as (weight, job) — each a cached stage of its own —, the law of the seed)."""
+    base = {"scenario": sc.key(), "code": code(), "quick": quick}
 
     def stage(name, key, fn, nan):
         return fn() if cache is None else cache.get_or_compute(name, key, fn, scenario=sc.name, allow_nonfinite=nan)
-    arrays = stage("design", {**base, "quick": quick, "extras": paper}, lambda: compute_design(sc, quick, extras=paper),
-                   DESIGN_MAY_BE_NAN)
-    law = stage("law", {**base, "quick": quick, "seed": seed}, lambda: fixed_law(sc, arrays, seed, quick), LAW_MAY_BE_NAN)
-    return Design(sc, quick, seed, arrays, law)
+    core = stage("design", base, lambda: design_core(sc), DESIGN_MAY_BE_NAN)
+    parts = {name: (w, lambda name=name, job=job: stage(f"design-{name}", base, job, DESIGN_MAY_BE_NAN))
+             for name, (w, job) in design_parts(sc, quick, paper, core).items()}
+    law = stage("law", {**base, "seed": seed}, lambda: fixed_law(sc, core, seed, quick), LAW_MAY_BE_NAN)
+    return core, parts, law
 
 
 # -- deterministic runs ---------------------------------------------------------------------------
@@ -287,30 +297,6 @@ def fixed_means(sc: CoestimationScenario, d: Design, runs: dict) -> dict[str, np
             "mean_final": zf["h"][-1]}
 
 
-#: the jobs of the current `compute`, run by index in forked workers (the closures are inherited, not pickled)
-_JOBS: list = []
-
-
-def _run_job(index: int):
-    return _JOBS[index]()
-
-
-def run_jobs(jobs: list[tuple[float, Any]], workers: int, desc: str) -> list:
-    """Run (weight, callable) jobs in `workers` forked processes, the heaviest first (so that the light ones fill
-    in around them); results in the order given."""
-    global _JOBS
-    order = sorted(range(len(jobs)), key=lambda i: -jobs[i][0])
-    _JOBS = [jobs[i][1] for i in order]
-    try:
-        outs = parallel_map(_run_job, range(len(order)), workers=workers, desc=desc)
-    finally:
-        _JOBS = []
-    results = [None] * len(jobs)
-    for i, o in zip(order, outs):
-        results[i] = o
-    return results
-
-
 def _announce(sc: CoestimationScenario, opts: RunOptions) -> None:
     """A long run says so before it starts (with its estimated time and memory)."""
     from .cost import LONG_RUN_S, estimate, human_seconds
@@ -327,7 +313,8 @@ def compute(sc: CoestimationScenario, opts: RunOptions, cache: StageCache, *, pa
     cost.refuse_if_too_large(sc, opts)
     _announce(sc, opts)
     trials = trial_count(sc, opts)
-    d = design(sc, opts.quick, opts.seed, cache, paper=paper)
+    core, parts, law = design_stages(sc, opts.quick, opts.seed, cache, paper=paper)
+    d = Design(sc, opts.quick, opts.seed, core, law)      # the runs need the core only; the parts join their pool
     res = Results(sc, opts.seed, trials, opts.quick, d)
     base = {"scenario": sc.key(), "code": code()}
     t_sde = t_stochastic(sc, opts.quick)
@@ -352,8 +339,11 @@ def compute(sc: CoestimationScenario, opts: RunOptions, cache: StageCache, *, pa
     jobs.update(sde_roles=sde_job("sde_roles", False, sc.sde_step, t_sde),
                 sde_fixed=sde_job("sde_fixed", True, sc.sde_step, t_sde),
                 sde_fixed_half=sde_job("sde_fixed_half", True, sc.sde_step / 2, t_half))
-    # every run at once: the deterministic runs fill in around the Monte Carlo
-    res.runs.update(zip(jobs, run_jobs(list(jobs.values()), opts.workers, f"{sc.name}: runs and Monte Carlo")))
+    jobs.update({f"design-{name}": job for name, job in parts.items()})
+    # every run and the design's parts at once: the lighter jobs fill in around the Monte Carlo
+    done = dict(zip(jobs, run_jobs(list(jobs.values()), opts.workers, desc=f"{sc.name}: runs and Monte Carlo")))
+    d.arrays = merge_design(core, {name: done.pop(f"design-{name}") for name in parts})
+    res.runs.update(done)
     d.integration = {run: integration_error(res.runs, run) for run in ("coest", "fixed")}
     res.runs["exact_fixed"] = fixed_means(sc, d, res.runs)
     res.runs["central"] = cache.get_or_compute("central", {**base, "seed": opts.seed, "t_end": t_sde}, lambda: central_kalman(

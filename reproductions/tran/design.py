@@ -265,10 +265,79 @@ def _thm31_vertex_check(sc, P, eps, max_nodes: int) -> tuple[float, float]:
     return float(top), float(tol)
 
 
-def compute_design(sc: CoestimationScenario, quick: bool, extras: bool = True) -> dict[str, np.ndarray]:
+def compute_design(sc: CoestimationScenario, quick: bool, extras: bool = True, workers: int = 1) -> dict[str, np.ndarray]:
     """Everything that needs no simulation. `extras`: the computations only claims about the paper's
     own example use (the comparison LMIs at the coestimation σ, the smallest feasible σ, the J
-    sweep), skipped for users' scenarios."""
+    sweep), skipped for users' scenarios. The parts independent of each other (`design_parts`) run in
+    `workers` forked processes."""
+    from pipeline.simulate import run_jobs
+
+    core = design_core(sc)
+    parts = design_parts(sc, quick, extras, core)
+    return merge_design(core, dict(zip(parts, run_jobs(list(parts.values()), workers))))
+
+
+def design_parts(sc: CoestimationScenario, quick: bool, extras: bool, core: dict[str, np.ndarray]) -> dict[str, tuple]:
+    """The parts of the design that only the claims use, each (estimated CPU seconds, callable returning arrays):
+    the vertex enumerations of q* and Thm 3.1 over {0,1}^N, and the paper's extras."""
+    from .cost import VERTEX_CUBE_S
+
+    max_nodes = QUICK_VERTEX_NODES if quick else VERTEX_NODES
+    enumeration = 2 ** sc.N * VERTEX_CUBE_S * (sc.N * sc.q) ** 3 if sc.N <= max_nodes else 0.0
+    parts = {"qstar": (enumeration, lambda: _qstar(sc, core["P"], max_nodes)),
+             "thm31": (enumeration, lambda: _thm31_part(sc, core, max_nodes))}
+    if extras:
+        parts["extras"] = (0.5 * len(sc.types), lambda: _paper_extras(sc, quick))
+    return parts
+
+
+def _qstar(sc: CoestimationScenario, P: np.ndarray, max_nodes: int) -> dict[str, np.ndarray]:
+    G = gains(sc)
+    vd = lb.vertex_dissipation(sc.A, sc.B, G["C"], G["L"], G["J"], G["K"], G["sigma"], P, sc.lap, sc.alpha,
+                               max_nodes=max_nodes)
+    return {"qstar": np.asarray(np.nan if vd is None else vd[0]), "qstar_g": np.full(sc.N, -1) if vd is None else vd[1]}
+
+
+def _thm31_part(sc: CoestimationScenario, core: dict[str, np.ndarray], max_nodes: int) -> dict[str, np.ndarray]:
+    """Thm 3.1: S(g)ᵀP + PS(g) + Q̄_ε ≤ 0 at the vertices g ∈ {0,1}^N (single ε), largest eigenvalue."""
+    top, ttol = _thm31_vertex_check(sc, core["P"], np.full(sc.N, core["eps_nodes"].min()), max_nodes=max_nodes)
+    return {"thm31_vertex_max": np.asarray(top), "thm31_vertex_tol": np.asarray(ttol)}
+
+
+def _paper_extras(sc: CoestimationScenario, quick: bool) -> dict[str, np.ndarray]:
+    """The comparison LMIs at the coestimation σ, the smallest feasible σ, the J sweep."""
+    n, T = sc.n, len(sc.types)
+    cstat, cmargin, sig_min = [], [], []
+    for t, ty in enumerate(sc.types):
+        r0 = cl.affine_lmi(_comparison_blocks(sc, t, ty.sigma), n, lower=sc.comparison_P_lower)
+        cstat.append(r0.status)
+        cmargin.append(r0.margin)
+        sig_min.append(_min_feasible_sigma(sc, t, ty.sigma, max(10.0, 10 * ty.comparison_sigma), 6 if quick else 10))
+    jm = np.array([[cl.common_lyapunov(vertices(sc, t, s), sc.types[t].eps, feasibility=False).margin for s in J_SWEEP]
+                   for t in range(T)])
+    return {"comp_status": np.array(cstat), "comp_margin": np.array(cmargin, float), "comp_sigma_min": np.array(sig_min),
+            "J_sweep": np.array(J_SWEEP), "J_sweep_margin": jm}
+
+
+def merge_design(core: dict[str, np.ndarray], parts: dict[str, dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """The design: the core, its parts, and the bound (18) with q*."""
+    out = dict(core)
+    for part in parts.values():
+        out.update(part)
+    qmin = float(out["qstar"])
+    mu, bound = ultimate_bound_or_nan(out["P"], qmin, float(out["phibar"]))
+    out["mu_qstar"], out["bound18_qstar"] = np.asarray(mu), np.asarray(bound)
+    return out
+
+
+def ultimate_bound_or_nan(P: np.ndarray, qmin: float, phibar: float) -> tuple[float, float]:
+    """(μ, (18)) with λ_min(Q̄) = qmin; NaN when it is not a positive number."""
+    return lb.ultimate_bound(P, qmin, phibar) if np.isfinite(qmin) and qmin > 0 else (np.nan, np.nan)
+
+
+def design_core(sc: CoestimationScenario) -> dict[str, np.ndarray]:
+    """The design without `design_parts`: everything the runs need (P, the comparison architecture's P, S) and
+    every quantity that is cheap."""
     n, p, q, N = sc.n, sc.p, sc.n + sc.p, sc.N
     T = len(sc.types)
     out: dict[str, Any] = _solve_vertex_lmis(sc)
@@ -309,17 +378,6 @@ def compute_design(sc: CoestimationScenario, quick: bool, extras: bool = True) -
         if rb.P is not None and np.isfinite(rb.margin) and rb.margin >= 0:
             P_b_types[t] = rb.P
     out.update(comp_status_b=np.array(cstat_b), comp_margin_b=np.array(cmargin_b, float), P_comparison=P_b_types)
-    if extras:
-        cstat, cmargin, sig_min = [], [], []
-        for t, ty in enumerate(sc.types):
-            r0 = cl.affine_lmi(_comparison_blocks(sc, t, ty.sigma), n, lower=sc.comparison_P_lower)
-            cstat.append(r0.status)
-            cmargin.append(r0.margin)
-            sig_min.append(_min_feasible_sigma(sc, t, ty.sigma, max(10.0, 10 * ty.comparison_sigma), 6 if quick else 10))
-        jm = np.array([[cl.common_lyapunov(vertices(sc, t, s), sc.types[t].eps, feasibility=False).margin for s in J_SWEEP]
-                       for t in range(T)])
-        out.update(comp_status=np.array(cstat), comp_margin=np.array(cmargin, float), comp_sigma_min=np.array(sig_min),
-                   J_sweep=np.array(J_SWEEP), J_sweep_margin=jm)
     # the input bounds over all t ≥ 0 (certified, with their slack)
     bw, bd = input_signal(sc).sup_bounds()
     w_sup, wdot_sup = bw.upper, bd.upper
@@ -333,15 +391,10 @@ def compute_design(sc: CoestimationScenario, quick: bool, extras: bool = True) -
     ev_single = np.linalg.eigvalsh(Qe_single)
     qb_pernode = np.linalg.eigvalsh(lb.qbar_eps(eps_nodes, lap, sc.alpha, q))[0]
     qb_cert = np.linalg.eigvalsh(lb.qbar_eps(np.maximum(cert, 0), lap, sc.alpha, q))[0]
-    vd = lb.vertex_dissipation(sc.A, sc.B, G["C"], G["L"], G["J"], G["K"], G["sigma"], P, lap, sc.alpha,
-                               max_nodes=QUICK_VERTEX_NODES if quick else VERTEX_NODES)
     out.update(lamP_min=lamP.min(), lamP_max=lamP.max(), qbar_single=ev_single[0], qbar_single_norm=ev_single[-1],
-               qbar_pernode=qb_pernode, qbar_certified=qb_cert,
-               qstar=np.nan if vd is None else vd[0], qstar_g=np.full(N, -1) if vd is None else vd[1])
-    for name, qmin in (("single", ev_single[0]), ("pernode", qb_pernode), ("certified", qb_cert),
-                       ("qstar", np.nan if vd is None else vd[0])):
-        mu, bound = lb.ultimate_bound(P, qmin, phibar) if np.isfinite(qmin) and qmin > 0 else (np.nan, np.nan)
-        out[f"mu_{name}"], out[f"bound18_{name}"] = mu, bound
+               qbar_pernode=qb_pernode, qbar_certified=qb_cert)
+    for name, qmin in (("single", ev_single[0]), ("pernode", qb_pernode), ("certified", qb_cert)):
+        out[f"mu_{name}"], out[f"bound18_{name}"] = ultimate_bound_or_nan(P, qmin, phibar)
     out["bound18_single_tight_phi"] = lb.ultimate_bound(P, ev_single[0], phibar_tight)[1]
     # fixed roles: Q_i from (10), Q̄, S, identity (54)
     gfix = np.asarray(sc.fixed_active)
@@ -368,9 +421,6 @@ def compute_design(sc: CoestimationScenario, quick: bool, extras: bool = True) -
     out.update(S_max_real=mx, S_tol=tol, S_min_real=mn[:2], S_fixed_cond=cond[2], S_cond=cond, S_g=np.array(g_list),
                S_eig_real=eigs.real, S_eig_imag=eigs.imag, S_all_passive=stacked_S(sc, P, np.zeros(N)),
                S_all_active=stacked_S(sc, P, np.ones(N)))
-    # Thm 3.1: S(g)ᵀP + PS(g) + Q̄_ε ≤ 0 at the vertices g ∈ {0,1}^N (single ε), largest eigenvalue
-    top, ttol = _thm31_vertex_check(sc, P, np.full(N, eps_nodes.min()), max_nodes=QUICK_VERTEX_NODES if quick else VERTEX_NODES)
-    out.update(thm31_vertex_max=top, thm31_vertex_tol=ttol)
     # observability facts
     out["rank_obsv_local"] = np.array([np.linalg.matrix_rank(obsv(sc.A, ty.C)) for ty in sc.types])
     out["rank_obsv_collective"] = np.array(np.linalg.matrix_rank(obsv(sc.A, np.vstack([ty.C for ty in sc.types]))))

@@ -108,7 +108,7 @@ class CoestimationReproduction:
         law), no simulation."""
         from . import compute
 
-        return compute.design(self.scenario, opts.quick, opts.seed, paper=self.is_paper)
+        return compute.design(self.scenario, opts.quick, opts.seed, paper=self.is_paper, workers=opts.workers)
 
     @staticmethod
     def design_of(results):
