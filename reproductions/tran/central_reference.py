@@ -1,6 +1,6 @@
 """The centralized references (project additions, not in the paper).
 
-`central_kalman`: a Kalman filter (filterpy) on the augmented state s = [x; w] with all currently
+`central_deterministic`, `central_stochastic`: a Kalman filter (filterpy) on the augmented state s = [x; w] with all currently
 active sensors, along the deterministic run and the first stochastic run.
 
 The unknown input is modelled as a random walk ẇ = q_w^{1/2} ξ; the model ṡ = F s + noise,
@@ -81,17 +81,23 @@ def run_kalman(sc, t: np.ndarray, x: np.ndarray, g: np.ndarray, *, noise=None, r
     return {"t": t, "s": out}
 
 
-def central_kalman(sc, det_run: dict, sde_run: dict, noise) -> dict[str, np.ndarray]:
+def central_deterministic(sc, det_run: dict) -> dict[str, np.ndarray]:
+    """The filter along the deterministic run, with the active sensors and with every sensor."""
     stride = int(round(sc.kf_dt / sc.record_dt))
     det = run_kalman(sc, det_run["t"][::stride], det_run["x"][::stride], det_run["g"][::stride])
     every = run_kalman(sc, det_run["t"][::stride], det_run["x"][::stride], np.ones_like(det_run["g"][::stride]))
-    out = {"det_t": det["t"], "det_s": det["s"], "det_all_s": every["s"]}
-    if sde_run["kept_x"].size:
-        rng = np.random.default_rng(stream_seed(0, "tran", "central-kf-noise"))
-        st = run_kalman(sc, sde_run["t"][::stride], sde_run["kept_x"][0, ::stride], sde_run["kept_g"][0, ::stride],
-                        noise=noise, rng=rng)
-        out.update(sde_t=st["t"], sde_s=st["s"])
-    return out
+    return {"det_t": det["t"], "det_s": det["s"], "det_all_s": every["s"]}
+
+
+def central_stochastic(sc, sde_run: dict, noise) -> dict[str, np.ndarray]:
+    """The filter along the first stored stochastic trial (none without one)."""
+    if not sde_run["kept_x"].size:
+        return {}
+    stride = int(round(sc.kf_dt / sc.record_dt))
+    rng = np.random.default_rng(stream_seed(0, "tran", "central-kf-noise"))
+    st = run_kalman(sc, sde_run["t"][::stride], sde_run["kept_x"][0, ::stride], sde_run["kept_g"][0, ::stride],
+                    noise=noise, rng=rng)
+    return {"sde_t": st["t"], "sde_s": st["s"]}
 
 
 def kalman_bucy_reference(sc, noise, g, t_final: float) -> tuple[np.ndarray, np.ndarray]:

@@ -29,7 +29,7 @@ from pipeline.seeding import stream_seed
 from pipeline.simulate import run_jobs, run_units
 from pipeline.stats import Moments
 
-from .central_reference import central_kalman
+from .central_reference import central_deterministic, central_stochastic
 from .design import (DESIGN_MAY_BE_NAN, LAW_MAY_BE_NAN, Design, coestimation, design_core, design_parts, fixed_law,
                      gains, input_signal, merge_design, step_operators, t_stochastic)
 from .scenario import CoestimationScenario
@@ -329,6 +329,13 @@ def compute(sc: CoestimationScenario, opts: RunOptions, cache: StageCache, *, pa
     def stage(name, key, fn):
         return lambda: cache.get_or_compute(name, key, fn, scenario=sc.name, allow_nonfinite=RUN_MAY_BE_NAN)
 
+    def then(first, name, key, fn):
+        """The stage `first`, then a stage computed from its result, in one job: (first's result, the second's)."""
+        def job():
+            out = first()
+            return out, cache.get_or_compute(name, key, lambda: fn(out), scenario=sc.name, allow_nonfinite=RUN_MAY_BE_NAN)
+        return job
+
     def sde_job(name, fixed, h, t_end):
         return (cost.sde_seconds(sc, trials, t_end / h, fixed, budget),
                 stage(name, {**sde_key, "t_end": t_end, "h": h},
@@ -339,13 +346,21 @@ def compute(sc: CoestimationScenario, opts: RunOptions, cache: StageCache, *, pa
     jobs.update(sde_roles=sde_job("sde_roles", False, sc.sde_step, t_sde),
                 sde_fixed=sde_job("sde_fixed", True, sc.sde_step, t_sde),
                 sde_fixed_half=sde_job("sde_fixed_half", True, sc.sde_step / 2, t_half))
+    # the centralized Kalman filter follows the run it filters, in the same job
+    kf_steps = sc.t_end / sc.kf_dt
+    w, job = jobs["coest"]
+    jobs["coest"] = (w + 2 * kf_steps * cost.KF_STEP_S, then(job, "central-det", base, lambda run: central_deterministic(sc, run)))
+    w, job = jobs["sde_roles"]
+    jobs["sde_roles"] = (w + t_sde / sc.kf_dt * cost.KF_STEP_S,
+                         then(job, "central-sde", {**base, "seed": opts.seed, "t_end": t_sde},
+                              lambda run: central_stochastic(sc, run, d.noise)))
     jobs.update({f"design-{name}": job for name, job in parts.items()})
     # every run and the design's parts at once: the lighter jobs fill in around the Monte Carlo
     done = dict(zip(jobs, run_jobs(list(jobs.values()), opts.workers, desc=f"{sc.name}: runs and Monte Carlo")))
     d.arrays = merge_design(core, {name: done.pop(f"design-{name}") for name in parts})
+    (done["coest"], central_det), (done["sde_roles"], central_sde) = done["coest"], done["sde_roles"]
     res.runs.update(done)
     d.integration = {run: integration_error(res.runs, run) for run in ("coest", "fixed")}
     res.runs["exact_fixed"] = fixed_means(sc, d, res.runs)
-    res.runs["central"] = cache.get_or_compute("central", {**base, "seed": opts.seed, "t_end": t_sde}, lambda: central_kalman(
-        sc, res.runs["coest"], res.runs["sde_roles"], d.noise), scenario=sc.name, allow_nonfinite=RUN_MAY_BE_NAN)
+    res.runs["central"] = {**central_det, **central_sde}
     return res

@@ -26,8 +26,8 @@ LONG_RUN_S = 60.0
 BASE_MIB = 330.0
 #: resident memory of the figures and the recording being written (matplotlib canvases, the Rerun buffer)
 OUTPUT_MIB = 90.0
-#: CPU seconds: interpreter start and imports
-STARTUP_S = 2.0
+#: CPU seconds: interpreter start and imports (numpy, scipy, pandas, pydantic, cvxpy, rerun; matplotlib in one process)
+STARTUP_S = 1.7
 #: CPU seconds: the design's fixed part, the LMIs of one node type (feasibility, margin, the comparison LMIs),
 #: the paper's extra LMIs per type (smallest feasible σ by bisection, the J sweep), the sweeps per node
 DESIGN_S = 0.1
@@ -64,7 +64,7 @@ CLAIM_SAMPLE_S = 2.0e-7
 KF_STEP_S = 5e-5
 #: CPU seconds: figures, recording and report; per table row (building, Parquet, CSV, the figures' reading)
 OUTPUTS_S = 2.0
-ROW_S = 2.0e-6
+ROW_S = 1.2e-6
 
 
 @dataclass(frozen=True)
