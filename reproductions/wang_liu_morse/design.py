@@ -223,17 +223,24 @@ def lemma_samples(sc: HybridScenario, seed: int) -> dict[str, np.ndarray]:
     constant = min(len(pool), samples)                               # adversarial: constant sequences first
     idx[:constant] = np.arange(constant)[:, None]
     batch = max(1, SAMPLE_BATCH_BYTES // (8 * mn * mn * 2))
-    steps = ho.step_matrix_batch(d.P, flock)          # P(S ⊗ I) of every pool graph, once (entrywise products)
+    used, codes = np.unique(idx, return_inverse=True)
+    idx = codes.reshape(idx.shape)                   # positions in `used`
+    # P(S ⊗ I) (entrywise products) of the graphs drawn: formed once when they fit the batch memory
+    table = ho.step_matrix_batch(d.P, flock[used]) if len(used) * mn * mn * 8 <= SAMPLE_BATCH_BYTES else None
+
+    def steps(cols: np.ndarray) -> np.ndarray:
+        return table[cols] if table is not None else ho.step_matrix_batch(d.P, flock[used[cols]])
+
     best = 0.0
     # the constant sequences first, then the random ones in batches; a product whose prefix is already
     # below the largest |·| found cannot exceed it (|·| is an induced norm and every step has |P(S⊗I)| <= 1),
     # so it is dropped: the largest |·| is the same, each product that can attain it computed as before
     for a, b in [(0, constant)] + [(a, min(a + batch, samples)) for a in range(constant, samples, batch)]:
         rows = idx[a:b]
-        prod = steps[rows[:, 0]]
+        prod = steps(rows[:, 0])
         check = best > 0
         for k in range(1, N):
-            prod = steps[rows[:, k]] @ prod
+            prod = steps(rows[:, k]) @ prod
             if check and k >= N // 2:       # from halfway, while a check drops at least a tenth of the products
                 keep = mixed_norm_bound(prod, n, m) * (1 + 1e-12) >= best
                 prod, rows, check = prod[keep], rows[keep], keep.sum() <= 0.9 * len(keep)
