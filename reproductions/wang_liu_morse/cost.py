@@ -42,10 +42,10 @@ RHO_PREFIX_S = 6e-7
 #: Section 4's model-mismatch demonstration (two filterpy Kalman filters over 2,000 steps; the paper's extras)
 MISMATCH_S = 0.4
 #: outputs: per figure, per recording, per table row (build and write)
-FIGURE_S = 0.3
-RECORDING_S = 0.25
+FIGURE_S = 0.15
+RECORDING_S = 0.08
 #: importing the numeric, table, plotting and recording libraries
-IMPORT_S = 1.5
+IMPORT_S = 1.2
 ROW_S = 2e-6
 BASE_MIB = 330.0
 #: what the pipeline reserves for the interpreter and libraries in a memory budget (RunOptions)
