@@ -104,7 +104,7 @@ def bench_stochastic_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
 
 
 def bench_lmis(repeats: int = 3) -> list[dict]:
-    """The design LMIs (28)-(29) (cvxpy + the default SDP solver) and the whole design stage."""
+    """The design LMIs (28)-(29) (Clarabel, called directly) and the whole design stage."""
     from estimators import common_lyapunov as cl
 
     from .common import bound_row, timed
@@ -116,7 +116,7 @@ def bench_lmis(repeats: int = 3) -> list[dict]:
         r = cl.common_lyapunov(v, sc.types[t].eps)
         rows.append(bound_row(f"tran LMIs (28)-(29), node type {t} ({len(v)} vertices, {v[0].shape[0]}x{v[0].shape[0]})",
                               fast=timed(lambda: cl.common_lyapunov(v, sc.types[t].eps), repeats, per=1e3),
-                              fast_what="cvxpy common Lyapunov LMI", note=f"status {r.status}"))
+                              fast_what="common Lyapunov LMI (Clarabel)", note=f"status {r.status}"))
     rows.append(bound_row("tran design stage (all LMIs, sweeps, vertex checks), quick", fast=timed(
         lambda: design.compute_design(sc, True), 1, per=1e3), fast_what="compute_design(quick=True)"))
     return rows

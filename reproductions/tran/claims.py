@@ -170,7 +170,7 @@ def check_lmi_feasible(res: Results) -> Verdict:
     d, sc = res.design, res.scenario
     status, margin, ver = d["lmi_status"], d["lmi_margin"], d["lmi_verified"]
     ok = bool(np.all(margin > 0)) and bool(np.all(np.abs(ver + margin) <= 1e-6 + 1e-3 * np.abs(margin)))
-    detail = (f"cvxpy/Clarabel: feasibility (ε_i = {[t.eps for t in sc.types]}) status {status.tolist()}; normalised "
+    detail = (f"Clarabel: feasibility (ε_i = {[t.eps for t in sc.types]}) status {status.tolist()}; normalised "
               f"margin t* (tr P = n + p) {margin.tolist()}, re-verified max eig at P*: {ver.tolist()}")
     return Verdict(PASS if ok else FAIL, measured=margin.tolist(), reference=0.0, margin=float(margin.min()),
                    detail=detail)
@@ -662,7 +662,7 @@ def catalogue() -> list[Claim]:
         c("tran.lemma31.vertex_lmis", "Lemma 3.1, (30)", "(28)-(29) at the vertices imply Ā_i(g)ᵀP_i + P_iĀ_i(g) ≤ −εI "
           "for all g ∈ [0, 1]", "inequality", check_lemma31, hyps=(LMI,)),
         c("tran.step_i.lmi_feasible", "Sec. 3.2 step (i), Remark 3.2", "(28)-(29) are feasible for the example's gains "
-          "(cvxpy/Clarabel)", "inequality", check_lmi_feasible, scope=PE),
+          "(Clarabel)", "inequality", check_lmi_feasible, scope=PE),
         c("tran.ex51.J_tradeoff", "Sec. 5.1 (after Fig. 5)", "J_i cannot be made large while keeping (28)-(29) "
           "feasible", "qualitative", check_J_sweep, scope=PE),
         c("tran.thm21.identity54", "(54), Thm 2.1 proof", "SᵀP + PS = −Q̄ with Q̄ = Q + 2α(L⊗I)", "identity",

@@ -22,17 +22,17 @@ from .scenario import CoestimationScenario
 MIB = 2.0**20
 #: a run estimated longer than this says so when it starts
 LONG_RUN_S = 60.0
-#: resident memory before any array: Python, numpy, scipy, cvxpy, pandas, pyarrow, matplotlib, rerun
+#: resident memory before any array: Python, numpy, scipy, clarabel, pandas, pyarrow, matplotlib, rerun
 BASE_MIB = 330.0
 #: resident memory of the figures and the recording being written (matplotlib canvases, the Rerun buffer)
 OUTPUT_MIB = 90.0
-#: CPU seconds: interpreter start and imports (numpy, scipy, pandas, pydantic, cvxpy, rerun; matplotlib in one process)
-STARTUP_S = 1.7
+#: CPU seconds: interpreter start and imports (numpy, scipy, pandas, pydantic, clarabel, rerun; matplotlib in one process)
+STARTUP_S = 1.3
 #: CPU seconds: the design's fixed part, the LMIs of one node type (feasibility, margin, the comparison LMIs),
 #: the paper's extra LMIs per type (smallest feasible σ by bisection, the J sweep), the sweeps per node
 DESIGN_S = 0.1
-LMI_TYPE_S = 0.1
-EXTRAS_TYPE_S = 0.5
+LMI_TYPE_S = 0.02
+EXTRAS_TYPE_S = 0.1
 DESIGN_NODE_S = 0.012
 #: CPU seconds per cubed stacked dimension: one dense eigen-decomposition of S (30 of them)
 EIG_CUBE_S = 1.0e-9

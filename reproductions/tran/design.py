@@ -15,6 +15,7 @@ the steady state, and the centralized Kalman-Bucy reference.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -122,22 +123,10 @@ def _lyapunov_rounding(A: np.ndarray, P: np.ndarray) -> float:
 # -- design stage ---------------------------------------------------------------------------------
 
 def _comparison_blocks(sc: CoestimationScenario, t: int, sigma: float):
-    import cvxpy as cp
-
+    """The affine maps P ↦ R_i(g)(P) of (38) (g = 0) and (39) (g = 1) for node type t at σ."""
     ty = sc.types[t]
-    out = []
-    for g in (0.0, 1.0):
-        Acl, c12, c22 = ce.comparison_lmi_blocks(sc.A, sc.B, ty.C, ty.L, ty.J, sigma, ty.K, g)
-
-        def R(P, Acl=Acl, c12=c12, c22=c22):
-            if isinstance(P, np.ndarray):
-                top = -P @ sc.B + c12
-                return np.block([[Acl.T @ P + P @ Acl, top], [top.T, c22]])
-            top = -P @ sc.B + c12
-            M = cp.bmat([[Acl.T @ P + P @ Acl, top], [top.T, c22]])
-            return (M + M.T) / 2
-        out.append(R)
-    return out
+    return [functools.partial(ce.comparison_lmi_matrix, A=sc.A, B=sc.B, C_i=ty.C, L_i=ty.L, J_i=ty.J, sigma_i=sigma,
+                              K_i=ty.K, g=g) for g in (0.0, 1.0)]
 
 
 def _min_feasible_sigma(sc: CoestimationScenario, t: int, lo: float, hi: float, iters: int) -> float:
@@ -155,7 +144,7 @@ def _min_feasible_sigma(sc: CoestimationScenario, t: int, lo: float, hi: float, 
 
 
 def _solve_vertex_lmis(sc: CoestimationScenario) -> dict[str, np.ndarray]:
-    """(28)-(29) per node type with cvxpy/Clarabel (status, normalised margin t*, its numpy
+    """(28)-(29) per node type with Clarabel (status, normalised margin t*, its numpy
     re-verification, the maximiser) and an eigenvalue certificate of infeasibility: the largest
     real part of Ā_i(g) over g ∈ [0, 1] (an unstable Ā_i(g) admits no P)."""
     T, q = len(sc.types), sc.n + sc.p
@@ -280,14 +269,14 @@ def compute_design(sc: CoestimationScenario, quick: bool, extras: bool = True, w
 def design_parts(sc: CoestimationScenario, quick: bool, extras: bool, core: dict[str, np.ndarray]) -> dict[str, tuple]:
     """The parts of the design that only the claims use, each (estimated CPU seconds, callable returning arrays):
     the vertex enumerations of q* and Thm 3.1 over {0,1}^N, and the paper's extras."""
-    from .cost import VERTEX_CUBE_S
+    from .cost import EXTRAS_TYPE_S, VERTEX_CUBE_S
 
     max_nodes = QUICK_VERTEX_NODES if quick else VERTEX_NODES
     enumeration = 2 ** sc.N * VERTEX_CUBE_S * (sc.N * sc.q) ** 3 if sc.N <= max_nodes else 0.0
     parts = {"qstar": (enumeration, lambda: _qstar(sc, core["P"], max_nodes)),
              "thm31": (enumeration, lambda: _thm31_part(sc, core, max_nodes))}
     if extras:
-        parts["extras"] = (0.5 * len(sc.types), lambda: _paper_extras(sc, quick))
+        parts["extras"] = (EXTRAS_TYPE_S * len(sc.types), lambda: _paper_extras(sc, quick))
     return parts
 
 

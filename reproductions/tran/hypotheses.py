@@ -4,7 +4,7 @@ Thm 2.1 / Cor 2.1 / Prop 4.1 (fixed roles): P_i solves (10) for some Q_i > 0, i.
 Q_i = −(Ā_i(g_i)ᵀP_i + P_iĀ_i(g_i)) is positive definite (so Ā_i(g_i) is Hurwitz, the "local
 sufficient stability condition"), H_i = P_i⁻¹, the graph is undirected, ‖w‖, ‖ẇ‖ ≤ w̄.
 Thm 3.1 / Cor 3.1 / Lemma 3.1 / Remark 4.1 (time-varying roles): the P_i used satisfy (28)-(29)
-with the node's ε_i, certified by numpy eigenvalues beyond their round-off (the cvxpy solver's
+with the node's ε_i, certified by numpy eigenvalues beyond their round-off (the SDP solver's
 status and margin are reported with it, and an unstable Ā_i(g) as an infeasibility certificate).
 The checks built on simulated trajectories also need the integration to be accurate (step
 halving). Connectivity and collective observability are stated by the paper but used by no
@@ -72,7 +72,7 @@ def _lmi_solver_text(d) -> str:
     for t, ty in enumerate(sc.types):
         hur = float(np.max(d["lmi_hurwitz_sweep"][t]))
         cert = f"; Ā(g) unstable at some g ∈ [0, 1] (max Re λ = {hur:.3g}): no P exists" if hur >= 0 else ""
-        parts.append(f"type '{ty.name}': cvxpy/Clarabel feasibility status {d['lmi_status'][t]}; normalised margin "
+        parts.append(f"type '{ty.name}': Clarabel feasibility status {d['lmi_status'][t]}; normalised margin "
                      f"t* = {float(d['lmi_margin'][t]):.4g} (status {d['lmi_margin_status'][t]}; t* < 0 certifies "
                      f"infeasibility), numpy re-verification at its P {float(d['lmi_verified'][t]):.4g}{cert}")
     return "; ".join(parts)

@@ -10,7 +10,7 @@ from pipeline.reproduction import RunOptions
 
 from .scenario import CoestimationFile, CoestimationScenario, paper_scenario, scenario_from_dict
 
-# compute, claims and outputs (cvxpy, scipy, matplotlib, rerun) are imported when first needed, so that
+# compute, claims and outputs (clarabel, scipy, matplotlib, rerun) are imported when first needed, so that
 # validating a scenario file and reporting its errors stays fast.
 
 TITLE = "Tran, Yucelen, Jagannathan & Casbeer: Distributed coestimation in heterogeneous sensor networks"

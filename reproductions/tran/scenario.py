@@ -119,7 +119,7 @@ class CouplingSection(Section):
 
     alpha: Real = key(doc="coupling strength α (one value for every node)", gt=0)
     P: Literal[P_MODES] = key("lmi", doc="where the P_i come from: given (node_type.<name>.P); lmi (the max-margin "  # type: ignore[valid-type]
-                              "solution of (28)-(29) per type, cvxpy/Clarabel); lyapunov (the Lyapunov equation "
+                              "solution of (28)-(29) per type, Clarabel); lyapunov (the Lyapunov equation "
                               "(10) at the fixed roles with node_type.<name>.Q)",
                               constraint="lyapunov needs roles.mode = fixed")
 

@@ -32,7 +32,7 @@ NODE_TYPES = spec("node_types", "node type", [
     SC, ("type", "", "node type name"), ("index", "1", "type index (order of the [node_type.<name>] tables)"),
     ("nodes", "1", "number of nodes of this type"), ("eps", "1", "ε_i required by (28)-(29)"),
     ("sigma", "1", "σ_i"), ("comparison_sigma", "1", "σ_i of the comparison architecture"),
-    ("lmi_status", "", "solver status of the feasibility problem (28)-(29) (cvxpy/Clarabel)"),
+    ("lmi_status", "", "solver status of the feasibility problem (28)-(29) (Clarabel, in cvxpy's words)"),
     ("lmi_margin", "1", "normalised margin t* = max t with tr P = n + p, ĀᵀP + PĀ ⪯ −tI at g = 0, 1 (> 0: feasible)"),
     ("lmi_margin_status", "", "solver status of the margin problem"),
     ("lmi_verified", "1", "max eigenvalue of Ā(g)ᵀP* + P*Ā(g), g ∈ {0, 1}, at the margin maximiser P* (numpy)"),
