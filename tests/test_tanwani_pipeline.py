@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-import estimators.gossip_covariance as gc
 import reproductions
 from pipeline import api
 from pipeline.declare import reference_rows

@@ -304,7 +304,7 @@ def event_bytes_per_trial(sc: FilterNetworkScenario, *, sample: bool = True) -> 
     L = event_window(sc)
     per_output = ((d if sample else 0) + 2 * N * n * n) * 8.0
     events = 3 * (gf.EVENTS_PER_WINDOW + 8 * math.sqrt(gf.EVENTS_PER_WINDOW)) * 16.0
-    return 2.5 * L * per_output + events + 8.0 * (9 * d * d + 6 * N * n * n + 4 * d) + 256.0
+    return 1.5 * L * per_output + events + 8.0 * (9 * d * d + 6 * N * n * n + 4 * d) + 256.0
 
 
 def event_window(sc: FilterNetworkScenario) -> int:

@@ -44,9 +44,9 @@ ROW_BYTES = 200.0
 COEF = {
     "design": {"base": 0.0372, "eig": 1.23e-09, "solve": 0.0, "build": 0.0, "steps": 1.3e-08, "outputs": 4.98e-05, "intervals": 3.08e-06},
     "refs": {"base": 0.453, "kron": 2.4e-09, "second": 3.65e-10, "scheme": 4.3e-09, "steps": 9.08e-10, "filterpy": 3.96e-06},
-    "grid": {"trial_steps": 1.14e-10, "unit_steps": 0.000112, "chunk_steps": 2.68e-05, "unit_outputs": 4.75e-05},
-    "event": {"d3": 0.0, "d2": 5.56e-08, "marks": 7.33e-07, "chunk_marks": 0.000542},
-    "frozen": {"d3": 0.0, "d2": 1.98e-08, "marks": 3.04e-07, "chunk_marks": 0.000378},
+    "grid": {"trial_steps": 6.22e-12, "trial_steps_c": 1.87e-08, "unit_steps": 7.31e-06, "chunk_steps": 3.95e-06, "unit_outputs": 5.14e-05},
+    "event": {"d3": 0.0, "d2": 6.54e-08, "marks": 9.14e-07, "chunk_marks": 0.000614},
+    "frozen": {"d3": 0.0, "d2": 2.11e-08, "marks": 3.92e-07, "chunk_marks": 0.000351},
     "claims": {"base": 0.571, "intervals": 1e-06, "outputs": 9.39e-06},
     "out": {"base": 1.49, "rows": 0.0, "nodes": 0.104},
 }
@@ -111,7 +111,8 @@ def features(sc: FilterNetworkScenario, opts: RunOptions) -> dict[str, dict[str,
     g_units = -(-trials // RNG_UNIT)
     g_chunks = -(-g_units // units_per_chunk(gridded_bytes_per_trial(sc), budget))
     steps = sc.grid_steps
-    grid = {"trial_steps": R * trials * steps * 4 * d * d, "unit_steps": R * g_units * steps,
+    grid = {"trial_steps": R * trials * steps * 4 * d * d, "trial_steps_c": R * trials * steps * (C + d),
+            "unit_steps": R * g_units * steps,
             "chunk_steps": R * g_chunks * steps * (C + 4), "unit_outputs": R * g_units * T}
     e_units = -(-ev_trials // RNG_UNIT)
     e_chunks = -(-e_units // units_per_chunk(event_bytes_per_trial(sc), budget))
@@ -191,7 +192,7 @@ def scenario_cost(sc: FilterNetworkScenario, opts: RunOptions) -> dict:
                     min(units_per_chunk(e_bytes, budget), e_units) * RNG_UNIT * e_bytes) / MIB
     return {**{f"{k}_s": v for k, v in sec.items()}, "stages": [sec["design"], sec["refs"], sec["event"],
                                                                 sec["frozen"]] + [sec["grid"] / R] * R,
-            "kept_mib": OUTPUT_MIB + (kept + design + tables) / MIB, "chunk_mib": chunk_mib,
+            "kept_mib": (kept + design + tables) / MIB, "chunk_mib": chunk_mib,
             "unit_mib": RNG_UNIT * max(g_bytes, e_bytes) / MIB, "trials": trials, "ev_trials": ev_trials,
             "steps": sc.grid_steps, "events": events}
 
@@ -203,10 +204,11 @@ def estimate(scenarios: list[FilterNetworkScenario], opts: RunOptions, *, paper:
     compute = max(sum(stages) / workers, max(stages))         # the stages run in `workers` processes
     serial = sum(c["claims_s"] + c["out_s"] for c in costs.values())
     seconds = STARTUP_S + compute + serial
-    kept = sum(c["kept_mib"] for c in costs.values())
+    kept = OUTPUT_MIB + sum(c["kept_mib"] for c in costs.values())
     chunk = max(c["chunk_mib"] for c in costs.values())
     unit = max(c["unit_mib"] for c in costs.values())
-    peak = BASE_MIB + kept + chunk * min(workers, 2)
+    # one worker simulates beside what the run keeps; several are forked processes, each with its own chunk
+    peak = BASE_MIB + (kept + chunk if workers == 1 else max(kept, chunk))
     parts = [f"{name}: design {c['design_s']:.2g} s, references {c['refs_s']:.2g} s, gridded {c['trials']:,} trials × "
              f"{c['steps']:,} steps per rate {c['grid_s']:.3g} s, event-driven {c['ev_trials']:,} paths × "
              f"{c['events']:,.0f} expected rings {c['event_s']:.3g} s, frozen path {c['frozen_s']:.2g} s, claims "

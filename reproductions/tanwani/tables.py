@@ -29,7 +29,7 @@ import estimators.gossip_covariance as gc
 from pipeline.tables import TableSpec, spec
 
 from .compute import TOPOLOGIES, Results, ScenarioResults, directions
-from .design import EXPLICIT_FIELDS, Design, ScenarioDesign, joint_ok
+from .design import EXPLICIT_FIELDS, Design, ScenarioDesign
 
 SC = ("scenario", "", "scenario name")
 RATE = ("rate", "1/s", "Poisson rate λ of every clock")
