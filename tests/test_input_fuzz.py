@@ -123,8 +123,11 @@ def _values(doc):
 
 def _toml(doc) -> str:
     """A tiny TOML writer for the documents above (tables of scalars and lists)."""
+    def string(text):  # JSON escapes the C0 controls; TOML also forbids a raw DEL in a basic string
+        return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007f")
+
     def key(k):
-        return json.dumps(k, ensure_ascii=False)
+        return string(k)
 
     def value(v):
         if isinstance(v, bool):
@@ -135,7 +138,7 @@ def _toml(doc) -> str:
             return "[" + ", ".join(value(x) for x in v) + "]"
         if isinstance(v, dict):
             return "{" + ", ".join(f"{key(k)} = {value(x)}" for k, x in v.items()) + "}"
-        return json.dumps(v, ensure_ascii=False)
+        return string(v)
     top = [f"{key(k)} = {value(v)}" for k, v in doc.items() if not isinstance(v, dict)]
     tables = [f"[{key(k)}]\n" + "\n".join(f"{key(a)} = {value(b)}" for a, b in v.items())
               for k, v in doc.items() if isinstance(v, dict)]
