@@ -14,12 +14,8 @@ import json
 from pathlib import Path
 
 import numpy as np
-import rerun as rr
-import rerun.blueprint as rrb
-
 import pandas as pd
 
-from pipeline import record as rec_
 from pipeline.figures import draw_all, new_figure, plain_log_labels, save_figure, sequential_colors, set_margins
 from pipeline.stats import z_for_confidence
 from pipeline.tables import Tables
@@ -409,6 +405,11 @@ def lmi_markdown(tables: Tables) -> str:
 
 
 def write_recording(view: RunView, path: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:
+    import rerun as rr            # in the worker that writes the recording only
+    import rerun.blueprint as rrb
+
+    from pipeline import record as rec_
+
     res, tables = view.res, view.tables
     sc = res.scenario
     n, p, N = sc.n, sc.p, sc.N
