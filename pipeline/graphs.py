@@ -9,7 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal, Mapping
 
-import networkx as nx
 import numpy as np
 from pydantic import model_validator
 
@@ -64,12 +63,51 @@ class GraphSpec:
         if kind == "edges":
             kw["edges"] = _edge_list(data["edges"], join(field, "edges"), kw["n"])
         spec = cls(**kw)
-        if require_connected and not nx.is_connected(spec.build()):
+        if require_connected and not spec.is_connected():
             raise ScenarioError(field, "graph is not connected (the theorems need a connected graph)")
         return spec
 
-    def build(self) -> nx.Graph:
+    def edge_array(self) -> np.ndarray:
+        """The undirected edges (u < v) as an (E, 2) integer array, without building a networkx
+        graph for the deterministic kinds (the same edges as `build`)."""
+        n = self.n
+        if self.kind == "line":
+            e = np.column_stack([np.arange(n - 1), np.arange(1, n)])
+        elif self.kind == "ring":
+            e = np.column_stack([np.arange(n), (np.arange(n) + 1) % n])
+        elif self.kind == "complete":
+            e = np.column_stack(np.triu_indices(n, 1))
+        elif self.kind == "grid":
+            idx = np.arange(n).reshape(self.rows, self.cols)
+            e = np.concatenate([np.column_stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()]),
+                                np.column_stack([idx[:-1, :].ravel(), idx[1:, :].ravel()])])
+        elif self.kind == "edges":
+            e = np.array(self.edges, dtype=int).reshape(-1, 2)
+        else:
+            e = np.array(sorted(self.build().edges()), dtype=int).reshape(-1, 2)
+        e = np.sort(e.astype(int), axis=1)
+        return e[np.lexsort((e[:, 1], e[:, 0]))] if len(e) else e.reshape(0, 2)
+
+    def is_connected(self) -> bool:
+        """Connectivity by union-find over `edge_array` (no networkx needed)."""
+        parent = np.arange(self.n)
+
+        def root(i):
+            while parent[i] != i:
+                parent[i] = parent[parent[i]]
+                i = parent[i]
+            return i
+
+        for u, v in self.edge_array():
+            ru, rv = root(u), root(v)
+            if ru != rv:
+                parent[ru] = rv
+        return len({root(i) for i in range(self.n)}) == 1
+
+    def build(self) -> "nx.Graph":
         """The networkx graph with integer nodes 0..n-1 (and a 'pos' attribute when natural)."""
+        import networkx as nx
+
         if self.kind == "line":
             G = nx.path_graph(self.n)
         elif self.kind == "ring":
@@ -101,6 +139,8 @@ class GraphSpec:
             return np.column_stack([idx % self.cols, -(idx // self.cols)]).astype(float)
         if self.kind == "random_geometric":
             return np.array([G.nodes[i]["pos"] for i in range(self.n)], dtype=float)
+        import networkx as nx
+
         pos = nx.spring_layout(G, seed=0)
         return np.array([pos[i] for i in range(self.n)], dtype=float)
 
@@ -117,20 +157,22 @@ def _edge_list(value: Any, field: str, n: int) -> tuple[tuple[int, int], ...]:
     return tuple(sorted(set(edges)))
 
 
-def laplacian(G: nx.Graph) -> np.ndarray:
+def laplacian(G: "nx.Graph") -> np.ndarray:
     """Combinatorial Laplacian L = D - A with unit edge weights, nodes in order 0..n-1 (dense, as
     networkx's laplacian_matrix gives it, without importing scipy.sparse)."""
+    import networkx as nx
+
     A = nx.to_numpy_array(G, nodelist=range(G.number_of_nodes()))
     return np.diag(A.sum(axis=1)) - A
 
 
-def laplacian_consensus_weights(G: nx.Graph, eps: float) -> np.ndarray:
+def laplacian_consensus_weights(G: "nx.Graph", eps: float) -> np.ndarray:
     """Q = I - eps L: symmetric and doubly stochastic; nonnegative and primitive iff 0 < eps < 1/d_max."""
     L = laplacian(G)
     return np.eye(len(L)) - eps * L
 
 
-def metropolis_weights(G: nx.Graph) -> np.ndarray:
+def metropolis_weights(G: "nx.Graph") -> np.ndarray:
     """Metropolis-Hastings weights: q_ij = 1/(1 + max(d_i, d_j)) on edges; symmetric, doubly stochastic."""
     n = G.number_of_nodes()
     deg = np.array([G.degree(i) for i in range(n)])
@@ -141,7 +183,7 @@ def metropolis_weights(G: nx.Graph) -> np.ndarray:
     return Q
 
 
-def max_degree(G: nx.Graph) -> int:
+def max_degree(G: "nx.Graph") -> int:
     return max((d for _, d in G.degree()), default=0)
 
 
@@ -163,7 +205,7 @@ def check_consensus_matrix(Q: np.ndarray, field: str, *, tol: float = 1e-10, pri
                                        f"second largest |λ| = {second:.6g})")
 
 
-def consensus_matrix_from_dict(data: Mapping[str, Any], field: str, G: nx.Graph) -> np.ndarray:
+def consensus_matrix_from_dict(data: Mapping[str, Any], field: str, G: "nx.Graph") -> np.ndarray:
     """Build the consensus matrix of a scenario: ``{weights = "laplacian", eps = 0.4}``,
     ``{weights = "metropolis"}`` or ``{weights = "matrix", matrix = [[...], ...]}``."""
     from .scenario import as_matrix
@@ -188,6 +230,8 @@ def consensus_matrix_from_dict(data: Mapping[str, Any], field: str, G: nx.Graph)
         if "matrix" not in data:
             raise ScenarioError(join(field, "matrix"), "missing")
         Q = as_matrix(data["matrix"], join(field, "matrix"), shape=(n, n))
+        import networkx as nx
+
         off_graph = (np.abs(Q) > 0) & ~(nx.to_numpy_array(G, nodelist=range(n)) > 0) & ~np.eye(n, dtype=bool)
         if off_graph.any():
             i, j = map(int, np.argwhere(off_graph)[0])
@@ -261,7 +305,7 @@ def graph_from_section(section: Any, field: str = "graph", *, connected: bool = 
     spec = section.spec()
     if spec.n < min_nodes:
         raise ScenarioError(join(field, "n"), f"a network needs at least {min_nodes} nodes, got {spec.n}")
-    if connected and not nx.is_connected(spec.build()):
+    if connected and not spec.is_connected():
         raise ScenarioError(field, "graph is not connected (the theorems need a connected graph)")
     return spec
 
