@@ -30,9 +30,10 @@ reported as failing); each node may start its bound at its own P_i(0) (`sensors[
 says whether it dominates the initial error). The gridded step is chosen from the rates when not given. Monte Carlo
 is streamed over trials (units of 1,000) and time (moments per output time only), so horizons up to 1,000 s and
 10⁷ gridded trials fit the memory budget. Tables: design (`design`, `spectra`, `matrices`, `rates`, `steady_states`,
-`sweep`, `sweep_nodes`, `series`, `node_entries`; also from `dse check`) and run (`nodes`, `mc_series`,
-`sample_paths`, `path_series`, `path_events`, `cells`, `frozen`, `references`, `metrics`, and for the paper
-`topology`). See docs/papers/tanwani.md."""
+`sweep`, `sweep_nodes`, `series`, `graph_nodes`, `graph_edges`, `node_entries`; also from `dse check`) and run
+(`nodes`, `mc_series`, `sample_paths`, `path_series`, `path_events`, `cells`, `frozen`, `poisson`, `references`,
+`scheme_bias`, `metrics`, and for the paper `topology`, `topology_rates`, `topology_graphs`). See
+docs/papers/tanwani.md."""
 
 NOTES = """The paper has no numerical example, no simulation and no table (its Fig. 1 is a schematic): the scenarios
 here (S1a-c, S2, S3 and the topology sweep S4) were designed for this reproduction, and their reference numbers
