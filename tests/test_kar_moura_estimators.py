@@ -115,6 +115,53 @@ def test_joseph_form_accurate_for_huge_covariances():
     assert np.abs(textbook - info)[:, 0, 0].max() > 1e-6  # the round-off the Joseph form avoids
 
 
+def test_entrywise_roundoff_bound_is_the_matrix_form(monkeypatch):
+    """The round-off bound of small states, computed entry by entry, is the matrix-form bound (the same
+    formula; sums in another order: equal to a few eps), and so is its propagation G E Gᵀ + δI."""
+    rng = np.random.default_rng(11)
+    for M, m in ((1, 1), (2, 1), (2, 2), (3, 1), (3, 2), (3, 3)):
+        sys_, _ = random_system(M * 10 + m, M, m, 4, zero_sensor=True)
+        X = random_psd(rng, M, 10.0 ** rng.uniform(-2, 9), size=(64 * 4)).reshape(64, 4, M, M)
+        _, K = gk.riccati_step(X, sys_.C, sys_.R, sys_.F, sys_.Q, return_gain=True)
+        E = random_psd(rng, M, 1e-12, size=64 * 4).reshape(64, 4, M, M)
+        d_entry, G_entry = gk.riccati_roundoff(X, K, sys_.C, sys_.R, sys_.F, sys_.Q)
+        E_entry = gk.propagate_error(E, G_entry, d_entry)
+        monkeypatch.setattr(gk, "ENTRYWISE_MAX_M", 0)
+        d_mat, G_mat = gk.riccati_roundoff(X, K, sys_.C, sys_.R, sys_.F, sys_.Q)
+        E_mat = gk.propagate_error(E, G_mat, d_mat)
+        monkeypatch.undo()
+        np.testing.assert_allclose(d_entry, d_mat, rtol=1e-14)
+        np.testing.assert_allclose(G_entry, G_mat, rtol=0, atol=1e-14 * np.abs(G_mat).max())
+        np.testing.assert_allclose(E_entry, E_mat, rtol=0, atol=1e-14 * np.abs(E_mat).max())
+        assert np.array_equal(E_entry, np.swapaxes(E_entry, -1, -2))
+
+
+def test_closed_form_2x2_eigenvalues_are_lapacks_bit_for_bit():
+    """gk.eigvalsh of 2×2 batches is LAPACK's arithmetic (split test, dlae2): the same bits as
+    np.linalg.eigvalsh on random, PSD, diagonal, nearly split, equal-diagonal, zero, tiny and huge matrices."""
+    rng = np.random.default_rng(5)
+    n = 40_000
+    cases = []
+    for scale in (0.0, 8.0, 40.0, 300.0):
+        A = rng.standard_normal((n, 2, 2)) * np.exp(rng.uniform(-scale, scale, (n, 1, 1)))
+        cases.append(A)
+        cases.append(A @ np.swapaxes(A, -1, -2) + 1e-3 * np.eye(2))
+    B = rng.standard_normal((n, 2, 2))
+    B[:, 1, 0] = B[:, 0, 0] * np.exp(rng.uniform(-40, -30, n))            # off-diagonal at the split threshold
+    C = rng.standard_normal((n, 2, 2))
+    C[:, 1, 1] = C[:, 0, 0] * (1 + 1e-16 * rng.integers(-3, 4, n))        # equal diagonal
+    C[:, 1, 0] *= 1e-17
+    Z = np.zeros((4, 2, 2))
+    Z[1, 0, 0] = 1.0
+    cases += [B, C, Z, rng.standard_normal((n, 2, 2)) * 1e-130]
+    for A in cases:
+        with np.errstate(over="ignore", invalid="ignore"):
+            A = 0.5 * (A + np.swapaxes(A, -1, -2))
+        A = A[np.isfinite(A).all(axis=(1, 2))]
+        assert np.array_equal(gk.eigvalsh(A), np.linalg.eigvalsh(A))
+    assert np.array_equal(gk.eigvalsh(A.reshape(-1, 4, 2, 2)), np.linalg.eigvalsh(A.reshape(-1, 4, 2, 2)))
+
+
 # -- gossip protocols -----------------------------------------------------------------------------------
 
 def test_matchings_are_valid_and_mean_matrix_matches_frequencies():
