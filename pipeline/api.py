@@ -92,15 +92,17 @@ class Run:
     def hypotheses(self):
         return self.tables["hypotheses"]
 
-    def write(self, out_dir: str | os.PathLike, *, out_root: str | os.PathLike | None = None) -> Path:
+    def write(self, out_dir: str | os.PathLike, *, out_root: str | os.PathLike | None = None,
+              figures: bool = True) -> Path:
         """Write report.json/md, tables/, figures and recordings into `out_dir`, replacing what a
-        previous run left there in one step (a fresh directory renamed into place)."""
+        previous run left there in one step (a fresh directory renamed into place).
+        `figures=False` writes the report and the tables only (no figures, no recordings)."""
         out_dir = Path(out_dir)
         staging = _staging_dir(out_dir)
         try:
             start = time.perf_counter()
             self.tables.write(staging / "tables")
-            outputs = _reuse_outputs(out_dir, staging, self.run_key)
+            outputs = _reuse_outputs(out_dir, staging, self.run_key) if figures else {}
             if outputs is None:
                 write_outputs = self.reproduction.write_outputs
                 if "tables" in inspect.signature(write_outputs).parameters:  # figures and recordings from the tables

@@ -116,7 +116,7 @@ def cmd_reproduce(args) -> int:
     rows = []
     with output_lock(out_root):
         for pid in args.papers or list(reg.PAPERS):
-            rows.append(run(reg.paper(pid), out_root, _options(args)))
+            rows.append(run(reg.paper(pid), out_root, _options(args), figures=not args.no_figures))
             r = rows[-1]
             print(f"{pid}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_root / pid}")
         print(f"summary: {write_summary(out_root)}")
@@ -132,7 +132,7 @@ def cmd_run(args) -> int:
     out_root = Path(args.out)
     out_dir = out_root / "run" / repro.paper_id
     with output_lock(out_root):
-        r = run(repro, out_root, _options(args), out_dir=out_dir, source=data)
+        r = run(repro, out_root, _options(args), out_dir=out_dir, source=data, figures=not args.no_figures)
     print(f"{repro.paper_id}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_dir}")
     return _strict_status(args, [r])
 
@@ -230,6 +230,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--max-memory", type=_memory_mib, default=None, metavar="SIZE",
                        help="memory budget of the run, e.g. 4G or 800M (default: half of this machine's memory); "
                             "Monte Carlo streams within it, results do not depend on it")
+        p.add_argument("--no-figures", action="store_true",
+                       help="write the report and the tables only (no figures, no recordings): for fast iteration")
         strict_flag(p)
 
     def strict_flag(p):

@@ -90,7 +90,7 @@ def cache_for(out_root: Path, paper_id: str, *, read_only: bool = False) -> Stag
 
 
 def run(repro: Reproduction, out_root: Path, opts: RunOptions, *, out_dir: Path | None = None,
-        source: dict[str, Any] | None = None) -> dict[str, Any]:
+        source: dict[str, Any] | None = None, figures: bool = True) -> dict[str, Any]:
     """Compute, verify, write tables, figures, recordings and the report; return the summary counts."""
     from .api import execute
 
@@ -98,7 +98,7 @@ def run(repro: Reproduction, out_root: Path, opts: RunOptions, *, out_dir: Path 
     check_output_dir(out_root)
     result = execute(repro, opts, cache_dir=cache_for(out_root, repro.paper_id).root, source=source)
     start = time.perf_counter()
-    result.write(out_dir, out_root=out_root)
+    result.write(out_dir, out_root=out_root, figures=figures)
     return {"paper": repro.paper_id, **result.counts, "wall_s": result.provenance["compute_s"] + time.perf_counter() - start}
 
 
