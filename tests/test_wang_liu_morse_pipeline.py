@@ -369,7 +369,8 @@ def test_estimate_against_a_measured_run(two_run):
     est = two_run.reproduction.estimate(RunOptions(seed=3))
     measured = two_run.provenance["compute_s"]
     assert measured / 3 <= est["seconds"] <= 3 * measured + 8.0           # + the figures and recordings not run here
-    assert two_run.provenance["peak_memory_mib"] < 2 * est["peak_memory_mib"]
+    # peak memory is measured in a process of its own (test_long_horizon_runs_in_bounded_memory): the pytest
+    # process's high-water mark is that of every test before this one
 
 
 # -- graphs that are not strongly connected ----------------------------------------------------------------

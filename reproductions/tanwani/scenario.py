@@ -9,6 +9,7 @@ error naming its key.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -301,7 +302,12 @@ def scenario_from_dict(data: Any) -> FilterNetworkScenario:
         P_init.append(covariance(s.P_init, f"{fld}.P_init", n=n) if s.P_init is not None else P0)
     if rule == "kalman-bucy-split":
         try:
-            L, _ = kalman_bucy_split_gains(A, B, H, V)
+            with warnings.catch_warnings():
+                warnings.simplefilter("error", RuntimeWarning)     # overflow inside the solver (entries near 1e40)
+                L, _ = kalman_bucy_split_gains(A, B, H, V)
+        except RuntimeWarning as exc:
+            raise ScenarioError("gains.rule", f"the Kalman–Bucy Riccati equation overflows in float64 ({exc}); "
+                                              f"rescale the system's matrices") from None
         except (np.linalg.LinAlgError, ValueError) as exc:
             raise ScenarioError("gains.rule", f"the Kalman–Bucy Riccati equation has no stabilising solution "
                                               f"((A, H) not detectable or (A, B) not stabilisable?): {exc}") from None
