@@ -999,10 +999,10 @@ def gikf_units(sys: GossipSystem, protocol, units: Sequence[tuple[np.random.Gene
             v = np.einsum("nij,bnj->bni", Lr, _units_draw(units, lambda g, k: g.standard_normal((k, N, m))))
             if overflow >= 0:
                 continue            # the draws go on (token counts), the covariances have left float64
-            X_in = swap(P[:cr], partners[:cr])
-            P, K = gikf_covariance_step(P, partners, sys, return_gain=True)
+            X_in = swap(P, partners)
+            P, K = riccati_step(X_in, sys.C, sys.R, sys.F, sys.Q, return_gain=True)     # eq (12)
             if cr:
-                delta, G = riccati_roundoff(X_in, K[:cr], sys.C, sys.R, sys.F, sys.Q)
+                delta, G = riccati_roundoff(X_in[:cr], K[:cr], sys.C, sys.R, sys.F, sys.Q)
                 err = propagate_error(err[rows[:cr, None], partners[:cr]], G, delta)
             e = gikf_error_step(e, partners, K, sys, w, v)
             e_c = (e_c - (np.einsum("bi,mi->bm", np.einsum("ij,bj->bi", sys.C_all, e_c) + v.reshape(B, -1),

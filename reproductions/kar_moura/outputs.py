@@ -19,27 +19,29 @@ import rerun.blueprint as rrb
 
 import estimators.gossip_kalman as gk
 from pipeline import record as rec_
-from pipeline.figures import new_figure, save_figure, sequential_colors
-from pipeline.simulate import parallel_map
+from pipeline.figures import draw_all, new_figure, plain_log_labels, save_figure, sequential_colors, set_margins
 
 from .scenario import GossipKalmanScenario
 
 LOG10 = np.log(10.0)
 
 
+#: the tables figures and recordings read (split by scenario once, before the drawing workers fork)
+VIEW_TABLES = ("design", "sensors", "abar", "reference_series", "tail_bounds", "sample_paths", "matchings", "quantiles",
+               "laws", "ks", "tails")
+
+
 class View:
     """One scenario's rows of every table (figures and recordings read only these)."""
 
-    def __init__(self, tables, sc: GossipKalmanScenario, runs: int, reference_runs: int, slots: int, seed: int):
+    def __init__(self, frames: dict[str, pd.DataFrame], sc: GossipKalmanScenario, runs: int, reference_runs: int,
+                 slots: int, seed: int):
         self.sc, self.name, self.runs, self.reference_runs, self.slots, self.seed = (sc, sc.name, runs, reference_runs,
                                                                                      slots, seed)
-        self._tables = tables
+        self._frames = frames
 
     def __getitem__(self, table: str) -> pd.DataFrame:
-        if table not in self._tables:
-            return pd.DataFrame()
-        f = self._tables[table]
-        return f[f["scenario"] == self.name]
+        return self._frames.get(table, pd.DataFrame())
 
     def design(self, quantity: str) -> float:
         d = self["design"]
@@ -51,6 +53,17 @@ class View:
         return f if cls is None else f[f["class"] == cls]
 
 
+def views(res, tables) -> list[View]:
+    """A View per scenario of the run, each table split by scenario once (the rows of a scenario in table order)."""
+    frames: dict[str, dict[str, pd.DataFrame]] = {name: {} for name in res.scenarios}
+    for table in VIEW_TABLES:
+        if table in tables:
+            for name, f in tables[table].groupby("scenario", sort=False):
+                if name in frames:
+                    frames[name][table] = f
+    return [View(frames[r.name], r.scenario, r.runs, r.reference_runs, r.slots, r.seed) for r in res.scenarios.values()]
+
+
 def _ecdf_from_quantiles(ax, frame: pd.DataFrame, **kw) -> None:
     """Plot a law from its quantile function (levels 0..1 in steps of 0.01) as a CDF."""
     if len(frame):
@@ -58,6 +71,20 @@ def _ecdf_from_quantiles(ax, frame: pd.DataFrame, **kw) -> None:
 
 
 # -- figures -------------------------------------------------------------------------------------------
+
+def _title(ax, text: str) -> None:
+    """A title at the top of the axes (y given: matplotlib then skips its search for tick labels above the axes,
+    a measurement of every tick label at each draw)."""
+    ax.set_title(text, fontsize=9, y=1.0)
+
+
+def _save(fig, path: Path, **margins) -> None:
+    """Fixed margins in inches (no tight_layout: it measures every text in an extra draw) and log-axis labels
+    without mathtext (parsed label by label)."""
+    set_margins(fig, **margins)
+    plain_log_labels(fig)
+    save_figure(fig, path, tight=False)
+
 
 def fig_random_sensor(v: View, path: Path) -> None:
     """Left: the laws of log tr P̂ at a random sensor (solid) and of the Theorem-8 process at the same t
@@ -75,8 +102,8 @@ def fig_random_sensor(v: View, path: Path) -> None:
         _ecdf_from_quantiles(ax, at[at["law"] == "theorem8"], color=col, lw=1.0, ls="--")
     ax.set_xlabel("log₁₀ tr P̂")
     ax.set_ylabel("CDF")
-    ax.set_title(f"{v.name}: random sensor q ({v.runs} runs, solid)\nvs Theorem-8 process μ_t ({v.reference_runs} runs, "
-                 "dashed)", fontsize=9)
+    _title(ax, f"{v.name}: random sensor q ({v.runs} runs, solid)\nvs Theorem-8 process μ_t ({v.reference_runs} runs, "
+                 "dashed)")
     ax.legend(ncol=1)
     ax = axes[0, 1]
     ax.semilogx(ks["t"], ks["ks_to_mu_T"], "o-", label="KS(random sensor at t, μ_T)")
@@ -85,9 +112,9 @@ def fig_random_sensor(v: View, path: Path) -> None:
         ax.axhline(float(ks["noise_floor_95"].iloc[0]), color="k", ls=":", label="95% noise floor")
     ax.set_xlabel("slot t")
     ax.set_ylabel("KS distance")
-    ax.set_title("convergence to μ and the finite-t identity", fontsize=9)
+    _title(ax, "convergence to μ and the finite-t identity")
     ax.legend()
-    save_figure(fig, path)
+    _save(fig, path, top=0.6)
 
 
 def fig_per_sensor(v: View, path: Path) -> None:
@@ -105,9 +132,9 @@ def fig_per_sensor(v: View, path: Path) -> None:
                          label="μ_T (Theorem-8 process)")
     ax.set_xlabel("log₁₀ tr P̂_n(T)")
     ax.set_ylabel("CDF")
-    ax.set_title(f"{v.name}: per-sensor laws at T = {T}; their mixture is μ (weak consensus)", fontsize=9)
+    _title(ax, f"{v.name}: per-sensor laws at T = {T}; their mixture is μ (weak consensus)")
     ax.legend(ncol=2, fontsize=7)
-    save_figure(fig, path)
+    _save(fig, path)
 
 
 def fig_tails(v: View, path: Path) -> None:
@@ -132,9 +159,9 @@ def fig_tails(v: View, path: Path) -> None:
     ax.set_xlabel("J")
     ax.set_ylabel("tail probability")
     ax.set_ylim(1e-5, 1.5)
-    ax.set_title(f"{v.name}: stochastic boundedness — empirical tails vs bounds", fontsize=9)
+    _title(ax, f"{v.name}: stochastic boundedness — empirical tails vs bounds")
     ax.legend(fontsize=7)
-    save_figure(fig, path)
+    _save(fig, path)
 
 
 def fig_sample_paths(v: View, path: Path) -> None:
@@ -150,9 +177,9 @@ def fig_sample_paths(v: View, path: Path) -> None:
     ax.semilogy(central["t"], central["trace"], "k--", lw=1.5, label="centralized P_c(t)")
     ax.set_xlabel("slot t")
     ax.set_ylabel("tr P̂_n(t)")
-    ax.set_title(f"{v.name}: one GIKF run, trace of every sensor's covariance", fontsize=9)
+    _title(ax, f"{v.name}: one GIKF run, trace of every sensor's covariance")
     ax.legend(ncol=3, fontsize=6)
-    save_figure(fig, path)
+    _save(fig, path)
 
 
 def fig_quantiles(v: View, path: Path) -> None:
@@ -181,9 +208,9 @@ def fig_quantiles(v: View, path: Path) -> None:
                 label=f"predicted slope 2 log|λ| = {rate[n]:.3f}/slot")
     ax.set_xlabel("slot t")
     ax.set_ylabel("log₁₀ tr P̂_n(t): quantiles over runs")
-    ax.set_title(f"{v.name}: median (solid) and q0.99 (dotted) over {v.runs} runs", fontsize=9)
+    _title(ax, f"{v.name}: median (solid) and q0.99 (dotted) over {v.runs} runs")
     ax.legend(ncol=3, fontsize=6)
-    save_figure(fig, path)
+    _save(fig, path)
 
 
 def fig_matchings(v: View, path: Path) -> None:
@@ -209,19 +236,17 @@ def fig_matchings(v: View, path: Path) -> None:
     ax.set_xlabel("slot t")
     ax.set_ylabel(ylabel)
     ax.grid(False)
-    ax.set_title(f"{v.name}: active matching A(t) of sample run 0 ({v.sc.protocol.kind}; A(0) = I)", fontsize=9)
-    save_figure(fig, path)
+    _title(ax, f"{v.name}: active matching A(t) of sample run 0 ({v.sc.protocol.kind}; A(0) = I)")
+    _save(fig, path, left=0.8)
 
 
-def write_figures(v: View, figs: Path) -> None:
-    n = v.name
-    fig_sample_paths(v, figs / f"sample_paths_trace_{n}.png")
-    fig_quantiles(v, figs / f"quantiles_over_runs_{n}.png")
-    fig_matchings(v, figs / f"matchings_{n}.png")
-    fig_random_sensor(v, figs / f"laws_random_sensor_vs_mu_{n}.png")
+def figure_jobs(v: View, figs: Path) -> list:
+    """One callable per figure of a scenario (see `pipeline.figures.draw_all`)."""
+    figures = [(fig_sample_paths, "sample_paths_trace"), (fig_quantiles, "quantiles_over_runs"), (fig_matchings, "matchings"),
+               (fig_random_sensor, "laws_random_sensor_vs_mu")]
     if not (v["sensors"]["divergence_rate"] > 0).any():
-        fig_per_sensor(v, figs / f"laws_per_sensor_{n}.png")
-        fig_tails(v, figs / f"tails_vs_bound_{n}.png")
+        figures += [(fig_per_sensor, "laws_per_sensor"), (fig_tails, "tails_vs_bound")]
+    return [functools.partial(fig, v, figs / f"{stem}_{v.name}.png") for fig, stem in figures]
 
 
 # -- recordings ----------------------------------------------------------------------------------------
@@ -344,12 +369,10 @@ def write_recording(v: View, path: Path, claims: list[dict], prov: dict, paper_i
         rec_.log_claims(rec, own, summary, details=own)
 
 
-def _write_scenario(v: View, out_dir: Path, claims: list[dict], prov: dict, paper_id: str) -> None:
-    write_figures(v, out_dir / "figures")
-    write_recording(v, out_dir / f"{v.name}.rrd", claims, prov, paper_id)
-
-
 def write_outputs(res, tables, out_dir: Path, claims: list[dict], prov: dict, paper_id: str, workers: int = 1) -> None:
-    views = [View(tables, r.scenario, r.runs, r.reference_runs, r.slots, r.seed) for r in res.scenarios.values()]
-    work = functools.partial(_write_scenario, out_dir=out_dir, claims=claims, prov=prov, paper_id=paper_id)
-    parallel_map(work, views, workers=workers, desc="figures and recordings")
+    """Every scenario's recording and figures, drawn in `workers` forked processes from the tables split once."""
+    jobs, figures = [], []
+    for v in views(res, tables):
+        jobs.append(functools.partial(write_recording, v, out_dir / f"{v.name}.rrd", claims, prov, paper_id))
+        figures += figure_jobs(v, out_dir / "figures")
+    draw_all(jobs + figures, workers=workers)

@@ -82,7 +82,6 @@ class GossipKalmanReproduction:
         from .cost import refuse_beyond_budget
 
         refuse_beyond_budget(self.scenarios, opts)
-        self._workers = opts.workers
         return compute_mod.compute(self.scenarios, opts, cache)
 
     # -- the design stage (`dse check`) --------------------------------------------------------------
@@ -120,7 +119,7 @@ class GossipKalmanReproduction:
             tables = Tables()
             for spec, frame in self.tables(results):
                 tables.add(spec, frame)
-        outputs.write_outputs(results, tables, out_dir, claims, prov, PAPER_ID, workers=getattr(self, "_workers", 1))
+        outputs.write_outputs(results, tables, out_dir, claims, prov, PAPER_ID, workers=int(prov.get("workers") or 1))
 
     def notes(self) -> str:
         return NOTES if self.is_paper else ""
