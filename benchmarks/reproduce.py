@@ -115,16 +115,18 @@ def bench_reproduce(paper: str, *, quick: bool = False, repeats: int = 2, warm: 
 
 
 def totals(rows: list[dict]) -> list[dict]:
-    """Sum of the cold medians per mode (the five papers one after the other)."""
+    """The five papers one after the other: the sum of the cold medians per mode (targets: default
+    60 s, quick 20 s) and of the warm medians of the default mode (every stage and the run memo
+    cached: 5 s)."""
     out = []
-    for mode, limit in (("default", 600.0), ("quick", 90.0)):
-        sel = [r for r in rows if r["mode"] == mode]
+    for mode, key, what, limit in (("default", "cold_s", "cold", 60.0), ("quick", "cold_s", "cold", 20.0),
+                                   ("default", "warm_s", "cached (nothing to simulate)", 5.0)):
+        sel = [r for r in rows if r["mode"] == mode and key in r]
         if sel:
-            total = sum(r["cold_s"] for r in sel)
-            out.append({"paper": f"all {len(sel)}", "mode": mode, "cold_s": total,
-                        "target": f"< {limit:g} s", "met": total < limit and all(r["ok"] for r in sel)})
+            total = sum(r[key] for r in sel)
+            out.append({"paper": f"all {len(sel)}", "mode": mode, "what": what, "value": total,
+                        "target": f"<= {limit:g} s", "met": total <= limit and all(r["ok"] for r in sel)})
     return out
-
 
 if __name__ == "__main__":
     for p in PAPERS:

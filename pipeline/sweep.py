@@ -5,9 +5,9 @@ then every claim's verdict, the verdict counts and the family's summary metrics.
 result depends only on its task (scenario, seed, quick, trials) and the code, never on
 where it ran, so the gathered table is the same with one worker, two, or a remote cluster.
 
-Finished points are stored one file each under ``OUT/sweep/<name>/points/`` (keyed by a
-hash of the task and the code), so a sweep that was interrupted, or lost tasks, resumes
-where it stopped. A task that raises is retried (Dask's `retries`); a worker that dies is
+Finished points are stored one directory each under ``OUT/.cache/sweeps/<name>/points/``
+(keyed by a hash of the task and the code, checksummed), so a sweep that was interrupted, or
+lost tasks, resumes where it stopped. A task that raises is retried (Dask's `retries`); a worker that dies is
 replaced and its tasks rescheduled by the Dask scheduler.
 """
 from __future__ import annotations

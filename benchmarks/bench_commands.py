@@ -1,0 +1,123 @@
+"""The commands people wait on, for every family: `dse list`, `dse check` on every shipped scenario
+file (target 0.5 s each), `dse run --quick` on each family's first example cold and as an identical
+re-run (target 3 s cold), the per-point overhead of `dse sweep` (target 10 ms beyond the point's own
+Monte Carlo), and the test suite (target 150 s).
+
+Each command runs in a fresh interpreter (`python -m pipeline.cli`, as the `dse` script does), so
+its time includes the imports; CPU time is the process and its workers (RUSAGE_CHILDREN), which
+shows how much of a wall time on a loaded machine was waiting."""
+from __future__ import annotations
+
+import json
+import os
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+REPRO = ROOT / "reproductions"
+#: one example a user starts from, per family (the first file `dse run --quick` is tried on)
+RUN_EXAMPLES = ("savas/paper.toml", "wang_liu_morse/generic.toml", "tran/paper.toml", "tanwani/example.toml",
+                "kar_moura/scenarios/e2.toml", "compare/scenarios/noisy_ring.toml")
+
+
+def _env() -> dict[str, str]:
+    return {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "PYTHONPATH": str(ROOT), "DSE_PROGRESS": "0",
+            "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "HOME": os.environ.get("HOME", "/tmp")}
+
+
+def timed_command(argv: list[str], cwd: Path = ROOT) -> tuple[float, float, int]:
+    """(wall s, CPU s of the process and the children it waited for, exit code)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    proc = subprocess.run(argv, capture_output=True, cwd=cwd, env=_env())
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), proc.returncode
+
+
+def _dse(*args: str) -> list[str]:
+    return [sys.executable, "-m", "pipeline.cli", *args]
+
+
+def shipped_scenarios() -> list[Path]:
+    files = sorted(REPRO.glob("*/*.toml")) + sorted(REPRO.glob("*/scenarios/*.toml"))
+    return [f for f in files if f.parent.name != "sweeps"]
+
+
+def _row(command: str, times: list[tuple[float, float, int]], target: float | None) -> dict:
+    wall = statistics.median(t[0] for t in times)
+    row = {"command": command, "wall_s": wall, "cpu_s": statistics.median(t[1] for t in times),
+           "ok": all(t[2] == 0 for t in times)}
+    if target is not None:
+        row.update(target=f"<= {target:g} s", met=row["ok"] and wall <= target)
+    return row
+
+
+def bench_commands(repeats: int = 3, quick: bool = False) -> list[dict]:
+    rows = [_row("dse list", [timed_command(_dse("list")) for _ in range(repeats)], 0.5)]
+    files = shipped_scenarios()
+    if quick:
+        files = [REPRO / f for f in RUN_EXAMPLES]
+    for f in files:
+        rows.append(_row(f"dse check {f.relative_to(REPRO)}", [timed_command(_dse("check", str(f)))
+                                                                for _ in range(max(1, repeats - 1))], 0.5))
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in RUN_EXAMPLES:
+            cold, memo = [], []
+            for r in range(max(1, repeats - 1)):
+                out = Path(tmp) / f"out{r}"
+                cold.append(timed_command(_dse("run", "--quick", str(REPRO / name), "--out", str(out))))
+                memo.append(timed_command(_dse("run", "--quick", str(REPRO / name), "--out", str(out))))
+                shutil.rmtree(out, ignore_errors=True)
+            rows.append(_row(f"dse run --quick {name}", cold, 3.0))
+            rows.append(_row(f"dse run --quick {name} (an identical re-run: memo)", memo, None))
+    rows += bench_sweep_overhead(points=50 if quick else 200)
+    if not quick:
+        rows.append(bench_test_suite())
+    return rows
+
+
+def bench_sweep_overhead(points: int) -> list[dict]:
+    """The scaling sweep (savas, one cell per point) in process at 100 trials per point, where the
+    point's own Monte Carlo is a few hundred microseconds: the wall time per point beyond the sweep's
+    start and finish (the same sweep at 1 point, subtracted) bounds the per-point overhead from above."""
+    src = (Path(__file__).with_name("sweep_scaling.toml")).read_text()
+    src = src.replace('base = "../reproductions/', f'base = "{REPRO}/').replace("trials = 2000", "trials = 100")
+    walls = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in (1, points):
+            sweep = Path(tmp) / f"s{n}.toml"
+            sweep.write_text(src.replace("samples = 1000", f"samples = {n}"))
+            wall, cpu, rc = timed_command(_dse("sweep", str(sweep), "--out", str(Path(tmp) / f"o{n}"),
+                                               "--scheduler", "inline"))
+            walls[n] = (wall, rc)
+            if n == points and rc == 0:
+                meta = json.loads((Path(tmp) / f"o{n}" / "sweep" / "bench-scaling" / "sweep.json").read_text())
+                task = statistics.median(p["wall_s"] for p in meta["points"])
+    per_point = (walls[points][0] - walls[1][0]) / (points - 1)
+    ok = walls[1][1] == 0 and walls[points][1] == 0
+    return [{"command": f"dse sweep, {points} points in process (100 trials each): wall per point",
+             "wall_s": per_point, "task_median_s": task if ok else float("nan"), "ok": ok,
+             "target": "<= 0.01 s per point", "met": ok and per_point <= 0.01}]
+
+
+def bench_test_suite() -> dict:
+    """`make test`'s command (the virtual environment is already set up)."""
+    env = {**_env(), "PYTHONPATH": str(ROOT)}
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"], cwd=ROOT, env=env,
+                          capture_output=True)
+    wall = time.perf_counter() - t0
+    return {"command": "make test (the pytest run)", "wall_s": wall, "ok": proc.returncode == 0,
+            "target": "<= 150 s", "met": proc.returncode == 0 and wall <= 150}
+
+
+if __name__ == "__main__":
+    for row in bench_commands(repeats=1, quick="--quick" in sys.argv):
+        print(row)
