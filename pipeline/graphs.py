@@ -127,8 +127,8 @@ class GraphSpec:
         return G
 
     def positions(self) -> np.ndarray:
-        """Fixed drawing positions (n, 2), deterministic, for figures and recordings."""
-        G = self.build()
+        """Fixed drawing positions (n, 2), deterministic, for figures and recordings (networkx only
+        for the random kinds and explicit edge lists)."""
         if self.kind == "line":
             return np.column_stack([np.arange(self.n, dtype=float), np.zeros(self.n)])
         if self.kind in ("ring", "complete"):
@@ -137,6 +137,7 @@ class GraphSpec:
         if self.kind == "grid":
             idx = np.arange(self.n)
             return np.column_stack([idx % self.cols, -(idx // self.cols)]).astype(float)
+        G = self.build()
         if self.kind == "random_geometric":
             return np.array([G.nodes[i]["pos"] for i in range(self.n)], dtype=float)
         import networkx as nx
@@ -157,34 +158,45 @@ def _edge_list(value: Any, field: str, n: int) -> tuple[tuple[int, int], ...]:
     return tuple(sorted(set(edges)))
 
 
-def laplacian(G: "nx.Graph") -> np.ndarray:
-    """Combinatorial Laplacian L = D - A with unit edge weights, nodes in order 0..n-1 (dense, as
-    networkx's laplacian_matrix gives it, without importing scipy.sparse)."""
-    import networkx as nx
+def nodes_and_edges(G: "nx.Graph | GraphSpec") -> tuple[int, np.ndarray]:
+    """(n, (E, 2) edges) of a networkx graph or of a GraphSpec (whose deterministic kinds need no networkx)."""
+    if hasattr(G, "edge_array"):
+        return G.n, G.edge_array()
+    return G.number_of_nodes(), np.array(list(G.edges()), dtype=int).reshape(-1, 2)
 
-    A = nx.to_numpy_array(G, nodelist=range(G.number_of_nodes()))
+
+def degrees(G: "nx.Graph | GraphSpec") -> np.ndarray:
+    n, e = nodes_and_edges(G)
+    return np.bincount(e.ravel(), minlength=n)
+
+
+def laplacian(G: "nx.Graph | GraphSpec") -> np.ndarray:
+    """Combinatorial Laplacian L = D - A with unit edge weights, nodes in order 0..n-1 (dense)."""
+    n, e = nodes_and_edges(G)
+    A = np.zeros((n, n))
+    A[e[:, 0], e[:, 1]] = A[e[:, 1], e[:, 0]] = 1.0
     return np.diag(A.sum(axis=1)) - A
 
 
-def laplacian_consensus_weights(G: "nx.Graph", eps: float) -> np.ndarray:
+def laplacian_consensus_weights(G: "nx.Graph | GraphSpec", eps: float) -> np.ndarray:
     """Q = I - eps L: symmetric and doubly stochastic; nonnegative and primitive iff 0 < eps < 1/d_max."""
     L = laplacian(G)
     return np.eye(len(L)) - eps * L
 
 
-def metropolis_weights(G: "nx.Graph") -> np.ndarray:
+def metropolis_weights(G: "nx.Graph | GraphSpec") -> np.ndarray:
     """Metropolis-Hastings weights: q_ij = 1/(1 + max(d_i, d_j)) on edges; symmetric, doubly stochastic."""
-    n = G.number_of_nodes()
-    deg = np.array([G.degree(i) for i in range(n)])
+    n, e = nodes_and_edges(G)
+    deg = np.bincount(e.ravel(), minlength=n)
     Q = np.zeros((n, n))
-    for i, j in G.edges():
-        Q[i, j] = Q[j, i] = 1.0 / (1.0 + max(deg[i], deg[j]))
+    w = 1.0 / (1.0 + np.maximum(deg[e[:, 0]], deg[e[:, 1]]))
+    Q[e[:, 0], e[:, 1]] = Q[e[:, 1], e[:, 0]] = w
     Q[np.diag_indices(n)] = 1.0 - Q.sum(axis=1)
     return Q
 
 
-def max_degree(G: "nx.Graph") -> int:
-    return max((d for _, d in G.degree()), default=0)
+def max_degree(G: "nx.Graph | GraphSpec") -> int:
+    return int(degrees(G).max(initial=0))
 
 
 def check_consensus_matrix(Q: np.ndarray, field: str, *, tol: float = 1e-10, primitive: bool = True) -> None:

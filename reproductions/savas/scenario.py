@@ -259,7 +259,7 @@ class NoisyConsensusScenario:
 
 def consensus_matrix(section: ConsensusSection, graph: GraphSpec) -> np.ndarray:
     """Q of a declared [consensus] table on the scenario's graph (errors name consensus.<key>)."""
-    G = graph.build()
+    G = graph                       # the weights read its edges (no networkx for the deterministic kinds)
     if section.weights == "laplacian":
         dmax = max_degree(G)
         if dmax and section.eps >= 1.0 / dmax:
@@ -271,7 +271,7 @@ def consensus_matrix(section: ConsensusSection, graph: GraphSpec) -> np.ndarray:
     else:
         Q = matrix(section.matrix, "consensus.matrix", shape=(graph.n, graph.n))
         edges = np.zeros((graph.n, graph.n), bool)
-        for u, v in G.edges():
+        for u, v in G.edge_array():
             edges[u, v] = edges[v, u] = True
         off_graph = (Q != 0) & ~edges & ~np.eye(graph.n, dtype=bool)
         if off_graph.any():
