@@ -8,6 +8,7 @@ Exit codes (also in `dse --help` and the README):
   2    invalid input or unusable output: one line naming the field or the path, nothing written
   3    numerical failure of the run (a NaN or inf where a finite number is required)
   130  interrupted (Ctrl-C, SIGINT)
+  141  the reader of the output went away (`dse list | head`)
   143  terminated (SIGTERM)
 """
 from __future__ import annotations
@@ -35,6 +36,7 @@ EXIT_CODES = """exit codes:
   2    invalid input or unusable output (one line naming the field or path; nothing written)
   3    numerical failure of the run (a NaN or inf where a finite number is required)
   130  interrupted (SIGINT, Ctrl-C)
+  141  the reader of the output went away (e.g. `dse list | head`)
   143  terminated (SIGTERM)"""
 
 
@@ -344,6 +346,9 @@ def main(argv: list[str] | None = None) -> int:
     except NumericalError as exc:
         print(f"dse: numerical failure: {exc}", file=sys.stderr)
         return 3
+    except BrokenPipeError:  # the reader of our output went away (`dse list | head`): stop quietly, as SIGPIPE would
+        sys.stdout = open(os.devnull, "w")      # nothing more to flush at exit
+        return 141
     except OSError as exc:  # disk full, permissions, a file replaced under us: one line, like any input fault
         where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
         print(f"dse: error: cannot use the file system ({exc.strerror or exc}){where}", file=sys.stderr)

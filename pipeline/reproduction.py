@@ -7,6 +7,7 @@ verify and writes the report; it knows nothing of any one paper.
 """
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import time
@@ -72,6 +73,49 @@ class Reproduction(Protocol):
     def write_outputs(self, results: Any, out_dir: Path, claims: list[dict], prov: dict) -> None: ...
 
     def notes(self) -> str: ...
+
+
+class FamilyReproduction:
+    """What every family's reproduction shares. A family package holds modules `claims` and
+    `hypotheses` (each with `catalogue()`) and `tables` (`design_tables(design)`,
+    `run_tables(results)`); they are imported on first use, so that `dse list` loads only what it
+    prints. A family whose modules differ overrides the method."""
+
+    def _part(self, module: str):
+        package = type(self).__module__.rsplit(".", 1)[0]
+        return importlib.import_module(f"{package}.{module}")
+
+    def scenario_ids(self) -> list[str]:
+        scenarios = getattr(self, "scenarios", None)
+        if scenarios is None:
+            return [self.scenario.name]
+        return [sc.name for sc in (scenarios.values() if isinstance(scenarios, dict) else scenarios)]
+
+    def claims(self) -> Sequence[Claim]:
+        return self._part("claims").catalogue()
+
+    def hypotheses(self) -> Sequence[Hypothesis]:
+        return self._part("hypotheses").catalogue()
+
+    @staticmethod
+    def design_of(results: Any) -> Any:
+        return results.design
+
+    def design_tables(self, design: Any):
+        return self._part("tables").design_tables(design)
+
+    def tables(self, results: Any):
+        return self._part("tables").run_tables(results)
+
+    def table_set(self, results: Any, tables: Any = None):
+        """The run's tables as given, or built from the results (outputs drawn without a run's tables)."""
+        if tables is None:
+            from .tables import Tables
+
+            tables = Tables()
+            for table_spec, frame in self.tables(results):
+                tables.add(table_spec, frame)
+        return tables
 
 
 def check_output_dir(path: Path) -> None:

@@ -274,3 +274,15 @@ def test_ctrl_c_stops_cleanly_with_130(tmp_path):
     assert proc.returncode == 130, err
     assert err.strip().splitlines()[-1] == "dse: interrupted" and "Traceback" not in err
     assert not (tmp_path / "o/run/ring5/report.json").exists()
+
+
+def test_a_reader_that_goes_away_stops_the_listing_quietly():
+    """`dse list | head -1`: no traceback, no 'cannot use the file system', exit 141 as SIGPIPE would give."""
+    proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "list"], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    assert proc.stdout.readline()
+    proc.stdout.close()
+    rc = proc.wait(timeout=120)
+    err = proc.stderr.read().decode()
+    proc.stderr.close()
+    assert rc == 141 and err == "", (rc, err)

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.cache import StageCache
-from pipeline.reproduction import RunOptions
+from pipeline.reproduction import FamilyReproduction, RunOptions
 
 from .scenario import CompareFile, CompareScenario
 
@@ -39,26 +39,13 @@ tuned on the exact steady state of their mean recursion. See docs/papers/compare
 its generalisation to this setting and what it sends."""
 
 
-class CompareReproduction:
+class CompareReproduction(FamilyReproduction):
     is_paper = False
 
     def __init__(self, scenario: CompareScenario):
         self.scenario = scenario
         self.paper_id = scenario.name
         self.title = f"compare scenario '{scenario.name}': one network, every estimator"
-
-    def scenario_ids(self) -> list[str]:
-        return [self.scenario.name]
-
-    def claims(self):
-        from . import claims
-
-        return claims.catalogue()
-
-    def hypotheses(self):
-        from . import hypotheses
-
-        return hypotheses.catalogue()
 
     def trials(self, opts: RunOptions) -> int:
         from . import compute
@@ -70,16 +57,6 @@ class CompareReproduction:
 
         return compute.compute_design(self.scenario, opts)
 
-    @staticmethod
-    def design_of(results):
-        return results.design
-
-    @staticmethod
-    def design_tables(design):
-        from . import tables
-
-        return tables.design_tables(design)
-
     def estimate(self, opts: RunOptions) -> dict[str, Any]:
         from . import cost
 
@@ -90,21 +67,10 @@ class CompareReproduction:
 
         return compute.compute(self.scenario, opts, cache)
 
-    @staticmethod
-    def tables(results):
-        from . import tables
-
-        return tables.run_tables(results)
-
     def write_outputs(self, results, out_dir: Path, claims: list[dict], prov: dict, tables=None) -> None:
         from . import outputs
 
-        if tables is None:
-            from pipeline.tables import Tables
-
-            tables = Tables()
-            for spec, frame in self.tables(results):
-                tables.add(spec, frame)
+        tables = self.table_set(results, tables)
         outputs.write_outputs(results, tables, out_dir, claims, prov)
 
     def notes(self) -> str:

@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.cache import StageCache
-from pipeline.reproduction import RunOptions
+from pipeline.reproduction import FamilyReproduction, RunOptions
 
 from .scenario import NoisyConsensusFile, NoisyConsensusScenario, paper_scenario
 
@@ -42,25 +42,12 @@ normal for sums, conservative Chernoff bounds for the trace), valid at any numbe
 family-wise confidence."""
 
 
-class NoisyConsensusReproduction:
+class NoisyConsensusReproduction(FamilyReproduction):
     def __init__(self, scenario: NoisyConsensusScenario, *, paper: bool):
         self.scenario = scenario
         self.is_paper = paper
         self.paper_id = "savas" if paper else scenario.name
         self.title = TITLE if paper else f"noisy-consensus-filter scenario '{scenario.name}'"
-
-    def scenario_ids(self) -> list[str]:
-        return [self.scenario.name]
-
-    def claims(self):
-        from . import claims
-
-        return claims.catalogue()
-
-    def hypotheses(self):
-        from . import hypotheses
-
-        return hypotheses.catalogue()
 
     def trials(self, opts: RunOptions) -> int:
         from . import compute
@@ -73,16 +60,6 @@ class NoisyConsensusReproduction:
 
         return compute.design(self.scenario, opts.quick)
 
-    @staticmethod
-    def design_of(results):
-        return results.design
-
-    @staticmethod
-    def design_tables(design):
-        from . import tables
-
-        return tables.design_tables(design)
-
     def estimate(self, opts: RunOptions) -> dict[str, Any]:
         from . import cost
 
@@ -94,21 +71,10 @@ class NoisyConsensusReproduction:
 
         return compute.compute(self.scenario, opts, cache)
 
-    @staticmethod
-    def tables(results):
-        from . import tables
-
-        return tables.run_tables(results)
-
     def write_outputs(self, results, out_dir: Path, claims: list[dict], prov: dict, tables=None) -> None:
         from . import outputs
 
-        if tables is None:
-            from pipeline.tables import Tables
-
-            tables = Tables()
-            for spec, frame in self.tables(results):
-                tables.add(spec, frame)
+        tables = self.table_set(results, tables)
         outputs.write_outputs(results, tables, out_dir, claims, prov, paper=self.is_paper)
 
     def notes(self) -> str:

@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.cache import StageCache
-from pipeline.reproduction import RunOptions
+from pipeline.reproduction import FamilyReproduction, RunOptions
 
 from .scenario import CoestimationFile, CoestimationScenario, paper_scenario, scenario_from_dict
 
@@ -78,25 +78,12 @@ checkable. Statistical verdicts: exact normal and χ² tests against the Gaussia
 one-sided t tests for the mean-square bounds, under the report's family-wise confidence. See docs/papers/tran.md."""
 
 
-class CoestimationReproduction:
+class CoestimationReproduction(FamilyReproduction):
     def __init__(self, scenario: CoestimationScenario, *, paper: bool):
         self.scenario = scenario
         self.is_paper = paper
         self.paper_id = "tran" if paper else scenario.name
         self.title = TITLE if paper else f"coestimation scenario '{scenario.name}'"
-
-    def scenario_ids(self) -> list[str]:
-        return [self.scenario.name]
-
-    def claims(self):
-        from . import claims
-
-        return claims.catalogue()
-
-    def hypotheses(self):
-        from . import hypotheses
-
-        return hypotheses.catalogue()
 
     def trials(self, opts: RunOptions) -> int:
         from . import compute
@@ -110,16 +97,6 @@ class CoestimationReproduction:
 
         return compute.design(self.scenario, opts.quick, opts.seed, paper=self.is_paper, workers=opts.workers)
 
-    @staticmethod
-    def design_of(results):
-        return results.design
-
-    @staticmethod
-    def design_tables(design):
-        from . import tables
-
-        return tables.design_tables(design)
-
     def estimate(self, opts: RunOptions) -> dict[str, Any]:
         from . import cost
 
@@ -131,21 +108,10 @@ class CoestimationReproduction:
 
         return compute.compute(self.scenario, opts, cache, paper=self.is_paper)
 
-    @staticmethod
-    def tables(results):
-        from . import tables
-
-        return tables.run_tables(results)
-
     def write_outputs(self, results, out_dir: Path, claims: list[dict], prov: dict, tables=None) -> None:
         from . import outputs
 
-        if tables is None:
-            from pipeline.tables import Tables
-
-            tables = Tables()
-            for spec, frame in self.tables(results):
-                tables.add(spec, frame)
+        tables = self.table_set(results, tables)
         outputs.write_outputs(results, tables, out_dir, claims, prov, paper=self.is_paper)
 
     def notes(self) -> str:

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.cache import StageCache
-from pipeline.reproduction import RunOptions
+from pipeline.reproduction import FamilyReproduction, RunOptions
 
 from . import claims as claims_mod
 from . import compute as compute_mod
@@ -56,15 +56,12 @@ budget. Every tolerance is a round-off allowance derived from operation counts a
 claim's detail. Reconstruction notes: docs/papers/wang-liu-morse.md."""
 
 
-class HybridObserverReproduction:
+class HybridObserverReproduction(FamilyReproduction):
     def __init__(self, scenarios: dict[str, HybridScenario], *, paper: bool):
         self.scenarios = scenarios
         self.is_paper = paper
         self.paper_id = "wang-liu-morse" if paper else next(iter(scenarios.values())).name
         self.title = TITLE if paper else f"hybrid-observer scenario '{self.paper_id}'"
-
-    def scenario_ids(self) -> list[str]:
-        return [sc.name for sc in self.scenarios.values()]
 
     def claims(self):
         return claims_mod.catalogue(self.scenarios)
@@ -93,32 +90,15 @@ class HybridObserverReproduction:
     def design_of(results: compute_mod.MultiResults):
         return results.design()
 
-    @staticmethod
-    def design_tables(design):
-        from . import tables
-
-        return tables.design_tables(design)
-
     def estimate(self, opts: RunOptions) -> dict[str, Any]:
         from . import cost
 
         return cost.estimate(self.scenarios, opts, extras=self.is_paper)
 
-    @staticmethod
-    def tables(results):
-        from . import tables
-
-        return tables.run_tables(results)
-
     def write_outputs(self, results, out_dir: Path, claims: list[dict], prov: dict, tables=None) -> None:
         from . import outputs
 
-        if tables is None:
-            from pipeline.tables import Tables
-
-            tables = Tables()
-            for spec, frame in self.tables(results):
-                tables.add(spec, frame)
+        tables = self.table_set(results, tables)
         outputs.write_outputs(results, tables, out_dir, claims, prov, paper=self.is_paper)
 
     def notes(self) -> str:
