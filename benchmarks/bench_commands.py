@@ -68,12 +68,16 @@ def bench_commands(repeats: int = 3, quick: bool = False) -> list[dict]:
         rows.append(_row(f"dse check {f.relative_to(REPRO)}", [timed_command(_dse("check", str(f)))
                                                                 for _ in range(max(1, repeats - 1))], 0.5))
     with tempfile.TemporaryDirectory() as tmp:
-        for name in RUN_EXAMPLES:
+        runs = [(name, REPRO / name) for name in RUN_EXAMPLES]
+        for name, text in users_small_scenarios().items():
+            (Path(tmp) / name).write_text(text)
+            runs.append((f"{name} (a user's small scenario)", Path(tmp) / name))
+        for name, path in runs:
             cold, memo = [], []
             for r in range(max(1, repeats - 1)):
                 out = Path(tmp) / f"out{r}"
-                cold.append(timed_command(_dse("run", "--quick", str(REPRO / name), "--out", str(out))))
-                memo.append(timed_command(_dse("run", "--quick", str(REPRO / name), "--out", str(out))))
+                cold.append(timed_command(_dse("run", "--quick", str(path), "--out", str(out))))
+                memo.append(timed_command(_dse("run", "--quick", str(path), "--out", str(out))))
                 shutil.rmtree(out, ignore_errors=True)
             rows.append(_row(f"dse run --quick {name}", cold, 3.0))
             rows.append(_row(f"dse run --quick {name} (an identical re-run: memo)", memo, None))
@@ -81,6 +85,15 @@ def bench_commands(repeats: int = 3, quick: bool = False) -> list[dict]:
     if not quick:
         rows.append(bench_test_suite())
     return rows
+
+
+def users_small_scenarios() -> dict[str, str]:
+    """Small scenarios a user might write first (file name -> TOML): a 4-node coestimation ring and a
+    4-agent hybrid observer."""
+    from .bench_tran import SMALL_TOML
+    from .bench_wang_liu_morse import _toml, agents_scenario
+
+    return {"ring4.toml": SMALL_TOML, "agents4.toml": _toml(agents_scenario(4, intervals=15, trials=64, name="agents4"))}
 
 
 def bench_sweep_overhead(points: int) -> list[dict]:

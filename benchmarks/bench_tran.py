@@ -133,46 +133,6 @@ def bench_deterministic_rows(t_end: float = 10.0) -> list[dict]:
             for r in rows[1:]]
 
 
-def bench_commands(repeats: int = 3, reproduce: bool = True) -> list[dict]:
-    """Median wall and CPU time of the family's commands: `dse check` (target 0.5 s) and `dse run --quick`
-    (target 3 s cold; and memoised) on the paper's file and a user's 4-node scenario, and `dse reproduce tran`
-    cold and cached, quick and default."""
-    import shutil
-    import statistics
-    import tempfile
-    from pathlib import Path
-
-    from .bench_wang_liu_morse import _command
-
-    paper = Path(compute.__file__).parent / "paper.toml"
-    rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        small = Path(tmp) / "ring4.toml"
-        small.write_text(SMALL_TOML)
-        cases = [(f"dse check {f.name}", ["check", str(f)], False, 0.5) for f in (paper, small)]
-        cases += [(f"dse run --quick {f.name}", ["run", "--quick", str(f)], True, 3.0) for f in (paper, small)]
-        if reproduce:
-            cases += [("dse reproduce tran --quick", ["reproduce", "tran", "--quick"], True, None),
-                      ("dse reproduce tran", ["reproduce", "tran"], True, None)]
-        for name, args, out, target in cases:
-            cold, warm = [], []
-            for r in range(repeats):
-                root = Path(tmp) / f"out{r}"
-                extra = ["--out", str(root)] if out else []
-                cold.append(_command(args + extra))
-                if out:
-                    warm.append(_command(args + extra))
-                shutil.rmtree(root, ignore_errors=True)
-            for label, times in (("", cold), (" (memo: an identical re-run)", warm)):
-                if times:
-                    wall = statistics.median(t[0] for t in times)
-                    row = {"command": name + label, "wall_s": wall, "cpu_s": statistics.median(t[1] for t in times)}
-                    if target is not None and not label:
-                        row.update(target=f"<= {target:g} s", met=wall <= target)
-                    rows.append(row)
-    return rows
-
-
 #: a user's small scenario: 4 nodes on a ring, LMI-designed P, proximity roles
 SMALL_TOML = """family = "coestimation"
 name = "ring4"
@@ -230,10 +190,6 @@ quick_t_end = 3.0
 if __name__ == "__main__":
     import sys
 
-    if "--commands" in sys.argv:
-        for row in bench_commands(1, reproduce="--no-reproduce" not in sys.argv):
-            print(row)
-        sys.exit()
     for row in bench_stochastic_rows(True, 1) + bench_lmis(1):
         print(row)
     for row in bench_deterministic():

@@ -211,57 +211,6 @@ def bench_estimate(cases: dict | None = None) -> list[dict]:
 
 # -- the commands people wait on ---------------------------------------------------------------------------
 
-def _command(args: list[str]) -> tuple[float, float]:
-    """Wall and CPU seconds (the process and its workers) of one `dse` command."""
-    import resource
-
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "pipeline.cli", *args], check=True, capture_output=True, cwd=ROOT,
-                   env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(ROOT), "DSE_PROGRESS": "0"})
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-
-
-def bench_commands(repeats: int = 3, reproduce: bool = True) -> list[dict]:
-    """Median wall and CPU time of the family's commands: `dse list` and `dse check` (target 0.5 s),
-    `dse run --quick` cold and memoised on the shipped files and a user's small scenario (target
-    3 s cold), and `dse reproduce wang-liu-morse` cold and cached, quick and default."""
-    import shutil
-
-    pkg = ROOT / "reproductions" / "wang_liu_morse"
-    rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        small = Path(tmp) / "small.toml"
-        small.write_text(_toml(agents_scenario(4, intervals=15, trials=64, name="small")))
-        cases = [("dse list", ["list"], None, 0.5)]
-        cases += [(f"dse check {f.name}", ["check", str(f)], None, 0.5) for f in (pkg / "paper.toml", pkg / "generic.toml")]
-        for f in (pkg / "paper.toml", pkg / "generic.toml", small):
-            cases.append((f"dse run --quick {f.name}", ["run", "--quick", str(f)], "run", 3.0))
-        if reproduce:
-            cases += [("dse reproduce wang-liu-morse --quick", ["reproduce", "wang-liu-morse", "--quick"], "reproduce", None),
-                      ("dse reproduce wang-liu-morse", ["reproduce", "wang-liu-morse"], "reproduce", None)]
-        for name, args, out, target in cases:
-            cold, warm = [], []
-            for r in range(repeats):
-                root = Path(tmp) / f"out{r}"
-                extra = ["--out", str(root)] if out else []
-                cold.append(_command(args + extra))
-                if out:
-                    warm.append(_command(args + extra))
-                shutil.rmtree(root, ignore_errors=True)
-            for label, times in (("", cold), (" (memo: an identical re-run)", warm)):
-                if not times:
-                    continue
-                wall = statistics.median(t[0] for t in times)
-                row = {"command": name + label, "wall_s": wall, "cpu_s": statistics.median(t[1] for t in times)}
-                if target is not None and not label:
-                    row.update(target=f"<= {target:g} s", met=wall <= target)
-                rows.append(row)
-    return rows
-
-
 def _toml(data: dict) -> str:
     """A scenario dict as TOML (the few value types the scenarios above use)."""
     def value(v):
@@ -289,9 +238,6 @@ def _toml(data: dict) -> str:
 if __name__ == "__main__":
     if "--estimate" in sys.argv:
         for row in bench_estimate():
-            print(row)
-    elif "--commands" in sys.argv:
-        for row in bench_commands():
             print(row)
     else:
         for row in bench_hybrid_rows(True, 1) + [bench_rho(1)]:
