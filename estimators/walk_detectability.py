@@ -21,14 +21,13 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-import scipy.sparse.csgraph as csg
 
 from .gossip_kalman import GossipSystem, riccati_step
 
 __all__ = ["ChainCheck", "check_chain", "singular_ratios", "observability_matrix", "tv_to_uniform", "tv_rows", "pbh_undetectable",
            "unobservable_modes", "walk_gramian",
            "WitnessSearch", "search_witness", "D1Decision", "decide_d1", "sigma_sub", "sigma_sub_printed", "compose_walk",
-           "k_of_J", "tail_bound_single", "tail_bound_multi", "lifted_chain_stationary", "CERTAIN_RATIO", "SINGULAR_RATIO"]
+           "k_of_J", "tail_bound_single", "tail_bound_multi", "tail_bounds_single", "tail_bounds_multi", "lifted_chain_stationary", "CERTAIN_RATIO", "SINGULAR_RATIO"]
 
 EPS = float(np.finfo(float).eps)
 #: a Gramian (or stacked rank test) whose λ_min/λ_max (σ_min/σ_max) exceeds this is invertible beyond doubt:
@@ -58,13 +57,39 @@ def check_chain(Abar: np.ndarray, tol: float = 1e-12) -> ChainCheck:
     """C.1 for a symmetric stochastic Ā: irreducible (one communicating class) and aperiodic
     (no eigenvalue −1); SLEM = max_{k≥2} |λ_k|."""
     support = (Abar > tol).astype(int)
-    n_cls, labels = csg.connected_components(support, directed=True, connection="strong")
+    n_cls, labels = _strong_components(support)
     classes = tuple(tuple(int(i) for i in np.flatnonzero(labels == c)) for c in range(n_cls))
     eig = np.sort(np.linalg.eigvalsh(0.5 * (Abar + Abar.T)))
     unit = int(np.sum(np.abs(eig - 1) < 1e-9))
     slem = float(np.sort(np.abs(eig))[-2]) if len(eig) > 1 else 0.0
     aperiodic = all(_class_aperiodic(support, cls) for cls in classes)
     return ChainCheck(n_cls == 1, aperiodic, n_cls, classes, unit, slem, float(eig[0]))
+
+
+def _strong_components(support: np.ndarray) -> tuple[int, np.ndarray]:
+    """The strongly connected components of a 0/1 support, labelled as scipy's
+    `connected_components(support, directed=True, connection="strong")` labels them. A symmetric
+    support (every Ā of a gossip protocol) is labelled here, by breadth-first search in the order of
+    each component's first node (scipy's order for symmetric supports): `dse check` then need not
+    import scipy.sparse (0.1 s)."""
+    if not np.array_equal(support, support.T):
+        import scipy.sparse.csgraph as csg
+
+        return csg.connected_components(support, directed=True, connection="strong")
+    n = len(support)
+    labels = np.full(n, -1, dtype=np.int32)
+    n_cls = 0
+    for root in range(n):
+        if labels[root] >= 0:
+            continue
+        labels[root] = n_cls
+        frontier = [root]
+        while frontier:
+            nxt = np.flatnonzero(support[frontier].any(axis=0) & (labels < 0))
+            labels[nxt] = n_cls
+            frontier = nxt.tolist()
+        n_cls += 1
+    return n_cls, labels
 
 
 def _class_aperiodic(support: np.ndarray, cls: Sequence[int]) -> bool:
@@ -371,42 +396,61 @@ def _kmp_next(pattern: Sequence[int], k: int, node: int) -> int:
     return 0
 
 
-def tail_bound_single(Abar: np.ndarray, witness: Sequence[int], L: int) -> float:
-    """P(a stationary path of L nodes contains no occurrence of the witness), exact (Lemma 15)."""
+def _sums_at(v: np.ndarray, step, lengths: np.ndarray, ell: int, offset: int) -> np.ndarray:
+    """For each L of `lengths`: 1 where L < ℓ, otherwise v.sum() after L − offset applications of `step`
+    (one propagation up to the longest L gives every L the numbers of its own propagation)."""
+    out = np.ones(len(lengths))
+    wanted = lengths >= ell
+    if not wanted.any():
+        return out
+    sums = [float(v.sum())]
+    for _ in range(int(lengths[wanted].max()) - offset):
+        v = step(v)
+        sums.append(float(v.sum()))
+    out[wanted] = np.array(sums)[lengths[wanted] - offset]
+    return out
+
+
+def tail_bounds_single(Abar: np.ndarray, witness: Sequence[int], lengths: Sequence[int]) -> np.ndarray:
+    """P(a stationary path of L nodes contains no occurrence of the witness), exact (Lemma 15), for each L."""
+    lengths = np.asarray(lengths, dtype=int).reshape(-1)
     N, ell = len(Abar), len(witness)
-    if L < ell:
-        return 1.0
     trans = np.array([[_kmp_next(witness, k, n) for n in range(N)] for k in range(ell)])
     v = np.zeros((N, ell))
     for n in range(N):
         k = trans[0, n]
         if k < ell:
             v[n, k] += 1.0 / N
-    for _ in range(L - 1):
+
+    def step(v):
         nv = np.zeros_like(v)
         for k in range(ell):
             flow = v[:, k] @ Abar  # mass arriving at each next node from prefix state k
             nk = trans[k]
             alive = nk < ell
             np.add.at(nv, (np.flatnonzero(alive), nk[alive]), flow[alive])
-        v = nv
-    return float(v.sum())
+        return nv
+
+    return _sums_at(v, step, lengths, ell, 1)     # a path of L nodes: v after L − 1 steps
 
 
-def tail_bound_multi(Abar: np.ndarray, windows: Sequence[Sequence[int]], L: int) -> float:
-    """P(no window of W occurs in a stationary path of L nodes); all windows have one length ℓ.
+def tail_bound_single(Abar: np.ndarray, witness: Sequence[int], L: int) -> float:
+    """P(a stationary path of L nodes contains no occurrence of the witness), exact (Lemma 15)."""
+    return float(tail_bounds_single(Abar, witness, [L])[0])
+
+
+def tail_bounds_multi(Abar: np.ndarray, windows: Sequence[Sequence[int]], lengths: Sequence[int]) -> np.ndarray:
+    """P(no window of W occurs in a stationary path of L nodes) for each L; all windows have one length ℓ.
     State: the last ℓ−1 nodes (ℓ = 1: no occurrence means every node avoids W)."""
+    lengths = np.asarray(lengths, dtype=int).reshape(-1)
     N = len(Abar)
     ell = len(windows[0])
     W = set(tuple(w) for w in windows)
-    if L < ell:
-        return 1.0
+    if not (lengths >= ell).any():
+        return np.ones(len(lengths))
     if ell == 1:
         keep = np.array([(n,) not in W for n in range(N)], float)
-        v = keep / N
-        for _ in range(L - 1):
-            v = (v @ Abar) * keep
-        return float(v.sum())
+        return _sums_at(keep / N, lambda v: (v @ Abar) * keep, lengths, 1, 1)
     import itertools
 
     states = [s for s in itertools.product(range(N), repeat=ell - 1)
@@ -424,9 +468,12 @@ def tail_bound_multi(Abar: np.ndarray, windows: Sequence[Sequence[int]], L: int)
             if s + (int(n),) in W:
                 continue
             T[index[s], index[s[1:] + (int(n),)]] += Abar[s[-1], n]
-    for _ in range(L - ell + 1):
-        v = v @ T
-    return float(v.sum())
+    return _sums_at(v, lambda v: v @ T, lengths, ell, ell - 1)     # a path of L nodes: v after L − ℓ + 1 steps
+
+
+def tail_bound_multi(Abar: np.ndarray, windows: Sequence[Sequence[int]], L: int) -> float:
+    """P(no window of W occurs in a stationary path of L nodes); all windows have one length ℓ."""
+    return float(tail_bounds_multi(Abar, windows, [L])[0])
 
 
 def lifted_chain_stationary(Abar: np.ndarray, ell: int) -> tuple[list[tuple[int, ...]], np.ndarray, np.ndarray, np.ndarray]:

@@ -352,6 +352,25 @@ def test_tail_bounds_equal_brute_force_path_enumeration(seed, L):
         brute_multi += p * all(v not in wins for v in windows)
     assert abs(wd.tail_bound_single(A, w, L) - brute_single) < 1e-12
     assert abs(wd.tail_bound_multi(A, windows, L) - brute_multi) < 1e-12
+    # every length from one propagation: each equals its own (0 and 1 node: no window fits, bound 1)
+    lengths = [L, 0, 7, 1, L, 3]
+    assert wd.tail_bounds_single(A, w, lengths).tolist() == [wd.tail_bound_single(A, w, n) for n in lengths]
+    assert wd.tail_bounds_multi(A, windows, lengths).tolist() == [wd.tail_bound_multi(A, windows, n) for n in lengths]
+    assert wd.tail_bound_single(A, w, 1) == wd.tail_bound_multi(A, windows, 0) == 1.0
+
+
+@HYP
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 14), p=st.floats(0.0, 0.5), symmetric=st.booleans())
+def test_strong_components_are_scipys(seed, n, p, symmetric):
+    """C.1's classes: our labelling of a symmetric support (no scipy.sparse import) is scipy's, label for label."""
+    import scipy.sparse.csgraph as csg
+
+    A = (np.random.default_rng(seed).uniform(size=(n, n)) < p).astype(int)
+    if symmetric:
+        A = np.maximum(A, A.T)
+    k, labels = csg.connected_components(A, directed=True, connection="strong")
+    k2, labels2 = wd._strong_components(A)
+    assert k2 == k and np.array_equal(labels2, labels)
 
 
 def test_k_of_J_special_cases():

@@ -12,7 +12,6 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg
-from scipy.stats import wishart
 
 import estimators.gossip_kalman as gk
 import estimators.kalman as kal
@@ -358,12 +357,13 @@ def _witness_bounds(out: dict, sys_: gk.GossipSystem, search: wd.WitnessSearch, 
     ell = len(w)
     out["kJ"] = ks
     # β needs the exact Ā (an estimated Ā gives an estimated bound): NaN marks "not computed"
-    out["beta_single"] = np.array([(wd.tail_bound_single(Abar, w, min(slots, k + ell)) if k >= 0 else 1.0)
-                                   if Abar_exact else np.nan for k in ks])
+    # (every J from one propagation up to the longest path; k(J) < 0: bound 1)
+    out["beta_single"] = (np.where(ks >= 0, wd.tail_bounds_single(Abar, w, np.minimum(slots, ks + ell)), 1.0)
+                          if Abar_exact else np.full(len(ks), np.nan))
     small = sys_.N ** max(ell - 1, 0) <= 2000 and Abar_exact and windows
     km = np.array([wd.k_of_J(out["alpha"], a0_multi, out["qnorm"], J) for J in J_GRID]) if windows else ks
-    out["beta_multi"] = np.array([(wd.tail_bound_multi(Abar, windows, min(slots, k + ell)) if k >= 0 else 1.0)
-                                  if small else np.nan for k in km])
+    out["beta_multi"] = (np.where(km >= 0, wd.tail_bounds_multi(Abar, windows, np.minimum(slots, km + ell)), 1.0)
+                         if small else np.full(len(km), np.nan))
     support = (Abar > 1e-12).astype(float)
     n_windows = float(np.linalg.matrix_power(support, ell - 1).sum())
     out["n_walks_length_ell"] = n_windows
@@ -459,6 +459,8 @@ def theorem_aux_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, ref_run
     half = max(ref_runs // 2, 100)
     out: dict[str, np.ndarray] = {}
     rng = block_generator(stream_seed(seed, sc.name, "aux"))
+    from scipy.stats import wishart     # here: `dse list` and `dse check` import this module
+
     wish = wishart(df=M + 2, scale=np.eye(M)).rvs(size=half, random_state=rng.integers(2**31)).reshape(half, M, M)
     out["wishart_lam_max"] = np.linalg.eigvalsh(wish)[:, -1]
     c = max(COUPLING_C, 10.0 * float(np.linalg.norm(sc.P0, 2)))  # the sandwich 0 ⪯ X0 ⪯ cI must contain P0

@@ -58,7 +58,7 @@ INTERPRETER_MIB = 200.0
 
 
 def _n_edges(sc: GossipKalmanScenario) -> int:
-    return sc.graph.build().number_of_edges()
+    return len(sc.graph.edge_array())
 
 
 def _times(sc: GossipKalmanScenario, slots: int) -> int:

@@ -212,12 +212,15 @@ class ProtocolSpec:
 
     def build(self, graph: GraphSpec):
         n = graph.n
-        edges = sorted((min(u, v), max(u, v)) for u, v in graph.build().edges())
+        edges = _edges(graph)
         if self.kind == "single-edge":
             return SingleEdgeGossip(n, tuple(edges), self.edge_prob)
         if self.kind == "node-initiated":
-            G = graph.build()
-            return NodeInitiatedGossip(tuple(tuple(sorted(G.neighbors(i))) for i in range(n)))
+            neighbours: list[list[int]] = [[] for _ in range(n)]
+            for u, v in edges:
+                neighbours[u].append(v)
+                neighbours[v].append(u)
+            return NodeInitiatedGossip(tuple(tuple(sorted(nb)) for nb in neighbours))
         if self.kind == "greedy-matching":
             return GreedyMatchingGossip(n, tuple(edges), self.p_link)
         if self.kind == "sequence":
@@ -226,8 +229,7 @@ class ProtocolSpec:
 
     @classmethod
     def from_section(cls, s: ProtocolSection, field: str, graph: GraphSpec) -> "ProtocolSpec":
-        G = graph.build()
-        edges = {(min(u, v), max(u, v)) for u, v in G.edges()}
+        edges = set(_edges(graph))
         if not edges:
             raise ScenarioError(f"{field}.kind", "the graph has no edges: there is nothing to gossip over")
         if s.kind == "single-edge":
@@ -236,7 +238,7 @@ class ProtocolSpec:
                                     "must be <= 1")
             return cls(s.kind, edge_prob=float(s.edge_prob))
         if s.kind == "node-initiated":
-            lonely = [i for i in range(graph.n) if G.degree(i) == 0]
+            lonely = sorted(set(range(graph.n)) - {v for e in edges for v in e})
             if lonely:
                 raise ScenarioError(field, f"node-initiated gossip needs every node to have a neighbour (node {lonely[0]} "
                                     "has none)")
@@ -247,6 +249,11 @@ class ProtocolSpec:
         raw = s.sequence if s.kind == "sequence" else s.matchings
         matchings = tuple(_matching(mt, f"{field}.{key_}[{k}]", graph.n, edges) for k, mt in enumerate(raw))
         return cls(s.kind, matchings=matchings, probs=tuple(float(p) for p in (s.probs or ())))
+
+
+def _edges(graph: GraphSpec) -> list[tuple[int, int]]:
+    """The graph's undirected edges (u < v), sorted (from `edge_array`: networkx is imported only for the random kinds)."""
+    return [(int(u), int(v)) for u, v in graph.edge_array()]
 
 
 def _psd(P: np.ndarray) -> np.ndarray:

@@ -23,7 +23,6 @@ import math
 import warnings
 
 import numpy as np
-from scipy import stats
 
 from pipeline.stats import clopper_pearson
 
@@ -76,6 +75,8 @@ def ks_test(a, b) -> tuple[float, float, int, int]:
     a, b = snap(a, b)
     if min(len(a), len(b)) == 0:
         return math.nan, 1.0, len(a), len(b)
+    from scipy import stats     # here, not at the top: `dse list` and `dse check` import this module (1 s)
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         r = stats.ks_2samp(a, b, method="exact")
@@ -84,6 +85,8 @@ def ks_test(a, b) -> tuple[float, float, int, int]:
 
 def binom_p(k, n, p) -> np.ndarray:
     """Two-sided exact binomial p-value, twice the smaller tail (capped at 1); 0 where p = 0 < k."""
+    from scipy import stats
+
     k, n, p = (np.asarray(x, float) for x in (k, n, p))
     p = np.clip(p, 0.0, 1.0)  # probabilities summed in floating point may exceed 1 by an ulp
     lower = stats.binom.cdf(k, n, p)
