@@ -16,7 +16,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sla
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 from .gossip_filter import GossipSystem
 from .linear_flows import (abscissa_tolerance, affine_flow_grid, critical_parameter_by_test, spectral_abscissa)
@@ -56,7 +56,7 @@ def bound_generator(sys: GossipSystem, rate: float) -> tuple[np.ndarray, np.ndar
     def build():
         n, N = sys.n, sys.N
         jump = sum(sys.jump(c) - np.eye(N) for c in range(len(sys.clocks)))
-        return (sla.block_diag(*[lyapunov_generator(Ai) for Ai in sys.Ai]), np.kron(jump, np.eye(n * n)),
+        return (scipy.linalg.block_diag(*[lyapunov_generator(Ai) for Ai in sys.Ai]), np.kron(jump, np.eye(n * n)),
                 np.concatenate([vec(G) for G in sys.Gi]))
 
     M0, W, g = _memo(sys, "bound", build)
@@ -137,7 +137,7 @@ def first_order_deviation(sys: GossipSystem) -> np.ndarray:
     W = -sum(sys.jump(c) - np.eye(sys.N) for c in range(len(sys.clocks)))
     Y = np.einsum("ij,jab->iab", np.linalg.pinv(W), R)
     F = np.mean([A @ Yi + Yi @ A.T for A, Yi in zip(sys.Ai, Y)], axis=0)
-    Z = sla.solve_continuous_lyapunov(sys.Abar, -F)
+    Z = scipy.linalg.solve_continuous_lyapunov(sys.Abar, -F)
     C = Y + Z
     return (C + np.swapaxes(C, 1, 2)) / 2
 
@@ -212,7 +212,7 @@ def bound_second_moments(sys: GossipSystem, rate: float, step: float, n_steps: i
     if D > MAX_SECOND_DIM:
         return None
     Dup, Elim = _vech_maps(n)
-    Mf = sla.block_diag(*[Elim @ lyapunov_generator(A) @ Dup for A in sys.Ai])
+    Mf = scipy.linalg.block_diag(*[Elim @ lyapunov_generator(A) @ Dup for A in sys.Ai])
     g = np.concatenate([Elim @ vec(G) for G in sys.Gi])
     K = [np.kron(sys.jump(c), np.eye(q)) for c in range(len(sys.clocks))]
     I = np.eye(D)
@@ -273,7 +273,7 @@ def _joint_parts(sys: GossipSystem) -> tuple[np.ndarray, np.ndarray]:
             cols.append((c[:, None] * D + c[None, :]).ravel())
             vals.append((v[:, None] * v[None, :]).ravel())
         np.add.at(W, (np.concatenate(rows), np.concatenate(cols)), sys.alpha ** 2 * np.concatenate(vals))
-        return lyapunov_generator(sla.block_diag(*sys.Ai)), W
+        return lyapunov_generator(scipy.linalg.block_diag(*sys.Ai)), W
 
     return _memo(sys, "joint", build)
 
@@ -355,7 +355,7 @@ def joint_steady_deviation(sys: GossipSystem, rate: float, S_lim: np.ndarray) ->
         return None
     M, _ = joint_generator_sym(sys, rate)
     X = np.kron(np.ones((sys.N, sys.N)), S_lim)
-    Ablk = sla.block_diag(*sys.Ai)
+    Ablk = scipy.linalg.block_diag(*sys.Ai)
     R = Ablk @ X + X @ Ablk.T + sys.joint_noise[sys.n:, sys.n:]
     return from_sym_coords(np.linalg.solve(M, -sym_coords(R)), sys.N * sys.n)
 
@@ -369,13 +369,13 @@ def diagonal_blocks(S: np.ndarray, N: int, n: int) -> np.ndarray:
 
 def lyapunov_R(Abar: np.ndarray) -> np.ndarray:
     """R of (10) as the Lyapunov equality RĀ + ĀᵀR = −I (the Loewner-smallest R satisfying (10))."""
-    R = sla.solve_continuous_lyapunov(Abar.T, -np.eye(len(Abar)))
+    R = scipy.linalg.solve_continuous_lyapunov(Abar.T, -np.eye(len(Abar)))
     return (R + R.T) / 2
 
 
 def lyapunov_S(sys: GossipSystem) -> np.ndarray:
     """S of (11): ĀS + SĀᵀ + BBᵀ + (1/N) Σ L_iV_iL_iᵀ = 0."""
-    S = sla.solve_continuous_lyapunov(sys.Abar, -sys.Gbar)
+    S = scipy.linalg.solve_continuous_lyapunov(sys.Abar, -sys.Gbar)
     return (S + S.T) / 2
 
 
@@ -383,7 +383,7 @@ def lyapunov_S_true(sys: GossipSystem) -> np.ndarray:
     """lim_{λ→∞} of the true E[e_ie_iᵀ] (edge clocks): ĀS + SĀᵀ + BBᵀ + (1/N²) Σ L_iV_iL_iᵀ = 0."""
     N = sys.N
     G = sys.B @ sys.B.T + sum(L @ V @ L.T for L, V in zip(sys.L, sys.V)) / N ** 2
-    S = sla.solve_continuous_lyapunov(sys.Abar, -G)
+    S = scipy.linalg.solve_continuous_lyapunov(sys.Abar, -G)
     return (S + S.T) / 2
 
 
@@ -462,7 +462,7 @@ def path_bound_and_covariance(sys: GossipSystem, event_times: np.ndarray, event_
     from .linear_flows import van_loan
 
     n, N = sys.n, sys.N
-    Ablk = sla.block_diag(*sys.Ai)
+    Ablk = scipy.linalg.block_diag(*sys.Ai)
     Gblk = sys.joint_noise[n:, n:]
     Sig = joint_initial(sys).copy()
     P = np.array(sys.P_init, float)
@@ -499,7 +499,7 @@ def gridded_scheme_covariance(sys: GossipSystem, rate: float, step: float, n_ste
 
     n, N = sys.n, sys.N
     D = N * n
-    Ablk = sla.block_diag(*sys.Ai)
+    Ablk = scipy.linalg.block_diag(*sys.Ai)
     Phi, Q = van_loan(Ablk, sys.joint_noise[n:, n:], step / 2)
     mu = rate * step                               # Poisson(λh) ring counts, up to a tail below 1e-16
     probs = [math.exp(-mu)]

@@ -40,7 +40,7 @@ from functools import cached_property
 from typing import Callable, Sequence
 
 import numpy as np
-import scipy.linalg as sla
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 from .linear_flows import BlockDiagonalFlow, DenseFlow, van_loan
 
@@ -171,7 +171,7 @@ class GossipSystem:
 
     @cached_property
     def joint_drift(self) -> np.ndarray:
-        return sla.block_diag(*self.joint_blocks)
+        return scipy.linalg.block_diag(*self.joint_blocks)
 
     def joint_second_moment0(self) -> np.ndarray:
         """E[z(0) z(0)ᵀ] with x(0) ~ N(m0, P0) and x̂_i(0) = m0: e_i(0) = x(0) − m0."""
@@ -188,8 +188,8 @@ def kalman_bucy_split_gains(A, B, H: Sequence[np.ndarray], V: Sequence[np.ndarra
     that (1/N) Σ L_i H_i = K H. Returns (L tuple, P_KB)."""
     N = len(H)
     Hs = np.vstack(H)
-    Vs = sla.block_diag(*V)
-    P = sla.solve_continuous_are(A.T, Hs.T, B @ B.T, Vs)
+    Vs = scipy.linalg.block_diag(*V)
+    P = scipy.linalg.solve_continuous_are(A.T, Hs.T, B @ B.T, Vs)
     P = (P + P.T) / 2
     K = P @ Hs.T @ np.linalg.inv(Vs)
     cuts = np.cumsum([0] + [h.shape[0] for h in H])

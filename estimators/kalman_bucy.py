@@ -10,14 +10,14 @@
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as sla
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 from .linear_flows import van_loan
 
 
 def kalman_bucy_steady(A, B, H, V) -> tuple[np.ndarray, np.ndarray]:
     """(P_KB, K = P_KB Hᵀ V⁻¹) of the stacked sensors H (p, n), V (p, p)."""
-    P = sla.solve_continuous_are(A.T, H.T, B @ B.T, V)
+    P = scipy.linalg.solve_continuous_are(A.T, H.T, B @ B.T, V)
     P = (P + P.T) / 2
     return P, P @ H.T @ np.linalg.inv(V)
 
@@ -37,7 +37,7 @@ def kalman_bucy_riccati(A, B, H, V, P0, step: float, n_steps: int) -> np.ndarray
     S = (S + S.T) / 2
     P0 = np.asarray(P0, float)
     try:
-        P_inf = sla.solve_continuous_are(A.T, H.T, B @ B.T, V)
+        P_inf = scipy.linalg.solve_continuous_are(A.T, H.T, B @ B.T, V)
         P_inf = (P_inf + P_inf.T) / 2
         Ac = A - P_inf @ S
         if not np.all(np.isfinite(P_inf)) or np.max(np.linalg.eigvals(Ac).real) >= 0:
@@ -64,7 +64,7 @@ def _riccati_hamiltonian(A, B, S, P0, step: float, n_steps: int) -> np.ndarray:
     Ham = np.block([[-A.T, S], [B @ B.T, A]])
     norm = float(np.abs(Ham).sum(axis=0).max()) * step
     sub = max(1, int(np.ceil(norm)))
-    E = sla.expm(Ham * (step / sub))
+    E = scipy.linalg.expm(Ham * (step / sub))
     out = np.empty((n_steps + 1, n, n))
     P = P0
     out[0] = P

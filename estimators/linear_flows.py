@@ -16,7 +16,7 @@ from functools import cached_property
 from typing import Callable, Sequence
 
 import numpy as np
-import scipy.linalg as sla
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 
 def affine_flow_grid(M: np.ndarray, g: np.ndarray, p0: np.ndarray, step: float, n_steps: int) -> np.ndarray:
@@ -29,7 +29,7 @@ def affine_flow_grid(M: np.ndarray, g: np.ndarray, p0: np.ndarray, step: float, 
     aug = np.zeros((d + 1, d + 1))
     aug[:d, :d] = M
     aug[:d, d] = g
-    E = sla.expm(aug * step)
+    E = scipy.linalg.expm(aug * step)
     F, c = E[:d, :d], E[:d, d]
     out = np.empty((n_steps + 1, d))
     out[0] = p0
@@ -129,7 +129,7 @@ def van_loan(A: np.ndarray, G: np.ndarray, delta: float) -> tuple[np.ndarray, np
     C[:n, :n] = -A
     C[:n, n:] = G
     C[n:, n:] = A.T
-    E = sla.expm(C * d)
+    E = scipy.linalg.expm(C * d)
     Phi = E[n:, n:].T
     Q = Phi @ E[:n, n:]
     Q = (Q + Q.T) / 2
@@ -279,7 +279,7 @@ class DenseFlow:
 
     @cached_property
     def _generator(self) -> np.ndarray:
-        A = sla.block_diag(*self.blocks)
+        A = scipy.linalg.block_diag(*self.blocks)
         d = len(A)
         C = np.zeros((2 * d, 2 * d))
         C[:d, :d] = -A
@@ -299,7 +299,7 @@ class DenseFlow:
         Phi_all, Q_all = np.empty((len(delta), d, d)), np.empty((len(delta), d, d))
         for k in np.unique(ks):
             rows = np.flatnonzero(ks == k)
-            E = sla.expm(self._generator[None] * (delta[rows] / 2 ** k)[:, None, None])
+            E = scipy.linalg.expm(self._generator[None] * (delta[rows] / 2 ** k)[:, None, None])
             Phi = E[:, d:, d:].transpose(0, 2, 1)
             Q = Phi @ E[:, :d, d:]
             Q = (Q + Q.transpose(0, 2, 1)) / 2

@@ -22,7 +22,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-import scipy.linalg as sla
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 import estimators.gossip_covariance as gc
 from estimators.linear_flows import van_loan
@@ -400,7 +400,7 @@ def check_prop32_flow(res: Results, name: str) -> Verdict:
     for p in range(first.shape[0]):
         for i in range(s.N):
             k = times < first[p, i]
-            Phi = np.array([sla.expm(s.Ai[i] * t) for t in times[k]]) if np.any(D0[i]) else None
+            Phi = np.array([scipy.linalg.expm(s.Ai[i] * t) for t in times[k]]) if np.any(D0[i]) else None
             carried = 0.0 if Phi is None else Phi @ D0[i] @ np.swapaxes(Phi, 1, 2)
             a.append((r.event["sample_sigma"][p, k, i] + carried).ravel())
             b.append(r.event["sample_pbound"][p, k, i].ravel())
@@ -855,7 +855,7 @@ def check_true_limit(res: Results, name: str) -> Verdict:
         parts.append(f"E[e_ie_iᵀ]^∞(λ) = S_true to round-off on the top decade (max deviation {np.nanmax(d[dec]):.2g})")
     if r.scenario.gain_rule == "kalman-bucy-split" and "P_kb" in b:
         P = b["P_kb"]
-        Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
+        Hs, Vs = np.vstack(s.H), scipy.linalg.block_diag(*s.V)
         Sinv = Hs.T @ np.linalg.solve(Vs, Hs)
         G_true = s.B @ s.B.T + sum(L @ V @ L.T for L, V in zip(s.L, s.V)) / s.N ** 2
         lyap_res = s.Abar @ P + P @ s.Abar.T + G_true
@@ -937,7 +937,7 @@ def check_kb_reference(res: Results, name: str) -> Verdict:
 
     r = _scenario(res, name)
     s, b, sc = r.sys, r.bounds, r.scenario
-    Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
+    Hs, Vs = np.vstack(s.H), scipy.linalg.block_diag(*s.V)
     Sinv = Hs.T @ np.linalg.solve(Vs, Hs)
     P = b["P_kb"]
     X, _, _ = ct.care(s.A.T, Hs.T, s.B @ s.B.T, Vs, method="scipy")
@@ -1228,7 +1228,7 @@ def check_erratum_inverse(res: Results, name: str) -> Verdict:
         P = np.tile(s.P0, (s.N, 1))
     UI = np.kron(U, np.eye(s.n))
     Q = UI @ P / np.sqrt(s.N)
-    printed = (sla.sqrtm(s.N * np.linalg.inv(UI)) @ Q).real
+    printed = (scipy.linalg.sqrtm(s.N * np.linalg.inv(UI)) @ Q).real
     corrected = np.sqrt(s.N) * np.kron(U.T, np.eye(s.n)) @ Q
     scale = np.linalg.norm(P)
     rp, rc = np.linalg.norm(printed - P) / scale, np.linalg.norm(corrected - P) / scale

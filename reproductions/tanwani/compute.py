@@ -16,7 +16,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg as sla
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 import estimators.gossip_covariance as gc
 import estimators.gossip_filter as gf
@@ -131,7 +131,7 @@ def compute_references(sc: FilterNetworkScenario) -> dict[str, np.ndarray]:
     references (with the second moments of the P-process), the gridded scheme's exact bias and filterpy's
     sampled filter."""
     s = sc.system
-    Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
+    Hs, Vs = np.vstack(s.H), scipy.linalg.block_diag(*s.V)
     base = {"bound_t_0": gc.bound_transient(s, sc.main_rate, sc.output_step, sc.n_outputs),
             "P_kb_t": kb.kalman_bucy_riccati(s.A, s.B, Hs, Vs, s.P0, sc.output_step, sc.n_outputs)}
     if joint_ok(s):
@@ -212,7 +212,7 @@ def filterpy_reference(s, Hs: np.ndarray, Vs: np.ndarray, P_kb: np.ndarray) -> d
     pri, post, dare, steady, allow = [], [], [], [], []
     for h in hs:
         F, Qd = van_loan(s.A, s.B @ s.B.T, h)
-        X = sla.solve_discrete_are(F.T, Hs.T, Qd, Vs / h)
+        X = scipy.linalg.solve_discrete_are(F.T, Hs.T, Qd, Vs / h)
         Kd = X @ Hs.T @ np.linalg.inv(Hs @ X @ Hs.T + Vs / h)
         Fc = F @ (np.eye(s.n) - Kd @ Hs)
         inv_norm = 1.0 / float(np.linalg.svd(np.eye(s.n * s.n) - np.kron(Fc, Fc), compute_uv=False)[-1])

@@ -16,7 +16,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sla
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 import estimators.gossip_covariance as gc
 import estimators.gossip_filter as gf
@@ -76,7 +76,7 @@ def joint_ok(sys: gf.GossipSystem) -> bool:
 def care_condition(s: gf.GossipSystem, P: np.ndarray) -> float:
     """First-order relative condition number of the filter CARE at its solution P:
     ‖L⁻¹‖₂(2‖A‖‖P‖ + ‖BBᵀ‖ + ‖PSP‖)/‖P‖ with L(Y) = A_cY + YA_cᵀ the closed-loop Lyapunov operator."""
-    Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
+    Hs, Vs = np.vstack(s.H), scipy.linalg.block_diag(*s.V)
     S = Hs.T @ np.linalg.solve(Vs, Hs)
     Ac = s.A - P @ S
     inv_norm = 1.0 / float(np.linalg.svd(gc.lyapunov_generator(Ac), compute_uv=False)[-1])
@@ -96,7 +96,7 @@ def scenario_design(sc: FilterNetworkScenario, quick: bool = False, seed: int = 
     s = sc.system
     N, n = s.N, s.n
     out: dict[str, np.ndarray] = {}
-    Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
+    Hs, Vs = np.vstack(s.H), scipy.linalg.block_diag(*s.V)
     T = sc.n_outputs
     try:
         P_kb, K_kb = kb.kalman_bucy_steady(s.A, s.B, Hs, Vs)
@@ -174,9 +174,9 @@ def _sweep(s: gf.GossipSystem, lams: np.ndarray, d: dict, hurwitz: bool) -> dict
             if len(M) <= SWEEP_EIG_MAX:
                 abscS[k] = float(np.max(np.linalg.eigvals(M).real))
             if gc.joint_hurwitz(s, lam):
-                lu = sla.lu_factor(M)
-                cond_J[k] = 1.0 / max(sla.lapack.dgecon(lu[0], float(np.abs(M).sum(axis=0).max()), norm="1")[0], 1e-300)
-                J_inf[k] = gc.diagonal_blocks(gc.from_sym_coords(sla.lu_solve(lu, -g), N * n), N, n)
+                lu = scipy.linalg.lu_factor(M)
+                cond_J[k] = 1.0 / max(scipy.linalg.lapack.dgecon(lu[0], float(np.abs(M).sum(axis=0).max()), norm="1")[0], 1e-300)
+                J_inf[k] = gc.diagonal_blocks(gc.from_sym_coords(scipy.linalg.lu_solve(lu, -g), N * n), N, n)
                 if hurwitz and s.mode == "edge":
                     dj = gc.joint_steady_deviation(s, lam, d["S_true"])
                     dev_J[k] = gc.diagonal_blocks(dj, N, n)
@@ -196,9 +196,9 @@ def deviation_error(M: np.ndarray, D: np.ndarray, s, S: np.ndarray) -> float:
     """Round-off bound of the deviation D = 𝒫^∞ − S solved from M vec D = −r (`bound_steady_deviation`):
     10·dim·eps·κ(M)·(‖D‖ + ‖r‖/‖M‖) with the residual's own rounding ‖r‖ ~ 2‖A_i‖‖S‖ + ‖G_i‖
     and κ the 1-norm condition number (LAPACK estimate)."""
-    lu = sla.lu_factor(M)
+    lu = scipy.linalg.lu_factor(M)
     norm = float(np.abs(M).sum(axis=0).max())
-    kappa = 1.0 / max(sla.lapack.dgecon(lu[0], norm, norm="1")[0], 1e-300)
+    kappa = 1.0 / max(scipy.linalg.lapack.dgecon(lu[0], norm, norm="1")[0], 1e-300)
     r = max(2 * np.linalg.norm(A, 2) * np.linalg.norm(S, 2) + np.linalg.norm(G, 2) for A, G in zip(s.Ai, s.Gi))
     return 10 * M.shape[0] * EPS * kappa * (float(np.abs(D).max()) + r / norm)
 

@@ -11,17 +11,25 @@ fig_topology.png          S4: topology sweep (paper only)
 """
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
 import numpy as np
 
-from pipeline.figures import new_figure, save_figure
+from pipeline.figures import new_figure, plain_log_labels, save_figure, set_margins
 
 from .outputs import View
 
 Z95 = 1.959964
 PAPER_NOTE = "(scenario of this reproduction: the paper has no numerical example)"
+
+
+def _save(fig, path: Path, **margins) -> None:
+    """Fixed margins (inches) instead of tight_layout's extra measuring draw; log-axis labels without mathtext."""
+    set_margins(fig, **margins)
+    plain_log_labels(fig)
+    save_figure(fig, path, tight=False)
 
 
 def _node_axes(N, width=4.2, height=3.0):
@@ -64,7 +72,7 @@ def fig1(v: View, path: Path, note: str = "") -> None:
     ax.set_ylabel("edge clock")
     ax.set_title(f"Poisson rings of every edge, one path, λ = {v.main_rate:g}", fontsize=9)
     fig.suptitle(f"Fig. 1 (regenerated): {v.title}" if note else f"Network and edge events: {v.title}", fontsize=10)
-    save_figure(fig, path)
+    _save(fig, path, left=0.25, top=0.85, wspace=0.8)
 
 
 def fig2(v: View, path: Path, note: str = "") -> None:
@@ -99,7 +107,7 @@ def fig2(v: View, path: Path, note: str = "") -> None:
         ax.set_axis_off()
     axes[0].legend(fontsize=6)
     fig.suptitle(f"Traces at λ = {lam:g}, {v.title} {note}".strip(), fontsize=9)
-    save_figure(fig, path)
+    _save(fig, path, left=0.45, top=0.55, wspace=0.45, hspace=0.8)
 
 
 def fig3(v: View, path: Path, note: str = "") -> None:
@@ -124,7 +132,7 @@ def fig3(v: View, path: Path, note: str = "") -> None:
     axes[0].legend(fontsize=6)
     fig.suptitle(f"Fig. 3: one clock path at λ = {v.main_rate:g} (output grid {v.design('output_step'):g}; ticks = events), "
                  f"{v.name} {note}".strip(), fontsize=9)
-    save_figure(fig, path)
+    _save(fig, path, left=0.45, top=0.55, wspace=0.45, hspace=0.8)
 
 
 def fig4(v: View, path: Path, note: str = "") -> None:
@@ -158,7 +166,7 @@ def fig4(v: View, path: Path, note: str = "") -> None:
     ax.set_xlabel("t")
     ax.legend(fontsize=6)
     fig.suptitle(f"Gaps of the bounds, {v.name} {note}".strip(), fontsize=9)
-    save_figure(fig, path)
+    _save(fig, path, left=0.6, top=0.6, wspace=0.7)
 
 
 def fig5(v: View, path: Path, note: str = "") -> None:
@@ -166,7 +174,7 @@ def fig5(v: View, path: Path, note: str = "") -> None:
     ax = axes[0, 0]
     if v.design("abar_hurwitz") != 1:
         ax.text(0.5, 0.5, "Ā not Hurwitz: item 2 does not apply", transform=ax.transAxes, ha="center")
-        save_figure(fig, path)
+        _save(fig, path)
         return
     sw, nodes = v["sweep"], v["sweep_nodes"]
     lams = sw["rate"].to_numpy()
@@ -192,7 +200,7 @@ def fig5(v: View, path: Path, note: str = "") -> None:
     ax.set_ylabel("Frobenius distance")
     ax.legend(fontsize=6)
     ax.set_title(f"Practical convergence (12), {v.name}" + (f"\n{note}" if note else ""), fontsize=9)
-    save_figure(fig, path)
+    _save(fig, path, left=0.75, top=0.5)
 
 
 def fig6(v: View, path: Path, note: str = "") -> None:
@@ -216,7 +224,7 @@ def fig6(v: View, path: Path, note: str = "") -> None:
     ax.set_ylabel("trace")
     ax.legend(fontsize=6, ncol=2)
     ax.set_title(f"Steady-state traces (bound diverges below λ_crit = {v.design('crit_bound'):.4g}), {v.name}", fontsize=9)
-    save_figure(fig, path)
+    _save(fig, path, left=0.6)
 
 
 def fig7(v: View, path: Path, note: str = "") -> None:
@@ -236,7 +244,7 @@ def fig7(v: View, path: Path, note: str = "") -> None:
     ax.legend(fontsize=7)
     ax.set_title(f"Critical rates, {v.name}: λ_crit(9) = {v.design('crit_bound'):.5g}, exact = "
                  f"{v.design('crit_joint'):.5g}", fontsize=9)
-    save_figure(fig, path)
+    _save(fig, path, left=0.6)
 
 
 def fig_topology(tables, path: Path, note: str = PAPER_NOTE) -> None:
@@ -255,18 +263,17 @@ def fig_topology(tables, path: Path, note: str = PAPER_NOTE) -> None:
     axes[0, 1].set_ylabel("mean_i tr E[e_ie_iᵀ]^∞")
     axes[0, 0].legend()
     fig.suptitle(f"S4: S2's plant and sensors on four graphs of 4 nodes {note}", fontsize=9)
-    save_figure(fig, path)
+    _save(fig, path, left=0.75, top=0.45, wspace=0.85)
 
 
-def write_figures(views: dict[str, View], tables, fig_dir: Path, *, main: str, paper: bool = False) -> None:
+def figure_jobs(views: dict[str, View], tables, fig_dir: Path, *, main: str, paper: bool = False) -> list:
+    """One callable per figure (see `pipeline.figures.draw_all`), the per-node grids first."""
     note = PAPER_NOTE if paper else ""
-    fig1(views[main], fig_dir / "fig1_network_events.png", note)
-    for name, v in views.items():
-        fig2(v, fig_dir / f"fig2_traces_{name}.png", note)
-        fig3(v, fig_dir / f"fig3_sample_path_{name}.png", note)
-        fig4(v, fig_dir / f"fig4_gaps_{name}.png", note)
-        fig5(v, fig_dir / f"fig5_rate_{name}.png", note)
-        fig6(v, fig_dir / f"fig6_traces_vs_rate_{name}.png", note)
-        fig7(v, fig_dir / f"fig7_abscissa_{name}.png", note)
+    per_scenario = (("fig2_traces", fig2), ("fig3_sample_path", fig3), ("fig4_gaps", fig4), ("fig5_rate", fig5),
+                    ("fig6_traces_vs_rate", fig6), ("fig7_abscissa", fig7))
+    jobs = [functools.partial(draw, v, fig_dir / f"{stem}_{name}.png", note)
+            for stem, draw in per_scenario for name, v in views.items()]
+    jobs.append(functools.partial(fig1, views[main], fig_dir / "fig1_network_events.png", note))
     if "topology" in tables:
-        fig_topology(tables, fig_dir / "fig_topology.png")
+        jobs.append(functools.partial(fig_topology, tables, fig_dir / "fig_topology.png"))
+    return jobs

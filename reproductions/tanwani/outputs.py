@@ -1,6 +1,7 @@
 """Figures (PNG) and Rerun recordings of the random-comm-filter family, drawn from the run's tables."""
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -55,9 +56,19 @@ class View:
         return ev.loc[hit, "t"].to_numpy()
 
 
+def _record(v: View, path: Path, claims: list[dict], prov: dict, paper: bool) -> None:
+    from . import recordings     # rerun: imported by the worker that writes a recording only
+
+    recordings.write_scenario(v, path, claims, prov, paper)
+
+
 def write_outputs(res, tables, out_dir: Path, claims: list[dict], prov: dict, *, main: str, paper: bool = False) -> None:
-    from . import figures, recordings
+    """Every figure and recording, drawn in `prov["workers"]` forked workers (the recordings first: the longest)."""
+    from pipeline.figures import draw_all
+
+    from . import figures
 
     views = {name: View(tables, name, r.scenario.title, res.seed) for name, r in res.scenarios.items()}
-    figures.write_figures(views, tables, out_dir / "figures", main=main, paper=paper)
-    recordings.write_recordings(views, out_dir, claims, prov, paper=paper)
+    records = [functools.partial(_record, v, out_dir / f"{name}.rrd", claims, prov, paper) for name, v in views.items()]
+    jobs = records + figures.figure_jobs(views, tables, out_dir / "figures", main=main, paper=paper)
+    draw_all(jobs, workers=int(prov.get("workers", 1) or 1))

@@ -141,8 +141,3 @@ def write_scenario(v: View, path: Path, claims: list[dict], prov: dict, paper: b
         note = "Scenario of this reproduction (the paper has no numerical example). " if paper else ""
         rec_.log_claims(rec, table, f"# {v.title}\n\n{note}All claims of the run: {counts}.", width=24,
                         details=[c for c in claims if c["id"].endswith(f".{v.name}")])
-
-
-def write_recordings(views: dict[str, View], out_dir: Path, claims: list[dict], prov: dict, paper: bool = False) -> None:
-    for name, v in views.items():
-        write_scenario(v, out_dir / f"{name}.rrd", claims, prov, paper)

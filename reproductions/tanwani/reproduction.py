@@ -8,7 +8,7 @@ from typing import Any
 from pipeline.cache import StageCache
 from pipeline.reproduction import RunOptions
 
-from .scenario import FilterNetworkScenario, RandomCommFile, paper_scenarios, scenario_from_dict
+from .scenario import PAPER_SCENARIOS, FilterNetworkScenario, RandomCommFile, paper_scenarios, scenario_from_dict
 
 # compute, claims, tables and outputs (scipy, matplotlib, rerun) are imported when first needed, so that
 # validating a scenario file and reporting its errors stays fast.
@@ -56,15 +56,22 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
 
 
 class RandomCommReproduction:
-    def __init__(self, scenarios: list[FilterNetworkScenario], *, paper: bool):
-        self.scenarios = scenarios
+    def __init__(self, scenarios: list[FilterNetworkScenario] | None, *, paper: bool):
+        """`scenarios` None: the paper's, built from their files when first needed (`dse list` does not)."""
+        self._scenarios = scenarios
         self.is_paper = paper
         self.paper_id = "tanwani" if paper else scenarios[0].name
         self.title = TITLE if paper else f"random-comm-filter scenario '{scenarios[0].name}'"
         self.main = "s2" if paper else scenarios[0].name
 
+    @property
+    def scenarios(self) -> list[FilterNetworkScenario]:
+        if self._scenarios is None:
+            self._scenarios = paper_scenarios()
+        return self._scenarios
+
     def scenario_ids(self) -> list[str]:
-        return [sc.name for sc in self.scenarios]
+        return list(PAPER_SCENARIOS) if self._scenarios is None else [sc.name for sc in self._scenarios]
 
     def claims(self):
         from . import claims
@@ -132,7 +139,7 @@ class RandomCommReproduction:
 
 
 def paper() -> RandomCommReproduction:
-    return RandomCommReproduction(paper_scenarios(), paper=True)
+    return RandomCommReproduction(None, paper=True)
 
 
 def from_dict(data: dict[str, Any]) -> RandomCommReproduction:

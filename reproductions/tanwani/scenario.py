@@ -211,7 +211,8 @@ class FilterNetworkScenario:
 
 
 def _edges(graph: GraphSpec) -> tuple[tuple[int, int], ...]:
-    return tuple(sorted((min(u, v), max(u, v)) for u, v in graph.build().edges()))
+    """The undirected edges (u < v), sorted (networkx only for random geometric graphs)."""
+    return tuple(sorted({(int(u), int(v)) for u, v in graph.edge_array()}))
 
 
 def _degrees(N: int, edges) -> np.ndarray:
