@@ -1,6 +1,6 @@
-"""Rerun recordings (rerun-sdk pinned exactly; see shared/specs/rerun_and_deps.md).
+"""Rerun recordings (rerun-sdk pinned exactly in pyproject.toml: its API changes between releases).
 
-Conventions (DESIGN.md): timeline ``k`` (sequence) for discrete time and ``t``
+Conventions (docs/design.md, "Recordings"): timeline ``k`` (sequence) for discrete time and ``t``
 (duration, integer nanoseconds) for continuous time; bulk data with ``send_columns``;
 styling logged once as static. A recording is written to a temporary file and renamed
 into place only once it is complete (footer written), so a final path never holds a

@@ -174,7 +174,7 @@ def test_paper_quick(tmp_path):
     d = tmp_path / "out" / "savas"
     report = json.loads((d / "report.json").read_text())
     verdicts = {c["id"]: c["verdict"] for c in report["claims"]}
-    # the paper's errors the spec documents show up as errata with both numbers
+    # the paper's errors documented in docs/papers/savas.md show up as errata with both numbers
     for claim in ("savas.thm1.ii", "savas.proof.eq24", "savas.fig2.zeta_nonmonotone"):
         assert verdicts[claim] == "erratum"
     row = next(c for c in report["claims"] if c["id"] == "savas.thm1.ii")
