@@ -8,7 +8,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Collection
 
 import numpy as np
 import scipy.linalg
@@ -20,7 +20,7 @@ import estimators.walk_detectability as wd
 from pipeline.cache import StageCache, check_finite, code_fingerprint
 from pipeline.reproduction import RunOptions
 from pipeline.seeding import stream_seed
-from pipeline.simulate import block_generator, parallel_map, run_units
+from pipeline.simulate import block_generator, run_jobs, run_units
 
 from .scenario import GossipKalmanScenario
 
@@ -122,6 +122,7 @@ class ScenarioResults(ScenarioDesign):
     reference: dict[str, np.ndarray] = field(default_factory=dict)
     aux: dict[str, np.ndarray] = field(default_factory=dict)
     comparison: dict[str, np.ndarray] | None = None
+    eq74: dict[str, np.ndarray] | None = None        # the margins of claim eq74 (a stage when the claim is made)
 
     def design(self) -> ScenarioDesign:
         return ScenarioDesign(self.scenario, self.slots, self.runs, self.reference_runs, self.quick, self.assume,
@@ -620,37 +621,96 @@ def scenario_design(sc: GossipKalmanScenario, opts: RunOptions, *, checks: bool 
     return ScenarioDesign(sc, slots, runs, ref_runs, opts.quick, assume, bounds)
 
 
-def compute_scenario(sc: GossipKalmanScenario, opts: RunOptions, cache: StageCache) -> ScenarioResults:
-    d = scenario_design(sc, opts, cache=cache)
-    runs, ref_runs, slots, assume, bounds = d.runs, d.reference_runs, d.slots, d.assume, d.bounds
+def eq74_stage(sc: GossipKalmanScenario, bounds: dict, slots: int) -> dict[str, np.ndarray]:
+    """The Riccati sequences of claim eq74 (its own fixed random stream), computed with the Monte Carlo."""
+    from .claims import eq74_margins
+
+    return eq74_margins(sc, bounds, slots)
+
+
+def scenario_stages(d: ScenarioDesign, opts: RunOptions, cache: StageCache, *,
+                    structural: bool = True) -> dict[str, tuple[float, Any]]:
+    """The Monte Carlo stages of one scenario, given its design: name -> (estimated seconds, callable). They are
+    independent of each other (each has its own random stream), so they may run in any order or process.
+    `structural`: the scenario gets the structural claims (then the Riccati sequences of eq74 are a stage too)."""
+    from .cost import scenario_cost
+
+    sc, runs, ref_runs, slots, assume, bounds = d.scenario, d.runs, d.reference_runs, d.slots, d.assume, d.bounds
+    cost = scenario_cost(sc, opts, assume)
     budget = opts.chunk_budget_bytes()
     mc = {"scenario": sc.key(), "code": code_fingerprint(CODE_MODULES), "slots": slots, "seed": opts.seed,
           "runs": runs, "ref_runs": ref_runs}
-    gikf = _stage(cache, mc, "gikf", _checked_gikf(lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots,
-                                                                               budget_bytes=budget), sc.name),
-                  sc.name, GIKF_PARTIAL)
-    comparison = (_stage(cache, mc, "gikf_comparison",
-                         _checked_gikf(lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots, "comparison",
-                                                                   budget_bytes=budget), sc.name),
-                         sc.name, GIKF_PARTIAL)
-                  if sc.comparison is not None else None)
-    reference = _stage(cache, mc, "theorem8", lambda: reference_stage(sc, bounds, opts.seed, ref_runs, slots), sc.name,
-                       ERROR_BOUNDS)
-    aux: dict[str, np.ndarray] = {}
+
+    def gikf(which: str):
+        return functools.partial(_stage, cache, mc, "gikf" if which == "protocol" else "gikf_comparison",
+                                 _checked_gikf(lambda: simulate_gikf_stage(sc, bounds, opts.seed, runs, slots, which,
+                                                                           budget_bytes=budget), sc.name),
+                                 sc.name, GIKF_PARTIAL)
+
+    stages: dict[str, tuple[float, Any]] = {"gikf": (cost["gikf_s"] / (2 if sc.comparison is not None else 1),
+                                                     gikf("protocol"))}
+    if sc.comparison is not None:
+        stages["comparison"] = (stages["gikf"][0], gikf("comparison"))
+    stages["reference"] = (cost["ref_s"], functools.partial(
+        _stage, cache, mc, "theorem8", lambda: reference_stage(sc, bounds, opts.seed, ref_runs, slots), sc.name,
+        ERROR_BOUNDS))
     if assume.theorem:
-        aux.update(_stage(cache, mc, "aux", lambda: theorem_aux_stage(sc, bounds, opts.seed, ref_runs, slots), sc.name,
-                          ERROR_BOUNDS))
+        stages["aux"] = (cost["aux_s"], functools.partial(
+            _stage, cache, mc, "aux", lambda: theorem_aux_stage(sc, bounds, opts.seed, ref_runs, slots), sc.name,
+            ERROR_BOUNDS))
     if assume.c1 and assume.undetectable is True:
-        aux.update(_stage(cache, mc, "pullback_divergent", lambda: divergent_pullback_stage(sc, bounds, opts.seed),
-                          sc.name, ERROR_BOUNDS))
-    return ScenarioResults(sc, slots, runs, ref_runs, opts.quick, assume, bounds, seed=opts.seed, gikf=gikf,
-                           reference=reference, aux=aux, comparison=comparison)
+        stages["pullback_divergent"] = (cost["aux_s"], functools.partial(
+            _stage, cache, mc, "pullback_divergent", lambda: divergent_pullback_stage(sc, bounds, opts.seed), sc.name,
+            ERROR_BOUNDS))
+    if structural:
+        key = {"scenario": sc.key(), "code": code_fingerprint(CODE_MODULES + ("reproductions.kar_moura.claims",)),
+               "slots": slots}
+        stages["eq74"] = (EQ74_S_PER_STEP * min(slots, 120) * sc.M ** 2, functools.partial(
+            _stage, cache, key, "eq74", lambda: eq74_stage(sc, bounds, slots), sc.name, ("slack", "raw", "gap")))
+    return stages
 
 
-def compute(scenarios: list[GossipKalmanScenario], opts: RunOptions, cache: StageCache) -> Results:
-    work = functools.partial(compute_scenario, opts=opts, cache=cache)
-    outs = parallel_map(work, scenarios, workers=opts.workers, desc="gossip-kalman scenarios")
-    return Results(opts.seed, opts.quick, {o.name: o for o in outs})
+#: seconds per slot and M² of the eq74 sequences (2 tokens × 500 paths × up to 7 restarts): E1 0.5 s at 120 slots
+EQ74_S_PER_STEP = 1e-3
+
+
+def _results(d: ScenarioDesign, opts: RunOptions, out: dict[str, Any]) -> ScenarioResults:
+    aux: dict[str, np.ndarray] = {**out.get("aux", {}), **out.get("pullback_divergent", {})}
+    return ScenarioResults(d.scenario, d.slots, d.runs, d.reference_runs, opts.quick, d.assume, d.bounds, seed=opts.seed,
+                           gikf=out["gikf"], reference=out["reference"], aux=aux, comparison=out.get("comparison"),
+                           eq74=out.get("eq74"))
+
+
+def compute_scenario(sc: GossipKalmanScenario, opts: RunOptions, cache: StageCache, *,
+                     structural: bool = True) -> ScenarioResults:
+    """One scenario in this process (its design, then its stages one after the other)."""
+    d = scenario_design(sc, opts, cache=cache)
+    stages = scenario_stages(d, opts, cache, structural=structural)
+    return _results(d, opts, {name: fn() for name, (_, fn) in stages.items()})
+
+
+def compute(scenarios: list[GossipKalmanScenario], opts: RunOptions, cache: StageCache, *,
+            structural: Collection[str] | None = None) -> Results:
+    """Every scenario's design, then every Monte Carlo stage of every scenario, each as one job of `opts.workers`
+    forked processes, the heaviest first (by the cost model of `dse check`): the light ones fill in around them, and
+    a single scenario's stages run side by side. `structural`: the scenarios that get the structural claims (all when
+    None)."""
+    from .cost import scenario_cost
+
+    # imported once here and inherited by every forked worker (about 1 s each): the designs' filterpy reference,
+    # the Wishart starts of the auxiliary stage and the claims' exact KS tests all need scipy.stats
+    import filterpy.kalman  # noqa: F401
+    import scipy.stats  # noqa: F401
+
+    designs = run_jobs([(scenario_cost(sc, opts)["design_s"], functools.partial(scenario_design, sc, opts, cache=cache))
+                        for sc in scenarios], workers=opts.workers, desc="gossip-kalman designs")
+    stages = [(d.name, name, job) for d in designs
+              for name, job in scenario_stages(d, opts, cache, structural=structural is None or d.name in structural).items()]
+    outs = run_jobs([job for _, _, job in stages], workers=opts.workers, desc="gossip-kalman Monte Carlo")
+    done: dict[str, dict[str, Any]] = {d.name: {} for d in designs}
+    for (scenario, name, _), out in zip(stages, outs):
+        done[scenario][name] = out
+    return Results(opts.seed, opts.quick, {d.name: _results(d, opts, done[d.name]) for d in designs})
 
 
 def design(scenarios: list[GossipKalmanScenario], opts: RunOptions) -> Design:

@@ -120,10 +120,11 @@ def _lifted_states(sc: GossipKalmanScenario, assume) -> float:
     return states if states <= 5000 else 0.0
 
 
-def scenario_cost(sc: GossipKalmanScenario, opts: RunOptions) -> dict[str, float]:
+def scenario_cost(sc: GossipKalmanScenario, opts: RunOptions, assume=None) -> dict[str, float]:
+    """Estimated seconds and MiB of one scenario's stages (`assume`: its `compute.assumptions`, when known)."""
     from .compute import assumptions, horizon, sizes
 
-    assume = assumptions(sc)
+    assume = assume if assume is not None else assumptions(sc)
     runs, ref_runs, slots = sizes(sc, opts)
     slots = horizon(sc, slots, assume)
     N, M = sc.N, sc.M
@@ -145,7 +146,7 @@ def scenario_cost(sc: GossipKalmanScenario, opts: RunOptions) -> dict[str, float
     out_s = OUTPUT_S + OUTPUT_NODE_S * N
     gikf_mib, ref_mib, design_mib = _kept_mib(sc, runs, ref_runs, slots)
     return {"seconds": design_s + gikf_s + ref_s + aux_s + out_s, "design_s": design_s, "gikf_s": gikf_s,
-            "chain_s": ref_s + aux_s, "chunk_mib": chunk_runs * per_run / 2**20, "kept_mib": gikf_mib + ref_mib + design_mib,
+            "chain_s": ref_s + aux_s, "ref_s": ref_s, "aux_s": aux_s, "chunk_mib": chunk_runs * per_run / 2**20, "kept_mib": gikf_mib + ref_mib + design_mib,
             "gikf_mib": gikf_mib, "runs": runs, "ref_runs": ref_runs, "slots": slots, "chunks": chunks,
             "unit_mib": RNG_UNIT * per_run / 2**20}
 

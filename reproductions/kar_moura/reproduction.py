@@ -82,7 +82,8 @@ class GossipKalmanReproduction:
         from .cost import refuse_beyond_budget
 
         refuse_beyond_budget(self.scenarios, opts)
-        return compute_mod.compute(self.scenarios, opts, cache)
+        return compute_mod.compute(self.scenarios, opts, cache,
+                                   structural=[name for name, roles in self._roles if roles["full"]])
 
     # -- the design stage (`dse check`) --------------------------------------------------------------
     def design(self, opts: RunOptions) -> compute_mod.Design:
