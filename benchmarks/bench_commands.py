@@ -124,7 +124,7 @@ def bench_test_suite() -> dict:
     """`make test`'s command (the virtual environment is already set up)."""
     env = {**_env(), "PYTHONPATH": str(ROOT)}
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"], cwd=ROOT, env=env,
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "auto", "--dist", "loadfile"], cwd=ROOT, env=env,
                           capture_output=True)
     wall = time.perf_counter() - t0
     return {"command": "make test (the pytest run)", "wall_s": wall, "ok": proc.returncode == 0,
