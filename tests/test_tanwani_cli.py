@@ -156,7 +156,7 @@ def test_paper_recording_reads_back(paper_run):
 
 def test_user_scenario_runs(tmp_path):
     repro = _user(USER)
-    summary = run(repro, tmp_path, RunOptions(quick=True, workers=1), out_dir=tmp_path / "run" / "damped3")
+    summary = run(repro, tmp_path, RunOptions(quick=True, workers=2), out_dir=tmp_path / "run" / "damped3")
     doc = json.loads((tmp_path / "run" / "damped3" / "report.json").read_text())
     ids = {c["id"]: c for c in doc["claims"]}
     assert ids["damped3.thm3_1.item1_exact.damped3"]["verdict"] == "pass"
@@ -174,7 +174,7 @@ def test_user_scenario_runs(tmp_path):
 def test_diverging_bound_is_reported_not_crashed(tmp_path, text, unbounded):
     repro = _user(text)
     name = repro.paper_id
-    run(repro, tmp_path, RunOptions(quick=True, workers=1), out_dir=tmp_path / name)
+    run(repro, tmp_path, RunOptions(quick=True, workers=2), out_dir=tmp_path / name)
     doc = json.loads((tmp_path / name / "report.json").read_text())
     text_all = json.dumps(doc, ensure_ascii=False)
     assert unbounded in text_all
