@@ -52,6 +52,9 @@ def paper(paper_id: str):
 def family_from_dict(data: dict[str, Any]):
     family = as_str(data.get("family"), "family", FAMILIES) if "family" in data else None
     if family is None:
+        if "base" in data or "grid" in data or "random" in data:
+            raise ScenarioError("family", "missing: this is a sweep file (it has base, grid or random); run it with "
+                                          "`dse sweep`, or check its base scenario")
         raise ScenarioError("family", f"missing (one of {', '.join(FAMILIES)})")
     body = {k: v for k, v in data.items() if k != "family"}
     return importlib.import_module(FAMILIES[family]).from_dict(body)
