@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import record as rec_
-from pipeline.figures import new_figure, save_figure
+from pipeline.figures import draw_all, new_figure, save_figure
 from pipeline.stats import z_for_confidence
 
 from .scenario import ESTIMATORS, LABELS
@@ -160,11 +160,13 @@ def nees_figure(res, tables, path: Path) -> None:
     save_figure(fig, path)
 
 
-def write_figures(res, tables, out_dir: Path) -> None:
-    (out_dir / "figures").mkdir(parents=True, exist_ok=True)
-    error_vs_communication(res, tables, out_dir / "figures" / "error_vs_communication.png")
-    mse_vs_time(res, tables, out_dir / "figures" / "mse_vs_time.png")
-    nees_figure(res, tables, out_dir / "figures" / "nees.png")
+def figure_jobs(res, tables, out_dir: Path) -> list:
+    """One callable per figure (for `pipeline.figures.draw_all`)."""
+    figs = out_dir / "figures"
+    figs.mkdir(parents=True, exist_ok=True)
+    return [lambda: error_vs_communication(res, tables, figs / "error_vs_communication.png"),
+            lambda: mse_vs_time(res, tables, figs / "mse_vs_time.png"),
+            lambda: nees_figure(res, tables, figs / "nees.png")]
 
 
 def _comparison_markdown(tables) -> str:
@@ -248,9 +250,10 @@ def write_recording(res, tables, path: Path, claims: list[dict], prov: dict, sum
 
 
 def write_outputs(res, tables, out_dir: Path, claims: list[dict], prov: dict) -> None:
-    write_figures(res, tables, out_dir)
+    """The recording and the figures, drawn side by side in forked workers (`prov["workers"]`)."""
     counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
     summary = (f"# {res.scenario.name}: {counts['pass']} pass, {counts['fail']} fail, {counts['not-checkable']} not "
                f"checkable, {counts['error']} error\n\nseed {res.seed}, {res.trials:,} trials, {res.scenario.steps} steps, "
                f"{res.scenario.N} nodes, {res.scenario.link_model} links")
-    write_recording(res, tables, out_dir / f"{res.scenario.name}.rrd", claims, prov, summary)
+    record = lambda: write_recording(res, tables, out_dir / f"{res.scenario.name}.rrd", claims, prov, summary)  # noqa: E731
+    draw_all([record] + figure_jobs(res, tables, out_dir), workers=int(prov.get("workers") or 1))
