@@ -690,11 +690,11 @@ def compute_scenario(sc: GossipKalmanScenario, opts: RunOptions, cache: StageCac
 
 
 def compute(scenarios: list[GossipKalmanScenario], opts: RunOptions, cache: StageCache, *,
-            structural: Collection[str] | None = None) -> Results:
+            structural: Collection[str] | None = None, costs: dict[str, dict] | None = None) -> Results:
     """Every scenario's design, then every Monte Carlo stage of every scenario, each as one job of `opts.workers`
     forked processes, the heaviest first (by the cost model of `dse check`): the light ones fill in around them, and
     a single scenario's stages run side by side. `structural`: the scenarios that get the structural claims (all when
-    None)."""
+    None); `costs`: `cost.scenario_cost` of each scenario when known."""
     from .cost import scenario_cost
 
     # imported once here and inherited by every forked worker (about 1 s each): the designs' filterpy reference,
@@ -702,7 +702,8 @@ def compute(scenarios: list[GossipKalmanScenario], opts: RunOptions, cache: Stag
     import filterpy.kalman  # noqa: F401
     import scipy.stats  # noqa: F401
 
-    designs = run_jobs([(scenario_cost(sc, opts)["design_s"], functools.partial(scenario_design, sc, opts, cache=cache))
+    costs = costs or {sc.name: scenario_cost(sc, opts) for sc in scenarios}
+    designs = run_jobs([(costs[sc.name]["design_s"], functools.partial(scenario_design, sc, opts, cache=cache))
                         for sc in scenarios], workers=opts.workers, desc="gossip-kalman designs")
     stages = [(d.name, name, job) for d in designs
               for name, job in scenario_stages(d, opts, cache, structural=structural is None or d.name in structural).items()]

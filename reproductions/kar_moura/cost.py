@@ -163,12 +163,13 @@ def estimate(scenarios: list[GossipKalmanScenario], opts: RunOptions) -> dict[st
     return {"seconds": seconds, "peak_memory_mib": mib, "detail": "; ".join(parts)}
 
 
-def refuse_beyond_budget(scenarios: list[GossipKalmanScenario], opts: RunOptions) -> None:
+def refuse_beyond_budget(scenarios: list[GossipKalmanScenario], opts: RunOptions) -> dict[str, dict[str, float]]:
     """What cannot be streamed must fit the memory budget, and so must one RNG unit of runs: else one
-    ScenarioError naming the field and the estimate, before anything runs."""
+    ScenarioError naming the field and the estimate, before anything runs. Returns every scenario's cost."""
     budget = opts.memory_budget_mib
+    costs = {}
     for sc in scenarios:
-        c = scenario_cost(sc, opts)
+        costs[sc.name] = c = scenario_cost(sc, opts)
         if INTERPRETER_MIB + c["unit_mib"] > budget:
             field = "graph.n" if sc.protocol.kind != "greedy-matching" else "protocol.kind"
             raise ScenarioError(field, f"one unit of {RNG_UNIT:,} runs of '{sc.name}' needs about {c['unit_mib']:,.0f} MiB "
@@ -182,3 +183,4 @@ def refuse_beyond_budget(scenarios: list[GossipKalmanScenario], opts: RunOptions
                                        f"{c['ref_runs']:,} Theorem-8 runs, and the design arrays over {c['slots']:,} "
                                        f"slots), more than the memory budget of {budget:,.0f} MiB (--max-memory); fewer "
                                        f"runs fit")
+    return costs

@@ -81,9 +81,9 @@ class GossipKalmanReproduction:
     def compute(self, opts: RunOptions, cache: StageCache) -> compute_mod.Results:
         from .cost import refuse_beyond_budget
 
-        refuse_beyond_budget(self.scenarios, opts)
+        costs = refuse_beyond_budget(self.scenarios, opts)
         return compute_mod.compute(self.scenarios, opts, cache,
-                                   structural=[name for name, roles in self._roles if roles["full"]])
+                                   structural=[name for name, roles in self._roles if roles["full"]], costs=costs)
 
     # -- the design stage (`dse check`) --------------------------------------------------------------
     def design(self, opts: RunOptions) -> compute_mod.Design:
