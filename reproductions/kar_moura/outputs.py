@@ -251,6 +251,14 @@ def figure_jobs(v: View, figs: Path) -> list:
 
 # -- recordings ----------------------------------------------------------------------------------------
 
+def _groups(frame: pd.DataFrame, keys: list[str]):
+    """Rows of `frame` by the values of `keys` (each group in table order; an absent key gives no rows), split once
+    instead of one boolean mask per series."""
+    groups = {k: g for k, g in frame.groupby(keys, sort=False)}
+    empty = frame.iloc[:0]
+    return lambda *key: groups.get(key, empty)
+
+
 def _series(frame: pd.DataFrame, index: np.ndarray, value: str) -> np.ndarray:
     """A column of a frame sorted by t, on the slots `index` (NaN where the frame has no row)."""
     out = np.full(len(index), np.nan)
@@ -316,25 +324,21 @@ def write_recording(v: View, path: Path, claims: list[dict], prov: dict, paper_i
         rec_.send_series(rec, "events/matching_size", match_idx, np.array([len(es) for es in per_step], float),
                          names="edges in A(t), run 0", points=True)
         runs = sorted(paths["run"].unique())
-        sensors = paths[paths["node"].notna()]
+        sensor = _groups(paths[paths["node"].notna()], ["node", "run", "component"])
         for n in range(N):
-            mine = sensors[sensors["node"] == n]
-            tr = np.column_stack([_series(mine[(mine["run"] == k) & (mine["component"] == 0)], slots, "trace")
-                                  for k in runs])
+            tr = np.column_stack([_series(sensor(n, k, 0), slots, "trace") for k in runs])
             rec_.send_series(rec, f"nodes/{n}/cov_trace", idx, tr, names=[f"sensor {n} run {k}" for k in runs],
                              colors=[rec_.color(n)] * len(runs))
-            err = np.column_stack([_series(mine[(mine["run"] == 0) & (mine["component"] == j)], slots, "error")
-                                   for j in range(M)])
+            err = np.column_stack([_series(sensor(n, 0, j), slots, "error") for j in range(M)])
             rec_.send_series(rec, f"nodes/{n}/error", idx, err, names=[f"sensor {n}: e_{j + 1}" for j in range(M)],
                              colors=[rec_.color(j) for j in range(M)])
         q = v["quantiles"]
         q = q[q["protocol"] == "protocol"]
         q_slots = np.sort(q["t"].unique())
         q_idx = rec_.sequence_index("k", q_slots)
+        quantile = _groups(q, ["node", "probability"])
         for n in range(N):
-            mine = q[q["node"] == n]
-            qs = np.column_stack([_series(mine[mine["probability"] == p], q_slots, "log_trace") / LOG10
-                                  for p in gk.QUANTILES])
+            qs = np.column_stack([_series(quantile(n, p), q_slots, "log_trace") / LOG10 for p in gk.QUANTILES])
             rec_.send_series(rec, f"mc/quantiles/{n}", q_idx, qs, names=[f"q{p:g}" for p in gk.QUANTILES],
                              colors=[rec_.color(n)] * len(gk.QUANTILES), width=1.0)
             rec_.send_series(rec, f"mc/median/{n}", q_idx, qs[:, gk.QUANTILES.index(0.5)], names=f"sensor {n} median",
