@@ -14,11 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import rerun as rr
-import rerun.blueprint as rrb
 
 import estimators.gossip_kalman as gk
-from pipeline import record as rec_
 from pipeline.figures import draw_all, new_figure, plain_log_labels, save_figure, sequential_colors, set_margins
 
 from .scenario import GossipKalmanScenario
@@ -268,6 +265,12 @@ def _series(frame: pd.DataFrame, index: np.ndarray, value: str) -> np.ndarray:
 
 
 def write_recording(v: View, path: Path, claims: list[dict], prov: dict, paper_id: str) -> None:
+    # rerun here, not at the top (0.65 s): the process that hands the recordings to forked workers does not need it
+    import rerun as rr
+    import rerun.blueprint as rrb
+
+    from pipeline import record as rec_
+
     sc = v.sc
     N, M = sc.N, sc.M
     n_show = min(N, 12)
