@@ -681,14 +681,6 @@ def _results(d: ScenarioDesign, opts: RunOptions, out: dict[str, Any]) -> Scenar
                            eq74=out.get("eq74"))
 
 
-def compute_scenario(sc: GossipKalmanScenario, opts: RunOptions, cache: StageCache, *,
-                     structural: bool = True) -> ScenarioResults:
-    """One scenario in this process (its design, then its stages one after the other)."""
-    d = scenario_design(sc, opts, cache=cache)
-    stages = scenario_stages(d, opts, cache, structural=structural)
-    return _results(d, opts, {name: fn() for name, (_, fn) in stages.items()})
-
-
 def compute(scenarios: list[GossipKalmanScenario], opts: RunOptions, cache: StageCache, *,
             structural: Collection[str] | None = None, costs: dict[str, dict] | None = None) -> Results:
     """Every scenario's design, then every Monte Carlo stage of every scenario, each as one job of `opts.workers`
