@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.cache import StageCache
-from pipeline.reproduction import RunOptions
+from pipeline.reproduction import FamilyReproduction, RunOptions
 
 from .scenario import PAPER_SCENARIOS, FilterNetworkScenario, RandomCommFile, paper_scenarios, scenario_from_dict
 
@@ -55,7 +55,7 @@ numbers cannot show (no claim): (13a) reads '(A − L_iH_i) de_i' (the corrected
 covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: docs/papers/tanwani.md."""
 
 
-class RandomCommReproduction:
+class RandomCommReproduction(FamilyReproduction):
     def __init__(self, scenarios: list[FilterNetworkScenario] | None, *, paper: bool):
         """`scenarios` None: the paper's, built from their files when first needed (`dse list` does not)."""
         self._scenarios = scenarios
@@ -99,12 +99,6 @@ class RandomCommReproduction:
     def design_of(results):
         return results.design()
 
-    @staticmethod
-    def design_tables(design):
-        from . import tables
-
-        return tables.design_tables(design)
-
     def estimate(self, opts: RunOptions) -> dict[str, Any]:
         from . import cost
 
@@ -117,21 +111,10 @@ class RandomCommReproduction:
         cost.refuse_if_too_large(self.scenarios, opts, paper=self.is_paper)
         return compute.compute(self.scenarios, opts, cache, is_paper=self.is_paper)
 
-    @staticmethod
-    def tables(results):
-        from . import tables
-
-        return tables.run_tables(results)
-
     def write_outputs(self, results, out_dir: Path, claims: list[dict], prov: dict, tables=None) -> None:
-        from pipeline.tables import Tables
-
         from . import outputs
 
-        if tables is None:
-            tables = Tables()
-            for spec, frame in self.tables(results):
-                tables.add(spec, frame)
+        tables = self.table_set(results, tables)
         outputs.write_outputs(results, tables, out_dir, claims, prov, main=self.main, paper=self.is_paper)
 
     def notes(self) -> str:
