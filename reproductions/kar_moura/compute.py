@@ -659,7 +659,7 @@ def scenario_stages(d: ScenarioDesign, opts: RunOptions, cache: StageCache, *,
             _stage, cache, mc, "aux", lambda: theorem_aux_stage(sc, bounds, opts.seed, ref_runs, slots), sc.name,
             ERROR_BOUNDS))
     if assume.c1 and assume.undetectable is True:
-        stages["pullback_divergent"] = (cost["aux_s"], functools.partial(
+        stages["pullback_divergent"] = (cost["pullback_s"], functools.partial(
             _stage, cache, mc, "pullback_divergent", lambda: divergent_pullback_stage(sc, bounds, opts.seed), sc.name,
             ERROR_BOUNDS))
     if structural:

@@ -146,7 +146,7 @@ def scenario_cost(sc: GossipKalmanScenario, opts: RunOptions, assume=None) -> di
     out_s = OUTPUT_S + OUTPUT_NODE_S * N
     gikf_mib, ref_mib, design_mib = _kept_mib(sc, runs, ref_runs, slots)
     return {"seconds": design_s + gikf_s + ref_s + aux_s + out_s, "design_s": design_s, "gikf_s": gikf_s,
-            "chain_s": ref_s + aux_s, "ref_s": ref_s, "aux_s": aux_s, "chunk_mib": chunk_runs * per_run / 2**20, "kept_mib": gikf_mib + ref_mib + design_mib,
+            "chain_s": ref_s + aux_s, "ref_s": ref_s, "aux_s": aux_s, "pullback_s": PULLBACK_S * M * M, "chunk_mib": chunk_runs * per_run / 2**20, "kept_mib": gikf_mib + ref_mib + design_mib,
             "gikf_mib": gikf_mib, "runs": runs, "ref_runs": ref_runs, "slots": slots, "chunks": chunks,
             "unit_mib": RNG_UNIT * per_run / 2**20}
 
