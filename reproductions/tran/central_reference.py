@@ -102,7 +102,9 @@ def central_stochastic(sc, sde_run: dict, noise) -> dict[str, np.ndarray]:
 
 def kalman_bucy_reference(sc, noise, g, t_final: float) -> tuple[np.ndarray, np.ndarray]:
     """(steady-state, final-time) Kalman-Bucy covariance of x with the sensors of the nodes with g_i > 0,
-    R = blockdiag(h_i h_iᵀ) + jitter·I (KB_JITTER), P(0) = 0."""
+    R = blockdiag(h_i h_iᵀ) + jitter·I (KB_JITTER), P(0) = 0. The steady state is NaN when scipy's CARE
+    solver cannot reorder the Hamiltonian pencil (a nearly singular R); the final-time covariance then
+    comes from the Hamiltonian flow (`kalman_bucy_riccati`)."""
     from scipy.linalg import block_diag, solve_continuous_lyapunov
 
     Bv = noise.process
@@ -114,6 +116,9 @@ def kalman_bucy_reference(sc, noise, g, t_final: float) -> tuple[np.ndarray, np.
     V = block_diag(*[np.outer(noise.measurement[i, :, 0], noise.measurement[i, :, 0]) for i in act])
     scale = float(np.abs(V).max())
     V = V + KB_JITTER * (scale if scale > 0 else 1.0) * np.eye(len(V))
-    steady = kalman_bucy_steady(sc.A, Bv, H, V)[0]
+    try:
+        steady = kalman_bucy_steady(sc.A, Bv, H, V)[0]
+    except (ValueError, np.linalg.LinAlgError):    # scipy cannot order the Hamiltonian pencil (ill-conditioned V)
+        steady = np.full_like(sc.A, np.nan)          # a reference of the tables only: reported as not available
     final = kalman_bucy_riccati(sc.A, Bv, H, V, np.zeros_like(sc.A), t_final, 1)[-1]
     return steady, final

@@ -387,6 +387,13 @@ def _fixed_mc(res: Results):
     return R, r["final_mean"], cov, r["final_sq_mean"], sq_se
 
 
+
+def _loewner_gap(S: np.ndarray, reference: np.ndarray) -> float:
+    """λ_min(S − reference): ≥ 0 when the node's covariance dominates the reference (NaN when either is not finite)."""
+    if not (np.all(np.isfinite(S)) and np.all(np.isfinite(reference))):
+        return np.nan
+    return float(np.linalg.eigvalsh(S - reference)[0])
+
 def nodes_frame(res: Results) -> pd.DataFrame:
     sc, d, law = res.scenario, res.design, res.design.law
     n = sc.n
@@ -405,8 +412,8 @@ def nodes_frame(res: Results) -> pd.DataFrame:
     names = _type_names(d)
     rows = []
     for i in range(sc.N):
-        gap_inf = float(np.linalg.eigvalsh(S_inf[i, :n, :n] - kb_inf)[0]) if np.all(np.isfinite(S_inf[i])) else np.nan
-        gap_T = float(np.linalg.eigvalsh(S_T[i, :n, :n] - kb_T)[0]) if np.all(np.isfinite(S_T[i])) else np.nan
+        gap_inf = _loewner_gap(S_inf[i, :n, :n], kb_inf)
+        gap_T = _loewner_gap(S_T[i, :n, :n], kb_T)
         rows.append({
             "scenario": sc.name, "node": i, "type": names[sc.node_type[i]], "fixed_role": sc.fixed_active[i],
             "active_fraction": float(np.mean(co["g"][:, i] > 0.5)), "final_x_error": float(np.linalg.norm(z[-1, i, :n])),
