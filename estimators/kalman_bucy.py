@@ -30,8 +30,9 @@ def kalman_bucy_riccati(A, B, H, V, P0, step: float, n_steps: int) -> np.ndarray
     Δ(t) = Φ(t) Δ(0) (I + W(t)Δ(0))⁻¹ Φ(t)ᵀ with Φ = e^{A_c t} and the Gramian
     W(t) = ∫_0^t Φᵀ S Φ ds: only decaying exponentials and bounded Gramians appear, so the
     formula stays accurate for stiff problems (tiny V, huge gains) where the Hamiltonian
-    exponential overflows. Without a stabilising P∞ (undetectable pairs), the linear
-    Hamiltonian flow P = Y X⁻¹ is used on sub-steps with ‖Ham‖δ ≤ 1."""
+    exponential overflows. Without a stabilising P∞ (undetectable pairs, or a CARE that scipy
+    cannot solve), the linear Hamiltonian flow P = Y X⁻¹ is used on sub-steps with ‖Ham‖δ ≤ 1;
+    LinAlgError when that needs more than MAX_HAMILTONIAN_SUBSTEPS of them."""
     n = A.shape[0]
     S = H.T @ np.linalg.solve(V, H)
     S = (S + S.T) / 2
@@ -59,11 +60,20 @@ def kalman_bucy_riccati(A, B, H, V, P0, step: float, n_steps: int) -> np.ndarray
     return out
 
 
+#: the Hamiltonian flow takes sub-steps with ‖Ham‖δ ≤ 1; a flow that needs more than this many in all is
+#: refused (a nearly singular V makes ‖S‖ = ‖HᵀV⁻¹H‖ huge: 1e9 sub-steps would run for hours)
+MAX_HAMILTONIAN_SUBSTEPS = 200_000
+
+
 def _riccati_hamiltonian(A, B, S, P0, step: float, n_steps: int) -> np.ndarray:
     n = A.shape[0]
     Ham = np.block([[-A.T, S], [B @ B.T, A]])
     norm = float(np.abs(Ham).sum(axis=0).max()) * step
     sub = max(1, int(np.ceil(norm)))
+    if sub * n_steps > MAX_HAMILTONIAN_SUBSTEPS:
+        raise np.linalg.LinAlgError(f"the Riccati flow has no stabilising steady state to expand around and needs "
+                                    f"{sub * n_steps:.3g} Hamiltonian sub-steps (‖Ham‖·step = {norm:.3g}; more than "
+                                    f"{MAX_HAMILTONIAN_SUBSTEPS:,})")
     E = scipy.linalg.expm(Ham * (step / sub))
     out = np.empty((n_steps + 1, n, n))
     P = P0

@@ -29,7 +29,7 @@ from pipeline.reproduction import RunOptions
 from pipeline.seeding import stream_seed
 from pipeline.simulate import BLOCK_MEMORY_BYTES, block_generator, parallel_map, run_units
 
-from .design import Design, ScenarioDesign, joint_ok, nonfinite_allowed, scenario_design
+from .design import Design, ScenarioDesign, joint_ok, kalman_bucy_transient, nonfinite_allowed, scenario_design
 from .scenario import FilterNetworkScenario, with_graph
 
 CODE_MODULES = ("estimators.gossip_covariance", "estimators.gossip_filter", "estimators.kalman_bucy",
@@ -133,7 +133,7 @@ def compute_references(sc: FilterNetworkScenario) -> dict[str, np.ndarray]:
     s = sc.system
     Hs, Vs = np.vstack(s.H), scipy.linalg.block_diag(*s.V)
     base = {"bound_t_0": gc.bound_transient(s, sc.main_rate, sc.output_step, sc.n_outputs),
-            "P_kb_t": kb.kalman_bucy_riccati(s.A, s.B, Hs, Vs, s.P0, sc.output_step, sc.n_outputs)}
+            "P_kb_t": kalman_bucy_transient(sc)}
     if joint_ok(s):
         base["joint_t_0"] = gc.joint_transient(s, sc.main_rate, sc.output_step, sc.n_outputs)
     out = test_cell_references(sc, base)

@@ -104,7 +104,7 @@ def kalman_bucy_reference(sc, noise, g, t_final: float) -> tuple[np.ndarray, np.
     """(steady-state, final-time) Kalman-Bucy covariance of x with the sensors of the nodes with g_i > 0,
     R = blockdiag(h_i h_iᵀ) + jitter·I (KB_JITTER), P(0) = 0. The steady state is NaN when scipy's CARE
     solver cannot reorder the Hamiltonian pencil (a nearly singular R); the final-time covariance then
-    comes from the Hamiltonian flow (`kalman_bucy_riccati`)."""
+    comes from the Hamiltonian flow (`kalman_bucy_riccati`), or is NaN when that flow is too stiff."""
     from scipy.linalg import block_diag, solve_continuous_lyapunov
 
     Bv = noise.process
@@ -120,5 +120,8 @@ def kalman_bucy_reference(sc, noise, g, t_final: float) -> tuple[np.ndarray, np.
         steady = kalman_bucy_steady(sc.A, Bv, H, V)[0]
     except (ValueError, np.linalg.LinAlgError):    # scipy cannot order the Hamiltonian pencil (ill-conditioned V)
         steady = np.full_like(sc.A, np.nan)          # a reference of the tables only: reported as not available
-    final = kalman_bucy_riccati(sc.A, Bv, H, V, np.zeros_like(sc.A), t_final, 1)[-1]
+    try:
+        final = kalman_bucy_riccati(sc.A, Bv, H, V, np.zeros_like(sc.A), t_final, 1)[-1]
+    except np.linalg.LinAlgError:                    # too stiff for the Hamiltonian flow without a steady state
+        final = np.full_like(sc.A, np.nan)
     return steady, final
