@@ -27,12 +27,14 @@ sweeps: $(STAMP)
 test: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -n $$(( 2 * $$(nproc) )) --dist loadfile
 
-# Opens every recording of a quick reproduction and of one example sweep in Rerun's own viewer (headless, software
-# Vulkan from Debian's mesa-vulkan-drivers) and checks the views render without errors.
+# Opens every recording of a quick reproduction, of a compare run and of one example sweep in Rerun's own viewer
+# (headless, software Vulkan from Debian's mesa-vulkan-drivers, three viewers at a time) and checks the views render
+# without errors; the screenshots it takes are the README's.
 check-viewer: $(STAMP)
 	@dpkg -s mesa-vulkan-drivers >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq mesa-vulkan-drivers; }
 	rm -rf out/viewer-check
 	$(BIN)/dse reproduce --quick --out out/viewer-check
+	$(BIN)/dse run --quick reproductions/compare/scenarios/noisy_ring.toml --out out/viewer-check
 	$(BIN)/dse sweep reproductions/sweeps/savas_noise_rounds_size.toml --out out/viewer-check
 	$(BIN)/python -m pipeline.viewer_check out/viewer-check --screenshots out/viewer-check/screenshots
 

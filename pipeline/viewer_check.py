@@ -5,7 +5,7 @@ Vulkan driver, Debian's ``mesa-vulkan-drivers``, renders it) and is driven throu
 ``rerun.experimental.ViewerClient``: the check asserts that the blueprint's views are all
 listed, none reports an error, and it saves a screenshot per recording.
 
-    python -m pipeline.viewer_check OUT_DIR [--screenshots DIR]
+    python -m pipeline.viewer_check OUT_DIR [--screenshots DIR] [--jobs N]
 
 Exit code 0 when every recording passes, 1 otherwise.
 """
@@ -131,17 +131,23 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out_dir")
     parser.add_argument("--screenshots", default=None, help="directory for one PNG per recording")
+    parser.add_argument("--jobs", type=int, default=3, help="viewers open at once (default 3)")
     args = parser.parse_args(argv)
     recordings = sorted(p for p in Path(args.out_dir).rglob("*.rrd") if ".cache" not in p.parts)
     if not recordings:
         print(f"no recordings under {args.out_dir}", file=sys.stderr)
         return 1
-    failed = 0
-    for rrd in recordings:
+    from concurrent.futures import ThreadPoolExecutor
+
+    def check(rrd: Path) -> list[str]:
         shot = Path(args.screenshots) / f"{rrd.parent.name}-{rrd.stem}.png" if args.screenshots else None
-        problems = check_recording(rrd, shot)
-        failed += bool(problems)
-        print(f"{'FAIL' if problems else 'ok  '} {rrd}" + "".join(f"\n     {p}" for p in problems))
+        return check_recording(rrd, shot)
+
+    failed = 0
+    with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:     # each check mostly waits on its viewer
+        for rrd, problems in zip(recordings, pool.map(check, recordings)):
+            failed += bool(problems)
+            print(f"{'FAIL' if problems else 'ok  '} {rrd}" + "".join(f"\n     {p}" for p in problems), flush=True)
     print(f"{len(recordings) - failed} passed, {failed} failed")
     return 1 if failed else 0
 
