@@ -130,8 +130,9 @@ def network_metrics(frame) -> dict[str, float]:
 
 class PointStore:
     """One directory per finished point: `result.json` (the point's verdicts and metrics, with a
-    checksum of itself and of every table file) and `tables/<name>.parquet`. A damaged, edited or
-    incomplete point is detected by its checksums and recomputed."""
+    checksum of itself and of every table file) and `tables/<name>.arrow` (Arrow IPC files: the
+    store is internal, and they are written and read an order of magnitude faster than Parquet). A
+    damaged, edited or incomplete point is detected by its checksums and recomputed."""
 
     def __init__(self, root: Path):
         self.root = root
@@ -148,11 +149,11 @@ class PointStore:
                 raise ValueError("checksum mismatch")
             tables = {}
             for name, digest in doc["tables"].items():
-                raw = (d / "tables" / f"{name}.parquet").read_bytes()
+                raw = (d / "tables" / f"{name}.arrow").read_bytes()
                 if hashlib.sha256(raw).hexdigest() != digest:
                     raise ValueError(f"table {name}: checksum mismatch")
                 tables[name] = raw
-            return {**body, "table_files": {n: d / "tables" / f"{n}.parquet" for n in tables}}
+            return {**body, "table_files": {n: d / "tables" / f"{n}.arrow" for n in tables}}
         except FileNotFoundError:
             return None
         except Exception as exc:  # damaged in any way: recompute the point
@@ -163,9 +164,9 @@ class PointStore:
             return None
 
     def save(self, key: str, result: dict[str, Any]) -> dict[str, Any]:
-        """Store a point (tables as Parquet); returns the result as `load` would give it."""
+        """Store a point (tables as Arrow IPC files); returns the result as `load` would give it."""
         from .atomic import atomic_path
-        from .tables import _write_parquet
+        from .tables import write_arrow_file
 
         d = self._dir(key)
         staging = Path(tempfile.mkdtemp(prefix=f".{key}.staging-", dir=_mkdir(self.root)))
@@ -173,8 +174,8 @@ class PointStore:
             (staging / "tables").mkdir()
             digests = {}
             for name, frame in result.get("tables", {}).items():
-                path = staging / "tables" / f"{name}.parquet"
-                _write_parquet(result["table_docs"][name], frame, path)
+                path = staging / "tables" / f"{name}.arrow"
+                write_arrow_file(result["table_docs"][name], frame, path)
                 digests[name] = hashlib.sha256(path.read_bytes()).hexdigest()
             body = json.loads(json.dumps({k: v for k, v in result.items() if k not in ("tables", "table_docs")},
                                          default=str))
@@ -186,7 +187,7 @@ class PointStore:
             os.replace(staging, d)
         finally:
             shutil.rmtree(staging, ignore_errors=True)
-        return {**body, "table_files": {n: d / "tables" / f"{n}.parquet" for n in digests}}
+        return {**body, "table_files": {n: d / "tables" / f"{n}.arrow" for n in digests}}
 
 
 def _mkdir(path: Path) -> Path:

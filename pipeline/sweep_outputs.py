@@ -343,6 +343,8 @@ def write_point_tables(spec: SweepSpec, points: Sequence, results: Sequence[dict
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    from .tables import read_arrow_file
+
     names = list(dict.fromkeys(n for r in results for n in r.get("table_files", {})))
     for name in names:
         parts, schema = [], None
@@ -350,7 +352,7 @@ def write_point_tables(spec: SweepSpec, points: Sequence, results: Sequence[dict
             path = res.get("table_files", {}).get(name)
             if path is None:
                 continue
-            t = pq.read_table(path)
+            t = read_arrow_file(path)
             schema = schema or t.schema
             front = {"point": pa.array([point.index] * t.num_rows, pa.int64())}
             front.update({f: pa.array([json.dumps(cell(point.values[f])) if not isinstance(cell(point.values[f]), str)
