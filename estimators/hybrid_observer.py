@@ -23,7 +23,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg as sla
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 from .jointly_observable_design import symmetric_weights
 
@@ -511,7 +511,7 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
     off_ns = np.array([to_ns(t) for t in timing.offsets], dtype=np.int64)
     event_ns = off_ns[:, None] + T_ns * np.arange(S + 1)[None, :]
     start_ns, end_ns, grid0, dt_ns, samples = sample_grid(off_ns, T_ns, S, dt_plot)
-    eAT = sla.expm(A * (T_ns / NS))        # the event spacing as simulated (whole nanoseconds)
+    eAT = scipy.linalg.expm(A * (T_ns / NS))        # the event spacing as simulated (whole nanoseconds)
     W_slices = d.w_slices
     part = participation(event_ns, membership)
     monitor.start(RunLayout(B, m, n, S, q, event_ns, part, grid0, dt_ns, samples, tuple(W_slices)))
@@ -525,7 +525,7 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
 
     # state
     X = np.zeros((B, D))
-    x_start = rowwise_matmul(x0, sla.expm(A * (start_ns / NS)).T) if (start_ns < 0 and noise_b is None) else x0.copy()
+    x_start = rowwise_matmul(x0, scipy.linalg.expm(A * (start_ns / NS)).T) if (start_ns < 0 and noise_b is None) else x0.copy()
     X[:, :n] = x_start
     X[:, n:io] = w0
     X[:, io] = math.cos(noise_omega * start_ns / NS)
@@ -545,7 +545,7 @@ def simulate(d: ObserverDesign, timing: Timing, schedule: GraphSchedule, *, x0: 
                 gen_cache[gk] = _generator(d, act, noise_b, noise_omega, central_gain, Cs)
             if len(phi_cache) > 256:
                 phi_cache.clear()
-            phi_cache[key] = sla.expm(gen_cache[gk] * (h_ns / NS)).T
+            phi_cache[key] = scipy.linalg.expm(gen_cache[gk] * (h_ns / NS)).T
         return phi_cache[key]
 
     def step_T(Wk: np.ndarray, pp: np.ndarray) -> np.ndarray:
@@ -751,7 +751,7 @@ def interval_matrices(d: ObserverDesign, W: np.ndarray, eAT: np.ndarray, E: np.n
     flush()
     big = np.kron(np.eye(m), eAT)
     As = big @ Phi
-    Bs = big @ total @ sla.block_diag(*d.Q)
+    Bs = big @ total @ scipy.linalg.block_diag(*d.Q)
     G = big @ GX
     return IntervalMatrices(As, Bs, G, phi_max)
 
@@ -764,21 +764,21 @@ def error_recursion(d: ObserverDesign, W: np.ndarray, T: float, offsets: np.ndar
     e(s) = A e(s-1) + B ē(s-1) - G x((s-1)T)  (61, with the sign corrected). `E`: the e^{A t_i0} if
     already computed; `Phi`: the products of (40) if already computed (else formed one at a time)."""
     m, n = d.m, d.n
-    eAT = sla.expm(d.A * T) if eAT is None else eAT
+    eAT = scipy.linalg.expm(d.A * T) if eAT is None else eAT
     if E is None and offsets is not None and np.any(np.asarray(offsets) != 0):
-        E = np.array([sla.expm(d.A * t) if t else np.eye(n) for t in offsets])
+        E = np.array([scipy.linalg.expm(d.A * t) if t else np.eye(n) for t in offsets])
     if E is not None and not np.any(E - E[:1]):
         E = None                                                   # equal offsets: Γ = 0
     if Phi is None:
         r = interval_matrices(d, W, eAT, E)
         return r.A, r.B, r.G if E is not None else np.zeros((m * n, n))
     big = np.kron(np.eye(m), eAT)
-    Qb = sla.block_diag(*d.Q)
+    Qb = scipy.linalg.block_diag(*d.Q)
     As = big @ Phi[0]
     Bs = big @ Phi[1:].sum(axis=0) @ Qb
     G = np.zeros((m * n, n))
     if E is not None:
         Gam = E[None] - np.einsum("kij,jab->kiab", W, E)                   # (q, m, n, n), rows of W sum to 1
-        Pb = sla.block_diag(*d.P)
+        Pb = scipy.linalg.block_diag(*d.P)
         G = big @ (Phi[1:] @ Pb[None] @ Gam.reshape(W.shape[0], m * n, n)).sum(axis=0)
     return As, Bs, G

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from decimal import Decimal, getcontext, localcontext
 
 import numpy as np
-import scipy.linalg as sla
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 
 # -- per-agent quantities ---------------------------------------------------------------------
@@ -106,7 +106,7 @@ def pseudo_inverse_rows(L: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     orthonormal U only, so its accuracy does not degrade with κ(L) beyond the QR's own).
     Also κ(L) = κ(R)."""
     U, Rm = np.linalg.qr(np.asarray(L, float).T)
-    Q = sla.solve_triangular(Rm, U.T).T            # (R^{-1} U')' = U R^{-T}
+    Q = scipy.linalg.solve_triangular(Rm, U.T).T            # (R^{-1} U')' = U R^{-T}
     sv = np.linalg.svd(Rm, compute_uv=False)
     return Q, np.eye(L.shape[1]) - U @ U.T, float(sv[0] / sv[-1])
 
@@ -156,12 +156,12 @@ def _place_direct(A: np.ndarray, B: np.ndarray, poles: np.ndarray, rank: int) ->
     same order (tests compare the two bit for bit)."""
     if B.shape[0] == rank:       # K = lstsq(B, diag(poles) - A): the transfer matrix is the identity
         return -np.real(np.linalg.lstsq(B, np.diag(poles) - A, rcond=-1)[0])
-    u, z = sla.qr(B, mode="full")
+    u, z = scipy.linalg.qr(B, mode="full")
     u0, u1, z = u[:, :rank], u[:, rank:], z[:rank, :]
     columns = []
     for p in poles:              # one vector of the kernel of u1'(A - p I) per pole (unique up to scale)
         pole_space = np.dot(u1.T, A - p * np.eye(B.shape[0])).T
-        Q, _ = sla.qr(pole_space, mode="full")
+        Q, _ = scipy.linalg.qr(pole_space, mode="full")
         x = np.sum(Q[:, pole_space.shape[1]:], axis=1)[:, np.newaxis]
         columns.append(x / np.linalg.norm(x))
     X = np.hstack(columns).astype(complex)
@@ -210,7 +210,7 @@ def transient_constant(F: np.ndarray, rate: float, *, horizon: float | None = No
     h = horizon / (samples - 1)
     E = np.empty((samples, *F.shape))
     E[0] = np.eye(len(F))
-    step, filled = sla.expm(G * h), 1
+    step, filled = scipy.linalg.expm(G * h), 1
     while filled < samples:                      # E[k] = step^k by doubling: E[f:2f] = E[0:f] step^f
         take = min(filled, samples - filled)
         E[filled:filled + take] = E[:take] @ step
@@ -223,7 +223,7 @@ def transient_constant(F: np.ndarray, rate: float, *, horizon: float | None = No
     if hi > lo:
         from scipy.optimize import minimize_scalar
 
-        res = minimize_scalar(lambda t: -np.linalg.norm(sla.expm(G * t), 2), bounds=(lo, hi), method="bounded",
+        res = minimize_scalar(lambda t: -np.linalg.norm(scipy.linalg.expm(G * t), 2), bounds=(lo, hi), method="bounded",
                               options={"xatol": 1e-12})
         best = max(best, float(-res.fun))
     return best
@@ -587,7 +587,7 @@ def sigma_symmetric(P_blocks: np.ndarray, graphs: np.ndarray | None = None, m_de
     P = np.asarray(P_blocks, float)
     m, n, _ = P.shape
     graphs = connected_undirected_graphs(m) if graphs is None else graphs
-    Pbig = sla.block_diag(*P)
+    Pbig = scipy.linalg.block_diag(*P)
     Ms = symmetric_weights_batch(graphs, m_design)
     batch = max(1, SIGMA_BATCH_BYTES // (8 * (m * n) ** 2))         # graphs per batch, memory bounded
     vals = np.concatenate([np.linalg.norm(Pbig @ _kron_batch(Ms[a:a + batch], n), ord=2, axis=(1, 2))

@@ -44,7 +44,7 @@ import numbers
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 __all__ = [
     "KalmanCovariances",

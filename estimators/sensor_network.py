@@ -19,7 +19,7 @@ from functools import cached_property
 from typing import Sequence
 
 import numpy as np
-import scipy.linalg as sla
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 from .kalman import kalman_covariances, steady_state_gain
 
@@ -90,7 +90,7 @@ class SensorNetworkModel:
 
     @property
     def R_all(self) -> np.ndarray:
-        return sla.block_diag(*self.R)
+        return scipy.linalg.block_diag(*self.R)
 
     def central_covariances(self, n_steps: int):
         """The centralized Kalman filter's covariances and gains (estimators.kalman)."""

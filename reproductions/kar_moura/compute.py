@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any, Collection
 
 import numpy as np
-import scipy.linalg
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 import estimators.gossip_kalman as gk
 import estimators.kalman as kal

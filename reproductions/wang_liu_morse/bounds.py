@@ -22,7 +22,7 @@ import math
 from collections import OrderedDict
 
 import numpy as np
-import scipy.linalg as sla
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 import estimators.hybrid_observer as ho
 import estimators.jointly_observable_design as jd
@@ -81,7 +81,7 @@ def offset_exponentials(sc: HybridScenario, event_ns: np.ndarray) -> np.ndarray 
     offsets = event_ns[:, 0] / ho.NS
     if not np.any(offsets):
         return None
-    return np.array([sla.expm(sc.A * t) if t else np.eye(sc.n) for t in offsets])
+    return np.array([scipy.linalg.expm(sc.A * t) if t else np.eye(sc.n) for t in offsets])
 
 
 def digest(W: np.ndarray, pp: np.ndarray) -> bytes:
@@ -138,7 +138,7 @@ def interval_plan(sc: HybridScenario, run: RunSpec, seed: int) -> dict[str, np.n
     timing, schedule = timing_for(sc, run, seed), schedule_for(sc, run)
     ev = event_times(sc, run)
     part = ho.participation(ev, memberships(run))
-    eAT = sla.expm(sc.A * (ho.to_ns(sc.T) / ho.NS))
+    eAT = scipy.linalg.expm(sc.A * (ho.to_ns(sc.T) / ho.NS))
     cache = MatrixCache(sc, d, eAT, offset_exponentials(sc, ev))
     out = {k: np.full(S, np.nan) for k in ("A_mixed", "B_mixed", "G_mixed", "A_2", "B_2", "Phi_max")}
     mism, entries = np.zeros(S, dtype=np.int64), np.zeros(S, dtype=np.int64)
@@ -692,14 +692,14 @@ def simulate_run(sc: HybridScenario, design: dict, run: RunSpec, trials: int, se
     alpha, _ = alpha_used(design)
     N = (m - 1) ** 2 + 1
     ev = plan["event_ns"]
-    eAT = sla.expm(sc.A * (ho.to_ns(sc.T) / ho.NS))
+    eAT = scipy.linalg.expm(sc.A * (ho.to_ns(sc.T) / ho.NS))
     Cs = np.vstack(sc.C)
 
     def make_kf():
         """A centralized Kalman filter (filterpy) on the stacked outputs sampled every sampling
         step, trial 0; the harmonic input is modelled as white process noise of the same power."""
         kf = KalmanFilter(dim_x=n, dim_z=Cs.shape[0])
-        kf.F, kf.H = sla.expm(sc.A * sc.sample_step), Cs
+        kf.F, kf.H = scipy.linalg.expm(sc.A * sc.sample_step), Cs
         b = sc.noise_b if sc.noise_b is not None else np.zeros(n)
         kf.Q = 0.5 * np.outer(b, b) * sc.sample_step + 1e-12 * np.eye(n)
         kf.R = 1e-6 * np.eye(Cs.shape[0])
@@ -716,7 +716,7 @@ def simulate_run(sc: HybridScenario, design: dict, run: RunSpec, trials: int, se
            "qQ": run.q * float(design["Q_mixed"]), "B_mixed": plan["B_mixed"],
            "symmetric": run.rule == "symmetric" and run.leave is None and not run.noise,
            "eq63": run.timing == "offset" and theorem,
-           "steps_block": sla.block_diag(*[sla.expm(d.F(i) * (ho.to_ns(sc.T) / ho.NS)) for i in range(m)]).T,
+           "steps_block": scipy.linalg.block_diag(*[scipy.linalg.expm(d.F(i) * (ho.to_ns(sc.T) / ho.NS)) for i in range(m)]).T,
            "Cs": Cs, "make_kf": make_kf,
            "matrices": MatrixCache(sc, d, eAT, offset_exponentials(sc, ev)), "iter_keep": plan["sources0"].shape[0]}
     _, _, grid0, dt_ns, samples = ho.sample_grid(ev[:, 0], ho.to_ns(sc.T), run.intervals, sc.sample_step)

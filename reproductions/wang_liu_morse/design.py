@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sla
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 import estimators.hybrid_observer as ho
 import estimators.jointly_observable_design as jd
@@ -107,7 +107,7 @@ def design_quantities(sc: HybridScenario, seed: int, extras: bool = False, misma
     out: dict[str, np.ndarray] = {}
     nA = float(np.linalg.norm(sc.A, 2))
     out["norm_A"] = np.array(nA)
-    out["norm_eAT"] = np.array(np.linalg.norm(sla.expm(sc.A * sc.T), 2))
+    out["norm_eAT"] = np.array(np.linalg.norm(scipy.linalg.expm(sc.A * sc.T), 2))
     out["eig_A"] = np.linalg.eigvals(sc.A)
     out["P"] = d.P
     out["n_i"] = np.array(d.n_i)
@@ -125,8 +125,8 @@ def design_quantities(sc: HybridScenario, seed: int, extras: bool = False, misma
     out["local_abscissa"] = np.array([jd.spectral_abscissa(Fi) for Fi in F])
     out["local_abscissa_tol"] = np.array([eigenvalue_roundoff(Fi) for Fi in F])
     out["c_i"] = np.array([jd.transient_constant(Fi, sc.lam_bar) for Fi in F])
-    out["Q_mixed"] = np.array(jd.mixed_norm(sla.block_diag(*d.Q), [n] * m, d.n_i))
-    out["Q_2"] = np.array(np.linalg.norm(sla.block_diag(*d.Q), 2))
+    out["Q_mixed"] = np.array(jd.mixed_norm(scipy.linalg.block_diag(*d.Q), [n] * m, d.n_i))
+    out["Q_2"] = np.array(np.linalg.norm(scipy.linalg.block_diag(*d.Q), 2))
     out["eig_central"] = np.linalg.eigvals(sc.A + central_gain(sc) @ np.vstack(sc.C))
     rho = jd.rho_exact(d.P)
     out["rho"], out["rho_exact"], out["rho_words"] = np.array(rho.rho), np.array(rho.exact), np.array(rho.words)
@@ -253,7 +253,7 @@ def lemma_samples(sc: HybridScenario, seed: int) -> dict[str, np.ndarray]:
     wts = gen.dirichlet(np.ones(4), size=count6)
     Fm = wts[:, :1, None] * np.eye(m)[None] + np.einsum("bk,bkij->bij", wts[:, 1:], perms)
     Fm = Fm[jd.strongly_connected_batch(Fm > 1e-12)]
-    Pbig = sla.block_diag(*d.P)
+    Pbig = scipy.linalg.block_diag(*d.P)
     vals = [jd.spectral_norm(Pbig[None] @ np.einsum("fij,ab->fiajb", Fm[a:a + batch], np.eye(n)).reshape(-1, mn, mn))
             for a in range(0, len(Fm), batch)]
     out["lemma6_max"] = np.array(np.max(np.concatenate(vals)) if vals else np.nan)
@@ -308,7 +308,7 @@ def model_mismatch(sc: HybridScenario, seed: int, steps: int = 2000, dt: float =
     gen = block_generator(stream_seed(seed, "model-mismatch"))
     E = gen.standard_normal((n, n))
     E *= size / np.linalg.norm(E, 2)
-    Phi = sla.expm(sc.A * dt)
+    Phi = scipy.linalg.expm(sc.A * dt)
     x = np.empty((steps, n))
     x[0] = sc.x0
     for k in range(1, steps):
@@ -316,7 +316,7 @@ def model_mismatch(sc: HybridScenario, seed: int, steps: int = 2000, dt: float =
     errs = {}
     for label, Ahat in (("exact", sc.A), ("mismatch", sc.A + E)):
         kf = KalmanFilter(dim_x=n, dim_z=Cs.shape[0])
-        kf.F, kf.H = sla.expm(Ahat * dt), Cs
+        kf.F, kf.H = scipy.linalg.expm(Ahat * dt), Cs
         kf.Q, kf.R = 1e-6 * np.eye(n), 1e-4 * np.eye(Cs.shape[0])
         kf.x, kf.P = np.zeros(n), np.eye(n)
         e = np.empty(steps)
