@@ -54,6 +54,15 @@ def key(default: Any = PydanticUndefined, *, doc: str, unit: str = "", constrain
     return Field(default, description=doc, json_schema_extra=extra, **constraints)
 
 
+def computed(text: str):
+    """A default computed from other keys, for `key(default_factory=computed("..."))`: None here,
+    resolved when the scenario is built; `text` says how, and is what the reference page shows."""
+    def default():
+        return None
+    default.__doc__ = text
+    return default
+
+
 def parse(model: type[Section], data: Any, prefix: str = "") -> Section:
     """Validate `data` against a section; the first problem becomes one ScenarioError."""
     if not isinstance(data, Mapping):

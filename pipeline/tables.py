@@ -74,7 +74,7 @@ class Tables:
     source: Path | None = None
 
     def add(self, table: TableSpec, frame) -> None:
-        """Add (or extend, with the same declaration) a table; its columns must match the spec exactly."""
+        """Add (or extend, with the same declaration) a table; its columns must match the declaration exactly."""
         import pandas as pd
 
         frame = pd.DataFrame(frame) if not isinstance(frame, pd.DataFrame) else frame

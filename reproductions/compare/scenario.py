@@ -14,7 +14,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import model_validator
 
-from pipeline.declare import Matrix, Real, Section, covariance, key, matrix, parse
+from pipeline.declare import Matrix, Real, Section, computed, covariance, key, matrix, parse
 from pipeline.errors import ScenarioError
 from pipeline.graphs import GraphSection, GraphSpec, graph_from_section, max_degree
 
@@ -30,22 +30,15 @@ MAX_ROWS = 4
 MAX_STEPS = 20_000
 
 
-def _computed(text: str):
-    def default():
-        return None
-    default.__doc__ = text
-    return default
-
-
 class PlantSection(Section):
     """The plant x(k+1) = F x(k) + w(k), w ~ N(0, Q), x(0) ~ N(x0, P0)."""
 
     F: Matrix = key(doc="state transition matrix (n x n)", constraint=f"square, n <= {MAX_STATE}")
     Q: Matrix = key(doc="process noise covariance (n x n)", unit="state²", constraint="symmetric, positive semidefinite")
-    P0: Matrix | None = key(_computed("identity"), doc="covariance of x(0) (n x n); every filter starts from it",
+    P0: Matrix | None = key(computed("identity"), doc="covariance of x(0) (n x n); every filter starts from it",
                             unit="state²", constraint="symmetric, positive definite (the information filters start "
                                                       "from its inverse)")
-    x0: list[Real] | None = key(_computed("zeros"), doc="mean of x(0), every node's first estimate", unit="state",
+    x0: list[Real] | None = key(computed("zeros"), doc="mean of x(0), every node's first estimate", unit="state",
                                 constraint="n entries")
 
 
@@ -102,7 +95,7 @@ class WeightsSection(Section):
         "metropolis", doc="metropolis: q_ij = 1/(1 + max(d_i, d_j)); laplacian: q_ij = eps on every link")
     eps: Real | None = key(None, doc="the Laplacian weight (kind = laplacian)", gt=0,
                            constraint="required with kind = laplacian, only then; < 1/d_max")
-    alpha: Real | None = key(_computed("1/(1 + d_max)"), doc="weight α of Tanwani's pairwise averaging (6), "
+    alpha: Real | None = key(computed("1/(1 + d_max)"), doc="weight α of Tanwani's pairwise averaging (6), "
                              "Π = I − α L (the paper allows up to 1/d_max; at 1/d_max a synchronous round on a "
                              "bipartite graph has an eigenvalue −1 that never averages out)", gt=0, le=0.5,
                              constraint="<= 1/d_max")
@@ -158,7 +151,7 @@ class EstimatorsSection(Section):
     with the reason)."""
 
     include: list[Literal[ESTIMATORS]] | None = key(  # type: ignore[valid-type]
-        _computed("all"), doc="estimator ids: " + ", ".join(ESTIMATORS), min_length=1,
+        computed("all"), doc="estimator ids: " + ", ".join(ESTIMATORS), min_length=1,
         constraint="the centralized filter always runs (it is the reference)")
 
 
@@ -167,9 +160,9 @@ class SimulationSection(Section):
 
     steps: int = key(100, doc="steps k = 0..steps−1", ge=2, le=MAX_STEPS)
     trials: int = key(4000, doc="Monte Carlo trials", ge=100, le=10_000_000)
-    quick_trials: int | None = key(_computed("min(trials, 1000)"), doc="trials in quick runs", ge=100,
+    quick_trials: int | None = key(computed("min(trials, 1000)"), doc="trials in quick runs", ge=100,
                                    le=10_000_000)
-    eval_step: int | None = key(_computed("steps − 1"), doc="step at which the node tables and the claims "
+    eval_step: int | None = key(computed("steps − 1"), doc="step at which the node tables and the claims "
                                 "compare the estimators", ge=1, constraint="< steps")
     paths: int = key(1, doc="sample trials kept whole for the recording", ge=0, le=20)
     exact_max_dimension: int = key(400, doc="exact joint recursions run when N n is at most this (their cost "

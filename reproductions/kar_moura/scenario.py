@@ -18,7 +18,7 @@ from pydantic import model_validator
 
 from estimators.gossip_kalman import (GossipSystem, GreedyMatchingGossip, MatchingDistribution, MatchingSequence,
                                       NodeInitiatedGossip, SingleEdgeGossip)
-from pipeline.declare import Matrix, Real, Section, covariance, key, matrix, parse
+from pipeline.declare import Matrix, Real, Section, computed, covariance, key, matrix, parse
 from pipeline.errors import ScenarioError
 from pipeline.graphs import GraphSection, GraphSpec, graph_from_section
 from pipeline.scenario import load_toml
@@ -36,14 +36,6 @@ MAX_RUNS = 1_000_000
 MAX_REFERENCE_RUNS = 2_000_000
 
 
-def _computed(text: str):
-    """A default computed from other keys; `text` says how (the reference page shows it)."""
-    def default():
-        return None
-    default.__doc__ = text
-    return default
-
-
 Pairs = list[list[int]]
 
 
@@ -53,10 +45,10 @@ class ModelSection(Section):
     F: Matrix = key(doc="system matrix F (M x M)", constraint=f"square; M <= {MAX_STATE}")
     Q: Matrix = key(doc="process noise covariance Q (M x M)", unit="state²",
                     constraint="positive definite (S.1: the proofs use Q ≻ 0)")
-    P0: Matrix | None = key(_computed("identity"), doc="covariance of x(0), the covariance every sensor starts from",
+    P0: Matrix | None = key(computed("identity"), doc="covariance of x(0), the covariance every sensor starts from",
                             unit="state²", constraint="positive semidefinite (a singular P0 is allowed; eigenvalues "
                                                       "within the tolerance below 0 are set to 0)")
-    x0: list[Real] | None = key(_computed("zeros"), doc="prior mean of x(0): every sensor's estimate starts there (the "
+    x0: list[Real] | None = key(computed("zeros"), doc="prior mean of x(0): every sensor's estimate starts there (the "
                                 "errors do not depend on it; the sample runs' states and estimates do)", unit="state",
                                 constraint="M entries")
 
@@ -136,14 +128,14 @@ class SimulationSection(Section):
     runs: int = key(4000, doc="independent GIKF runs", ge=100, le=MAX_RUNS)
     reference_runs: int = key(20_000, doc="independent runs of the Theorem-8 process P̃(t) (the reference law μ_t)",
                               ge=100, le=MAX_REFERENCE_RUNS)
-    quick_runs: int | None = key(_computed("min(runs, 1000)"), doc="GIKF runs of a quick run", ge=100, le=MAX_RUNS,
+    quick_runs: int | None = key(computed("min(runs, 1000)"), doc="GIKF runs of a quick run", ge=100, le=MAX_RUNS,
                                  constraint="<= runs")
-    quick_reference_runs: int | None = key(_computed("min(reference_runs, 4000)"),
+    quick_reference_runs: int | None = key(computed("min(reference_runs, 4000)"),
                                            doc="Theorem-8 runs of a quick run", ge=100, le=MAX_REFERENCE_RUNS,
                                            constraint="<= reference_runs")
-    quick_slots: int | None = key(_computed("min(slots, 150)"), doc="horizon of a quick run", ge=2, le=MAX_SLOTS,
+    quick_slots: int | None = key(computed("min(slots, 150)"), doc="horizon of a quick run", ge=2, le=MAX_SLOTS,
                                   unit="slot", constraint="<= slots")
-    record_times: list[int] | None = key(_computed("1, 2, 3, 5, 10, 20, 50, 100, 200, 300, 600, 1000 below slots, "
+    record_times: list[int] | None = key(computed("1, 2, 3, 5, 10, 20, 50, 100, 200, 300, 600, 1000 below slots, "
                                                    "and slots"),
                                          doc="slots at which every run's covariance features are kept (the law tests)",
                                          unit="slot", constraint="strictly increasing, each in 0..slots; at most 64")

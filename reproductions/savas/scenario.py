@@ -16,7 +16,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from pipeline.declare import Matrix, Real, Section, key, matrix, parse
+from pipeline.declare import Matrix, Real, Section, computed, key, matrix, parse
 from pipeline.errors import ScenarioError
 from pipeline.graphs import (GraphSection, GraphSpec, check_consensus_matrix, graph_from_section,
                              laplacian_consensus_weights, max_degree, metropolis_weights)
@@ -36,15 +36,6 @@ def _listed(values: list):
     def default():
         return list(values)
     default.__doc__ = f"`{values}`"
-    return default
-
-
-def _computed(text: str):
-    """A default computed from other keys: None here, resolved when the scenario is built; `text`
-    is what the reference page shows."""
-    def default():
-        return None
-    default.__doc__ = text
     return default
 
 
@@ -100,7 +91,7 @@ class SweepSection(Section):
                                     "added at every round (eq. (6))", unit="state", min_length=1,
                                     constraint="each >= 0; strictly increasing")
     n_steps: int = key(10, doc="horizon: steps k = 0..n_steps−1 are simulated", ge=1, le=MAX_STEPS)
-    eval_step: int | None = key(_computed("min(4, n_steps − 1)"), doc="step k of the figures' metric "
+    eval_step: int | None = key(computed("min(4, n_steps − 1)"), doc="step k of the figures' metric "
                                 "Σ_i var x̃_i(k|k−1) = tr P(k|k−1) (the paper's k = 4)", ge=0,
                                 constraint="< n_steps")
     recorded_steps: int = key(1000, doc="per-step statistics (Monte Carlo moments, exact covariances) are kept at "
@@ -153,7 +144,7 @@ GridSize = Annotated[int, Field(ge=11, le=5000)]
 class GainsSection(Section):
     """The optimal-gain tables (Fig. 2): (ℓ*, ζ*) minimising (16) for m = 0..rounds_max at every σ_c."""
 
-    rounds_max: int | None = key(_computed("max(sweep.rounds)"), doc="largest m of the gain tables", ge=0,
+    rounds_max: int | None = key(computed("max(sweep.rounds)"), doc="largest m of the gain tables", ge=0,
                                  le=MAX_ROUNDS, constraint=">= max(sweep.rounds)")
     grid: list[GridSize] = key(_listed([400, 401]), doc="[n_ell, n_zeta]: the grid of (ℓ, ζ) on which J is evaluated "
                                "before the local search ([100, 101] in quick runs)", min_length=2, max_length=2,
@@ -164,7 +155,7 @@ class MonteCarloSection(Section):
     """The simulation: independent trials per cell, streamed in units of 1,000 trials."""
 
     trials: int = key(200_000, doc="trials per (filter, m, σ_c) cell (the paper: 200,000)", ge=100, le=100_000_000)
-    quick_trials: int | None = key(_computed("min(trials, 20000)"), doc="trials per cell in quick runs", ge=100,
+    quick_trials: int | None = key(computed("min(trials, 20000)"), doc="trials per cell in quick runs", ge=100,
                                    le=100_000_000)
     sample_paths: int = key(3, doc="sample trials kept whole (estimates, consensus iterates) for the recordings and "
                             "the pathwise identities", ge=0, le=50)

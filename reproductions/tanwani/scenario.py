@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from estimators.gossip_filter import MODES, GossipSystem, kalman_bucy_split_gains
-from pipeline.declare import Matrix, Real, Section, covariance, key, matrix, parse
+from pipeline.declare import Matrix, Real, Section, computed, covariance, key, matrix, parse
 from pipeline.errors import ScenarioError, printable
 from pipeline.graphs import GraphSection, GraphSpec, graph_from_section
 from pipeline.scenario import load_toml
@@ -43,24 +43,15 @@ MAX_RINGS_PER_STEP = 0.5
 Rate = Annotated[float, Field(allow_inf_nan=False, gt=0, le=MAX_RATE)]
 
 
-def _computed(text: str):
-    """A default computed from other keys (None here, resolved when the scenario is built); `text`
-    is what the reference page shows."""
-    def default():
-        return None
-    default.__doc__ = text
-    return default
-
-
 class SystemSection(Section):
     """The plant (1), dx = A x dt + B dω (ω a standard Wiener process), and its initial state
     x(0) ~ N(m0, P0); every node's estimate starts at x̂_i(0) = m0."""
 
     A: Matrix = key(doc="state matrix A (n x n)", constraint=f"square, n <= {MAX_STATE}")
     B: Matrix = key(doc="noise input matrix B (n x m): the process noise intensity is BBᵀ", constraint="n rows")
-    P0: Matrix | None = key(_computed("identity"), doc="covariance of x(0), hence E[e_i(0)e_i(0)ᵀ] of every node",
+    P0: Matrix | None = key(computed("identity"), doc="covariance of x(0), hence E[e_i(0)e_i(0)ᵀ] of every node",
                             unit="state²", constraint="n x n, symmetric positive semidefinite")
-    m0: list[Real] | None = key(_computed("zeros"), doc="mean of x(0), also every node's initial estimate x̂_i(0)",
+    m0: list[Real] | None = key(computed("zeros"), doc="mean of x(0), also every node's initial estimate x̂_i(0)",
                                 unit="state", constraint="n entries")
 
 
@@ -74,7 +65,7 @@ class SensorSection(Section):
                     constraint="symmetric positive definite")
     L: Matrix | None = key(None, doc="filter gain L_i (n x p_i) of (5)", constraint="required with gains.rule = "
                            "'given', only then")
-    P_init: Matrix | None = key(_computed("system.P0"), doc="P_i(0): the initial value of the node's per-path bound "
+    P_init: Matrix | None = key(computed("system.P0"), doc="P_i(0): the initial value of the node's per-path bound "
                                 "(14) and of its mean (9). Prop. III.2 and Thm. III.1 need P_i(0) ⪰ E[e_i(0)e_i(0)ᵀ] = "
                                 "P0 (reported as the hypothesis 'initial'); the simulated errors start from x(0) − m0 "
                                 "whatever P_i(0) is", unit="state²", constraint="n x n, symmetric positive semidefinite")
@@ -85,7 +76,7 @@ class CommunicationSection(Section):
     rings, `edge`) or per ordered pair (only the receiver fuses, `ordered`); a ring moves x̂_i to
     (1 − α)x̂_i + αx̂_j (6), Π = I − α𝓛 (3)."""
 
-    alpha: Real | None = key(_computed("min(1/2, 1/d_max)"), doc="fusion weight α of (3) and (6)", gt=0,
+    alpha: Real | None = key(computed("min(1/2, 1/d_max)"), doc="fusion weight α of (3) and (6)", gt=0,
                              constraint="<= 1/d_max (d_max the largest node degree)")
     mode: Literal[MODES] = key("edge", doc="edge: one clock per undirected edge, both endpoints update with the "  # type: ignore[valid-type]
                                "pre-jump values; ordered: one clock per ordered pair, only the receiver updates")
@@ -125,7 +116,7 @@ class SimulationSection(Section):
     output_step: Real = key(0.1, doc="spacing of the output grid (every transient, Monte Carlo moment and table "
                             "series is on it)", unit="s", gt=0,
                             constraint=f"divides the horizon into at most {MAX_OUTPUTS} steps")
-    grid_step: Real | None = key(_computed(f"the largest h = output_step/k <= {BASE_GRID_STEP:g} with "
+    grid_step: Real | None = key(computed(f"the largest h = output_step/k <= {BASE_GRID_STEP:g} with "
                                            f"h·(max‖A_i‖₂ + λ d_max) <= {GRID_ASYMPTOTIC:g} and λ·h·d_max <= "
                                            f"{MAX_RINGS_PER_STEP:g} for every simulated λ (at most "
                                            f"{MAX_GRID_STEPS:,} steps)"),
@@ -135,9 +126,9 @@ class SimulationSection(Section):
     trials: int = key(10_000, doc="gridded Monte Carlo trials per rate", ge=100, le=10_000_000)
     event_trials: int = key(2_000, doc="event-driven Monte Carlo trials (main rate), also those of the frozen clock "
                             "path", ge=50, le=1_000_000)
-    quick_trials: int | None = key(_computed("min(trials, 2000)"), doc="gridded trials in quick runs", ge=100,
+    quick_trials: int | None = key(computed("min(trials, 2000)"), doc="gridded trials in quick runs", ge=100,
                                    le=10_000_000)
-    quick_event_trials: int | None = key(_computed("min(event_trials, 300)"), doc="event-driven trials in quick runs",
+    quick_event_trials: int | None = key(computed("min(event_trials, 300)"), doc="event-driven trials in quick runs",
                                          ge=50, le=1_000_000)
     sample_trials: int = key(3, doc="trials kept whole for the figures and recordings (and stored clock paths)",
                              ge=1, le=20)
@@ -148,7 +139,7 @@ class RandomCommFile(Section):
 
     name: str = key("scenario", doc="scenario name: the output directory OUT/run/<name>/",
                     pattern=r"^[A-Za-z0-9_-]{1,64}$", constraint="1 to 64 letters, digits, '-' or '_'")
-    title: str | None = key(_computed("the name"), doc="one line on what the scenario shows (reports, figures, "
+    title: str | None = key(computed("the name"), doc="one line on what the scenario shows (reports, figures, "
                             "recordings)", max_length=200, constraint="no control or format characters")
     system: SystemSection = key(doc="the plant")
     sensors: list[SensorSection] = key(doc="the sensor nodes, one [[sensors]] table per graph node", min_length=2)

@@ -16,7 +16,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from pipeline.declare import Matrix, Real, Section, covariance, key, matrix, parse
+from pipeline.declare import Matrix, Real, Section, computed, covariance, key, matrix, parse
 from pipeline.errors import ScenarioError, printable
 from pipeline.graphs import GraphSection, GraphSpec, graph_from_section, laplacian
 from pipeline.scenario import load_toml
@@ -46,15 +46,6 @@ QUICK_T_END = 20.0
 Role = Annotated[float, Field(allow_inf_nan=False, ge=0, le=1)]
 
 
-def _computed(text: str):
-    """A default computed from other keys (None here, resolved when the scenario is built); `text`
-    is what the reference page shows."""
-    def default():
-        return None
-    default.__doc__ = text
-    return default
-
-
 class ProcessSection(Section):
     """The process (1): ẋ = A x + B w(t), x(0) = x0, with A Hurwitz (passive nodes run open loop)."""
 
@@ -70,7 +61,7 @@ class InputSection(Section):
     sin(frequency_kj t + phase_kj). Its bounds sup‖w‖ and sup‖ẇ‖ over all t ≥ 0 (the w̄ of (15)) are
     certified from these values."""
 
-    offset: list[Real] | None = key(_computed("zeros"), doc="constant part of each input component", unit="input",
+    offset: list[Real] | None = key(computed("zeros"), doc="constant part of each input component", unit="input",
                                     constraint="p entries")
     amplitude: Matrix = key(doc="amplitudes, one row per input component", unit="input",
                             constraint=f"p rows of J entries, J <= {MAX_SINUSOIDS}")
@@ -84,12 +75,12 @@ class NodesSection(Section):
 
     type: list[str] = key(doc="node type of each node, by the name of its [node_type.<name>] table",
                           constraint="one entry per node")
-    positions: Matrix | None = key(_computed("the graph's drawing positions"), doc="positions c_i in the plane (the "
+    positions: Matrix | None = key(computed("the graph's drawing positions"), doc="positions c_i in the plane (the "
                                    "centres of the sensing discs of proximity roles; also where figures draw the "
                                    "nodes)", unit="position", constraint="N rows of 2 entries")
-    xhat0: Matrix | None = key(_computed("zeros"), doc="initial state estimates x̂_i(0) of (3)/(22): one row for every "
+    xhat0: Matrix | None = key(computed("zeros"), doc="initial state estimates x̂_i(0) of (3)/(22): one row for every "
                                "node, or one row per node", unit="state", constraint="1 or N rows of n entries")
-    what0: Matrix | None = key(_computed("zeros"), doc="initial input estimates ŵ_i(0) of (4)/(23): one row for every "
+    what0: Matrix | None = key(computed("zeros"), doc="initial input estimates ŵ_i(0) of (4)/(23): one row for every "
                                "node, or one row per node", unit="input", constraint="1 or N rows of p entries")
 
 
@@ -97,7 +88,7 @@ class NodeTypeSection(Section):
     """A node type: what its nodes measure, y_i = C_i x (2), and the gains of (3)-(4). The tables are
     named freely ([node_type.position], [node_type.velocity], ...) and referred to by nodes.type."""
 
-    name: str | None = key(_computed("the table's name"), doc="name shown in the figures and tables",
+    name: str | None = key(computed("the table's name"), doc="name shown in the figures and tables",
                            max_length=80, constraint="no control or format characters (also in the table's name)")
     C: Matrix = key(doc="output matrix C_i (m x n); every type has the same m", constraint=f"n columns, m <= {MAX_OUTPUT}")
     L: Matrix = key(doc="state injection gain L_i (n x m) of (3)", constraint="n x m")
@@ -108,10 +99,10 @@ class NodeTypeSection(Section):
     eps: Real = key(1e-6, doc="ε_i of the vertex LMIs (28)-(29): Ā_i(g)ᵀP_i + P_iĀ_i(g) ≤ −ε_i I at g = 0 and 1", gt=0)
     P: Matrix | None = key(None, doc="P_i ((n+p) x (n+p)) used with coupling.P = 'given': H_i = P_i⁻¹ (34)",
                            constraint="symmetric, positive definite")
-    Q: Matrix | None = key(_computed("identity"), doc="Q_i ((n+p) x (n+p)) of the Lyapunov equation (10), "
+    Q: Matrix | None = key(computed("identity"), doc="Q_i ((n+p) x (n+p)) of the Lyapunov equation (10), "
                            "Ā_iᵀP_i + P_iĀ_i + Q_i = 0 at the fixed roles, used with coupling.P = 'lyapunov'",
                            constraint="symmetric, positive definite")
-    comparison_sigma: Real | None = key(_computed("sigma"), doc="σ_i of the comparison architecture (36)-(37)", gt=0)
+    comparison_sigma: Real | None = key(computed("sigma"), doc="σ_i of the comparison architecture (36)-(37)", gt=0)
 
 
 class CouplingSection(Section):
@@ -129,13 +120,13 @@ class RolesSection(Section):
     β (a_i(t) − g_i) with a_i = 1 while the target position is within radius of node i (g_i(0) = a_i(0))."""
 
     mode: Literal["fixed", "proximity"] = key("fixed", doc="fixed: g_i = active[i]; proximity: the law above")
-    active: list[Role] | None = key(_computed("all ones"), doc="g_i of every node (mode = fixed)",
+    active: list[Role] | None = key(computed("all ones"), doc="g_i of every node (mode = fixed)",
                                     constraint="one entry per node, each in [0, 1]; only with mode = fixed")
     radius: Real | None = key(None, doc="sensing radius r (mode = proximity)", unit="position", gt=0,
                               constraint="required with mode = proximity, only then")
     beta: Real | None = key(None, doc="rate β of the role transitions (mode = proximity)", unit="1/s", gt=0,
                             constraint="required with mode = proximity, only then")
-    position_states: list[int] | None = key(_computed("[0, 2] (or [0, 1] when n = 2)"),
+    position_states: list[int] | None = key(computed("[0, 2] (or [0, 1] when n = 2)"),
                                             doc="the two state indices that are the target's position in the plane "
                                                 "(mode = proximity)",
                                             constraint="two distinct indices in 0..n−1; only with mode = proximity")
@@ -158,7 +149,7 @@ class RolesSection(Section):
 class FixedRolesSection(Section):
     """The fixed-role scenario of Thm 2.1, Cor 2.1 and Prop 4.1 (run besides the scenario's own roles)."""
 
-    active: list[Role] | None = key(_computed("roles.active with fixed roles, else all ones"),
+    active: list[Role] | None = key(computed("roles.active with fixed roles, else all ones"),
                                     doc="g_i of every node", constraint="one entry per node, each in [0, 1]")
 
 
@@ -166,7 +157,7 @@ class ComparisonSection(Section):
     """The comparison ("estimation") architecture (36)-(37), run on the same process with the scenario's roles."""
 
     gamma: Real = key(0.1, doc="leakage γ of (36)-(37)", gt=0)
-    alpha: Real | None = key(_computed("coupling.alpha"), doc="its coupling strength", gt=0)
+    alpha: Real | None = key(computed("coupling.alpha"), doc="its coupling strength", gt=0)
     P_lower: Real = key(1e-3, doc="lower bound P_i ⪰ P_lower·I of its LMIs (38)-(39) (max-margin solution)", gt=0)
 
 
@@ -177,12 +168,12 @@ class SimulationSection(Section):
     t_end: Real = key(40.0, doc="horizon T", unit="s", gt=0, le=MAX_T_END,
                       constraint="a multiple of step, of stochastic.step and of record_dt")
     step: Real = key(0.005, doc="integration step h", unit="s", ge=MIN_STEP, le=MAX_STEP)
-    record_dt: Real | None = key(_computed(f"{BASE_RECORD_DT:g}, or the smallest common multiple of the two steps that "
+    record_dt: Real | None = key(computed(f"{BASE_RECORD_DT:g}, or the smallest common multiple of the two steps that "
                                            f"divides t_end and keeps at most {DEFAULT_RECORDS:,} samples"),
                                  doc="interval of the recorded samples: the trajectories, tables, figures and every "
                                      "check along a run use these samples", unit="s",
                                  constraint="a multiple of step and of stochastic.step, dividing t_end")
-    tail_start: Real | None = key(_computed("t_end / 4"), doc="start of the tail window (RMS errors, ultimate bounds)",
+    tail_start: Real | None = key(computed("t_end / 4"), doc="start of the tail window (RMS errors, ultimate bounds)",
                                   unit="s", ge=0, constraint="< t_end")
 
 
@@ -196,11 +187,11 @@ class StochasticSection(Section):
     runs: int = key(5, doc="trials stored whole (the repeated runs of the figures)", ge=1, le=50)
     trials: int = key(200, doc="Monte Carlo trials of each stochastic run (time-varying roles, fixed roles, fixed "
                       "roles at half the step)", ge=10, le=100_000, constraint=">= runs")
-    quick_trials: int | None = key(_computed("max(min(trials, 40), runs)"), doc="trials in quick runs", ge=10, le=100_000,
+    quick_trials: int | None = key(computed("max(min(trials, 40), runs)"), doc="trials in quick runs", ge=10, le=100_000,
                                    constraint=">= runs")
-    step: Real | None = key(_computed("simulation.step"), doc="integration step of the stochastic runs", unit="s",
+    step: Real | None = key(computed("simulation.step"), doc="integration step of the stochastic runs", unit="s",
                             ge=MIN_STEP, le=MAX_STEP)
-    quick_t_end: Real | None = key(_computed(f"min(t_end, {QUICK_T_END:g}), a multiple of record_dt"),
+    quick_t_end: Real | None = key(computed(f"min(t_end, {QUICK_T_END:g}), a multiple of record_dt"),
                                    doc="horizon of the stochastic runs in quick mode", unit="s", gt=0,
                                    constraint="<= t_end, a multiple of record_dt")
 
@@ -209,7 +200,7 @@ class ReferenceSection(Section):
     """The centralized reference (a project addition): a Kalman filter on (x, w) with every active sensor,
     w modelled as a random walk, discretised exactly at dt."""
 
-    dt: Real | None = key(_computed(f"the smallest multiple of record_dt >= {BASE_RECORD_DT:g}"),
+    dt: Real | None = key(computed(f"the smallest multiple of record_dt >= {BASE_RECORD_DT:g}"),
                           doc="its step", unit="s", constraint="a multiple of record_dt")
     q_w: Real = key(1.0, doc="intensity of the random walk that models w", unit="input²/s", gt=0)
     r_deterministic: Real = key(1e-4, doc="fictitious measurement noise covariance r·I of the noise-free runs",

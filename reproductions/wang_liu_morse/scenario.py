@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import Field
 
 import estimators.jointly_observable_design as jd
-from pipeline.declare import Matrix, Real, Section, key, matrix, parse
+from pipeline.declare import Matrix, Real, Section, computed, key, matrix, parse
 from pipeline.errors import ScenarioError, printable
 from pipeline.scenario import load_toml
 
@@ -42,14 +42,6 @@ SIGMA_MAX_AGENTS = 6
 #: an unstable plant grows like e^(αt): α·horizon is kept below this, so that states (and their
 #: squares in the norms) stay inside the floating-point range (e^300 ≈ 1e130)
 MAX_GROWTH_EXPONENT = 300.0
-
-
-def _computed(text: str):
-    """A default computed from other keys; `text` says how (the reference page shows it)."""
-    def default():
-        return None
-    default.__doc__ = text
-    return default
 
 
 Positive = Annotated[int, Field(ge=1)]
@@ -90,7 +82,7 @@ class DesignSection(Section):
                                  constraint="required with gains = 'given', only then")
     poles: list[list[Real]] | None = key(None, doc="the poles of Ā_i + K_i C̄_i, n_i per agent (gains = 'place')",
                                          unit="1/time", constraint="only with gains = 'place'")
-    central_poles: list[Real] | None = key(_computed("-λ̄(1.25 + 0.25 j), j = 0..n-1"),
+    central_poles: list[Real] | None = key(computed("-λ̄(1.25 + 0.25 j), j = 0..n-1"),
                                            doc="poles of the centralized reference observer on the stacked outputs",
                                            unit="1/time", constraint="n negative real poles")
 
@@ -105,7 +97,7 @@ class GraphsSection(Section):
     neighbors: list[list[list[int]]] = key(doc="per graph, per agent i = 1..m, the labels j of its neighbours "
                                            "(1..m, without i itself, each at most once)", min_length=1,
                                            constraint="m rows per graph")
-    names: list[str] | None = key(_computed("G1, G2, ..."), doc="a name per graph (figures, tables)",
+    names: list[str] | None = key(computed("G1, G2, ..."), doc="a name per graph (figures, tables)",
                                   constraint="1 to 64 characters, no control or format characters")
 
 
@@ -124,7 +116,7 @@ class MonteCarloSection(Section):
     and x_i(0) with independent N(0, scale²) entries (runs with monte_carlo = true)."""
 
     trials: int = key(64, doc="trials of the runs with monte_carlo = true", ge=1, le=MAX_TRIALS)
-    quick_trials: int | None = key(_computed("min(trials, 16)"), doc="trials in quick runs", ge=1, le=MAX_TRIALS,
+    quick_trials: int | None = key(computed("min(trials, 16)"), doc="trials in quick runs", ge=1, le=MAX_TRIALS,
                                    constraint="<= trials")
     scale: Real = key(5.0, doc="standard deviation of the random initial conditions", unit="state", gt=0)
 
@@ -162,11 +154,11 @@ class LeaveSection(Section):
 class RunSection(Section):
     """One simulated run (the claims check every run of the kind they are about)."""
 
-    name: str = key(_computed("run<index>"), doc="run name (unique)", pattern=r"^[A-Za-z0-9_-]{1,64}$")
+    name: str = key(computed("run<index>"), doc="run name (unique)", pattern=r"^[A-Za-z0-9_-]{1,64}$")
     timing: Literal[TIMINGS] = key("sync", doc="sync: iterations at t_i(s-1) + kΔ; async: jittered by δ_is(k) "  # type: ignore[valid-type]
                                    "∈ [-ε_i, ε_i] (Theorem 2); offset: event times t_is = t_i0 + sT (Section 4)")
     switching: Literal[SWITCHINGS] | None = key(
-        _computed("fixed with one graph, else alternate_interval"),
+        computed("fixed with one graph, else alternate_interval"),
         doc="fixed: graph `graph` throughout; alternate_interval: the graphs in turn, one per period T; "
         "alternate_iteration: one per iteration, switching at (s-1)T + (k-1)Δ + β + Δ/2")
     graph: int = key(1, doc="the graph of switching = fixed (1-based)", ge=1)
@@ -183,7 +175,7 @@ class RunSection(Section):
                                      "async)", unit="time", constraint=">= 0")
     beta: Real = key(0.0, doc="broadcast delay β: agent j sends z_j(k-1) at τ_j(k-1) + β", unit="time", ge=0,
                      constraint="< Delta")
-    Delta: Real | None = key(_computed("T / q"), doc="nominal spacing Δ of the iterations", unit="time", gt=0,
+    Delta: Real | None = key(computed("T / q"), doc="nominal spacing Δ of the iterations", unit="time", gt=0,
                              constraint="q·Δ + max ε <= T")
     offsets: list[Real] | None = key(None, doc="event-time offsets t_i0, one per agent (timing = offset)",
                                      unit="time", constraint="spread < T")
@@ -212,7 +204,7 @@ class HybridFile(Section):
     noise: NoiseSection = key(NoiseSection, doc="the input of runs with noise = true")
     sampling: SamplingSection = key(SamplingSection, doc="sampling of the continuous-time errors")
     runs: list[RunSection] | None = key(
-        _computed("sync, ideal, async (and symmetric when every graph is symmetric and m <= 6)"),
+        computed("sync, ideal, async (and symmetric when every graph is symmetric and m <= 6)"),
         doc="the simulated runs", min_length=1, max_length=64)
     paper_values: PaperValuesSection = key(PaperValuesSection, doc="printed values (paper reproduction only)")
 
