@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.cache import StageCache
-from pipeline.reproduction import RunOptions
+from pipeline.reproduction import FamilyReproduction, RunOptions
 
 from . import claims as claims_mod
 from . import compute as compute_mod
@@ -55,7 +55,7 @@ every 5th slot (at most 250 slots, plus every record time); Loewner margins on t
 Reconstruction notes: docs/papers/kar-moura.md."""
 
 
-class GossipKalmanReproduction:
+class GossipKalmanReproduction(FamilyReproduction):
     def __init__(self, scenarios: list[GossipKalmanScenario], *, paper: bool):
         self.scenarios = scenarios
         self.is_paper = paper
@@ -65,9 +65,6 @@ class GossipKalmanReproduction:
         # a user's scenario gets all of them
         self._roles = [(sc.name, {**compute_mod.roles(sc), "full": (not paper) or sc.name in FULL_CHECKS})
                        for sc in scenarios]
-
-    def scenario_ids(self) -> list[str]:
-        return [sc.name for sc in self.scenarios]
 
     def claims(self):
         return claims_mod.catalogue(self._roles)
@@ -94,32 +91,15 @@ class GossipKalmanReproduction:
     def design_of(results: compute_mod.Results) -> compute_mod.Design:
         return results.design()
 
-    @staticmethod
-    def design_tables(design):
-        from . import tables
-
-        return tables.design_tables(design)
-
     def estimate(self, opts: RunOptions) -> dict[str, Any]:
         from . import cost
 
         return cost.estimate(self.scenarios, opts)
 
-    @staticmethod
-    def tables(results):
-        from . import tables
-
-        return tables.run_tables(results)
-
     def write_outputs(self, results, out_dir: Path, claims: list[dict], prov: dict, tables=None) -> None:
-        from pipeline.tables import Tables
-
         from . import outputs
 
-        if tables is None:
-            tables = Tables()
-            for spec, frame in self.tables(results):
-                tables.add(spec, frame)
+        tables = self.table_set(results, tables)
         outputs.write_outputs(results, tables, out_dir, claims, prov, PAPER_ID, workers=int(prov.get("workers") or 1))
 
     def notes(self) -> str:
