@@ -233,7 +233,7 @@ def write_arrow_file(s: TableSpec, frame, path: Path) -> None:
 def read_arrow_file(path: Path):
     import pyarrow as pa
 
-    with pa.memory_map(str(path), "r") as source:
+    with pa.OSFile(str(path), "rb") as source:         # read into memory (no mapping outlives the file)
         return pa.ipc.open_file(source).read_all()
 
 
