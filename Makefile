@@ -35,7 +35,7 @@ check-viewer: $(STAMP)
 	rm -rf out/viewer-check
 	$(BIN)/dse reproduce --quick --out out/viewer-check
 	$(BIN)/dse run --quick reproductions/compare/scenarios/noisy_ring.toml --out out/viewer-check
-	$(BIN)/dse sweep reproductions/sweeps/savas_noise_rounds_size.toml --out out/viewer-check
+	$(BIN)/dse sweep reproductions/sweeps/compare_links_noise_size.toml --out out/viewer-check
 	$(BIN)/python -m pipeline.viewer_check out/viewer-check --screenshots out/viewer-check/screenshots
 
 bench: $(STAMP)
