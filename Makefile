@@ -17,9 +17,9 @@ reproduce: $(STAMP)
 	$(BIN)/dse reproduce --out out
 	$(MAKE) --no-print-directory sweeps
 
-# The shipped example sweeps (reproductions/sweeps/*.toml), each on a local Dask cluster.
+# The shipped example sweeps (dse/families/sweeps/*.toml), each on a local Dask cluster.
 sweeps: $(STAMP)
-	for f in reproductions/sweeps/*.toml; do $(BIN)/dse sweep $$f --out out || exit 1; done
+	for f in dse/families/sweeps/*.toml; do $(BIN)/dse sweep $$f --out out || exit 1; done
 
 # Two test processes per core (pytest-xdist: many tests wait on subprocesses, signals or a Dask cluster, and
 # the second process fills those waits; 184 s instead of 213 s with one per core on 2 cores); each test file
@@ -34,9 +34,9 @@ check-viewer: $(STAMP)
 	@dpkg -s mesa-vulkan-drivers >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq mesa-vulkan-drivers; }
 	rm -rf out/viewer-check
 	$(BIN)/dse reproduce --quick --out out/viewer-check
-	$(BIN)/dse run --quick reproductions/compare/scenarios/noisy_ring.toml --out out/viewer-check
-	$(BIN)/dse sweep reproductions/sweeps/compare_links_noise_size.toml --out out/viewer-check
-	$(BIN)/python -m pipeline.viewer_check out/viewer-check --screenshots out/viewer-check/screenshots
+	$(BIN)/dse run --quick dse/families/compare/scenarios/noisy_ring.toml --out out/viewer-check
+	$(BIN)/dse sweep dse/families/sweeps/compare_links_noise_size.toml --out out/viewer-check
+	$(BIN)/python -m dse.outputs.viewer_check out/viewer-check --screenshots out/viewer-check/screenshots
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run --out out

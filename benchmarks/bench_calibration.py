@@ -27,9 +27,9 @@ NOMINAL_ALPHA = 0.05
 
 
 def _one(task: tuple[str, int]) -> dict:
-    import reproductions
-    from pipeline.cache import StageCache
-    from pipeline.reproduction import RunOptions, evaluate_claims
+    import dse.families as reproductions
+    from dse.engine.cache import StageCache
+    from dse.engine.driver import RunOptions, evaluate_claims
 
     family, seed = task
     t0 = time.perf_counter()
@@ -55,8 +55,8 @@ def _one(task: tuple[str, int]) -> dict:
 
 
 def bench_calibration(seeds: int = 200, workers: int = 2, families: list[str] | None = None) -> list[dict]:
-    import reproductions
-    from pipeline.stats import clopper_pearson
+    import dse.families as reproductions
+    from dse.simulate.stats import clopper_pearson
 
     families = families or list(reproductions.FAMILY_GENERATORS)
     tasks = [(f, s) for f in families for s in range(seeds)]

@@ -3,7 +3,7 @@ file (target 0.5 s each), `dse run --quick` on each family's first example cold 
 re-run (target 3 s cold), the per-point overhead of `dse sweep` (target 10 ms beyond the point's own
 Monte Carlo), and the test suite (target 150 s).
 
-Each command runs in a fresh interpreter (`python -m pipeline.cli`, as the `dse` script does), so
+Each command runs in a fresh interpreter (`python -m dse.cli`, as the `dse` script does), so
 its time includes the imports; CPU time is the process and its workers (RUSAGE_CHILDREN), which
 shows how much of a wall time on a loaded machine was waiting."""
 from __future__ import annotations
@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-REPRO = ROOT / "reproductions"
+REPRO = ROOT / "dse" / "families"
 #: one example a user starts from, per family (the first file `dse run --quick` is tried on)
 RUN_EXAMPLES = ("savas/paper.toml", "wang_liu_morse/generic.toml", "tran/paper.toml", "tanwani/example.toml",
                 "kar_moura/scenarios/e2.toml", "compare/scenarios/noisy_ring.toml")
@@ -42,7 +42,7 @@ def timed_command(argv: list[str], cwd: Path = ROOT) -> tuple[float, float, int]
 
 
 def _dse(*args: str) -> list[str]:
-    return [sys.executable, "-m", "pipeline.cli", *args]
+    return [sys.executable, "-m", "dse.cli", *args]
 
 
 def shipped_scenarios() -> list[Path]:
@@ -101,7 +101,7 @@ def bench_sweep_overhead(points: int) -> list[dict]:
     point's own Monte Carlo is a few hundred microseconds: the wall time per point beyond the sweep's
     start and finish (the same sweep at 1 point, subtracted) bounds the per-point overhead from above."""
     src = (Path(__file__).with_name("sweep_scaling.toml")).read_text()
-    src = src.replace('base = "../reproductions/', f'base = "{REPRO}/').replace("trials = 2000", "trials = 100")
+    src = src.replace('base = "../dse/families/', f'base = "{REPRO}/').replace("trials = 2000", "trials = 100")
     walls = {}
     with tempfile.TemporaryDirectory() as tmp:
         for n in (1, points):

@@ -53,9 +53,9 @@ def scenario(links: str = "failures", steps: int = 500, trials: int = 1000, node
 def bench_compare(links: str = "failures", steps: int = 500, trials: int = 1000, tuned: bool = False,
                   noise: float = 0.0, workers: int = 2) -> dict:
     """Wall times of the design, the exact recursions and the Monte Carlo of every estimator."""
-    from pipeline.reproduction import RunOptions
-    from reproductions.compare import compute
-    from reproductions.compare.scenario import CompareScenario
+    from dse.engine.driver import RunOptions
+    from dse.families.compare import compute
+    from dse.families.compare.scenario import CompareScenario
 
     data = scenario(links, steps, trials, noise=noise, tuned=tuned)
     data.pop("family")

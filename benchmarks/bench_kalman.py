@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.kalman import kalman_filter_batch
+from dse.estimators.kalman import kalman_filter_batch
 
 
 @dataclass(frozen=True)

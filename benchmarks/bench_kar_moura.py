@@ -19,11 +19,11 @@ import time
 
 import numpy as np
 
-import estimators.gossip_kalman as gk
-import estimators.kalman as kal
-import estimators.switched_riccati as sr
-from reproductions.kar_moura.compute import J_GRID, STAT_STRIDE
-from reproductions.kar_moura.scenario import load_scenario
+import dse.estimators.gossip_kalman as gk
+import dse.estimators.kalman as kal
+import dse.estimators.switched_riccati as sr
+from dse.families.kar_moura.compute import J_GRID, STAT_STRIDE
+from dse.families.kar_moura.scenario import load_scenario
 
 TARGET_US = 3.0
 

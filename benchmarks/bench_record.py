@@ -6,7 +6,7 @@ one-time start-up, ~0.4 s here; it is timed separately and excluded from the med
 * synthetic series of three shapes (long, medium, short), which shows the fixed cost per
   entity next to the per-scalar cost;
 * a replay of the project's real recordings: every scalar series of every `.rrd` of a
-  reproduction output directory, read back with `pipeline.record.read_scalars` and written
+  reproduction output directory, read back with `dse.outputs.record.read_scalars` and written
   again entity by entity with `send_series` (same entity paths, timelines and row counts).
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import rerun.blueprint as rrb
 
-from pipeline import record
+from dse.outputs import record
 
 from .common import spread
 

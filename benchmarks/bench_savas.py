@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-import estimators.consensus_covariance as cc
-import estimators.consensus_filter as cf
-from pipeline.reproduction import RunOptions
-from pipeline.simulate import parallel_map
-from reproductions.savas import compute
-from reproductions.savas.scenario import paper_scenario
+import dse.estimators.consensus_covariance as cc
+import dse.estimators.consensus_filter as cf
+from dse.engine.driver import RunOptions
+from dse.simulate.units import parallel_map
+from dse.families.savas import compute
+from dse.families.savas.scenario import paper_scenario
 
 from .common import bound_row, estimator_row, timed
 
@@ -126,13 +126,13 @@ def bench_fig1(workers: int, trials: int = 200_000) -> dict:
 
 
 def bench_sweep_point(points: int = 40, sweep: Path = SWEEP_POINTS) -> dict:
-    """The per-point path of `dse sweep` in process (`pipeline.sweep.run_point`: compute, claims, tables,
+    """The per-point path of `dse sweep` in process (`dse.sweeps.run.run_point`: compute, claims, tables,
     metrics; no figures, no recordings) on the points of `sweep`, after one warm-up point: wall and CPU
     per point, the Monte Carlo kernel's share (the filters' simulation, `consensus_filter_moments`) and the
     rest (design with the gain optimisation, filterpy's reference, claims, tables), the overhead."""
-    from pipeline import sweep as sw
-    from pipeline.scenario import load_toml
-    from pipeline.sweep_spec import parse_sweep
+    from dse.sweeps import run as sw
+    from dse.scenario.fields import load_toml
+    from dse.sweeps.spec import parse_sweep
 
     spec = parse_sweep(load_toml(sweep), base_dir=sweep.parent)
     tasks = sw.build_tasks(spec)[: points + 1]

@@ -20,10 +20,10 @@ def _run(scheduler: str, workers: int, points: int) -> dict:
     out = Path(tempfile.mkdtemp(prefix="dse-bench-sweep-"))
     try:
         sweep = out / "sweep.toml"
-        text = SWEEP.read_text().replace('base = "../reproductions/', f'base = "{SWEEP.parent.parent}/reproductions/')
+        text = SWEEP.read_text().replace('base = "../dse/families/', f'base = "{SWEEP.parent.parent}/dse/families/')
         sweep.write_text(text.replace("samples = 1000", f"samples = {points}"))
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "pipeline.cli", "sweep", str(sweep), "--out", str(out),
+        subprocess.run([sys.executable, "-m", "dse.cli", "sweep", str(sweep), "--out", str(out),
                         "--scheduler", scheduler, "--workers", str(workers)], check=True, capture_output=True,
                        env={**os.environ, "DSE_PROGRESS": "0"})
         wall = time.perf_counter() - t0

@@ -14,11 +14,11 @@ import numpy as np  # noqa: E402
 import scipy.linalg as sla  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
-import estimators.gossip_covariance as gc  # noqa: E402
-import estimators.gossip_filter as gf  # noqa: E402
-import estimators.kalman_bucy as kb  # noqa: E402
-from reproductions.tanwani import compute  # noqa: E402
-from reproductions.tanwani.scenario import load_scenario  # noqa: E402
+import dse.estimators.gossip_covariance as gc  # noqa: E402
+import dse.estimators.gossip_filter as gf  # noqa: E402
+import dse.estimators.kalman_bucy as kb  # noqa: E402
+from dse.families.tanwani import compute  # noqa: E402
+from dse.families.tanwani.scenario import load_scenario  # noqa: E402
 
 from .common import bound_row, estimator_row, spread, timed  # noqa: E402
 

@@ -9,9 +9,9 @@ import time
 import numpy as np
 from scipy.integrate import solve_ivp
 
-import estimators.observer_network_simulation as sim
-from reproductions.tran import compute, design
-from reproductions.tran.scenario import paper_scenario
+import dse.estimators.observer_network_simulation as sim
+from dse.families.tran import compute, design
+from dse.families.tran.scenario import paper_scenario
 
 
 def bench_deterministic(t_end: float = 10.0) -> list[dict]:
@@ -72,7 +72,7 @@ def bench_stochastic_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
     noise = design.noise_model(sc, 0)
     prepared = sim.prepare(net, sc.sde_step, noise)          # once per reproduction stage: not timed
     every = int(round(sc.record_dt / sc.sde_step))
-    from estimators.input_state_coestimation import block_diag, errors_from_estimates
+    from dse.estimators.input_state_coestimation import block_diag, errors_from_estimates
 
     Pbig = block_diag(list(P))
 
@@ -105,7 +105,7 @@ def bench_stochastic_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
 
 def bench_lmis(repeats: int = 3) -> list[dict]:
     """The design LMIs (28)-(29) (Clarabel, called directly) and the whole design stage."""
-    from estimators import common_lyapunov as cl
+    from dse.estimators import common_lyapunov as cl
 
     from .common import bound_row, timed
 

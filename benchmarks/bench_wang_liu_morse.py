@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-import estimators.hybrid_observer as ho
-import estimators.jointly_observable_design as jd
-from reproductions.wang_liu_morse import bounds
-from reproductions.wang_liu_morse.design import central_gain, observer_design
-from reproductions.wang_liu_morse.scenario import generic_scenario, paper_scenario
+import dse.estimators.hybrid_observer as ho
+import dse.estimators.jointly_observable_design as jd
+from dse.families.wang_liu_morse import bounds
+from dse.families.wang_liu_morse.design import central_gain, observer_design
+from dse.families.wang_liu_morse.scenario import generic_scenario, paper_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -166,8 +166,8 @@ def measure(data: dict, max_memory_mib: float | None = None, write: bool = True)
     """Run one scenario in a fresh process (compute and tables, then with `write` figures and
     recordings): wall time and peak resident memory, next to the estimate for the same options."""
     code = ("import json, resource, sys, time\n"
-            "from pipeline import api\n"
-            "from pipeline.reproduction import RunOptions\n"
+            "from dse import api\n"
+            "from dse.engine.driver import RunOptions\n"
             "data = json.loads(sys.argv[1]); mm = json.loads(sys.argv[2])\n"
             "repro = api.load(data)\n"
             "opts = RunOptions(max_memory_mib=mm)\n"

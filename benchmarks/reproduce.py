@@ -52,7 +52,7 @@ _WRAPPER = ("import resource, subprocess, sys; r = subprocess.run(sys.argv[1:]);
 
 def run_once(paper: str, out: Path, quick: bool) -> dict:
     """One `dse reproduce` in a subprocess: wall seconds, max single-process RSS, peak tree RSS."""
-    cmd = [sys.executable, "-c", _WRAPPER, sys.executable, "-m", "pipeline.cli", "reproduce", paper, "--out", str(out)]
+    cmd = [sys.executable, "-c", _WRAPPER, sys.executable, "-m", "dse.cli", "reproduce", paper, "--out", str(out)]
     cmd += ["--quick"] if quick else []
     env = {**os.environ, "DSE_PROGRESS": "0"}
     t0 = time.perf_counter()

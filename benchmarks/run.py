@@ -49,7 +49,7 @@ TITLES = {
     "estimators": "Estimators side by side: batched vs a straightforward per-trial loop",
     "bounds": "Bound computations: closed form / exponential vs a naive version",
     "scale": "Monte Carlo stages at the papers' scale",
-    "record": "Rerun write throughput (project helpers, `pipeline.record.send_series`)",
+    "record": "Rerun write throughput (project helpers, `dse.outputs.record.send_series`)",
     "reproduce": "`dse reproduce PAPER`: wall time and peak memory, cold and warm cache",
     "commands": "The commands people wait on: `dse list`, `dse check`, `dse run --quick`, sweep overhead, the tests",
     "sweep": "`dse sweep` scaling: the same 1,000-point sweep in process and on 1 and 2 Dask workers",

@@ -1,13 +1,33 @@
-"""dse: distributed state estimation, reproduced. The Python entry point (see `pipeline.api`).
+"""dse: distributed state estimation, reproduced. The Python entry point (see `dse.api`).
 
     import dse
     run = dse.run("my_scenario.toml", trials=5000)      # or a dict, or dse.paper("savas")
     run.counts, run.hypotheses, run.claims, run.tables["nodes"]
     run.write("out/run/mine")                          # files only when asked
     dse.check("my_scenario.toml").estimate             # validate and estimate, no simulation
-"""
-from pipeline.api import Check, Run, check, execute, load, paper, run
-from pipeline.errors import ScenarioError
-from pipeline.reproduction import RunOptions
 
-__all__ = ["Check", "Run", "RunOptions", "ScenarioError", "check", "execute", "load", "paper", "run"]
+The names below are loaded on first use, so that `import dse.estimators.kalman` (or the
+command line, which limits BLAS threads before numpy loads) does not import the whole
+pipeline.
+"""
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {"Check": "dse.api", "Run": "dse.api", "check": "dse.api", "execute": "dse.api", "load": "dse.api",
+            "paper": "dse.api", "run": "dse.api", "ScenarioError": "dse.errors", "RunOptions": "dse.engine.driver"}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'dse' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline import record
+from dse.outputs import record
 
-DSE = [sys.executable, "-m", "pipeline.cli"]
+DSE = [sys.executable, "-m", "dse.cli"]
 ROOT = Path(__file__).resolve().parent.parent
 RERUN = Path(sys.executable).parent / "rerun"
 
@@ -278,7 +278,7 @@ def test_ctrl_c_stops_cleanly_with_130(tmp_path):
 
 def test_a_reader_that_goes_away_stops_the_listing_quietly():
     """`dse list | head -1`: no traceback, no 'cannot use the file system', exit 141 as SIGPIPE would give."""
-    proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "list"], cwd=ROOT, stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "dse.cli", "list"], cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
     assert proc.stdout.readline()
     proc.stdout.close()

@@ -15,18 +15,18 @@ import itertools
 import numpy as np
 import pytest
 
-import estimators.consensus_covariance as cc
-import estimators.consensus_filter as cf
-import estimators.joint_moments as jm
-import estimators.small_matrix as sm
-from estimators.constant_gain_fusion import FusionFilter, FusionRun, exact_moments, steady_state
-from estimators.gossip_swap_kalman import GossipSwapRun
-from estimators.information_fusion import InformationFilter, InformationRun
-from estimators.information_fusion import exact_moments as information_exact
-from estimators.link_models import LinkModel, StepLinks, Topology, greedy_matching
-from estimators.network_mixing import heard, link_count
-from estimators.network_step import StepContext
-from estimators.sensor_network import SensorNetworkModel, split_gains
+import dse.estimators.consensus_covariance as cc
+import dse.estimators.consensus_filter as cf
+import dse.estimators.joint_moments as jm
+import dse.estimators.small_matrix as sm
+from dse.estimators.constant_gain_fusion import FusionFilter, FusionRun, exact_moments, steady_state
+from dse.estimators.gossip_swap_kalman import GossipSwapRun
+from dse.estimators.information_fusion import InformationFilter, InformationRun
+from dse.estimators.information_fusion import exact_moments as information_exact
+from dse.estimators.link_models import LinkModel, StepLinks, Topology, greedy_matching
+from dse.estimators.network_mixing import heard, link_count
+from dse.estimators.network_step import StepContext
+from dse.estimators.sensor_network import SensorNetworkModel, split_gains
 
 
 def small_model(N=4, seed=0, m=1):
@@ -174,7 +174,7 @@ def test_poisson_exchange_moment_equals_enumeration_of_exchange_sequences():
                 a, b = topo.edges[e]
                 Y = jm.add_block_diagonal(Y, np.stack([noise if i in (a, b) else 0 * noise for i in range(3)]))
             want += p * Y / topo.E ** c
-    from estimators.constant_gain_fusion import _fusion_moment
+    from dse.estimators.constant_gain_fusion import _fusion_moment
 
     got = _fusion_moment(f, X)
     assert np.allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
@@ -195,7 +195,7 @@ def test_steady_state_is_the_limit_of_the_exact_recursion():
 # -- GIKF against the project's Kar & Moura slot -------------------------------------------------------------
 
 def test_gossip_swap_filter_matches_the_gikf_slot_on_the_same_matchings():
-    from estimators.gossip_kalman import GossipSystem, gikf_covariance_step
+    from dse.estimators.gossip_kalman import GossipSystem, gikf_covariance_step
 
     model = small_model(5)
     topo = ring(5)
@@ -345,7 +345,7 @@ def test_information_exact_moments_match_monte_carlo(kind):
 def test_centralized_reference_matches_filterpy():
     from filterpy.kalman import KalmanFilter
 
-    from estimators.network_comparison import _Central
+    from dse.estimators.network_comparison import _Central
 
     model = small_model(3, m=2)
     links = LinkModel(ring(3), "reliable")
@@ -377,9 +377,9 @@ def test_greedy_matching_is_a_maximal_matching_of_the_allowed_edges():
 @pytest.mark.parametrize("link_kind", ["reliable", "failures", "matchings"])
 def test_every_filter_is_equivariant_so_error_coordinates_are_exact(link_kind):
     """The simulation runs the filters on x ≡ 0 with y = v and predictions shifted by −w
-    (estimators.network_comparison): the estimate it gets must be x̂ − x of the same filter run on the
+    (dse.estimators.network_comparison): the estimate it gets must be x̂ − x of the same filter run on the
     true states, to round-off (relative to the state's size)."""
-    from estimators.network_comparison import _Central, _Local
+    from dse.estimators.network_comparison import _Central, _Local
 
     model = small_model(4, seed=3)
     topo = ring(4)

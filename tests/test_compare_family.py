@@ -7,11 +7,11 @@ import copy
 import numpy as np
 import pytest
 
-import reproductions
-from pipeline.errors import ScenarioError
-from pipeline.reproduction import RunOptions
-from reproductions.compare import compute
-from reproductions.compare.scenario import CompareScenario
+import dse.families as reproductions
+from dse.errors import ScenarioError
+from dse.engine.driver import RunOptions
+from dse.families.compare import compute
+from dse.families.compare.scenario import CompareScenario
 
 
 def tiny(**links) -> dict:
@@ -59,7 +59,7 @@ def test_invalid_scenarios_name_the_field(path, value, message):
 def test_shipped_scenarios_load():
     from pathlib import Path
 
-    from pipeline.scenario import load_toml
+    from dse.scenario.fields import load_toml
 
     for f in sorted((Path(reproductions.__file__).parent / "compare" / "scenarios").glob("*.toml")):
         reproductions.family_from_dict(load_toml(f))
@@ -123,14 +123,14 @@ def test_a_run_has_the_comparison_tables_and_outputs(tmp_path):
     out = run.write(tmp_path / "tiny")
     assert (out / "figures" / "error_vs_communication.png").stat().st_size > 0
     assert (out / "tiny.rrd").stat().st_size > 0
-    from pipeline.record import read_scalars
+    from dse.outputs.record import read_scalars
 
     series = read_scalars(out / "tiny.rrd", "k")
     assert any(k.startswith("/mse/kcf") for k in series) and any(k.startswith("/mse/gikf") for k in series)
 
 
 def test_check_reports_hypotheses_and_an_estimate_without_simulating():
-    from pipeline.api import check
+    from dse.api import check
 
     chk = check(tiny(), quick=True)
     ids = {h["id"] for h in chk.hypotheses}
@@ -145,9 +145,9 @@ def test_estimators_equal_to_the_centralized_filter_up_to_rounding_are_orthogona
     centralized error, so a z-test without a round-off allowance rejected orthogonality at z ≈ 12 (found by
     the calibration benchmark on 6 of 200 generated scenarios). With the allowance the claim passes, and the
     allowance stays negligible against Carli's filter's real distance."""
-    from pipeline.cache import MemoryCache
-    from pipeline.reproduction import evaluate_claims
-    from reproductions.compare.summary import stats
+    from dse.engine.cache import MemoryCache
+    from dse.engine.driver import evaluate_claims
+    from dse.families.compare.summary import stats
 
     data = {"family": "compare", "name": "gen-random-178",
             "plant": {"F": [[0.9671, 0.1398, 0.0], [0.0, 0.9671, 0.1398], [0.0, 0.0, 0.9671]],

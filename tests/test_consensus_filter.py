@@ -16,7 +16,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from estimators.consensus_covariance import (
+from dse.estimators.consensus_covariance import (
     asymptotic_covariance_lyapunov,
     asymptotic_covariance_modal,
     asymptotic_covariance_series,
@@ -39,9 +39,9 @@ from estimators.consensus_covariance import (
     trace_formula_corrected,
     trace_formula_printed,
 )
-from estimators.consensus_filter import ConsensusFilterRun, simulate_consensus_filter
-import estimators.gain_tuning as gain_tuning
-from estimators.gain_tuning import (
+from dse.estimators.consensus_filter import ConsensusFilterRun, simulate_consensus_filter
+import dse.estimators.gain_tuning as gain_tuning
+from dse.estimators.gain_tuning import (
     carli_gain_table,
     optimal_carli_gain,
     optimal_gain_no_communication,
@@ -833,7 +833,7 @@ def test_covariance_functions_reject_malformed_input():
 def test_configurations_share_draws_and_equal_single_runs():
     """Each configuration of a common-random-numbers run is bit-identical to the single run
     with the same seed (same draw order), for both filters."""
-    from estimators.consensus_filter import simulate_consensus_filter_configs
+    from dse.estimators.consensus_filter import simulate_consensus_filter_configs
 
     ells, sigmas, zetas = [0.2, 0.35, 0.5], [0.0, 0.8, 2.0], [0.0, 0.4, 1.0]
     for reinjection in (False, True):

@@ -17,7 +17,7 @@ import pytest
 
 from test_cli import GOOD
 
-DSE = [sys.executable, "-m", "pipeline.cli"]
+DSE = [sys.executable, "-m", "dse.cli"]
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0"}
 
@@ -156,9 +156,9 @@ def test_a_second_run_into_the_same_out_waits_for_the_first(tmp_path):
 def test_a_scheduler_without_workers_times_out_with_a_message(tmp_path):
     from distributed import Scheduler  # noqa: F401  (dask is a dependency)
 
-    import pipeline.sweep as sw
-    from pipeline.errors import ScenarioError
-    from pipeline.sweep_spec import parse_sweep
+    import dse.sweeps.run as sw
+    from dse.errors import ScenarioError
+    from dse.sweeps.spec import parse_sweep
 
     port_proc = subprocess.Popen([str(Path(sys.executable).parent / "dask"), "scheduler", "--host", "127.0.0.1",
                                   "--port", "0", "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
@@ -181,8 +181,8 @@ def test_a_scheduler_without_workers_times_out_with_a_message(tmp_path):
 
 
 def test_a_tampered_sweep_point_is_detected_and_recomputed(tmp_path):
-    import pipeline.sweep as sw
-    from pipeline.sweep_spec import parse_sweep
+    import dse.sweeps.run as sw
+    from dse.sweeps.spec import parse_sweep
 
     spec = parse_sweep({"name": "tamper", "scenario": __import__("tomllib").loads(GOOD),
                         "grid": {"model.q": [0.5, 1.0]}, "quick": True}, base_dir=tmp_path)

@@ -12,9 +12,9 @@ import importlib
 
 import pytest
 
-import reproductions
-from pipeline.cache import StageCache
-from pipeline.reproduction import RunOptions, evaluate_claims
+import dse.families as reproductions
+from dse.engine.cache import StageCache
+from dse.engine.driver import RunOptions, evaluate_claims
 
 RANDOM_DRAWS = 2
 

@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-import reproductions
-from pipeline.errors import ScenarioError
-from pipeline.scenario import load_toml
+import dse.families as reproductions
+from dse.errors import ScenarioError
+from dse.scenario.fields import load_toml
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = {fam: load_toml(Path(reproductions.__file__).parent / rel) for fam, rel in reproductions.FAMILY_EXAMPLES.items()}
@@ -156,7 +156,7 @@ def test_cli_exit_2_one_line_no_output(tmp_path_factory, case):
         pass
     tmp = tmp_path_factory.mktemp("fuzz")
     (tmp / "s.toml").write_text(_toml(doc))
-    proc = subprocess.run([sys.executable, "-m", "pipeline.cli", "run", "s.toml", "--out", "out"], cwd=tmp,
+    proc = subprocess.run([sys.executable, "-m", "dse.cli", "run", "s.toml", "--out", "out"], cwd=tmp,
                           capture_output=True, text=True, timeout=120,
                           env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
     assert proc.returncode == 2, proc.stdout + proc.stderr

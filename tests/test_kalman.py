@@ -1,4 +1,4 @@
-"""Tests of the batched centralized Kalman reference, ``estimators.kalman``.
+"""Tests of the batched centralized Kalman reference, ``dse.estimators.kalman``.
 
 Oracles, from strongest to weakest:
 
@@ -21,7 +21,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimators.kalman import (
+from dse.estimators.kalman import (
     KalmanCovariances,
     KalmanRun,
     kalman_covariances,

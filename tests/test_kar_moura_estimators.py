@@ -14,9 +14,9 @@ from filterpy.kalman import KalmanFilter
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import estimators.gossip_kalman as gk
-import estimators.switched_riccati as sr
-import estimators.walk_detectability as wd
+import dse.estimators.gossip_kalman as gk
+import dse.estimators.switched_riccati as sr
+import dse.estimators.walk_detectability as wd
 
 HYP = settings(max_examples=30, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -230,7 +230,7 @@ def test_gikf_step_and_error_recursion_match_filterpy_objects_with_swaps():
 def test_simulate_gikf_is_deterministic_and_consistent():
     sys_ = e1_system()
     prot = ring_protocol()
-    import estimators.kalman as kal
+    import dse.estimators.kalman as kal
 
     T = 40
     cov = kal.kalman_covariances(F1, sys_.C_all, Q1, sys_.R_all, np.eye(2), T + 1)
@@ -395,7 +395,7 @@ def test_random_graphs_tokens_and_centralized_domination(seed, N, M):
     filter started from the same P0."""
     import networkx as nx
 
-    import estimators.kalman as kal
+    import dse.estimators.kalman as kal
 
     rng = np.random.default_rng(seed)
     G = nx.connected_watts_strogatz_graph(N, 2, 0.5, seed=seed) if N > 2 else nx.path_graph(N)

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-import estimators.gossip_kalman as gk
-import estimators.switched_riccati as sr
-from pipeline.errors import ScenarioError
-from reproductions.kar_moura.reproduction import from_dict
+import dse.estimators.gossip_kalman as gk
+import dse.estimators.switched_riccati as sr
+from dse.errors import ScenarioError
+from dse.families.kar_moura.reproduction import from_dict
 
 # two triangles joined by an edge, plus a chord: 6 nodes, 8 edges, odd cycles and a bridge
 EDGES = ((0, 1), (0, 2), (1, 2), (1, 4), (2, 3), (3, 4), (3, 5), (4, 5))
@@ -186,7 +186,7 @@ def test_greedy_protocol_from_a_scenario_file(tmp_path):
     # greedy protocol are drawn from E9 by the paper's quick run in test_kar_moura_reproduction.py)
     path = tmp_path / "greedy6.toml"
     path.write_text('family = "gossip-kalman"\n' + SCEN)
-    proc = subprocess.run([sys.executable, "-m", "pipeline.cli", "run", str(path), "--quick", "--no-figures",
+    proc = subprocess.run([sys.executable, "-m", "dse.cli", "run", str(path), "--quick", "--no-figures",
                            "--out", str(tmp_path / "out")],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -202,11 +202,11 @@ def test_sensor_pattern_repeats_over_the_nodes():
     """`sensors.pattern` (for network-size sweeps) equals writing the repeated `types` out."""
     import copy
 
-    from pipeline.errors import ScenarioError
-    from pipeline.scenario import load_toml
-    from reproductions.kar_moura.scenario import GossipKalmanScenario
+    from dse.errors import ScenarioError
+    from dse.scenario.fields import load_toml
+    from dse.families.kar_moura.scenario import GossipKalmanScenario
 
-    from reproductions.kar_moura.scenario import SCENARIO_DIR
+    from dse.families.kar_moura.scenario import SCENARIO_DIR
 
     base = {k: v for k, v in load_toml(SCENARIO_DIR / "e1.toml").items() if k != "family"}
     by_pattern = copy.deepcopy(base)

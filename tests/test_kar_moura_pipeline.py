@@ -15,15 +15,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import estimators.gossip_kalman as gk
-import reproductions
-from pipeline.api import check, execute
-from pipeline.declare import reference_rows
-from pipeline.errors import ScenarioError
-from pipeline.reproduction import RunOptions
-from reproductions.kar_moura import compute
-from reproductions.kar_moura.reproduction import SCENARIO_MODEL
-from reproductions.kar_moura.scenario import SCENARIO_DIR
+import dse.estimators.gossip_kalman as gk
+import dse.families as reproductions
+from dse.api import check, execute
+from dse.scenario.declare import reference_rows
+from dse.errors import ScenarioError
+from dse.engine.driver import RunOptions
+from dse.families.kar_moura import compute
+from dse.families.kar_moura.reproduction import SCENARIO_MODEL
+from dse.families.kar_moura.scenario import SCENARIO_DIR
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -198,7 +198,7 @@ def test_monte_carlo_is_identical_whatever_the_memory_budget():
 def _peak_of(args, tmp_path) -> tuple[int, str, int]:
     # VmHWM: the child's own high-water mark (ru_maxrss keeps the forking parent's size across exec, so a large
     # pytest process would be measured instead of the run)
-    code = ("import sys; from pipeline.cli import main; rc = main(sys.argv[1:]); "
+    code = ("import sys; from dse.cli import main; rc = main(sys.argv[1:]); "
             "print('PEAK', next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM'))); "
             "sys.exit(rc)")
     proc = subprocess.run([sys.executable, "-c", code, *args], cwd=tmp_path, capture_output=True, text=True, timeout=600,
@@ -258,7 +258,7 @@ def test_estimate_is_within_a_factor_of_three_of_the_measured_run():
     start = time.process_time()
     execute(repro, opts)
     measured = time.process_time() - start
-    from reproductions.kar_moura import cost
+    from dse.families.kar_moura import cost
 
     predicted = repro.estimate(opts)["seconds"] - cost.IMPORT_S    # measured in this process: imports already done
     assert 1 / 3 < predicted / measured < 3, (predicted, measured)

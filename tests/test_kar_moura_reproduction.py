@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline import record
-from pipeline.errors import ScenarioError
-from pipeline.reproduction import RunOptions, run
-from reproductions.kar_moura.reproduction import from_dict, paper
+from dse.outputs import record
+from dse.errors import ScenarioError
+from dse.engine.driver import RunOptions, run
+from dse.families.kar_moura.reproduction import from_dict, paper
 
 RERUN = Path(sys.executable).parent / "rerun"
 
@@ -54,9 +54,9 @@ DRAWN = ("e1", "e5", "e7", "e9")
 
 @pytest.fixture(scope="module")
 def paper_run(tmp_path_factory):
-    from pipeline.api import execute
-    from reproductions.kar_moura import outputs
-    from reproductions.kar_moura.compute import Results
+    from dse.api import execute
+    from dse.families.kar_moura import outputs
+    from dse.families.kar_moura.compute import Results
 
     out = tmp_path_factory.mktemp("km")
     result = execute(paper(), RunOptions(quick=True, workers=2))

@@ -9,14 +9,14 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-import estimators.gossip_kalman as gk
-import estimators.switched_riccati as sr
-import estimators.walk_detectability as wd
-import reproductions
-from pipeline.cache import StageCache
-from pipeline.reproduction import RunOptions, evaluate_claims
-from reproductions.kar_moura import generators
-from reproductions.kar_moura import stats as kst
+import dse.estimators.gossip_kalman as gk
+import dse.estimators.switched_riccati as sr
+import dse.estimators.walk_detectability as wd
+import dse.families as reproductions
+from dse.engine.cache import StageCache
+from dse.engine.driver import RunOptions, evaluate_claims
+from dse.families.kar_moura import generators
+from dse.families.kar_moura import stats as kst
 
 
 def _system(F, C_list, R_list, Q=None):

@@ -7,12 +7,18 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from pipeline import graphs, scenario, stats, verify
-from pipeline.atomic import atomic_path
-from pipeline.cache import StageCache
-from pipeline.errors import CacheMiss, ScenarioError
-from pipeline.seeding import block_seeds, stream_seed
-from pipeline.simulate import parallel_map, run_blocks, trial_blocks
+from dse.scenario import graphs
+
+from dse.scenario import fields as scenario
+
+from dse.simulate import stats
+
+from dse.verify import rules as verify
+from dse.engine.atomic import atomic_path
+from dse.engine.cache import StageCache
+from dse.errors import CacheMiss, ScenarioError
+from dse.simulate.seeding import block_seeds, stream_seed
+from dse.simulate.units import parallel_map, run_blocks, trial_blocks
 
 
 # -- scenario readers -------------------------------------------------------------------------
@@ -241,7 +247,7 @@ def test_family_wise_confidence_is_shared_by_the_statistical_claims():
 
 
 def test_exact_tests_keep_their_level():
-    from pipeline import stats
+    from dse.simulate import stats
 
     rng = np.random.default_rng(0)
     n, reps = 20, 20000   # a small sample: the χ² law is exact at any n
@@ -286,7 +292,7 @@ def test_cache_roundtrip_and_corruption(tmp_path):
 
 
 def test_nonfinite_results_are_caught_where_they_appear(tmp_path):
-    from pipeline.errors import NumericalError
+    from dse.errors import NumericalError
 
     cache = StageCache(tmp_path)
     series = np.ones((5, 2))
@@ -302,7 +308,7 @@ def test_nonfinite_results_are_caught_where_they_appear(tmp_path):
 def test_errors_survive_pickling():
     import pickle
 
-    from pipeline.errors import NumericalError
+    from dse.errors import NumericalError
 
     e = pickle.loads(pickle.dumps(NumericalError("mc", "demo", "array 'x' at index (1,)")))
     assert (e.stage, e.scenario, e.where) == ("mc", "demo", "array 'x' at index (1,)") and "stage 'mc'" in str(e)
@@ -311,7 +317,7 @@ def test_errors_survive_pickling():
 
 
 def test_viewer_text_replaces_glyphs_the_viewer_cannot_draw():
-    from pipeline.record import viewer_text
+    from dse.outputs.record import viewer_text
 
     assert viewer_text("tr 𝒫_i ≤ 𝓛 x̂ σ_c ℓ") == "tr P_i ≤ L x̂ σ_c ℓ"  # drawable characters are kept
     assert viewer_text("Pᵀ, x ∈ S, L⊗I") == "P^T, x  in  S, L(x)I"
@@ -319,23 +325,23 @@ def test_viewer_text_replaces_glyphs_the_viewer_cannot_draw():
 
 
 def test_shipped_glyph_ranges_match_the_viewer_font():
-    from pipeline.viewer_check import embedded_font_coverage
-    from pipeline.viewer_glyphs import INTER_RANGES
+    from dse.outputs.viewer_check import embedded_font_coverage
+    from dse.outputs.viewer_glyphs import INTER_RANGES
 
     shipped = {c for a, b in INTER_RANGES for c in range(a, b + 1)}
     assert shipped == embedded_font_coverage()
 
 
 def test_an_identical_run_is_answered_from_its_memo_and_reuses_its_outputs(tmp_path, monkeypatch):
-    import pipeline.api as api
-    from pipeline import cache
-    from pipeline.reproduction import run
+    import dse.api as api
+    from dse.engine import cache
+    from dse.engine.driver import run
     from test_cli import GOOD
 
     monkeypatch.setattr(cache, "project_fingerprint", lambda: "fixed-code")
     (tmp_path / "s.toml").write_text(GOOD)
     repro = api.load(tmp_path / "s.toml")
-    from pipeline.reproduction import RunOptions
+    from dse.engine.driver import RunOptions
 
     opts = RunOptions(quick=True)
     first = run(repro, tmp_path / "o", opts, out_dir=tmp_path / "o/run/x")

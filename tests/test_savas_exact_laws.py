@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from scipy import stats
 
-import estimators.consensus_covariance as cc
-import estimators.consensus_filter as cf
-import reproductions
-from pipeline.cache import StageCache
-from pipeline.reproduction import RunOptions, evaluate_claims
-from reproductions.savas.exact_laws import chi2_sum_p, normal_sum_p, weighted_chi2_p
+import dse.estimators.consensus_covariance as cc
+import dse.estimators.consensus_filter as cf
+import dse.families as reproductions
+from dse.engine.cache import StageCache
+from dse.engine.driver import RunOptions, evaluate_claims
+from dse.families.savas.exact_laws import chi2_sum_p, normal_sum_p, weighted_chi2_p
 
 Q_RING = np.array([[0.5, 0.25, 0.0, 0.25], [0.25, 0.5, 0.25, 0.0], [0.0, 0.25, 0.5, 0.25], [0.25, 0.0, 0.25, 0.5]])
 BATCH, BATCHES = 20, 1500
@@ -33,7 +33,7 @@ def batches():
 
 
 def test_bisections_stopped_once_the_bracket_cannot_change_give_what_all_of_them_give(monkeypatch):
-    from reproductions.savas import exact_laws
+    from dse.families.savas import exact_laws
 
     rng = np.random.default_rng(3)
     weights = np.abs(rng.standard_normal((400, 5))) * rng.choice([1e-6, 1.0, 1e3], (400, 1))

@@ -7,16 +7,16 @@ import copy
 from pathlib import Path
 from types import SimpleNamespace
 
-from pipeline.scenario import load_toml
-from reproductions.savas.claims import catalogue, check_Q
-from reproductions.savas.reproduction import from_dict, paper
-from reproductions.savas.scenario import NoisyConsensusScenario
+from dse.scenario.fields import load_toml
+from dse.families.savas.claims import catalogue, check_Q
+from dse.families.savas.reproduction import from_dict, paper
+from dse.families.savas.scenario import NoisyConsensusScenario
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _paper_data() -> dict:
-    return {k: v for k, v in load_toml(ROOT / "reproductions" / "savas" / "paper.toml").items() if k != "family"}
+    return {k: v for k, v in load_toml(ROOT / "dse" / "families" / "savas" / "paper.toml").items() if k != "family"}
 
 
 def test_reference_tables_are_paper_example_claims():

@@ -13,20 +13,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import estimators.consensus_covariance as cc
-import reproductions
-from pipeline import api
-from pipeline.declare import reference_rows
-from pipeline.errors import ScenarioError
-from pipeline.reproduction import RunOptions
-from pipeline.sweep import network_metrics
-from reproductions.savas import claims as savas_claims
-from reproductions.savas import compute
-from reproductions.savas.reproduction import SCENARIO_MODEL
-from reproductions.savas.scenario import NoisyConsensusScenario
+import dse.estimators.consensus_covariance as cc
+import dse.families as reproductions
+from dse import api
+from dse.scenario.declare import reference_rows
+from dse.errors import ScenarioError
+from dse.engine.driver import RunOptions
+from dse.sweeps.run import network_metrics
+from dse.families.savas import claims as savas_claims
+from dse.families.savas import compute
+from dse.families.savas.reproduction import SCENARIO_MODEL
+from dse.families.savas.scenario import NoisyConsensusScenario
 
 ROOT = Path(__file__).resolve().parents[1]
-PAPER = ROOT / "reproductions" / "savas" / "paper.toml"
+PAPER = ROOT / "dse" / "families" / "savas" / "paper.toml"
 
 SMALL = {"family": "noisy-consensus-filter", "name": "small", "graph": {"kind": "ring", "n": 4},
          "consensus": {"weights": "laplacian", "eps": 0.3}, "model": {"q": 0.7, "r": 9.0, "sigma0": 1.5},
@@ -42,7 +42,7 @@ def test_every_key_is_declared_with_a_meaning():
     for path, r in rows:
         assert r["meaning"].strip(), f"{path}.{r['key']} has no meaning"
     # an undocumented key cannot even be declared
-    from pipeline.declare import key
+    from dse.scenario.declare import key
 
     with pytest.raises(ValueError, match="meaning"):
         key(1, doc=" ")
@@ -166,7 +166,7 @@ def test_series_gains_and_thresholds_are_what_the_claims_use(small_run):
 
 
 def test_metrics_have_the_cell_in_columns_and_the_sweeps_names():
-    sweep = tomllib.loads((ROOT / "reproductions" / "sweeps" / "savas_noise_rounds_size.toml").read_text())
+    sweep = tomllib.loads((ROOT / "dse" / "families" / "sweeps" / "savas_noise_rounds_size.toml").read_text())
     point = {**SMALL, "sweep": {**SMALL["sweep"], "rounds": [2], "sigma_c": [1.5]}}
     run = api.run(point, quick=True, trials=200)
     m = run.tables["metrics"]
@@ -197,7 +197,7 @@ def test_monte_carlo_is_identical_whatever_the_memory_budget():
 
 def _peak_of(args, tmp_path) -> tuple[int, float, str, int]:
     # VmHWM: this process's own high-water mark (ru_maxrss would keep the forking test process's size across exec)
-    code = ("import re, sys; from pipeline.cli import main; rc = main(sys.argv[1:]); "
+    code = ("import re, sys; from dse.cli import main; rc = main(sys.argv[1:]); "
             "print('PEAK', re.search(r'VmHWM:\\s*(\\d+)', open('/proc/self/status').read()).group(1)); sys.exit(rc)")
     start = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", code, *args], cwd=tmp_path, capture_output=True, text=True, timeout=600,
@@ -249,7 +249,7 @@ def test_unstreamable_outputs_beyond_the_budget_are_refused_before_running(tmp_p
 
 def test_estimate_of_the_monte_carlo_is_within_a_factor_of_two_of_its_cost():
     """The cost model's Monte Carlo part against the CPU time of the same groups (factor 2 stated)."""
-    from reproductions.savas import cost
+    from dse.families.savas import cost
 
     sc = reproductions.family_from_dict({**SMALL, "sweep": {**SMALL["sweep"], "n_steps": 200, "recorded_steps": 50},
                                          "monte_carlo": {"trials": 3000, "sample_paths": 0}}).scenario

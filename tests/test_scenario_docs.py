@@ -1,17 +1,17 @@
 """docs/scenarios.md is generated from the declared keys and must match them."""
-from pipeline import scenario_docs
+from dse.scenario import docs as scenario_docs
 
 
 def test_scenarios_page_matches_the_declarations():
     assert scenario_docs.PAGE.read_text() == scenario_docs.page(), \
-        "docs/scenarios.md is out of date: run `.venv/bin/python -m pipeline.scenario_docs`"
+        "docs/scenarios.md is out of date: run `.venv/bin/python -m dse.scenario.docs`"
 
 
 def test_every_key_is_documented():
     import importlib
 
-    import reproductions
-    from pipeline.declare import reference_rows
+    import dse.families as reproductions
+    from dse.scenario.declare import reference_rows
 
     for family, module in reproductions.FAMILIES.items():
         model = importlib.import_module(module).SCENARIO_MODEL

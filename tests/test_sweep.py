@@ -18,13 +18,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline import sweep as sw
-from pipeline.cli import main as cli_main
-from pipeline.errors import ScenarioError
-from pipeline.sweep_spec import parse_sweep, point_seed, set_field
+from dse.sweeps import run as sw
+from dse.cli import main as cli_main
+from dse.errors import ScenarioError
+from dse.sweeps.spec import parse_sweep, point_seed, set_field
 
 ROOT = Path(__file__).resolve().parents[1]
-BASE = ROOT / "reproductions" / "tanwani" / "example.toml"
+BASE = ROOT / "dse" / "families" / "tanwani" / "example.toml"
 cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the flaky task functions below run on workers
 
 
@@ -156,7 +156,7 @@ def test_inline_sweep_writes_table_figure_and_recording(inline_run):
     assert len(claims) == 4 * len(verdict_cols)
     assert (frame[["pass", "fail", "erratum", "not-checkable", "error"]].sum(axis=1) == len(verdict_cols)).all()
     assert (d / "sweep.png").stat().st_size > 10_000
-    from pipeline.record import blueprint_view_kinds, read_scalars
+    from dse.outputs.record import blueprint_view_kinds, read_scalars
 
     assert blueprint_view_kinds(d / "sweep.rrd").count("TimeSeries") >= 2
     series = read_scalars(d / "sweep.rrd", "communication.rates")  # rates 1 and 4: integers, the values themselves
@@ -224,7 +224,7 @@ class FakeTask(sw.Task):
 
 
 def _fake_tasks(n: int, flaky_dir: Path) -> list[sw.Task]:
-    from pipeline.sweep_spec import Point
+    from dse.sweeps.spec import Point
 
     return [FakeTask(Point(i, {"i": i}, 0, 1000 + i), {"flaky_dir": str(flaky_dir)}, True, None, f"k{i}")
             for i in range(n)]
@@ -322,9 +322,9 @@ def test_cli_sweep_errors_exit_2_with_one_line(tmp_path, capsys):
     assert not (tmp_path / "o" / "sweep").exists()
 
 
-@pytest.mark.parametrize("path", sorted((ROOT / "reproductions" / "sweeps").glob("*.toml")), ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", sorted((ROOT / "dse" / "families" / "sweeps").glob("*.toml")), ids=lambda p: p.stem)
 def test_shipped_sweeps_are_valid_at_every_point(path):
-    from pipeline.sweep_spec import load_sweep
+    from dse.sweeps.spec import load_sweep
 
     spec = load_sweep(path)
     tasks = sw.build_tasks(spec)  # every point's scenario is validated by its family

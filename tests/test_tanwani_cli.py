@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline import record
-from pipeline.errors import ScenarioError
-from pipeline.reproduction import RunOptions, run
-from reproductions.tanwani import reproduction as R
-from reproductions.tanwani.scenario import FilterNetworkScenario
+from dse.outputs import record
+from dse.errors import ScenarioError
+from dse.engine.driver import RunOptions, run
+from dse.families.tanwani import reproduction as R
+from dse.families.tanwani.scenario import FilterNetworkScenario
 
 RERUN = Path(sys.executable).parent / "rerun"
 
@@ -104,8 +104,8 @@ def paper_run(tmp_path_factory):
     """The paper in quick mode, in a fresh process with one BLAS thread per process, as the
     `dse` command runs it (BLAS threads only contend with the two worker processes)."""
     out = tmp_path_factory.mktemp("tanwani")
-    code = ("import json, sys; from pathlib import Path; from pipeline.reproduction import RunOptions, run; "
-            "from reproductions.tanwani.reproduction import paper; "
+    code = ("import json, sys; from pathlib import Path; from dse.engine.driver import RunOptions, run; "
+            "from dse.families.tanwani.reproduction import paper; "
             f"print(json.dumps(run(paper(), Path({str(out)!r}), RunOptions(quick=True, workers=2))))")
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=900,
                           env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0",

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-import estimators.gossip_covariance as gc
-from estimators.gossip_filter import GossipSystem, kalman_bucy_split_gains
-from reproductions.tanwani import reference_values as ref
-from reproductions.tanwani.scenario import load_scenario
+import dse.estimators.gossip_covariance as gc
+from dse.estimators.gossip_filter import GossipSystem, kalman_bucy_split_gains
+from dse.families.tanwani import reference_values as ref
+from dse.families.tanwani.scenario import load_scenario
 
 
 def s1(L, alpha=0.5, mode="edge"):

@@ -16,13 +16,13 @@ import math
 import numpy as np
 import scipy.linalg as sla
 
-import estimators.gossip_covariance as gc
-import estimators.gossip_filter as gf
-from pipeline.scenario import load_toml
-from reproductions.tanwani import claims as tc
-from reproductions.tanwani.scenario import FilterNetworkScenario
+import dse.estimators.gossip_covariance as gc
+import dse.estimators.gossip_filter as gf
+from dse.scenario.fields import load_toml
+from dse.families.tanwani import claims as tc
+from dse.families.tanwani.scenario import FilterNetworkScenario
 
-S2 = "reproductions/tanwani/scenarios/s2.toml"
+S2 = "dse/families/tanwani/scenarios/s2.toml"
 LAM = 0.5
 
 
@@ -91,9 +91,9 @@ def test_joint_ode_matches_brute_force_conditional_mean():
 
 
 def _results(sc, K, seed, tmp_path):
-    from pipeline.cache import StageCache
-    from pipeline.reproduction import RunOptions
-    from reproductions.tanwani.compute import compute
+    from dse.engine.cache import StageCache
+    from dse.engine.driver import RunOptions
+    from dse.families.tanwani.compute import compute
 
     return compute([sc], RunOptions(seed=seed, trials=5 * K, workers=1), StageCache(tmp_path / "cache"), is_paper=False)
 

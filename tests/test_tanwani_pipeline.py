@@ -17,17 +17,17 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-import reproductions
-from pipeline import api
-from pipeline.declare import reference_rows
-from pipeline.errors import ScenarioError
-from pipeline.reproduction import RunOptions
-from pipeline.sweep import network_metrics
-from reproductions.tanwani import compute, cost
-from reproductions.tanwani.reproduction import SCENARIO_MODEL
+import dse.families as reproductions
+from dse import api
+from dse.scenario.declare import reference_rows
+from dse.errors import ScenarioError
+from dse.engine.driver import RunOptions
+from dse.sweeps.run import network_metrics
+from dse.families.tanwani import compute, cost
+from dse.families.tanwani.reproduction import SCENARIO_MODEL
 
 ROOT = Path(__file__).resolve().parents[1]
-FAMILY_DIR = ROOT / "reproductions" / "tanwani"
+FAMILY_DIR = ROOT / "dse" / "families" / "tanwani"
 EXAMPLE = tomllib.loads((FAMILY_DIR / "example.toml").read_text())
 
 
@@ -60,7 +60,7 @@ def test_every_key_is_declared_with_a_meaning():
     assert {"sensors[].P_init", "simulation.grid_step", "communication.rates", "system.P0", "graph.edges"} <= paths
     for path, r in rows:
         assert r["meaning"].strip(), f"{path}.{r['key']} has no meaning"
-    from pipeline.declare import key
+    from dse.scenario.declare import key
 
     with pytest.raises(ValueError, match="meaning"):
         key(1, doc="")
@@ -261,10 +261,10 @@ def test_unstreamable_paths_beyond_the_budget_are_refused_before_running():
 
 LONG = """
 import re, sys, tempfile, tomllib
-import reproductions
-from pipeline.cache import StageCache
-from pipeline.reproduction import RunOptions
-from reproductions.tanwani import claims, compute, design  # noqa: F401  (the libraries a run loads, before the baseline)
+import dse.families as reproductions
+from dse.engine.cache import StageCache
+from dse.engine.driver import RunOptions
+from dse.families.tanwani import claims, compute, design  # noqa: F401  (the libraries a run loads, before the baseline)
 
 def hwm():
     return int(re.search(r"VmHWM:\\s*(\\d+)", open("/proc/self/status").read()).group(1)) / 1024

@@ -9,11 +9,11 @@ from types import SimpleNamespace
 
 import pytest
 
-from pipeline.scenario import load_toml
-from reproductions.tanwani.claims import _reference_differences
-from reproductions.tanwani.scenario import FilterNetworkScenario
+from dse.scenario.fields import load_toml
+from dse.families.tanwani.claims import _reference_differences
+from dse.families.tanwani.scenario import FilterNetworkScenario
 
-SCENARIOS = Path(__file__).resolve().parents[1] / "reproductions" / "tanwani" / "scenarios"
+SCENARIOS = Path(__file__).resolve().parents[1] / "dse" / "families" / "tanwani" / "scenarios"
 
 
 def _results(data: dict) -> SimpleNamespace:

@@ -10,12 +10,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 
-import estimators.gossip_covariance as gc
-import estimators.gossip_filter as gf
-import estimators.kalman_bucy as kb
-from estimators.linear_flows import BlockDiagonalFlow, affine_flow_grid, van_loan
-from pipeline.matrix_moments import MatrixMoments
-from pipeline.stats import z_for_confidence
+import dse.estimators.gossip_covariance as gc
+import dse.estimators.gossip_filter as gf
+import dse.estimators.kalman_bucy as kb
+from dse.estimators.linear_flows import BlockDiagonalFlow, affine_flow_grid, van_loan
+from dse.simulate.matrix_moments import MatrixMoments
+from dse.simulate.stats import z_for_confidence
 
 SETTINGS = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -300,8 +300,8 @@ def test_gridded_scheme_bias_is_second_order():
 
 
 def test_monte_carlo_stages_are_deterministic_per_seed():
-    from reproductions.tanwani import compute
-    from reproductions.tanwani.scenario import load_scenario
+    from dse.families.tanwani import compute
+    from dse.families.tanwani.scenario import load_scenario
 
     sc = load_scenario("s1c")
     a = compute.simulate_gridded_rate(sc, 5, 300, sc.main_rate)

@@ -7,8 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from reproductions.tanwani import claims as tc
-from reproductions.tanwani.scenario import load_scenario
+from dse.families.tanwani import claims as tc
+from dse.families.tanwani.scenario import load_scenario
 
 REPS = 4000
 

@@ -10,12 +10,12 @@ from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
-import estimators.common_lyapunov as cl
-import estimators.input_state_coestimation as ce
-import estimators.lyapunov_bounds as lb
-import estimators.observer_network_simulation as sim
-from estimators.exponential_integrators import phi_functions
-from pipeline.graphs import laplacian
+import dse.estimators.common_lyapunov as cl
+import dse.estimators.input_state_coestimation as ce
+import dse.estimators.lyapunov_bounds as lb
+import dse.estimators.observer_network_simulation as sim
+from dse.estimators.exponential_integrators import phi_functions
+from dse.scenario.graphs import laplacian
 
 SETTINGS = settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

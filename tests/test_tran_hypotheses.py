@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import reproductions
-from estimators.sinusoid_sup import input_sup_bounds
-from pipeline.cache import StageCache
-from pipeline.reproduction import RunOptions, evaluate_claims
-from reproductions.tran import generators
-from reproductions.tran.claims import _one_sided_upper
+import dse.families as reproductions
+from dse.estimators.sinusoid_sup import input_sup_bounds
+from dse.engine.cache import StageCache
+from dse.engine.driver import RunOptions, evaluate_claims
+from dse.families.tran import generators
+from dse.families.tran.claims import _one_sided_upper
 
 
 def _sampled(o, a, f, ph, t):

@@ -17,18 +17,18 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm, solve_continuous_are, solve_continuous_lyapunov
 
-import estimators.input_state_coestimation as ce
-import reproductions
-from pipeline import api
-from pipeline.declare import reference_rows
-from pipeline.errors import ScenarioError
-from pipeline.reproduction import RunOptions
-from reproductions.tran import claims as tran_claims
-from reproductions.tran import compute, cost, design, hypotheses
-from reproductions.tran.reproduction import SCENARIO_MODEL
+import dse.estimators.input_state_coestimation as ce
+import dse.families as reproductions
+from dse import api
+from dse.scenario.declare import reference_rows
+from dse.errors import ScenarioError
+from dse.engine.driver import RunOptions
+from dse.families.tran import claims as tran_claims
+from dse.families.tran import compute, cost, design, hypotheses
+from dse.families.tran.reproduction import SCENARIO_MODEL
 
 ROOT = Path(__file__).resolve().parents[1]
-PAPER = ROOT / "reproductions" / "tran" / "paper.toml"
+PAPER = ROOT / "dse" / "families" / "tran" / "paper.toml"
 
 SMALL = {
     "family": "coestimation", "name": "small",
@@ -70,7 +70,7 @@ def test_every_key_is_declared_with_a_meaning():
     assert {"node_type.<name>.Q", "nodes.xhat0", "nodes.what0", "simulation.record_dt"} <= paths
     for path, r in rows:
         assert r["meaning"].strip(), f"{path}.{r['key']} has no meaning"
-    from pipeline.declare import key
+    from dse.scenario.declare import key
 
     with pytest.raises(ValueError, match="meaning"):
         key(1, doc="")
@@ -238,9 +238,9 @@ def test_nodes_table_equals_the_independent_computations(small_run):
 
 def _direct_final_errors(res, k_T: int) -> np.ndarray:
     """z(T) of every trial of the fixed-role Monte Carlo, simulated again in one batch with the same streams."""
-    import estimators.observer_network_simulation as sim
-    from pipeline.seeding import block_seeds, stream_seed
-    from pipeline.simulate import UnitStreams
+    import dse.estimators.observer_network_simulation as sim
+    from dse.simulate.seeding import block_seeds, stream_seed
+    from dse.simulate.units import UnitStreams
 
     sc, d = res.scenario, res.design
     trials = int(res.runs["sde_fixed"]["trials"])
@@ -283,7 +283,7 @@ def test_series_and_bounds_are_what_the_claims_use(small_run):
 
 def test_metrics_are_tidy(small_run):
     run, _ = small_run
-    from pipeline.sweep import network_metrics
+    from dse.sweeps.run import network_metrics
 
     m = run.tables["metrics"]
     assert str(m["node"].dtype) == "Int64"
@@ -347,7 +347,7 @@ def _peak_of(args, cwd) -> tuple[int, str, float]:
     """Exit code, output and peak resident memory (MiB) of `dse ARGS` in a fresh process. The peak is the
     process's own high-water mark (VmHWM): getrusage's ru_maxrss also carries the high-water mark of the
     process that forked it across exec on Linux, i.e. of this test process."""
-    code = ("import re, sys; from pipeline.cli import main; rc = main(sys.argv[1:]); "
+    code = ("import re, sys; from dse.cli import main; rc = main(sys.argv[1:]); "
             "print('PEAK', re.search(r'VmHWM:\\s*(\\d+)', open('/proc/self/status').read()).group(1)); sys.exit(rc)")
     proc = subprocess.run([sys.executable, "-c", code, *args], cwd=cwd, capture_output=True, text=True, timeout=600,
                           env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0",

@@ -12,15 +12,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline import api, record
-from pipeline.errors import ScenarioError
-from pipeline.reproduction import RunOptions, run
-from pipeline.scenario import load_toml
-from reproductions.tran import reproduction as tran
+from dse import api
+
+from dse.outputs import record
+from dse.errors import ScenarioError
+from dse.engine.driver import RunOptions, run
+from dse.scenario.fields import load_toml
+from dse.families.tran import reproduction as tran
 
 ROOT = Path(__file__).resolve().parent.parent
 RERUN = Path(sys.executable).parent / "rerun"
-PAPER_TOML = ROOT / "reproductions" / "tran" / "paper.toml"
+PAPER_TOML = ROOT / "dse" / "families" / "tran" / "paper.toml"
 
 USER = {
     "name": "ring5",
@@ -143,8 +145,8 @@ def test_lyapunov_P_leaves_thm31_not_checkable(tmp_path):
     data["roles"] = {"mode": "fixed", "active": [1, 1, 0, 0, 0]}
     data.pop("fixed_roles")
     repro = tran.from_dict(data)
-    from pipeline.cache import StageCache
-    from pipeline.reproduction import evaluate_claims
+    from dse.engine.cache import StageCache
+    from dse.engine.driver import evaluate_claims
     res = repro.compute(RunOptions(quick=True, workers=1), StageCache(tmp_path / "cache"))
     ev = evaluate_claims(repro, res)
     hyps = {h["id"]: h["holds"] for h in ev.hypotheses}
@@ -259,10 +261,10 @@ quick_t_end = 2.0
 
 def test_cli_run_user_scenario(tmp_path, monkeypatch):
     """`dse run FILE.toml` for the family (registered here in-process; the lead registers it for real)."""
-    import reproductions
-    from pipeline import cli
+    import dse.families as reproductions
+    from dse import cli
 
-    monkeypatch.setitem(reproductions.FAMILIES, "coestimation", "reproductions.tran.reproduction")
+    monkeypatch.setitem(reproductions.FAMILIES, "coestimation", "dse.families.tran.reproduction")
     (tmp_path / "s.toml").write_text(USER_TOML)
     assert cli.main(["run", str(tmp_path / "s.toml"), "--quick", "--out", str(tmp_path / "out"), "--workers", "1"]) == 0
     doc = json.loads((tmp_path / "out" / "run" / "line4" / "report.json").read_text())

@@ -15,7 +15,7 @@ import scipy.linalg as sla
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import estimators.jointly_observable_design as jd
+import dse.estimators.jointly_observable_design as jd
 
 A_PAPER = np.array([[-0.1, 0.4, 0, 0], [-0.1, -0.1, 0, 0], [0, 0, -0.2, 0.2], [0, 0, -2, 0.1]])
 C_PAPER = [np.eye(4)[[i]] for i in range(4)]

@@ -10,11 +10,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 
-import estimators.hybrid_observer as ho
-import estimators.jointly_observable_design as jd
-from reproductions.wang_liu_morse import claims as cl
-from reproductions.wang_liu_morse import compute as cp
-from reproductions.wang_liu_morse.scenario import paper_scenario
+import dse.estimators.hybrid_observer as ho
+import dse.estimators.jointly_observable_design as jd
+from dse.families.wang_liu_morse import claims as cl
+from dse.families.wang_liu_morse import compute as cp
+from dse.families.wang_liu_morse.scenario import paper_scenario
 
 from test_wang_liu_morse_design import random_jointly_observable
 
@@ -173,7 +173,7 @@ def test_roundoff_floor_and_rate_fit():
     floor = np.full_like(t, 1e3 * np.finfo(float).eps)
     rate, first, stop = cl.fit_rate(t, v, floor)
     assert rate == pytest.approx(1.7, rel=1e-9) and stop == int(np.argmax(v <= floor))
-    from reproductions.wang_liu_morse.outputs import log10_safe
+    from dse.families.wang_liu_morse.outputs import log10_safe
     assert np.isfinite(log10_safe(v)).all() and log10_safe(np.array([0.0]))[0] == -300.0
 
 

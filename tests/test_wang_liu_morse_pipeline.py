@@ -18,20 +18,20 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-import estimators.hybrid_observer as ho
-from pipeline import api
-from pipeline.declare import key, reference_rows
-from pipeline.errors import ScenarioError
-from pipeline.reproduction import RunOptions
-from pipeline.seeding import stream_seed
-from pipeline.simulate import RNG_UNIT, UnitStreams, block_seeds
-from pipeline.sweep import network_metrics
-from reproductions.wang_liu_morse import bounds
-from reproductions.wang_liu_morse.design import central_gain, constants, observer_design
-from reproductions.wang_liu_morse.reproduction import SCENARIO_MODEL
+import dse.estimators.hybrid_observer as ho
+from dse import api
+from dse.scenario.declare import key, reference_rows
+from dse.errors import ScenarioError
+from dse.engine.driver import RunOptions
+from dse.simulate.seeding import stream_seed
+from dse.simulate.units import RNG_UNIT, UnitStreams, block_seeds
+from dse.sweeps.run import network_metrics
+from dse.families.wang_liu_morse import bounds
+from dse.families.wang_liu_morse.design import central_gain, constants, observer_design
+from dse.families.wang_liu_morse.reproduction import SCENARIO_MODEL
 
 ROOT = Path(__file__).resolve().parents[1]
-PKG = ROOT / "reproductions" / "wang_liu_morse"
+PKG = ROOT / "dse" / "families" / "wang_liu_morse"
 
 TWO = {"family": "hybrid-observer", "name": "two",
        "system": {"A": [[-0.2, 0.3], [0.0, 0.1]], "C": [[[1.0, -1.0]], [[0.0, 1.0]]]},
@@ -335,8 +335,8 @@ def test_long_horizon_runs_in_bounded_memory(tmp_path):
             "design": {**TWO["design"], "q": 2, "T": 0.02}, "sampling": {"step": 0.02, "stored": 1001},
             "runs": [{"name": "sync", "intervals": 500, "monte_carlo": True}]}
     code = ("import json, sys\n"
-            "from pipeline import api\n"
-            "from pipeline.reproduction import RunOptions\n"
+            "from dse import api\n"
+            "from dse.engine.driver import RunOptions\n"
             "repro = api.load(json.loads(sys.argv[1]))\n"
             "opts = RunOptions(max_memory_mib=300)\n"
             "est = repro.estimate(opts)\n"

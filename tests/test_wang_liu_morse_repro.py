@@ -17,14 +17,14 @@ import pandas as pd
 import pytest
 import scipy.linalg as sla
 
-from pipeline import record
-from pipeline.errors import ScenarioError
-from pipeline.cache import StageCache
-from pipeline.reproduction import RunOptions, evaluate_claims, reverify, run
-from reproductions.wang_liu_morse.reproduction import from_dict, paper
+from dse.outputs import record
+from dse.errors import ScenarioError
+from dse.engine.cache import StageCache
+from dse.engine.driver import RunOptions, evaluate_claims, reverify, run
+from dse.families.wang_liu_morse.reproduction import from_dict, paper
 
 RERUN = Path(sys.executable).parent / "rerun"
-PKG = Path(__file__).resolve().parent.parent / "reproductions" / "wang_liu_morse"
+PKG = Path(__file__).resolve().parent.parent / "dse" / "families" / "wang_liu_morse"
 
 USER = """
 name = "two_agents"
@@ -223,8 +223,8 @@ def test_cli_rejects_a_bad_file_with_one_line(tmp_path):
     """`dse run FILE.toml` (the family registered as the lead will do): exit 2, one line naming the field."""
     data = USER.replace("C = [[[1.0, -1.0]], [[0.0, 1.0]]]", "C = [[[1.0, -1.0]], [[2.0, -2.0]]]")
     (tmp_path / "s.toml").write_text('family = "hybrid-observer"\n' + data)
-    code = ("import sys, reproductions; reproductions.FAMILIES['hybrid-observer'] = "
-            "'reproductions.wang_liu_morse.reproduction'; from pipeline.cli import main; sys.exit(main(sys.argv[1:]))")
+    code = ("import sys; import dse.families as reproductions; reproductions.FAMILIES['hybrid-observer'] = "
+            "'dse.families.wang_liu_morse.reproduction'; from dse.cli import main; sys.exit(main(sys.argv[1:]))")
     root = Path(__file__).resolve().parent.parent
     proc = subprocess.run([sys.executable, "-c", code, "run", "s.toml", "--out", "out"], cwd=tmp_path, capture_output=True,
                           text=True, timeout=300, env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0"})

@@ -1,0 +1,386 @@
+"""The Python entry point: load a scenario, run it, read hypotheses, claims and tables.
+
+    import dse                                   # the same functions as dse.api
+    run = dse.run("ring8.toml", trials=5000, seed=1)      # or a dict, or dse.paper("savas")
+    run.counts                                   # {'pass': 30, 'fail': 0, ...}
+    run.hypotheses                               # DataFrame: id, statement, holds, value, threshold, detail
+    run.claims                                   # DataFrame: id, verdict, measured, reference, margin, ...
+    run.tables["nodes"]                          # DataFrame; run.tables.describe("nodes") gives units
+    run.write("out/run/ring8")                   # report, tables, figures, recordings (only when asked)
+
+Nothing is written unless `write` is called or a `cache_dir` is given (the stage cache
+that lets a later run resume). The `dse` command line is a thin layer over these functions.
+"""
+from __future__ import annotations
+
+import hashlib
+import inspect
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from dse.engine.atomic import atomic_write_text
+from dse.engine.cache import StageCache
+from dse.errors import OutputError
+from dse.engine.provenance import provenance
+from dse.engine.driver import Reproduction, RunOptions, evaluate_claims
+from dse.outputs.report import verdict_counts, write_report
+from dse.simulate.units import peak_memory_mib
+from dse.outputs.tables import Tables, spec
+from dse.verify.rules import Evaluation
+
+
+def load(source: str | os.PathLike | Mapping[str, Any]) -> Reproduction:
+    """A validated scenario of a supported family, from a TOML file or a dict with `family`.
+
+    Raises `ScenarioError` (one line naming the field) on invalid input."""
+    import dse.families as reproductions
+    from dse.scenario.fields import load_toml
+
+    data = dict(source) if isinstance(source, Mapping) else load_toml(source)
+    return reproductions.family_from_dict(data)
+
+
+def paper(paper_id: str) -> Reproduction:
+    """A paper's own reproduction (`dse list` shows the ids)."""
+    import dse.families as reproductions
+    from dse.errors import ScenarioError
+
+    if paper_id not in reproductions.PAPERS:
+        raise ScenarioError("PAPER", f"unknown paper {paper_id} (known: {', '.join(reproductions.PAPERS)})")
+    return reproductions.paper(paper_id)
+
+
+@dataclass
+class Run:
+    """A computed and checked run: its evaluation (hypotheses and claims), its tables, and the
+    stage results behind them (loaded from the stage cache on first use when the run was
+    answered from a memo of an identical earlier run)."""
+
+    reproduction: Reproduction
+    options: RunOptions
+    _results: Any = field(repr=False)
+    evaluation: Evaluation = field(repr=False)
+    tables: Tables = field(repr=False)
+    provenance: dict[str, Any] = field(repr=False)
+    source: dict[str, Any] | None = field(default=None, repr=False)
+    run_key: str | None = field(default=None, repr=False)
+
+    @property
+    def results(self) -> Any:
+        if callable(self._results):
+            self._results = self._results()
+        return self._results
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return verdict_counts(self.evaluation.claims)
+
+    @property
+    def claims(self):
+        return self.tables["claims"]
+
+    @property
+    def hypotheses(self):
+        return self.tables["hypotheses"]
+
+    def write(self, out_dir: str | os.PathLike, *, out_root: str | os.PathLike | None = None,
+              figures: bool = True) -> Path:
+        """Write report.json/md, tables/, figures and recordings into `out_dir`, replacing what a
+        previous run left there in one step (a fresh directory renamed into place).
+        `figures=False` writes the report and the tables only (no figures, no recordings)."""
+        out_dir = Path(out_dir)
+        staging = _staging_dir(out_dir)
+        try:
+            start = time.perf_counter()
+            self.tables.write(staging / "tables")
+            outputs = _reuse_outputs(out_dir, staging, self.run_key) if figures else {}
+            if outputs is None:
+                write_outputs = self.reproduction.write_outputs
+                if "tables" in inspect.signature(write_outputs).parameters:  # figures and recordings from the tables
+                    write_outputs(self.results, staging, self.evaluation.claims, self.provenance, tables=self.tables)
+                else:
+                    write_outputs(self.results, staging, self.evaluation.claims, self.provenance)
+                outputs = _manifest(staging)
+            write_s = time.perf_counter() - start
+            prov = {**self.provenance, "write_s": write_s, "wall_s": self.provenance["compute_s"] + write_s,
+                    "peak_memory_mib": peak_memory_mib()}
+            write_report(staging, paper=self.reproduction.paper_id, title=self.reproduction.title,
+                         evaluation=self.evaluation, provenance=prov, notes=self.reproduction.notes())
+            root = Path(out_root) if out_root is not None else None
+            atomic_write_text(staging / "run.json", json.dumps({
+                "paper": self.reproduction.paper_id, "options": asdict(self.options),
+                "out_root": os.path.relpath(root, out_dir) if root is not None else None,
+                "scenario": self.source, "run_key": self.run_key, "outputs": outputs}, indent=1))
+            _replace_dir(staging, out_dir)
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+        return out_dir
+
+
+def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLike | None = None,
+            source: dict[str, Any] | None = None) -> Run:
+    """Compute (through the stage cache when `cache_dir` is given), verify and tabulate.
+
+    With a `cache_dir`, the evaluation and the tables are also kept as a memo keyed by
+    everything that determines them (the paper or the scenario as given, seed, trials, quick,
+    and a fingerprint of the project's code and scenario files): an identical later run reads
+    them back instead of re-checking, and loads the stage results only if it needs them."""
+    start = time.perf_counter()
+    key = run_key(repro, opts, source)
+    memo = _load_memo(Path(cache_dir), key) if cache_dir is not None else None
+    if memo is not None:
+        ev, tables = memo
+        results: Any = lambda: repro.compute(opts, StageCache(Path(cache_dir)))  # noqa: E731 - loaded when needed
+    else:
+        if cache_dir is None:
+            from dse.engine.cache import MemoryCache
+
+            results = repro.compute(opts, MemoryCache())
+        else:
+            results = repro.compute(opts, StageCache(Path(cache_dir)))
+        ev = evaluate_claims(repro, results)
+        tables = evaluation_tables(ev)
+        family_tables = getattr(repro, "tables", None)
+        if family_tables is not None:
+            for table_spec, frame in family_tables(results):
+                tables.add(table_spec, frame)
+        if cache_dir is not None:
+            _save_memo(Path(cache_dir), key, ev, tables)
+    prov = provenance(seed=opts.seed, trials=repro.trials(opts), quick=opts.quick, workers=opts.workers)
+    prov["compute_s"] = time.perf_counter() - start
+    prov["wall_s"] = prov["compute_s"]
+    prov["peak_memory_mib"] = peak_memory_mib()
+    prov["memo"] = memo is not None
+    return Run(repro, opts, results, ev, tables, prov, source, key)
+
+
+def run_key(repro: Reproduction, opts: RunOptions, source: dict[str, Any] | None) -> str:
+    """What determines a run's evaluation, tables, figures and recordings (the number of workers
+    and the memory budget do not: results are identical whatever they are)."""
+    from dse.engine.cache import canonical_json, project_fingerprint
+
+    what = {"paper": repro.paper_id, "is_paper": repro.is_paper, "source": source, "seed": opts.seed,
+            "trials": opts.trials, "quick": opts.quick}
+    ident = hashlib.sha256(canonical_json(what).encode()).hexdigest()[:16]
+    return f"{ident}-{hashlib.sha256((ident + project_fingerprint()).encode()).hexdigest()[:16]}"
+
+
+def _memo_dir(cache_dir: Path, key: str) -> Path:
+    """runs/<what was run>/<that with this code>: a new memo replaces those of older code."""
+    ident, code = key.split("-")
+    return cache_dir / "runs" / ident / code
+
+
+def _save_memo(cache_dir: Path, key: str, ev: Evaluation, tables: Tables) -> None:
+    from dse.engine.cache import remove_path
+
+    target = _memo_dir(cache_dir, key)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{key}.staging-", dir=target.parent))
+    try:
+        tables.write(staging / "tables")
+        atomic_write_text(staging / "memo.json", json.dumps({"evaluation": asdict(ev), "files": _manifest(staging, everything=True)},
+                                                            allow_nan=False))
+        for old in target.parent.iterdir():  # memos of the same run made by older code
+            if old.name != staging.name:
+                remove_path(old)
+        os.replace(staging, target)
+        tables.source = target / "tables"   # the run's own tables/ are copied from here, not encoded again
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _load_memo(cache_dir: Path, key: str) -> tuple[Evaluation, Tables] | None:
+    d = _memo_dir(cache_dir, key)
+    if not d.is_dir():
+        return None
+    try:
+        memo = json.loads((d / "memo.json").read_text())
+        if _manifest(d, everything=True) != memo["files"]:
+            raise ValueError("checksum mismatch")
+        return Evaluation(**memo["evaluation"]), Tables.read(d / "tables")
+    except Exception as exc:  # a damaged memo is recomputed, like any cache entry
+        from dse.engine.cache import remove_path
+
+        print(f"dse: run memo {key} is damaged ({type(exc).__name__}: {exc}); recomputing", file=sys.stderr)
+        remove_path(d)
+        return None
+
+
+def _manifest(directory: Path, everything: bool = False) -> dict[str, str]:
+    """sha256 of every file under `directory`: of the figures and recordings of a run directory
+    (not its report, run.json or tables), or of everything but memo.json."""
+    skip = {"memo.json"} if everything else {"report.json", "report.md", "run.json", "memo.json"}
+    return {str(p.relative_to(directory)): _sha256(p) for p in sorted(directory.rglob("*"))
+            if p.is_file() and p.name not in skip and (everything or "tables" not in p.relative_to(directory).parts)}
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _reuse_outputs(out_dir: Path, staging: Path, key: str | None) -> dict[str, str] | None:
+    """Figures and recordings of the previous run in `out_dir`, hard-linked (or copied) into
+    `staging`, when that run had the same run key and its files are intact; else None."""
+    if key is None:
+        return None
+    try:
+        meta = json.loads((out_dir / "run.json").read_text())
+        if meta.get("run_key") != key or not isinstance(meta.get("outputs"), dict) or not meta["outputs"]:
+            return None
+        for rel, digest in meta["outputs"].items():
+            if _sha256(out_dir / rel) != digest:
+                return None
+        for rel in meta["outputs"]:
+            target = staging / rel
+            target.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                os.link(out_dir / rel, target)
+            except OSError:
+                shutil.copy2(out_dir / rel, target)
+        return dict(meta["outputs"])
+    except (OSError, ValueError, TypeError):
+        return None
+
+
+def run(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,
+        quick: bool = False, workers: int = 1, cache_dir: str | os.PathLike | None = None) -> Run:
+    """Load (unless given a reproduction), compute, verify and tabulate one scenario."""
+    if isinstance(source, (str, os.PathLike, Mapping)):
+        data = dict(source) if isinstance(source, Mapping) else None
+        repro = load(source)
+        if data is None:
+            from dse.scenario.fields import load_toml
+
+            data = load_toml(source)
+    else:
+        repro, data = source, None
+    return execute(repro, RunOptions(seed=seed, trials=trials, quick=quick, workers=workers), cache_dir=cache_dir,
+                   source=data)
+
+
+# -- the tables every run has ---------------------------------------------------------------------------
+
+HYPOTHESES = spec("hypotheses", "hypothesis a claim of this run rests on", [
+    ("id", "", "hypothesis id"), ("statement", "", "what must hold"),
+    ("holds", "", "true / false; empty when it could not be decided"),
+    ("value", "as stated", "the number that decides it (JSON when not a single number)"),
+    ("threshold", "as stated", "what the value is compared with (JSON when not a single number)"),
+    ("detail", "", "how it was decided"), ("error", "", "non-empty when the check raised (a defect of ours)")])
+
+CLAIMS = spec("claims", "claim of the paper checked on this run", [
+    ("id", "", "claim id"), ("source", "", "where the paper states it"), ("statement", "", "the claim"),
+    ("kind", "", "identity, inequality, statistical or qualitative"),
+    ("scope", "", "family (any scenario) or paper-example"),
+    ("hypotheses", "", "ids of the hypotheses the conclusion rests on, comma-separated"),
+    ("verdict", "", "pass, fail, erratum, not-checkable or error"),
+    ("measured", "as stated", "the headline measured number (worst case); NaN when not a single number"),
+    ("reference", "as stated", "what it is compared with; NaN when not a single number"),
+    ("tolerance", "as stated", "the tolerance or threshold the check derived"),
+    ("margin", "as stated", "slack left (positive: holds); for statistical checks the z or log10 p budget left"),
+    ("confidence", "1", "confidence of a statistical check (its share of the report's family-wise confidence)"),
+    ("trials", "1", "Monte Carlo trials behind a statistical check"),
+    ("printed", "as stated", "for an erratum: what the printed statement gives"),
+    ("corrected", "as stated", "for an erratum: what the documented correction gives"),
+    ("measured_json", "", "the measured value as JSON when it is not a single number"),
+    ("reference_json", "", "the reference value as JSON when it is not a single number"),
+    ("detail", "", "how the check was done and what it found")])
+
+
+def _scalar(x: Any) -> float:
+    if isinstance(x, bool):
+        return float(x)
+    if isinstance(x, (int, float)):
+        return float(x)
+    if isinstance(x, str) and x in ("nan", "inf", "-inf"):
+        return float(x)
+    return float("nan")
+
+
+def _json(x: Any) -> str:
+    return "" if x is None or isinstance(x, (int, float)) else json.dumps(x, ensure_ascii=False)
+
+
+def evaluation_tables(ev: Evaluation) -> Tables:
+    import pandas as pd
+
+    t = Tables()
+    t.add(HYPOTHESES, pd.DataFrame([{
+        "id": h["id"], "statement": h["statement"], "holds": h["holds"],
+        "value": _scalar(h["value"]) if not isinstance(h["value"], (list, dict)) else float("nan"),
+        "threshold": _scalar(h["threshold"]) if not isinstance(h["threshold"], (list, dict)) else float("nan"),
+        "detail": h["detail"] + (f" value = {_json(h['value'])}" if isinstance(h["value"], (list, dict)) else ""),
+        "error": h["error"]} for h in ev.hypotheses], columns=HYPOTHESES.column_names).astype({"holds": "boolean"}))
+    t.add(CLAIMS, pd.DataFrame([{
+        "id": r["id"], "source": r["source"], "statement": r["statement"], "kind": r["kind"], "scope": r["scope"],
+        "hypotheses": ",".join(r["hypotheses"]), "verdict": r["verdict"],
+        "measured": _scalar(r.get("measured")), "reference": _scalar(r.get("reference")),
+        "tolerance": _scalar(r.get("tolerance")), "margin": _scalar(r.get("margin")),
+        "confidence": _scalar(r.get("confidence")), "trials": _scalar(r.get("trials")),
+        "printed": _scalar(r.get("printed")), "corrected": _scalar(r.get("corrected")),
+        "measured_json": _json(r.get("measured")), "reference_json": _json(r.get("reference")),
+        "detail": r.get("detail", "")} for r in ev.claims], columns=CLAIMS.column_names))
+    return t
+
+
+# -- output directories replaced in one step ---------------------------------------------------------------
+
+def _staging_dir(out_dir: Path) -> Path:
+    try:
+        out_dir.parent.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.staging-", dir=out_dir.parent))
+    except OSError as exc:
+        raise OutputError(f"output directory {out_dir.parent} is not usable: {exc.strerror or exc}") from None
+
+
+def _replace_dir(staging: Path, out_dir: Path) -> None:
+    """Move `staging` to `out_dir`; a previous `out_dir` is moved aside first and then removed,
+    so that at no moment does `out_dir` hold a mix of two runs."""
+    old = None
+    if out_dir.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
+        os.replace(out_dir, old / "x")
+    os.replace(staging, out_dir)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+# -- `dse check`: hypotheses, design quantities and the cost of a run, without simulating -----------------
+
+@dataclass
+class Check:
+    """What `check` found: the hypotheses (rows as in report.json), the design tables, and the
+    estimated wall time (s) and peak memory (MiB) of the run with these options."""
+
+    reproduction: Reproduction
+    options: RunOptions
+    hypotheses: list[dict[str, Any]]
+    tables: Tables
+    estimate: dict[str, Any]
+
+
+def check(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,
+          quick: bool = False, workers: int = 1) -> Check:
+    """Validate a scenario and compute only its deterministic design stage (no Monte Carlo).
+
+    A family provides `design(opts)` (the quantities its hypotheses and bounds are made of),
+    `design_tables(design)` and `estimate(opts)`; its hypotheses are evaluated on the design."""
+    repro = load(source) if isinstance(source, (str, os.PathLike, Mapping)) else source
+    opts = RunOptions(seed=seed, trials=trials, quick=quick, workers=workers)
+    design = repro.design(opts)
+    hyps = [h.evaluate(design) for h in repro.hypotheses()]
+    tables = Tables()
+    for table_spec, frame in repro.design_tables(design):
+        tables.add(table_spec, frame)
+    return Check(repro, opts, hyps, tables, repro.estimate(opts))

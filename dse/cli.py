@@ -1,0 +1,366 @@
+"""The `dse` command line: list, reproduce, run, verify, sweep.
+
+Exit codes (also in `dse --help` and the README):
+
+  0    done (with --strict: and no claim is `fail` or `error`)
+  1    --strict and some claim is `fail` or `error`; `dse verify` found differences;
+       a sweep has points that failed
+  2    invalid input or unusable output: one line naming the field or the path, nothing written
+  3    numerical failure of the run (a NaN or inf where a finite number is required)
+  130  interrupted (Ctrl-C, SIGINT)
+  141  the reader of the output went away (`dse list | head`)
+  143  terminated (SIGTERM)
+"""
+from __future__ import annotations
+
+import os
+
+# The matrices here are tiny (N x N per step over many trials): BLAS threads only contend
+# with the worker processes. Set before numpy is first imported by this program.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from dse.errors import CacheMiss, NumericalError, OutputError, ScenarioError  # noqa: E402
+from dse.engine.driver import REVERIFY_RTOL, RunOptions, reverify, run  # noqa: E402
+from dse.engine.outlock import output_lock  # noqa: E402
+from dse.outputs.report import counts_line, verdict_counts, write_summary  # noqa: E402
+
+EXIT_CODES = """exit codes:
+  0    done (with --strict: and no claim is fail or error)
+  1    --strict and some claim is fail or error; dse verify found differences; a sweep has failed points
+  2    invalid input or unusable output (one line naming the field or path; nothing written)
+  3    numerical failure of the run (a NaN or inf where a finite number is required)
+  130  interrupted (SIGINT, Ctrl-C)
+  141  the reader of the output went away (e.g. `dse list | head`)
+  143  terminated (SIGTERM)"""
+
+
+class Terminated(BaseException):
+    """SIGTERM, turned into an exception so that the run unwinds like on Ctrl-C."""
+
+
+def _strict_status(args, rows: list[dict]) -> int:
+    return 1 if getattr(args, "strict", False) and any(r["fail"] or r["error"] for r in rows) else 0
+
+
+def _registry():
+    import dse.families as reproductions
+    return reproductions
+
+
+def cmd_list(args) -> int:
+    reg = _registry()
+    wanted = set(args.which)
+    known = set(reg.PAPERS) | set(reg.FAMILIES)
+    if wanted - known:
+        raise ScenarioError("PAPER", f"unknown paper or family {', '.join(sorted(wanted - known))} "
+                                     f"(papers: {', '.join(reg.PAPERS)}; families: {', '.join(reg.FAMILIES)})")
+    family_of = {module: family for family, module in reg.FAMILIES.items()}
+    for pid in reg.PAPERS:
+        family = family_of.get(reg.PAPERS[pid], "")
+        if wanted and not wanted & {pid, family}:
+            continue
+        repro = reg.paper(pid)
+        print(f"{pid} (family {family}): {repro.title}")
+        print(f"  scenarios: {', '.join(repro.scenario_ids())}")
+        for h in repro.hypotheses():
+            print(f"  hypothesis {h.id}: {h.statement}")
+        for claim in repro.claims():
+            scope = " [paper example]" if claim.scope == "paper-example" else ""
+            print(f"  {claim.id:<40} {claim.kind:<12} {claim.source}{scope}")
+    if not wanted:
+        print("\nscenario families for `dse run FILE.toml` (family = ...):", ", ".join(reg.FAMILIES))
+    return 0
+
+
+def cmd_check(args) -> int:
+    from dse import api
+
+    result = api.check(args.file, seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers)
+    repro = result.reproduction
+    print(f"{args.file}: valid scenario '{repro.paper_id}' ({repro.title})")
+    print("hypotheses:")
+    for h in result.hypotheses:
+        mark = "error" if h["error"] else {True: "holds", False: "FAILS", None: "undecided"}[h["holds"]]
+        print(f"  {mark:<9} {h['id']}: {h['statement']}; value {h['value']}, threshold {h['threshold']}. {h['detail']}")
+    print("design quantities:")
+    import pandas as pd
+
+    with pd.option_context("display.max_rows", 40, "display.width", 160, "display.precision", 10):
+        for name in result.tables:
+            frame = result.tables[name]
+            print(f"  [{name}] {len(frame)} rows: one per {result.tables.specs[name].row}")
+            if len(frame) <= 40:
+                print("    " + frame.to_string(index=False).replace("\n", "\n    "))
+    est = result.estimate
+    print(f"estimate: about {est['seconds']:.3g} s and {est['peak_memory_mib']:.0f} MiB peak memory "
+          f"({est.get('detail', '')})")
+    return 0
+
+
+def _options(args) -> RunOptions:
+    return RunOptions(seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers,
+                      max_memory_mib=getattr(args, "max_memory", None))
+
+
+def cmd_reproduce(args) -> int:
+    reg = _registry()
+    unknown = [p for p in args.papers if p not in reg.PAPERS]
+    if unknown:
+        raise ScenarioError("PAPER", f"unknown paper {', '.join(unknown)} (known: {', '.join(reg.PAPERS)})")
+    out_root = Path(args.out)
+    rows = []
+    with output_lock(out_root):
+        for pid in args.papers or list(reg.PAPERS):
+            rows.append(run(reg.paper(pid), out_root, _options(args), figures=not args.no_figures))
+            r = rows[-1]
+            print(f"{pid}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_root / pid}")
+        print(f"summary: {write_summary(out_root)}")
+    return _strict_status(args, rows)
+
+
+def cmd_run(args) -> int:
+    reg = _registry()
+    from dse.scenario.fields import load_toml
+
+    data = load_toml(args.file)
+    repro = reg.family_from_dict(data)
+    out_root = Path(args.out)
+    out_dir = out_root / "run" / repro.paper_id
+    with output_lock(out_root):
+        r = run(repro, out_root, _options(args), out_dir=out_dir, source=data, figures=not args.no_figures)
+    print(f"{repro.paper_id}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_dir}")
+    return _strict_status(args, [r])
+
+
+def cmd_verify(args) -> int:
+    target = Path(args.out_dir)
+    if not target.is_dir():
+        raise OutputError(f"{target} is not a directory: give the output of `dse reproduce`, `dse run` or `dse sweep` "
+                          "(e.g. out, out/savas, out/run/NAME or out/sweep/NAME)")
+    runs = [target] if (target / "run.json").exists() else sorted(
+        {p.parent for pattern in ("*/run.json", "run/*/run.json") for p in target.glob(pattern)})
+    sweeps = [target] if (target / "sweep.json").exists() else sorted(p.parent for p in target.glob("sweep/*/sweep.json"))
+    if not runs and not sweeps:
+        raise OutputError(f"{target} holds no run.json and no sweep.json: nothing to verify (give the directory a "
+                          "`dse reproduce`, `dse run` or `dse sweep` wrote)")
+    status = 0
+    for d in runs:
+        status |= _verify_run(args, d)
+    for d in sweeps:
+        from dse.sweeps.run import verify_sweep
+
+        diffs, n_points = verify_sweep(d)
+        print(f"{d}: re-assembled {n_points} sweep points from their stored results: "
+              f"{'identical' if not diffs else f'{len(diffs)} differences'}")
+        for line in diffs:
+            print(f"  differs: {line}")
+        status |= bool(diffs)
+    return status
+
+
+def _verify_run(args, d: Path) -> int:
+    reg = _registry()
+    try:
+        meta = json.loads((d / "run.json").read_text())
+        options, out_root = meta["options"], meta["out_root"]
+        json.loads((d / "report.json").read_text())["claims"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise OutputError(f"{d}: run.json or report.json is damaged ({type(exc).__name__}: {exc}); run the scenario "
+                          "again to rewrite them") from None
+    if out_root is None:
+        raise OutputError(f"{d} was written without a stage cache (Python API without cache_dir): there is nothing "
+                          "to re-check from; run it with `dse run` or with a cache_dir")
+    repro = reg.family_from_dict(meta["scenario"]) if meta.get("scenario") else reg.paper(meta["paper"])
+    root = (d / out_root).resolve()
+    try:
+        rows, diffs = reverify(repro, root, d)
+    except CacheMiss:
+        again = (f"dse reproduce {meta['paper']} --out {root}" if not meta.get("scenario") else
+                 f"dse run <the scenario file> --out {root}")
+        seeds = f" --seed {options.get('seed', 0)}" + (" --quick" if options.get("quick") else "")
+        raise CacheMiss(f"{d}: the stage cache under {root / '.cache'} has no results for this run with the current "
+                        f"code (it changed since, or the cache was deleted); run `{again}{seeds}` again, then verify") from None
+    counts = verdict_counts(rows)
+    print(f"{d}: re-checked {len(rows)} claims from the cache (numbers within a relative {REVERIFY_RTOL:g}): "
+          f"{counts_line(counts)}")
+    for line in diffs:
+        print(f"  differs: {line}")
+    return int(bool(diffs)) | _strict_status(args, [counts])
+
+
+def cmd_sweep(args) -> int:
+    from dse.sweeps.run import run_sweep
+    from dse.sweeps.spec import load_sweep
+
+    spec = load_sweep(args.file)
+    with output_lock(Path(args.out)):
+        r = run_sweep(spec, Path(args.out), scheduler=args.scheduler, workers=args.workers, retries=args.retries,
+                      fresh=args.fresh)
+    print(f"sweep {r['name']}: {r['points']} points ({r['ran']} run, {r['reused']} reused, {r['failed']} failed, "
+          f"{r['numerical_errors']} numerical failures) in {r['wall_s']:.1f} s -> {r['out_dir']}")
+    return 1 if r["failed"] else 0
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """Usage errors in one line (the full usage is one `--help` away), exit code 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = OneLineParser(prog="dse", description="Reproductions of distributed state estimation papers.",
+                                     epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    lst = sub.add_parser("list", help="papers, scenarios, hypotheses and claims")
+    lst.add_argument("which", nargs="*", metavar="PAPER|FAMILY", help="only these papers or scenario families")
+    lst.set_defaults(func=cmd_list)
+
+    def run_flags(p):
+        p.add_argument("--quick", action="store_true", help="fewer trials and coarser grids (for tests)")
+        p.add_argument("--trials", type=_positive_int, default=None, help="Monte Carlo trials per cell")
+        p.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
+        p.add_argument("--out", default="out", help="output root directory (default out/)")
+        p.add_argument("--workers", type=_positive_int, default=2, help="worker processes (default 2)")
+        p.add_argument("--max-memory", type=_memory_mib, default=None, metavar="SIZE",
+                       help="memory budget of the run, e.g. 4G or 800M (default: half of this machine's memory); "
+                            "Monte Carlo streams within it, results do not depend on it")
+        p.add_argument("--no-figures", action="store_true",
+                       help="write the report and the tables only (no figures, no recordings): for fast iteration")
+        strict_flag(p)
+
+    def strict_flag(p):
+        p.add_argument("--strict", action="store_true", help="exit 1 when any claim is fail or error (for CI)")
+
+    def sub_parser(name, **kw):
+        return sub.add_parser(name, epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter, **kw)
+
+    rep = sub_parser("reproduce", help="regenerate papers' claims, figures and recordings")
+    rep.add_argument("papers", nargs="*", metavar="PAPER")
+    run_flags(rep)
+    rep.set_defaults(func=cmd_reproduce)
+    user = sub_parser("run", help="run a scenario file of a supported family")
+    user.add_argument("file", metavar="FILE.toml")
+    run_flags(user)
+    user.set_defaults(func=cmd_run)
+    chk = sub_parser("check", help="validate a scenario; print its hypotheses, design quantities and the run's "
+                                   "estimated time and memory, without simulating")
+    chk.add_argument("file", metavar="FILE.toml")
+    chk.add_argument("--quick", action="store_true", help="estimate for a --quick run")
+    chk.add_argument("--trials", type=_positive_int, default=None, help="estimate for this many trials per cell")
+    chk.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
+    chk.add_argument("--workers", type=_positive_int, default=2, help="worker processes (default 2)")
+    chk.set_defaults(func=cmd_check)
+    ver = sub_parser("verify", help="re-check claims from cached results, without simulating")
+    ver.add_argument("out_dir", metavar="OUT_DIR")
+    strict_flag(ver)
+    ver.set_defaults(func=cmd_verify)
+    swp = sub_parser("sweep", help="run a scenario family over a grid or random sample of fields, on Dask")
+    swp.add_argument("file", metavar="SWEEP.toml")
+    swp.add_argument("--out", default="out", help="output root directory; results go to OUT/sweep/NAME/ (default out/)")
+    swp.add_argument("--scheduler", default="auto",
+                     help="auto (default: in process for a tiny sweep, else a local Dask cluster), inline, local, "
+                          "or the address of a running Dask scheduler, e.g. tcp://HOST:8786")
+    swp.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1,
+                     help="worker processes of the local cluster (default: one per core)")
+    swp.add_argument("--retries", type=_nonnegative_int, default=2, help="retries of a failed task (default 2)")
+    swp.add_argument("--fresh", action="store_true", help="recompute every point, ignoring points already done")
+    swp.set_defaults(func=cmd_sweep)
+    return parser
+
+
+MAX_COUNT = 10**12
+
+
+def _count(text: str, low: int) -> int:
+    """An integer option: 5000, 5_000 or 5e3 (a float that is a whole number); one clear message otherwise."""
+    try:
+        value = int(text.replace("_", ""))
+    except ValueError:
+        try:
+            number = float(text)
+        except ValueError:
+            number = float("nan")
+        if not (number == number and abs(number) < float("inf") and number == int(number)):
+            raise argparse.ArgumentTypeError(f"must be a whole number (e.g. 5000 or 5e3), got {text!r}") from None
+        value = int(number)
+    if value < low:
+        raise argparse.ArgumentTypeError(f"must be >= {low}, got {text}")
+    if value > MAX_COUNT:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_COUNT:.0e}, got {text}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    return _count(text, 1)
+
+
+def _nonnegative_int(text: str) -> int:
+    return _count(text, 0)
+
+
+def _memory_mib(text: str) -> float:
+    """A memory size: 800M, 4G, 4GiB or a number of MiB."""
+    t = text.strip().upper().removesuffix("IB").removesuffix("B")
+    scale = {"K": 1 / 1024, "M": 1.0, "G": 1024.0, "T": 1024.0**2}.get(t[-1:], None)
+    try:
+        value = float(t[:-1] if scale else t) * (scale or 1.0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a size such as 800M or 4G, got {text!r}") from None
+    if not value >= 256:
+        raise argparse.ArgumentTypeError(f"must be at least 256M, got {text}")
+    return value
+
+
+_positive_int.__name__ = "positive integer"  # argparse names the type in its messages
+_nonnegative_int.__name__ = "nonnegative integer"
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    import signal
+
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        return args.func(args)
+    except ScenarioError as exc:
+        print(f"dse: error: {exc}", file=sys.stderr)
+        return 2
+    except OutputError as exc:
+        print(f"dse: error: {exc}", file=sys.stderr)
+        return 2
+    except CacheMiss as exc:
+        print(f"dse: {exc}", file=sys.stderr)
+        return 1
+    except NumericalError as exc:
+        print(f"dse: numerical failure: {exc}", file=sys.stderr)
+        return 3
+    except BrokenPipeError:  # the reader of our output went away (`dse list | head`): stop quietly, as SIGPIPE would
+        sys.stdout = open(os.devnull, "w")      # nothing more to flush at exit
+        return 141
+    except OSError as exc:  # disk full, permissions, a file replaced under us: one line, like any input fault
+        where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
+        print(f"dse: error: cannot use the file system ({exc.strerror or exc}){where}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("dse: interrupted", file=sys.stderr)
+        return 130
+    except Terminated:
+        print("dse: terminated", file=sys.stderr)
+        return 143
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,341 @@
+"""The claims checked on a compare scenario: the references and exact recursions against the
+simulation, the optimality of the centralized filter, the consistency properties the papers prove
+for their covariances, and the orderings the papers claim (Savas et al.: re-injection against
+Carli's filter under noisy links; Kar & Moura: weak consensus of the GIKF).
+
+Statistical tests keep their level at the sample size: exact χ² laws where the error is Gaussian
+with a known covariance (given the link draws), the two-sample Kolmogorov-Smirnov test for the
+token law, normal z-tests of means of many independent trials only with an effective-sample-size
+gate; every claim's cells share its confidence (Bonferroni).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from dse.simulate.stats import chi2_two_sided_p, effective_sample_size, normal_two_sided_p
+from dse.verify.rules import (EPS, Claim, Verdict, inequality, not_checkable, p_value_test, roundoff_tolerance)
+
+from . import hypotheses as H
+from .summary import central_exact_at, stats
+
+#: z-tests of Monte Carlo means need at least this many trials and this effective sample size
+MIN_TRIALS_Z = 500
+MIN_ESS = 200
+#: the Kolmogorov-Smirnov comparison needs this many trials in each sample
+MIN_TRIALS_KS = 50
+
+LINEAR = ("carli", "reinjection", "pairwise", "kcf", "diffusion", "ci")
+
+
+def _ks(x, y):
+    """Two-sample Kolmogorov-Smirnov test: scipy's exact p-value where it can compute it, else the
+    asymptotic one (accurate at the sample sizes here, and conservative where the laws have atoms)."""
+    import warnings
+
+    from scipy.stats import ks_2samp
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return ks_2samp(x, y, method="exact" if max(len(x), len(y)) <= 2000 else "asymp")
+
+
+def _chi2_p(total, trials, n):
+    return chi2_two_sided_p(np.asarray(total, float), trials * n)
+
+
+def _finite(*arrays) -> bool:
+    return all(np.all(np.isfinite(np.asarray(a, float))) for a in arrays if a is not None)
+
+
+# -- 1. the reference --------------------------------------------------------------------------------------
+
+def filterpy_reference(res) -> Verdict:
+    r = res.reference
+    if not r:
+        return not_checkable("the centralized filter does not run")
+    m = res.design.model
+    ops = float(r["steps"]) * (m.N * m.m + m.n) * 10
+    tol_x, how = roundoff_tolerance(scale=float(max(r["sx"], 1.0)), operations=ops, condition=float(r["cond"]))
+    tol_P, _ = roundoff_tolerance(scale=float(max(r["sP"], 1.0)), operations=ops, condition=float(r["cond"]))
+    return inequality([float(r["dx"]), float(r["dP"])], [tol_x, tol_P],
+                      detail=f"largest differences from filterpy's KalmanFilter over {int(r['steps'])} steps of 3 "
+                             f"simulated trials: estimates {float(r['dx']):.3g}, covariances {float(r['dP']):.3g}; "
+                             f"{how} (condition of the innovation covariance).")
+
+
+# -- 2. exact recursions against the simulation --------------------------------------------------------
+
+def exact_vs_monte_carlo(res) -> Verdict:
+    B, n = res.trials, res.design.model.n
+    idx = res.check_indices()
+    ps, cells, skipped = [], [], []
+    worst = (None, None)
+    random_links = res.design.links.random or not res.design.links.synchronous
+    for est in LINEAR:
+        if est not in res.exact or est not in res.mc:
+            continue
+        s = res.mc[est]
+        ex = res.exact[est]["mse"][res.steps[idx]]                   # (C, N)
+        if not random_links:
+            p = _chi2_p(s["xnees"][idx], B, n)
+            law = "χ²"
+        else:
+            st = stats(res, est)
+            mse, se = st.mse[idx], st.mse_se[idx]
+            ess = effective_sample_size_from_sums(s["sq"][idx], s["sq2"][idx])
+            if B < MIN_TRIALS_Z or np.min(ess) < MIN_ESS:
+                skipped.append(f"{est} (effective sample size {np.min(ess):.0f})")
+                continue
+            p = normal_two_sided_p((mse - ex) / np.maximum(se, 1e-300))
+            law = "normal"
+        if not _finite(p):
+            skipped.append(f"{est} (not finite)")
+            continue
+        ps.append(np.ravel(p))
+        cells.append(f"{est} ({law}, {np.size(p)} cells)")
+        k = int(np.argmin(p))
+        mse_mc = s["sq"][idx] / B
+        if worst[0] is None or np.ravel(p)[k] < worst[0]:
+            worst = (np.ravel(p)[k], (float(np.ravel(mse_mc)[k]), float(np.ravel(ex)[k])))
+    if not ps:
+        return not_checkable("no estimator with exact moments runs on this scenario" +
+                             (f" (left out: {', '.join(skipped)})" if skipped else ""))
+    detail = ("Monte Carlo against the exact moments at steps " + ", ".join(str(int(res.steps[i])) for i in idx) +
+              ": " + "; ".join(cells) + ". With every link working the error is Gaussian with the exact covariance, "
+              "so the sum over trials of e_iᵀ Σ_ii⁻¹ e_i is χ²(trials·n) exactly; with random links the mean squared "
+              "error of independent trials is compared with the exact mean over link patterns (normal, effective "
+              f"sample size ≥ {MIN_ESS})." + (f" Left out: {', '.join(skipped)}." if skipped else ""))
+    return p_value_test(np.concatenate(ps), trials=B, measured=worst[1][0], reference=worst[1][1], detail=detail)
+
+
+def effective_sample_size_from_sums(s1, s2):
+    s1, s2 = np.asarray(s1, float), np.asarray(s2, float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(s2 > 0, s1 * s1 / np.where(s2 > 0, s2, 1.0), 0.0)
+
+
+# -- 3. orthogonality: the excess over the centralized filter is the distance to it ----------------------
+
+def _state_rms(res) -> np.ndarray:
+    """√E‖x(k)‖² of the plant at every step k = 0..K−1: S(0) = P0 + x0x0ᵀ, S(k+1) = F S(k) Fᵀ + Q."""
+    m = res.design.model
+    S = m.P0 + np.outer(m.x0, m.x0)
+    out = []
+    for _ in range(res.scenario.steps):
+        out.append(np.sqrt(max(float(np.trace(S)), 0.0)))
+        S = m.F @ S @ m.F.T + m.Q
+    return np.array(out)
+
+
+def orthogonality(res) -> Verdict:
+    """E[(x − x̂_c)ᵀ(x̂_c − x̂_i)] = 0, tested cell by cell (node, step) by a normal z-test of the mean over
+    trials, beyond a round-off allowance: an estimator that equals the centralized filter up to rounding
+    (the Kalman-consensus and diffusion filters with enough rounds on a small network) has a difference
+    x̂_c − x̂_i made of rounding errors, which are not independent of x − x̂_c; by Cauchy–Schwarz they move
+    the mean by at most RMS(x − x̂_c) · RMS(rounding of x̂), bounded by `roundoff_tolerance` with the input
+    scale RMS(x − x̂_c) · RMS(x) and the operations of k steps of (rounds + 1) updates of n + N·m terms.
+    The z statistic is (|mean| − allowance)⁺ / standard error."""
+    B = res.trials
+    if "central" not in res.mc:
+        return not_checkable("the centralized filter does not run")
+    if B < MIN_TRIALS_Z:
+        return not_checkable(f"needs ≥ {MIN_TRIALS_Z} trials for the normal z-test; ran {B}")
+    idx = res.check_indices()
+    m = res.design.model
+    steps = np.asarray(res.steps)[idx]
+    err_rms = np.sqrt(np.maximum(stats(res, "central").mse[idx], 0.0)).reshape(len(idx), -1)[:, :1]
+    ops = (steps + 1.0) * (res.scenario.rounds + 1) * (m.n + m.N * m.m)
+    allowance = np.array([roundoff_tolerance(scale=float(e * x), operations=float(o))[0]
+                          for e, x, o in zip(err_rms[:, 0], _state_rms(res)[steps], ops)])[:, None]
+    ps, names, skipped = [], [], []
+    for est in res.mc:
+        if est == "central":
+            continue
+        st = stats(res, est)
+        excess = np.maximum(np.abs(st.cross[idx]) - allowance, 0.0)
+        z = excess / np.maximum(st.cross_se[idx], 1e-300)
+        if not _finite(z):
+            skipped.append(est)
+            continue
+        ps.append(np.ravel(normal_two_sided_p(z)))
+        names.append(est)
+    if not ps:
+        return not_checkable("no estimator with finite errors besides the centralized filter")
+    return p_value_test(np.concatenate(ps), trials=B, detail=(
+        "E[(x − x̂_c)ᵀ(x̂_c − x̂_i)] = 0 for every node i of " + ", ".join(names) + " at steps " +
+        ", ".join(str(int(k)) for k in steps) + " (normal z-test of the mean over independent trials, beyond a "
+        "round-off allowance of " + ", ".join(f"{a:.2g}" for a in allowance[:, 0]) + " = 10·operations·eps·RMS(x − "
+        "x̂_c)·RMS(x): estimators equal to the centralized filter up to rounding differ from it by rounding errors "
+        "only). The centralized estimate is E[x | all measurements] and every other estimate is a function of the "
+        "measurements and of independent link and noise draws, so its error is orthogonal to them: MSE_i = MSE_c + "
+        "E‖x̂_i − x̂_c‖², the excess over the centralized filter is exactly the mean-square distance to it." +
+        (f" Left out (errors not finite): {', '.join(skipped)}." if skipped else "")))
+
+
+# -- 4. the centralized filter is a lower bound --------------------------------------------------------------
+
+def lower_bound(res) -> Verdict:
+    if "central" not in res.exact:
+        return not_checkable("the centralized filter does not run")
+    central = res.exact["central"]["mse"][:, 0]
+    lows, ups, names = [], [], []
+    for est, ex in res.exact.items():
+        if est == "central" or not _finite(ex["mse"]):
+            continue
+        lows.append(np.broadcast_to(central[:, None], ex["mse"].shape).ravel())
+        ups.append(ex["mse"].ravel())
+        names.append(est)
+    if not lows:
+        return not_checkable("no other estimator has exact moments on this scenario")
+    m = res.design.model
+    scale = float(max(np.max(central), 1e-300))
+    tol, how = roundoff_tolerance(scale=scale, operations=float(res.scenario.steps) * (m.N * m.n) ** 2 / max(m.N, 1))
+    return inequality(np.concatenate(lows), np.concatenate(ups), tolerance=tol,
+                      detail=f"exact MSE of every node of {', '.join(names)} at every step against the centralized "
+                             f"filter's (the conditional mean given every measurement); {how}.")
+
+
+# -- 5. filters whose covariance is the conditional covariance ----------------------------------------------
+
+def conditional_covariances(res) -> Verdict:
+    B, n = res.trials, res.design.model.n
+    idx = res.check_indices()
+    ps, names = [], []
+    for est in ("central", "local", "gikf"):
+        if est not in res.mc:
+            continue
+        total = res.mc[est]["nees"][idx]
+        if not _finite(total):
+            continue
+        ps.append(np.ravel(_chi2_p(total, B, n)))
+        names.append(est)
+    if not ps:
+        return not_checkable("none of the centralized, local and GIKF filters runs")
+    mean = float(np.concatenate([np.ravel(res.mc[e]["nees"][idx]) for e in names]).mean() / B)
+    return p_value_test(np.concatenate(ps), trials=B, measured=mean, reference=float(n), detail=(
+        f"the sum over trials of e_iᵀ P_i⁻¹ e_i is χ²(trials·n) exactly when P_i is the conditional error covariance "
+        f"(Kalman filters; for the GIKF given the swap path, Kar & Moura (8)-(10), with the communication noise added to "
+        f"the covariance received): {', '.join(names)}, every node, steps " +
+        ", ".join(str(int(res.steps[i])) for i in idx) + "."))
+
+
+# -- 6. CI is conservative -------------------------------------------------------------------------------
+
+def ci_conservative_exact(res) -> Verdict:
+    ex = res.exact.get("ci")
+    if ex is None:
+        return not_checkable("the CI filter has no exact moments on this scenario (random links or too large): "
+                             "see compare.ci.conservative.monte_carlo")
+    diff = ex["own_cov"] - ex["blocks"]
+    low = np.linalg.eigvalsh(0.5 * (diff + np.swapaxes(diff, -1, -2)))[..., 0]
+    m = res.design.model
+    scale = float(np.abs(ex["own_cov"]).max())
+    tol, how = roundoff_tolerance(scale=scale, operations=float(res.scenario.steps) * m.N * m.n ** 2,
+                                  condition=float(np.max(np.linalg.cond(ex["own_cov"]))))
+    return inequality(np.zeros_like(low).ravel(), low.ravel(), tolerance=tol,
+                      detail="smallest eigenvalue of Ω_i⁻¹ − E[e_i e_iᵀ] (the filter's covariance minus the exact "
+                             f"error covariance) at every node and step; {how}.")
+
+
+def ci_conservative_mc(res) -> Verdict:
+    if "ci" not in res.mc:
+        return not_checkable("the CI filter does not run")
+    if "ci" in res.exact:
+        return not_checkable("checked exactly: see compare.ci.conservative.exact")
+    from scipy.stats import chi2
+
+    B, n = res.trials, res.design.model.n
+    idx = res.check_indices()
+    total = res.mc["ci"]["nees"][idx]
+    p = chi2.sf(total, B * n)
+    return p_value_test(np.ravel(p), trials=B, measured=float(np.max(total) / B), reference=float(n), detail=(
+        "given the link draws, E[e_i e_iᵀ] ⪯ Ω_i⁻¹ makes e_iᵀ Ω_i e_i stochastically smaller than χ²(n), so the sum "
+        "over independent trials is stochastically smaller than χ²(trials·n): one-sided test, exact at any number of "
+        "trials (every node, steps " + ", ".join(str(int(res.steps[i])) for i in idx) + ")."))
+
+
+# -- 7. Savas et al.: re-injection against Carli under noisy links ----------------------------------------
+
+def reinjection_beats_carli(res) -> Verdict:
+    g = res.design.gains
+    if "carli" not in g or "reinjection" not in g:
+        return not_checkable("Carli's or the re-injection filter does not run on this scenario")
+    rein, carli = g["reinjection"]["steady_mse"], g["carli"]["steady_mse"]
+    m = res.design.model
+    tol, how = roundoff_tolerance(scale=carli, operations=float((m.N * m.n) ** 2), condition=1.0 / max(
+        1e-300, 1 - max(g["reinjection"]["rho"], g["carli"]["rho"])))
+    extra = ""
+    k = res.scenario.eval_step
+    if "carli" in res.mc and "reinjection" in res.mc:
+        sr, sc_ = stats(res, "reinjection"), stats(res, "carli")
+        i = res.eval_index
+        extra = (f" At step {k}: Monte Carlo network MSE {sr.mse[i].mean():.6g} (re-injection) and "
+                 f"{sc_.mse[i].mean():.6g} (Carli)")
+        if "reinjection" in res.exact and "carli" in res.exact:
+            extra += (f", exact {res.exact['reinjection']['mse'][k].mean():.6g} and "
+                      f"{res.exact['carli']['mse'][k].mean():.6g}")
+        extra += "."
+    return inequality(rein, carli, tolerance=tol, detail=(
+        f"exact steady-state network MSE of the re-injection filter (ℓ = {g['reinjection']['scale']:.4g}, ζ = "
+        f"{g['reinjection']['zeta']:.4g}) against Carli's (ℓ = {g['carli']['scale']:.4g}), same rounds and links; "
+        f"{how}.{extra}"))
+
+
+# -- 8. Kar & Moura: the law of a random sensor's covariance is the token chain's ---------------------------
+
+def random_sensor_law(res) -> Verdict:
+    if "gikf" not in res.token or "chain" not in res.token:
+        return not_checkable("the GIKF does not run")
+    
+    from .compute import token_times
+
+    a, b = res.token["gikf"], res.token["chain"]
+    if a.shape[1] < MIN_TRIALS_KS:
+        return not_checkable(f"needs ≥ {MIN_TRIALS_KS} trials per sample; ran {a.shape[1]}")
+    ps, stats_, parts = [], [], []
+    for t, (x, y) in enumerate(zip(a, b)):
+        if not (_finite(x) and _finite(y)):
+            return not_checkable("covariance traces not finite")
+        r = _ks(x, y)
+        ps.append(r.pvalue)
+        stats_.append(r.statistic)
+        parts.append(f"k = {token_times(res.scenario)[t]}: D = {r.statistic:.4f}, medians {np.median(x):.5g} / "
+                     f"{np.median(y):.5g}")
+    k = int(np.argmin(ps))
+    return p_value_test(ps, trials=a.shape[1], measured=float(stats_[k]), reference=0.0, detail=(
+        "two-sample Kolmogorov-Smirnov test of tr P̂_q(k) (GIKF, q a uniformly random sensor independent of the "
+        "communication) against tr P̃(k) of the token chain (20) driven by an independent copy of the communication "
+        "(conservative where the laws have atoms): " + "; ".join(parts) + "."))
+
+
+def catalogue() -> list[Claim]:
+    return [
+        Claim("compare.central.filterpy", "reference (filterpy)", "the centralized Kalman filter agrees with filterpy's "
+              "KalmanFilter on the stacked model to round-off", "identity", filterpy_reference),
+        Claim("compare.exact.monte_carlo", "exact moment recursions", "the exact second moments of the linear network "
+              "filters (Carli, re-injection, pairwise averaging; Kalman-consensus, diffusion and CI on reliable links) "
+              "agree with the simulation", "statistical", exact_vs_monte_carlo),
+        Claim("compare.central.orthogonality", "orthogonality principle", "the centralized filter's error is orthogonal "
+              "to every other estimate's distance from it, so the excess mean-square error over the centralized filter "
+              "is the mean-square distance to it", "statistical", orthogonality),
+        Claim("compare.central.lower_bound", "optimality of the centralized filter", "no estimator has a smaller exact "
+              "mean-square error than the centralized Kalman filter, at any node and step", "inequality", lower_bound),
+        Claim("compare.kalman.conditional_covariance", "Kar & Moura (8)-(10); Kalman (1960)", "the covariances of the "
+              "centralized, local and GIKF filters are their errors' conditional covariances (GIKF: given the swap "
+              "path)", "statistical", conditional_covariances),
+        Claim("compare.ci.conservative.exact", "Battistelli & Chisci (2014), consistency of CI", "with noiseless links "
+              "the CI filter's covariance bounds its error covariance: E[e_i e_iᵀ] ⪯ Ω_i⁻¹ (exact, reliable links)",
+              "inequality", ci_conservative_exact, hypotheses=(H.NOISELESS,)),
+        Claim("compare.ci.conservative.monte_carlo", "Battistelli & Chisci (2014), consistency of CI", "with noiseless "
+              "links the CI filter's covariance bounds its error covariance (random links: one-sided χ² test)",
+              "statistical", ci_conservative_mc, hypotheses=(H.NOISELESS,)),
+        Claim("compare.savas.reinjection_beats_carli", "Savas et al. §III-B, §IV, Figs. 1 and 3", "under noisy links, in "
+              "the regime where communication noise dominates Carli's filter, the re-injection filter with gains "
+              "tuned for its steady state has a smaller steady-state mean-square error than Carli's filter with its "
+              "tuned gain, on the same links and rounds", "inequality", reinjection_beats_carli,
+              hypotheses=(H.NOISY, H.CARLI_NOISE, H.STABLE)),
+        Claim("compare.kar_moura.random_sensor_law", "Kar & Moura Thm 10(i) and its proof", "weak consensus: the "
+              "conditional covariance at a uniformly random sensor has, at every step, the law of Riccati iterates "
+              "along a stationary token walk with the mean communication kernel (20), which converges to one invariant "
+              "law under weak detectability", "statistical", random_sensor_law, hypotheses=(H.C1, H.D1, H.S1)),
+    ]

@@ -1,0 +1,259 @@
+"""Figures and the recording of a compare run, drawn from its tables.
+
+* `figures/error_vs_communication.png`: one point per estimator, network mean-square error at the
+  evaluation step against the real numbers each node sends per step, with the centralized filter as
+  the floor: what each estimator buys with its communication budget;
+* `figures/mse_vs_time.png`: every estimator's network MSE over time (Monte Carlo with its band,
+  exact recursions dashed);
+* `figures/nees.png`: the NEES of the estimators that carry a covariance, with the χ² band;
+* `<name>.rrd`: every estimator's curves on one view (timeline `k`), the NEES, the disagreement,
+  the graph, the comparison table and the claims.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from dse.outputs import record as rec_
+from dse.outputs.figures import draw_all, new_figure, save_figure
+from dse.simulate.stats import z_for_confidence
+
+from .scenario import ESTIMATORS, LABELS
+
+BAND = 0.95
+COLORS = {e: rec_.color(i) for i, e in enumerate(ESTIMATORS)}
+COLORS["central"] = (0, 0, 0)
+MARKERS = dict(zip(ESTIMATORS, "*ovs^D<>p"))
+
+
+def _rgb(c):
+    return tuple(x / 255 for x in c)
+
+
+def error_vs_communication(res, tables, path: Path) -> None:
+    """Left: network MSE against the numbers each node sends per step (symlog), the centralized filter
+    as the floor and the frontier of the lowest error for a budget; estimators far off the scale
+    (a diverging filter) are drawn on the top edge with their value. Right: the same estimators
+    ranked by their MSE relative to the centralized filter, each bar labelled with its budget."""
+    t = tables["estimators"]
+    app = tables["applicability"]
+    fig, axes = new_figure(ncols=2, width=7.0, height=5.6)
+    ax, bx = axes[0, 0], axes[0, 1]
+    central = t[t["estimator"] == "central"]
+    floor = float(central["network_mse"].iloc[0]) if len(central) else np.nan
+    z = z_for_confidence(BAND)
+    rows = t[(t["estimator"] != "central") & np.isfinite(t["network_mse"])]
+    vals = rows["network_mse"].to_numpy()
+    top = _top(vals, floor)
+    for _, r in rows.iterrows():
+        est, y = r["estimator"], r["network_mse"]
+        c = _rgb(COLORS[est])
+        if y > top:
+            ax.plot([r["scalars_per_step"]], [top * 1.15], marker="^", color=c, ms=9, ls="none",
+                    label=f"{LABELS[est]} (off scale: {y:.3g})")
+            continue
+        err = None if r["exact"] else z * r["network_mse_mc_se"]
+        ax.errorbar([r["scalars_per_step"]], [y], yerr=err, fmt=MARKERS[est], color=c, ms=8, capsize=3,
+                    label=f"{LABELS[est]}" + ("" if r["exact"] else " (Monte Carlo)"))
+    if np.isfinite(floor):
+        ax.axhline(floor, color="k", ls="--", lw=1, label="centralized KF (all measurements at one place)")
+    front = _pareto(rows)
+    front = front[front[:, 1] <= top] if len(front) else front
+    if len(front) > 1:
+        ax.step(front[:, 0], front[:, 1], where="post", color="0.5", lw=0.8, ls=":",
+                label="lowest error for a communication budget")
+    ax.set_xscale("symlog", linthresh=1.0)
+    ax.set_yscale("log")
+    ax.set_ylim(top=top * 1.35)
+    ax.set_xlabel("real numbers sent per node and step")
+    ax.set_ylabel(f"network mean-square error at k = {res.scenario.eval_step}")
+    title = f"{res.scenario.name}: error against communication ({res.scenario.link_model} links"
+    title += f", σ_c = {res.scenario.noise_std:g})" if res.scenario.noise_std else ")"
+    ax.set_title(title)
+    skipped = app[~app["applies"] & (app["reason"] != "not requested (dse.estimators.include)")]
+    if len(skipped):
+        ax.text(0.01, 0.01, "not applicable: " + ", ".join(skipped["estimator"]), transform=ax.transAxes, fontsize=7,
+                va="bottom")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), fontsize=7, ncol=2, borderaxespad=0)
+    ranked = rows.sort_values("network_mse")
+    ratio = ranked["network_mse"].to_numpy() / floor if np.isfinite(floor) else ranked["network_mse"].to_numpy()
+    ypos = np.arange(len(ranked))[::-1]
+    bx.barh(ypos, ratio, color=[_rgb(COLORS[e]) for e in ranked["estimator"]])
+    for yv, rv, (_, r) in zip(ypos, ratio, ranked.iterrows()):
+        bx.text(rv, yv, f"  {rv:.3g}×, {r['scalars_per_step']:.3g} numbers/step", va="center", fontsize=7)
+    bx.set_yticks(ypos, [LABELS[e] for e in ranked["estimator"]], fontsize=7)
+    bx.set_xscale("log")
+    bx.axvline(1.0, color="k", ls="--", lw=1)
+    bx.set_xlabel("network MSE / centralized KF's")
+    bx.set_title("ranked (label: error ratio, communication per node and step)")
+    save_figure(fig, path)
+
+
+def _top(vals: np.ndarray, floor: float) -> float:
+    """The top of the error axis: the largest value, leaving out those more than 30 times the median of
+    the smaller ones (diverging filters, drawn on the top edge)."""
+    v = np.sort(vals[np.isfinite(vals)])
+    if len(v) < 3:
+        return float(v[-1]) if len(v) else 1.0
+    rest = v[:-1]
+    while len(rest) > 1 and v[len(rest)] > 30 * np.median(rest):
+        v, rest = rest, rest[:-1]
+    return float(max(v[-1], floor if np.isfinite(floor) else 0.0))
+
+
+def _pareto(t) -> np.ndarray:
+    """(budget, error) of the estimators no other beats on both, by increasing budget."""
+    pts = sorted(zip(t["scalars_per_step"], t["network_mse"]))
+    front, best = [], np.inf
+    for x, y in pts:
+        if y < best:
+            front.append((x, y))
+            best = y
+    return np.array(front)
+
+
+def mse_vs_time(res, tables, path: Path) -> None:
+    s = tables["series"]
+    fig, axes = new_figure(ncols=1, width=10.0, height=5.0)
+    ax = axes[0, 0]
+    z = z_for_confidence(BAND)
+    for est in ESTIMATORS:
+        r = s[s["estimator"] == est]
+        if not len(r):
+            continue
+        k, mc, se = r["step"].to_numpy(), r["network_mse_mc"].to_numpy(), r["network_mse_mc_se"].to_numpy()
+        if not np.all(np.isfinite(mc)):
+            continue
+        c = _rgb(COLORS[est])
+        ax.plot(k, mc, color=c, lw=1.2, label=LABELS[est])
+        ax.fill_between(k, np.maximum(mc - z * se, 1e-300), mc + z * se, color=c, alpha=0.2, lw=0)
+        ex = r["network_mse_exact"].to_numpy()
+        if np.isfinite(ex).any():
+            ax.plot(k, ex, color=c, ls="--", lw=1)
+    ax.set_yscale("log")
+    ax.set_xlabel("step k")
+    ax.set_ylabel("network mean-square error")
+    ax.set_title(f"{res.scenario.name}: Monte Carlo (band {BAND:.0%}) and exact (dashed)")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, borderaxespad=0)
+    save_figure(fig, path)
+
+
+def nees_figure(res, tables, path: Path) -> None:
+    s = tables["series"]
+    nodes = tables["nodes"]
+    lo, hi = float(nodes["nees_lo"].iloc[0]), float(nodes["nees_hi"].iloc[0])
+    fig, axes = new_figure(ncols=1, width=10.0, height=4.5)
+    ax = axes[0, 0]
+    for est in ESTIMATORS:
+        r = s[s["estimator"] == est]
+        if not len(r) or not np.isfinite(r["nees_mc"]).any():
+            continue
+        ax.plot(r["step"], r["nees_mc"], color=_rgb(COLORS[est]), label=LABELS[est])
+    ax.axhspan(lo, hi, color="0.8", alpha=0.5, label="χ² band of one consistent node (99%)")
+    ax.axhline(res.design.model.n, color="k", lw=0.8)
+    ax.set_yscale("log")
+    ax.set_xlabel("step k")
+    ax.set_ylabel("mean NEES (node average)")
+    ax.set_title("consistency: NEES with each filter's own covariance (n when consistent)")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, borderaxespad=0)
+    save_figure(fig, path)
+
+
+def figure_jobs(res, tables, out_dir: Path) -> list:
+    """One callable per figure (for `dse.outputs.figures.draw_all`)."""
+    figs = out_dir / "figures"
+    figs.mkdir(parents=True, exist_ok=True)
+    return [lambda: error_vs_communication(res, tables, figs / "error_vs_communication.png"),
+            lambda: mse_vs_time(res, tables, figs / "mse_vs_time.png"),
+            lambda: nees_figure(res, tables, figs / "nees.png")]
+
+
+def _comparison_markdown(tables) -> str:
+    t = tables["estimators"]
+    rows = ["| estimator | network MSE | excess over centralized | NEES | messages/step | scalars/step |",
+            "|---|---|---|---|---|---|"]
+    for _, r in t.iterrows():
+        rows.append(f"| {r['label']} | {r['network_mse']:.4g}{'' if r['exact'] else ' (MC)'} | {r['excess']:.4g} | "
+                    f"{r['nees']:.3g} | {r['messages_per_step']:.3g} | {r['scalars_per_step']:.3g} |")
+    app = tables["applicability"]
+    for _, r in app[~app["applies"]].iterrows():
+        rows.append(f"| {r['label']} | not applicable: {r['reason']} | | | | |")
+    return "\n".join(rows)
+
+
+def write_recording(res, tables, path: Path, claims: list[dict], prov: dict, summary: str) -> None:
+    import rerun.blueprint as rrb
+
+    sc = res.scenario
+    blueprint = rrb.Blueprint(
+        rrb.Tabs(
+            rrb.Horizontal(
+                rrb.Vertical(
+                    rrb.TimeSeriesView(origin="/mse", name="network mean-square error: every estimator (dots Monte "
+                                       "Carlo, lines exact)", contents=["/mse/**"],
+                                       plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop)),
+                    rrb.TimeSeriesView(origin="/nees", name="mean NEES with each filter's own covariance",
+                                       contents=["/nees/**"], plot_legend=rrb.PlotLegend(visible=False)),
+                    row_shares=[3, 2]),
+                rrb.Vertical(rrb.TextDocumentView(origin="/comparison", name="comparison at the evaluation step"),
+                             rrb.GraphView(origin="/graph", name="communication graph"), row_shares=[1, 1]),
+                column_shares=[3, 2], name="comparison"),
+            rrb.Grid(rrb.TimeSeriesView(origin="/disagreement", name="disagreement between nodes",
+                                        plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop)),
+                     rrb.TimeSeriesView(origin="/excess", name="mean-square distance to the centralized filter",
+                                        plot_legend=rrb.PlotLegend(visible=False)),
+                     rrb.TimeSeriesView(origin="/trial", name="trial 0: truth (white) and node 0's estimate of the "
+                                        "first state", plot_legend=rrb.PlotLegend(visible=False)),
+                     name="details"),
+            rrb.Horizontal(rrb.TextDocumentView(origin="/report", name="claims"),
+                           rrb.TextDocumentView(origin="/claims", name="claim detail"), name="claims"),
+        ),
+        rrb.TimePanel(timeline="k", expanded=False),
+        collapse_panels=True,
+    )
+    s = tables["series"]
+    with rec_.recording(path, application_id="dse-compare", recording_id=f"compare-{sc.name}-seed{res.seed}",
+                        blueprint=blueprint, properties={"seed": res.seed, "trials": res.trials,
+                                                         "links": sc.link_model, "noise_std": sc.noise_std}) as rec:
+        rec_.log_graph(rec, "graph", sc.graph.positions(), [tuple(e) for e in res.design.topology.edges.tolist()])
+        rec_.log_markdown(rec, "comparison", _comparison_markdown(tables))
+        for est in ESTIMATORS:
+            r = s[s["estimator"] == est]
+            if not len(r):
+                continue
+            idx = rec_.sequence_index("k", r["step"].to_numpy())
+            col = COLORS[est]
+            mc = r["network_mse_mc"].to_numpy()
+            rec_.send_series(rec, f"mse/{est}/monte_carlo", idx, mc, names=f"{LABELS[est]} (MC)", colors=[col],
+                             points=True)
+            ex = r["network_mse_exact"].to_numpy()
+            if np.isfinite(ex).any():
+                rec_.send_series(rec, f"mse/{est}/exact", idx, ex, names=f"{LABELS[est]} (exact)", colors=[col])
+            if np.isfinite(r["nees_mc"]).any():
+                rec_.send_series(rec, f"nees/{est}", idx, r["nees_mc"].to_numpy(), names=LABELS[est], colors=[col])
+            rec_.send_series(rec, f"disagreement/{est}", idx, r["disagreement_mc"].to_numpy(), names=LABELS[est],
+                             colors=[col])
+            if est != "central":
+                rec_.send_series(rec, f"excess/{est}", idx, r["excess_mc"].to_numpy(), names=LABELS[est], colors=[col])
+        if res.paths and "x" in res.paths and res.paths["x"].shape[-1] and np.all(np.isfinite(res.paths["x"][:, 0, 0])):
+            K = res.paths["x"].shape[0]
+            idx = rec_.sequence_index("k", np.arange(K))
+            rec_.send_series(rec, "trial/truth", idx, res.paths["x"][:, 0, 0], names="x₁(k)", colors=[(230, 230, 230)],
+                             width=2.5)
+            for est in ESTIMATORS:
+                p = res.paths.get(est)
+                if p is None or not np.all(np.isfinite(p[:, 0, 0, 0])):
+                    continue
+                rec_.send_series(rec, f"trial/{est}", idx, p[:, 0, 0, 0], names=LABELS[est], colors=[COLORS[est]])
+        rec_.log_claims(rec, claims, summary)
+
+
+def write_outputs(res, tables, out_dir: Path, claims: list[dict], prov: dict) -> None:
+    """The recording and the figures, drawn side by side in forked workers (`prov["workers"]`)."""
+    counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
+    summary = (f"# {res.scenario.name}: {counts['pass']} pass, {counts['fail']} fail, {counts['not-checkable']} not "
+               f"checkable, {counts['error']} error\n\nseed {res.seed}, {res.trials:,} trials, {res.scenario.steps} steps, "
+               f"{res.scenario.N} nodes, {res.scenario.link_model} links")
+    record = lambda: write_recording(res, tables, out_dir / f"{res.scenario.name}.rrd", claims, prov, summary)  # noqa: E731
+    draw_all([record] + figure_jobs(res, tables, out_dir), workers=int(prov.get("workers") or 1))

@@ -1,0 +1,194 @@
+"""Every number of a compare run as documented tidy tables (first column `scenario`)."""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from dse.outputs.tables import spec
+
+from .design import Design, applicability_rows
+from .scenario import ESTIMATORS, LABELS
+from .summary import NEES_BAND, exact_at, exact_disagreement_at, nees_band, stats
+
+_S = ("scenario", "", "scenario name")
+_E = ("estimator", "", "estimator id: " + ", ".join(ESTIMATORS))
+
+APPLICABILITY = spec("applicability", "estimator", [
+    _S, _E, ("label", "", "what the estimator is"), ("applies", "", "true when it runs on this scenario"),
+    ("reason", "", "why it does not apply (empty when it does)"),
+    ("exact", "", "true when its exact mean second moments are computed (else Monte Carlo only)"),
+    ("exact_reason", "", "why there are no exact moments"),
+    ("gain_scale", "1", "ℓ multiplying the base gains (constant-gain filters)"),
+    ("zeta", "1", "ζ of the re-injection filter (13)"),
+    ("mean_square_radius", "1", "spectral radius of the exact mean second-moment step (constant-gain filters; < 1: "
+                                "the mean-square error converges)"),
+    ("steady_mse", "state²", "exact steady-state network MSE (node average of tr E[e eᵀ]; constant-gain filters)")],
+    "Which estimator applies to the link model, and the constant gains it uses.")
+
+GAINS = spec("gains", "entry of a constant-gain filter's gain at a node", [
+    _S, _E, ("node", "", "node"), ("row", "", "state index"), ("col", "", "measurement row"),
+    ("value", "1", "gain entry ℓ·G_i")])
+
+WEIGHTS = spec("edge_weights", "edge of the graph", [
+    _S, ("u", "", "first node"), ("v", "", "second node"),
+    ("consensus_weight", "1", "q_uv of the consensus and combination rounds"),
+    ("pairwise_weight", "1", "α of the pairwise averaging (6)")])
+
+DETECT = spec("detectability", "node", [
+    _S, ("node", "", "node"), ("sensor_type", "", "index into sensors.types"),
+    ("locally_detectable", "", "(F, H_i) detectable: the node's own Kalman filter has a bounded error")])
+
+ESTIMATOR_TABLE = spec("estimators", "estimator at the evaluation step", [
+    _S, _E, ("label", "", "what the estimator is"), ("step", "", "evaluation step k"),
+    ("network_mse", "state²", "node average of E‖x − x̂_i‖²: exact when `exact`, else the Monte Carlo mean"),
+    ("exact", "", "network_mse and excess are exact"),
+    ("network_mse_mc", "state²", "Monte Carlo node average of ‖x − x̂_i‖²"),
+    ("network_mse_mc_se", "state²", "its standard error"),
+    ("excess", "state²", "network_mse minus the centralized filter's (= mean-square distance to it)"),
+    ("excess_mc", "state²", "Monte Carlo node average of ‖x̂_i − x̂_c‖²"),
+    ("excess_mc_se", "state²", "the node average of the nodes' standard errors (an upper bound of its standard error)"),
+    ("nees", "1", "Monte Carlo node average of the NEES e_iᵀ P_i⁻¹ e_i with the estimator's own covariance (n when "
+                  "consistent); empty when it has none"),
+    ("disagreement", "state²", "mean over trials of (1/N) Σ_i ‖x̂_i − mean_j x̂_j‖²"),
+    ("messages_per_step", "1", "messages sent per node and step (one message: one node to one neighbour), mean over "
+                               "nodes, trials and steps"),
+    ("scalars_per_step", "1", "real numbers sent per node and step")],
+    "The comparison: error against communication, one row per estimator that runs.")
+
+NODES = spec("nodes", "estimator and node at the evaluation step", [
+    _S, _E, ("node", "Int64", "node (empty for the centralized filter)"), ("step", "", "evaluation step k"),
+    ("mse_mc", "state²", "Monte Carlo mean of ‖x(k) − x̂_i(k)‖²"), ("mse_mc_se", "state²", "its standard error"),
+    ("mse_exact", "state²", "exact E‖x(k) − x̂_i(k)‖² (mean over link patterns); empty without exact moments"),
+    ("excess_exact", "state²", "mse_exact minus the centralized filter's exact MSE"),
+    ("excess_mc", "state²", "Monte Carlo mean of ‖x̂_i − x̂_c‖², the excess over the centralized filter"),
+    ("excess_mc_se", "state²", "its standard error"),
+    ("nees_mc", "1", "Monte Carlo mean NEES with the estimator's own covariance"),
+    ("nees_lo", "1", f"lower end of the {NEES_BAND:.0%} χ² band of the mean NEES of a consistent filter"),
+    ("nees_hi", "1", "upper end of that band"),
+    ("disagreement_mc", "state²", "Monte Carlo mean of ‖x̂_i − mean_j x̂_j‖², the node's distance from the network "
+                                  "average estimate"),
+    ("messages_per_step", "1", "messages sent by the node per step"),
+    ("scalars_per_step", "1", "real numbers sent by the node per step")])
+
+SERIES = spec("series", "estimator and recorded step", [
+    _S, _E, ("step", "", "time step k"),
+    ("network_mse_mc", "state²", "Monte Carlo node average of ‖x − x̂_i‖²"), ("network_mse_mc_se", "state²", "its standard error"),
+    ("network_mse_exact", "state²", "exact node average (empty without exact moments)"),
+    ("excess_mc", "state²", "node average of the mean ‖x̂_i − x̂_c‖²"),
+    ("nees_mc", "1", "node average of the mean NEES with the estimator's own covariance"),
+    ("disagreement_mc", "state²", "mean of (1/N) Σ_i ‖x̂_i − mean_j x̂_j‖²"),
+    ("disagreement_exact", "state²", "its exact value (empty without exact moments)")])
+
+TOKEN = spec("token_law", "step of the GIKF token-law comparison", [
+    _S, ("step", "", "time step k"), ("trials", "", "trials in each sample"),
+    ("median_random_sensor", "state²", "median of tr P̂_q(k), q a uniformly random sensor"),
+    ("median_token_chain", "state²", "median of tr P̃(k) of the token chain (20)"),
+    ("ks_statistic", "1", "two-sample Kolmogorov-Smirnov distance"), ("p_value", "1", "its p-value")])
+
+METRICS = spec("metrics", "metric of an estimator (network-wide when node is empty)", [
+    _S, ("metric", "", "<estimator>.<quantity>: network_mse, excess, nees, disagreement, messages_per_step, "
+                       "scalars_per_step, steady_mse"),
+    ("node", "", "node (empty: network-wide)"), _E, ("value", "as the quantity", "the value at the evaluation step")])
+
+
+def design_tables(d: Design) -> list:
+    sc = d.scenario
+    rows = [{"scenario": sc.name, **r} for r in applicability_rows(d)]
+    out = [(APPLICABILITY, pd.DataFrame(rows, columns=APPLICABILITY.column_names))]
+    g = []
+    for est in ("carli", "reinjection", "pairwise"):
+        f = d.estimators.get(est)
+        if f is None:
+            continue
+        K = f.gains
+        for i in range(K.shape[0]):
+            for a in range(K.shape[1]):
+                for b in range(d.model.rows[i]):
+                    g.append({"scenario": sc.name, "estimator": est, "node": i, "row": a, "col": b, "value": K[i, a, b]})
+    out.append((GAINS, pd.DataFrame(g, columns=GAINS.column_names)))
+    out.append((WEIGHTS, pd.DataFrame({"scenario": sc.name, "u": d.topology.edges[:, 0], "v": d.topology.edges[:, 1],
+                                       "consensus_weight": d.weights, "pairwise_weight": sc.alpha},
+                                      columns=WEIGHTS.column_names)))
+    out.append((DETECT, pd.DataFrame({"scenario": sc.name, "node": np.arange(sc.N), "sensor_type": list(sc.assign),
+                                      "locally_detectable": d.numbers["local_detectable"]}, columns=DETECT.column_names)))
+    return out
+
+
+def _nan(a):
+    return np.full(np.shape(a), np.nan) if a is None else a
+
+
+def run_tables(res) -> list:
+    sc, d = res.scenario, res.design
+    out = design_tables(d)
+    i, k = res.eval_index, sc.eval_step
+    n = d.model.n
+    lo, hi = nees_band(res.trials, n)
+    central_exact = res.exact["central"]["mse"][:, 0] if "central" in res.exact else None
+    est_rows, node_rows, series_rows, metric_rows = [], [], [], []
+    for est in ESTIMATORS:
+        if est not in res.mc:
+            continue
+        st = stats(res, est)
+        W = st.mse.shape[1]
+        ex = exact_at(res, est)
+        exact = ex is not None
+        mse_mc = st.mse[i]
+        net_mc, net_se = float(st.network[i]), float(st.network_se[i])
+        network = float(ex[i].mean()) if exact else net_mc
+        excess = (network - float(central_exact[k])) if (exact and central_exact is not None) else \
+            (float(st.excess[i].mean()) if st.excess is not None else 0.0 if est == "central" else np.nan)
+        exc_mc = float(st.excess[i].mean()) if st.excess is not None else (0.0 if est == "central" else np.nan)
+        exc_se = float(np.mean(st.excess_se[i])) if st.excess_se is not None else 0.0
+        nees = float(st.nees[i].mean()) if st.nees is not None else np.nan
+        msgs, scal = float(st.messages.mean()), float(st.scalars.mean())
+        est_rows.append({"scenario": sc.name, "estimator": est, "label": LABELS[est], "step": k, "network_mse": network,
+                         "exact": exact, "network_mse_mc": net_mc, "network_mse_mc_se": net_se, "excess": excess,
+                         "excess_mc": exc_mc, "excess_mc_se": exc_se, "nees": nees,
+                         "disagreement": float(st.disagreement[i]), "messages_per_step": msgs, "scalars_per_step": scal})
+        for node in range(W):
+            node_rows.append({
+                "scenario": sc.name, "estimator": est, "node": (pd.NA if est == "central" else node), "step": k,
+                "mse_mc": mse_mc[node], "mse_mc_se": st.mse_se[i, node],
+                "mse_exact": ex[i, node] if exact else np.nan,
+                "excess_exact": (ex[i, node] - central_exact[k]) if (exact and central_exact is not None) else np.nan,
+                "excess_mc": st.excess[i, node] if st.excess is not None else (0.0 if est == "central" else np.nan),
+                "excess_mc_se": st.excess_se[i, node] if st.excess_se is not None else 0.0,
+                "nees_mc": st.nees[i, node] if st.nees is not None else np.nan, "nees_lo": lo, "nees_hi": hi,
+                "disagreement_mc": st.disagreement_node[i, node],
+                "messages_per_step": st.messages[node] if est != "central" else 0.0,
+                "scalars_per_step": st.scalars[node] if est != "central" else 0.0})
+        dis_ex = exact_disagreement_at(res, est)
+        for j, step in enumerate(res.steps):
+            series_rows.append({
+                "scenario": sc.name, "estimator": est, "step": int(step), "network_mse_mc": st.network[j],
+                "network_mse_mc_se": st.network_se[j], "network_mse_exact": ex[j].mean() if exact else np.nan,
+                "excess_mc": st.excess[j].mean() if st.excess is not None else (0.0 if est == "central" else np.nan),
+                "nees_mc": st.nees[j].mean() if st.nees is not None else np.nan,
+                "disagreement_mc": st.disagreement[j], "disagreement_exact": dis_ex[j] if dis_ex is not None else np.nan})
+        vals = {"network_mse": network, "excess": excess, "nees": nees, "disagreement": float(st.disagreement[i]),
+                "messages_per_step": msgs, "scalars_per_step": scal}
+        if est in d.gains:
+            vals["steady_mse"] = d.gains[est]["steady_mse"]
+        for q, v in vals.items():
+            metric_rows.append({"scenario": sc.name, "metric": f"{est}.{q}", "node": pd.NA, "estimator": est, "value": v})
+        for node in range(W if est != "central" else 0):
+            metric_rows.append({"scenario": sc.name, "metric": f"{est}.mse", "node": node, "estimator": est,
+                                "value": float(ex[i, node] if exact else mse_mc[node])})
+    out.append((ESTIMATOR_TABLE, pd.DataFrame(est_rows, columns=ESTIMATOR_TABLE.column_names)))
+    out.append((NODES, pd.DataFrame(node_rows, columns=NODES.column_names).astype({"node": "Int64"})))
+    out.append((SERIES, pd.DataFrame(series_rows, columns=SERIES.column_names)))
+    if "gikf" in res.token and "chain" in res.token:
+        
+        from .claims import _ks
+        from .compute import token_times
+
+        rows = []
+        for t, (x, y) in enumerate(zip(res.token["gikf"], res.token["chain"])):
+            r = _ks(x, y)
+            rows.append({"scenario": sc.name, "step": token_times(sc)[t], "trials": x.size,
+                         "median_random_sensor": float(np.median(x)), "median_token_chain": float(np.median(y)),
+                         "ks_statistic": float(r.statistic), "p_value": float(r.pvalue)})
+        out.append((TOKEN, pd.DataFrame(rows, columns=TOKEN.column_names)))
+    out.append((METRICS, pd.DataFrame(metric_rows, columns=METRICS.column_names).astype({"node": "Int64"})))
+    return out

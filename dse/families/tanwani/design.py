@@ -1,0 +1,252 @@
+"""The design stage of the random-comm-filter family: every deterministic quantity the theorems
+are made of, without Monte Carlo (what `dse check` prints and what the hypotheses are decided on).
+
+Per scenario: Ā = (1/N)Σ A_i and its spectrum; R of (10), S of (11), the large-rate limit S_true
+of the true covariance and the first-order coefficient of (9) in 1/λ; the explicit constants of
+(12) (paper-faithful and tight); the critical rates of (9) and of the exact mean covariance; the
+Kalman–Bucy reference (steady and from P0); at every simulated λ the transients of (9) and of the
+exact mean joint covariance on the output grid and their per-node steady states; the λ sweep of
+the steady states, their deviations from S and S_true and the spectral abscissae; the gridded
+simulator's step and how it was chosen; and a few clock paths drawn from the seed on which two
+independent computations of the per-path covariances are compared (hypothesis `numerics`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
+
+import dse.estimators.gossip_covariance as gc
+import dse.estimators.gossip_filter as gf
+import dse.estimators.kalman_bucy as kb
+from dse.estimators.linear_flows import abscissa_tolerance
+from dse.simulate.seeding import stream_seed
+from dse.simulate.units import block_generator
+
+from .scenario import FilterNetworkScenario
+
+EPS = float(np.finfo(float).eps)
+QUICK_SWEEP_POINTS = 15
+#: the λ sweep gets points at these multiples of the explicit threshold λ_thr of (12)
+THRESHOLD_MULTIPLES = (1.5, 3.0, 10.0, 30.0, 100.0)
+MAX_SWEEP_RATE = 1e9       # above it the abscissa of M_9 cannot be told from 0 (rounding ~ eps·λ)
+EXPLICIT_FIELDS = ("C0", "C1", "C2", "C3", "a1", "a2", "sigma_G", "sigma1_R", "sigman_R", "kappa", "fiedler", "S_norm",
+                   "threshold")
+#: clock paths of the `numerics` hypothesis: how many, and how much of the horizon (outputs, expected events)
+NUMERICS_PATHS = 3
+NUMERICS_OUTPUTS = 200
+NUMERICS_EVENTS = 400
+#: the sweep's abscissae of the exact covariance generator are computed up to this size (symmetric coordinates);
+#: beyond, stability is decided by a linear solve (`gossip_covariance.joint_hurwitz`) and the abscissa is NaN
+SWEEP_EIG_MAX = 300
+CARE_COND_MAX = 1e8        # relative condition number of the filter CARE above which its solution is not trusted
+
+
+@dataclass
+class ScenarioDesign:
+    """The design arrays of one scenario (`bounds`, a dict of arrays as the stage cache stores them)."""
+
+    scenario: FilterNetworkScenario
+    bounds: dict[str, np.ndarray]
+
+    @property
+    def sys(self) -> gf.GossipSystem:
+        return self.scenario.system
+
+    def bound(self, rate: float) -> np.ndarray:
+        return self.bounds[f"bound_t_{self.scenario.rates.index(rate)}"]
+
+    def joint(self, rate: float) -> np.ndarray | None:
+        return self.bounds.get(f"joint_t_{self.scenario.rates.index(rate)}")
+
+
+@dataclass
+class Design:
+    """Every scenario's design, by name (the object the hypotheses are evaluated on)."""
+
+    scenarios: dict[str, ScenarioDesign]
+
+
+def joint_ok(sys: gf.GossipSystem) -> bool:
+    return sys.N * sys.n <= gc.MAX_JOINT_DIM
+
+
+def care_condition(s: gf.GossipSystem, P: np.ndarray) -> float:
+    """First-order relative condition number of the filter CARE at its solution P:
+    ‖L⁻¹‖₂(2‖A‖‖P‖ + ‖BBᵀ‖ + ‖PSP‖)/‖P‖ with L(Y) = A_cY + YA_cᵀ the closed-loop Lyapunov operator."""
+    Hs, Vs = np.vstack(s.H), scipy.linalg.block_diag(*s.V)
+    S = Hs.T @ np.linalg.solve(Vs, Hs)
+    Ac = s.A - P @ S
+    inv_norm = 1.0 / float(np.linalg.svd(gc.lyapunov_generator(Ac), compute_uv=False)[-1])
+    terms = 2 * np.linalg.norm(s.A, 2) * np.linalg.norm(P, 2) + np.linalg.norm(s.B @ s.B.T, 2) \
+        + np.linalg.norm(P @ S @ P, 2)
+    return float(inv_norm * terms / np.linalg.norm(P, 2))
+
+
+def grid_regime(sc: FilterNetworkScenario, rate: float) -> float:
+    """h·(max‖A_i‖₂ + λ d_max): the gridded simulator's step against the fastest rate of its flows and jumps."""
+    s = sc.system
+    return float(sc.grid_step * (max(np.linalg.norm(A, 2) for A in s.Ai) + rate * int(s.degrees.max())))
+
+
+def kalman_bucy_transient(sc) -> np.ndarray:
+    """P_KB at the output times (the centralized reference curve); NaN when the CARE has no stabilising
+    solution and the Riccati flow is too stiff for the Hamiltonian sub-steps (see `kalman_bucy_riccati`)."""
+    s = sc.system
+    try:
+        return kb.kalman_bucy_riccati(s.A, s.B, np.vstack(s.H), scipy.linalg.block_diag(*s.V), s.P0, sc.output_step,
+                                      sc.n_outputs)
+    except np.linalg.LinAlgError:
+        return np.full((sc.n_outputs + 1, s.n, s.n), np.nan)
+
+def scenario_design(sc: FilterNetworkScenario, quick: bool = False, seed: int = 0) -> dict[str, np.ndarray]:
+    """The design arrays of one scenario (quick: a coarser λ sweep)."""
+    s = sc.system
+    N, n = s.N, s.n
+    out: dict[str, np.ndarray] = {}
+    Hs, Vs = np.vstack(s.H), scipy.linalg.block_diag(*s.V)
+    T = sc.n_outputs
+    try:
+        P_kb, K_kb = kb.kalman_bucy_steady(s.A, s.B, Hs, Vs)
+        Ac = s.A - K_kb @ Hs
+        if np.all(np.isfinite(P_kb)) and np.max(np.linalg.eigvals(Ac).real) < 0:
+            out["P_kb"], out["K_kb"] = P_kb, K_kb
+            out["kb_condition"] = np.array(care_condition(s, P_kb))
+    except (np.linalg.LinAlgError, ValueError):
+        pass
+    out["P_kb_t"] = kalman_bucy_transient(sc)
+    ev = np.linalg.eigvals(s.Abar)
+    out["abar_eig"] = np.stack([ev.real, ev.imag], axis=1)
+    out["ai_eig"] = np.array([[[z.real, z.imag] for z in np.linalg.eigvals(A)] for A in s.Ai])
+    abar = float(np.max(ev.real))
+    out["abar_abscissa"] = np.array(abar)
+    out["abar_tolerance"] = np.array(abscissa_tolerance(s.Abar))
+    out["fiedler"] = np.array(float(np.sort(np.linalg.eigvalsh(s.laplacian))[1]))
+    out["laplacian_eig"] = np.linalg.eigvalsh(s.laplacian)
+    out["crit_bound"] = np.array(gc.critical_rate_bound(s))
+    if joint_ok(s):
+        out["crit_joint"] = np.array(gc.critical_rate_joint(s, upper=float(out["crit_bound"])))
+    for r, lam in enumerate(sc.rates):
+        out[f"bound_t_{r}"] = gc.bound_transient(s, lam, sc.output_step, T)
+        out[f"absc_bound_{r}"] = np.array([gc.bound_abscissa(s, lam), gc.bound_abscissa_tolerance(s, lam)])
+        p = gc.bound_steady(s, lam)
+        out[f"bound_inf_{r}"] = p if p is not None else np.full((N, n, n), np.nan)
+        out[f"grid_regime_{r}"] = np.array(grid_regime(sc, lam))
+        if joint_ok(s):
+            out[f"joint_t_{r}"] = gc.joint_transient(s, lam, sc.output_step, T)
+            out[f"absc_joint_{r}"] = np.array(gc.joint_abscissa(s, lam))
+            J = gc.joint_steady(s, lam)
+            out[f"joint_inf_{r}"] = J if J is not None else np.full((N * n, N * n), np.nan)
+    hurwitz = abar < -float(out["abar_tolerance"])
+    if hurwitz:
+        out["S"], out["R"] = gc.lyapunov_S(s), gc.lyapunov_R(s.Abar)
+        out["S_true"] = gc.lyapunov_S_true(s)
+        out["first_order"] = gc.first_order_deviation(s)
+    lo, hi, pts = sc.sweep
+    pts = min(pts, QUICK_SWEEP_POINTS) if quick else pts
+    lams = np.geomspace(lo, hi, pts)
+    extra = []
+    if hurwitz:
+        for variant in ("faithful", "tight"):
+            c = gc.explicit_bound(s, variant)
+            out[f"explicit_{variant}"] = np.array([getattr(c, f) for f in EXPLICIT_FIELDS])
+            if math.isfinite(c.threshold) and c.threshold > 0:
+                extra += [c.threshold * f for f in THRESHOLD_MULTIPLES]
+    lams = np.unique(np.concatenate([lams, [x for x in extra if x <= MAX_SWEEP_RATE]]))
+    out["sweep"] = lams
+    out.update(_sweep(s, lams, out, hurwitz))
+    out.update(numerics_paths(sc, seed))
+    return out
+
+
+def _sweep(s: gf.GossipSystem, lams: np.ndarray, d: dict, hurwitz: bool) -> dict[str, np.ndarray]:
+    """Steady states of (9) and of the exact mean covariance at every sweep rate, their deviations from S and
+    S_true (solved for directly, with their round-off bounds) and the spectral abscissae of both generators."""
+    N, n = s.N, s.n
+    L = len(lams)
+    P_inf, J_inf = np.full((L, N, n, n), np.nan), np.full((L, N, n, n), np.nan)
+    dev_P, dev_J = np.full((L, N, n, n), np.nan), np.full((L, N, n, n), np.nan)
+    err_P, err_J, cond_J = np.full(L, np.nan), np.full(L, np.nan), np.full(L, np.nan)
+    absc9, tol9 = np.zeros(L), np.zeros(L)
+    abscS = np.full(L, np.nan)
+    for k, lam in enumerate(lams):
+        absc9[k], tol9[k] = gc.bound_abscissa(s, lam), gc.bound_abscissa_tolerance(s, lam)
+        p = gc.bound_steady(s, lam)
+        if p is not None:
+            P_inf[k] = p
+        if hurwitz and (dv := gc.bound_steady_deviation(s, lam, d["S"])) is not None:
+            dev_P[k] = dv
+            err_P[k] = deviation_error(gc.bound_generator(s, lam)[0], dv, s, d["S"])
+        if joint_ok(s):
+            M, g = gc.joint_generator_sym(s, lam)
+            if len(M) <= SWEEP_EIG_MAX:
+                abscS[k] = float(np.max(np.linalg.eigvals(M).real))
+            if gc.joint_hurwitz(s, lam):
+                lu = scipy.linalg.lu_factor(M)
+                cond_J[k] = 1.0 / max(scipy.linalg.lapack.dgecon(lu[0], float(np.abs(M).sum(axis=0).max()), norm="1")[0], 1e-300)
+                J_inf[k] = gc.diagonal_blocks(gc.from_sym_coords(scipy.linalg.lu_solve(lu, -g), N * n), N, n)
+                if hurwitz and s.mode == "edge":
+                    dj = gc.joint_steady_deviation(s, lam, d["S_true"])
+                    dev_J[k] = gc.diagonal_blocks(dj, N, n)
+                    # as `deviation_error`: the residual's rounding is ~‖𝒜‖‖11ᵀ⊗S_true‖ ≤ ‖M‖‖S_true‖·N
+                    err_J[k] = 10 * M.shape[0] * EPS * cond_J[k] * (np.abs(dj).max() + N * np.abs(d["S_true"]).max())
+    out = dict(sweep_bound=P_inf, sweep_joint=J_inf, sweep_dev_bound=dev_P, sweep_dev_joint=dev_J,
+               sweep_dev_err=err_P, sweep_dev_joint_err=err_J, sweep_cond=cond_J,
+               sweep_absc_bound=absc9, sweep_absc_tol=tol9, sweep_absc_joint=abscS)
+    if hurwitz:
+        for variant in ("faithful", "tight"):
+            eb = gc.explicit_bound(s, variant)
+            out[f"sweep_explicit_{variant}"] = np.array([eb.value(x) for x in lams])
+    return out
+
+
+def deviation_error(M: np.ndarray, D: np.ndarray, s, S: np.ndarray) -> float:
+    """Round-off bound of the deviation D = 𝒫^∞ − S solved from M vec D = −r (`bound_steady_deviation`):
+    10·dim·eps·κ(M)·(‖D‖ + ‖r‖/‖M‖) with the residual's own rounding ‖r‖ ~ 2‖A_i‖‖S‖ + ‖G_i‖
+    and κ the 1-norm condition number (LAPACK estimate)."""
+    lu = scipy.linalg.lu_factor(M)
+    norm = float(np.abs(M).sum(axis=0).max())
+    kappa = 1.0 / max(scipy.linalg.lapack.dgecon(lu[0], norm, norm="1")[0], 1e-300)
+    r = max(2 * np.linalg.norm(A, 2) * np.linalg.norm(S, 2) + np.linalg.norm(G, 2) for A, G in zip(s.Ai, s.Gi))
+    return 10 * M.shape[0] * EPS * kappa * (float(np.abs(D).max()) + r / norm)
+
+
+def numerics_times(sc: FilterNetworkScenario) -> np.ndarray:
+    """The output times of the `numerics` paths: at most NUMERICS_OUTPUTS steps and about NUMERICS_EVENTS
+    expected rings (the per-interval reference costs one matrix exponential per ring), at least one step."""
+    s = sc.system
+    per_step = sc.main_rate * len(s.clocks) * sc.output_step
+    k = max(1, min(sc.n_outputs, NUMERICS_OUTPUTS, int(NUMERICS_EVENTS / max(per_step, 1e-300))))
+    return sc.output_times[:k + 1]
+
+
+def numerics_paths(sc: FilterNetworkScenario, seed: int) -> dict[str, np.ndarray]:
+    """NUMERICS_PATHS clock paths drawn from the seed at the main rate: the batched propagation of P_i(t; τ)
+    and Σ_ii(t; τ) (as the event-driven simulator does it) and a plain per-interval Van Loan computation."""
+    s = sc.system
+    times = numerics_times(sc)
+    rng = block_generator(stream_seed(seed, "design-paths", sc.name))
+    run = gf.simulate_event_driven(s, sc.main_rate, times, NUMERICS_PATHS, rng, sample=False)
+    ref_P, ref_S = [], []
+    for p in range(NUMERICS_PATHS):
+        t, c = run.event_times[p], run.event_clocks[p]
+        P, Sig = gc.path_bound_and_covariance(s, t[c >= 0], c[c >= 0], times)
+        ref_P.append(P), ref_S.append(gc.diagonal_blocks(Sig, s.N, s.n))
+    return {"numerics_times": times, "numerics_event_times": run.event_times, "numerics_event_clocks": run.event_clocks,
+            "numerics_pbound": run.pbound, "numerics_sigma": run.sigma, "numerics_ref_pbound": np.array(ref_P),
+            "numerics_ref_sigma": np.array(ref_S), "numerics_condition": np.array(run.condition)}
+
+
+#: arrays of the design where inf or NaN is a result (a bound that diverges below the critical rate, an explicit
+#: bound below its threshold, the padding of event lists)
+NONFINITE = ("sweep_bound", "sweep_joint", "sweep_dev_bound", "sweep_dev_joint", "sweep_absc_joint",
+             "sweep_explicit_faithful", "sweep_explicit_tight", "crit_bound", "crit_joint", "explicit_faithful",
+             "explicit_tight", "P_kb_t", "sweep_dev_err", "sweep_dev_joint_err", "sweep_cond", "numerics_event_times",
+             "numerics_pbound", "numerics_sigma", "numerics_ref_pbound", "numerics_ref_sigma", "kb_condition")
+
+
+def nonfinite_allowed(sc: FilterNetworkScenario) -> tuple[str, ...]:
+    per_rate = ("bound_t", "joint_t", "bound_inf", "joint_inf", "absc_bound", "absc_joint")
+    return NONFINITE + tuple(f"{k}_{r}" for k in per_rate for r in range(len(sc.rates)))

@@ -1,0 +1,753 @@
+"""The simulate and bounds stages of one hybrid-observer run, streamed over trials and time.
+
+A run is simulated in two passes:
+
+1. the interval plan (no trials): for every event interval s the communication of its q
+   iterations (weights, source sets, the nominal graph, messages outside their reception
+   interval) and the norms of A(s), B(s), G(s) of (42), (43), (61') and |Φ_s(k)| of (49),
+   computed once per distinct weight sequence;
+2. the trials, in fixed RNG units of 1,000 (dse.simulate.units.run_units): the simulator hands
+   every sample, event index and interval to a `ChunkMonitor`, which evaluates the bounds on
+   the spot (the recursion (41), (51) and its restarts, the continuous bound, (20), (54), (63),
+   the decay-rate fits) and keeps per trial only the worst case of each, plus statistics over
+   trials per event index and per stored sample. Everything is merged into the run's
+   `RunAccumulator` unit by unit in unit order, so the result is the same whatever the memory
+   chunk; memory grows with neither the horizon nor the trial count (trial 0 is kept whole, at
+   every event and at `sampling.stored` samples).
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from collections import OrderedDict
+
+import numpy as np
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
+
+import dse.estimators.hybrid_observer as ho
+import dse.estimators.jointly_observable_design as jd
+from dse.simulate.seeding import stream_seed
+from dse.simulate.units import block_generator, run_units
+from dse.verify.rules import roundoff_tolerance
+
+from .design import alpha_used, central_gain, constants, observer_design
+from .scenario import HybridScenario, RunSpec
+
+#: intervals on which |Φ_s(k)| of (49) is evaluated (at most PHI_EVALUATIONS k each)
+PHI_INTERVALS = 4
+PHI_EVALUATIONS = 2_000
+#: trial 0's iterates and the source sets are kept for the first intervals, up to this many numbers
+ITERATE_VALUES = 200_000
+SOURCE_VALUES = 200_000
+#: A(s), B(s), G(s) of recent weight sequences kept for the trial pass
+MATRIX_CACHE_BYTES = 64 * 2**20
+#: the decay-rate fit starts at this event index (the first ones carry the initial transient)
+FIT_SKIP = 2
+
+
+def is_theorem_run(run: RunSpec) -> bool:
+    """The runs Theorems 1 and 2 are about: x' = Ax (no input), every agent present, rule (13)."""
+    return not run.noise and run.leave is None and run.rule == "mean"
+
+
+def schedule_for(sc: HybridScenario, run: RunSpec) -> ho.GraphSchedule:
+    return ho.GraphSchedule(sc.graphs, kind=run.switching, fixed=run.graph, T=sc.T, Delta=run.Delta, beta=run.beta,
+                            q=run.q)
+
+
+def timing_for(sc: HybridScenario, run: RunSpec, seed: int) -> ho.Timing:
+    """Iteration times; an asynchronous run's jitter δ_is(k) ∈ [-ε_i, ε_i] is drawn interval by interval."""
+    jitter = None
+    if run.timing == "async":
+        jitter = ho.SequentialJitter(lambda: block_generator(stream_seed(seed, "jitter", run.name)), run.epsilon, run.q)
+    return ho.Timing(sc.T, run.q, run.Delta, run.beta, np.asarray(run.offsets, float), jitter)
+
+
+def event_times(sc: HybridScenario, run: RunSpec) -> np.ndarray:
+    """t_is = t_i0 + sT in integer nanoseconds, (m, S+1), as the simulator uses them."""
+    off = np.array([ho.to_ns(t) for t in run.offsets], dtype=np.int64)
+    return off[:, None] + ho.to_ns(sc.T) * np.arange(run.intervals + 1)[None, :]
+
+
+def memberships(run: RunSpec, x_reinit=None, w_reinit=None) -> tuple:
+    if run.leave is None:
+        return ()
+    lv = run.leave
+    return (ho.Membership(lv.agent, lv.at, lv.rejoin, lv.policy, x_reinit, w_reinit),)
+
+
+def offset_exponentials(sc: HybridScenario, event_ns: np.ndarray) -> np.ndarray | None:
+    """e^{A t_i0} for the offsets as simulated (whole nanoseconds), None when every t_i0 = 0."""
+    offsets = event_ns[:, 0] / ho.NS
+    if not np.any(offsets):
+        return None
+    return np.array([scipy.linalg.expm(sc.A * t) if t else np.eye(sc.n) for t in offsets])
+
+
+def digest(W: np.ndarray, pp: np.ndarray) -> bytes:
+    return hashlib.blake2b(W.tobytes() + pp.tobytes(), digest_size=16).digest()
+
+
+def block_norms(M: np.ndarray, rows, cols) -> np.ndarray:
+    """The matrix of blockwise spectral norms (its max row sum is the mixed norm |M|)."""
+    r = np.concatenate([[0], np.cumsum(rows)])
+    c = np.concatenate([[0], np.cumsum(cols)])
+    return np.array([[np.linalg.norm(M[r[a]:r[a + 1], c[b]:c[b + 1]], 2) for b in range(len(cols))]
+                     for a in range(len(rows))])
+
+
+class MatrixCache:
+    """A(s), B(s), G(s) and their block norms by weight sequence (least recently used dropped)."""
+
+    def __init__(self, sc: HybridScenario, d: ho.ObserverDesign, eAT: np.ndarray, E: np.ndarray | None):
+        self.sc, self.d, self.eAT, self.E = sc, d, eAT, E
+        self.items: OrderedDict = OrderedDict()
+        mn = d.m * d.n
+        self.capacity = max(2, MATRIX_CACHE_BYTES // (8 * (2 * mn * mn + mn * sum(d.n_i) + mn * d.n)))
+
+    def get(self, W: np.ndarray, pp: np.ndarray, key: bytes | None = None, phi_every: int = 0):
+        key = digest(W, pp) if key is None else key
+        if key in self.items and not (phi_every and math.isnan(self.items[key][0].phi_max)):
+            self.items.move_to_end(key)
+            return self.items[key]
+        mats = ho.interval_matrices(self.d, W, self.eAT, self.E, phi_every=phi_every)
+        m, n = self.d.m, self.d.n
+        blocks = (block_norms(mats.A, [n] * m, [n] * m), block_norms(mats.B, [n] * m, self.d.n_i),
+                  block_norms(mats.G, [n] * m, [n]))
+        norms = {"A_mixed": float(jd.mixed_norm(mats.A, [n] * m, [n] * m)),
+                 "B_mixed": float(jd.mixed_norm(mats.B, [n] * m, self.d.n_i)),
+                 "G_mixed": float(jd.mixed_norm(mats.G, [n] * m, [n])),
+                 "A_2": float(np.linalg.norm(mats.A, 2)), "B_2": float(np.linalg.norm(mats.B, 2)),
+                 "Phi_max": mats.phi_max}
+        self.items[key] = (mats, blocks, norms)
+        while len(self.items) > self.capacity:
+            self.items.popitem(last=False)
+        return self.items[key]
+
+
+# -- pass 1: the interval plan ------------------------------------------------------------------------
+
+def interval_plan(sc: HybridScenario, run: RunSpec, seed: int) -> dict[str, np.ndarray]:
+    """Per interval s = 1..S (trial independent): |A(s)|, |B(s)|, |G(s)| (mixed norms), ||A(s)||_2,
+    ||B(s)||_2 (NaN when an agent sits the interval out), max_k |Φ_s(k)| on the first PHI_INTERVALS
+    intervals, source-set entries that differ from the nominal graph, messages outside their
+    reception interval, the nominal graph at the first iteration; the source sets, nominal graphs
+    and iteration times of the first intervals (for the recordings)."""
+    d = observer_design(sc)
+    m, n, S, q = sc.m, sc.n, run.intervals, run.q
+    timing, schedule = timing_for(sc, run, seed), schedule_for(sc, run)
+    ev = event_times(sc, run)
+    part = ho.participation(ev, memberships(run))
+    eAT = scipy.linalg.expm(sc.A * (ho.to_ns(sc.T) / ho.NS))
+    cache = MatrixCache(sc, d, eAT, offset_exponentials(sc, ev))
+    out = {k: np.full(S, np.nan) for k in ("A_mixed", "B_mixed", "G_mixed", "A_2", "B_2", "Phi_max")}
+    mism, entries = np.zeros(S, dtype=np.int64), np.zeros(S, dtype=np.int64)
+    nominal_graph = schedule.index_at((np.arange(S) * sc.T) + run.beta)
+    keep = int(max(1, min(S, SOURCE_VALUES // max(q * m * m, 1), ITERATE_VALUES // max((q + 1) * m * n, 1))))
+    src0, nom0 = np.zeros((keep, q, m, m), bool), np.zeros((keep, q, m, m), bool)
+    tau0 = np.zeros((keep, m, q + 1))
+    violations, seen = 0, set()
+    phi_every = max(1, -(-q // PHI_EVALUATIONS))
+    for s in range(1, S + 1):
+        pp = part[s - 1]
+        W, Sk, Nn, bad, tau = ho.interval_sources(schedule, timing, ev, pp, s, run.rule)
+        violations += bad
+        mism[s - 1], entries[s - 1] = int((Sk != Nn).sum()), Sk.size
+        if s <= keep:
+            src0[s - 1], nom0[s - 1], tau0[s - 1] = Sk, Nn, tau
+        if not pp.all():
+            continue
+        key = digest(W, pp)
+        seen.add(key)
+        _, _, norms = cache.get(W, pp, key, phi_every if s <= PHI_INTERVALS else 0)
+        for name in ("A_mixed", "B_mixed", "G_mixed", "A_2", "B_2") + (("Phi_max",) if s <= PHI_INTERVALS else ()):
+            out[name][s - 1] = norms[name]
+    out.update({"source_mismatch": mism, "source_entries": entries, "reception_violations": np.array(violations),
+                "participating": part, "nominal_graph": nominal_graph, "distinct_intervals": np.array(len(seen)),
+                "event_ns": ev, "sources0": src0, "nominal0": nom0, "tau0": tau0,
+                "phi_k_checked": np.array(len(range(0, q, phi_every)) + 1)})
+    return out
+
+
+def simulation_tolerance(sc: HybridScenario, design: dict, run: RunSpec, plan: dict) -> tuple[float, str]:
+    """Round-off allowance, relative to the size of the states, of any quantity built from a
+    simulated run (errors e = x̂ - x, the identities (41)/(61')).
+
+    Longest chains of floating-point operations per interval: the q estimator iterations, each
+    a sum over mn terms, and the exact propagation over the interval, T/step + m + 1 steps of a
+    D-dimensional matrix exponential (D = n + Σn_i + 2 + mn + n states); their results are
+    multiplied by e^(AT) and by B(s) (so the condition is ||e^(AT)||_2 (1 + max_s ||B(s)||_2)).
+    """
+    m, n = sc.m, sc.n
+    D = n + int(np.sum(design["n_i"])) + 2 + m * n + n
+    steps = math.ceil(sc.T / sc.sample_step) + m + 1
+    ops = run.q * m * n + steps * D
+    b2 = plan["B_2"]
+    bmax = float(np.nanmax(b2)) if np.isfinite(b2).any() else float(design["Q_2"]) * run.q * math.exp(
+        float(design["norm_A"]) * sc.T)
+    cond = max(1.0, float(design["norm_eAT"])) * (1.0 + bmax)
+    tol, text = roundoff_tolerance(scale=1.0, operations=ops, condition=cond)
+    return tol, (f"{text} (relative to the size of the states: q·mn = {run.q * m * n:,} iteration terms + {steps} "
+                 f"propagation steps × D = {D}; condition ||e^(AT)||(1 + max ||B(s)||) = {cond:.3g})")
+
+
+# -- pass 2: the trials ---------------------------------------------------------------------------------
+
+class Worst:
+    """The worst case of an inequality lo <= up over many cases: the smallest slack up - lo with
+    its (lo, up), the smallest relative slack, the number of cases and of non-finite ones. Kept
+    per trial during a chunk, then merged unit by unit (ties keep the earlier trial and case)."""
+
+    FIELDS = ("slack", "lo", "up", "rel", "count", "bad")
+
+    def __init__(self, B: int = 1):
+        self.slack, self.rel = np.full(B, np.inf), np.full(B, np.inf)
+        self.lo, self.up = np.full(B, np.nan), np.full(B, np.nan)
+        self.count, self.bad = np.zeros(B, dtype=np.int64), np.zeros(B, dtype=np.int64)
+
+    def update(self, lo, up) -> None:
+        lo, up = np.broadcast_arrays(np.asarray(lo, float), np.asarray(up, float))
+        lo, up = lo.reshape(len(self.slack), -1), up.reshape(len(self.slack), -1)
+        finite = np.isfinite(lo) & np.isfinite(up)
+        self.bad += (~finite).sum(axis=1)
+        self.count += lo.shape[1]
+        slack = np.where(finite, up - lo, np.inf)
+        j = np.argmin(slack, axis=1)
+        ar = np.arange(len(j))
+        s = slack[ar, j]
+        better = s < self.slack
+        self.slack = np.where(better, s, self.slack)
+        self.lo, self.up = np.where(better, lo[ar, j], self.lo), np.where(better, up[ar, j], self.up)
+        rel = np.where(finite, slack / np.maximum(np.abs(up), 1e-300), np.inf).min(axis=1)
+        self.rel = np.minimum(self.rel, rel)
+
+    def part(self, a: int, b: int) -> "Worst":
+        """The worst case over trials a..b-1."""
+        out = Worst(1)
+        j = a + int(np.argmin(self.slack[a:b]))
+        out.slack[0], out.lo[0], out.up[0] = self.slack[j], self.lo[j], self.up[j]
+        out.rel[0] = self.rel[a:b].min()
+        out.count[0], out.bad[0] = self.count[a:b].sum(), self.bad[a:b].sum()
+        return out
+
+    def merge(self, other: "Worst") -> None:
+        if other.slack[0] < self.slack[0]:
+            self.slack[0], self.lo[0], self.up[0] = other.slack[0], other.lo[0], other.up[0]
+        self.rel[0] = min(self.rel[0], other.rel[0])
+        self.count[0] += other.count[0]
+        self.bad[0] += other.bad[0]
+
+    def arrays(self, prefix: str) -> dict[str, np.ndarray]:
+        return {f"{prefix}_{k}": np.array(getattr(self, k)[0]) for k in self.FIELDS}
+
+
+#: the worst cases a run keeps: name -> what it is
+WORST = {
+    "eq51": "|e(s)| <= e^(-λsT)(|e(0)| + d|ē(0)|) + round-off (Theorem 1, (51))",
+    "sym": "||e(s)||_2 <= e^(-λsT)(||e(0)||_2 + d'||ē(0)||_2) + round-off (symmetric case)",
+    "c3": "max_i||π(q)|| and |e(s)| against the idealised attenuation (20) + round-off",
+    "eq63": "|e(s)| <= (63) + round-off (event-time offsets)",
+}
+#: largest values over trials (and cases) a run keeps: name -> what it is
+MAXIMA = {
+    "ratio51": "max |e(s)| / (e^(-λsT)(|e(0)| + d|ē(0)|))",
+    "ratio_sym": "max ||e(s)||_2 / (e^(-λsT)(||e(0)||_2 + d'||ē(0)||_2))",
+    "ratio63": "max |e(s)| / (the right-hand side of (63))",
+    "restart": "max over 1 <= s0 < s of |e(s)| / (the bound (51) restarted at s0, with round-off)",
+    "cont_printed": "max over t of ||e_i(t)|| / (e^(||A||T - λt)(|e(0)| + d|ē(0)|) + round-off)",
+    "cont_corrected": "max over t of ||e_i(t)|| / (e^((||A||+λ)T - λt)(|e(0)| + d|ē(0)|) + round-off)",
+    "res_minus": "max |e(s) - A(s)e(s-1) - B(s)ē(s-1) + G(s)x((s-1)T)| / size of the states ((41), (61'))",
+    "res_plus": "the same with +G(s)x((s-1)T) (the sign printed in (61))",
+    "c3_piq1": "max over trials of max_i||π_i1(q)||",
+    "c3_pi01": "max over trials of max_i||π_i1(0)||",
+    "eb_max": "max over events and trials of |ē(s)|",
+}
+COUNTS = ("restart", "res", "cont")
+
+
+class RunAccumulator:
+    """What a run keeps (see the module docstring); filled unit by unit in unit order."""
+
+    def __init__(self, sc: HybridScenario, run: RunSpec, layout_samples: int, grid0_ns: int, dt_ns: int, nw: int):
+        m, n, S = sc.m, sc.n, run.intervals
+        self.m, self.n, self.S = m, n, S
+        self.stride = max(1, -(-layout_samples // sc.stored_samples))
+        stored = list(range(0, layout_samples, self.stride))
+        if stored[-1] != layout_samples - 1:
+            stored.append(layout_samples - 1)
+        self.stored = {k: j for j, k in enumerate(stored)}
+        G = len(stored)
+        self.samples_total = layout_samples
+        self.t_ns = grid0_ns + dt_ns * np.array(stored, dtype=np.int64)
+        nan = np.nan
+        self.trial0 = {"e_pre": np.full((S + 1, m, n), nan), "e_post": np.full((S + 1, m, n), nan),
+                       "x_event": np.full((S + 1, m, n), nan), "ebar": np.full((S + 1, nw), nan),
+                       "x_nominal": np.full((S + 1, n), nan), "central": np.full((S + 1, m), nan),
+                       "floor": np.full(S + 1, nan), "carried": np.full(S + 1, nan), "carried_sym": np.full(S + 1, nan),
+                       "bound41": np.full((S + 1, m), nan), "bound51": np.full(S + 1, nan),
+                       "x": np.full((G, n), nan), "xhat": np.full((G, m, n), nan), "xc": np.full((G, n), nan),
+                       "err": np.full((G, m), nan), "cerr": np.full(G, nan), "xnorm": np.full(G, nan),
+                       "kf": np.full(G, nan)}
+        self.z0 = None
+        self.iter_hash = hashlib.blake2b(digest_size=16)
+        # per event index: count, mean, M2 of ||e_i(t_is)|| and of the centralized error; maxima
+        self.ev_count = np.zeros(S + 1, dtype=np.int64)
+        self.ev_mean, self.ev_m2 = np.zeros((S + 1, m)), np.zeros((S + 1, m))
+        self.ev_max = np.full((S + 1, m), -np.inf)
+        self.ce_mean, self.ce_m2 = np.zeros((S + 1, m)), np.zeros((S + 1, m))
+        self.net_mean, self.net_m2 = np.zeros(S + 1), np.zeros(S + 1)
+        self.net_max = np.full(S + 1, -np.inf)
+        self.bound51_max, self.ratio51_s = np.full(S + 1, nan), np.full(S + 1, nan)
+        # per stored sample: sums and maxima over trials
+        self.g_count = 0
+        self.g_sum, self.g_max = np.zeros((G, m)), np.full((G, m), -np.inf)
+        self.g_csum = np.zeros(G)
+        self.worst = {k: Worst(1) for k in WORST}
+        self.maxima = {k: -np.inf for k in MAXIMA}
+        self.counts = {k: 0 for k in COUNTS}
+        self.per_trial: dict[str, list] = {k: [] for k in ("fit_rate", "fit_first", "fit_stop", "fingerprint",
+                                                           "e0", "eb0")}
+
+    def merge_moments(self, s: int, n_u: int, mean_u: np.ndarray, m2_u: np.ndarray, cmean_u, cm2_u, nmean_u,
+                      nm2_u) -> None:
+        """Chan's update of count, mean and M2 with one unit's (in unit order)."""
+        n0 = self.ev_count[s]
+        tot = n0 + n_u
+        for mean, m2, mu, m2u in ((self.ev_mean, self.ev_m2, mean_u, m2_u), (self.ce_mean, self.ce_m2, cmean_u, cm2_u),
+                                  (self.net_mean, self.net_m2, nmean_u, nm2_u)):
+            delta = mu - mean[s]
+            mean[s] = mean[s] + delta * n_u / tot
+            m2[s] = m2[s] + m2u + delta ** 2 * n0 * n_u / tot
+        self.ev_count[s] = tot
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out = {f"t0_{k}": v for k, v in self.trial0.items()}
+        if self.z0 is not None:
+            out["t0_z"] = self.z0
+        sd = np.sqrt(self.ev_m2 / np.maximum(self.ev_count - 1, 1)[:, None])
+        out.update({"ev_count": self.ev_count, "ev_mean": self.ev_mean, "ev_sd": sd, "ev_max": self.ev_max,
+                    "ev_central_mean": self.ce_mean,
+                    "ev_central_sd": np.sqrt(self.ce_m2 / np.maximum(self.ev_count - 1, 1)[:, None]),
+                    "net_mean": self.net_mean, "net_sd": np.sqrt(self.net_m2 / np.maximum(self.ev_count - 1, 1)),
+                    "net_max": self.net_max, "bound51_max": self.bound51_max, "ratio51_s": self.ratio51_s,
+                    "g_t_ns": self.t_ns, "g_mean": self.g_sum / max(self.g_count, 1), "g_max": self.g_max,
+                    "g_central_mean": self.g_csum / max(self.g_count, 1), "g_stride": np.array(self.stride),
+                    "g_total": np.array(self.samples_total), "iterate_hash": np.array(self.iter_hash.hexdigest())})
+        for k, w in self.worst.items():
+            out.update(w.arrays(f"w_{k}"))
+        out.update({f"max_{k}": np.array(v) for k, v in self.maxima.items()})
+        out.update({f"count_{k}": np.array(v) for k, v in self.counts.items()})
+        out.update({f"trial_{k}": np.concatenate(v) if v else np.empty(0) for k, v in self.per_trial.items()})
+        return out
+
+
+class ChunkMonitor(ho.Monitor):
+    """Evaluates the bounds of one chunk of trials as the simulator hands over its samples,
+    intervals and events (see the module docstring)."""
+
+    def __init__(self, ctx: dict, acc: RunAccumulator, sizes: list[int], first: int):
+        self.ctx, self.acc, self.sizes, self.first = ctx, acc, sizes, first
+        self.edges = np.cumsum([0, *sizes])
+        self.has0 = first == 0
+
+    # -- set-up ----------------------------------------------------------------------------------
+    def start(self, L: ho.RunLayout) -> None:
+        c = self.ctx
+        self.L = L
+        B, m = L.B, L.m
+        self.prev = None
+        self.exact = None                          # e^(F_i sT) ē_i(0), per trial
+        self.dev_prev = self.dev2_prev = None
+        self.carried, self.carried_sym = np.zeros(B), np.zeros(B)
+        self.restart_min = np.full(B, np.inf)
+        self.X_prev = None
+        self.K0 = self.K0sym = None
+        self.conv = np.zeros(B)
+        self.intervals: dict[int, tuple] = {}
+        self.cont = [np.full(B, -np.inf), np.full(B, -np.inf)]
+        self.maxima = {k: np.full(B, -np.inf) for k in ("ratio51", "ratio_sym", "ratio63", "restart", "res_minus",
+                                                        "res_plus", "eb_max")}
+        self.worst = {k: Worst(B) for k in WORST}
+        self.counts = {k: 0 for k in COUNTS}
+        self.fit = {k: np.zeros(B) for k in ("n", "mt", "my", "stt", "sty")}
+        self.fit_active = np.ones(B, dtype=bool)
+        self.fit_stop = np.full(B, -1, dtype=np.int64)
+        self.fp = np.zeros(B, dtype=np.uint64)
+        self.fp_coef = np.random.default_rng(20_170_614).integers(1, 2**62, size=m * L.n, dtype=np.uint64) | np.uint64(1)
+        self.c3_first = [np.full(B, np.nan), np.full(B, np.nan)]
+        self.ef_now, self.efs_now = np.zeros(B), np.zeros(B)      # carried round-off at the current event index
+        self.ef_next, self.efs_next, self.ef_prev = np.zeros(B), np.zeros(B), np.zeros(B)
+        self.s_last = -1
+        self.kf = c["make_kf"]() if (self.has0 and c["run"].noise) else None
+        self.z_keep = c["iter_keep"]
+        self.w_starts = np.array([w.start for w in L.w_slices])
+
+    def units(self):
+        return [(a, b) for a, b in zip(self.edges[:-1], self.edges[1:])]
+
+    def unit_moments(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per RNG unit: the mean and the sum of squared deviations from it of every column, (U, k)."""
+        sizes = np.diff(self.edges)
+        means = np.add.reduceat(values, self.edges[:-1], axis=0) / sizes[:, None]
+        dev = values - np.repeat(means, sizes, axis=0)
+        return means, np.add.reduceat(dev * dev, self.edges[:-1], axis=0)
+
+    # -- samples ----------------------------------------------------------------------------------
+    def sample(self, k: int, t_ns: int, X: np.ndarray) -> None:
+        c, acc, L = self.ctx, self.acc, self.L
+        m, n = L.m, L.n
+        first = X.shape[1] - m * n - n
+        x = X[:, :n]
+        kf_err = None
+        if self.kf is not None:
+            if k:
+                self.kf.predict()
+            self.kf.update(c["Cs"] @ x[0])
+            kf_err = float(np.linalg.norm(self.kf.x - x[0]))
+        j = acc.stored.get(k)
+        if j is None and not c["continuous"]:
+            return                                          # nothing to evaluate or keep at this sample
+        xh, xc = X[:, first:first + m * n].reshape(-1, m, n), X[:, -n:]
+        diff = xh - x[:, None]
+        err = np.sqrt(np.einsum("bij,bij->bi", diff, diff))                 # (B, m), ||x_i - x||
+        xnorm = np.sqrt(np.einsum("bi,bi->b", x, x))
+        if c["continuous"]:
+            s_now = int(min(max(math.floor(t_ns / ho.NS / c["T"] + 1e-9), 0), L.S))
+            emax = rowmax(err)
+            floor = c["tol"] * np.maximum(1.0, xnorm + emax) + c["enAT"] * self.ef_at(s_now)
+            t = t_ns / ho.NS
+            for j_, extra in enumerate((0.0, c["lam"] * c["T"])):
+                bound = math.exp(c["nA"] * c["T"] + extra - c["lam"] * t) * self.K0 + floor
+                np.maximum(self.cont[j_], emax / bound, out=self.cont[j_])
+            self.counts["cont"] += len(emax)
+        if j is None:
+            return
+        if self.has0:
+            t0 = acc.trial0
+            t0["x"][j], t0["xhat"][j], t0["xc"][j] = x[0], xh[0], xc[0]
+            t0["err"][j], t0["xnorm"][j] = err[0], xnorm[0]
+            t0["cerr"][j] = np.linalg.norm(xc[0] - x[0])
+            if kf_err is not None:
+                t0["kf"][j] = kf_err
+        cerr = rownorm(xc - x)
+        for a, b in self.units():
+            acc.g_sum[j] += err[a:b].sum(axis=0)
+            acc.g_csum[j] += cerr[a:b].sum()
+        acc.g_max[j] = np.maximum(acc.g_max[j], err.max(axis=0))
+
+    def ef_at(self, s: int) -> np.ndarray:
+        """The carried round-off of the local observer errors at event index s (known once event
+        s-1 is in)."""
+        return self.ef_now if s <= self.s_last else self.ef_next
+
+    # -- intervals ----------------------------------------------------------------------------------
+    def interval(self, data: ho.IntervalData) -> None:
+        # interval s's iterations run when every agent has reached event s-1, which the simulator
+        # hands over just after: keep them by s until event s is in
+        self.intervals[data.s] = (data.W, data.pi0_max, data.piq_max)
+        if self.has0:
+            acc = self.acc
+            acc.iter_hash.update(np.ascontiguousarray(data.traj0).tobytes())
+            if data.s <= self.z_keep:
+                if acc.z0 is None:
+                    acc.z0 = np.full((self.z_keep, *data.traj0.shape), np.nan)
+                acc.z0[data.s - 1] = data.traj0
+
+    # -- events -------------------------------------------------------------------------------------
+    def event(self, ev: ho.EventData) -> None:
+        c, acc, L = self.ctx, self.acc, self.L
+        s, m, n, B = ev.s, L.m, L.n, L.B
+        sl = L.w_slices
+        starts = self.w_starts
+        e_i = rownorm(ev.e_post)                                                   # (B, m)
+        pre_i = rownorm(ev.e_pre)
+        eb_sq = np.add.reduceat(ev.ebar * ev.ebar, starts, axis=1)                 # (B, m): ||ē_i||²
+        eb_i = np.sqrt(eb_sq)
+        e_mix, eb_mix = rowmax(e_i), rowmax(eb_i)
+        e2 = np.sqrt(np.einsum("bi,bi->b", e_i, e_i))
+        eb2 = np.sqrt(eb_sq.sum(axis=1))
+        xs = rowmax(rownorm(ev.x_event))
+        xh = rowmax(rownorm(ev.e_post + ev.x_event))
+        scale = np.nan_to_num(np.maximum.reduce([xs, xh, eb2, np.ones(B)]), nan=1.0)
+        floor = c["tol"] * scale
+        # δē(s) = ē(s) - e^(F_i sT) ē(0): the simulation's round-off in the local observer errors
+        self.ef_prev = self.ef_now                                    # EF(s-1)
+        if s == 0:
+            self.exact = ev.ebar.copy()
+            dev_i = np.zeros((B, m))
+            self.ef_now, self.efs_now = np.zeros(B), np.zeros(B)
+        else:
+            self.exact = ho.rowwise_matmul(self.exact, c["steps_block"])        # e^(F_i sT) ē_i(0), every agent
+            gap = ev.ebar - self.exact
+            dev_i = np.sqrt(np.add.reduceat(gap * gap, starts, axis=1))
+            self.ef_now, self.efs_now = self.ef_next, self.efs_next
+        dev, dev2 = rowmax(dev_i), np.sqrt(np.einsum("bi,bi->b", dev_i, dev_i))
+        lamT = c["lam"] * c["T"]
+        # carried round-off of ē: EF(s+1) = e^(-λT) EF(s) + b δē(s)  (and its 2-norm analogue)
+        self.ef_next = math.exp(-lamT) * self.ef_now + c["b"] * dev
+        self.efs_next = math.exp(-lamT) * self.efs_now + c["b_sym"] * dev2
+        self.s_last = s
+        bound_floor = floor + self.ef_now
+        self.maxima["eb_max"] = np.fmax(self.maxima["eb_max"], eb_mix)
+        # statistics over trials, unit by unit in unit order
+        cen = ev.central
+        means, m2s = self.unit_moments(np.concatenate([e_i, cen, e_mix[:, None]], axis=1))
+        for u, (a, b) in enumerate(self.units()):
+            acc.merge_moments(s, b - a, means[u, :m], m2s[u, :m], means[u, m:2 * m], m2s[u, m:2 * m], means[u, -1],
+                              m2s[u, -1])
+        acc.ev_max[s] = np.maximum(acc.ev_max[s], e_i.max(axis=0))
+        acc.net_max[s] = max(acc.net_max[s], float(e_mix.max()))
+        # per-trial fingerprint of e(s), for the bitwise comparison of Theorem 2
+        bits = np.ascontiguousarray(ev.e_post.reshape(B, -1)).view(np.uint64)
+        self.fp = self.fp * np.uint64(1_000_003) + (bits * self.fp_coef[None, :]).sum(axis=1, dtype=np.uint64)
+        if self.has0:
+            t0 = acc.trial0
+            for key in ("e_pre", "e_post", "x_event", "ebar", "x_nominal", "central"):
+                t0[key][s] = getattr(ev, key)[0]
+            t0["floor"][s], t0["carried"][s], t0["carried_sym"][s] = floor[0], self.ef_now[0], self.efs_now[0]
+        if s == 0:
+            self.K0 = e_mix + c["d"] * eb_mix
+            self.K0sym = e2 + c["d_sym"] * eb2
+            self.per_trial_start = (e_mix, eb_mix)
+        else:
+            self.W, pi0, piq = self.intervals.pop(s)
+            self.pi = (pi0, piq)
+            self._recursion(ev, s, scale)
+            self._bounds(s, e_mix, eb_mix, e2, pre_i, floor, bound_floor, dev, ev)
+        self.prev = (ev, e_mix, eb_mix, floor)
+        self.X_prev = e_mix + c["d"] * (eb_mix + dev) - self.ef_now        # X(s) of the restarted bound
+        if s == L.S:
+            self._finish_fit()
+
+    def _recursion(self, ev: ho.EventData, s: int, scale: np.ndarray) -> None:
+        """(41) / (61') on interval s, and the per-agent one-step bound of trial 0."""
+        c, L = self.ctx, self.L
+        if c["noise"] or not L.participating[s - 1].all():
+            return
+        B, m, n = L.B, L.m, L.n
+        pev = self.prev[0]
+        mats, (nA_, nB_, nG_), _ = c["matrices"].get(self.W, L.participating[s - 1])
+        rm = ho.rowwise_matmul                               # per-trial sums: the same whatever the chunk
+        base = rm(pev.e_post.reshape(B, m * n), mats.A.T) + rm(pev.ebar, mats.B.T)
+        xg = rm(pev.x_nominal, mats.G.T)
+        cur = ev.e_post.reshape(B, m * n)
+        res_scale = np.maximum.reduce([rowmax(rownorm(ev.x_event)), rowmax(rownorm(pev.x_event)),
+                                       rowmax(np.abs(pev.e_post).reshape(B, -1)), rownorm(pev.ebar), np.ones(B)])
+        self.maxima["res_minus"] = np.maximum(self.maxima["res_minus"], rowmax(np.abs(cur - (base - xg))) / res_scale)
+        self.maxima["res_plus"] = np.maximum(self.maxima["res_plus"], rowmax(np.abs(cur - (base + xg))) / res_scale)
+        self.counts["res"] += B
+        if self.has0:
+            e_prev = np.linalg.norm(pev.e_post[0], axis=-1)
+            eb_prev = np.array([np.linalg.norm(pev.ebar[0, w]) for w in L.w_slices])
+            self.acc.trial0["bound41"][s] = nA_ @ e_prev + nB_ @ eb_prev + nG_[:, 0] * np.linalg.norm(pev.x_nominal[0])
+
+    def _bounds(self, s, e_mix, eb_mix, e2, pre_i, floor, bound_floor, dev, ev) -> None:
+        c = self.ctx
+        lamT = c["lam"] * c["T"]
+        decay = math.exp(-lamT * s)
+        _, e_prev, eb_prev, floor_prev = self.prev
+        if c["theorem"]:
+            rhs = decay * self.K0
+            self.worst["eq51"].update(e_mix, rhs + bound_floor)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio = e_mix / rhs
+            self.maxima["ratio51"] = np.fmax(self.maxima["ratio51"], ratio)
+            acc = self.acc
+            acc.bound51_max[s] = np.fmax(acc.bound51_max[s], float(rhs.max()))
+            acc.ratio51_s[s] = np.fmax(acc.ratio51_s[s], float(np.nanmax(ratio, initial=-np.inf)))
+            if self.has0:
+                acc.trial0["bound51"][s] = rhs[0]
+        if c["restart"]:
+            # min over 1 <= s0 < s of e^(-λ(s-s0)T) X(s0), X(s0) = e(s0) + d(ē(s0) + δē(s0)) - EF(s0)
+            if s >= 2:
+                self.restart_min = math.exp(-lamT) * np.minimum(self.restart_min, self.X_prev)
+                bound = self.restart_min + self.ef_now + floor
+                self.maxima["restart"] = np.maximum(self.maxima["restart"], e_mix / bound)
+                self.counts["restart"] += len(e_mix) * (s - 1)
+        if c["continuous"]:                    # the left limits e_i(t_is⁻) against the continuous bound
+            pre = rowmax(pre_i)
+            pre_floor = floor + c["enAT"] * self.ef_prev                      # tol·scale(s) + e^(||A||T) EF(s-1)
+            for j, extra in enumerate((0.0, lamT)):
+                bound = math.exp(c["nA"] * c["T"] + extra - lamT * s) * self.K0 + pre_floor
+                self.cont[j] = np.maximum(self.cont[j], pre / bound)
+        if c["fit"] and s >= FIT_SKIP:
+            hit = self.fit_active & (e_mix <= floor)
+            self.fit_stop = np.where(hit, s, self.fit_stop)
+            self.fit_active &= ~hit
+            a = self.fit_active
+            if a.any():
+                t = float(self.L.event_ns[0, s]) / ho.NS
+                with np.errstate(divide="ignore"):
+                    y = np.log(e_mix)
+                f = self.fit
+                f["n"] = np.where(a, f["n"] + 1, f["n"])
+                dt = t - f["mt"]
+                f["mt"] = np.where(a, f["mt"] + dt / np.maximum(f["n"], 1), f["mt"])
+                dy = y - f["my"]
+                f["my"] = np.where(a, f["my"] + dy / np.maximum(f["n"], 1), f["my"])
+                f["stt"] = np.where(a, f["stt"] + dt * (t - f["mt"]), f["stt"])
+                f["sty"] = np.where(a, f["sty"] + dt * (y - f["my"]), f["sty"])
+        if c["ideal"]:
+            pi0, piq = self.pi
+            alpha_p, qQ = c["alpha_p"], c["qQ"]
+            Bs = c["B_mixed"][s - 1]
+            Bs = c["b"] if math.isnan(Bs) else Bs
+            lhs = np.stack([piq, e_mix], axis=1)
+            rhs = np.stack([alpha_p * pi0 + qQ * eb_prev + floor_prev,
+                            c["enAT"] * alpha_p * e_prev + Bs * eb_prev + floor], axis=1)
+            self.worst["c3"].update(lhs, rhs)
+            if s == 1:
+                self.c3_first = [pi0.copy(), piq.copy()]
+        if c["symmetric"]:
+            rhs = decay * self.K0sym
+            self.worst["sym"].update(e2, rhs + floor * math.sqrt(self.L.m) + self.efs_now)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                self.maxima["ratio_sym"] = np.fmax(self.maxima["ratio_sym"], e2 / rhs)
+        if c["eq63"]:
+            xn = rownorm(self.prev[0].x_nominal)
+            self.conv = math.exp(-lamT) * self.conv + xn                   # Σ_{k=1}^{s} e^(-λ(s-k)T) ||x((k-1)T)||
+            rhs = decay * self.K0 + c["eps"] * c["g"] * self.conv
+            self.worst["eq63"].update(e_mix, rhs + bound_floor)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                self.maxima["ratio63"] = np.fmax(self.maxima["ratio63"], e_mix / rhs)
+
+    def _finish_fit(self) -> None:
+        f = self.fit
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rate = np.where(f["n"] >= 3, -f["sty"] / f["stt"], np.nan)
+        self.fit_rate = rate
+        self.fit_stop = np.where(self.fit_stop < 0, self.L.S + 1, self.fit_stop)
+
+    # -- the end of the chunk -----------------------------------------------------------------------
+    def finish(self):
+        acc = self.acc
+        for a, b in self.units():
+            for k, w in self.worst.items():
+                acc.worst[k].merge(w.part(a, b))
+            acc.per_trial["fit_rate"].append(getattr(self, "fit_rate", np.full(self.L.B, np.nan))[a:b])
+            acc.per_trial["fit_first"].append(np.full(b - a, FIT_SKIP, dtype=np.int64))
+            acc.per_trial["fit_stop"].append(self.fit_stop[a:b])
+            acc.per_trial["fingerprint"].append(self.fp[a:b])
+            acc.per_trial["e0"].append(self.per_trial_start[0][a:b])
+            acc.per_trial["eb0"].append(self.per_trial_start[1][a:b])
+        for k, v in self.maxima.items():
+            acc.maxima[k] = _nanmax(acc.maxima[k], v)
+        acc.maxima["cont_printed"] = _nanmax(acc.maxima["cont_printed"], self.cont[0])
+        acc.maxima["cont_corrected"] = _nanmax(acc.maxima["cont_corrected"], self.cont[1])
+        acc.maxima["c3_pi01"] = _nanmax(acc.maxima["c3_pi01"], self.c3_first[0])
+        acc.maxima["c3_piq1"] = _nanmax(acc.maxima["c3_piq1"], self.c3_first[1])
+        for k, v in self.counts.items():
+            acc.counts[k] += v
+        acc.g_count += self.L.B
+        return acc
+
+
+rowmax, rownorm = ho.row_max, ho.row_norms
+
+
+def _nanmax(current: float, values: np.ndarray) -> float:
+    """The running maximum of a check quantity; NaN (a comparison that could not be made) sticks."""
+    if math.isnan(current) or np.isnan(values).any():
+        return float("nan")
+    return max(current, float(np.max(values)))
+
+
+# -- a whole run ---------------------------------------------------------------------------------------
+
+#: arrays of a run's result that must be finite (a NaN or inf there is a numerical failure); the
+#: others hold NaN where a quantity does not apply (intervals an agent sat out, checks a run skips)
+MUST_BE_FINITE = ("t0_e_post", "t0_x_event", "ev_mean", "ev_max", "net_max")
+
+
+def run_epsilon(run: RunSpec) -> float:
+    """ε of (24): the largest jitter bound (asynchronous runs) or event-time offset (Section 4)."""
+    if run.timing == "offset":
+        return max(abs(x) for x in run.offsets)
+    return max(run.epsilon) if run.timing == "async" else 0.0
+
+
+def bytes_per_trial(sc: HybridScenario, n_i) -> float:
+    """Memory one trial needs while its chunk is simulated: the state (D numbers) and the
+    propagated copy, up to three open event indices and two intervals' captured data, the
+    iteration, the monitor's per-trial worst cases, and numpy's temporaries (measured 6.3 kB for
+    m = 8, n = 4, D = 58; this model gives 9.7 kB there)."""
+    m, n = sc.m, sc.n
+    nw = int(np.sum(n_i))
+    D = n + nw + 2 + m * n + n
+    return 8.0 * (6 * D + 20 * m * n + 6 * nw + 8 * m + 60)
+
+
+def simulate_run(sc: HybridScenario, design: dict, run: RunSpec, trials: int, seed: int,
+                 budget_bytes: float) -> dict[str, np.ndarray]:
+    """The interval plan, then every trial in RNG units within `budget_bytes` per chunk."""
+    from filterpy.kalman import KalmanFilter
+
+    plan = interval_plan(sc, run, seed)
+    d = observer_design(sc)
+    m, n = sc.m, sc.n
+    nw = sum(d.n_i)
+    B_total = trials if run.mc else 1
+    tol, _ = simulation_tolerance(sc, design, run, plan)
+    k = constants(design, sc, run)
+    alpha, _ = alpha_used(design)
+    N = (m - 1) ** 2 + 1
+    ev = plan["event_ns"]
+    eAT = scipy.linalg.expm(sc.A * (ho.to_ns(sc.T) / ho.NS))
+    Cs = np.vstack(sc.C)
+
+    def make_kf():
+        """A centralized Kalman filter (filterpy) on the stacked outputs sampled every sampling
+        step, trial 0; the harmonic input is modelled as white process noise of the same power."""
+        kf = KalmanFilter(dim_x=n, dim_z=Cs.shape[0])
+        kf.F, kf.H = scipy.linalg.expm(sc.A * sc.sample_step), Cs
+        b = sc.noise_b if sc.noise_b is not None else np.zeros(n)
+        kf.Q = 0.5 * np.outer(b, b) * sc.sample_step + 1e-12 * np.eye(n)
+        kf.R = 1e-6 * np.eye(Cs.shape[0])
+        kf.x, kf.P = np.zeros(n), 100.0 * np.eye(n)
+        return kf
+
+    theorem = is_theorem_run(run)
+    ctx = {"run": run, "tol": tol, "lam": sc.lam, "T": sc.T, "nA": k["norm_A"], "enAT": math.exp(k["norm_A"] * sc.T),
+           "b": k["b"], "b_sym": k["b_sym"], "d": k["d"], "d_sym": k["d_sym"], "g": k["g"], "eps": run_epsilon(run),
+           "noise": run.noise, "theorem": theorem, "restart": theorem and run.timing == "sync",
+           "continuous": theorem and run.timing == "sync", "fit": theorem and run.timing == "sync",
+           "ideal": run.ideal and run.rule == "mean" and run.leave is None and not run.noise and alpha is not None,
+           "alpha_p": (alpha ** (run.q // N)) if alpha is not None else float("nan"),
+           "qQ": run.q * float(design["Q_mixed"]), "B_mixed": plan["B_mixed"],
+           "symmetric": run.rule == "symmetric" and run.leave is None and not run.noise,
+           "eq63": run.timing == "offset" and theorem,
+           "steps_block": scipy.linalg.block_diag(*[scipy.linalg.expm(d.F(i) * (ho.to_ns(sc.T) / ho.NS)) for i in range(m)]).T,
+           "Cs": Cs, "make_kf": make_kf,
+           "matrices": MatrixCache(sc, d, eAT, offset_exponentials(sc, ev)), "iter_keep": plan["sources0"].shape[0]}
+    _, _, grid0, dt_ns, samples = ho.sample_grid(ev[:, 0], ho.to_ns(sc.T), run.intervals, sc.sample_step)
+    acc = RunAccumulator(sc, run, samples, grid0, dt_ns, nw)
+    Kc = central_gain(sc)
+    done = [0]
+
+    def chunk(streams):
+        x0 = sc.ic_scale * streams.standard_normal((n,))
+        w0 = sc.ic_scale * streams.standard_normal((nw,))
+        xh = sc.ic_scale * streams.standard_normal((m, n))
+        if done[0] == 0:                                   # trial 0: the scenario's initial conditions
+            x0[0], xh[0] = sc.x0, sc.xhat0
+            w0[0] = sc.w0 if sc.w0 is not None else 0.0
+        if run.ideal:
+            w0 = np.concatenate([ho.rowwise_matmul(x0, L.T) for L in d.L], axis=1)
+        members = ()
+        if run.leave is not None:
+            ag = run.leave.agent
+            members = memberships(run, xh[:, ag], w0[:, d.w_slices[ag]])
+        monitor = ChunkMonitor(ctx, acc, streams.sizes, done[0])
+        ho.simulate(d, timing_for(sc, run, seed), schedule_for(sc, run), x0=x0, w0=w0, xhat0=xh,
+                    intervals=run.intervals, dt_plot=sc.sample_step, rule=run.rule,
+                    noise_b=sc.noise_b if run.noise else None, noise_omega=sc.noise_omega, membership=members,
+                    central_gain=Kc, xc0=xh.mean(axis=1), monitor=monitor)
+        done[0] += streams.n
+        return [acc] * len(streams.sizes)          # every unit is already merged into acc, in unit order
+
+    run_units(chunk, lambda _, part: part, B_total, stream_seed(seed, "initial-conditions"),
+              bytes_per_trial=bytes_per_trial(sc, d.n_i), budget_bytes=budget_bytes)
+    out = dict(plan)
+    out.update(acc.arrays())
+    out["trials"] = np.array(B_total)
+    return out

@@ -1,0 +1,182 @@
+"""The cost model of a hybrid-observer run (`dse check`, and the refusal of runs whose
+non-streamable part does not fit the memory budget): seconds and peak memory from the
+scenario's sizes, without simulating.
+
+Time: the design (ρ's branch and bound, σ's enumeration), the sampled Lemma 5/6 checks, and
+per run the interval plan (A(s), B(s), G(s) once per distinct weight sequence) and the trials:
+every time instant (sample or event) costs a fixed overhead per chunk of trials and B D² for
+the propagation of the B trials' states, every estimator iteration a fixed overhead and
+B (mn)², and every sample at which the continuous bound is checked or stored B·mn; then the
+tables, figures and recordings. Memory: the interpreter and libraries, the largest chunk of
+trials, and what is kept whole: trial 0 at every event index and stored sample, statistics per
+event and sample, trial 0's iterates and source sets of the first intervals, and the tables
+built from them. The constants are fitted to the CPU time of measured runs on this machine (2 to
+32 agents, 15 to 2,000 intervals, q 5 to 2,000, 8 to 20,000 trials: every fitted time within
+0.9-1.1 of the measurement; `benchmarks/bench_wang_liu_morse.py --estimate` compares whole runs):
+the estimate is meant within a factor 2 of an unloaded machine's wall time.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from dse.errors import ScenarioError
+from dse.engine.driver import RunOptions
+
+from . import bounds
+from .scenario import SIGMA_MAX_AGENTS, HybridScenario
+
+#: fitted CPU seconds (this machine, one BLAS thread): per time instant and chunk, per trial·D² of the
+#: propagation, per iteration and chunk, per trial·(mn)² of an iteration, per event index and chunk, per
+#: trial·((mn)² + 20 mn) of an event's bounds, per trial·mn of a checked or stored sample
+INSTANT_S = 2.2e-5
+PROPAGATION_S = 7.3e-11
+ITERATION_S = 9.5e-6
+ITERATION_FLOP_S = 5e-11
+EVENT_S = 3.8e-4
+EVENT_FLOP_S = 9.1e-11
+SAMPLE_CHECK_S = 4.2e-8
+#: design: fixed, per prefix of ρ's branch and bound, per flop of σ and of the Lemma 5/6 samples
+DESIGN_S = 0.1
+RHO_PREFIX_S = 6e-7
+#: Section 4's model-mismatch demonstration (two filterpy Kalman filters over 2,000 steps; the paper's extras)
+MISMATCH_S = 0.4
+#: outputs: per figure, per recording, per table row (build and write)
+FIGURE_S = 0.15
+RECORDING_S = 0.08
+#: importing the numeric, table, plotting and recording libraries
+IMPORT_S = 1.2
+ROW_S = 2e-6
+BASE_MIB = 330.0
+#: what the pipeline reserves for the interpreter and libraries in a memory budget (RunOptions)
+INTERPRETER_MIB = 200.0
+TABLE_ROW_BYTES = 160.0
+#: the tables' frames and their Parquet and CSV encodings alive at once, at the peak
+TABLE_COPIES = 1.5
+
+
+def _n_i(sc: HybridScenario) -> list[int]:
+    import dse.estimators.jointly_observable_design as jd
+
+    return [jd.local_design(sc.A, C, rank_tol=sc.rank_tol, L=None if sc.L_given is None else sc.L_given[i]).n_i
+            for i, C in enumerate(sc.C)]
+
+
+def _flop_s(mn: int) -> float:
+    """Seconds per flop of the dense products of the design checks (BLAS is faster on larger blocks)."""
+    return 6e-11 + 1.5e-7 / mn ** 2
+
+
+def _design_seconds(sc: HybridScenario, extras: bool) -> float:
+    import dse.estimators.jointly_observable_design as jd
+
+    m, n = sc.m, sc.n
+    mn = m * n
+    N = (m - 1) ** 2 + 1
+    prefixes = min(jd.count_complete_repeat_free_words(min(m, 6), min(N, 26)), 2_000_000) if m > 4 else 1e4
+    seconds = DESIGN_S + prefixes * RHO_PREFIX_S * (1 + extras * m)
+    if m <= SIGMA_MAX_AGENTS:
+        seconds += len(jd.connected_undirected_graphs(m)) * mn ** 3 * _flop_s(mn)
+    return seconds + sample_seconds(sc) + (0.25 if extras else 0.0)
+
+
+def sample_seconds(sc: HybridScenario) -> float:
+    """The sampled checks of Lemmas 5 and 6 (`design.lemma_samples`)."""
+    from .design import LEMMA5_FLOPS, LEMMA5_SAMPLES, LEMMA6_FLOPS, LEMMA6_SAMPLES
+
+    m, mn = sc.m, sc.m * sc.n
+    per_product = ((m - 1) ** 2 + 1) * mn ** 3
+    pool = 1606 if m == 4 else (4000 if m > 4 else 50)
+    samples = min(LEMMA5_SAMPLES, max(min(pool, LEMMA5_SAMPLES), LEMMA5_FLOPS // per_product))
+    if per_product * min(samples, pool) > 20 * LEMMA5_FLOPS:
+        samples = max(1, 20 * LEMMA5_FLOPS // per_product)
+    lemma6 = max(1, min(LEMMA6_SAMPLES, LEMMA6_FLOPS // mn ** 3)) * mn ** 3
+    return (samples * per_product + lemma6) * _flop_s(mn)
+
+
+def run_cost(sc: HybridScenario, run, trials: int, n_i: list[int], budget_bytes: float) -> dict[str, float]:
+    """Seconds and bytes of one run (see the module docstring)."""
+    m, n, S, q = sc.m, sc.n, run.intervals, run.q
+    mn = m * n
+    nw = sum(n_i)
+    D = n + nw + 2 + mn + n
+    B = trials if run.mc else 1
+    samples = S * sc.T / sc.sample_step + 1
+    instants = samples + S * m
+    per_trial = bounds.bytes_per_trial(sc, n_i)
+    chunk = min(B, max(1, int(budget_bytes // max(per_trial * 1000, 1.0))) * 1000)
+    chunks = math.ceil(B / chunk)
+    distinct = min(S, 2 * max(1, len(sc.graphs))) + (6 if run.leave else 0)
+    matrices = distinct * (1 + chunks) * q * mn * mn * (m + n) * _flop_s(mn)
+    checked = samples if (bounds.is_theorem_run(run) and run.timing == "sync") else min(samples, sc.stored_samples)
+    trials_s = (instants * chunks * INSTANT_S + instants * B * D * D * PROPAGATION_S + S * q * chunks * ITERATION_S
+                + S * q * B * mn * mn * ITERATION_FLOP_S + S * chunks * EVENT_S + S * B * (mn * mn + 20 * mn) * EVENT_FLOP_S
+                + checked * B * mn * SAMPLE_CHECK_S)
+    kf = samples * 6e-5 if run.noise else 0.0
+    stored = min(samples, sc.stored_samples)
+    keep = max(1, min(S, bounds.SOURCE_VALUES // max(q * m * m, 1), bounds.ITERATE_VALUES // max((q + 1) * mn, 1)))
+    kept_bytes = 8 * ((S + 1) * (4 * mn + nw + 8 * m + 20) + stored * (n * (m + 2) + 3 * m + 8)
+                      + keep * ((q + 1) * mn + q * m * m + m * (q + 1)) + 30 * B + 6 * S)
+    table_rows = ((S + 1) * m * 3 + stored * (m + 1) + min(stored * n * (m + 2), 2_000_000) + keep * (q + 1) * m
+                  + keep * q * m * 2 + S + B + 60)
+    return {"seconds": S * 2e-4 + matrices + trials_s + kf + table_rows * ROW_S + RECORDING_S,
+            "chunk_bytes": chunk * per_trial, "kept_bytes": kept_bytes, "table_bytes": table_rows * TABLE_ROW_BYTES,
+            "trials": B, "chunks": chunks, "samples": samples}
+
+
+def estimate(scenarios: dict[str, HybridScenario], opts: RunOptions, *, extras: bool = False) -> dict[str, Any]:
+    from .compute import trial_count
+
+    budget = opts.chunk_budget_bytes()
+    runs = sum(len(sc.runs) for sc in scenarios.values())
+    figures = 9 if extras else 4 + runs                  # the paper's figures; a user's: 4 and one per run
+    seconds, kept, tables, chunk, parts = IMPORT_S + figures * FIGURE_S, 0.0, 0.0, 0.0, []
+    for name, sc in scenarios.items():
+        n_i = _n_i(sc)
+        trials = trial_count(sc, opts)
+        design_s = _design_seconds(sc, extras)
+        costs = [run_cost(sc, run, trials, n_i, budget) for run in sc.runs]
+        run_s = sum(c["seconds"] for c in costs) / max(1, min(opts.workers, len(costs)))
+        seconds += design_s + run_s
+        kept += sum(c["kept_bytes"] for c in costs)
+        tables += sum(c["table_bytes"] for c in costs)
+        chunk = max(chunk, max(c["chunk_bytes"] for c in costs) * max(1, min(opts.workers, len(costs))))
+        parts.append(f"{name}: design ≈{design_s:.2g} s, {len(costs)} runs ≈{run_s:.3g} s "
+                     f"({sum(c['samples'] for c in costs):,.0f} samples, {max(c['trials'] for c in costs):,} trials, "
+                     f"{max(c['chunks'] for c in costs)} chunk(s))")
+    mib = BASE_MIB + (chunk + kept + TABLE_COPIES * tables) / 2**20
+    return {"seconds": seconds, "peak_memory_mib": mib,
+            "detail": "; ".join(parts) + f"; kept whole {kept / 2**20:.3g} MiB, tables {tables / 2**20:.3g} MiB, "
+                      f"largest chunk {chunk / 2**20:.3g} MiB"}
+
+
+def refuse_beyond_budget(scenarios: dict[str, HybridScenario], opts: RunOptions) -> None:
+    """What cannot be streamed (trial 0 and the statistics at every event index and stored sample,
+    and the tables made of them) must fit the memory budget: else one ScenarioError naming the
+    largest run's `intervals` (or `sampling.stored` when the stored samples dominate) and the
+    estimate, before anything runs."""
+    from .compute import trial_count
+
+    budget_mib = opts.memory_budget_mib
+    total, worst = INTERPRETER_MIB, None
+    for sc in scenarios.values():
+        n_i = _n_i(sc)
+        for i, run in enumerate(sc.runs):
+            c = run_cost(sc, run, trial_count(sc, opts), n_i, opts.chunk_budget_bytes())
+            mib = (c["kept_bytes"] + TABLE_COPIES * c["table_bytes"]) / 2**20
+            total += mib
+            if worst is None or mib > worst[0]:
+                worst = (mib, i, c, sc)
+    if worst is not None and total > budget_mib:
+        mib, i, c, sc = worst
+        by_samples = min(c["samples"], sc.stored_samples) * sc.n * (sc.m + 2) > (run_intervals(sc, i) + 1) * sc.m * 3
+        field = "sampling.stored" if by_samples else f"runs[{i}].intervals"
+        raise ScenarioError(field, f"the run needs about {total:,.0f} MiB ({total - INTERPRETER_MIB:,.0f} MiB that "
+                                   f"cannot be streamed: trial 0 and the statistics at every event index and stored "
+                                   f"sample, and their tables, {mib:,.0f} MiB of it for runs[{i}]), more than the memory "
+                                   f"budget of {budget_mib:,.0f} MiB (--max-memory); fewer intervals or stored samples "
+                                   "fit")
+
+
+def run_intervals(sc: HybridScenario, i: int) -> int:
+    return sc.runs[i].intervals

@@ -1,0 +1,67 @@
+"""docs/scenarios.md, generated from the families' declared scenario keys.
+
+    .venv/bin/python -m dse.scenario.docs          # rewrite docs/scenarios.md
+    .venv/bin/python -m dse.scenario.docs --check  # exit 1 when the page and the code disagree
+
+Each family's reproduction module exposes `SCENARIO_MODEL`, the `dse.scenario.declare.Section`
+of a whole scenario file, and `FAMILY_INTRO`, one paragraph on what the family models.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+
+PAGE = Path(__file__).resolve().parents[2] / "docs" / "scenarios.md"
+
+POLICY = """## Rules common to every family
+
+- A scenario file is TOML with `family = "<family>"` and an optional `name` (letters, digits,
+  `-` and `_`, at most 64 characters; it names the output directory `OUT/run/<name>/`).
+- Unknown keys are errors (a typo never falls back to a default). Numbers must be finite and of
+  magnitude at most 1e100; where an integer is required a float is rejected (write 3, not 3.0);
+  strings are never converted to numbers.
+- Graphs: nodes are 0..n-1; edges are undirected and listed once; self-loops and repeated edges
+  (also reversed) are rejected. A network has at least 2 nodes. A family whose theorems need a
+  connected graph rejects a disconnected one; a family for which a disconnected network is
+  meaningful accepts it and reports connectivity as a hypothesis that does not hold.
+- Matrices are lists of rows. A covariance must be symmetric to a relative 1e-10 of its largest
+  entry (it is then symmetrised exactly) and positive semidefinite to the same relative
+  tolerance; where a key says positive definite, its smallest eigenvalue must exceed 1e-12
+  times its largest entry.
+- An invalid file is rejected with one line naming the field (`dse: error: model.r: must be >
+  0, got -1`), exit code 2, and nothing is written.
+"""
+
+
+def page() -> str:
+    import dse.families as reproductions
+    from dse.scenario.declare import reference_markdown
+
+    parts = ["# Scenario keys", "",
+             "Generated from the declarations in the code (`python -m dse.scenario.docs`); a test fails when "
+             "this page and the code disagree. Every shipped scenario file under `dse/families/` is a commented "
+             "example of its family.", "", POLICY]
+    for family, module_name in reproductions.FAMILIES.items():
+        module = importlib.import_module(module_name)
+        if not hasattr(module, "SCENARIO_MODEL"):   # a family whose keys are not declared yet
+            parts.append(f"## `{family}`\n\nIts keys are not declared yet: see the family's `scenario.py`.\n")
+            continue
+        parts.append(reference_markdown(f"`{family}`", module.SCENARIO_MODEL, module.FAMILY_INTRO))
+    return "\n".join(parts).rstrip() + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    text = page()
+    if "--check" in argv:
+        if not PAGE.exists() or PAGE.read_text() != text:
+            print(f"{PAGE} is out of date: run `python -m dse.scenario.docs`", file=sys.stderr)
+            return 1
+        return 0
+    PAGE.write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

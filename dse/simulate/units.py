@@ -1,0 +1,189 @@
+"""Monte Carlo driver: trials in fixed-size blocks, each block with its own random stream.
+
+Blocks are the unit of determinism: block b of a stream always sees the same random
+numbers, and partial results are combined in block order, so the result is bit-identical
+whatever the memory chunking or the number of workers. Only one block's arrays are alive
+at a time in a worker, which bounds memory.
+"""
+from __future__ import annotations
+
+import resource
+import signal
+from typing import Callable, Iterable, Sequence, TypeVar
+
+import numpy as np
+
+from dse.engine.progress import progress
+from dse.simulate.seeding import block_seeds
+
+DEFAULT_BLOCK = 50_000
+BLOCK_MEMORY_BYTES = 192 * 2**20
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def trial_blocks(n_trials: int, block: int = DEFAULT_BLOCK) -> list[tuple[int, int]]:
+    """(start, size) of each block covering n_trials trials."""
+    if n_trials <= 0:
+        raise ValueError(f"n_trials must be positive, got {n_trials}")
+    return [(s, min(block, n_trials - s)) for s in range(0, n_trials, block)]
+
+
+def block_size(bytes_per_trial: int, *, budget: int = BLOCK_MEMORY_BYTES, largest: int = DEFAULT_BLOCK) -> int:
+    """Trials per block so that one block's arrays stay within `budget` bytes.
+
+    A multiple of 1,000 between 1,000 and `largest`, derived only from the scenario's array
+    shapes: the same scenario always gets the same blocks, hence the same random numbers.
+    """
+    fit = budget // max(int(bytes_per_trial), 1)
+    return int(min(largest, max(1_000, fit // 1_000 * 1_000)))
+
+
+def run_blocks(simulate_block: Callable[[int, np.random.Generator], T],
+               combine: Callable[[Sequence[T]], R],
+               n_trials: int, seq: np.random.SeedSequence, block: int = DEFAULT_BLOCK) -> R:
+    """Run `simulate_block(size, rng)` for every block and `combine` the results in order."""
+    blocks = trial_blocks(n_trials, block)
+    seeds = block_seeds(seq, len(blocks))
+    return combine([simulate_block(size, block_generator(s)) for (_, size), s in zip(blocks, seeds)])
+
+
+#: Trials per independent random stream. Fixed: a trial's random numbers depend only on the seed
+#: and its index, never on how many trials are simulated together (the memory chunk).
+RNG_UNIT = 1_000
+
+
+class UnitStreams:
+    """The random streams of consecutive units of trials, seen as one batch.
+
+    Every draw is made unit by unit (each unit from its own generator, in the same order)
+    and stacked on the leading trial axis, so trial i gets the same numbers whatever chunk
+    it is simulated in. Reductions over trials must be made per unit (`split`) and folded in
+    unit order for results that do not depend on the chunking either.
+    """
+
+    def __init__(self, seeds: Sequence[np.random.SeedSequence], sizes: Sequence[int]):
+        self.generators = [block_generator(s) for s in seeds]
+        self.sizes = list(sizes)
+
+    @property
+    def n(self) -> int:
+        return sum(self.sizes)
+
+    def _stack(self, draw: Callable[[np.random.Generator, int], np.ndarray]) -> np.ndarray:
+        parts = [draw(g, m) for g, m in zip(self.generators, self.sizes)]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=0)
+
+    def standard_normal(self, tail: tuple[int, ...] = ()) -> np.ndarray:
+        return self._stack(lambda g, m: g.standard_normal((m, *tail)))
+
+    def random(self, tail: tuple[int, ...] = ()) -> np.ndarray:
+        return self._stack(lambda g, m: g.random((m, *tail)))
+
+    def exponential(self, tail: tuple[int, ...] = ()) -> np.ndarray:
+        return self._stack(lambda g, m: g.standard_exponential((m, *tail)))
+
+    def integers(self, low: int, high: int, tail: tuple[int, ...] = ()) -> np.ndarray:
+        return self._stack(lambda g, m: g.integers(low, high, size=(m, *tail)))
+
+    def split(self, array: np.ndarray) -> list[np.ndarray]:
+        """The per-unit slices of an array whose leading axis is this batch's trials."""
+        edges = np.cumsum([0, *self.sizes])
+        return [array[a:b] for a, b in zip(edges[:-1], edges[1:])]
+
+
+def units_per_chunk(bytes_per_trial: float, budget_bytes: float) -> int:
+    """How many RNG units one chunk may hold within `budget_bytes` (at least one)."""
+    return max(1, int(budget_bytes // max(bytes_per_trial * RNG_UNIT, 1.0)))
+
+
+def run_units(simulate_chunk: Callable[[UnitStreams], Sequence[T]], fold: Callable[[R | None, T], R],
+              n_trials: int, seq: np.random.SeedSequence, *, bytes_per_trial: float,
+              budget_bytes: float = BLOCK_MEMORY_BYTES, desc: str = "") -> R:
+    """Simulate `n_trials` trials in RNG units of RNG_UNIT trials, as many units per chunk as
+    `budget_bytes` allows; `simulate_chunk` returns one partial result per unit, and `fold`
+    accumulates them in unit order (streaming: memory does not grow with the trial count).
+    The result is bit-identical whatever the budget."""
+    n_units = -(-n_trials // RNG_UNIT)
+    sizes = [min(RNG_UNIT, n_trials - u * RNG_UNIT) for u in range(n_units)]
+    seeds = block_seeds(seq, n_units)
+    per_chunk = units_per_chunk(bytes_per_trial, budget_bytes)
+    acc = None
+    for start in progress(range(0, n_units, per_chunk), desc=desc) if desc else range(0, n_units, per_chunk):
+        stop = min(start + per_chunk, n_units)
+        for part in simulate_chunk(UnitStreams(seeds[start:stop], sizes[start:stop])):
+            acc = fold(acc, part)
+    return acc
+
+
+def block_generator(seed: np.random.SeedSequence) -> np.random.Generator:
+    """The generator of one block: SFC64, a small fast chaotic generator that passes the
+    standard statistical batteries; measured 20% faster than PCG64 for normal draws here,
+    and normal draws are the floor of every Monte Carlo in this project."""
+    return np.random.Generator(np.random.SFC64(seed))
+
+
+def _ignore_sigint() -> None:
+    """Workers leave Ctrl-C to the parent, which stops them (no traceback per worker), and die
+    at once on SIGTERM (the parent's handler, inherited through fork, would unwind them)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def parallel_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, desc: str = "") -> list[R]:
+    """Map `fn` over `items` in `workers` processes (fork), with a progress bar; order kept.
+
+    On Ctrl-C or a failed task the workers are terminated at once; tasks already finished
+    have stored their results in the stage cache, so a re-run resumes from there.
+    """
+    items = list(items)
+    if workers <= 1 or len(items) <= 1:
+        return [fn(x) for x in progress(items, desc=desc)]
+    import multiprocessing
+
+    pool = multiprocessing.get_context("fork").Pool(processes=min(workers, len(items)), initializer=_ignore_sigint)
+    try:
+        results = list(progress(pool.imap(fn, items), total=len(items), desc=desc))
+    except BaseException:
+        pool.terminate()
+        pool.join()
+        raise
+    pool.close()
+    pool.join()
+    return results
+
+
+#: the jobs of the current `run_jobs`, run by index in forked workers (closures are inherited, not pickled)
+_JOBS: list = []
+
+
+def _run_job(index: int):
+    return _JOBS[index]()
+
+
+def run_jobs(jobs: Sequence[tuple[float, Callable[[], R]]], workers: int = 1, *, desc: str = "") -> list[R]:
+    """Run (weight, callable) jobs in `workers` forked processes, the heaviest first (the light ones then fill in
+    around them), and return their results in the order given. The callables need not be picklable: workers
+    inherit them through fork and receive an index; their results come back pickled."""
+    global _JOBS
+    order = sorted(range(len(jobs)), key=lambda i: -jobs[i][0])
+    if workers <= 1 or len(jobs) <= 1:
+        outs = [jobs[i][1]() for i in order]
+    else:
+        previous, _JOBS = _JOBS, [jobs[i][1] for i in order]
+        try:
+            outs = parallel_map(_run_job, range(len(order)), workers=workers, desc=desc)
+        finally:
+            _JOBS = previous
+    results: list = [None] * len(jobs)
+    for i, o in zip(order, outs):
+        results[i] = o
+    return results
+
+
+def peak_memory_mib() -> float:
+    """Peak resident memory of this process and its finished children, in MiB."""
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    return max(own, children) / 1024.0

@@ -1,0 +1,426 @@
+"""`dse sweep`: run every point of a sweep as one task, in process or on a Dask cluster.
+
+Each point is a full `dse run` of its scenario without figures or recordings: compute,
+then every claim's verdict, the verdict counts and the family's summary metrics. A point's
+result depends only on its task (scenario, seed, quick, trials) and the code, never on
+where it ran, so the gathered table is the same with one worker, two, or a remote cluster.
+
+Finished points are stored one directory each under ``OUT/.cache/sweeps/<name>/points/``
+(keyed by a hash of the task and the code, checksummed), so a sweep that was interrupted, or
+lost tasks, resumes where it stopped. A task that raises is retried (Dask's `retries`); a worker that dies is
+replaced and its tasks rescheduled by the Dask scheduler.
+"""
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import os
+import shutil
+import socket
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+from dse.engine.atomic import atomic_write_text
+from dse.engine.cache import StageCache, canonical_json, project_fingerprint
+from dse.errors import NumericalError, ScenarioError
+from dse.engine.progress import progress_enabled
+from dse.sweeps.spec import Point, SweepSpec
+
+#: environment of every worker: one BLAS thread (the tasks are the parallelism), no inner bars
+WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "DSE_PROGRESS": "0"}
+#: the fields of a claim's row kept per point (all of them but none of the report's layout)
+POINT_CLAIM_FIELDS = ("id", "source", "statement", "kind", "verdict", "measured", "reference", "tolerance", "margin",
+                      "confidence", "trials", "printed", "corrected", "detail")
+
+
+@dataclass(frozen=True)
+class Task:
+    """What one point computes; its key names its result file and its Dask task."""
+
+    point: Point
+    scenario: dict[str, Any]
+    quick: bool
+    trials: int | None
+    key: str
+    tables: tuple[str, ...] | None = None
+
+    def payload(self) -> dict[str, Any]:
+        return {"scenario": self.scenario, "seed": self.point.seed, "quick": self.quick, "trials": self.trials,
+                "tables": self.tables}
+
+
+def _registry():
+    import dse.families as reproductions
+    return reproductions
+
+
+def build_tasks(spec: SweepSpec, log: Callable[[str], None] | None = None) -> list[Task]:
+    """Every point's task, each scenario validated by its family before anything runs (with a
+    progress line every few seconds for large sweeps)."""
+    reg = _registry()
+    fingerprint = project_fingerprint()
+    tasks = []
+    points = spec.points()
+    started = last = time.perf_counter()
+    for point in points:
+        now = time.perf_counter()
+        if log is not None and now - last > 3.0:
+            done = len(tasks)
+            log(f"sweep {spec.name}: validated {done:,} of {len(points):,} points "
+                f"(about {(now - started) / done * (len(points) - done):.0f} s left)")
+            last = now
+        scenario = spec.scenario(point)
+        try:
+            reg.family_from_dict(scenario)
+        except ScenarioError as exc:
+            where = ", ".join(f"{k} = {json.dumps(v)}" for k, v in point.values.items()) or "the base scenario"
+            raise ScenarioError(exc.field, f"{exc.reason} (at the point {where})") from None
+        payload = {"scenario": scenario, "seed": point.seed, "quick": spec.quick, "trials": spec.trials,
+                   "tables": spec.tables}
+        key = hashlib.sha256((canonical_json(payload) + fingerprint).encode()).hexdigest()[:24]
+        tasks.append(Task(point, scenario, spec.quick, spec.trials, key, spec.tables))
+    return tasks
+
+
+def run_point(payload: dict[str, Any]) -> dict[str, Any]:
+    """One point: compute in a throw-away stage cache, check every claim, tabulate, summarise.
+
+    A numerical failure (a NaN or inf where the family needs a finite number) is a result of
+    the point, not an error of the task: it is reported in the row and not retried.
+    """
+    from dse.api import execute
+    from dse.engine.driver import RunOptions
+
+    reg = _registry()
+    start = time.perf_counter()
+    repro = reg.family_from_dict(payload["scenario"])
+    opts = RunOptions(seed=payload["seed"], trials=payload["trials"], quick=payload["quick"], workers=1)
+    where = {"host": socket.gethostname(), "pid": os.getpid()}
+    try:
+        run = execute(repro, opts)
+    except NumericalError as exc:
+        return {"status": "numerical-error", "error": str(exc), "claims": [], "metrics": {}, "tables": {},
+                "wall_s": time.perf_counter() - start, **where}
+    metrics = (network_metrics(run.tables["metrics"]) if "metrics" in run.tables
+               else reg.family_metrics(payload["scenario"]["family"], run.results))
+    wanted = payload.get("tables")
+    tables = {name: run.tables[name] for name in run.tables if wanted is None or name in wanted}
+    return {"status": "ok", "error": "", "metrics": {k: float(v) for k, v in metrics.items()},
+            "claims": [{k: r.get(k) for k in POINT_CLAIM_FIELDS} for r in run.evaluation.claims],
+            "tables": tables, "table_docs": {name: run.tables.specs[name] for name in tables},
+            "wall_s": time.perf_counter() - start, **where}
+
+
+def network_metrics(frame) -> dict[str, float]:
+    """The scalar summary of a point for the sweep's results table and plot: each metric of the
+    family's tidy `metrics` table that has exactly one network-wide row (node empty). Metrics per
+    node or per cell stay in the stacked `tables/metrics.parquet`."""
+    network = frame[frame["node"].isna()] if "node" in frame else frame
+    counts = network["metric"].value_counts()
+    single = network[network["metric"].isin(counts[counts == 1].index)]
+    return {str(m): float(v) for m, v in zip(single["metric"], single["value"])}
+
+
+class PointStore:
+    """One directory per finished point: `result.json` (the point's verdicts and metrics, with a
+    checksum of itself and of every table file) and `tables/<name>.arrow` (Arrow IPC files: the
+    store is internal, and they are written and read an order of magnitude faster than Parquet). A
+    damaged, edited or incomplete point is detected by its checksums and recomputed."""
+
+    def __init__(self, root: Path):
+        self.root = root
+
+    def _dir(self, key: str) -> Path:
+        return self.root / key
+
+    def load(self, key: str) -> dict[str, Any] | None:
+        d = self._dir(key)
+        try:
+            doc = json.loads((d / "result.json").read_text())
+            body = doc["result"]
+            if hashlib.sha256(canonical_json(body).encode()).hexdigest() != doc["sha256"]:
+                raise ValueError("checksum mismatch")
+            tables = {}
+            for name, digest in doc["tables"].items():
+                raw = (d / "tables" / f"{name}.arrow").read_bytes()
+                if hashlib.sha256(raw).hexdigest() != digest:
+                    raise ValueError(f"table {name}: checksum mismatch")
+                tables[name] = raw
+            return {**body, "table_files": {n: d / "tables" / f"{n}.arrow" for n in tables}}
+        except FileNotFoundError:
+            return None
+        except Exception as exc:  # damaged in any way: recompute the point
+            if d.exists():
+                print(f"dse: stored sweep point {key} is damaged ({type(exc).__name__}: {exc}); recomputing",
+                      file=sys.stderr)
+                shutil.rmtree(d, ignore_errors=True)
+            return None
+
+    def save(self, key: str, result: dict[str, Any]) -> dict[str, Any]:
+        """Store a point (tables as Arrow IPC files); returns the result as `load` would give it."""
+        from dse.engine.atomic import atomic_path
+        from dse.outputs.tables import write_arrow_file
+
+        d = self._dir(key)
+        staging = Path(tempfile.mkdtemp(prefix=f".{key}.staging-", dir=_mkdir(self.root)))
+        try:
+            (staging / "tables").mkdir()
+            digests = {}
+            for name, frame in result.get("tables", {}).items():
+                path = staging / "tables" / f"{name}.arrow"
+                write_arrow_file(result["table_docs"][name], frame, path)
+                digests[name] = hashlib.sha256(path.read_bytes()).hexdigest()
+            body = json.loads(json.dumps({k: v for k, v in result.items() if k not in ("tables", "table_docs")},
+                                         default=str))
+            with atomic_path(staging / "result.json") as tmp:
+                tmp.write_text(json.dumps({"sha256": hashlib.sha256(canonical_json(body).encode()).hexdigest(),
+                                           "tables": digests, "result": body}))
+            if d.exists():
+                shutil.rmtree(d)
+            os.replace(staging, d)
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+        return {**body, "table_files": {n: d / "tables" / f"{n}.arrow" for n in digests}}
+
+
+def _mkdir(path: Path) -> Path:
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+SCHEDULERS = ("auto", "inline", "local")
+
+
+def choose_scheduler(scheduler: str, pending: int, workers: int) -> str:
+    """`auto`: in process for tiny sweeps (at most one pending point, or one worker), else a
+    local Dask cluster; `inline`, `local` or a scheduler address (``tcp://HOST:PORT``) as given."""
+    if scheduler not in SCHEDULERS and "://" not in scheduler:
+        raise ScenarioError("--scheduler", "must be auto, inline, local or an address such as tcp://HOST:8786, "
+                                           f"got {scheduler!r}")
+    if scheduler != "auto":
+        return scheduler
+    return "inline" if pending <= 1 or workers <= 1 else "local"
+
+
+def execute(tasks: list[Task], *, scheduler: str, workers: int, retries: int,
+            on_result: Callable[[Task, dict[str, Any]], None], log: Callable[[str], None] = print,
+            fn: Callable[[dict[str, Any]], dict[str, Any]] = run_point, worker_timeout: float = 60.0) -> dict[str, str]:
+    """Run `fn` (default `run_point`) on every task's payload; hand each result to `on_result`
+    as it arrives. Returns {key: error} of the tasks that still failed after `retries` retries."""
+    if not tasks:
+        return {}
+    if scheduler == "inline":
+        return _execute_inline(tasks, retries, on_result, fn)
+    return _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn, worker_timeout)
+
+
+def _bar(total: int):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc="sweep points", unit="pt", disable=not progress_enabled(),
+                dynamic_ncols=True, file=sys.stderr)
+
+
+@contextlib.contextmanager
+def _inner_bars_off() -> Iterator[None]:
+    """The points' own stage bars stay quiet while the sweep's bar runs in this process."""
+    saved = os.environ.get("DSE_PROGRESS")
+    os.environ["DSE_PROGRESS"] = "0"
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop("DSE_PROGRESS", None)
+        else:
+            os.environ["DSE_PROGRESS"] = saved
+
+
+def _execute_inline(tasks, retries, on_result, fn) -> dict[str, str]:
+    failures = {}
+    with _bar(len(tasks)) as bar, _inner_bars_off():
+        for task in tasks:
+            for attempt in range(retries + 1):
+                try:
+                    on_result(task, fn(task.payload()))
+                    break
+                except (KeyboardInterrupt, ScenarioError):
+                    raise
+                except Exception as exc:  # noqa: BLE001 - retried, then reported per point
+                    if attempt == retries:
+                        failures[task.key] = f"{type(exc).__name__}: {exc}"
+            bar.update()
+    return failures
+
+
+def _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn, worker_timeout) -> dict[str, str]:
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    if scheduler == "local":
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL, env=WORKER_ENV)
+        client = Client(cluster)
+    else:
+        cluster = None
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise ScenarioError("--scheduler", f"cannot reach the Dask scheduler at {scheduler} ({exc})") from None
+    failures = {}
+    try:
+        where = "local cluster" if cluster else scheduler
+        n_workers = len(client.scheduler_info().get("workers", {}))
+        if n_workers == 0:
+            log(f"dask: {where} has no worker yet; waiting up to {worker_timeout:g} s for one")
+            try:
+                client.wait_for_workers(1, timeout=worker_timeout)
+            except (TimeoutError, OSError):
+                raise ScenarioError("--scheduler", f"no worker joined the Dask scheduler at {scheduler} within "
+                                                   f"{worker_timeout:g} s (start workers with `dask worker {scheduler}`)") from None
+            n_workers = len(client.scheduler_info().get("workers", {}))
+        log(f"dask: {where} with {n_workers} worker(s); dashboard {client.dashboard_link}")
+        owner, futures = {}, []
+        for task in tasks:
+            futures.append(client.submit(fn, task.payload(), key=f"dse-point-{task.key}", retries=retries))
+            owner[futures[-1].key] = task
+        with _bar(len(tasks)) as bar:
+            for fut in as_completed(futures):
+                task = owner[fut.key]
+                if fut.status == "finished":
+                    on_result(task, fut.result())
+                else:
+                    exc = fut.exception()
+                    failures[task.key] = f"{type(exc).__name__}: {exc}"
+                fut.release()
+                bar.update()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return failures
+
+
+def _point_meta(task: Task, result: dict[str, Any] | None, failure: str | None) -> dict[str, Any]:
+    """A point in sweep.json: what it varied, its seed, and where and how long it ran (or why not)."""
+    meta = {"point": task.point.index, "key": task.key, "values": task.point.values,
+            "replicate": task.point.replicate, "seed": task.point.seed}
+    if result is None:
+        return meta | {"failed": failure or "not run"}
+    return meta | {k: result[k] for k in ("wall_s", "host", "pid")}
+
+
+def points_dir(out_root: Path, name: str) -> Path:
+    """Where a sweep's finished points are kept between runs (a cache: safe to delete)."""
+    return out_root / ".cache" / "sweeps" / name / "points"
+
+
+def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", workers: int = 2, retries: int = 2,
+              fresh: bool = False, log: Callable[[str], None] = print, worker_timeout: float = 60.0) -> dict[str, Any]:
+    """Run the points not yet done, then write results.parquet, claims.parquet, tables/, the figure,
+    the recording, summary.md and sweep.json as one set: built beside OUT/sweep/<name>/ and renamed
+    into place, so the directory never mixes two runs and an invalid sweep leaves nothing."""
+    from dse.api import _replace_dir, _staging_dir
+    from dse.engine.driver import check_output_dir
+
+    choose_scheduler(scheduler, 0, workers)  # a bad --scheduler fails before anything runs
+    check_output_dir(out_root)
+    out_dir = out_root / "sweep" / spec.name
+    start = time.perf_counter()
+    tasks = build_tasks(spec, log=log)
+    store = PointStore(points_dir(out_root, spec.name))
+    results = {} if fresh else {t.key: r for t in tasks if (r := store.load(t.key)) is not None}
+    pending = [t for t in tasks if t.key not in results]
+    mode = choose_scheduler(scheduler, len(pending), workers)
+    if results:
+        log(f"sweep {spec.name}: {len(results)} of {len(tasks)} points already done; running the other {len(pending)}")
+
+    def keep(task: Task, result: dict[str, Any]) -> None:
+        results[task.key] = store.save(task.key, result)
+
+    failures = execute(pending, scheduler=mode, workers=workers, retries=retries, on_result=keep, log=log,
+                       worker_timeout=worker_timeout)
+    done = [t for t in tasks if t.key in results]
+    staging = _staging_dir(out_dir)
+    try:
+        wall = write_sweep_outputs(spec, staging, done, results, failures, log)
+        meta = {"name": spec.name, "family": spec.family, "sweep": spec.source, "base_scenario": spec.base,
+                "scheduler": mode, "workers": workers,
+                "points": [_point_meta(t, results.get(t.key), failures.get(t.key)) for t in tasks],
+                "failures": failures, "wall_s": time.perf_counter() - start}
+        atomic_write_text(staging / "sweep.json", json.dumps(meta, indent=1, default=str))
+        _replace_dir(staging, out_dir)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return {"name": spec.name, "points": len(tasks), "ran": len(pending) - len(failures),
+            "reused": len(tasks) - len(pending), "failed": len(failures), "numerical_errors": wall["numerical_errors"],
+            "wall_s": meta["wall_s"], "out_dir": out_dir, "scheduler": mode}
+
+
+def write_sweep_outputs(spec: SweepSpec, out_dir: Path, done: list[Task], results: dict[str, dict[str, Any]],
+                        failures: dict[str, str], log: Callable[[str], None]) -> dict[str, Any]:
+    """The sweep's tables, summary, figure and recording, written into `out_dir`."""
+    from dse.sweeps import outputs as so
+
+    frame = so.results_frame(spec, [t.point for t in done], [results[t.key] for t in done])
+    claims = so.claims_frame([t.point for t in done], [results[t.key] for t in done])
+    so.write_parquet(frame, out_dir / "results.parquet")
+    so.write_parquet(claims, out_dir / "claims.parquet")
+    so.write_point_tables(spec, [t.point for t in done], [results[t.key] for t in done], out_dir / "tables")
+    summary_md = so.summary_markdown(spec, frame, claims, failures)
+    if len(frame):
+        plan = so.plot_plan(spec, frame)
+        if plan.unknown_metrics:
+            log(f"sweep {spec.name}: plot.metrics names {', '.join(plan.unknown_metrics)}, not metrics of this family "
+                f"(it has: {', '.join(c.removeprefix('metric:') for c in frame.columns if c.startswith('metric:'))}); "
+                "plotting the others")
+        so.write_figure(spec, frame, plan, out_dir / "sweep.png")
+        so.write_recording(spec, frame, plan, summary_md, out_dir / "sweep.rrd")
+    atomic_write_text(out_dir / "summary.md", summary_md + "\n")
+    return {"numerical_errors": int((frame["status"] != "ok").sum()) if len(frame) else 0}
+
+
+def verify_sweep(out_dir: Path) -> tuple[list[str], int]:
+    """Re-assemble a sweep's results and claims tables from its stored points (checksums
+    verified) and list every difference from the written tables (numbers within the
+    relative tolerance of `dse verify`). Returns (differences, points found)."""
+    import pandas as pd
+
+    from dse.sweeps import outputs as so
+    from dse.errors import OutputError
+    from dse.engine.driver import same_number
+
+    try:
+        meta = json.loads((out_dir / "sweep.json").read_text())
+        from dse.sweeps.spec import parse_sweep
+
+        source = {k: v for k, v in meta["sweep"].items() if k != "base"} | {"scenario": meta["base_scenario"]}
+        spec = parse_sweep(source, base_dir=out_dir)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise OutputError(f"{out_dir}: sweep.json is damaged ({type(exc).__name__}: {exc}); run the sweep again") from None
+    store = PointStore(points_dir(out_dir.parent.parent, meta["name"]))
+    points = spec.points()
+    diffs, done, results = [], [], []
+    for p in meta["points"]:
+        if "failed" in p:
+            continue
+        res = store.load(p["key"])
+        if res is None:
+            diffs.append(f"point {p['point']}: its stored result is missing or damaged")
+            continue
+        done.append(points[p["point"]])
+        results.append(res)
+    frame = so.results_frame(spec, done, results)
+    written = pd.read_parquet(out_dir / "results.parquet")
+    if list(frame.columns) != list(written.columns) or len(frame) != len(written):
+        diffs.append("results.parquet: columns or rows differ from the stored points")
+    else:
+        for col in frame.columns:
+            for i, (a, b) in enumerate(zip(written[col].tolist(), frame[col].tolist())):
+                if not (same_number(a, b) or (a != a and b != b)):
+                    diffs.append(f"results.parquet row {i} column {col}: {a!r} written, {b!r} from the stored point")
+    return diffs, len(done)
