@@ -1,6 +1,6 @@
 """Calibration of the statistical claims: how often does each one fail on valid scenarios?
 
-Every family's generator (`reproductions.FAMILY_GENERATORS`) draws `seeds` random valid
+Every registered family's generator (`dse.families`) draws `seeds` random valid
 scenarios; each is computed at quick sample sizes (the smallest a user gets) and every
 claim evaluated twice:
 
@@ -27,14 +27,16 @@ NOMINAL_ALPHA = 0.05
 
 
 def _one(task: tuple[str, int]) -> dict:
-    import dse.families as reproductions
+    import dse.families
+    from dse.contract.options import RunOptions
+    from dse.contract.stages import StageContext
     from dse.engine.cache import StageCache
-    from dse.engine.driver import RunOptions, evaluate_claims
+    from dse.engine.driver import evaluate_claims
 
     family, seed = task
     t0 = time.perf_counter()
-    data = reproductions.generator(family).generate(seed, None)
-    repro = reproductions.family_from_dict(data)
+    data = dse.families.family(family).generate(seed, None)
+    repro = dse.families.from_dict(data)
     names = sorted([repro.paper_id, *repro.scenario_ids()], key=len, reverse=True)
 
     def key(cid: str) -> str:
@@ -44,7 +46,7 @@ def _one(task: tuple[str, int]) -> dict:
 
     try:
         with tempfile.TemporaryDirectory(prefix="dse-calib-") as tmp:
-            results = repro.compute(RunOptions(seed=seed, quick=True, workers=1), StageCache(Path(tmp)))
+            results = repro.compute(RunOptions(seed=seed, quick=True, workers=1), StageContext(StageCache(Path(tmp))))
     except Exception as exc:  # a run that cannot compute is reported, not hidden
         return {"family": family, "seed": seed, "error": f"{type(exc).__name__}: {exc}", "wall_s": time.perf_counter() - t0}
     at_level = evaluate_claims(repro, results, per_claim_confidence=1 - NOMINAL_ALPHA).claims
@@ -55,10 +57,10 @@ def _one(task: tuple[str, int]) -> dict:
 
 
 def bench_calibration(seeds: int = 200, workers: int = 2, families: list[str] | None = None) -> list[dict]:
-    import dse.families as reproductions
+    import dse.families
     from dse.simulate.stats import clopper_pearson
 
-    families = families or list(reproductions.FAMILY_GENERATORS)
+    families = families or list(dse.families.families())
     tasks = [(f, s) for f in families for s in range(seeds)]
     outcomes = []
     start = time.perf_counter()

@@ -32,7 +32,6 @@ import numpy as np
 
 SEEDS = (0, 1)
 MODES = ("quick", "default")
-PAPERS = ("tanwani", "kar-moura", "savas", "wang-liu-morse", "tran")
 NUMBERS = ("measured", "reference", "margin", "tolerance", "printed", "corrected")
 
 
@@ -59,7 +58,7 @@ def generate(out: Path, python: str, tree: Path) -> None:
             flags = ["--quick"] if mode == "quick" else []
             for seed in SEEDS:
                 root = out / f"{mode}-s{seed}"
-                _dse(python, tree, ["reproduce", *PAPERS, *flags, "--seed", str(seed), "--no-figures",
+                _dse(python, tree, ["reproduce", *flags, "--seed", str(seed), "--no-figures",
                                     "--out", str(root)], log)
             for scenario in compare_scenarios(tree):
                 _dse(python, tree, ["run", str(scenario), *flags, "--seed", "0", "--no-figures",

@@ -19,7 +19,11 @@ from pathlib import Path
 
 from .common import spread
 
-PAPERS = ("savas", "tanwani", "wang-liu-morse", "tran", "kar-moura")
+def papers() -> tuple[str, ...]:
+    """Every registered paper (`dse.families`)."""
+    import dse.families
+
+    return tuple(dse.families.papers())
 GiB = 2**30
 
 
@@ -129,5 +133,5 @@ def totals(rows: list[dict]) -> list[dict]:
     return out
 
 if __name__ == "__main__":
-    for p in PAPERS:
+    for p in papers():
         print(bench_reproduce(p, quick=True, repeats=1, warm=False))

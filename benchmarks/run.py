@@ -185,10 +185,10 @@ def bench_records(quick: bool, repeats: int, replay_dir: Path | None = None) -> 
 # -- reproduce ---------------------------------------------------------------------------------------
 
 def bench_reproductions(quick: bool, repeats: int, replay_dir: Path | None = None) -> list[dict]:
-    from .reproduce import PAPERS, bench_reproduce, totals
+    from .reproduce import bench_reproduce, papers, totals
 
     rows = []
-    for p in PAPERS:
+    for p in papers():
         if not quick:
             rows.append(_safe(lambda: bench_reproduce(p, quick=False, repeats=min(repeats, 2), keep_dir=replay_dir),
                               {"paper": p, "mode": "default"}))

@@ -14,7 +14,6 @@ that lets a later run resume). The `dse` command line is a thin layer over these
 from __future__ import annotations
 
 import hashlib
-import inspect
 import json
 import os
 import shutil
@@ -29,7 +28,10 @@ from dse.engine.atomic import atomic_write_text
 from dse.engine.cache import StageCache
 from dse.errors import OutputError
 from dse.engine.provenance import provenance
-from dse.engine.driver import Reproduction, RunOptions, evaluate_claims
+from dse.contract.family import Reproduction
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
+from dse.engine.driver import evaluate_claims
 from dse.outputs.report import verdict_counts, write_report
 from dse.simulate.units import peak_memory_mib
 from dse.outputs.tables import Tables, spec
@@ -40,21 +42,19 @@ def load(source: str | os.PathLike | Mapping[str, Any]) -> Reproduction:
     """A validated scenario of a supported family, from a TOML file or a dict with `family`.
 
     Raises `ScenarioError` (one line naming the field) on invalid input."""
-    import dse.families as reproductions
+    import dse.families
+
     from dse.scenario.fields import load_toml
 
     data = dict(source) if isinstance(source, Mapping) else load_toml(source)
-    return reproductions.family_from_dict(data)
+    return dse.families.from_dict(data)
 
 
 def paper(paper_id: str) -> Reproduction:
     """A paper's own reproduction (`dse list` shows the ids)."""
-    import dse.families as reproductions
-    from dse.errors import ScenarioError
+    import dse.families
 
-    if paper_id not in reproductions.PAPERS:
-        raise ScenarioError("PAPER", f"unknown paper {paper_id} (known: {', '.join(reproductions.PAPERS)})")
-    return reproductions.paper(paper_id)
+    return dse.families.paper(paper_id)
 
 
 @dataclass
@@ -73,10 +73,16 @@ class Run:
     run_key: str | None = field(default=None, repr=False)
 
     @property
-    def results(self) -> Any:
+    def computed(self) -> Any:
+        """The design and the results (`dse.contract.Computed`), from the stage cache when the run was a memo."""
         if callable(self._results):
             self._results = self._results()
         return self._results
+
+    @property
+    def results(self) -> Any:
+        """The family's results object (what the claims are evaluated on)."""
+        return self.computed.results
 
     @property
     def counts(self) -> dict[str, int]:
@@ -102,11 +108,7 @@ class Run:
             self.tables.write(staging / "tables")
             outputs = _reuse_outputs(out_dir, staging, self.run_key) if figures else {}
             if outputs is None:
-                write_outputs = self.reproduction.write_outputs
-                if "tables" in inspect.signature(write_outputs).parameters:  # figures and recordings from the tables
-                    write_outputs(self.results, staging, self.evaluation.claims, self.provenance, tables=self.tables)
-                else:
-                    write_outputs(self.results, staging, self.evaluation.claims, self.provenance)
+                self._draw(staging)
                 outputs = _manifest(staging)
             write_s = time.perf_counter() - start
             prov = {**self.provenance, "write_s": write_s, "wall_s": self.provenance["compute_s"] + write_s,
@@ -123,6 +125,19 @@ class Run:
             shutil.rmtree(staging, ignore_errors=True)
         return out_dir
 
+    def _draw(self, staging: Path) -> None:
+        """The family's views (figures and recordings), in forked workers when there are several."""
+        from dse.contract.views import Outputs
+
+        views = self.reproduction.views(Outputs(self.reproduction, self.results, self.tables, self.evaluation.claims,
+                                                self.provenance))
+        if len(views) == 1:
+            views[0].draw(staging / views[0].file)
+            return
+        from dse.outputs.figures import draw_all
+
+        draw_all([lambda v=v: v.draw(staging / v.file) for v in views], workers=self.options.workers)
+
 
 def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLike | None = None,
             source: dict[str, Any] | None = None) -> Run:
@@ -132,33 +147,36 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
     everything that determines them (the paper or the scenario as given, seed, trials, quick,
     and a fingerprint of the project's code and scenario files): an identical later run reads
     them back instead of re-checking, and loads the stage results only if it needs them."""
+    from dse.contract.cost import refuse_if_too_large
+    from dse.engine.cache import MemoryCache
+    from dse.families.legacy import wrap
+
+    repro = wrap(repro)   # TEMPORARY
     start = time.perf_counter()
     key = run_key(repro, opts, source)
     memo = _load_memo(Path(cache_dir), key) if cache_dir is not None else None
     if memo is not None:
-        ev, tables = memo
-        results: Any = lambda: repro.compute(opts, StageCache(Path(cache_dir)))  # noqa: E731 - loaded when needed
+        ev, tables, stages = memo
+        computed: Any = lambda: repro.compute(opts, StageContext(StageCache(Path(cache_dir))))  # noqa: E731 - when needed
+        stages = [{**s, "cached": True} for s in stages]
     else:
-        if cache_dir is None:
-            from dse.engine.cache import MemoryCache
-
-            results = repro.compute(opts, MemoryCache())
-        else:
-            results = repro.compute(opts, StageCache(Path(cache_dir)))
-        ev = evaluate_claims(repro, results)
+        refuse_if_too_large(repro.cost(opts), opts)
+        ctx = StageContext(MemoryCache() if cache_dir is None else StageCache(Path(cache_dir)))
+        computed = repro.compute(opts, ctx)
+        ev = evaluate_claims(repro, computed)
         tables = evaluation_tables(ev)
-        family_tables = getattr(repro, "tables", None)
-        if family_tables is not None:
-            for table_spec, frame in family_tables(results):
-                tables.add(table_spec, frame)
+        for table_spec, frame in repro.tables(computed.results):
+            tables.add(table_spec, frame)
+        stages = ctx.ran
         if cache_dir is not None:
-            _save_memo(Path(cache_dir), key, ev, tables)
+            _save_memo(Path(cache_dir), key, ev, tables, stages)
     prov = provenance(seed=opts.seed, trials=repro.trials(opts), quick=opts.quick, workers=opts.workers)
     prov["compute_s"] = time.perf_counter() - start
     prov["wall_s"] = prov["compute_s"]
     prov["peak_memory_mib"] = peak_memory_mib()
     prov["memo"] = memo is not None
-    return Run(repro, opts, results, ev, tables, prov, source, key)
+    prov["stages"] = stages
+    return Run(repro, opts, computed, ev, tables, prov, source, key)
 
 
 def run_key(repro: Reproduction, opts: RunOptions, source: dict[str, Any] | None) -> str:
@@ -178,7 +196,7 @@ def _memo_dir(cache_dir: Path, key: str) -> Path:
     return cache_dir / "runs" / ident / code
 
 
-def _save_memo(cache_dir: Path, key: str, ev: Evaluation, tables: Tables) -> None:
+def _save_memo(cache_dir: Path, key: str, ev: Evaluation, tables: Tables, stages: list[dict[str, Any]]) -> None:
     from dse.engine.cache import remove_path
 
     target = _memo_dir(cache_dir, key)
@@ -186,8 +204,8 @@ def _save_memo(cache_dir: Path, key: str, ev: Evaluation, tables: Tables) -> Non
     staging = Path(tempfile.mkdtemp(prefix=f".{key}.staging-", dir=target.parent))
     try:
         tables.write(staging / "tables")
-        atomic_write_text(staging / "memo.json", json.dumps({"evaluation": asdict(ev), "files": _manifest(staging, everything=True)},
-                                                            allow_nan=False))
+        atomic_write_text(staging / "memo.json", json.dumps({"evaluation": asdict(ev), "stages": stages,
+                                                             "files": _manifest(staging, everything=True)}, allow_nan=False))
         for old in target.parent.iterdir():  # memos of the same run made by older code
             if old.name != staging.name:
                 remove_path(old)
@@ -197,7 +215,7 @@ def _save_memo(cache_dir: Path, key: str, ev: Evaluation, tables: Tables) -> Non
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def _load_memo(cache_dir: Path, key: str) -> tuple[Evaluation, Tables] | None:
+def _load_memo(cache_dir: Path, key: str) -> tuple[Evaluation, Tables, list[dict[str, Any]]] | None:
     d = _memo_dir(cache_dir, key)
     if not d.is_dir():
         return None
@@ -205,7 +223,7 @@ def _load_memo(cache_dir: Path, key: str) -> tuple[Evaluation, Tables] | None:
         memo = json.loads((d / "memo.json").read_text())
         if _manifest(d, everything=True) != memo["files"]:
             raise ValueError("checksum mismatch")
-        return Evaluation(**memo["evaluation"]), Tables.read(d / "tables")
+        return Evaluation(**memo["evaluation"]), Tables.read(d / "tables"), list(memo["stages"])
     except Exception as exc:  # a damaged memo is recomputed, like any cache entry
         from dse.engine.cache import remove_path
 
@@ -372,15 +390,17 @@ class Check:
 
 def check(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,
           quick: bool = False, workers: int = 1) -> Check:
-    """Validate a scenario and compute only its deterministic design stage (no Monte Carlo).
+    """Validate a scenario and compute only its deterministic design stage (no Monte Carlo):
+    the hypotheses are evaluated on the design, the design tables built, and the run's cost estimated."""
+    from dse.engine.cache import MemoryCache
 
-    A family provides `design(opts)` (the quantities its hypotheses and bounds are made of),
-    `design_tables(design)` and `estimate(opts)`; its hypotheses are evaluated on the design."""
-    repro = load(source) if isinstance(source, (str, os.PathLike, Mapping)) else source
+    from dse.families.legacy import wrap
+
+    repro = load(source) if isinstance(source, (str, os.PathLike, Mapping)) else wrap(source)
     opts = RunOptions(seed=seed, trials=trials, quick=quick, workers=workers)
-    design = repro.design(opts)
+    design = repro.design(opts, StageContext(MemoryCache()))
     hyps = [h.evaluate(design) for h in repro.hypotheses()]
     tables = Tables()
     for table_spec, frame in repro.design_tables(design):
         tables.add(table_spec, frame)
-    return Check(repro, opts, hyps, tables, repro.estimate(opts))
+    return Check(repro, opts, hyps, tables, repro.cost(opts).as_dict())

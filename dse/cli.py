@@ -26,7 +26,8 @@ import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from dse.errors import CacheMiss, NumericalError, OutputError, ScenarioError  # noqa: E402
-from dse.engine.driver import REVERIFY_RTOL, RunOptions, reverify, run  # noqa: E402
+from dse.contract.options import RunOptions  # noqa: E402
+from dse.engine.driver import REVERIFY_RTOL, reverify, run  # noqa: E402
 from dse.engine.outlock import output_lock  # noqa: E402
 from dse.outputs.report import counts_line, verdict_counts, write_summary  # noqa: E402
 
@@ -49,24 +50,23 @@ def _strict_status(args, rows: list[dict]) -> int:
 
 
 def _registry():
-    import dse.families as reproductions
-    return reproductions
+    import dse.families
+
+    return dse.families
 
 
 def cmd_list(args) -> int:
     reg = _registry()
+    families, papers = reg.families(), reg.papers()
     wanted = set(args.which)
-    known = set(reg.PAPERS) | set(reg.FAMILIES)
-    if wanted - known:
-        raise ScenarioError("PAPER", f"unknown paper or family {', '.join(sorted(wanted - known))} "
-                                     f"(papers: {', '.join(reg.PAPERS)}; families: {', '.join(reg.FAMILIES)})")
-    family_of = {module: family for family, module in reg.FAMILIES.items()}
-    for pid in reg.PAPERS:
-        family = family_of.get(reg.PAPERS[pid], "")
-        if wanted and not wanted & {pid, family}:
+    if wanted - set(papers) - set(families):
+        raise ScenarioError("PAPER", f"unknown paper or family {', '.join(sorted(wanted - set(papers) - set(families)))} "
+                                     f"(papers: {', '.join(papers)}; families: {', '.join(families)})")
+    for pid, family in papers.items():
+        if wanted and not wanted & {pid, family.id}:
             continue
         repro = reg.paper(pid)
-        print(f"{pid} (family {family}): {repro.title}")
+        print(f"{pid} (family {family.id}): {repro.title}")
         print(f"  scenarios: {', '.join(repro.scenario_ids())}")
         for h in repro.hypotheses():
             print(f"  hypothesis {h.id}: {h.statement}")
@@ -74,7 +74,7 @@ def cmd_list(args) -> int:
             scope = " [paper example]" if claim.scope == "paper-example" else ""
             print(f"  {claim.id:<40} {claim.kind:<12} {claim.source}{scope}")
     if not wanted:
-        print("\nscenario families for `dse run FILE.toml` (family = ...):", ", ".join(reg.FAMILIES))
+        print("\nscenario families for `dse run FILE.toml` (family = ...):", ", ".join(families))
     return 0
 
 
@@ -110,13 +110,14 @@ def _options(args) -> RunOptions:
 
 def cmd_reproduce(args) -> int:
     reg = _registry()
-    unknown = [p for p in args.papers if p not in reg.PAPERS]
+    papers = reg.papers()
+    unknown = [p for p in args.papers if p not in papers]
     if unknown:
-        raise ScenarioError("PAPER", f"unknown paper {', '.join(unknown)} (known: {', '.join(reg.PAPERS)})")
+        raise ScenarioError("PAPER", f"unknown paper {', '.join(unknown)} (known: {', '.join(papers)})")
     out_root = Path(args.out)
     rows = []
     with output_lock(out_root):
-        for pid in args.papers or list(reg.PAPERS):
+        for pid in args.papers or list(papers):
             rows.append(run(reg.paper(pid), out_root, _options(args), figures=not args.no_figures))
             r = rows[-1]
             print(f"{pid}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_root / pid}")
@@ -129,7 +130,7 @@ def cmd_run(args) -> int:
     from dse.scenario.fields import load_toml
 
     data = load_toml(args.file)
-    repro = reg.family_from_dict(data)
+    repro = reg.from_dict(data)
     out_root = Path(args.out)
     out_dir = out_root / "run" / repro.paper_id
     with output_lock(out_root):
@@ -176,7 +177,7 @@ def _verify_run(args, d: Path) -> int:
     if out_root is None:
         raise OutputError(f"{d} was written without a stage cache (Python API without cache_dir): there is nothing "
                           "to re-check from; run it with `dse run` or with a cache_dir")
-    repro = reg.family_from_dict(meta["scenario"]) if meta.get("scenario") else reg.paper(meta["paper"])
+    repro = reg.from_dict(meta["scenario"]) if meta.get("scenario") else reg.paper(meta["paper"])
     root = (d / out_root).resolve()
     try:
         rows, diffs = reverify(repro, root, d)

@@ -8,36 +8,32 @@ say so) and an `error` is a defect of ours. Each family's generator lists its ed
 """
 from __future__ import annotations
 
-import importlib
-
 import pytest
 
-import dse.families as reproductions
+import dse.families
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
 from dse.engine.cache import StageCache
-from dse.engine.driver import RunOptions, evaluate_claims
+from dse.engine.driver import evaluate_claims
 
 RANDOM_DRAWS = 2
 
 
 def _cases():
     out = []
-    for family in reproductions.FAMILY_GENERATORS:
-        try:
-            gen = reproductions.generator(family)
-        except ModuleNotFoundError:
-            continue
-        out += [pytest.param(family, seed, edge, id=f"{family}-{edge}") for seed, edge in enumerate(gen.EDGES)]
+    for family, fam in dse.families.families().items():
+        out += [pytest.param(family, seed, edge, id=f"{family}-{edge}") for seed, edge in enumerate(fam.edges)]
         out += [pytest.param(family, 1000 + s, None, id=f"{family}-random{s}") for s in range(RANDOM_DRAWS)]
     return out
 
 
 @pytest.mark.parametrize("family,seed,edge", _cases())
 def test_generated_scenario_has_no_fail_and_no_error(family, seed, edge, tmp_path):
-    data = reproductions.generator(family).generate(seed, edge)
+    data = dse.families.family(family).generate(seed, edge)
     assert data["family"] == family
-    repro = reproductions.family_from_dict(data)
-    results = repro.compute(RunOptions(seed=seed, quick=True, workers=1), StageCache(tmp_path / "cache"))
-    ev = evaluate_claims(repro, results)
+    repro = dse.families.from_dict(data)
+    computed = repro.compute(RunOptions(seed=seed, quick=True, workers=1), StageContext(StageCache(tmp_path / "cache")))
+    ev = evaluate_claims(repro, computed)
     bad = [f"{r['id']}: {r['verdict']}: {str(r.get('detail'))[:400]}" for r in ev.claims if r["verdict"] in ("fail", "error")]
     bad += [f"hypothesis {h['id']}: {h['error'][:400]}" for h in ev.hypotheses if h["error"]]
     assert not bad, f"{family} edge={edge} seed={seed}:\n" + "\n".join(bad)
@@ -45,8 +41,7 @@ def test_generated_scenario_has_no_fail_and_no_error(family, seed, edge, tmp_pat
 
 
 def test_every_family_has_a_generator():
-    for family, module in reproductions.FAMILY_GENERATORS.items():
-        gen = importlib.import_module(module)
-        assert gen.EDGES and len(set(gen.EDGES)) == len(gen.EDGES)
-        a, b = gen.generate(3, None), gen.generate(3, None)
+    for family in dse.families.families().values():
+        assert family.edges and len(set(family.edges)) == len(family.edges)
+        a, b = family.generate(3, None), family.generate(3, None)
         assert a == b, "a generator must be a function of its seed"

@@ -116,7 +116,7 @@ def small_run():
 def test_design_is_the_runs_design_and_hypotheses_are_decided_on_it(small_run):
     repro, run = small_run
     d = repro.design(RunOptions(quick=True, seed=4))
-    d_run = repro.design_of(run.results)
+    d_run = run.computed.design
     for name, sd in d.scenarios.items():
         rd = d_run.scenarios[name]
         for k, v in sd.bounds.items():

@@ -89,8 +89,8 @@ def small_run():
 
 def test_design_is_the_runs_design_and_hypotheses_are_decided_on_it(small_run):
     repro = small_run.reproduction
-    d = repro.design(RunOptions(quick=True, seed=3))
-    same = repro.design_of(small_run.results)
+    d = repro.scenarios[0].legacy.design(RunOptions(quick=True, seed=3))
+    same = small_run.computed.design
     assert d.arrays.keys() == same.arrays.keys()
     for k in d.arrays:
         np.testing.assert_array_equal(d.arrays[k], same.arrays[k], err_msg=k)

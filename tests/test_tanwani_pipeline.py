@@ -231,7 +231,7 @@ def test_metrics_are_tidy(small_run):
 def test_estimate_is_within_a_factor_of_three_of_the_measured_run(small_run):
     """The cost model (CPU seconds) against the CPU time of the run (imports excluded: already loaded)."""
     run, measured = small_run
-    est = cost.estimate(run.reproduction.scenarios, RunOptions(quick=True))
+    est = cost.estimate(run.reproduction.scenarios[0].legacy.scenarios, RunOptions(quick=True))
     predicted = est.seconds - cost.STARTUP_S
     assert 1 / 3 < predicted / measured < 3, (predicted, measured, est.detail)
 

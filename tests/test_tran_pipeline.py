@@ -133,8 +133,8 @@ def small_run(tmp_path_factory):
 def test_design_is_the_runs_design_and_hypotheses_are_decided_on_it(small_run):
     run, _ = small_run
     repro = run.reproduction
-    d = repro.design(RunOptions(quick=True, seed=2))
-    same = repro.design_of(run.results)
+    d = repro.scenarios[0].legacy.design(RunOptions(quick=True, seed=2))
+    same = run.computed.design
     for part in ("arrays", "law"):
         a, b = getattr(d, part), getattr(same, part)
         assert a.keys() == b.keys()
@@ -427,7 +427,7 @@ def test_a_nearly_singular_sensor_noise_leaves_the_kalman_bucy_reference_out_ins
     """Generated scenario 14 (found by the calibration benchmark): R = blockdiag(h_i h_iᵀ) + 1e-9 jitter is so
     close to singular that scipy cannot reorder the CARE's Hamiltonian pencil, and the Hamiltonian flow would
     need ~1e9 sub-steps. The run finishes; the reference is NaN in the nodes table; nothing is an error."""
-    data = reproductions.generator("coestimation").generate(14, None)
+    data = reproductions.family("coestimation").generate(14, None)
     run = api.run(data, quick=True, seed=14)
     assert run.counts["error"] == 0 and run.counts["fail"] == 0
     nodes = run.tables["nodes"]

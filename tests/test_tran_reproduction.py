@@ -260,11 +260,9 @@ quick_t_end = 2.0
 
 
 def test_cli_run_user_scenario(tmp_path, monkeypatch):
-    """`dse run FILE.toml` for the family (registered here in-process; the lead registers it for real)."""
-    import dse.families as reproductions
+    """`dse run FILE.toml` for the family."""
     from dse import cli
 
-    monkeypatch.setitem(reproductions.FAMILIES, "coestimation", "dse.families.tran.reproduction")
     (tmp_path / "s.toml").write_text(USER_TOML)
     assert cli.main(["run", str(tmp_path / "s.toml"), "--quick", "--out", str(tmp_path / "out"), "--workers", "1"]) == 0
     doc = json.loads((tmp_path / "out" / "run" / "line4" / "report.json").read_text())

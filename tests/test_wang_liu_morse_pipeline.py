@@ -46,7 +46,7 @@ TWO = {"family": "hybrid-observer", "name": "two",
 
 
 def scenario(data: dict):
-    return api.load(copy.deepcopy(data)).scenarios["scenario"]
+    return api.load(copy.deepcopy(data)).scenarios[0].legacy.scenarios["scenario"]
 
 
 # -- declared keys -------------------------------------------------------------------------------------
@@ -138,7 +138,7 @@ def test_check_design_tables_against_independent_values():
     offs = ev[(ev["run"] == "offsets") & (ev["s"] == 0)]
     assert offs["t"].tolist() == [0.001, -0.001]
     runs = chk.tables["runs"].set_index("run")
-    k = constants(chk.reproduction.design(RunOptions()).parts["scenario"].design, scenario(TWO),
+    k = constants(chk.reproduction.scenarios[0].legacy.design(RunOptions()).parts["scenario"].design, scenario(TWO),
                   scenario(TWO).runs[0])
     assert runs.loc["sync", "d"] == k["d"] and runs.loc["sync", "q"] == 2 * math.ceil(r) + 1
     # the hypotheses on the design alone are the ones a run reports
@@ -314,7 +314,7 @@ STREAM = {**TWO, "name": "stream", "monte_carlo": {"trials": 2100, "quick_trials
 
 def test_results_do_not_depend_on_the_memory_chunk():
     sc = scenario(STREAM)
-    design = api.load(copy.deepcopy(STREAM)).design(RunOptions()).parts["scenario"].design
+    design = api.load(copy.deepcopy(STREAM)).scenarios[0].legacy.design(RunOptions()).parts["scenario"].design
     for run in sc.runs:
         small = bounds.simulate_run(sc, design, run, sc.trials, 5, budget_bytes=1.0)            # one unit per chunk
         large = bounds.simulate_run(sc, design, run, sc.trials, 5, budget_bytes=2**40)          # every unit at once
@@ -339,7 +339,7 @@ def test_long_horizon_runs_in_bounded_memory(tmp_path):
             "from dse.engine.driver import RunOptions\n"
             "repro = api.load(json.loads(sys.argv[1]))\n"
             "opts = RunOptions(max_memory_mib=300)\n"
-            "est = repro.estimate(opts)\n"
+            "est = repro.cost(opts).as_dict()\n"
             "run = api.execute(repro, opts)\n"
             # VmHWM: this process's own high-water mark (ru_maxrss would keep the forking parent's size across exec)
             "peak = next(int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmHWM')) / 1024\n"
@@ -361,12 +361,12 @@ def test_what_cannot_be_streamed_is_refused_before_running():
     repro = api.load(data)
     with pytest.raises(ScenarioError, match=r"^sampling\.stored: the run needs about [\d,]+ MiB .* memory budget of "
                                             r"300 MiB"):
-        repro.compute(RunOptions(max_memory_mib=300), cache=None)
+        repro.scenarios[0].legacy.compute(RunOptions(max_memory_mib=300), cache=None)
 
 
 def test_estimate_against_a_measured_run(two_run):
     """The estimate is meant within a factor 2; a loaded test machine is allowed a factor 3."""
-    est = two_run.reproduction.estimate(RunOptions(seed=3))
+    est = two_run.reproduction.scenarios[0].legacy.estimate(RunOptions(seed=3))
     measured = two_run.provenance["compute_s"]
     assert measured / 3 <= est["seconds"] <= 3 * measured + 8.0           # + the figures and recordings not run here
     # peak memory is measured in a process of its own (test_long_horizon_runs_in_bounded_memory): the pytest

@@ -220,11 +220,10 @@ def test_paper_theory_q_is_refused_with_its_value():
 
 
 def test_cli_rejects_a_bad_file_with_one_line(tmp_path):
-    """`dse run FILE.toml` (the family registered as the lead will do): exit 2, one line naming the field."""
+    """`dse run FILE.toml`: exit 2, one line naming the field."""
     data = USER.replace("C = [[[1.0, -1.0]], [[0.0, 1.0]]]", "C = [[[1.0, -1.0]], [[2.0, -2.0]]]")
     (tmp_path / "s.toml").write_text('family = "hybrid-observer"\n' + data)
-    code = ("import sys; import dse.families as reproductions; reproductions.FAMILIES['hybrid-observer'] = "
-            "'dse.families.wang_liu_morse.reproduction'; from dse.cli import main; sys.exit(main(sys.argv[1:]))")
+    code = "import sys; from dse.cli import main; sys.exit(main(sys.argv[1:]))"
     root = Path(__file__).resolve().parent.parent
     proc = subprocess.run([sys.executable, "-c", code, "run", "s.toml", "--out", "out"], cwd=tmp_path, capture_output=True,
                           text=True, timeout=300, env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0"})

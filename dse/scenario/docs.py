@@ -8,7 +8,6 @@ of a whole scenario file, and `FAMILY_INTRO`, one paragraph on what the family m
 """
 from __future__ import annotations
 
-import importlib
 import sys
 from pathlib import Path
 
@@ -35,19 +34,15 @@ POLICY = """## Rules common to every family
 
 
 def page() -> str:
-    import dse.families as reproductions
+    import dse.families
     from dse.scenario.declare import reference_markdown
 
     parts = ["# Scenario keys", "",
              "Generated from the declarations in the code (`python -m dse.scenario.docs`); a test fails when "
              "this page and the code disagree. Every shipped scenario file under `dse/families/` is a commented "
              "example of its family.", "", POLICY]
-    for family, module_name in reproductions.FAMILIES.items():
-        module = importlib.import_module(module_name)
-        if not hasattr(module, "SCENARIO_MODEL"):   # a family whose keys are not declared yet
-            parts.append(f"## `{family}`\n\nIts keys are not declared yet: see the family's `scenario.py`.\n")
-            continue
-        parts.append(reference_markdown(f"`{family}`", module.SCENARIO_MODEL, module.FAMILY_INTRO))
+    for family in dse.families.families().values():
+        parts.append(reference_markdown(f"`{family.id}`", family.scenario_model, family.intro))
     return "\n".join(parts).rstrip() + "\n"
 
 

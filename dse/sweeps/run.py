@@ -56,8 +56,9 @@ class Task:
 
 
 def _registry():
-    import dse.families as reproductions
-    return reproductions
+    import dse.families
+
+    return dse.families
 
 
 def build_tasks(spec: SweepSpec, log: Callable[[str], None] | None = None) -> list[Task]:
@@ -77,7 +78,7 @@ def build_tasks(spec: SweepSpec, log: Callable[[str], None] | None = None) -> li
             last = now
         scenario = spec.scenario(point)
         try:
-            reg.family_from_dict(scenario)
+            reg.from_dict(scenario)
         except ScenarioError as exc:
             where = ", ".join(f"{k} = {json.dumps(v)}" for k, v in point.values.items()) or "the base scenario"
             raise ScenarioError(exc.field, f"{exc.reason} (at the point {where})") from None
@@ -95,11 +96,11 @@ def run_point(payload: dict[str, Any]) -> dict[str, Any]:
     the point, not an error of the task: it is reported in the row and not retried.
     """
     from dse.api import execute
-    from dse.engine.driver import RunOptions
+    from dse.contract.options import RunOptions
 
     reg = _registry()
     start = time.perf_counter()
-    repro = reg.family_from_dict(payload["scenario"])
+    repro = reg.from_dict(payload["scenario"])
     opts = RunOptions(seed=payload["seed"], trials=payload["trials"], quick=payload["quick"], workers=1)
     where = {"host": socket.gethostname(), "pid": os.getpid()}
     try:
@@ -107,8 +108,7 @@ def run_point(payload: dict[str, Any]) -> dict[str, Any]:
     except NumericalError as exc:
         return {"status": "numerical-error", "error": str(exc), "claims": [], "metrics": {}, "tables": {},
                 "wall_s": time.perf_counter() - start, **where}
-    metrics = (network_metrics(run.tables["metrics"]) if "metrics" in run.tables
-               else reg.family_metrics(payload["scenario"]["family"], run.results))
+    metrics = network_metrics(run.tables["metrics"]) if "metrics" in run.tables else {}
     wanted = payload.get("tables")
     tables = {name: run.tables[name] for name in run.tables if wanted is None or name in wanted}
     return {"status": "ok", "error": "", "metrics": {k: float(v) for k, v in metrics.items()},

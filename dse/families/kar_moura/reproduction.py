@@ -6,7 +6,8 @@ from pathlib import Path
 from typing import Any
 
 from dse.engine.cache import StageCache
-from dse.engine.driver import FamilyReproduction, RunOptions
+from dse.engine.driver import RunOptions
+from dse.families.legacy import FamilyReproduction
 
 from . import claims as claims_mod
 from . import compute as compute_mod

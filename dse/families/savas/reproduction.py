@@ -6,7 +6,8 @@ from pathlib import Path
 from typing import Any
 
 from dse.engine.cache import StageCache
-from dse.engine.driver import FamilyReproduction, RunOptions
+from dse.engine.driver import RunOptions
+from dse.families.legacy import FamilyReproduction
 
 from .scenario import NoisyConsensusFile, NoisyConsensusScenario, paper_scenario
 

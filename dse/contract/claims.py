@@ -1,0 +1,214 @@
+"""Claims and hypotheses declared next to their checks.
+
+A family's claims module makes one `ClaimSet` and registers each check where it is written:
+
+    claims = ClaimSet()
+
+    @claims.hypothesis("{paper}.hyp.{scenario}.alpha", "0 < α ≤ 1/d_max (eq. 3)")
+    def alpha_in_range(design, scenario: str) -> Holds: ...
+
+    @claims.claim("{paper}.model.fusion_weights.{scenario}", "eq. (3), (6)", "Π = I − α𝓛 is ...",
+                  "identity", hypotheses=("{paper}.hyp.{scenario}.alpha",))
+    def check_fusion(results, scenario: str) -> Verdict: ...
+
+    claims.unchecked("savas.nc.convexity", "§VI", "convexity of J is left open", "qualitative",
+                     reason="stated as an open question, not a claim")
+
+The ids are templates (claim and hypothesis ids never change: they are what reports and users
+refer to):
+
+- ``{paper}`` is the run's id (the paper id in the paper's reproduction, the scenario name in a
+  user's run);
+- ``{scenario}`` makes the entry *per scenario*: one claim (or hypothesis) per scenario of the
+  run, its check called with the scenario's name (or, when the set declares `select`, with
+  `select(results, name)` instead of the results and the name). Consecutive per-scenario
+  entries are expanded scenario by scenario (all of the first scenario's, then the next's).
+  A run-level claim that rests on a per-scenario hypothesis rests on every scenario's.
+
+Gates are declared, not written into the checks: `scope="paper-example"` (evaluated in the
+paper's own reproduction only), `when=...` (a predicate on `Where`: the scenario, its roles, the
+paper run; `role("full")`, `example("e7")` and `paper_only` are the usual ones) decides whether a
+claim exists for a scenario at all, and `hypotheses=` the hypotheses its conclusion rests on (a
+claim whose hypotheses do not hold is `not-checkable`, naming them: `dse.verify.rules.evaluate`).
+`args=` passes fixed extra arguments, so that one check can back two claims.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable, Sequence
+
+from dse.verify.rules import KINDS, SCOPES, Claim, Hypothesis, Verdict, not_checkable
+
+
+@dataclass(frozen=True)
+class Where:
+    """Where a claim is being instantiated: the run and one of its scenarios (None for a run-level claim)."""
+
+    run_id: str
+    paper: bool
+    scenarios: tuple[str, ...]
+    scenario: str | None = None
+    roles: frozenset[str] = frozenset()
+
+
+Gate = Callable[[Where], bool]
+
+
+def role(name: str) -> Gate:
+    """Present where the scenario has this role (the family's `roles`)."""
+    gate = lambda where: name in where.roles  # noqa: E731
+    gate.__doc__ = f"scenarios with role {name!r}"
+    return gate
+
+
+def example(*names: str) -> Gate:
+    """Present for the paper's own scenarios of these names (in the paper's reproduction only)."""
+    gate = lambda where: where.paper and (where.scenario in names or  # noqa: E731
+                                          (where.scenario is None and any(n in where.scenarios for n in names)))
+    gate.__doc__ = f"the paper's scenario {', '.join(names)}"
+    return gate
+
+
+def paper_only(where: Where) -> bool:
+    """Present in the paper's own reproduction only."""
+    return where.paper
+
+
+def _fill(template: str, where: Where, scenario: str | None = None) -> str:
+    return template.replace("{paper}", where.run_id).replace("{scenario}", scenario or where.scenario or "")
+
+
+def _per_scenario(template: str) -> bool:
+    return "{scenario}" in template
+
+
+@dataclass(frozen=True)
+class ClaimEntry:
+    id: str
+    source: str
+    statement: str
+    kind: str
+    check: Callable[..., Verdict]
+    hypotheses: tuple[str, ...] | Callable[[Where], tuple[str, ...]] = ()
+    scope: str = "family"
+    when: Gate | None = None
+    args: tuple = ()
+
+    @property
+    def per_scenario(self) -> bool:
+        return _per_scenario(self.id)
+
+
+@dataclass(frozen=True)
+class HypothesisEntry:
+    id: str
+    statement: str
+    check: Callable[..., Any]
+    when: Gate | None = None
+    args: tuple = ()
+
+    @property
+    def per_scenario(self) -> bool:
+        return _per_scenario(self.id)
+
+
+@dataclass
+class ClaimSet:
+    """A family's hypotheses and claims, in the order they are reported.
+
+    `select(results, scenario_name)`, when given, is what a per-scenario check receives instead
+    of the results and the scenario's name (and likewise a per-scenario hypothesis, with the
+    design)."""
+
+    select: Callable[[Any, str], Any] | None = None
+    select_design: Callable[[Any, str], Any] | None = None
+    claims: list[ClaimEntry] = field(default_factory=list)
+    hypotheses: list[HypothesisEntry] = field(default_factory=list)
+
+    # -- registration ----------------------------------------------------------------------------------
+
+    def claim(self, id: str, source: str, statement: str, kind: str, *, hypotheses: Sequence[str] |
+              Callable[[Where], tuple[str, ...]] = (), scope: str = "family", when: Gate | None = None,
+              args: tuple = ()):
+        """Register the decorated function as the check of a claim (see the module docstring)."""
+        if kind not in KINDS:
+            raise ValueError(f"claim {id}: unknown kind {kind!r}")
+        if scope not in SCOPES:
+            raise ValueError(f"claim {id}: unknown scope {scope!r}")
+
+        def register(fn: Callable[..., Verdict]):
+            hyps = hypotheses if callable(hypotheses) else tuple(hypotheses)
+            self.claims.append(ClaimEntry(id, source, statement, kind, fn, hyps, scope, when, tuple(args)))
+            return fn
+
+        return register
+
+    def unchecked(self, id: str, source: str, statement: str, kind: str, *, reason: str, scope: str = "family",
+                  when: Gate | None = None) -> None:
+        """A claim that no computation can check (an interpretation, an open question): always
+        `not-checkable`, with `reason`."""
+        self.claim(id, source, statement, kind, scope=scope, when=when)(lambda *_a: not_checkable(reason))
+
+    def hypothesis(self, id: str, statement: str, *, when: Gate | None = None, args: tuple = ()):
+        """Register the decorated function (design -> Holds) as a hypothesis check."""
+        def register(fn):
+            self.hypotheses.append(HypothesisEntry(id, statement, fn, when, tuple(args)))
+            return fn
+
+        return register
+
+    # -- instantiation for one run -----------------------------------------------------------------------
+
+    def hypothesis_list(self, wheres: Sequence[Where]) -> list[Hypothesis]:
+        """Every hypothesis of a run, per-scenario ones expanded (`wheres[0]` is the run itself,
+        then one `Where` per scenario)."""
+        out = []
+        for entry, where, name in self._expand(self.hypotheses, wheres):
+            out.append(Hypothesis(_fill(entry.id, where), _fill(entry.statement, where),
+                                  self._bind(entry.check, name, entry.args, self.select_design)))
+        return out
+
+    def claim_list(self, wheres: Sequence[Where]) -> list[Claim]:
+        """Every claim of a run, in the order of registration (per-scenario blocks scenario by scenario)."""
+        out = []
+        for entry, where, name in self._expand(self.claims, wheres):
+            refs = entry.hypotheses(where) if callable(entry.hypotheses) else entry.hypotheses
+            hyps = []
+            for ref in refs:
+                if _per_scenario(ref) and name is None:           # a run-level claim: every scenario's
+                    hyps += [_fill(ref, where, s) for s in where.scenarios]
+                else:
+                    hyps.append(_fill(ref, where))
+            out.append(Claim(_fill(entry.id, where), entry.source, _fill(entry.statement, where), entry.kind,
+                             self._bind(entry.check, name, entry.args, self.select), tuple(dict.fromkeys(hyps)),
+                             entry.scope))
+        return out
+
+    @staticmethod
+    def _expand(entries: Iterable, wheres: Sequence[Where]):
+        run, per = wheres[0], list(wheres[1:])
+        block: list = []
+
+        def flush():
+            for w in per:
+                for e in block:
+                    if e.when is None or e.when(w):
+                        yield e, w, w.scenario
+            block.clear()
+
+        for e in entries:
+            if e.per_scenario:
+                block.append(e)
+                continue
+            yield from flush()
+            if e.when is None or e.when(run):
+                yield e, run, None
+        yield from flush()
+
+    @staticmethod
+    def _bind(fn: Callable, scenario: str | None, args: tuple, select: Callable | None) -> Callable[[Any], Any]:
+        if scenario is None:
+            return (lambda res: fn(res, *args)) if args else fn
+        if select is not None:
+            return lambda res: fn(select(res, scenario), *args)
+        return lambda res: fn(res, scenario, *args)

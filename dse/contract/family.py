@@ -1,0 +1,248 @@
+"""The contract between the pipeline and a scenario family (one paper's, or compare).
+
+A family is a subclass of `Family` that declares what it is (the class attributes) and
+implements the abstract methods; the driver calls nothing else. A run is a `Reproduction`:
+the family, the scenarios it runs (the paper's own, or one scenario file of a user's) and
+whether it is the paper's reproduction (claims of scope "paper-example" are evaluated then
+only). The registry (`dse.families`) finds families by the `dse.families` entry point group,
+so an installed package can add one.
+
+    scenario file ──scenario_from_dict──▶ Reproduction ──design──▶ design ──hypotheses──▶ (dse check)
+                                               │                      │
+                                               └──────simulate────────┴──▶ results ──claims──▶ verdicts
+                                                                                  └──tables──▶ tables ──views──▶ figures, recordings
+
+Each stage of `design` and `simulate` is a declared `dse.contract.stages.Stage` run through the
+`StageContext` it is given (cache keys derived from its inputs and its code). `cost` is an
+estimate made before anything runs; the driver refuses a run that cannot fit its memory budget.
+"""
+from __future__ import annotations
+
+import importlib
+import inspect
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar, Iterable, Sequence
+
+from dse.contract.claims import ClaimSet, Where
+from dse.contract.cost import Cost
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
+
+
+@dataclass(frozen=True)
+class Paper:
+    """The paper a family reproduces: its id (`dse reproduce ID`), title, the ids of its own
+    scenarios (listed without reading their files) and the notes of its reproduction (the values
+    the paper leaves out and what we chose)."""
+
+    id: str
+    title: str
+    scenario_ids: tuple[str, ...]
+    notes: str = ""
+
+
+class Family(ABC):
+    """A scenario family. Subclasses declare the class attributes and implement every abstract
+    method; `docs/design.md` ("Adding a paper") walks through the template family."""
+
+    #: the `family` key of a scenario file
+    id: ClassVar[str]
+    #: the paper reproduced, or None (a family of its own, like compare)
+    paper: ClassVar[Paper | None] = None
+    #: what a scenario of the family is and which tables a run writes (docs/scenarios.md, `dse list`)
+    intro: ClassVar[str]
+    #: model choices and how the verdicts are reached: the notes of every run's report
+    notes: ClassVar[str] = ""
+    #: the declared scenario file (a `dse.scenario.declare.Section`; docs/scenarios.md is generated from it)
+    scenario_model: ClassVar[type]
+    #: a valid scenario file of the family, relative to the family's package directory
+    example: ClassVar[str]
+    #: the names of the generator's edge cases (`generate(seed, edge)`)
+    edges: ClassVar[tuple[str, ...]] = ()
+    #: the title of a user's run: "<family> scenario '<name>'" and this
+    run_title: ClassVar[str] = ""
+
+    # -- scenarios ---------------------------------------------------------------------------------------
+
+    @abstractmethod
+    def scenario_from_dict(self, data: dict[str, Any]) -> Any:
+        """A validated scenario from a parsed file without its `family` key (ScenarioError naming the field)."""
+
+    def paper_scenarios(self) -> Sequence[Any]:
+        """The paper's own scenarios (families with a paper override this)."""
+        raise NotImplementedError(f"family {self.id} has no paper")
+
+    def roles(self, scenario: Any, paper: bool) -> frozenset[str]:
+        """Roles of a scenario in a run, read by the claims' `role(...)` gates (none by default)."""
+        return frozenset()
+
+    @abstractmethod
+    def generate(self, seed: int, edge: str | None = None) -> dict[str, Any]:
+        """A random valid scenario file (as a dict with `family`), small enough for a quick run;
+        `edge` one of `edges`. Deterministic in (seed, edge)."""
+
+    # -- stages ------------------------------------------------------------------------------------------
+
+    @abstractmethod
+    def claims(self) -> ClaimSet:
+        """The family's hypotheses and claims (its claims module's `ClaimSet`, imported on first use)."""
+
+    @abstractmethod
+    def design(self, run: "Reproduction", opts: RunOptions, ctx: StageContext) -> Any:
+        """The deterministic design stage: what the hypotheses are evaluated on (`dse check`)."""
+
+    @abstractmethod
+    def simulate(self, run: "Reproduction", opts: RunOptions, ctx: StageContext, design: Any) -> Any:
+        """Monte Carlo and bounds on top of the design: what the claims are evaluated on."""
+
+    @abstractmethod
+    def trials(self, run: "Reproduction", opts: RunOptions) -> int:
+        """Monte Carlo trials per cell of the run (provenance)."""
+
+    @abstractmethod
+    def cost(self, run: "Reproduction", opts: RunOptions) -> Cost:
+        """The run's estimated time and memory, from the scenario's sizes, before anything runs."""
+
+    # -- outputs -----------------------------------------------------------------------------------------
+
+    @abstractmethod
+    def design_tables(self, run: "Reproduction", design: Any) -> Iterable[tuple[Any, Any]]:
+        """(TableSpec, DataFrame) of every design quantity (also written by `dse check`)."""
+
+    @abstractmethod
+    def tables(self, run: "Reproduction", results: Any) -> Iterable[tuple[Any, Any]]:
+        """(TableSpec, DataFrame) of every number the run computed (design tables included)."""
+
+    @abstractmethod
+    def views(self, outputs: Any) -> list[Any]:
+        """The run's figures and recordings (`dse.contract.views.View`), drawn from `outputs`."""
+
+    # -- what the driver reads (defined here once) -------------------------------------------------------
+
+    def claim_list(self, run: "Reproduction") -> list:
+        """The run's claims, expanded from the family's ClaimSet."""
+        return self.claims().claim_list(self.wheres(run))
+
+    def hypothesis_list(self, run: "Reproduction") -> list:
+        """The run's hypotheses, expanded from the family's ClaimSet."""
+        return self.claims().hypothesis_list(self.wheres(run))
+
+    def wheres(self, run: "Reproduction") -> list[Where]:
+        """The run itself, then each of its scenarios (with its roles), for the claims' expansion."""
+        ids = tuple(run.scenario_ids())
+        out = [Where(run.paper_id, run.is_paper, ids)]
+        entries = self.claims().claims + self.claims().hypotheses
+        if any(e.per_scenario or e.when is not None for e in entries):
+            out += [Where(run.paper_id, run.is_paper, ids, sc.name, self.roles(sc, run.is_paper)) for sc in run.scenarios]
+        return out
+
+    def compute(self, run: "Reproduction", opts: RunOptions, ctx: StageContext) -> "Computed":
+        """The design, then the simulation on top of it."""
+        design = self.design(run, opts, ctx)
+        return Computed(design, self.simulate(run, opts, ctx, design))
+
+    def title_of(self, run: "Reproduction") -> str:
+        if run.is_paper:
+            return self.paper.title
+        return f"{self.id} scenario '{run.paper_id}'" + (f": {self.run_title}" if self.run_title else "")
+
+    def notes_of(self, run: "Reproduction") -> str:
+        if run.is_paper and self.paper.notes:
+            return "\n\n".join(n for n in (self.paper.notes, self.notes) if n)
+        return self.notes
+
+    def directory(self) -> Path:
+        """The family's package directory (its scenario files live there)."""
+        return Path(inspect.getfile(type(self))).parent
+
+    def example_file(self) -> Path:
+        return self.directory() / self.example
+
+    def module(self, name: str):
+        """A module of the family's package, imported on first use (so that `dse list` loads only what it prints)."""
+        return importlib.import_module(f"{type(self).__module__.rpartition('.')[0]}.{name}")
+
+
+@dataclass(frozen=True)
+class Computed:
+    """A run's design (hypotheses) and results (claims, tables)."""
+
+    design: Any
+    results: Any
+
+
+@dataclass
+class Reproduction:
+    """One run of a family: the paper's reproduction (`scenarios` None: read from the paper's
+    files when first needed) or a user's scenario."""
+
+    family: Family
+    is_paper: bool
+    _scenarios: tuple | None = None
+    _claims: list | None = field(default=None, repr=False)
+    _hypotheses: list | None = field(default=None, repr=False)
+
+    @property
+    def scenarios(self) -> tuple:
+        if self._scenarios is None:
+            self._scenarios = tuple(self.family.paper_scenarios())
+        return self._scenarios
+
+    @property
+    def scenario(self) -> Any:
+        """The scenario of a one-scenario run."""
+        return self.scenarios[0]
+
+    def scenario_ids(self) -> list[str]:
+        if self.is_paper and self._scenarios is None:
+            return list(self.family.paper.scenario_ids)
+        return [sc.name for sc in self.scenarios]
+
+    @property
+    def paper_id(self) -> str:
+        """The run's id: the paper's, or the user's scenario name (the output directory, claim ids)."""
+        return self.family.paper.id if self.is_paper else self.scenarios[0].name
+
+    @property
+    def title(self) -> str:
+        return self.family.title_of(self)
+
+    def notes(self) -> str:
+        return self.family.notes_of(self)
+
+    # -- claims ------------------------------------------------------------------------------------------
+
+    def claims(self) -> list:
+        if self._claims is None:
+            self._claims = self.family.claim_list(self)
+        return self._claims
+
+    def hypotheses(self) -> list:
+        if self._hypotheses is None:
+            self._hypotheses = self.family.hypothesis_list(self)
+        return self._hypotheses
+
+    # -- stages ------------------------------------------------------------------------------------------
+
+    def design(self, opts: RunOptions, ctx: StageContext) -> Any:
+        return self.family.design(self, opts, ctx)
+
+    def compute(self, opts: RunOptions, ctx: StageContext) -> Computed:
+        return self.family.compute(self, opts, ctx)
+
+    def trials(self, opts: RunOptions) -> int:
+        return self.family.trials(self, opts)
+
+    def cost(self, opts: RunOptions) -> Cost:
+        return self.family.cost(self, opts)
+
+    def design_tables(self, design: Any):
+        return self.family.design_tables(self, design)
+
+    def tables(self, results: Any):
+        return self.family.tables(self, results)
+
+    def views(self, outputs: Any) -> list:
+        return self.family.views(outputs)

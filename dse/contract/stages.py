@@ -1,0 +1,212 @@
+"""Stages: cached computations keyed by what they are given and by the code they run.
+
+A stage is a module-level function that returns named arrays, declared with `@stage`:
+
+    @stage(unkeyed=("budget_bytes",), allow_nonfinite=("thresholds",))
+    def monte_carlo(sc: MyScenario, seed: int, trials: int, budget_bytes: float) -> dict[str, np.ndarray]:
+        ...
+
+and run through a `StageContext` (`ctx.run(monte_carlo, sc, seed, trials, budget)`), which reads
+the result from the stage cache or computes and stores it. The cache key is derived, never
+written by hand, from
+
+- the stage's name (the function's, unless given);
+- every argument it is called with, by name: a scenario by its `key()`, an upstream stage's
+  result by that stage's key, anything else by its canonical JSON; arguments declared
+  `unkeyed` are left out (they cannot change the result: a memory budget, a progress label);
+- the source of the stage's module and of every `dse` module it imports, directly or
+  transitively, at module level or inside a function (`code_closure`, read from the import
+  statements): editing any of them invalidates the stage, editing an unrelated module does not.
+
+The context records every stage it ran, with its key and whether it was read back from the
+cache; `report.json` lists them under `provenance.stages`.
+"""
+from __future__ import annotations
+
+import ast
+import functools
+import hashlib
+import inspect
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+PROJECT = "dse"
+
+
+# -- the code a module runs --------------------------------------------------------------------------
+
+@functools.lru_cache(maxsize=1)
+def _project_root() -> Path:
+    return Path(__file__).resolve().parents[1]
+
+
+def module_file(name: str) -> Path | None:
+    """The source file of a project module (a package's `__init__.py`), or None if there is none."""
+    if name != PROJECT and not name.startswith(PROJECT + "."):
+        return None
+    rel = Path(*name.split(".")[1:])
+    root = _project_root()
+    for path in (root / rel.with_suffix(".py") if rel.parts else None, root / rel / "__init__.py"):
+        if path is not None and path.is_file():
+            return path
+    return None
+
+
+@functools.lru_cache(maxsize=None)
+def direct_imports(name: str) -> frozenset[str]:
+    """The project modules `name` imports anywhere in its source (function bodies included), and
+    the packages they live in (importing a module runs its packages' `__init__`)."""
+    path = module_file(name)
+    if path is None:
+        return frozenset()
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_bytes(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                parts = package.split(".")
+                base = ".".join(parts[:len(parts) - node.level + 1] + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            found.add(base)
+            found.update(f"{base}.{a.name}" for a in node.names)     # `from pkg import module`
+    modules = {m for m in found if module_file(m) is not None}
+    for m in list(modules):                                          # and the packages around it
+        parts = m.split(".")
+        modules.update(".".join(parts[:i]) for i in range(1, len(parts)))
+    modules.discard(name)
+    return frozenset(modules)
+
+
+@functools.lru_cache(maxsize=None)
+def code_closure(name: str) -> frozenset[str]:
+    """`name` and every project module it imports, transitively."""
+    seen: set[str] = set()
+    todo = [name]
+    while todo:
+        m = todo.pop()
+        if m not in seen:
+            seen.add(m)
+            todo.extend(direct_imports(m))
+    return frozenset(seen)
+
+
+@functools.lru_cache(maxsize=None)
+def code_hash(name: str) -> str:
+    """Hash of the source of every module in `code_closure(name)`."""
+    h = hashlib.sha256()
+    for m in sorted(code_closure(name)):
+        h.update(m.encode())
+        h.update(module_file(m).read_bytes())
+    return h.hexdigest()[:16]
+
+
+# -- stages -----------------------------------------------------------------------------------------------
+
+class StageResult(dict):
+    """A stage's arrays, carrying the stage's key (so that a downstream stage is keyed by it)."""
+
+    key: str = ""
+
+
+def _key_value(value: Any) -> Any:
+    """What an argument contributes to a key."""
+    if isinstance(value, StageResult):
+        return {"stage": value.key}
+    key = getattr(value, "key", None)
+    if callable(key):                     # a scenario
+        return key()
+    if isinstance(value, (list, tuple)):
+        return [_key_value(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _key_value(v) for k, v in value.items()}
+    if hasattr(value, "__dataclass_fields__"):
+        from dataclasses import fields
+
+        return {f.name: _key_value(getattr(value, f.name)) for f in fields(value)}
+    return value
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A declared stage (see the module docstring); `stage(...)` builds it from a function."""
+
+    fn: Callable[..., dict[str, np.ndarray]]
+    name: str
+    unkeyed: tuple[str, ...] = ()
+    allow_nonfinite: tuple[str, ...] | Callable[..., tuple[str, ...]] = ()
+
+    def __call__(self, *args, **kwargs) -> dict[str, np.ndarray]:
+        """The computation itself, uncached."""
+        return self.fn(*args, **kwargs)
+
+    @property
+    def module(self) -> str:
+        return self.fn.__module__
+
+    def bound(self, args: tuple, kwargs: dict) -> dict[str, Any]:
+        sig = inspect.signature(self.fn)
+        b = sig.bind(*args, **kwargs)
+        b.apply_defaults()
+        return dict(b.arguments)
+
+    def params(self, arguments: dict[str, Any]) -> dict[str, Any]:
+        """The cache key's content: the keyed arguments and the code."""
+        return {"stage": self.name, "code": code_hash(self.module),
+                "inputs": {k: _key_value(v) for k, v in arguments.items() if k not in self.unkeyed}}
+
+    def nonfinite_allowed(self, arguments: dict[str, Any]) -> tuple[str, ...]:
+        allow = self.allow_nonfinite
+        return tuple(allow(**arguments)) if callable(allow) else tuple(allow)
+
+
+def stage(fn: Callable | None = None, *, name: str | None = None, unkeyed: Iterable[str] = (),
+          allow_nonfinite: tuple[str, ...] | Callable[..., tuple[str, ...]] = ()):
+    """Declare a stage: `@stage` or `@stage(name=..., unkeyed=(...), allow_nonfinite=(...))`.
+    `allow_nonfinite` names arrays that may hold NaN or inf (a predicted divergence); it may be a
+    function of the stage's arguments."""
+    def wrap(f: Callable) -> Stage:
+        params = inspect.signature(f).parameters
+        missing = [u for u in unkeyed if u not in params]
+        if missing:
+            raise TypeError(f"stage {f.__name__}: unkeyed {missing} are not parameters")
+        return functools.update_wrapper(Stage(f, name or f.__name__, tuple(unkeyed), allow_nonfinite), f)
+
+    return wrap(fn) if fn is not None else wrap
+
+
+@dataclass
+class StageContext:
+    """Where a run's stages are computed: the stage cache and the record of what ran."""
+
+    cache: Any                                     # dse.engine.cache.StageCache (or MemoryCache)
+    ran: list[dict[str, Any]] = field(default_factory=list)
+
+    def run(self, st: Stage, *args, **kwargs) -> StageResult:
+        """The stage's result for these arguments: from the cache, or computed and stored."""
+        arguments = st.bound(args, kwargs)
+        params = st.params(arguments)
+        key = self.cache.key(st.name, params)
+        scenario = next((str(getattr(v, "name", "")) for v in arguments.values() if callable(getattr(v, "key", None))
+                         and not isinstance(v, StageResult)), "")
+        computed = []
+
+        def compute():
+            computed.append(True)
+            return st.fn(**arguments)
+
+        arrays = self.cache.get_or_compute(st.name, params, compute, scenario=scenario,
+                                           allow_nonfinite=st.nonfinite_allowed(arguments))
+        self.ran.append({"name": st.name, "key": key, "cached": not computed})
+        out = StageResult(arrays)
+        out.key = key
+        return out
+
+    def merge(self, other: "StageContext") -> None:
+        """Add the stages another context (a worker's) ran."""
+        self.ran.extend(other.ran)

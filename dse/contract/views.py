@@ -1,0 +1,90 @@
+"""Views: the figures and recordings of a run, drawn from its tables after it is checked.
+
+A family's `views(outputs)` returns a list of `View`s, each one file of the run directory and
+the function that writes it. The driver draws them in forked worker processes (each imports
+only what it draws with: matplotlib or rerun), after the tables and the report's claims exist.
+
+`recording(...)` is the one recording scaffold every family fills: a default layout made of the
+family's tabs and a last tab with the claims (the verdict table and each claim in full), the
+timeline the viewer opens on, the run's properties (seed, trials, versions, git and the family's
+own), and the report's verdict counts as the `/report` header.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+
+@dataclass(frozen=True)
+class View:
+    """One output file (`file`, relative to the run directory) and `draw(path)`, which writes it."""
+
+    file: str
+    draw: Callable[[Path], None]
+
+
+@dataclass
+class Outputs:
+    """What views are drawn from: the run's reproduction, stage results, tables, checked claims
+    (rows as in report.json) and provenance."""
+
+    reproduction: Any
+    results: Any
+    tables: Any
+    claims: list[dict[str, Any]]
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def seed(self) -> int:
+        return int(self.provenance.get("seed", 0) or 0)
+
+    @property
+    def trials(self) -> int:
+        return int(self.provenance.get("trials", 0) or 0)
+
+    @property
+    def workers(self) -> int:
+        return int(self.provenance.get("workers", 1) or 1)
+
+    def summary(self, name: str | None = None, extra: str = "") -> str:
+        """The `/report` header of a recording: the verdict counts of the run (one counting for every family)."""
+        from dse.outputs.report import counts_line, verdict_counts
+
+        name = name or self.reproduction.paper_id
+        text = f"# {name}: {counts_line(verdict_counts(self.claims))}\n\nseed {self.seed}"
+        return text + (f", {extra}" if extra else "")
+
+    def properties(self, **family: Any) -> dict[str, Any]:
+        """A recording's properties: the family's own, then seed, trials, versions and git."""
+        return {**family, "seed": self.seed, "trials": self.trials,
+                "versions": json.dumps(self.provenance.get("versions", {})), "git": self.provenance.get("git", "")}
+
+
+def claims_tab():
+    """The last tab of every recording's layout: the verdict table and the claim in full."""
+    import rerun.blueprint as rrb
+
+    return rrb.Horizontal(rrb.TextDocumentView(origin="/report", name="claims"),
+                          rrb.TextDocumentView(origin="/claims", name="claim detail"), name="claims")
+
+
+def recording(path: Path, outputs: Outputs, *, recording_id: str, tabs: Callable[[], Sequence[Any]], timeline: str,
+              log: Callable[[Any], None], properties: dict[str, Any] | None = None, summary: str | None = None,
+              claims: Sequence[dict] | None = None, application_id: str | None = None) -> None:
+    """Write one recording: the family's `tabs()` (rerun blueprint containers) and the claims tab as
+    its default layout, opened on `timeline`; `log(rec)` logs the family's data; then the claims
+    (`claims`, default every claim of the run) under `/report` and `/claims/<id>`."""
+    import rerun.blueprint as rrb
+
+    from dse.outputs import record
+
+    repro = outputs.reproduction
+    blueprint = rrb.Blueprint(rrb.Tabs(*tabs(), claims_tab()), rrb.TimePanel(timeline=timeline, expanded=False),
+                              collapse_panels=True)
+    app = application_id or f"dse-{repro.family.paper.id if repro.is_paper and repro.family.paper else repro.family.id}"
+    with record.recording(path, application_id=app, recording_id=recording_id, blueprint=blueprint,
+                          properties=outputs.properties(**(properties or {}))) as rec:
+        log(rec)
+        record.log_claims(rec, outputs.claims if claims is None else claims, summary or outputs.summary())
