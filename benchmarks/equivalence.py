@@ -50,17 +50,18 @@ def _dse(python: str, tree: Path, args: list[str], log) -> None:
     print(f"  {' '.join(args)}: exit {done.returncode}, {time.perf_counter() - start:.0f} s", flush=True)
 
 
-def generate(out: Path, python: str, tree: Path) -> None:
+def generate(out: Path, python: str, tree: Path, papers: list[str] | None = None, compare: bool = True) -> None:
+    """Every paper (or `papers` only) and, with `compare`, every shipped compare scenario."""
     out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
-    with open(out / "generate.log", "w") as log:
+    with open(out / "generate.log", "a") as log:
         for mode in MODES:
             flags = ["--quick"] if mode == "quick" else []
-            for seed in SEEDS:
+            for seed in SEEDS if papers != [] else ():
                 root = out / f"{mode}-s{seed}"
-                _dse(python, tree, ["reproduce", *flags, "--seed", str(seed), "--no-figures",
+                _dse(python, tree, ["reproduce", *(papers or []), *flags, "--seed", str(seed), "--no-figures",
                                     "--out", str(root)], log)
-            for scenario in compare_scenarios(tree):
+            for scenario in compare_scenarios(tree) if compare else ():
                 _dse(python, tree, ["run", str(scenario), *flags, "--seed", "0", "--no-figures",
                                     "--out", str(out / f"{mode}-compare")], log)
 
@@ -130,12 +131,20 @@ def compare_tables(old: Path, new: Path, where: str, rtol: float) -> list[str]:
     return diffs
 
 
-def compare(old: Path, new: Path, rtol: float) -> list[str]:
+def compare(old: Path, new: Path, rtol: float, only: list[str] | None = None) -> list[str]:
+    """Differences between the runs of two `generate` directories (`only`: the runs whose path
+    names one of these papers, or `compare` for the compare scenarios)."""
     diffs = []
-    runs = sorted(p.parent.relative_to(old) for p in old.glob("**/report.json") if ".cache" not in p.parts)
+
+    def wanted(rel: Path) -> bool:
+        return not only or any(o in rel.parts or (o == "compare" and rel.parts[0].endswith("compare")) for o in only)
+
+    runs = sorted(r for r in (p.parent.relative_to(old) for p in old.glob("**/report.json") if ".cache" not in p.parts)
+                  if wanted(r))
     if not runs:
         return [f"{old} holds no report.json"]
-    new_runs = {p.parent.relative_to(new) for p in new.glob("**/report.json") if ".cache" not in p.parts}
+    new_runs = {r for r in (p.parent.relative_to(new) for p in new.glob("**/report.json") if ".cache" not in p.parts)
+                if wanted(r)}
     diffs += [f"{r}: only in the new runs" for r in sorted(new_runs - set(runs))]
     for rel in runs:
         if rel not in new_runs:
@@ -157,15 +166,20 @@ def main(argv: list[str] | None = None) -> int:
     gen.add_argument("out", type=Path)
     gen.add_argument("--python", default=sys.executable)
     gen.add_argument("--tree", type=Path, default=Path(__file__).resolve().parent.parent)
+    gen.add_argument("--paper", action="append", dest="papers", help="only this paper (repeatable)")
+    gen.add_argument("--no-papers", action="store_true", help="no paper (the compare scenarios only)")
+    gen.add_argument("--no-compare", action="store_true", help="without the compare scenarios")
     cmp = sub.add_parser("compare")
     cmp.add_argument("old", type=Path)
     cmp.add_argument("new", type=Path)
     cmp.add_argument("--rtol", type=float, default=1e-12)
+    cmp.add_argument("--only", action="append", help="only the runs of this paper, or 'compare' (repeatable)")
     args = parser.parse_args(argv)
     if args.command == "generate":
-        generate(args.out, args.python, args.tree.resolve())
+        generate(args.out, args.python, args.tree.resolve(), [] if args.no_papers else args.papers,
+                 compare=not args.no_compare)
         return 0
-    diffs = compare(args.old, args.new, args.rtol)
+    diffs = compare(args.old, args.new, args.rtol, args.only)
     for line in diffs:
         print(line)
     print(f"{len(diffs)} differences")

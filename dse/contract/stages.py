@@ -132,7 +132,7 @@ def _key_value(value: Any) -> Any:
     return value
 
 
-@dataclass(frozen=True)
+@dataclass(eq=False)
 class Stage:
     """A declared stage (see the module docstring); `stage(...)` builds it from a function."""
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import re
 import types
 import typing
-from typing import Annotated, Any, Literal, Mapping, get_args, get_origin
+from typing import Annotated, Any, ClassVar, Literal, Mapping, get_args, get_origin
 
 from annotated_types import Ge, Gt, Le, Lt, MaxLen, MinLen
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
@@ -41,6 +41,37 @@ class Section(BaseModel):
     to number conversion, no booleans as numbers), values are frozen once read."""
 
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True, arbitrary_types_allowed=True)
+
+
+#: a scenario name: a directory name (OUT/run/<name>/) and part of claim ids
+NAME_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
+
+
+class ScenarioFile(Section):
+    """A whole scenario file of a family, declared once: its sections, keys and validators. The
+    validated model is the scenario the family's stages read (derived quantities as cached
+    properties), and `key()` is what determines its numbers (for the stage cache): every key but
+    those in `unkeyed` (the name, and the trial counts, which the stages receive as arguments)."""
+
+    #: keys that change no number, as for `model_dump(exclude=...)`
+    unkeyed: ClassVar[dict[str, Any]] = {"name": True}
+
+    def key(self) -> dict[str, Any]:
+        return self.model_dump(mode="json", exclude=self.unkeyed)
+
+
+def name_key(default: str = "scenario") -> Any:
+    """The `name` key every scenario file has."""
+    return key(default, doc="scenario name: the output directory OUT/run/<name>/", pattern=NAME_PATTERN,
+               constraint="1 to 64 letters, digits, '-' or '_'")
+
+
+def computed_default(fn):
+    """A default computed from the keys declared before it in the same table: `fn(data)` gets them
+    (validated) and the first line of its docstring is what the reference page shows as the default."""
+    if not (fn.__doc__ or "").strip():
+        raise ValueError(f"computed default {fn.__name__} needs a docstring (the reference page shows it)")
+    return fn
 
 
 def key(default: Any = PydanticUndefined, *, doc: str, unit: str = "", constraint: str = "", **constraints) -> Any:
