@@ -29,7 +29,7 @@ import hashlib
 import inspect
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -207,6 +207,25 @@ class StageContext:
         out.key = key
         return out
 
-    def merge(self, other: "StageContext") -> None:
-        """Add the stages another context (a worker's) ran."""
-        self.ran.extend(other.ran)
+    def run_many(self, calls: Sequence[tuple[Stage, tuple, dict]], *, workers: int = 1, desc: str = "",
+                 weights: Sequence[float] | None = None) -> list[StageResult]:
+        """`run` for several (stage, args, kwargs) calls, in `workers` forked processes, the heaviest
+        (by `weights`) first; results in the order of `calls`, and the stages the workers ran recorded
+        here. Each call stores its own cache entry, so an interrupted run resumes call by call."""
+        from dse.simulate.units import run_jobs
+
+        def job(st: Stage, args: tuple, kwargs: dict):
+            def go():
+                sub = StageContext(self.cache)
+                out = sub.run(st, *args, **kwargs)
+                return dict(out), out.key, sub.ran
+            return go
+
+        weights = list(weights) if weights is not None else [1.0] * len(calls)
+        results = []
+        for arrays, key, ran in run_jobs([(w, job(*c)) for w, c in zip(weights, calls)], workers, desc=desc):
+            self.ran.extend(ran)
+            out = StageResult(arrays)
+            out.key = key
+            results.append(out)
+        return results

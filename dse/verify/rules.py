@@ -382,6 +382,41 @@ def erratum(printed, corrected, reference, *, rtol: float, detail: str = "", cor
                    detail=(f"printed: {p_ok.detail}; corrected: {c_ok.detail}. {detail}").strip())
 
 
+def within(measured, reference, allowance, *, detail: str) -> Verdict:
+    """Pass iff |measured − reference| <= allowance elementwise, each value with its own allowance
+    (derived from the arithmetic of that value: `roundoff_tolerance` per element)."""
+    m, r, t = np.broadcast_arrays(*(np.asarray(a, float).ravel() for a in (measured, reference, allowance)))
+    if m.size == 0:
+        return not_checkable(f"nothing to compare. {detail}")
+    if not (np.all(np.isfinite(m)) and np.all(np.isfinite(r))):
+        return not_checkable(f"a compared value is not finite. {detail}")
+    err = np.abs(m - r)
+    worst = int(np.argmax(err / np.maximum(t, 1e-300)))
+    ok = bool(np.all(err <= t))
+    return Verdict(PASS if ok else FAIL, measured=float(m[worst]), reference=float(r[worst]), tolerance=float(t[worst]),
+                   margin=float(t[worst] - err[worst]),
+                   detail=(f"worst error {err[worst]:.3g} against its allowance {t[worst]:.3g} "
+                           f"(largest error/allowance {err[worst] / max(t[worst], 1e-300):.3g}) over {m.size} values. "
+                           f"{detail}").strip())
+
+
+def below(lower, upper, allowance, *, detail: str, strict: bool = False) -> Verdict:
+    """Pass iff lower <= upper + allowance elementwise (< with `strict`), each value with its own
+    allowance; margin = the slack of the worst case."""
+    lo, up, t = np.broadcast_arrays(*(np.asarray(a, float).ravel() for a in (lower, upper, allowance)))
+    if lo.size == 0:
+        return not_checkable(f"nothing to compare. {detail}")
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(up))):
+        return not_checkable(f"a compared value is not finite. {detail}")
+    slack = up - lo
+    worst = int(np.argmin(slack + t))
+    ok = bool(np.all(slack > -t) if strict else np.all(slack >= -t))
+    return Verdict(PASS if ok else FAIL, measured=float(lo[worst]), reference=float(up[worst]),
+                   tolerance=float(t[worst]), margin=float(slack[worst]),
+                   detail=(f"smallest slack {slack[worst]:.6g} (allowance {t[worst]:.3g}) over {lo.size} "
+                           f"cases. {detail}").strip())
+
+
 def not_checkable(reason: str) -> Verdict:
     return Verdict(NOT_CHECKABLE, detail=reason)
 
