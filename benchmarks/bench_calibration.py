@@ -27,7 +27,7 @@ NOMINAL_ALPHA = 0.05
 
 
 def _one(task: tuple[str, int]) -> dict:
-    import dse.families
+    from dse import registry
     from dse.contract.options import RunOptions
     from dse.contract.stages import StageContext
     from dse.engine.cache import StageCache
@@ -35,8 +35,8 @@ def _one(task: tuple[str, int]) -> dict:
 
     family, seed = task
     t0 = time.perf_counter()
-    data = dse.families.family(family).generate(seed, None)
-    repro = dse.families.from_dict(data)
+    data = registry.family(family).generate(seed, None)
+    repro = registry.from_dict(data)
     names = sorted([repro.paper_id, *repro.scenario_ids()], key=len, reverse=True)
 
     def key(cid: str) -> str:
@@ -57,10 +57,10 @@ def _one(task: tuple[str, int]) -> dict:
 
 
 def bench_calibration(seeds: int = 200, workers: int = 2, families: list[str] | None = None) -> list[dict]:
-    import dse.families
+    from dse import registry
     from dse.simulate.stats import clopper_pearson
 
-    families = families or list(dse.families.families())
+    families = families or list(registry.families())
     tasks = [(f, s) for f in families for s in range(seeds)]
     outcomes = []
     start = time.perf_counter()

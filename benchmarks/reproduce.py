@@ -21,9 +21,9 @@ from .common import spread
 
 def papers() -> tuple[str, ...]:
     """Every registered paper (`dse.families`)."""
-    import dse.families
+    from dse import registry
 
-    return tuple(dse.families.papers())
+    return tuple(registry.papers())
 GiB = 2**30
 
 

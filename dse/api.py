@@ -42,19 +42,19 @@ def load(source: str | os.PathLike | Mapping[str, Any]) -> Reproduction:
     """A validated scenario of a supported family, from a TOML file or a dict with `family`.
 
     Raises `ScenarioError` (one line naming the field) on invalid input."""
-    import dse.families
+    from dse import registry
 
     from dse.scenario.fields import load_toml
 
     data = dict(source) if isinstance(source, Mapping) else load_toml(source)
-    return dse.families.from_dict(data)
+    return registry.from_dict(data)
 
 
 def paper(paper_id: str) -> Reproduction:
     """A paper's own reproduction (`dse list` shows the ids)."""
-    import dse.families
+    from dse import registry
 
-    return dse.families.paper(paper_id)
+    return registry.paper(paper_id)
 
 
 @dataclass

@@ -50,9 +50,9 @@ def _strict_status(args, rows: list[dict]) -> int:
 
 
 def _registry():
-    import dse.families
+    from dse import registry
 
-    return dse.families
+    return registry
 
 
 def cmd_list(args) -> int:

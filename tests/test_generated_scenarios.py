@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-import dse.families
+from dse import registry
 from dse.contract.options import RunOptions
 from dse.contract.stages import StageContext
 from dse.engine.cache import StageCache
@@ -21,7 +21,7 @@ RANDOM_DRAWS = 2
 
 def _cases():
     out = []
-    for family, fam in dse.families.families().items():
+    for family, fam in registry.families().items():
         out += [pytest.param(family, seed, edge, id=f"{family}-{edge}") for seed, edge in enumerate(fam.edges)]
         out += [pytest.param(family, 1000 + s, None, id=f"{family}-random{s}") for s in range(RANDOM_DRAWS)]
     return out
@@ -29,9 +29,9 @@ def _cases():
 
 @pytest.mark.parametrize("family,seed,edge", _cases())
 def test_generated_scenario_has_no_fail_and_no_error(family, seed, edge, tmp_path):
-    data = dse.families.family(family).generate(seed, edge)
+    data = registry.family(family).generate(seed, edge)
     assert data["family"] == family
-    repro = dse.families.from_dict(data)
+    repro = registry.from_dict(data)
     computed = repro.compute(RunOptions(seed=seed, quick=True, workers=1), StageContext(StageCache(tmp_path / "cache")))
     ev = evaluate_claims(repro, computed)
     bad = [f"{r['id']}: {r['verdict']}: {str(r.get('detail'))[:400]}" for r in ev.claims if r["verdict"] in ("fail", "error")]
@@ -41,7 +41,7 @@ def test_generated_scenario_has_no_fail_and_no_error(family, seed, edge, tmp_pat
 
 
 def test_every_family_has_a_generator():
-    for family in dse.families.families().values():
+    for family in registry.families().values():
         assert family.edges and len(set(family.edges)) == len(family.edges)
         a, b = family.generate(3, None), family.generate(3, None)
         assert a == b, "a generator must be a function of its seed"

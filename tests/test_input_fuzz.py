@@ -12,12 +12,12 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-import dse.families
+from dse import registry
 from dse.errors import ScenarioError
 from dse.scenario.fields import load_toml
 
 ROOT = Path(__file__).resolve().parent.parent
-EXAMPLES = {fam_id: load_toml(fam.example_file()) for fam_id, fam in dse.families.families().items()}
+EXAMPLES = {fam_id: load_toml(fam.example_file()) for fam_id, fam in registry.families().items()}
 
 BAD_VALUES = st.one_of(
     st.just(float("nan")), st.just(float("inf")), st.just(-float("inf")), st.just(-1), st.just(-1.5), st.just(0),
@@ -94,7 +94,7 @@ def test_loader_rejects_with_a_field_name(case):
         parsed = load_toml(path)
     assert parsed == doc or _has_nan(doc)  # the file says what we meant
     try:
-        dse.families.from_dict(parsed)
+        registry.from_dict(parsed)
     except ScenarioError as exc:
         assert exc.field and exc.reason and "\n" not in str(exc)
         # a field path such as `graph.edges[1]` or `gains.rule` (a section may be a default the file omits)
@@ -103,7 +103,7 @@ def test_loader_rejects_with_a_field_name(case):
 
 def test_examples_are_valid():
     for doc in EXAMPLES.values():
-        dse.families.from_dict(copy.deepcopy(doc))
+        registry.from_dict(copy.deepcopy(doc))
 
 
 def _has_nan(doc) -> bool:
@@ -150,7 +150,7 @@ def _toml(doc) -> str:
 def test_cli_exit_2_one_line_no_output(tmp_path_factory, case):
     family, doc = case
     try:
-        dse.families.from_dict(copy.deepcopy(doc))
+        registry.from_dict(copy.deepcopy(doc))
         return  # the mutation happened to be valid; running it is not this test's business
     except ScenarioError:
         pass

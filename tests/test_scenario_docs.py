@@ -8,10 +8,10 @@ def test_scenarios_page_matches_the_declarations():
 
 
 def test_every_key_is_documented():
-    import dse.families
+    from dse import registry
     from dse.scenario.declare import reference_rows
 
-    for family, fam in dse.families.families().items():
+    for family, fam in registry.families().items():
         model = fam.scenario_model
         for path, rows, _ in reference_rows(model):
             for row in rows:

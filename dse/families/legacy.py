@@ -183,9 +183,9 @@ def wrap(obj: Any):
 
     if isinstance(obj, Reproduction):
         return obj
-    import dse.families
+    from dse import registry
 
     package = type(obj).__module__.rpartition(".")[0]
-    fam = next(f for f in dse.families.families().values() if getattr(f, "package", None) == package)
+    fam = next(f for f in registry.families().values() if getattr(f, "package", None) == package)
     names = obj.scenario_ids() if obj.is_paper else [obj.paper_id]
     return Reproduction(fam, is_paper=obj.is_paper, _scenarios=tuple(LegacyScenario(obj, n) for n in names))

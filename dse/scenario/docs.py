@@ -34,14 +34,14 @@ POLICY = """## Rules common to every family
 
 
 def page() -> str:
-    import dse.families
+    from dse import registry
     from dse.scenario.declare import reference_markdown
 
     parts = ["# Scenario keys", "",
              "Generated from the declarations in the code (`python -m dse.scenario.docs`); a test fails when "
              "this page and the code disagree. Every shipped scenario file under `dse/families/` is a commented "
              "example of its family.", "", POLICY]
-    for family in dse.families.families().values():
+    for family in registry.families().values():
         parts.append(reference_markdown(f"`{family.id}`", family.scenario_model, family.intro))
     return "\n".join(parts).rstrip() + "\n"
 

@@ -56,9 +56,9 @@ class Task:
 
 
 def _registry():
-    import dse.families
+    from dse import registry
 
-    return dse.families
+    return registry
 
 
 def build_tasks(spec: SweepSpec, log: Callable[[str], None] | None = None) -> list[Task]:
