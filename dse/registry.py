@@ -11,6 +11,7 @@ scenario reference, sweeps and benchmarks all read this registry and nothing els
 from __future__ import annotations
 
 import functools
+import sys
 from importlib.metadata import entry_points
 from typing import Any
 
@@ -24,10 +25,14 @@ def families() -> dict[str, Any]:
     """family id -> Family instance, by id."""
     out: dict[str, Any] = {}
     for ep in sorted(entry_points(group=GROUP), key=lambda e: e.name):
-        cls = ep.load()
-        if cls.id != ep.name:
-            raise ValueError(f"entry point {ep.name} of group {GROUP} names family {cls.id}")
-        out[ep.name] = cls()
+        try:
+            cls = ep.load()
+            if getattr(cls, "id", None) != ep.name:
+                raise ValueError(f"the entry point names family {ep.name}, the class declares {getattr(cls, 'id', None)!r}")
+            out[ep.name] = cls()
+        except Exception as exc:   # one broken plugin does not take the others down
+            print(f"dse: family {ep.name} ({ep.value}) could not be loaded and is skipped: {type(exc).__name__}: {exc}",
+                  file=sys.stderr)
     if not out:
         raise RuntimeError(f"no scenario family is registered (entry point group {GROUP}): is dse installed?")
     return out

@@ -8,6 +8,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import pkgutil
+from pathlib import Path
 
 import pytest
 
@@ -124,3 +125,14 @@ def test_stage_keys_follow_the_code_they_run(family_id, tmp_path, monkeypatch, f
             assert (code_hash(st.module) != before) is changes, (st.name, target)
             monkeypatch.setattr(stage_mod, "module_file", real)
             code_hash.cache_clear()
+
+
+def test_every_family_of_this_package_is_registered():
+    """pyproject.toml registers each subpackage of dse.families that has a family module (a broken
+    entry point is skipped with a message, so a missing one would otherwise go unnoticed)."""
+    import dse.families as package
+
+    root = Path(package.__path__[0])
+    here = {d.name for d in root.iterdir() if (d / "family.py").is_file()}
+    registered = {(f.package if _is_legacy(f) else type(f).__module__).split(".")[2] for f in FAMILIES.values()}
+    assert here == registered
