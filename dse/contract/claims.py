@@ -30,7 +30,10 @@ paper's own reproduction only), `when=...` (a predicate on `Where`: the scenario
 paper run; `role("full")`, `example("e7")` and `paper_only` are the usual ones) decides whether a
 claim exists for a scenario at all, and `hypotheses=` the hypotheses its conclusion rests on (a
 claim whose hypotheses do not hold is `not-checkable`, naming them: `dse.verify.rules.evaluate`).
-`args=` passes fixed extra arguments, so that one check can back two claims.
+`args=` passes fixed extra arguments, so that one check can back two claims. `requires=` lists
+(condition, reason) pairs on the check's arguments: what the scenario must contain for the claim
+to be checked at all (two values of m for a trend, a nonzero noise); where a condition is not met
+the claim is `not-checkable` with that reason (a function of the arguments, or a text).
 """
 from __future__ import annotations
 
@@ -93,10 +96,24 @@ class ClaimEntry:
     scope: str = "family"
     when: Gate | None = None
     args: tuple = ()
+    requires: tuple[tuple[Callable[..., bool], str | Callable[..., str]], ...] = ()
 
     @property
     def per_scenario(self) -> bool:
         return _per_scenario(self.id)
+
+    def gated_check(self) -> Callable[..., Verdict]:
+        """The check, preceded by the conditions of `requires`."""
+        if not self.requires:
+            return self.check
+
+        def check(*a):
+            for holds, reason in self.requires:
+                if not holds(*a):
+                    return not_checkable(reason(*a) if callable(reason) else reason)
+            return self.check(*a)
+
+        return check
 
 
 @dataclass(frozen=True)
@@ -129,7 +146,7 @@ class ClaimSet:
 
     def claim(self, id: str, source: str, statement: str, kind: str, *, hypotheses: Sequence[str] |
               Callable[[Where], tuple[str, ...]] = (), scope: str = "family", when: Gate | None = None,
-              args: tuple = ()):
+              args: tuple = (), requires: Sequence[tuple[Callable[..., bool], str | Callable[..., str]]] = ()):
         """Register the decorated function as the check of a claim (see the module docstring)."""
         if kind not in KINDS:
             raise ValueError(f"claim {id}: unknown kind {kind!r}")
@@ -138,7 +155,8 @@ class ClaimSet:
 
         def register(fn: Callable[..., Verdict]):
             hyps = hypotheses if callable(hypotheses) else tuple(hypotheses)
-            self.claims.append(ClaimEntry(id, source, statement, kind, fn, hyps, scope, when, tuple(args)))
+            self.claims.append(ClaimEntry(id, source, statement, kind, fn, hyps, scope, when, tuple(args),
+                                          tuple(requires)))
             return fn
 
         return register
@@ -180,7 +198,7 @@ class ClaimSet:
                 else:
                     hyps.append(_fill(ref, where))
             out.append(Claim(_fill(entry.id, where), entry.source, _fill(entry.statement, where), entry.kind,
-                             self._bind(entry.check, name, entry.args, self.select), tuple(dict.fromkeys(hyps)),
+                             self._bind(entry.gated_check(), name, entry.args, self.select), tuple(dict.fromkeys(hyps)),
                              entry.scope))
         return out
 

@@ -29,9 +29,9 @@ from .consensus_covariance import (
     _check_rounds,
     _check_symmetric,
     _power_sum,
-    _split_unit_eigenvalue,
     geometric_gram_sum,
 )
+from .consensus_trace import _split_unit_eigenvalue
 
 __all__ = [
     "KKTResiduals",
@@ -644,7 +644,7 @@ def _table_kkt(rest, n, ms, sig, q, r, formula, ell, zeta):
 def carli_gain_table(Q, *, ms, sigma_c, q, r, n_grid=2000, keep_grids=False) -> GainTable:
     """``ell* = argmin_ell J_C(ell)`` over ``[1e-6, 1]`` for the plain noisy two-stage filter (7)+(9), every
     ``sigma_c`` x ``m`` cell. ``J_C`` is the closed-form asymptotic trace (see
-    :func:`dse.estimators.consensus_covariance.carli_asymptotic_trace`). Grid on ``[1e-3, 1]``, two finer
+    :func:`dse.estimators.consensus_trace.carli_asymptotic_trace`). Grid on ``[1e-3, 1]``, two finer
     local grids around the grid minimum, then the box-constrained Newton method."""
     rest, n = _spectrum_of(Q)
     ms, sig, q, r = _check_table_args(ms, sigma_c, q, r)

@@ -5,26 +5,23 @@ rounds, recorded steps, gain-grid points), times constants measured on the devel
 (2 cores, `make bench`-like conditions; see docs/papers/savas.md for the measured ratios). Memory:
 the interpreter and libraries, one Monte Carlo chunk per worker (streamed: bounded by the budget),
 and what cannot be streamed (the recorded statistics of every cell, the exact covariances, the
-tables built from them). A run whose unstreamable part exceeds the budget is refused before it
-starts, naming the key that sizes it.
+tables built from them). The driver refuses, before it starts, a run whose unstreamable part exceeds
+the budget, naming the key that sizes it (`sweep.recorded_steps`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from dse.errors import ScenarioError
-from dse.engine.driver import RunOptions
+from dse.contract.cost import MIB, Cost
+from dse.contract.options import RunOptions
 from dse.simulate.units import RNG_UNIT
 
-from .scenario import NoisyConsensusScenario
+from .design import LARGE_M, LONG_RUN_STEPS, gain_grid, scenario_steps
+from .monte_carlo import CHUNK_BYTES, CHUNK_TRIALS, bytes_per_trial
+from .scenario import NoisyConsensusFile
 
-MIB = 2.0**20
 #: resident memory of a run before any array: Python, numpy, scipy, pandas, pyarrow, matplotlib, rerun
 BASE_MIB = 300.0
-#: the share of a process the pipeline leaves to the interpreter when it sizes chunks (RunOptions)
-INTERPRETER_MIB = 200.0
 #: seconds of CPU: interpreter start and imports
 STARTUP_S = 0.6
 #: seconds of CPU: the claims' fixed part (scipy.stats, filterpy, the large-m and optimiser checks)
@@ -48,16 +45,6 @@ NODE_OUTPUT_S = 6.0e-3           # per agent: the recordings' series
 FILTERPY_N3_S = 2.0e-9           # per sample trial, sample step and N³: filterpy's reference filter (N x N inverse)
 CELL_TABLES_S = 0.006            # per cell: its rows of the tables (pandas)
 ROW_S = 2.0e-6                   # one row of the per-step tables: the exact laws, pandas, Parquet
-
-
-@dataclass(frozen=True)
-class Cost:
-    seconds: float
-    peak_mib: float
-    fixed_mib: float      # what cannot be streamed
-    chunk_mib: float      # one Monte Carlo chunk, per worker
-    unit_mib: float       # the smallest chunk: one RNG unit of 1,000 trials
-    detail: str
 
 
 def _nnz_rows(M: np.ndarray) -> int:
@@ -89,7 +76,7 @@ def _hops(adjacency: np.ndarray) -> np.ndarray:
     return hops
 
 
-def _a_widths(sc: NoisyConsensusScenario, ms) -> dict[int, int]:
+def _a_widths(sc: NoisyConsensusFile, ms) -> dict[int, int]:
     """Widest row of A = Σ_{j<=m} Q^j (or Q^m) for each m: the agents within m hops, the terms of the
     row-sparse product with A, from the graph's hop distances."""
     hops = _hops(sc.Q != 0)
@@ -99,22 +86,18 @@ def _a_widths(sc: NoisyConsensusScenario, ms) -> dict[int, int]:
     return {m: int(within[min(m, within.size - 1)]) for m in ms}
 
 
-def _groups(sc: NoisyConsensusScenario) -> list[tuple[int, int, int, int]]:
+def _groups(sc: NoisyConsensusFile) -> list[tuple[int, int, int, int]]:
     """(m, horizon, configurations, recorded steps) of every Monte Carlo group (algorithm, m)."""
-    from .compute import LONG_RUN_STEPS, recorded_steps
-
-    S_c = len(sc.sigma_c)
-    S = len(recorded_steps(sc.n_steps, sc.recorded_steps, sc.eval_step))
-    groups = [(m, sc.n_steps, S_c, S) for m in sc.rounds for _filter in ("carli", "reinjection")]
-    if sc.n_steps < LONG_RUN_STEPS:
-        groups.append((next((m for m in sc.rounds if m > 0), sc.rounds[-1]), LONG_RUN_STEPS, 1, LONG_RUN_STEPS))
+    sw = sc.sweep
+    S_c, S = len(sw.sigma_c), len(scenario_steps(sc))
+    groups = [(m, sw.n_steps, S_c, S) for m in sw.rounds for _filter in ("carli", "reinjection")]
+    if sw.n_steps < LONG_RUN_STEPS:
+        groups.append((next((m for m in sw.rounds if m > 0), sw.rounds[-1]), LONG_RUN_STEPS, 1, LONG_RUN_STEPS))
     return groups
 
 
-def _chunks(sc: NoisyConsensusScenario, opts: RunOptions, groups, trials: int) -> list[tuple[int, float, float]]:
+def _chunks(sc: NoisyConsensusFile, opts: RunOptions, groups, trials: int) -> list[tuple[int, float, float]]:
     """Per group: RNG units per chunk, bytes of one chunk and of one unit (within the chunk budget)."""
-    from .compute import CHUNK_BYTES, CHUNK_TRIALS, bytes_per_trial
-
     budget_bytes = min(opts.chunk_budget_bytes(), CHUNK_BYTES)
     out = []
     for _m, _K, C, S_g in groups:
@@ -125,39 +108,22 @@ def _chunks(sc: NoisyConsensusScenario, opts: RunOptions, groups, trials: int) -
     return out
 
 
-def _kept_mib(sc: NoisyConsensusScenario, opts: RunOptions, n_cells: int, S: int) -> float:
+def _kept_mib(sc: NoisyConsensusFile, opts: RunOptions, n_cells: int, S: int) -> float:
     """What a run keeps whatever the chunking: recorded sums, exact series, paths, steady states, tables."""
-    from .compute import LONG_RUN_STEPS, gain_grid
-
-    N = sc.n
+    N, sw, mc = sc.n, sc.sweep, sc.monte_carlo
     per_cell = 8.0 * S * (2 * (3 * N + 2) + 2 * N + 1) * 3   # sums, exact diag/eig/trace; x3 for the tables built
-    paths = 8.0 * sc.sample_paths * min(sc.n_steps, sc.sample_steps) * N * (max(sc.rounds) + 8) * n_cells
+    paths = 8.0 * mc.sample_paths * min(sw.n_steps, mc.sample_steps) * N * (max(sw.rounds) + 8) * n_cells
     steady = 8.0 * N * N * n_cells if N <= 50 else 0.0
-    fixed = (n_cells * per_cell + paths + steady + 8.0 * max(sc.n_steps, LONG_RUN_STEPS)) / MIB
+    fixed = (n_cells * per_cell + paths + steady + 8.0 * max(sw.n_steps, LONG_RUN_STEPS)) / MIB
     if sc.symmetric:
         n_ell, n_zeta = gain_grid(sc, opts.quick)
         fixed += 8.0 * n_ell * n_zeta * (2 * 2 + 4) / MIB
     return fixed
 
 
-def estimate(sc: NoisyConsensusScenario, opts: RunOptions) -> Cost:
-    from .compute import LARGE_M, LONG_RUN_STEPS, gain_grid, recorded_steps, trial_count
-
-    trials = trial_count(sc, opts)
-    N, S_c, M = sc.n, len(sc.sigma_c), len(sc.rounds)
-    S = len(recorded_steps(sc.n_steps, sc.recorded_steps, sc.eval_step))
-    n_cells = 2 * M * S_c + (1 if sc.n_steps < LONG_RUN_STEPS else 0)
-    # design: gain grids (symmetric Q only), then per-cell covariances
-    t_design = n_cells * CELL_DESIGN_S * (1.0 + N / 10.0)
-    if sc.symmetric:
-        n_ell, n_zeta = gain_grid(sc, opts.quick)
-        tables = sc.rounds_max + 1 + len(LARGE_M)
-        t_design += tables * n_ell * n_zeta * ((N - 1) * GRID_POINT_MODE_S + 2 * S_c * GRID_POINT_S)
-    # Monte Carlo: per group (algorithm, m) of S_c configurations over the horizon
-    qnnz = _nnz_rows(sc.Q)
-    a_width = _a_widths(sc, sc.rounds)
-    groups = _groups(sc)
-    chunks = _chunks(sc, opts, groups, trials)
+def _monte_carlo_seconds(sc: NoisyConsensusFile, groups, chunks, trials: int) -> list[float]:
+    """CPU seconds of each Monte Carlo group (algorithm, m) of configurations over the horizon."""
+    N, qnnz, a_width = sc.n, _nnz_rows(sc.Q), _a_widths(sc, sc.sweep.rounds)
     group_s = []
     for (m, K, C, S_g), (units, _, _) in zip(groups, chunks):
         a_nnz = a_width[m] if m else 0
@@ -166,39 +132,40 @@ def estimate(sc: NoisyConsensusScenario, opts: RunOptions) -> Cost:
         n_chunks = -(-trials // (units * RNG_UNIT))
         group_s.append(trials * K * per_trial_step + n_chunks * S_g * 12 * RECORD_CALL_S
                        + trials * S_g * C * N * TRIAL_RECORD_S)
+    return group_s
+
+
+def estimate(sc: NoisyConsensusFile, opts: RunOptions, trials: int) -> Cost:
+    """The run's time and memory; `kept_mib` and `unit_mib` are what the driver's refusal reads."""
+    sw, mc = sc.sweep, sc.monte_carlo
+    N, S_c, M = sc.n, len(sw.sigma_c), len(sw.rounds)
+    S = len(scenario_steps(sc))
+    n_cells = 2 * M * S_c + (1 if sw.n_steps < LONG_RUN_STEPS else 0)
+    # design: gain grids (symmetric Q only), then per-cell covariances
+    t_design = n_cells * CELL_DESIGN_S * (1.0 + N / 10.0)
+    if sc.symmetric:
+        n_ell, n_zeta = gain_grid(sc, opts.quick)
+        tables = sc.rounds_max + 1 + len(LARGE_M)
+        t_design += tables * n_ell * n_zeta * ((N - 1) * GRID_POINT_MODE_S + 2 * S_c * GRID_POINT_S)
+    groups = _groups(sc)
+    chunks = _chunks(sc, opts, groups, trials)
+    group_s = _monte_carlo_seconds(sc, groups, chunks, trials)
     workers = max(1, min(opts.workers, len(groups)))
     t_mc = max(sum(group_s) / workers, max(group_s))
     rows = n_cells * S * (N + 1)
     t_claims = (CLAIMS_S + n_cells * (CELL_CLAIMS_S + CELL_CLAIMS_N3_S * N**3) + rows * ROW_S
-                + sc.sample_paths * min(sc.n_steps, sc.sample_steps) * FILTERPY_N3_S * N**3)
+                + mc.sample_paths * min(sw.n_steps, mc.sample_steps) * FILTERPY_N3_S * N**3)
     t_out = OUTPUTS_S + n_cells * CELL_TABLES_S + rows * ROW_S + N * NODE_OUTPUT_S
     seconds = STARTUP_S + t_design + t_mc + t_claims + t_out
     # memory: what stays (recorded sums, exact series, paths, tables) and one chunk per worker
     fixed = _kept_mib(sc, opts, n_cells, S)
     chunk = max(c[1] for c in chunks) * 1.5 / MIB   # with the temporaries of the moment sums
     peak = BASE_MIB + fixed + chunk   # the largest process (what getrusage reports); each worker holds one chunk
-    detail = (f"{n_cells} cells x {trials:,} trials x {sc.n_steps:,} steps x {N} agents, {S} recorded steps; design "
+    detail = (f"{n_cells} cells x {trials:,} trials x {sw.n_steps:,} steps x {N} agents, {S} recorded steps; design "
               f"{t_design:.2g} s, Monte Carlo {t_mc:.3g} s on {workers} worker(s), claims {t_claims:.2g} s, tables and "
               f"outputs {t_out:.2g} s; memory of the largest process: {BASE_MIB:.0f} MiB base + {fixed:.0f} MiB kept + "
               f"{chunk:.0f} MiB per Monte Carlo chunk (one per worker)")
-    return Cost(seconds, peak, fixed, chunk, max(c[2] for c in chunks) * 1.5 / MIB, detail)
-
-
-def refuse_if_too_large(sc: NoisyConsensusScenario, opts: RunOptions) -> None:
-    """Refuse, before anything runs, a run whose unstreamable part (the recorded statistics and the tables
-    built from them) and one unit of trials do not fit the memory budget left beside the interpreter
-    (the pipeline's allowance of INTERPRETER_MIB per process, as in RunOptions.chunk_budget_bytes).
-    Only the memory side of `estimate` is computed (no time model: no hop distances)."""
-    from .compute import LONG_RUN_STEPS, recorded_steps, trial_count
-
-    groups = _groups(sc)
-    n_cells = 2 * len(sc.rounds) * len(sc.sigma_c) + (1 if sc.n_steps < LONG_RUN_STEPS else 0)
-    fixed = _kept_mib(sc, opts, n_cells, len(recorded_steps(sc.n_steps, sc.recorded_steps, sc.eval_step)))
-    unit = max(c[2] for c in _chunks(sc, opts, groups, trial_count(sc, opts))) * 1.5 / MIB
-    room = opts.memory_budget_mib - INTERPRETER_MIB
-    if fixed + unit > room:
-        raise ScenarioError("sweep.recorded_steps", f"the run keeps about {fixed:,.0f} MiB of per-step statistics "
-                            f"and tables (cells x {sc.n} agents x the recorded steps) and needs {unit:,.0f} MiB per "
-                            f"1,000 trials, more than the {room:,.0f} MiB the memory budget of "
-                            f"{opts.memory_budget_mib:,.0f} MiB leaves beside the interpreter; record fewer steps, or raise "
-                            "--max-memory")
+    return Cost(seconds, peak, detail, kept_mib=fixed, chunk_mib=chunk, unit_mib=max(c[2] for c in chunks) * 1.5 / MIB,
+                sized_by="sweep.recorded_steps", unit_what="1,000 trials",
+                kept_what=f"per-step statistics and tables (cells x {N} agents x the recorded steps)",
+                stages={"design": t_design, "monte_carlo": t_mc, "claims": t_claims, "outputs": t_out})

@@ -1,26 +1,25 @@
-"""The noisy-consensus-filter scenario family: a scalar random walk observed by N agents that
-average their estimates over a doubly stochastic Q with noisy links. The paper's example
-(`paper.toml`) and any user scenario of the same kind.
+"""The noisy-consensus-filter scenario file, declared once: a scalar random walk observed by N
+agents that average their estimates over a doubly stochastic Q with noisy links. The paper's
+example (`paper.toml`) and any user scenario of the same kind.
 
-Every key is declared once below (type, default, bounds, unit, meaning); `docs/scenarios.md`
-is generated from these declarations. Rules that tie keys of different tables together
-(the evaluation step against the horizon, the gain tables against the rounds, Q against the
-graph) are checked when the file is read, each naming its key.
+Every key is declared below (type, default, bounds, unit, meaning); `docs/scenarios.md` is
+generated from these declarations. Rules that tie keys of different tables together (the
+evaluation step against the horizon, the gain tables against the rounds, Q against the graph)
+are validators, each naming its key. The validated model is the scenario the stages read: Q,
+the graph and the other derived quantities are its cached properties.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Annotated, Any, Literal
+from functools import cached_property
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
 
-from dse.scenario.declare import Matrix, Real, Section, computed, key, matrix, parse
 from dse.errors import ScenarioError
+from dse.scenario.declare import Matrix, Real, ScenarioFile, Section, computed_default, key, matrix, name_key
 from dse.scenario.graphs import (GraphSection, GraphSpec, check_consensus_matrix, graph_from_section,
-                             laplacian_consensus_weights, max_degree, metropolis_weights)
-from dse.scenario.fields import load_toml
+                                 laplacian_consensus_weights, max_degree, metropolis_weights)
 
 GAIN_CHOICES = ("optimal-corrected", "optimal-printed", "fixed")
 #: the exact covariances are dense N x N recursions and the optimal gains a grid per mode: beyond
@@ -54,15 +53,34 @@ class ConsensusSection(Section):
 
     @model_validator(mode="after")
     def _kind_rules(self):
-        if self.weights == "laplacian" and self.eps is None:
-            raise ScenarioError("eps", "missing (needed for weights = 'laplacian')")
-        if self.weights != "laplacian" and self.eps is not None:
-            raise ScenarioError("eps", f"only with weights = 'laplacian' (weights is '{self.weights}')")
-        if self.weights == "matrix" and self.matrix is None:
-            raise ScenarioError("matrix", "missing (needed for weights = 'matrix')")
-        if self.weights != "matrix" and self.matrix is not None:
-            raise ScenarioError("matrix", f"only with weights = 'matrix' (weights is '{self.weights}')")
+        for name, kind in (("eps", "laplacian"), ("matrix", "matrix")):
+            if self.weights == kind and getattr(self, name) is None:
+                raise ScenarioError(name, f"missing (needed for weights = '{kind}')")
+            if self.weights != kind and getattr(self, name) is not None:
+                raise ScenarioError(name, f"only with weights = '{kind}' (weights is '{self.weights}')")
         return self
+
+    def weights_on(self, graph: GraphSpec) -> np.ndarray:
+        """Q on the scenario's graph (errors name consensus.<key>)."""
+        if self.weights == "laplacian":
+            dmax = max_degree(graph)
+            if dmax and self.eps >= 1.0 / dmax:
+                raise ScenarioError("consensus.eps", f"must be < 1/d_max = {1.0 / dmax:.6g} so that Q is nonnegative "
+                                                     f"and primitive, got {self.eps:g}")
+            Q = laplacian_consensus_weights(graph, self.eps)
+        elif self.weights == "metropolis":
+            Q = metropolis_weights(graph)
+        else:
+            Q = matrix(self.matrix, "consensus.matrix", shape=(graph.n, graph.n))
+            edges = np.zeros((graph.n, graph.n), bool)
+            for u, v in graph.edge_array():
+                edges[u, v] = edges[v, u] = True
+            off_graph = (Q != 0) & ~edges & ~np.eye(graph.n, dtype=bool)
+            if off_graph.any():
+                i, j = map(int, np.argwhere(off_graph)[0])
+                raise ScenarioError("consensus.matrix", f"entry [{i}][{j}] is nonzero but ({i},{j}) is not an edge")
+        check_consensus_matrix(Q, "consensus.matrix" if self.weights == "matrix" else "consensus")
+        return Q
 
 
 class ModelSection(Section):
@@ -91,9 +109,14 @@ class SweepSection(Section):
                                     "added at every round (eq. (6))", unit="state", min_length=1,
                                     constraint="each >= 0; strictly increasing")
     n_steps: int = key(10, doc="horizon: steps k = 0..n_steps−1 are simulated", ge=1, le=MAX_STEPS)
-    eval_step: int | None = key(computed("min(4, n_steps − 1)"), doc="step k of the figures' metric "
-                                "Σ_i var x̃_i(k|k−1) = tr P(k|k−1) (the paper's k = 4)", ge=0,
-                                constraint="< n_steps")
+
+    @computed_default
+    def _paper_eval_step(data):
+        """min(4, n_steps − 1)"""
+        return min(4, data["n_steps"] - 1)
+
+    eval_step: int = key(_paper_eval_step, doc="step k of the figures' metric Σ_i var x̃_i(k|k−1) = tr P(k|k−1) "
+                         "(the paper's k = 4)", ge=0, constraint="< n_steps")
     recorded_steps: int = key(1000, doc="per-step statistics (Monte Carlo moments, exact covariances) are kept at "
                               "this many steps: all when n_steps is at most this, else the first half of them, "
                               "then evenly spaced to the last step, plus eval_step", ge=2, le=MAX_STEPS)
@@ -104,7 +127,7 @@ class SweepSection(Section):
             values = getattr(self, name)
             if any(b <= a for a, b in zip(values, values[1:])):
                 raise ScenarioError(name, "must be strictly increasing")
-        if self.eval_step is not None and self.eval_step >= self.n_steps:
+        if self.eval_step >= self.n_steps:
             raise ScenarioError("eval_step", f"must be < n_steps = {self.n_steps}, got {self.eval_step}")
         return self
 
@@ -144,7 +167,7 @@ GridSize = Annotated[int, Field(ge=11, le=5000)]
 class GainsSection(Section):
     """The optimal-gain tables (Fig. 2): (ℓ*, ζ*) minimising (16) for m = 0..rounds_max at every σ_c."""
 
-    rounds_max: int | None = key(computed("max(sweep.rounds)"), doc="largest m of the gain tables", ge=0,
+    rounds_max: int | None = key(None, doc="largest m of the gain tables (none: max(sweep.rounds))", ge=0,
                                  le=MAX_ROUNDS, constraint=">= max(sweep.rounds)")
     grid: list[GridSize] = key(_listed([400, 401]), doc="[n_ell, n_zeta]: the grid of (ℓ, ζ) on which J is evaluated "
                                "before the local search ([100, 101] in quick runs)", min_length=2, max_length=2,
@@ -155,19 +178,25 @@ class MonteCarloSection(Section):
     """The simulation: independent trials per cell, streamed in units of 1,000 trials."""
 
     trials: int = key(200_000, doc="trials per (filter, m, σ_c) cell (the paper: 200,000)", ge=100, le=100_000_000)
-    quick_trials: int | None = key(computed("min(trials, 20000)"), doc="trials per cell in quick runs", ge=100,
-                                   le=100_000_000)
+
+    @computed_default
+    def _quick(data):
+        """min(trials, 20000)"""
+        return min(data["trials"], 20_000)
+
+    quick_trials: int = key(_quick, doc="trials per cell in quick runs", ge=100, le=100_000_000)
     sample_paths: int = key(3, doc="sample trials kept whole (estimates, consensus iterates) for the recordings and "
                             "the pathwise identities", ge=0, le=50)
     sample_steps: int = key(100, doc="the sample trials are kept over the first min(n_steps, sample_steps) steps",
                             ge=2, le=10_000)
 
 
-class NoisyConsensusFile(Section):
+class NoisyConsensusFile(ScenarioFile):
     """A noisy-consensus-filter scenario file."""
 
-    name: str = key("scenario", doc="scenario name: the output directory OUT/run/<name>/",
-                    pattern=r"^[A-Za-z0-9_-]{1,64}$", constraint="1 to 64 letters, digits, '-' or '_'")
+    unkeyed = {"name": True, "monte_carlo": {"trials": True, "quick_trials": True}}
+
+    name: str = name_key()
     graph: GraphSection = key(doc="the communication graph")
     consensus: ConsensusSection = key(ConsensusSection, doc="the consensus weights")
     model: ModelSection = key(doc="the process and the measurements")
@@ -182,97 +211,33 @@ class NoisyConsensusFile(Section):
         top = max(self.sweep.rounds)
         if self.gains.rounds_max is not None and self.gains.rounds_max < top:
             raise ScenarioError("gains.rounds_max", f"must be >= max(sweep.rounds) = {top}, got {self.gains.rounds_max}")
+        if self.network.n > MAX_AGENTS:
+            raise ScenarioError("graph.rows" if self.network.kind == "grid" else "graph.n",
+                                f"{self.network.n} agents; this family handles at most {MAX_AGENTS} (dense N x N "
+                                "covariance recursions and optimal-gain grids per mode)")
+        if self.reinjection.gains != "fixed" and not self.symmetric:
+            raise ScenarioError("reinjection.gains", "optimal gains use eq. (16), which needs a symmetric Q; use 'fixed'")
         return self
 
+    @cached_property
+    def network(self) -> GraphSpec:
+        """The graph: connected, of at least 2 agents."""
+        return graph_from_section(self.graph, "graph", connected=True, min_nodes=2)
 
-@dataclass(frozen=True)
-class NoisyConsensusScenario:
-    name: str
-    graph: GraphSpec
-    Q: np.ndarray
-    q: float
-    r: float
-    sigma0: float
-    x0_mean: float
-    rounds: tuple[int, ...]
-    sigma_c: tuple[float, ...]
-    n_steps: int
-    eval_step: int
-    recorded_steps: int
-    carli_ell: float
-    reinjection_gains: str
-    fixed_ell: float
-    fixed_zeta: float
-    rounds_max: int
-    grid: tuple[int, int]
-    trials: int
-    quick_trials: int
-    sample_paths: int
-    sample_steps: int
+    @cached_property
+    def Q(self) -> np.ndarray:
+        """The consensus matrix, validated: nonnegative, doubly stochastic, primitive, on the graph's edges."""
+        return self.consensus.weights_on(self.network)
 
     @property
     def n(self) -> int:
-        return self.graph.n
+        return self.network.n
 
     @property
     def symmetric(self) -> bool:
         return bool(np.array_equal(self.Q, self.Q.T))
 
-    def key(self) -> dict[str, Any]:
-        """Everything that determines the numbers (for the stage cache)."""
-        d = {f: getattr(self, f) for f in self.__dataclass_fields__ if f not in ("name", "quick_trials", "trials")}
-        d["Q"] = self.Q.tolist()
-        return d
-
-    @classmethod
-    def from_dict(cls, data: Any) -> "NoisyConsensusScenario":
-        f = parse(NoisyConsensusFile, data)
-        graph = graph_from_section(f.graph, "graph", connected=True, min_nodes=2)
-        if graph.n > MAX_AGENTS:
-            raise ScenarioError("graph.rows" if graph.kind == "grid" else "graph.n",
-                                f"{graph.n} agents; this family handles at most {MAX_AGENTS} (dense N x N covariance "
-                                "recursions and optimal-gain grids per mode)")
-        Q = consensus_matrix(f.consensus, graph)
-        sweep, gains, mc, rein = f.sweep, f.gains, f.monte_carlo, f.reinjection
-        if rein.gains != "fixed" and not np.array_equal(Q, Q.T):
-            raise ScenarioError("reinjection.gains", "optimal gains use eq. (16), which needs a symmetric Q; use 'fixed'")
-        return cls(
-            name=f.name, graph=graph, Q=Q, q=f.model.q, r=f.model.r, sigma0=f.model.sigma0, x0_mean=f.model.x0_mean,
-            rounds=tuple(sweep.rounds), sigma_c=tuple(float(s) for s in sweep.sigma_c), n_steps=sweep.n_steps,
-            eval_step=sweep.eval_step if sweep.eval_step is not None else min(4, sweep.n_steps - 1),
-            recorded_steps=sweep.recorded_steps, carli_ell=f.carli.ell, reinjection_gains=rein.gains,
-            fixed_ell=rein.ell if rein.ell is not None else 0.25, fixed_zeta=rein.zeta if rein.zeta is not None else 0.0,
-            rounds_max=gains.rounds_max if gains.rounds_max is not None else max(sweep.rounds),
-            grid=(gains.grid[0], gains.grid[1]), trials=mc.trials,
-            quick_trials=mc.quick_trials if mc.quick_trials is not None else min(mc.trials, 20_000),
-            sample_paths=mc.sample_paths, sample_steps=mc.sample_steps)
-
-
-def consensus_matrix(section: ConsensusSection, graph: GraphSpec) -> np.ndarray:
-    """Q of a declared [consensus] table on the scenario's graph (errors name consensus.<key>)."""
-    G = graph                       # the weights read its edges (no networkx for the deterministic kinds)
-    if section.weights == "laplacian":
-        dmax = max_degree(G)
-        if dmax and section.eps >= 1.0 / dmax:
-            raise ScenarioError("consensus.eps", f"must be < 1/d_max = {1.0 / dmax:.6g} so that Q is nonnegative and "
-                                                 f"primitive, got {section.eps:g}")
-        Q = laplacian_consensus_weights(G, section.eps)
-    elif section.weights == "metropolis":
-        Q = metropolis_weights(G)
-    else:
-        Q = matrix(section.matrix, "consensus.matrix", shape=(graph.n, graph.n))
-        edges = np.zeros((graph.n, graph.n), bool)
-        for u, v in G.edge_array():
-            edges[u, v] = edges[v, u] = True
-        off_graph = (Q != 0) & ~edges & ~np.eye(graph.n, dtype=bool)
-        if off_graph.any():
-            i, j = map(int, np.argwhere(off_graph)[0])
-            raise ScenarioError("consensus.matrix", f"entry [{i}][{j}] is nonzero but ({i},{j}) is not an edge")
-    check_consensus_matrix(Q, "consensus.matrix" if section.weights == "matrix" else "consensus")
-    return Q
-
-
-def paper_scenario() -> NoisyConsensusScenario:
-    data = load_toml(Path(__file__).with_name("paper.toml"))
-    data.pop("family")
-    return NoisyConsensusScenario.from_dict(data)
+    @property
+    def rounds_max(self) -> int:
+        """The largest m of the gain tables: gains.rounds_max, or max(sweep.rounds) when not given."""
+        return self.gains.rounds_max if self.gains.rounds_max is not None else max(self.sweep.rounds)

@@ -18,7 +18,8 @@ import pandas as pd
 
 from dse.outputs.tables import TableSpec, spec
 
-from .compute import LARGE_M, Cell, Design, Results
+from .design import LARGE_M, Cell, Design
+from .monte_carlo import Results
 
 CELL_COLUMNS = [
     ("alg", "", "filter: carli (two-stage filter (7)+(9)) or reinjection (the paper's filter (11)-(13))"),
@@ -133,10 +134,6 @@ def _frame(table: TableSpec, columns: dict[str, Any]) -> pd.DataFrame:
     return pd.DataFrame(columns, columns=table.column_names)
 
 
-def _all_cells(d: Design) -> list[Cell]:
-    return list(dict.fromkeys(d.cells + [d.long_cell]))
-
-
 def _index(steps: np.ndarray, k: int) -> int:
     return int(np.searchsorted(steps, k))
 
@@ -160,7 +157,7 @@ def design_tables(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
             ("second_modulus", second, "second largest |λ(Q)|: < 1 iff the unit eigenvalue is the only one on the unit "
                                        "circle"),
             ("spectral_gap", 1.0 - second, "1 − second largest |λ(Q)|"),
-            ("eval_step", sc.eval_step, "k of the figures' metric tr P(k|k−1)"),
+            ("eval_step", sc.sweep.eval_step, "k of the figures' metric tr P(k|k−1)"),
             ("recorded_steps", len(d.steps), "steps with per-step statistics")]
     out.append((REFERENCES, pd.DataFrame([{"scenario": name, "quantity": q, "value": float(v), "definition": t}
                                           for q, v, t in refs], columns=REFERENCES.column_names)))
@@ -173,9 +170,9 @@ def design_tables(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
             continue
         # the large-m rows at m <= rounds_max repeat the optimisation of the m = 0..rounds_max table's row
         keep = np.array([prefix != "large_m" or m > sc.rounds_max for m in ms], bool)
-        S, M = len(sc.sigma_c), int(keep.sum())
+        S, M = len(sc.sweep.sigma_c), int(keep.sum())
         gains["objective"].append(np.full(S * M, objective, object))
-        gains["sigma_c"].append(np.repeat(np.array(sc.sigma_c, np.float64), M))
+        gains["sigma_c"].append(np.repeat(np.array(sc.sweep.sigma_c, np.float64), M))
         gains["m"].append(np.tile(np.array(list(ms), np.int64)[keep], S))
         for c in GAINS.column_names[4:]:
             gains[c].append(np.asarray(a[f"{prefix}_{c}"], np.float64)[:, keep].ravel())
@@ -186,14 +183,14 @@ def design_tables(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
         out.append((GAINS, pd.DataFrame([], columns=GAINS.column_names)))
     if "carli_thresholds" in a:
         out.append((THRESHOLDS, pd.DataFrame({
-            "scenario": name, "m_from": sc.rounds[:-1], "m_to": sc.rounds[1:], "sigma_c_threshold": a["carli_thresholds"],
+            "scenario": name, "m_from": sc.sweep.rounds[:-1], "m_to": sc.sweep.rounds[1:], "sigma_c_threshold": a["carli_thresholds"],
             "noise_coef_from": a["carli_noise_coef"][:-1], "noise_coef_to": a["carli_noise_coef"][1:],
             "noise_free_from": a["carli_noise_free"][:-1], "noise_free_to": a["carli_noise_free"][1:]})))
-    cells = _all_cells(d)
+    cells = d.all_cells()
     values = np.empty((len(cells), 6))   # trP_steady, trP_eval, trP_final, kf_eval, kf_final, gap
     for i, c in enumerate(cells):
         ex, st, steps = d.exact(c), d.steady(c), d.steps_of(c)
-        ie = _index(steps, sc.eval_step)
+        ie = _index(steps, sc.sweep.eval_step)
         kf = d.kf_prior(steps)
         values[i] = st["trace"], ex.trace[ie], ex.trace[-1], kf[ie], kf[-1], st["gap"]
     out.append((CELLS, _frame(CELLS, {
@@ -214,7 +211,7 @@ def run_tables(res: Results) -> list[tuple[TableSpec, pd.DataFrame]]:
     d, sc = res.design, res.scenario
     name, N = sc.name, sc.n
     Kc, Pc, _, _ = d.arrays["centralized"]
-    cells = _all_cells(d)
+    cells = d.all_cells()
     nodes = {c: [] for c in ("P_steady", "P_final_exact", "P_final_mc", "P_final_mc_se", "P_eval_exact", "P_eval_mc",
                              "P_eval_mc_se", "kf_final")}
     traces = {c: [] for c in TRACE_SERIES.column_names[5:]}
@@ -224,7 +221,7 @@ def run_tables(res: Results) -> list[tuple[TableSpec, pd.DataFrame]]:
         steps, ex, st = d.steps_of(c), d.exact(c), d.steady(c)
         mom, fmom = res.moments(c), res.moments(c, "filt")
         var, var_se = mom.variance, mom.variance_se
-        ie = _index(steps, sc.eval_step)
+        ie = _index(steps, sc.sweep.eval_step)
         kf = d.kf_prior(steps)
         for col, v in (("P_steady", st["diag"]), ("P_final_exact", ex.diag[-1]), ("P_final_mc", var[-1]),
                        ("P_final_mc_se", var_se[-1]), ("P_eval_exact", ex.diag[ie]), ("P_eval_mc", var[ie]),
@@ -237,7 +234,7 @@ def run_tables(res: Results) -> list[tuple[TableSpec, pd.DataFrame]]:
             traces[col].append(v)
         for col, v in (("k", np.repeat(steps, N)), ("node", np.tile(np.arange(N), S)), ("P_exact", ex.diag),
                        ("var_mc", var), ("var_mc_se", var_se), ("mean_mc", mom.mean), ("mean_mc_se", mom.mean_se),
-                       ("Pfilt_exact", (1 - c.ell) ** 2 * ex.diag + c.ell ** 2 * sc.r), ("var_filt_mc", fmom.variance),
+                       ("Pfilt_exact", (1 - c.ell) ** 2 * ex.diag + c.ell ** 2 * sc.model.r), ("var_filt_mc", fmom.variance),
                        ("var_filt_mc_se", fmom.variance_se)):
             series[col].append(np.ravel(v))
     nodes = {col: np.concatenate(v) for col, v in nodes.items()}
@@ -261,7 +258,7 @@ def _path_tables(res: Results) -> list[tuple[TableSpec, pd.DataFrame]]:
     name = res.scenario.name
     cells, paths, rounds = [], {c: [] for c in SAMPLE_PATHS.column_names[5:]}, {c: [] for c in CONSENSUS_ROUNDS.column_names[5:]}
     path_rows, round_rows = [], []
-    for c in _all_cells(res.design):
+    for c in res.design.all_cells():
         p = res.paths(c)
         if "x" not in p or p["x"].size == 0:
             continue
@@ -299,8 +296,8 @@ def metrics_frame(res: Results) -> pd.DataFrame:
     d, sc = res.design, res.scenario
     _, Pc, _, _ = d.arrays["centralized"]
     N = sc.n
-    ie = _index(d.steps, sc.eval_step)
-    kf = float(d.kf_prior([sc.eval_step])[0])
+    ie = _index(d.steps, sc.sweep.eval_step)
+    kf = float(d.kf_prior([sc.sweep.eval_step])[0])
     per_cell = len(CELL_METRICS) + len(AGENT_METRICS) * N
     metric = [np.array(["kf_trP", "kf_trP_per_agent", "kf_trP_steady"], object)]
     values = [np.array([sc.n * kf, kf, sc.n * Pc], np.float64)]

@@ -1,4 +1,4 @@
-"""The hypotheses the noisy-consensus-filter claims rest on, each decided on the scenario.
+"""The hypotheses the noisy-consensus-filter claims rest on, each decided on the scenario's design.
 
 Theorem 1 (eqs. (15), (22)-(23)) needs Q row stochastic (so that Q†1 = 1) and nonnegative
 (so that ρ(Q†) = 1), and ℓ in (0, 1] (ℓ = 0 has no steady state). The paper assumes Q
@@ -16,35 +16,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from dse.verify.rules import EPS, Holds, Hypothesis
+from dse.verify.rules import EPS, Holds
 
-DOUBLY_STOCHASTIC = "savas.hyp.Q_doubly_stochastic"
-PRIMITIVE = "savas.hyp.Q_primitive"
-NORMAL = "savas.hyp.Q_normal"
-SYMMETRIC = "savas.hyp.Q_symmetric"
-GAINS = "savas.hyp.gains"
-NETWORK = "savas.hyp.network"
-
-#: the family's validation tolerance on row and column sums (dse.scenario.graphs.check_consensus_matrix)
-SUM_TOL = 1e-10
+from ..design import Design
+from .common import DOUBLY_STOCHASTIC, GAINS, NETWORK, NORMAL, PRIMITIVE, SUM_TOL, SYMMETRIC, claims, stochastic_deviation
 
 
-def stochastic_deviation(Q: np.ndarray) -> float:
-    """max |Q1 − 1|, |1ᵀQ − 1ᵀ|: how far the scenario's Q is from doubly stochastic (an input error
-    that identities such as Q†1 = 1 inherit, multiplied by the number of powers taken)."""
-    return float(max(np.abs(Q.sum(axis=1) - 1).max(), np.abs(Q.sum(axis=0) - 1).max()))
-
-
-def _doubly_stochastic(res) -> Holds:
-    Q = res.scenario.Q
+@claims.hypothesis(DOUBLY_STOCHASTIC, "Q is nonnegative and doubly stochastic (Q1 = 1, 1ᵀQ = 1ᵀ), as §II assumes; "
+                   "Theorem 1 uses Q†1 = 1 and ρ(Q†) = 1")
+def doubly_stochastic(design: Design) -> Holds:
+    Q = design.scenario.Q
     dev, neg = stochastic_deviation(Q), float(max(-Q.min(), 0.0))
     worst = max(dev, neg)
     return Holds(worst <= SUM_TOL, value=worst, threshold=SUM_TOL,
                  detail=f"max |row or column sum − 1| = {dev:.2e}, most negative entry {-neg:.2e}")
 
 
-def _primitive(res) -> Holds:
-    Q = res.scenario.Q
+@claims.hypothesis(PRIMITIVE, "Q has a simple unit eigenvalue and every other eigenvalue strictly inside the unit disk")
+def primitive(design: Design) -> Holds:
+    Q = design.scenario.Q
     if len(Q) == 1:
         return Holds(True, value=0.0, threshold=1.0, detail="a single agent: Q = [1]")
     second = float(np.sort(np.abs(np.linalg.eigvals(Q)))[-2])
@@ -56,23 +46,27 @@ def normality_tolerance(n: int) -> float:
     return 10.0 * 2 * n * EPS
 
 
-def _normal(res) -> Holds:
-    Q = res.scenario.Q
+@claims.hypothesis(NORMAL, "Q is normal (QQᵀ = QᵀQ, e.g. symmetric): the modal decomposition behind (16) and (24)")
+def normal(design: Design) -> Holds:
+    Q = design.scenario.Q
     dev = float(np.abs(Q @ Q.T - Q.T @ Q).max())
     tol = normality_tolerance(len(Q))
     return Holds(dev <= tol, value=dev, threshold=tol,
                  detail=f"max |QQᵀ − QᵀQ| = {dev:.3g} (round-off level {tol:.2g}; symmetric Q are normal)")
 
 
-def _symmetric(res) -> Holds:
-    Q = res.scenario.Q
+@claims.hypothesis(SYMMETRIC, "Q is symmetric: the optimal gains (minimisers of (16)) and the modal closed forms are "
+                   "computed for symmetric Q")
+def symmetric(design: Design) -> Holds:
+    Q = design.scenario.Q
     dev = float(np.abs(Q - Q.T).max())
     tol = 10.0 * EPS
     return Holds(dev <= tol, value=dev, threshold=tol, detail=f"max |Q − Qᵀ| = {dev:.3g}")
 
 
-def _gains(res) -> Holds:
-    cells = list(res.cells) + ([res.long_cell] if res.long_cell is not None else [])
+@claims.hypothesis(GAINS, "every cell's gains satisfy 0 < ℓ ≤ 1 and 0 ≤ ζ ≤ 1 (Theorem 1; ℓ = 0 has no steady state)")
+def gains(design: Design) -> Holds:
+    cells = list(design.cells) + ([design.long_cell] if design.long_cell is not None else [])
     ells = np.array([c.ell for c in cells])
     zetas = np.array([c.zeta for c in cells])
     ok = bool(np.all((ells > 0) & (ells <= 1)) and np.all((zetas >= 0) & (zetas <= 1)))
@@ -81,22 +75,8 @@ def _gains(res) -> Holds:
                         f"{len(cells)} cells; then ρ((1−ℓ)A) = 1 − ℓ < 1 and (22) has a steady state")
 
 
-def _network(res) -> Holds:
-    n = res.scenario.n
+@claims.hypothesis(NETWORK, "the network has at least two agents (averaging over neighbours is what re-injection "
+                   "trades off)")
+def network(design: Design) -> Holds:
+    n = design.scenario.n
     return Holds(n >= 2, value=n, threshold=2, detail=f"N = {n} agents")
-
-
-def catalogue() -> list[Hypothesis]:
-    H = Hypothesis
-    return [
-        H(DOUBLY_STOCHASTIC, "Q is nonnegative and doubly stochastic (Q1 = 1, 1ᵀQ = 1ᵀ), as §II assumes; Theorem 1 "
-          "uses Q†1 = 1 and ρ(Q†) = 1", _doubly_stochastic),
-        H(PRIMITIVE, "Q has a simple unit eigenvalue and every other eigenvalue strictly inside the unit disk",
-          _primitive),
-        H(NORMAL, "Q is normal (QQᵀ = QᵀQ, e.g. symmetric): the modal decomposition behind (16) and (24)", _normal),
-        H(SYMMETRIC, "Q is symmetric: the optimal gains (minimisers of (16)) and the modal closed forms are computed "
-          "for symmetric Q", _symmetric),
-        H(GAINS, "every cell's gains satisfy 0 < ℓ ≤ 1 and 0 ≤ ζ ≤ 1 (Theorem 1; ℓ = 0 has no steady state)", _gains),
-        H(NETWORK, "the network has at least two agents (averaging over neighbours is what re-injection trades off)",
-          _network),
-    ]
