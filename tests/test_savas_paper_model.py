@@ -7,20 +7,20 @@ import copy
 from pathlib import Path
 from types import SimpleNamespace
 
+import dse.families
+from dse.families.savas.claims import claims
+from dse.families.savas.claims.model import check_Q
 from dse.scenario.fields import load_toml
-from dse.families.savas.claims import catalogue, check_Q
-from dse.families.savas.reproduction import from_dict, paper
-from dse.families.savas.scenario import NoisyConsensusScenario
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _paper_data() -> dict:
-    return {k: v for k, v in load_toml(ROOT / "dse" / "families" / "savas" / "paper.toml").items() if k != "family"}
+    return load_toml(ROOT / "dse" / "families" / "savas" / "paper.toml")
 
 
 def test_reference_tables_are_paper_example_claims():
-    scopes = {c.id: c.scope for c in catalogue()}
+    scopes = {c.id: c.scope for c in claims.claims}
     for cid in ("savas.fig1.values", "savas.fig2.values", "savas.fig3.values", "savas.model.Q_example",
                 "savas.fig2.zeta_nonmonotone", "savas.fig2.ell_increasing", "savas.thm1.ii.hypothesis"):
         assert scopes[cid] == "paper-example", cid
@@ -28,13 +28,17 @@ def test_reference_tables_are_paper_example_claims():
 
 
 def test_only_the_papers_reproduction_is_a_paper_run():
-    assert paper().is_paper
-    assert not from_dict(_paper_data()).is_paper
-    assert "Reconstructions" not in from_dict(_paper_data()).notes()
+    assert dse.families.paper("savas").is_paper
+    user = dse.families.from_dict(_paper_data())
+    assert not user.is_paper and user.paper_id == "paper"
+    assert "Reconstructions" not in user.notes() and "Reconstructions" in dse.families.paper("savas").notes()
+    # the same claims, by id and order, but the paper's example claims only in the paper's run
+    run_ids = [c.id for c in dse.families.paper("savas").claims()]
+    assert run_ids == [c.id for c in user.claims()] == [c.id for c in claims.claims]
 
 
 def test_structural_Q_check_runs_on_any_network():
     bigger = copy.deepcopy(_paper_data())
     bigger["graph"]["n"] = 5
-    verdict = check_Q(SimpleNamespace(scenario=NoisyConsensusScenario.from_dict(bigger)))
+    verdict = check_Q(SimpleNamespace(scenario=dse.families.from_dict(bigger).scenario))
     assert verdict.status == "pass" and "second largest" in verdict.detail

@@ -14,16 +14,20 @@ import numpy as np
 import pytest
 
 import dse.estimators.consensus_covariance as cc
-import dse.families as reproductions
+import dse.estimators.gain_tuning as gt
+import dse.families
 from dse import api
-from dse.scenario.declare import reference_rows
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
+from dse.engine.cache import MemoryCache
 from dse.errors import ScenarioError
-from dse.engine.driver import RunOptions
+from dse.families.savas import cells
+from dse.families.savas import design as savas_design
+from dse.families.savas import monte_carlo
+from dse.families.savas.claims.common import eval_traces
+from dse.families.savas.scenario import NoisyConsensusFile
+from dse.scenario.declare import parse, reference_rows
 from dse.sweeps.run import network_metrics
-from dse.families.savas import claims as savas_claims
-from dse.families.savas import compute
-from dse.families.savas.reproduction import SCENARIO_MODEL
-from dse.families.savas.scenario import NoisyConsensusScenario
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "dse" / "families" / "savas" / "paper.toml"
@@ -37,7 +41,7 @@ SMALL = {"family": "noisy-consensus-filter", "name": "small", "graph": {"kind": 
 # -- declared keys -------------------------------------------------------------------------------------
 
 def test_every_key_is_declared_with_a_meaning():
-    rows = [(path, r) for path, table, _ in reference_rows(SCENARIO_MODEL) for r in table]
+    rows = [(path, r) for path, table, _ in reference_rows(dse.families.family("noisy-consensus-filter").scenario_model) for r in table]
     assert len(rows) > 25
     for path, r in rows:
         assert r["meaning"].strip(), f"{path}.{r['key']} has no meaning"
@@ -54,7 +58,7 @@ def test_the_paper_file_comments_every_key():
             assert "#" in line, f"paper.toml: no comment on {line.strip()!r}"
     data = tomllib.loads(PAPER.read_text())
     data.pop("family")
-    NoisyConsensusScenario.from_dict(data)
+    parse(NoisyConsensusFile, data)
 
 
 @pytest.mark.parametrize("change, field, words", [
@@ -76,7 +80,7 @@ def test_the_paper_file_comments_every_key():
 def test_invalid_input_names_its_field(change, field, words):
     data = {**SMALL, **change}
     with pytest.raises(ScenarioError) as err:
-        reproductions.family_from_dict(data)
+        dse.families.from_dict(data)
     assert err.value.field == field and words in err.value.reason, str(err.value)
 
 
@@ -89,7 +93,7 @@ def small_run():
 
 def test_design_is_the_runs_design_and_hypotheses_are_decided_on_it(small_run):
     repro = small_run.reproduction
-    d = repro.scenarios[0].legacy.design(RunOptions(quick=True, seed=3))
+    d = repro.design(RunOptions(quick=True, seed=3), StageContext(MemoryCache()))
     same = small_run.computed.design
     assert d.arrays.keys() == same.arrays.keys()
     for k in d.arrays:
@@ -114,19 +118,20 @@ def test_nodes_table_equals_the_independent_computations(small_run):
     res, t = small_run.results, small_run.tables
     sc = res.scenario
     nodes = t["nodes"]
-    Pc = compute.gt.optimal_gain_no_communication(sc.q, sc.r / sc.n, sc.n)[1] / sc.n
-    kf = np.array([sc.sigma0])
-    for _ in range(sc.n_steps - 1):
-        kf = np.append(kf, kf[-1] * (sc.r / sc.n) / (kf[-1] + sc.r / sc.n) + sc.q)
+    q, r, sigma0, n_steps, eval_step = sc.model.q, sc.model.r, sc.model.sigma0, sc.sweep.n_steps, sc.sweep.eval_step
+    Pc = gt.optimal_gain_no_communication(q, r / sc.n, sc.n)[1] / sc.n
+    kf = np.array([sigma0])
+    for _ in range(n_steps - 1):
+        kf = np.append(kf, kf[-1] * (r / sc.n) / (kf[-1] + r / sc.n) + q)
     for c in res.cells:
         rows = nodes[(nodes["alg"] == c.alg) & (nodes["m"] == c.m) & (nodes["sigma_c"] == c.sigma_c)
                      & (nodes["n_steps"] == c.n_steps)].sort_values("node")
-        kw = dict(ell=c.ell, m=c.m, sigma_c=c.sigma_c, q=sc.q, r=sc.r, reinjection=c.reinjection, zeta=c.zeta)
+        kw = dict(ell=c.ell, m=c.m, sigma_c=c.sigma_c, q=q, r=r, reinjection=c.reinjection, zeta=c.zeta)
         P_inf = cc.asymptotic_covariance_lyapunov(sc.Q, **kw)   # as the claims' steady state
         np.testing.assert_allclose(rows["P_steady"], np.diag(P_inf), rtol=1e-11)
-        seq = cc.predictive_covariance_sequence(sc.Q, sigma0=sc.sigma0, n_steps=c.n_steps, **kw)   # (22) iterated
+        seq = cc.predictive_covariance_sequence(sc.Q, sigma0=sigma0, n_steps=c.n_steps, **kw)   # (22) iterated
         np.testing.assert_allclose(rows["P_final_exact"], np.diag(seq[-1]), rtol=1e-11)
-        np.testing.assert_allclose(rows["P_eval_exact"], np.diag(seq[sc.eval_step]), rtol=1e-11)
+        np.testing.assert_allclose(rows["P_eval_exact"], np.diag(seq[eval_step]), rtol=1e-11)
         mom = res.moments(c)
         np.testing.assert_array_equal(rows["P_final_mc"], mom.variance[-1])
         np.testing.assert_array_equal(rows["P_final_mc_se"], mom.variance_se[-1])
@@ -137,7 +142,7 @@ def test_nodes_table_equals_the_independent_computations(small_run):
     for c in res.cells:
         row = cells[(cells["alg"] == c.alg) & (cells["m"] == c.m) & (cells["sigma_c"] == c.sigma_c)
                     & (cells["n_steps"] == c.n_steps)].iloc[0]
-        P_inf = cc.asymptotic_covariance_lyapunov(sc.Q, ell=c.ell, m=c.m, sigma_c=c.sigma_c, q=sc.q, r=sc.r,
+        P_inf = cc.asymptotic_covariance_lyapunov(sc.Q, ell=c.ell, m=c.m, sigma_c=c.sigma_c, q=q, r=r,
                                                   reinjection=c.reinjection, zeta=c.zeta)
         assert row["loewner_gap_steady"] == pytest.approx(np.linalg.eigvalsh(P_inf - Pc * np.ones((sc.n, sc.n))).min(),
                                                           rel=1e-9, abs=1e-12)
@@ -148,21 +153,21 @@ def test_series_gains_and_thresholds_are_what_the_claims_use(small_run):
     res, t = small_run.results, small_run.tables
     sc = res.scenario
     for alg in ("carli", "reinjection"):
-        traces = savas_claims._eval_traces(res, alg)
+        traces = eval_traces(res, alg)
         ts = t["trace_series"]
-        ts = ts[(ts["alg"] == alg) & (ts["k"] == sc.eval_step) & (ts["n_steps"] == sc.n_steps)]
+        ts = ts[(ts["alg"] == alg) & (ts["k"] == sc.sweep.eval_step) & (ts["n_steps"] == sc.sweep.n_steps)]
         exact = ts.pivot(index="sigma_c", columns="m", values="trP_exact").to_numpy()
         np.testing.assert_array_equal(exact, traces)
     g = t["gains"]
     corrected = g[g["objective"] == "corrected"].pivot(index="sigma_c", columns="m", values="ell")
     np.testing.assert_array_equal(corrected.loc[:, : sc.rounds_max].to_numpy(), res.bounds["corrected_ell"])
-    np.testing.assert_array_equal(corrected.loc[:, compute.LARGE_M].to_numpy(), res.bounds["large_m_ell"])
+    np.testing.assert_array_equal(corrected.loc[:, cells.LARGE_M].to_numpy(), res.bounds["large_m_ell"])
     thr = t["carli_thresholds"]["sigma_c_threshold"].to_numpy()
-    np.testing.assert_array_equal(thr, compute.carli_thresholds(sc, sc.rounds)[0])
+    np.testing.assert_array_equal(thr, savas_design.carli_thresholds(sc, sc.sweep.rounds)[0])
     ns = t["node_series"]
     assert len(ns) == len(res.design.cells) * 12 * sc.n + 60 * sc.n   # the cells' recorded steps and the long run
     paths = t["sample_paths"]
-    assert paths["k"].max() == sc.sample_steps - 1 and paths["trial"].max() == sc.sample_paths - 1
+    assert paths["k"].max() == sc.monte_carlo.sample_steps - 1 and paths["trial"].max() == sc.monte_carlo.sample_paths - 1
 
 
 def test_metrics_have_the_cell_in_columns_and_the_sweeps_names():
@@ -175,7 +180,7 @@ def test_metrics_have_the_cell_in_columns_and_the_sweeps_names():
     network = network_metrics(m)
     for name in sweep["plot"]["metrics"]:
         assert name in network, name
-    assert network["reinjection_trP_exact"] == pytest.approx(savas_claims._eval_traces(run.results, "reinjection")[0, 0],
+    assert network["reinjection_trP_exact"] == pytest.approx(eval_traces(run.results, "reinjection")[0, 0],
                                                              rel=0, abs=0)
     per_node = m[(m["metric"] == "carli_P_exact")]
     assert sorted(per_node["node"].tolist()) == list(range(4))
@@ -183,13 +188,18 @@ def test_metrics_have_the_cell_in_columns_and_the_sweeps_names():
 
 # -- streaming -------------------------------------------------------------------------------------------
 
+def _design(sc):
+    """The design stage computed directly (no cache), with the quick gain grid."""
+    return savas_design.Design.of(sc, savas_design.design_arrays(sc, cells.QUICK_GRID))
+
+
 def test_monte_carlo_is_identical_whatever_the_memory_budget():
-    sc = reproductions.family_from_dict({**SMALL, "monte_carlo": {"trials": 2500, "sample_paths": 2}}).scenario
-    d = compute.design(sc, True)
+    sc = dse.families.from_dict({**SMALL, "monte_carlo": {"trials": 2500, "sample_paths": 2}}).scenario
+    d = _design(sc)
     group = tuple(c for c in d.cells if c.alg == "reinjection" and c.m == 2)
     steps = d.steps
-    tiny = compute.simulate_group(sc, 5, 2500, steps, 1.0, group)            # one unit of 1,000 trials at a time
-    large = compute.simulate_group(sc, 5, 2500, steps, 2.0**30, group)       # every unit together
+    tiny = monte_carlo.simulate_group(sc, 5, 2500, steps, 1.0, group)            # one unit of 1,000 trials at a time
+    large = monte_carlo.simulate_group(sc, 5, 2500, steps, 2.0**30, group)       # every unit together
     assert tiny.keys() == large.keys()
     for k in tiny:
         np.testing.assert_array_equal(tiny[k], large[k], err_msg=k)
@@ -241,24 +251,26 @@ def test_unstreamable_outputs_beyond_the_budget_are_refused_before_running(tmp_p
     data = {**SMALL, "graph": {"kind": "ring", "n": 300}, "consensus": {"weights": "metropolis"},
             "sweep": {"rounds": [0, 1, 2, 3], "sigma_c": [0.0, 0.5, 1.0, 2.0], "n_steps": 100_000,
                       "recorded_steps": 100_000}}
-    repro = reproductions.family_from_dict(data)
-    with pytest.raises(ScenarioError) as err:
-        repro.compute(RunOptions(quick=True, max_memory_mib=2000), None)
+    repro = dse.families.from_dict(data)
+    opts = RunOptions(quick=True, max_memory_mib=2000)
+    cost = repro.cost(opts)
+    assert cost.sized_by == "sweep.recorded_steps" and cost.kept_mib > 2000
+    with pytest.raises(ScenarioError) as err:     # by the driver, before any stage runs
+        api.execute(repro, opts)
     assert err.value.field == "sweep.recorded_steps" and "MiB" in err.value.reason
 
 
 def test_estimate_of_the_monte_carlo_is_within_a_factor_of_two_of_its_cost():
     """The cost model's Monte Carlo part against the CPU time of the same groups (factor 2 stated)."""
-    from dse.families.savas import cost
-
-    sc = reproductions.family_from_dict({**SMALL, "sweep": {**SMALL["sweep"], "n_steps": 200, "recorded_steps": 50},
-                                         "monte_carlo": {"trials": 3000, "sample_paths": 0}}).scenario
-    opts = RunOptions(quick=True, workers=1)
-    d = compute.design(sc, True)
+    run = dse.families.from_dict({**SMALL, "sweep": {**SMALL["sweep"], "n_steps": 200, "recorded_steps": 50},
+                                  "monte_carlo": {"trials": 3000, "sample_paths": 0}})
+    sc = run.scenario
+    opts = RunOptions(quick=True, workers=1, trials=3000)
+    d = _design(sc)
     start = time.process_time()
-    for group in compute.cell_groups(d.cells + [d.long_cell]):
-        compute.simulate_group(sc, 0, 3000, d.steps_of(group[0]), opts.chunk_budget_bytes(), group)
+    for group in monte_carlo.cell_groups(d.all_cells()):
+        monte_carlo.simulate_group(sc, 0, 3000, d.steps_of(group[0]), opts.chunk_budget_bytes(), group)
     measured = time.process_time() - start
-    predicted = cost.estimate(sc, opts).detail
+    predicted = run.cost(opts).detail
     mc = float(re.search(r"Monte Carlo ([\d.e+]+) s", predicted).group(1))
     assert 0.5 < mc / measured < 2.0, (mc, measured)

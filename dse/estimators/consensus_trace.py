@@ -24,6 +24,7 @@ from .consensus_covariance import (
     _check_zeta,
     _power_sum,
     geometric_gram_sum,
+    predictive_covariance_at_steps,
     reinjection_matrix,
     round_noise_gram,
 )
@@ -35,6 +36,7 @@ __all__ = [
     "carli_asymptotic_trace",
     "carli_trace_lower_bound_asymptotic",
     "carli_trace_lower_bound",
+    "carli_noise_thresholds",
     "consensus_mode_variance",
     "averaged_iterates_deviation_norm",
     "averaged_iterates_deviation_norm_modal",
@@ -248,6 +250,23 @@ def carli_trace_lower_bound(*, ell, m, sigma_c, k: int) -> float:
         raise ValueError(f"k must be a non-negative integer, got {k!r}")
     rho = (1.0 - ell) ** 2
     return sigma_c**2 * m * float(sum(rho**i for i in range(int(k))))
+
+
+def carli_noise_thresholds(Q, *, ell, ms, k: int, q, r, sigma0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(thresholds, b, a)``: ``tr P(k|k-1)`` of the plain filter (7)+(9) is ``a_m + b_m sigma_c^2`` (the
+    recursion is affine in ``sigma_c^2``), with ``a_m`` the noise-free trace and ``b_m`` the trace of
+    the communication noise alone; for consecutive ``m -> m'`` in ``ms``, the ``sigma_c`` above which
+    the trace is larger at ``m'`` (0 if it always is, inf if never)."""
+    def trace(m, noise_only):
+        kw = dict(q=0.0, r=0.0, sigma0=0.0, sigma_c=1.0) if noise_only else dict(q=q, r=r, sigma0=sigma0, sigma_c=0.0)
+        return float(predictive_covariance_at_steps(Q, ell=ell, m=m, steps=[k], reinjection=False, **kw).trace[0])
+
+    a = np.array([trace(m, False) for m in ms])
+    b = np.array([trace(m, True) for m in ms])
+    da, db = -np.diff(a), np.diff(b)   # the trace rises from m to m' iff b' sigma_c^2 + a' > b sigma_c^2 + a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        thr = np.where(db > 0, np.sqrt(np.maximum(da, 0.0) / db), np.where(da < 0, 0.0, np.inf))
+    return thr, b, a
 
 
 # --------------------------------------------------------------------------------------

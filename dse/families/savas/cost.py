@@ -16,7 +16,7 @@ from dse.contract.cost import MIB, Cost
 from dse.contract.options import RunOptions
 from dse.simulate.units import RNG_UNIT
 
-from .design import LARGE_M, LONG_RUN_STEPS, gain_grid, scenario_steps
+from .cells import LARGE_M, LONG_RUN_STEPS, gain_grid, scenario_steps
 from .monte_carlo import CHUNK_BYTES, CHUNK_TRIALS, bytes_per_trial
 from .scenario import NoisyConsensusFile
 

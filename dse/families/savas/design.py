@@ -14,16 +14,13 @@ from typing import Any
 import numpy as np
 
 import dse.estimators.consensus_covariance as cc
+import dse.estimators.consensus_trace as ct
 import dse.estimators.gain_tuning as gt
 from dse.contract.stages import stage
 
+from .cells import ALGORITHMS, LARGE_M, LONG_RUN_STEPS, Cell, scenario_steps
 from .scenario import NoisyConsensusFile
 
-ALGORITHMS = ("carli", "reinjection")
-LARGE_M = (5, 10, 20, 50, 100, 200)
-LONG_RUN_STEPS = 60
-#: grid of (ℓ, ζ) in quick runs
-QUICK_GRID = (100, 101)
 #: steady-state covariance matrices are tabulated entry by entry up to this many agents
 MATRIX_TABLE_AGENTS = 50
 #: the arrays of a cell's steady state in the design (see `design_arrays`)
@@ -31,44 +28,6 @@ STEADY_ARRAYS = ("diag", "trace", "gap", "matrix")
 #: the columns of the optimal-gain tables (`dse.estimators.gain_tuning.GainTable`)
 GAIN_COLUMNS = ("ell", "zeta", "J", "dJ_dell", "dJ_dzeta", "d2J_dell2", "d2J_dzeta2", "kkt_residual", "kkt_scaled",
                 "grid_min")
-
-
-@dataclass(frozen=True)
-class Cell:
-    """One Monte Carlo cell: algorithm, rounds m, communication noise σ_c, its gains and horizon."""
-
-    alg: str
-    m: int
-    sigma_c: float
-    ell: float
-    zeta: float
-    n_steps: int
-
-    @property
-    def label(self) -> str:
-        return f"{self.alg}_m{self.m}_sc{self.sigma_c:g}_K{self.n_steps}"
-
-    @property
-    def reinjection(self) -> bool:
-        return self.alg == "reinjection"
-
-
-def gain_grid(sc: NoisyConsensusFile, quick: bool) -> tuple[int, int]:
-    return QUICK_GRID if quick else (sc.gains.grid[0], sc.gains.grid[1])
-
-
-def recorded_steps(n_steps: int, budget: int, eval_step: int) -> np.ndarray:
-    """The steps whose statistics are kept: all when n_steps <= budget, else the first budget/2 steps,
-    then evenly spaced up to the last step, and eval_step."""
-    if n_steps <= budget:
-        return np.arange(n_steps)
-    head = budget // 2
-    tail = np.rint(np.linspace(head, n_steps - 1, budget - head)).astype(np.int64)
-    return np.unique(np.concatenate([np.arange(head), tail, [eval_step]]))
-
-
-def scenario_steps(sc: NoisyConsensusFile) -> np.ndarray:
-    return recorded_steps(sc.sweep.n_steps, sc.sweep.recorded_steps, sc.sweep.eval_step)
 
 
 def steady_kwargs(sc: NoisyConsensusFile, cell: Cell) -> dict[str, Any]:
@@ -175,23 +134,10 @@ def long_run_cell(sc: NoisyConsensusFile, arrays: dict[str, np.ndarray]) -> Cell
 
 def carli_thresholds(sc: NoisyConsensusFile, rounds) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For consecutive m → m' in `rounds`: the σ_c above which tr P(k_eval) of Carli's filter increases
-    (0 if it always does, inf if never), the σ_c² coefficients b_m and the noise-free traces a_m
-    (tr = a_m + b_m σ_c², the recursion being affine in σ_c²)."""
+    (0 if it always does, inf if never), the σ_c² coefficients b_m and the noise-free traces a_m."""
     model = sc.model
-
-    def trace(m, noise_only):
-        kw = dict(q=0.0, r=0.0, sigma0=0.0, sigma_c=1.0) if noise_only else dict(q=model.q, r=model.r,
-                                                                                sigma0=model.sigma0, sigma_c=0.0)
-        P = cc.predictive_covariance_at_steps(sc.Q, ell=sc.carli.ell, m=m, steps=[sc.sweep.eval_step],
-                                              reinjection=False, **kw)
-        return float(P.trace[0])
-
-    a = np.array([trace(m, False) for m in rounds])
-    b = np.array([trace(m, True) for m in rounds])
-    da, db = -np.diff(a), np.diff(b)   # the trace rises from m to m' iff b' σ² + a' > b σ² + a
-    with np.errstate(divide="ignore", invalid="ignore"):
-        thr = np.where(db > 0, np.sqrt(np.maximum(da, 0.0) / db), np.where(da < 0, 0.0, np.inf))
-    return thr, b, a
+    return ct.carli_noise_thresholds(sc.Q, ell=sc.carli.ell, ms=rounds, k=sc.sweep.eval_step, q=model.q, r=model.r,
+                                     sigma0=model.sigma0)
 
 
 @stage(name="design", allow_nonfinite=("carli_thresholds",))

@@ -1,6 +1,6 @@
 """The noisy-consensus-filter family: Savas, Srivastava & Leonard's paper and users' scenario files of
 the same kind (`family = "noisy-consensus-filter"`). Its modules: scenario (the declared file),
-design and monte_carlo (the stages), claims (hypotheses and claims on their checks, with
+cells, design and monte_carlo (the stages) and results, claims (hypotheses and claims on their checks, with
 exact_laws and reference_values), tables, figures and recordings (the views), cost and
 generators; this one ties them together. Everything but the scenario is imported on first use,
 so that validating a file and reporting its errors stays fast.
@@ -57,13 +57,12 @@ family-wise confidence."""
         return self.module("claims").claims
 
     def design(self, run, opts, ctx):
-        design = self.module("design")
-        sc = run.scenario
-        return design.Design.of(sc, ctx.run(design.design_arrays, sc, design.gain_grid(sc, opts.quick)))
+        design, sc = self.module("design"), run.scenario
+        return design.Design.of(sc, ctx.run(design.design_arrays, sc, self.module("cells").gain_grid(sc, opts.quick)))
 
     def simulate(self, run, opts, ctx, design):
-        return self.module("monte_carlo").simulate(ctx, run.scenario, design, opts.seed, self.trials(run, opts),
-                                                   workers=opts.workers, budget_bytes=opts.chunk_budget_bytes())
+        return self.module("results").simulate(ctx, run.scenario, design, opts.seed, self.trials(run, opts),
+                                               workers=opts.workers, budget_bytes=opts.chunk_budget_bytes())
 
     def trials(self, run, opts: RunOptions) -> int:
         mc = run.scenario.monte_carlo

@@ -97,100 +97,95 @@ def _weights(rng: np.random.Generator, graph: dict, kind: str, near_limit: bool 
     return {"weights": "laplacian", "eps": round(frac / dmax, 6)}
 
 
+def _draws(rng: np.random.Generator) -> dict[str, Any]:
+    """The features of a random scenario (drawn in a fixed order: the generator is a function of its seed)."""
+    d: dict[str, Any] = {"n": int(rng.integers(3, 7)),
+                         "graph_kind": str(rng.choice(["line", "ring", "complete", "grid", "random_geometric"])),
+                         "weight_kind": str(rng.choice(["metropolis", "laplacian"])),
+                         "q": float(10 ** rng.uniform(-1, 1)), "r": float(10 ** rng.uniform(0, 2)),
+                         "sigma_c": sorted({0.0, round(float(rng.uniform(0.1, 3.0)), 3)})}
+    d["rounds"] = sorted({int(x) for x in rng.choice(np.arange(0, 6), size=int(rng.integers(2, 4)), replace=False)})
+    d["n_steps"] = int(rng.integers(4, 9))
+    d["eval_step"] = int(rng.integers(1, d["n_steps"]))
+    d.update(gains={"gains": "optimal-corrected"}, extra={}, sigma0=round(float(rng.uniform(0.0, 2.0)), 3),
+             carli_ell=round(float(rng.uniform(0.1, 0.9)), 3), consensus=None, graph=None)
+    return d
+
+
+def _edge_case(rng: np.random.Generator, edge: str, d: dict[str, Any]) -> None:
+    """Bend the draws `d` towards one edge case."""
+    if edge == "m0_default_rounds_max":
+        d["rounds"] = [0]
+    elif edge == "m1_default_rounds_max":
+        d["rounds"] = [1]
+    elif edge == "m01_with_rounds_max":
+        d["rounds"], d["extra"] = [0, 1], {"gains": {"rounds_max": int(rng.integers(2, 6))}}
+    elif edge == "sigma_c_zero":
+        d["sigma_c"] = [0.0]
+    elif edge in ("non_normal_Q", "normal_nonsymmetric_Q"):
+        n = int(rng.integers(3, 6)) if edge == "normal_nonsymmetric_Q" else int(rng.integers(4, 7))
+        d["graph"], d["consensus"] = _matrix_scenario(rng, n, normal=edge == "normal_nonsymmetric_Q")
+        d["gains"] = {"gains": "fixed", "ell": round(float(rng.uniform(0.05, 1.0)), 3),
+                      "zeta": round(float(rng.uniform(0.0, 1.0)), 3)}
+    elif edge == "eigenvalue_near_minus_one":  # Q = I − εL on a bipartite graph with ε close to 1/d_max
+        d["graph"] = {"kind": str(rng.choice(["line", "ring"])), "n": 2 * int(rng.integers(2, 4))}
+        d["consensus"] = _weights(rng, d["graph"], "laplacian", near_limit=True)
+    elif edge == "tiny_noise":
+        d["q"], d["r"] = float(10 ** rng.uniform(-6, -3)), float(10 ** rng.uniform(-6, -3))
+    elif edge == "huge_noise":
+        d["q"], d["r"] = float(10 ** rng.uniform(3, 5)), float(10 ** rng.uniform(3, 6))
+        d["sigma_c"] = sorted({0.0, round(float(10 ** rng.uniform(1, 2.5)), 3)})
+    elif edge == "extreme_ratio_q_over_r":
+        if rng.uniform() < 0.5:
+            d["q"], d["r"] = float(10 ** rng.uniform(-4, -2)), float(10 ** rng.uniform(3, 4))
+        else:
+            d["q"], d["r"] = float(10 ** rng.uniform(2, 4)), float(10 ** rng.uniform(-3, -1))
+    elif edge == "two_agents":
+        d["graph"] = {"kind": "line", "n": 2}
+    elif edge == "larger_network":
+        d["graph"] = {"kind": str(rng.choice(["ring", "line"])), "n": int(rng.integers(10, 13))}
+        d["rounds"] = sorted({int(rng.integers(0, 2)), int(rng.integers(2, 5))})
+        d["sigma_c"] = [round(float(rng.uniform(0.2, 2.0)), 3)]
+    elif edge == "complete_metropolis":
+        d["graph"], d["consensus"] = {"kind": "complete", "n": d["n"]}, {"weights": "metropolis"}
+    elif edge == "grid_laplacian":
+        d["graph"] = {"kind": "grid", "rows": 2, "cols": int(rng.integers(2, 4))}
+        d["consensus"] = _weights(rng, d["graph"], "laplacian")
+    elif edge == "random_geometric":
+        d["graph"], d["consensus"] = _random_geometric(rng, d["n"]), {"weights": "metropolis"}
+    elif edge == "ell_one_sigma0_zero":
+        d["sigma0"], d["carli_ell"] = 0.0, 1.0
+        d["gains"] = {"gains": "fixed", "ell": 1.0, "zeta": round(float(rng.uniform(0.0, 1.0)), 3)}
+    elif edge == "eval_step_zero":
+        d["eval_step"] = 0
+    elif edge == "large_sigma_c":
+        d["sigma_c"] = [round(float(rng.uniform(5.0, 20.0)), 3)]
+        d["rounds"] = sorted({1, int(rng.integers(2, 6))})
+    elif edge == "long_horizon":
+        d["n_steps"], d["eval_step"] = int(rng.integers(200, 400)), int(rng.integers(1, 10))
+        d["extra"] = {"sweep_extra": {"recorded_steps": int(rng.integers(10, 40))}}
+
+
 def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
     """A valid scenario dict; `edge` picks one of EDGES, None draws every feature at random."""
     if edge is not None and edge not in EDGES:
         raise ValueError(f"unknown edge case {edge!r}; one of {', '.join(EDGES)}")
     rng = np.random.default_rng([seed, EDGES.index(edge) + 1 if edge else 0])
-    n = int(rng.integers(3, 7))
-    graph_kind = str(rng.choice(["line", "ring", "complete", "grid", "random_geometric"]))
-    weight_kind = str(rng.choice(["metropolis", "laplacian"]))
-    q = float(10 ** rng.uniform(-1, 1))
-    r = float(10 ** rng.uniform(0, 2))
-    sigma_c = sorted({0.0, round(float(rng.uniform(0.1, 3.0)), 3)})
-    rounds = sorted({int(x) for x in rng.choice(np.arange(0, 6), size=int(rng.integers(2, 4)), replace=False)})
-    n_steps = int(rng.integers(4, 9))
-    eval_step = int(rng.integers(1, n_steps))
-    gains: dict[str, Any] = {"gains": "optimal-corrected"}
-    extra: dict[str, Any] = {}
-    sigma0 = round(float(rng.uniform(0.0, 2.0)), 3)
-    carli_ell = round(float(rng.uniform(0.1, 0.9)), 3)
-    consensus = None
-    graph = None
-
+    d = _draws(rng)
     if edge is None:
         edge_like = str(rng.choice(["plain", "non_normal_Q", "normal_nonsymmetric_Q", "eigenvalue_near_minus_one"]))
         if edge_like != "plain":
-            edge = edge_like  # fall through to the matrix cases below with the random draws above
+            edge = edge_like  # the matrix cases below, with the random draws above
         if rng.uniform() < 0.3:
-            gains = {"gains": "optimal-printed"}
-    if edge == "m0_default_rounds_max":
-        rounds = [0]
-    elif edge == "m1_default_rounds_max":
-        rounds = [1]
-    elif edge == "m01_with_rounds_max":
-        rounds, extra = [0, 1], {"gains": {"rounds_max": int(rng.integers(2, 6))}}
-    elif edge == "sigma_c_zero":
-        sigma_c = [0.0]
-    elif edge in ("non_normal_Q", "normal_nonsymmetric_Q"):
-        n = int(rng.integers(3, 6)) if edge == "normal_nonsymmetric_Q" else int(rng.integers(4, 7))
-        graph, consensus = _matrix_scenario(rng, n, normal=edge == "normal_nonsymmetric_Q")
-        gains = {"gains": "fixed", "ell": round(float(rng.uniform(0.05, 1.0)), 3),
-                 "zeta": round(float(rng.uniform(0.0, 1.0)), 3)}
-    elif edge == "eigenvalue_near_minus_one":  # Q = I − εL on a bipartite graph with ε close to 1/d_max
-        graph = {"kind": str(rng.choice(["line", "ring"])), "n": 2 * int(rng.integers(2, 4))}
-        consensus = _weights(rng, graph, "laplacian", near_limit=True)
-    elif edge == "tiny_noise":
-        q, r = float(10 ** rng.uniform(-6, -3)), float(10 ** rng.uniform(-6, -3))
-    elif edge == "huge_noise":
-        q, r = float(10 ** rng.uniform(3, 5)), float(10 ** rng.uniform(3, 6))
-        sigma_c = sorted({0.0, round(float(10 ** rng.uniform(1, 2.5)), 3)})
-    elif edge == "extreme_ratio_q_over_r":
-        if rng.uniform() < 0.5:
-            q, r = float(10 ** rng.uniform(-4, -2)), float(10 ** rng.uniform(3, 4))
-        else:
-            q, r = float(10 ** rng.uniform(2, 4)), float(10 ** rng.uniform(-3, -1))
-    elif edge == "two_agents":
-        graph = {"kind": "line", "n": 2}
-    elif edge == "larger_network":
-        graph = {"kind": str(rng.choice(["ring", "line"])), "n": int(rng.integers(10, 13))}
-        rounds = sorted({int(rng.integers(0, 2)), int(rng.integers(2, 5))})
-        sigma_c = [round(float(rng.uniform(0.2, 2.0)), 3)]
-    elif edge == "complete_metropolis":
-        graph, consensus = {"kind": "complete", "n": n}, {"weights": "metropolis"}
-    elif edge == "grid_laplacian":
-        graph = {"kind": "grid", "rows": 2, "cols": int(rng.integers(2, 4))}
-        consensus = _weights(rng, graph, "laplacian")
-    elif edge == "random_geometric":
-        graph, consensus = _random_geometric(rng, n), {"weights": "metropolis"}
-    elif edge == "ell_one_sigma0_zero":
-        sigma0, carli_ell = 0.0, 1.0
-        gains = {"gains": "fixed", "ell": 1.0, "zeta": round(float(rng.uniform(0.0, 1.0)), 3)}
-    elif edge == "eval_step_zero":
-        eval_step = 0
-    elif edge == "large_sigma_c":
-        sigma_c = [round(float(rng.uniform(5.0, 20.0)), 3)]
-        rounds = sorted({1, int(rng.integers(2, 6))})
-    elif edge == "long_horizon":
-        n_steps, eval_step = int(rng.integers(200, 400)), int(rng.integers(1, 10))
-        extra = {"sweep_extra": {"recorded_steps": int(rng.integers(10, 40))}}
-
-    if graph is None:
-        graph = _graph(rng, graph_kind, n)
-    if consensus is None:
-        consensus = _weights(rng, graph, weight_kind)
-    name = f"gen-{edge or 'random'}-{seed}"
-    sweep = {"rounds": rounds, "sigma_c": sigma_c, "n_steps": n_steps, "eval_step": eval_step,
+            d["gains"] = {"gains": "optimal-printed"}
+    if edge is not None:
+        _edge_case(rng, edge, d)
+    graph = d["graph"] if d["graph"] is not None else _graph(rng, d["graph_kind"], d["n"])
+    consensus = d["consensus"] if d["consensus"] is not None else _weights(rng, graph, d["weight_kind"])
+    extra = d["extra"]
+    sweep = {"rounds": d["rounds"], "sigma_c": d["sigma_c"], "n_steps": d["n_steps"], "eval_step": d["eval_step"],
              **extra.pop("sweep_extra", {})}
-    return {
-        "family": FAMILY,
-        "name": name,
-        "graph": graph,
-        "consensus": consensus,
-        "model": {"q": q, "r": r, "sigma0": sigma0},
-        "sweep": sweep,
-        "carli": {"ell": carli_ell},
-        "reinjection": gains,
-        "monte_carlo": {"trials": int(rng.integers(200, 3001)), "sample_paths": int(rng.integers(0, 3))},
-        **extra,
-    }
+    return {"family": FAMILY, "name": f"gen-{edge or 'random'}-{seed}", "graph": graph, "consensus": consensus,
+            "model": {"q": d["q"], "r": d["r"], "sigma0": d["sigma0"]}, "sweep": sweep, "carli": {"ell": d["carli_ell"]},
+            "reinjection": d["gains"], "monte_carlo": {"trials": int(rng.integers(200, 3001)),
+                                                      "sample_paths": int(rng.integers(0, 3))}, **extra}

@@ -30,14 +30,6 @@ MAX_STEPS = 100_000
 MAX_ROUNDS = 1000
 
 
-def _listed(values: list):
-    """A list default (a fresh list per file), shown as such on the reference page."""
-    def default():
-        return list(values)
-    default.__doc__ = f"`{values}`"
-    return default
-
-
 class ConsensusSection(Section):
     """The consensus matrix Q: agent i's new value is Σ_j q_ij z_j (eqs. (6), (8)). The paper assumes
     Q doubly stochastic, nonnegative and primitive (one eigenvalue 1, the others inside the unit disk)."""
@@ -103,9 +95,9 @@ class SweepSection(Section):
     """The cells simulated and checked: both filters at every number of rounds m and noise level σ_c,
     over k = 0..n_steps−1."""
 
-    rounds: list[Round] = key(_listed([0, 1, 2, 3, 4, 5]), doc="numbers m of consensus rounds between two "
+    rounds: list[Round] = key([0, 1, 2, 3, 4, 5], doc="numbers m of consensus rounds between two "
                               "measurements", min_length=1, constraint=f"each 0..{MAX_ROUNDS}; strictly increasing")
-    sigma_c: list[NoiseLevel] = key(_listed([0.0, 1.0]), doc="standard deviations σ_c of the communication noise "
+    sigma_c: list[NoiseLevel] = key([0.0, 1.0], doc="standard deviations σ_c of the communication noise "
                                     "added at every round (eq. (6))", unit="state", min_length=1,
                                     constraint="each >= 0; strictly increasing")
     n_steps: int = key(10, doc="horizon: steps k = 0..n_steps−1 are simulated", ge=1, le=MAX_STEPS)
@@ -169,7 +161,7 @@ class GainsSection(Section):
 
     rounds_max: int | None = key(None, doc="largest m of the gain tables (none: max(sweep.rounds))", ge=0,
                                  le=MAX_ROUNDS, constraint=">= max(sweep.rounds)")
-    grid: list[GridSize] = key(_listed([400, 401]), doc="[n_ell, n_zeta]: the grid of (ℓ, ζ) on which J is evaluated "
+    grid: list[GridSize] = key([400, 401], doc="[n_ell, n_zeta]: the grid of (ℓ, ζ) on which J is evaluated "
                                "before the local search ([100, 101] in quick runs)", min_length=2, max_length=2,
                                constraint="each 11..5000")
 

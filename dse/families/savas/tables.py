@@ -18,8 +18,9 @@ import pandas as pd
 
 from dse.outputs.tables import TableSpec, spec
 
-from .design import LARGE_M, Cell, Design
-from .monte_carlo import Results
+from .cells import LARGE_M, Cell
+from .design import Design
+from .results import Results
 
 CELL_COLUMNS = [
     ("alg", "", "filter: carli (two-stage filter (7)+(9)) or reinjection (the paper's filter (11)-(13))"),

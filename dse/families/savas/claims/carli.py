@@ -9,7 +9,7 @@ import dse.estimators.consensus_trace as ct
 from dse.verify.rules import Verdict, below, within
 
 from ..design import carli_thresholds
-from ..monte_carlo import Results
+from ..results import Results
 from .common import (DS, GAINS, SYM, alg_cells, claims, eval_traces, formula_allowance, input_deviation, steady,
                      step_index, tol)
 

@@ -19,8 +19,8 @@ import dse.estimators.gain_tuning as gt
 from dse.contract.claims import ClaimSet
 from dse.verify.rules import EPS, roundoff_tolerance
 
-from ..design import Cell
-from ..monte_carlo import Results
+from ..cells import Cell
+from ..results import Results
 
 claims = ClaimSet()
 

@@ -8,8 +8,9 @@ import numpy as np
 from dse.verify.rules import ERRATUM, FAIL, PASS, Verdict, below, within
 
 from .. import reference_values as ref
-from ..design import LARGE_M, carli_thresholds
-from ..monte_carlo import Results
+from ..cells import LARGE_M
+from ..design import carli_thresholds
+from ..results import Results
 from .carli import two_rounds
 from .common import NET, P, PRIM, SQRT_EPS, SYM, claims, eval_traces
 from .large_m import gap_bounds, zeta_bars

@@ -10,7 +10,7 @@ import dse.estimators.gain_tuning as gt
 import dse.estimators.kalman as kal
 from dse.verify.rules import EPS, FAIL, PASS, Verdict, below, within
 
-from ..monte_carlo import Results
+from ..results import Results
 from .common import DS, SYM, centralized, claims, formula_allowance, spectrum, steps_text, tol
 
 

@@ -9,8 +9,8 @@ import dse.estimators.consensus_covariance as cc
 import dse.estimators.consensus_trace as ct
 from dse.verify.rules import Verdict, below, within
 
-from ..design import LARGE_M
-from ..monte_carlo import Results
+from ..cells import LARGE_M
+from ..results import Results
 from .common import DS, PRIM, SYM, centralized, claims, formula_allowance, input_deviation, table_rounds, tol
 
 #: the §IV heuristics over m need an m >= 1

@@ -9,7 +9,7 @@ from dse.verify.rules import FAIL, PASS, Verdict, within
 
 from .. import reference_values as ref
 from ..design import filter_kwargs
-from ..monte_carlo import Results
+from ..results import Results
 from .common import DS, P, SUM_TOL, claims, input_deviation, stochastic_defects, table_rounds, tol
 
 

@@ -12,7 +12,7 @@ import numpy as np
 from dse.verify.rules import Verdict, p_value_test
 
 from ..exact_laws import chi2_sum_p, normal_sum_p, weighted_chi2_p
-from ..monte_carlo import Results
+from ..results import Results
 from .common import DS, MIN_TRIALS, claims, steps_text
 
 _MC_TESTS = {

@@ -10,7 +10,7 @@ from dse.verify.rules import FAIL, PASS, Verdict, erratum, not_checkable, p_valu
 
 from .. import reference_values as ref
 from ..exact_laws import chi2_sum_p
-from ..monte_carlo import Results
+from ..results import Results
 from .common import (DS, GAINS, MIN_TRIALS, NORMAL, P, alg_cells, claims, formula_allowance, input_deviation, spectrum,
                      stein_condition, steady, stochastic_defects, tol)
 
