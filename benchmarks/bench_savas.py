@@ -11,10 +11,11 @@ import numpy as np
 
 import dse.estimators.consensus_covariance as cc
 import dse.estimators.consensus_filter as cf
-from dse.engine.driver import RunOptions
+import dse.estimators.consensus_trace as ct
+import dse.families
+from dse.contract.options import RunOptions
+from dse.families.savas import cells, monte_carlo
 from dse.simulate.units import parallel_map
-from dse.families.savas import compute
-from dse.families.savas.scenario import paper_scenario
 
 from .common import bound_row, estimator_row, timed
 
@@ -51,6 +52,10 @@ def ring_matrix(N: int) -> np.ndarray:
     return Q
 
 
+def paper_scenario():
+    return dse.families.paper("savas").scenario
+
+
 def _sizes(quick: bool):
     sc = paper_scenario()
     sizes = [("Carli (7)+(9), paper Q", sc.Q, 1, False), ("Carli (7)+(9), paper Q", sc.Q, 5, False),
@@ -64,7 +69,7 @@ def bench_filter(quick: bool = False, repeats: int = 3) -> list[dict]:
     rows = []
     for label, Q, m, reinj in sizes:
         N = len(Q)
-        kw = dict(ell=0.25, m=m, sigma_c=1.0, q=sc.q, r=sc.r, sigma0=sc.sigma0, n_steps=steps)
+        kw = dict(ell=0.25, m=m, sigma_c=1.0, q=sc.model.q, r=sc.model.r, sigma0=sc.model.sigma0, n_steps=steps)
         zeta = 0.5 if reinj else 1.0
         rng = np.random.default_rng(0)
         batched = timed(lambda: cf.simulate_consensus_filter(Q, x0_mean=0.0, n_trials=trials, rng=rng, reinjection=reinj,
@@ -85,12 +90,12 @@ def bench_bounds(quick: bool = False, repeats: int = 3) -> list[dict]:
     sc = paper_scenario()
     rows = []
     for N, Q in ((3, sc.Q), (10, ring_matrix(10))):
-        kw = dict(ell=0.25, m=5, sigma_c=1.0, q=sc.q, r=sc.r, reinjection=True, zeta=0.5)
+        kw = dict(ell=0.25, m=5, sigma_c=1.0, q=sc.model.q, r=sc.model.r, reinjection=True, zeta=0.5)
         K = 200
-        seq = cc.predictive_covariance_sequence(Q, sigma0=sc.sigma0, n_steps=K, **kw)
-        unr = cc.predictive_covariance_unrolled(Q, sigma0=sc.sigma0, n_steps=K, **kw)
-        fast = timed(lambda: cc.predictive_covariance_sequence(Q, sigma0=sc.sigma0, n_steps=K, **kw), repeats, per=1e3)
-        naive = timed(lambda: cc.predictive_covariance_unrolled(Q, sigma0=sc.sigma0, n_steps=K, **kw), repeats, per=1e3)
+        seq = cc.predictive_covariance_sequence(Q, sigma0=sc.model.sigma0, n_steps=K, **kw)
+        unr = cc.predictive_covariance_unrolled(Q, sigma0=sc.model.sigma0, n_steps=K, **kw)
+        fast = timed(lambda: cc.predictive_covariance_sequence(Q, sigma0=sc.model.sigma0, n_steps=K, **kw), repeats, per=1e3)
+        naive = timed(lambda: cc.predictive_covariance_unrolled(Q, sigma0=sc.model.sigma0, n_steps=K, **kw), repeats, per=1e3)
         rows.append(bound_row(f"savas P(k|k-1), k < {K}, N={N}", fast=fast, fast_what="recursion (22)", naive=naive,
                               naive_what="unrolled powers (23)", max_diff=float(np.abs(seq - unr).max() / np.abs(seq).max())))
         lyap = cc.asymptotic_covariance_lyapunov(Q, **kw)
@@ -101,8 +106,8 @@ def bench_bounds(quick: bool = False, repeats: int = 3) -> list[dict]:
                               naive_what="truncated series to 1e-16",
                               max_diff=float(np.abs(lyap - ser).max() / np.abs(ser).max())))
         if N == 3 or not quick:
-            tr = cc.trace_formula_corrected(Q, ell=0.25, zeta=0.5, m=5, sigma_c=1.0, q=sc.q, r=sc.r)
-            fast = timed(lambda: cc.trace_formula_corrected(Q, ell=0.25, zeta=0.5, m=5, sigma_c=1.0, q=sc.q, r=sc.r),
+            tr = ct.trace_formula_corrected(Q, ell=0.25, zeta=0.5, m=5, sigma_c=1.0, q=sc.model.q, r=sc.model.r)
+            fast = timed(lambda: ct.trace_formula_corrected(Q, ell=0.25, zeta=0.5, m=5, sigma_c=1.0, q=sc.model.q, r=sc.model.r),
                          repeats, per=1e3)
             rows.append(bound_row(f"savas steady trace (16) corrected, N={N}", fast=fast, fast_what="spectral closed form",
                                   naive=naive, naive_what="trace of truncated series",
@@ -114,15 +119,16 @@ def bench_fig1(workers: int, trials: int = 200_000) -> dict:
     """All Fig. 1 cells (7 σ_c × 6 m, Carli's filter, `trials` each, k = 0..9), no cache; the
     σ_c values of one m share their random draws (one run per m)."""
     sc = paper_scenario()
-    cells = [compute.Cell("carli", m, s, sc.carli_ell, 1.0, sc.n_steps) for m in sc.rounds for s in sc.sigma_c]
-    steps = compute.recorded_steps(sc.n_steps, sc.recorded_steps, sc.eval_step)
+    sw = sc.sweep
+    fig1 = [cells.Cell("carli", m, s, sc.carli.ell, 1.0, sw.n_steps) for m in sw.rounds for s in sw.sigma_c]
+    steps = cells.scenario_steps(sc)
     budget = RunOptions(workers=workers).chunk_budget_bytes()
-    groups = sorted(compute.cell_groups(cells), key=lambda g: -g[0].m)
+    groups = sorted(monte_carlo.cell_groups(fig1), key=lambda g: -g[0].m)
     t0 = time.perf_counter()
-    parallel_map(functools.partial(compute.simulate_group, sc, 0, trials, steps, budget), groups, workers=workers)
+    parallel_map(functools.partial(monte_carlo.simulate_group, sc, 0, trials, steps, budget), groups, workers=workers)
     wall = time.perf_counter() - t0
-    return {"name": f"Fig. 1 Monte Carlo, {len(cells)} cells × {trials:,} trials, workers={workers}", "wall_s": wall,
-            "us_per_trial_node_step": wall / (len(cells) * trials * 10 * sc.n) * 1e6}
+    return {"name": f"Fig. 1 Monte Carlo, {len(fig1)} cells × {trials:,} trials, workers={workers}", "wall_s": wall,
+            "us_per_trial_node_step": wall / (len(fig1) * trials * 10 * sc.n) * 1e6}
 
 
 def bench_sweep_point(points: int = 40, sweep: Path = SWEEP_POINTS) -> dict:
