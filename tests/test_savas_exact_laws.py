@@ -14,7 +14,7 @@ from scipy import stats
 
 import dse.estimators.consensus_covariance as cc
 import dse.estimators.consensus_filter as cf
-import dse.families
+import dse.registry
 from dse.contract.options import RunOptions
 from dse.contract.stages import StageContext
 from dse.engine.cache import StageCache
@@ -84,7 +84,7 @@ def _scenario(rounds, **over):
 
 @pytest.mark.parametrize("rounds", [[0], [1], [0, 1]])
 def test_zero_or_one_round_with_default_rounds_max_raises_nothing(rounds, tmp_path):
-    repro = dse.families.from_dict(_scenario(rounds))
+    repro = dse.registry.from_dict(_scenario(rounds))
     ev = evaluate_claims(repro, repro.compute(RunOptions(seed=1, quick=True), StageContext(StageCache(tmp_path))))
     bad = [(r["id"], r["verdict"], r["detail"][:200]) for r in ev.claims if r["verdict"] in ("fail", "error")]
     assert not bad
@@ -96,7 +96,7 @@ def test_non_normal_Q_makes_the_trace_formula_not_checkable_by_its_hypothesis(tm
     Q = [[0.5, 0.5, 0.0, 0.0], [0.0, 0.2, 0.8, 0.0], [0.3, 0.0, 0.2, 0.5], [0.2, 0.3, 0.0, 0.5]]
     data = _scenario([0, 2], graph={"kind": "complete", "n": 4}, consensus={"weights": "matrix", "matrix": Q},
                      reinjection={"gains": "fixed", "ell": 0.3, "zeta": 0.2})
-    repro = dse.families.from_dict(data)
+    repro = dse.registry.from_dict(data)
     ev = evaluate_claims(repro, repro.compute(RunOptions(seed=2, quick=True), StageContext(StageCache(tmp_path))))
     hyp = {h["id"]: h for h in ev.hypotheses}
     assert hyp["savas.hyp.Q_normal"]["holds"] is False and hyp["savas.hyp.Q_normal"]["value"] > 0.1

@@ -7,7 +7,7 @@ import copy
 from pathlib import Path
 from types import SimpleNamespace
 
-import dse.families
+import dse.registry
 from dse.families.savas.claims import claims
 from dse.families.savas.claims.model import check_Q
 from dse.scenario.fields import load_toml
@@ -28,17 +28,17 @@ def test_reference_tables_are_paper_example_claims():
 
 
 def test_only_the_papers_reproduction_is_a_paper_run():
-    assert dse.families.paper("savas").is_paper
-    user = dse.families.from_dict(_paper_data())
+    assert dse.registry.paper("savas").is_paper
+    user = dse.registry.from_dict(_paper_data())
     assert not user.is_paper and user.paper_id == "paper"
-    assert "Reconstructions" not in user.notes() and "Reconstructions" in dse.families.paper("savas").notes()
+    assert "Reconstructions" not in user.notes() and "Reconstructions" in dse.registry.paper("savas").notes()
     # the same claims, by id and order, but the paper's example claims only in the paper's run
-    run_ids = [c.id for c in dse.families.paper("savas").claims()]
+    run_ids = [c.id for c in dse.registry.paper("savas").claims()]
     assert run_ids == [c.id for c in user.claims()] == [c.id for c in claims.claims]
 
 
 def test_structural_Q_check_runs_on_any_network():
     bigger = copy.deepcopy(_paper_data())
     bigger["graph"]["n"] = 5
-    verdict = check_Q(SimpleNamespace(scenario=dse.families.from_dict(bigger).scenario))
+    verdict = check_Q(SimpleNamespace(scenario=dse.registry.from_dict(bigger).scenario))
     assert verdict.status == "pass" and "second largest" in verdict.detail

@@ -15,7 +15,7 @@ import pytest
 
 import dse.estimators.consensus_covariance as cc
 import dse.estimators.gain_tuning as gt
-import dse.families
+import dse.registry
 from dse import api
 from dse.contract.options import RunOptions
 from dse.contract.stages import StageContext
@@ -41,7 +41,7 @@ SMALL = {"family": "noisy-consensus-filter", "name": "small", "graph": {"kind": 
 # -- declared keys -------------------------------------------------------------------------------------
 
 def test_every_key_is_declared_with_a_meaning():
-    rows = [(path, r) for path, table, _ in reference_rows(dse.families.family("noisy-consensus-filter").scenario_model) for r in table]
+    rows = [(path, r) for path, table, _ in reference_rows(NoisyConsensusFile) for r in table]
     assert len(rows) > 25
     for path, r in rows:
         assert r["meaning"].strip(), f"{path}.{r['key']} has no meaning"
@@ -80,7 +80,7 @@ def test_the_paper_file_comments_every_key():
 def test_invalid_input_names_its_field(change, field, words):
     data = {**SMALL, **change}
     with pytest.raises(ScenarioError) as err:
-        dse.families.from_dict(data)
+        dse.registry.from_dict(data)
     assert err.value.field == field and words in err.value.reason, str(err.value)
 
 
@@ -194,7 +194,7 @@ def _design(sc):
 
 
 def test_monte_carlo_is_identical_whatever_the_memory_budget():
-    sc = dse.families.from_dict({**SMALL, "monte_carlo": {"trials": 2500, "sample_paths": 2}}).scenario
+    sc = dse.registry.from_dict({**SMALL, "monte_carlo": {"trials": 2500, "sample_paths": 2}}).scenario
     d = _design(sc)
     group = tuple(c for c in d.cells if c.alg == "reinjection" and c.m == 2)
     steps = d.steps
@@ -251,7 +251,7 @@ def test_unstreamable_outputs_beyond_the_budget_are_refused_before_running(tmp_p
     data = {**SMALL, "graph": {"kind": "ring", "n": 300}, "consensus": {"weights": "metropolis"},
             "sweep": {"rounds": [0, 1, 2, 3], "sigma_c": [0.0, 0.5, 1.0, 2.0], "n_steps": 100_000,
                       "recorded_steps": 100_000}}
-    repro = dse.families.from_dict(data)
+    repro = dse.registry.from_dict(data)
     opts = RunOptions(quick=True, max_memory_mib=2000)
     cost = repro.cost(opts)
     assert cost.sized_by == "sweep.recorded_steps" and cost.kept_mib > 2000
@@ -262,7 +262,7 @@ def test_unstreamable_outputs_beyond_the_budget_are_refused_before_running(tmp_p
 
 def test_estimate_of_the_monte_carlo_is_within_a_factor_of_two_of_its_cost():
     """The cost model's Monte Carlo part against the CPU time of the same groups (factor 2 stated)."""
-    run = dse.families.from_dict({**SMALL, "sweep": {**SMALL["sweep"], "n_steps": 200, "recorded_steps": 50},
+    run = dse.registry.from_dict({**SMALL, "sweep": {**SMALL["sweep"], "n_steps": 200, "recorded_steps": 50},
                                   "monte_carlo": {"trials": 3000, "sample_paths": 0}})
     sc = run.scenario
     opts = RunOptions(quick=True, workers=1, trials=3000)

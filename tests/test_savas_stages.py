@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import dse.families
+import dse.registry
 from dse.contract import stages
 from dse.contract.options import RunOptions
 from dse.contract.stages import StageContext, code_closure
@@ -66,7 +66,7 @@ def _edit(path: Path) -> None:
     ("outputs/record.py", (False, False)),
 ])
 def test_an_edit_changes_the_keys_of_the_stages_that_import_it_and_no_other(tree, module, changes):
-    sc = dse.families.from_dict(SMALL).scenario
+    sc = dse.registry.from_dict(SMALL).scenario
     before = _keys(sc)
     _edit(tree / module)
     after = _keys(sc)
@@ -81,19 +81,19 @@ def test_no_stage_imports_a_claims_module():
 
 
 def test_keys_follow_the_arguments_not_the_budget():
-    sc = dse.families.from_dict(SMALL).scenario
-    other = dse.families.from_dict({**SMALL, "name": "renamed", "monte_carlo": {"trials": 5000, "sample_paths": 1}}).scenario
+    sc = dse.registry.from_dict(SMALL).scenario
+    other = dse.registry.from_dict({**SMALL, "name": "renamed", "monte_carlo": {"trials": 5000, "sample_paths": 1}}).scenario
     base = {"sc": sc, "seed": 0, "trials": 200, "steps": np.arange(6), "cells": (), "budget_bytes": 1.0}
     key = monte_carlo.simulate_group.params
     assert key(base) == key({**base, "sc": other, "budget_bytes": 2.0**30})     # name, trial counts, budget: unkeyed
     assert key(base) != key({**base, "seed": 1}) and key(base) != key({**base, "trials": 300})
-    changed = dse.families.from_dict({**SMALL, "model": {"q": 1.5, "r": 25.0}}).scenario
+    changed = dse.registry.from_dict({**SMALL, "model": {"q": 1.5, "r": 25.0}}).scenario
     assert design.design_arrays.params({"sc": sc, "grid": (21, 21)}) != design.design_arrays.params({"sc": changed,
                                                                                                     "grid": (21, 21)})
 
 
 def test_a_second_run_reads_every_stage_back(tmp_path):
-    run = dse.families.from_dict(SMALL)
+    run = dse.registry.from_dict(SMALL)
     opts = RunOptions(seed=1, quick=True)
     first, second = StageContext(StageCache(tmp_path)), StageContext(StageCache(tmp_path))
     a, b = run.compute(opts, first), run.compute(opts, second)
