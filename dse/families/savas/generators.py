@@ -18,25 +18,10 @@ import numpy as np
 FAMILY = "noisy-consensus-filter"
 
 EDGES: tuple[str, ...] = (
-    "m0_default_rounds_max",
-    "m1_default_rounds_max",
-    "m01_with_rounds_max",
-    "sigma_c_zero",
-    "non_normal_Q",
-    "normal_nonsymmetric_Q",
-    "eigenvalue_near_minus_one",
-    "tiny_noise",
-    "huge_noise",
-    "extreme_ratio_q_over_r",
-    "two_agents",
-    "larger_network",
-    "complete_metropolis",
-    "grid_laplacian",
-    "random_geometric",
-    "ell_one_sigma0_zero",
-    "eval_step_zero",
-    "large_sigma_c",
-    "long_horizon",
+    "m0_default_rounds_max", "m1_default_rounds_max", "m01_with_rounds_max", "sigma_c_zero", "non_normal_Q",
+    "normal_nonsymmetric_Q", "eigenvalue_near_minus_one", "tiny_noise", "huge_noise", "extreme_ratio_q_over_r",
+    "two_agents", "larger_network", "complete_metropolis", "grid_laplacian", "random_geometric", "ell_one_sigma0_zero",
+    "eval_step_zero", "large_sigma_c", "long_horizon",
 )
 
 

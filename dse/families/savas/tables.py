@@ -123,12 +123,10 @@ def _cell_keys(name: str, cells: list[Cell], rows) -> dict[str, np.ndarray]:
             "n_steps": column([c.n_steps for c in cells], np.int64)}
 
 
-def _matrix_columns(matrices: list[np.ndarray]) -> dict[str, np.ndarray]:
-    """row, col and value of every entry of each matrix, matrix by matrix (row-major)."""
-    rows, cols = zip(*(np.indices(np.shape(a)).reshape(2, -1) for a in matrices)) if matrices else ((), ())
-    return {"row": np.concatenate([np.zeros(0, np.int64), *rows]).astype(np.int64),
-            "col": np.concatenate([np.zeros(0, np.int64), *cols]).astype(np.int64),
-            "value": np.concatenate([np.zeros(0), *(np.asarray(a, float).ravel() for a in matrices)])}
+def _matrix_columns(a: np.ndarray) -> dict[str, np.ndarray]:
+    """row, col and value of every entry of a matrix (row-major)."""
+    row, col = np.indices(np.shape(a)).reshape(2, -1).astype(np.int64)
+    return {"row": row, "col": col, "value": np.asarray(a, float).ravel()}
 
 
 def _frame(table: TableSpec, columns: dict[str, Any]) -> pd.DataFrame:
@@ -139,11 +137,18 @@ def _index(steps: np.ndarray, k: int) -> int:
     return int(np.searchsorted(steps, k))
 
 
+def _per_cell(table: TableSpec, name: str, parts: list[tuple[Cell, dict[str, Any]]]) -> pd.DataFrame:
+    """A block of rows per cell: the cell's columns, then its own (arrays of one length per cell)."""
+    rows = [np.size(next(iter(cols.values()))) for _, cols in parts]
+    columns = {k: np.concatenate([np.ravel(cols[k]) for _, cols in parts]) for k in parts[0][1]}
+    return _frame(table, {**_cell_keys(name, [c for c, _ in parts], rows), **columns})
+
+
 def design_tables(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
     sc, a = d.scenario, d.arrays
     name = sc.name
     out = [(CONSENSUS_MATRIX, _frame(CONSENSUS_MATRIX, {"scenario": np.full(sc.Q.size, name, object),
-                                                        **_matrix_columns([sc.Q])}))]
+                                                        **_matrix_columns(sc.Q)}))]
     lam = a["eig_real"] + 1j * a["eig_imag"]
     out.append((SPECTRUM, pd.DataFrame({"scenario": name, "index": np.arange(lam.size), "real": a["eig_real"],
                                         "imag": a["eig_imag"], "modulus": np.abs(lam)})))
@@ -187,102 +192,67 @@ def design_tables(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
             "scenario": name, "m_from": sc.sweep.rounds[:-1], "m_to": sc.sweep.rounds[1:], "sigma_c_threshold": a["carli_thresholds"],
             "noise_coef_from": a["carli_noise_coef"][:-1], "noise_coef_to": a["carli_noise_coef"][1:],
             "noise_free_from": a["carli_noise_free"][:-1], "noise_free_to": a["carli_noise_free"][1:]})))
-    cells = d.all_cells()
-    values = np.empty((len(cells), 6))   # trP_steady, trP_eval, trP_final, kf_eval, kf_final, gap
-    for i, c in enumerate(cells):
+    cells, n = [], sc.n
+    for c in d.all_cells():
         ex, st, steps = d.exact(c), d.steady(c), d.steps_of(c)
-        ie = _index(steps, sc.sweep.eval_step)
-        kf = d.kf_prior(steps)
-        values[i] = st["trace"], ex.trace[ie], ex.trace[-1], kf[ie], kf[-1], st["gap"]
-    out.append((CELLS, _frame(CELLS, {
-        **_cell_keys(name, cells, 1), "ell": np.array([c.ell for c in cells], np.float64),
-        "zeta": np.array([c.zeta for c in cells], np.float64), "trP_steady": values[:, 0], "trP_eval": values[:, 1],
-        "trP_final": values[:, 2], "kf_trP_steady": np.full(len(cells), sc.n * Pc), "kf_trP_eval": sc.n * values[:, 3],
-        "kf_trP_final": sc.n * values[:, 4], "ratio_steady": values[:, 0] / (sc.n * Pc),
-        "loewner_gap_steady": values[:, 5]})))
-    with_matrix = [c for c in cells if "matrix" in d.steady(c)]
-    if with_matrix:
-        matrices = [d.steady(c)["matrix"] for c in with_matrix]
-        out.append((STEADY, _frame(STEADY, {**_cell_keys(name, with_matrix, [m.size for m in matrices]),
-                                            **_matrix_columns(matrices)})))
+        ie, kf = _index(steps, sc.sweep.eval_step), d.kf_prior(steps)
+        cells.append((c, {"ell": [float(c.ell)], "zeta": [float(c.zeta)], "trP_steady": st["trace"],
+                          "trP_eval": ex.trace[ie], "trP_final": ex.trace[-1], "kf_trP_steady": n * Pc,
+                          "kf_trP_eval": n * kf[ie], "kf_trP_final": n * kf[-1], "ratio_steady": st["trace"] / (n * Pc),
+                          "loewner_gap_steady": st["gap"]}))
+    out.append((CELLS, _per_cell(CELLS, name, cells)))
+    matrices = [(c, _matrix_columns(d.steady(c)["matrix"])) for c, _ in cells if "matrix" in d.steady(c)]
+    if matrices:
+        out.append((STEADY, _per_cell(STEADY, name, matrices)))
     return out
 
 
 def run_tables(res: Results) -> list[tuple[TableSpec, pd.DataFrame]]:
     d, sc = res.design, res.scenario
-    name, N = sc.name, sc.n
-    Kc, Pc, _, _ = d.arrays["centralized"]
-    cells = d.all_cells()
-    nodes = {c: [] for c in ("P_steady", "P_final_exact", "P_final_mc", "P_final_mc_se", "P_eval_exact", "P_eval_mc",
-                             "P_eval_mc_se", "kf_final")}
-    traces = {c: [] for c in TRACE_SERIES.column_names[5:]}
-    series = {c: [] for c in NODE_SERIES.column_names[5:]}
-    n_steps = []
-    for c in cells:
+    N, r = sc.n, sc.model.r
+    Pc = d.arrays["centralized"][1]
+    nodes, traces, series = [], [], []
+    for c in d.all_cells():
         steps, ex, st = d.steps_of(c), d.exact(c), d.steady(c)
         mom, fmom = res.moments(c), res.moments(c, "filt")
         var, var_se = mom.variance, mom.variance_se
         ie = _index(steps, sc.sweep.eval_step)
         kf = d.kf_prior(steps)
-        for col, v in (("P_steady", st["diag"]), ("P_final_exact", ex.diag[-1]), ("P_final_mc", var[-1]),
-                       ("P_final_mc_se", var_se[-1]), ("P_eval_exact", ex.diag[ie]), ("P_eval_mc", var[ie]),
-                       ("P_eval_mc_se", var_se[ie]), ("kf_final", np.full(N, kf[-1]))):
-            nodes[col].append(v)
-        S = len(steps)
-        n_steps.append(S)
-        for col, v in (("k", steps), ("trP_exact", ex.trace), ("trP_mc", mom.trace), ("trP_mc_se", mom.trace_se),
-                       ("kf_trP", N * kf)):
-            traces[col].append(v)
-        for col, v in (("k", np.repeat(steps, N)), ("node", np.tile(np.arange(N), S)), ("P_exact", ex.diag),
-                       ("var_mc", var), ("var_mc_se", var_se), ("mean_mc", mom.mean), ("mean_mc_se", mom.mean_se),
-                       ("Pfilt_exact", (1 - c.ell) ** 2 * ex.diag + c.ell ** 2 * sc.model.r), ("var_filt_mc", fmom.variance),
-                       ("var_filt_mc_se", fmom.variance_se)):
-            series[col].append(np.ravel(v))
-    nodes = {col: np.concatenate(v) for col, v in nodes.items()}
-    out = design_tables(d)
-    out.append((NODES, _frame(NODES, {
-        **_cell_keys(name, cells, N), "node": np.tile(np.arange(N), len(cells)),
-        "ell": np.repeat(np.array([c.ell for c in cells], np.float64), N),
-        "zeta": np.repeat(np.array([c.zeta for c in cells], np.float64), N), **nodes,
-        "kf_steady": np.full(len(cells) * N, Pc), "ratio_steady": nodes["P_steady"] / Pc,
-        "gap_steady": nodes["P_steady"] - Pc})))
-    out.append((TRACE_SERIES, _frame(TRACE_SERIES, {**_cell_keys(name, cells, n_steps),
-                                                    **{col: np.concatenate(v) for col, v in traces.items()}})))
-    out.append((NODE_SERIES, _frame(NODE_SERIES, {**_cell_keys(name, cells, np.array(n_steps) * N),
-                                                  **{col: np.concatenate(v) for col, v in series.items()}})))
-    out += _path_tables(res)
-    out.append((METRICS, metrics_frame(res)))
-    return out
+        nodes.append((c, {"node": np.arange(N), "ell": np.full(N, c.ell, np.float64), "zeta": np.full(N, c.zeta, np.float64),
+                          "P_steady": st["diag"], "P_final_exact": ex.diag[-1], "P_final_mc": var[-1],
+                          "P_final_mc_se": var_se[-1], "P_eval_exact": ex.diag[ie], "P_eval_mc": var[ie],
+                          "P_eval_mc_se": var_se[ie], "kf_steady": np.full(N, Pc), "kf_final": np.full(N, kf[-1]),
+                          "ratio_steady": st["diag"] / Pc, "gap_steady": st["diag"] - Pc}))
+        traces.append((c, {"k": steps, "trP_exact": ex.trace, "trP_mc": mom.trace, "trP_mc_se": mom.trace_se,
+                           "kf_trP": N * kf}))
+        series.append((c, {"k": np.repeat(steps, N), "node": np.tile(np.arange(N), len(steps)), "P_exact": ex.diag,
+                           "var_mc": var, "var_mc_se": var_se, "mean_mc": mom.mean, "mean_mc_se": mom.mean_se,
+                           "Pfilt_exact": (1 - c.ell) ** 2 * ex.diag + c.ell ** 2 * r, "var_filt_mc": fmom.variance,
+                           "var_filt_mc_se": fmom.variance_se}))
+    return [*design_tables(d), (NODES, _per_cell(NODES, sc.name, nodes)),
+            (TRACE_SERIES, _per_cell(TRACE_SERIES, sc.name, traces)),
+            (NODE_SERIES, _per_cell(NODE_SERIES, sc.name, series)), *_path_tables(res), (METRICS, metrics_frame(res))]
 
 
 def _path_tables(res: Results) -> list[tuple[TableSpec, pd.DataFrame]]:
-    name = res.scenario.name
-    cells, paths, rounds = [], {c: [] for c in SAMPLE_PATHS.column_names[5:]}, {c: [] for c in CONSENSUS_ROUNDS.column_names[5:]}
-    path_rows, round_rows = [], []
+    paths, rounds = [], []
     for c in res.design.all_cells():
         p = res.paths(c)
         if "x" not in p or p["x"].size == 0:
             continue
-        cells.append(c)
         P, K, N = p["xhat_pred"].shape
         trial, k, node = (a.ravel() for a in np.meshgrid(np.arange(P), np.arange(K), np.arange(N), indexing="ij"))
-        for col, v in (("trial", trial), ("k", k), ("node", node), ("x", p["x"][trial, k]), ("y", p["y"].ravel()),
-                       ("xhat_pred", p["xhat_pred"].ravel()), ("xhat_filt", p["xhat_filt"].ravel()),
-                       ("w", p["w"][trial, k])):
-            paths[col].append(v)
-        path_rows.append(trial.size)
+        paths.append((c, {"trial": trial, "k": k, "node": node, "x": p["x"][trial, k], "y": p["y"],
+                          "xhat_pred": p["xhat_pred"], "xhat_filt": p["xhat_filt"], "w": p["w"][trial, k]}))
         z = p["z_rounds"][0]                                    # (K, m+1, N), trial 0
         u = np.concatenate([np.full((K, 1, N), np.nan), p["u"][0]], axis=1)
         kk, hh, nn = (a.ravel() for a in np.meshgrid(np.arange(K), np.arange(z.shape[1]), np.arange(N), indexing="ij"))
-        for col, v in (("k", kk), ("round", hh), ("node", nn), ("z", z.ravel()), ("u", u.ravel())):
-            rounds[col].append(v)
-        round_rows.append(kk.size)
-    if not cells:
+        rounds.append((c, {"k": kk, "round": hh, "node": nn, "z": z, "u": u}))
+    if not paths:
         return []
-    return [(SAMPLE_PATHS, _frame(SAMPLE_PATHS, {**_cell_keys(name, cells, path_rows),
-                                                 **{col: np.concatenate(v) for col, v in paths.items()}})),
-            (CONSENSUS_ROUNDS, _frame(CONSENSUS_ROUNDS, {**_cell_keys(name, cells, round_rows),
-                                                         **{col: np.concatenate(v) for col, v in rounds.items()}}))]
+    name = res.scenario.name
+    return [(SAMPLE_PATHS, _per_cell(SAMPLE_PATHS, name, paths)),
+            (CONSENSUS_ROUNDS, _per_cell(CONSENSUS_ROUNDS, name, rounds))]
 
 
 #: the metrics of a cell, in their order: network-wide, then per agent (one row each)
