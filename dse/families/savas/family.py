@@ -1,9 +1,10 @@
 """The noisy-consensus-filter family: Savas, Srivastava & Leonard's paper and users' scenario files of
-the same kind (`family = "noisy-consensus-filter"`). Its modules: scenario (the declared file),
-cells, design and monte_carlo (the stages) and results, claims (hypotheses and claims on their checks, with
-exact_laws and reference_values), tables, figures and recordings (the views), cost and
-generators; this one ties them together. Everything but the scenario is imported on first use,
-so that validating a file and reporting its errors stays fast.
+the same kind (`family = "noisy-consensus-filter"`). Its modules: scenario (the declared file);
+cells, design and monte_carlo (the stages) and results (what they give the claims); claims (the
+hypotheses and claims on their checks, with exact_laws and reference_values); tables, figures and
+recordings (the views); cost and generators; this one ties them together. Everything but the
+scenario and the generator's edge cases is imported on first use, so that validating a file and
+reporting its errors stays fast.
 """
 from __future__ import annotations
 
