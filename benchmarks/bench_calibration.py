@@ -29,7 +29,7 @@ NOMINAL_ALPHA = 0.05
 def _one(task: tuple[str, int]) -> dict:
     from dse import registry
     from dse.contract.options import RunOptions
-    from dse.contract.stages import StageContext
+    from dse.contract.context import StageContext
     from dse.engine.cache import StageCache
     from dse.engine.driver import evaluate_claims
 

@@ -30,7 +30,7 @@ from dse.errors import OutputError
 from dse.engine.provenance import provenance
 from dse.contract.family import Reproduction
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.engine.driver import evaluate_claims
 from dse.outputs.report import verdict_counts, write_report
 from dse.simulate.units import peak_memory_mib

@@ -16,7 +16,7 @@ import dse.estimators.consensus_covariance as cc
 import dse.estimators.consensus_filter as cf
 import dse.registry
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.engine.cache import StageCache
 from dse.engine.driver import evaluate_claims
 from dse.families.savas.exact_laws import chi2_sum_p, normal_sum_p, weighted_chi2_p

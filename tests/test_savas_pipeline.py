@@ -18,7 +18,7 @@ import dse.estimators.gain_tuning as gt
 import dse.registry
 from dse import api
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.engine.cache import MemoryCache
 from dse.errors import ScenarioError
 from dse.families.savas import cells

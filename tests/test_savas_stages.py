@@ -12,7 +12,8 @@ import pytest
 import dse.registry
 from dse.contract import stages
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext, code_closure
+from dse.contract.context import StageContext
+from dse.contract.stages import code_closure
 from dse.engine.cache import StageCache
 from dse.families.savas import design, monte_carlo
 

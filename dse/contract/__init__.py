@@ -19,7 +19,7 @@ import importlib
 # depend on, for its cache key) the claims, views or family modules
 _EXPORTS = {"ClaimSet": "claims", "Where": "claims", "example": "claims", "paper_only": "claims", "role": "claims",
             "Cost": "cost", "Computed": "family", "Family": "family", "Paper": "family", "Reproduction": "family",
-            "RunOptions": "options", "Stage": "stages", "StageContext": "stages", "StageResult": "stages", "stage": "stages",
+            "RunOptions": "options", "Stage": "stages", "StageContext": "context", "StageResult": "stages", "stage": "stages",
             "Outputs": "views", "View": "views", "recording": "views"}
 
 __all__ = sorted(_EXPORTS)

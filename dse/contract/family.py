@@ -28,7 +28,7 @@ from typing import Any, ClassVar, Iterable, Sequence
 from dse.contract.claims import ClaimSet, Where
 from dse.contract.cost import Cost
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 
 
 @dataclass(frozen=True)

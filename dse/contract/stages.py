@@ -18,18 +18,19 @@ written by hand, from
   transitively, at module level or inside a function (`code_closure`, read from the import
   statements): editing any of them invalidates the stage, editing an unrelated module does not.
 
-The context records every stage it ran, with its key and whether it was read back from the
-cache; `report.json` lists them under `provenance.stages`.
+The context (`dse.contract.context.StageContext`) records every stage it ran, with its key and
+whether it was read back from the cache; `report.json` lists them under `provenance.stages`.
 """
 from __future__ import annotations
 
 import ast
 import functools
+import importlib
 import hashlib
 import inspect
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
@@ -180,52 +181,9 @@ def stage(fn: Callable | None = None, *, name: str | None = None, unkeyed: Itera
     return wrap(fn) if fn is not None else wrap
 
 
-@dataclass
-class StageContext:
-    """Where a run's stages are computed: the stage cache and the record of what ran."""
-
-    cache: Any                                     # dse.engine.cache.StageCache (or MemoryCache)
-    ran: list[dict[str, Any]] = field(default_factory=list)
-
-    def run(self, st: Stage, *args, **kwargs) -> StageResult:
-        """The stage's result for these arguments: from the cache, or computed and stored."""
-        arguments = st.bound(args, kwargs)
-        params = st.params(arguments)
-        key = self.cache.key(st.name, params)
-        scenario = next((str(getattr(v, "name", "")) for v in arguments.values() if callable(getattr(v, "key", None))
-                         and not isinstance(v, StageResult)), "")
-        computed = []
-
-        def compute():
-            computed.append(True)
-            return st.fn(**arguments)
-
-        arrays = self.cache.get_or_compute(st.name, params, compute, scenario=scenario,
-                                           allow_nonfinite=st.nonfinite_allowed(arguments))
-        self.ran.append({"name": st.name, "key": key, "cached": not computed})
-        out = StageResult(arrays)
-        out.key = key
-        return out
-
-    def run_many(self, calls: Sequence[tuple[Stage, tuple, dict]], *, workers: int = 1, desc: str = "",
-                 weights: Sequence[float] | None = None) -> list[StageResult]:
-        """`run` for several (stage, args, kwargs) calls, in `workers` forked processes, the heaviest
-        (by `weights`) first; results in the order of `calls`, and the stages the workers ran recorded
-        here. Each call stores its own cache entry, so an interrupted run resumes call by call."""
-        from dse.simulate.units import run_jobs
-
-        def job(st: Stage, args: tuple, kwargs: dict):
-            def go():
-                sub = StageContext(self.cache)
-                out = sub.run(st, *args, **kwargs)
-                return dict(out), out.key, sub.ran
-            return go
-
-        weights = list(weights) if weights is not None else [1.0] * len(calls)
-        results = []
-        for arrays, key, ran in run_jobs([(w, job(*c)) for w, c in zip(weights, calls)], workers, desc=desc):
-            self.ran.extend(ran)
-            out = StageResult(arrays)
-            out.key = key
-            results.append(out)
-        return results
+def __getattr__(name: str):
+    # StageContext lives in dse.contract.context (how stages are run is not part of what they compute,
+    # so it is not in any stage's code closure); importable from here too
+    if name == "StageContext":
+        return importlib.import_module("dse.contract.context").StageContext
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -65,7 +65,7 @@ REVERIFY_RTOL = 1e-9
 def reverify(repro, out_root: Path, out_dir: Path) -> tuple[list[dict], list[str]]:
     """Re-check every claim from cached stage results only; list every difference from report.json
     in verdict, measured, reference or margin (numbers within REVERIFY_RTOL)."""
-    from dse.contract.stages import StageContext
+    from dse.contract.context import StageContext
     from dse.families.legacy import wrap
 
     repro = wrap(repro)   # TEMPORARY

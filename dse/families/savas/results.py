@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.simulate.stats import ErrorMoments
 
 from .cells import Cell
