@@ -24,6 +24,12 @@ refer to):
   `select(results, name)` instead of the results and the name). Consecutive per-scenario
   entries are expanded scenario by scenario (all of the first scenario's, then the next's).
   A run-level claim that rests on a per-scenario hypothesis rests on every scenario's.
+  ``{scenario.}`` and ``{scenario: }`` name the scenario (followed by ``.`` or ``: ``) only when
+  the run has several: the ids of a one-scenario run do not repeat its name.
+- ``{item}``: with `each=` (a function of the `Where` returning (label, item) pairs), the entry
+  is expanded once per item of the scenario (a run of it, say), its check called with the item
+  after the scenario's selection and `when` seeing it as `where.item`; consecutive entries with
+  the same `each` are expanded item by item.
 
 Gates are declared, not written into the checks: `scope="paper-example"` (evaluated in the
 paper's own reproduction only), `when=...` (a predicate on `Where`: the scenario, its roles, the
@@ -37,7 +43,7 @@ the claim is `not-checkable` with that reason (a function of the arguments, or a
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Iterable, Sequence
 
 from dse.verify.rules import KINDS, SCOPES, Claim, Hypothesis, Verdict, not_checkable
@@ -52,6 +58,18 @@ class Where:
     scenarios: tuple[str, ...]
     scenario: str | None = None
     roles: frozenset[str] = frozenset()
+    #: the run itself (`dse.contract.family.Reproduction`), for gates that read the scenarios
+    run: Any = field(default=None, compare=False, repr=False)
+    #: the item of an `each=` expansion, and its label (what `{item}` becomes)
+    item: Any = field(default=None, compare=False, repr=False)
+    item_label: str = ""
+
+    @property
+    def scenario_object(self) -> Any:
+        """The scenario this Where is about (None for the run itself)."""
+        if self.run is None or self.scenario is None:
+            return None
+        return next(sc for sc in self.run.scenarios if sc.name == self.scenario)
 
 
 Gate = Callable[[Where], bool]
@@ -78,11 +96,15 @@ def paper_only(where: Where) -> bool:
 
 
 def _fill(template: str, where: Where, scenario: str | None = None) -> str:
-    return template.replace("{paper}", where.run_id).replace("{scenario}", scenario or where.scenario or "")
+    name = scenario or where.scenario or ""
+    several = len(where.scenarios) > 1
+    return (template.replace("{paper}", where.run_id).replace("{scenario.}", f"{name}." if several else "")
+            .replace("{scenario: }", f"{name}: " if several else "").replace("{scenario}", name)
+            .replace("{item}", where.item_label))
 
 
 def _per_scenario(template: str) -> bool:
-    return "{scenario}" in template
+    return "{scenario" in template
 
 
 @dataclass(frozen=True)
@@ -97,6 +119,7 @@ class ClaimEntry:
     when: Gate | None = None
     args: tuple = ()
     requires: tuple[tuple[Callable[..., bool], str | Callable[..., str]], ...] = ()
+    each: Callable[[Where], Iterable[tuple[str, Any]]] | None = None
 
     @property
     def per_scenario(self) -> bool:
@@ -123,6 +146,7 @@ class HypothesisEntry:
     check: Callable[..., Any]
     when: Gate | None = None
     args: tuple = ()
+    each: Callable[[Where], Iterable[tuple[str, Any]]] | None = None
 
     @property
     def per_scenario(self) -> bool:
@@ -146,7 +170,8 @@ class ClaimSet:
 
     def claim(self, id: str, source: str, statement: str, kind: str, *, hypotheses: Sequence[str] |
               Callable[[Where], tuple[str, ...]] = (), scope: str = "family", when: Gate | None = None,
-              args: tuple = (), requires: Sequence[tuple[Callable[..., bool], str | Callable[..., str]]] = ()):
+              args: tuple = (), requires: Sequence[tuple[Callable[..., bool], str | Callable[..., str]]] = (),
+              each: Callable[[Where], Iterable[tuple[str, Any]]] | None = None):
         """Register the decorated function as the check of a claim (see the module docstring)."""
         if kind not in KINDS:
             raise ValueError(f"claim {id}: unknown kind {kind!r}")
@@ -156,7 +181,7 @@ class ClaimSet:
         def register(fn: Callable[..., Verdict]):
             hyps = hypotheses if callable(hypotheses) else tuple(hypotheses)
             self.claims.append(ClaimEntry(id, source, statement, kind, fn, hyps, scope, when, tuple(args),
-                                          tuple(requires)))
+                                          tuple(requires), each))
             return fn
 
         return register
@@ -167,10 +192,11 @@ class ClaimSet:
         `not-checkable`, with `reason`."""
         self.claim(id, source, statement, kind, scope=scope, when=when)(lambda *_a: not_checkable(reason))
 
-    def hypothesis(self, id: str, statement: str, *, when: Gate | None = None, args: tuple = ()):
+    def hypothesis(self, id: str, statement: str, *, when: Gate | None = None, args: tuple = (),
+                   each: Callable[[Where], Iterable[tuple[str, Any]]] | None = None):
         """Register the decorated function (design -> Holds) as a hypothesis check."""
         def register(fn):
-            self.hypotheses.append(HypothesisEntry(id, statement, fn, when, tuple(args)))
+            self.hypotheses.append(HypothesisEntry(id, statement, fn, when, tuple(args), each))
             return fn
 
         return register
@@ -183,7 +209,7 @@ class ClaimSet:
         out = []
         for entry, where, name in self._expand(self.hypotheses, wheres):
             out.append(Hypothesis(_fill(entry.id, where), _fill(entry.statement, where),
-                                  self._bind(entry.check, name, entry.args, self.select_design)))
+                                  self._bind(entry.check, name, self._args(entry, where), self.select_design)))
         return out
 
     def claim_list(self, wheres: Sequence[Where]) -> list[Claim]:
@@ -198,7 +224,8 @@ class ClaimSet:
                 else:
                     hyps.append(_fill(ref, where))
             out.append(Claim(_fill(entry.id, where), entry.source, _fill(entry.statement, where), entry.kind,
-                             self._bind(entry.gated_check(), name, entry.args, self.select), tuple(dict.fromkeys(hyps)),
+                             self._bind(entry.gated_check(), name, self._args(entry, where), self.select),
+                             tuple(dict.fromkeys(hyps)),
                              entry.scope))
         return out
 
@@ -209,9 +236,7 @@ class ClaimSet:
 
         def flush():
             for w in per:
-                for e in block:
-                    if e.when is None or e.when(w):
-                        yield e, w, w.scenario
+                yield from ClaimSet._instances(block, w, w.scenario)
             block.clear()
 
         for e in entries:
@@ -219,9 +244,26 @@ class ClaimSet:
                 block.append(e)
                 continue
             yield from flush()
-            if e.when is None or e.when(run):
-                yield e, run, None
+            yield from ClaimSet._instances([e], run, None)
         yield from flush()
+
+    @staticmethod
+    def _instances(entries: list, where: Where, scenario: str | None):
+        """The entries present at `where`; consecutive ones with the same `each`, item by item."""
+        i = 0
+        while i < len(entries):
+            j = i + 1
+            while entries[i].each is not None and j < len(entries) and entries[j].each is entries[i].each:
+                j += 1
+            wheres = [where] if entries[i].each is None else \
+                [replace(where, item=item, item_label=label) for label, item in entries[i].each(where)]
+            for w in wheres:
+                yield from ((e, w, scenario) for e in entries[i:j] if e.when is None or e.when(w))
+            i = j
+
+    @staticmethod
+    def _args(entry, where: Where) -> tuple:
+        return ((where.item,) if entry.each is not None else ()) + entry.args
 
     @staticmethod
     def _bind(fn: Callable, scenario: str | None, args: tuple, select: Callable | None) -> Callable[[Any], Any]:

@@ -132,10 +132,11 @@ class Family(ABC):
     def wheres(self, run: "Reproduction") -> list[Where]:
         """The run itself, then each of its scenarios (with its roles), for the claims' expansion."""
         ids = tuple(run.scenario_ids())
-        out = [Where(run.paper_id, run.is_paper, ids)]
+        out = [Where(run.paper_id, run.is_paper, ids, run=run)]
         entries = self.claims().claims + self.claims().hypotheses
         if any(e.per_scenario or e.when is not None for e in entries):
-            out += [Where(run.paper_id, run.is_paper, ids, sc.name, self.roles(sc, run.is_paper)) for sc in run.scenarios]
+            out += [Where(run.paper_id, run.is_paper, ids, sc.name, self.roles(sc, run.is_paper), run=run)
+                    for sc in run.scenarios]
         return out
 
     def compute(self, run: "Reproduction", opts: RunOptions, ctx: StageContext) -> "Computed":

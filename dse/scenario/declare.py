@@ -74,6 +74,20 @@ def computed_default(fn):
     return fn
 
 
+def derived_default(fn):
+    """A default that depends on keys of other tables (or on the key's place in a list), which the
+    table's own validation cannot see: the key reads None until the scenario file's validator sets
+    it with `fn` (the code itself), whose docstring's first line is what the reference page shows."""
+    if not (fn.__doc__ or "").strip():
+        raise ValueError(f"derived default {fn.__name__} needs a docstring (the reference page shows it)")
+
+    def unset() -> None:
+        return None
+
+    unset.__doc__ = fn.__doc__
+    return unset
+
+
 def key(default: Any = PydanticUndefined, *, doc: str, unit: str = "", constraint: str = "", **constraints) -> Any:
     """Declare one key: `doc` (its meaning, required), `unit`, and `constraint` for rules
     the type and bounds (`gt`, `ge`, `lt`, `le`, `min_length`, ...) do not say."""

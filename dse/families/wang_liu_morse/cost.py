@@ -18,13 +18,12 @@ the estimate is meant within a factor 2 of an unloaded machine's wall time.
 from __future__ import annotations
 
 import math
-from typing import Any
 
-from dse.errors import ScenarioError
-from dse.engine.driver import RunOptions
+from dse.contract.cost import MIB, Cost
+from dse.contract.options import RunOptions
 
-from . import bounds
-from .scenario import SIGMA_MAX_AGENTS, HybridScenario
+from . import simulation
+from .scenario import SIGMA_MAX_AGENTS, HybridFile
 
 #: fitted CPU seconds (this machine, one BLAS thread): per time instant and chunk, per trial·D² of the
 #: propagation, per iteration and chunk, per trial·(mn)² of an iteration, per event index and chunk, per
@@ -48,18 +47,9 @@ RECORDING_S = 0.08
 IMPORT_S = 1.2
 ROW_S = 2e-6
 BASE_MIB = 330.0
-#: what the pipeline reserves for the interpreter and libraries in a memory budget (RunOptions)
-INTERPRETER_MIB = 200.0
 TABLE_ROW_BYTES = 160.0
 #: the tables' frames and their Parquet and CSV encodings alive at once, at the peak
 TABLE_COPIES = 1.5
-
-
-def _n_i(sc: HybridScenario) -> list[int]:
-    import dse.estimators.jointly_observable_design as jd
-
-    return [jd.local_design(sc.A, C, rank_tol=sc.rank_tol, L=None if sc.L_given is None else sc.L_given[i]).n_i
-            for i, C in enumerate(sc.C)]
 
 
 def _flop_s(mn: int) -> float:
@@ -67,7 +57,7 @@ def _flop_s(mn: int) -> float:
     return 6e-11 + 1.5e-7 / mn ** 2
 
 
-def _design_seconds(sc: HybridScenario, extras: bool) -> float:
+def design_seconds(sc: HybridFile, extras: bool) -> float:
     import dse.estimators.jointly_observable_design as jd
 
     m, n = sc.m, sc.n
@@ -80,7 +70,7 @@ def _design_seconds(sc: HybridScenario, extras: bool) -> float:
     return seconds + sample_seconds(sc) + (0.25 if extras else 0.0)
 
 
-def sample_seconds(sc: HybridScenario) -> float:
+def sample_seconds(sc: HybridFile) -> float:
     """The sampled checks of Lemmas 5 and 6 (`design.lemma_samples`)."""
     from .design import LEMMA5_FLOPS, LEMMA5_SAMPLES, LEMMA6_FLOPS, LEMMA6_SAMPLES
 
@@ -94,27 +84,27 @@ def sample_seconds(sc: HybridScenario) -> float:
     return (samples * per_product + lemma6) * _flop_s(mn)
 
 
-def run_cost(sc: HybridScenario, run, trials: int, n_i: list[int], budget_bytes: float) -> dict[str, float]:
+def run_cost(sc: HybridFile, run, trials: int, n_i: list[int], budget_bytes: float) -> dict[str, float]:
     """Seconds and bytes of one run (see the module docstring)."""
     m, n, S, q = sc.m, sc.n, run.intervals, run.q
     mn = m * n
     nw = sum(n_i)
     D = n + nw + 2 + mn + n
-    B = trials if run.mc else 1
-    samples = S * sc.T / sc.sample_step + 1
+    B = trials if run.monte_carlo else 1
+    samples = S * sc.T / sc.sampling.step + 1
     instants = samples + S * m
-    per_trial = bounds.bytes_per_trial(sc, n_i)
+    per_trial = simulation.bytes_per_trial(sc, n_i)
     chunk = min(B, max(1, int(budget_bytes // max(per_trial * 1000, 1.0))) * 1000)
     chunks = math.ceil(B / chunk)
-    distinct = min(S, 2 * max(1, len(sc.graphs))) + (6 if run.leave else 0)
+    distinct = min(S, 2 * max(1, len(sc.graph_masks))) + (6 if run.leave else 0)
     matrices = distinct * (1 + chunks) * q * mn * mn * (m + n) * _flop_s(mn)
-    checked = samples if (bounds.is_theorem_run(run) and run.timing == "sync") else min(samples, sc.stored_samples)
+    checked = samples if (simulation.is_theorem_run(run) and run.timing == "sync") else min(samples, sc.sampling.stored)
     trials_s = (instants * chunks * INSTANT_S + instants * B * D * D * PROPAGATION_S + S * q * chunks * ITERATION_S
                 + S * q * B * mn * mn * ITERATION_FLOP_S + S * chunks * EVENT_S + S * B * (mn * mn + 20 * mn) * EVENT_FLOP_S
                 + checked * B * mn * SAMPLE_CHECK_S)
     kf = samples * 6e-5 if run.noise else 0.0
-    stored = min(samples, sc.stored_samples)
-    keep = max(1, min(S, bounds.SOURCE_VALUES // max(q * m * m, 1), bounds.ITERATE_VALUES // max((q + 1) * mn, 1)))
+    stored = min(samples, sc.sampling.stored)
+    keep = max(1, min(S, simulation.SOURCE_VALUES // max(q * m * m, 1), simulation.ITERATE_VALUES // max((q + 1) * mn, 1)))
     kept_bytes = 8 * ((S + 1) * (4 * mn + nw + 8 * m + 20) + stored * (n * (m + 2) + 3 * m + 8)
                       + keep * ((q + 1) * mn + q * m * m + m * (q + 1)) + 30 * B + 6 * S)
     table_rows = ((S + 1) * m * 3 + stored * (m + 1) + min(stored * n * (m + 2), 2_000_000) + keep * (q + 1) * m
@@ -124,59 +114,45 @@ def run_cost(sc: HybridScenario, run, trials: int, n_i: list[int], budget_bytes:
             "trials": B, "chunks": chunks, "samples": samples}
 
 
-def estimate(scenarios: dict[str, HybridScenario], opts: RunOptions, *, extras: bool = False) -> dict[str, Any]:
-    from .compute import trial_count
-
+def estimate(scenarios, opts: RunOptions, *, extras: bool = False) -> Cost:
+    """The run's cost (see the module docstring). The driver refuses it when what cannot be streamed
+    (trial 0 and the statistics at every event index and stored sample, and their tables) does not
+    fit the memory budget beside the interpreter, naming the largest run's `intervals` (or
+    `sampling.stored` when its stored samples dominate)."""
     budget = opts.chunk_budget_bytes()
-    runs = sum(len(sc.runs) for sc in scenarios.values())
+    runs = sum(len(sc.runs) for sc in scenarios)
     figures = 9 if extras else 4 + runs                  # the paper's figures; a user's: 4 and one per run
     seconds, kept, tables, chunk, parts = IMPORT_S + figures * FIGURE_S, 0.0, 0.0, 0.0, []
-    for name, sc in scenarios.items():
-        n_i = _n_i(sc)
-        trials = trial_count(sc, opts)
-        design_s = _design_seconds(sc, extras)
+    kept_mib, worst = 0.0, None
+    for sc in scenarios:
+        n_i = [loc.n_i for loc in sc.locs]
+        trials = sc.trials_for(opts)
+        design_s = design_seconds(sc, extras)
         costs = [run_cost(sc, run, trials, n_i, budget) for run in sc.runs]
         run_s = sum(c["seconds"] for c in costs) / max(1, min(opts.workers, len(costs)))
         seconds += design_s + run_s
         kept += sum(c["kept_bytes"] for c in costs)
         tables += sum(c["table_bytes"] for c in costs)
         chunk = max(chunk, max(c["chunk_bytes"] for c in costs) * max(1, min(opts.workers, len(costs))))
-        parts.append(f"{name}: design ≈{design_s:.2g} s, {len(costs)} runs ≈{run_s:.3g} s "
+        parts.append(f"{sc.name if extras else 'scenario'}: design ≈{design_s:.2g} s, {len(costs)} runs ≈{run_s:.3g} s "
                      f"({sum(c['samples'] for c in costs):,.0f} samples, {max(c['trials'] for c in costs):,} trials, "
                      f"{max(c['chunks'] for c in costs)} chunk(s))")
-    mib = BASE_MIB + (chunk + kept + TABLE_COPIES * tables) / 2**20
-    return {"seconds": seconds, "peak_memory_mib": mib,
-            "detail": "; ".join(parts) + f"; kept whole {kept / 2**20:.3g} MiB, tables {tables / 2**20:.3g} MiB, "
-                      f"largest chunk {chunk / 2**20:.3g} MiB"}
-
-
-def refuse_beyond_budget(scenarios: dict[str, HybridScenario], opts: RunOptions) -> None:
-    """What cannot be streamed (trial 0 and the statistics at every event index and stored sample,
-    and the tables made of them) must fit the memory budget: else one ScenarioError naming the
-    largest run's `intervals` (or `sampling.stored` when the stored samples dominate) and the
-    estimate, before anything runs."""
-    from .compute import trial_count
-
-    budget_mib = opts.memory_budget_mib
-    total, worst = INTERPRETER_MIB, None
-    for sc in scenarios.values():
-        n_i = _n_i(sc)
-        for i, run in enumerate(sc.runs):
-            c = run_cost(sc, run, trial_count(sc, opts), n_i, opts.chunk_budget_bytes())
-            mib = (c["kept_bytes"] + TABLE_COPIES * c["table_bytes"]) / 2**20
-            total += mib
+        for i, c in enumerate(costs):
+            mib = (c["kept_bytes"] + TABLE_COPIES * c["table_bytes"]) / MIB
+            kept_mib += mib
             if worst is None or mib > worst[0]:
                 worst = (mib, i, c, sc)
-    if worst is not None and total > budget_mib:
-        mib, i, c, sc = worst
-        by_samples = min(c["samples"], sc.stored_samples) * sc.n * (sc.m + 2) > (run_intervals(sc, i) + 1) * sc.m * 3
-        field = "sampling.stored" if by_samples else f"runs[{i}].intervals"
-        raise ScenarioError(field, f"the run needs about {total:,.0f} MiB ({total - INTERPRETER_MIB:,.0f} MiB that "
-                                   f"cannot be streamed: trial 0 and the statistics at every event index and stored "
-                                   f"sample, and their tables, {mib:,.0f} MiB of it for runs[{i}]), more than the memory "
-                                   f"budget of {budget_mib:,.0f} MiB (--max-memory); fewer intervals or stored samples "
-                                   "fit")
+    mib = BASE_MIB + (chunk + kept + TABLE_COPIES * tables) / MIB
+    return Cost(seconds, mib, "; ".join(parts) + f"; kept whole {kept / MIB:.3g} MiB, tables {tables / MIB:.3g} MiB, "
+                f"largest chunk {chunk / MIB:.3g} MiB", kept_mib=kept_mib, unit_mib=0.0, sized_by=_sized_by(worst),
+                kept_what="trial 0 and the statistics at every event index and stored sample, and their tables",
+                unit_what="chunk of trials (chunks are sized to the budget)")
 
 
-def run_intervals(sc: HybridScenario, i: int) -> int:
-    return sc.runs[i].intervals
+def _sized_by(worst) -> str:
+    """The key that sizes what the run keeps: the largest run's intervals, or the stored samples."""
+    if worst is None:
+        return "runs"
+    _, i, c, sc = worst
+    by_samples = min(c["samples"], sc.sampling.stored) * sc.n * (sc.m + 2) > (sc.runs[i].intervals + 1) * sc.m * 3
+    return "sampling.stored" if by_samples else f"runs[{i}].intervals"

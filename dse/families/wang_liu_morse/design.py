@@ -21,7 +21,7 @@ import dse.estimators.jointly_observable_design as jd
 from dse.simulate.seeding import stream_seed
 from dse.simulate.units import block_generator
 
-from .scenario import SIGMA_MAX_AGENTS, HybridScenario, RunSpec
+from .scenario import SIGMA_MAX_AGENTS, HybridFile, RunSection
 
 BASIS_CONDITION = 100.0     # condition number of the non-orthogonal change of basis of footnote 3
 LEMMA5_SAMPLES = 20_000
@@ -35,74 +35,16 @@ Q_KEYS = ("q_thm22", "q_thm21", "q_minimal", "q_thm22_printed_alpha", "q_thm21_p
           "q_minimal_printed_alpha")
 
 
-def observer_design(sc: HybridScenario) -> ho.ObserverDesign:
-    locs = [jd.local_design(sc.A, sc.C[i], rank_tol=sc.rank_tol, L=None if sc.L_given is None else sc.L_given[i])
-            for i in range(sc.m)]
-    if sc.gains == "given":
-        K = tuple(np.asarray(k, float) for k in sc.K_given)
-    else:
-        K = tuple(_placed(f"design.poles[{i}]", jd.place_gain, loc.Abar, loc.Cbar, p)
-                  for i, (loc, p) in enumerate(zip(locs, sc.poles)))
-    return ho.ObserverDesign(sc.A, tuple(sc.C), tuple(loc.L for loc in locs), tuple(loc.Abar for loc in locs),
-                             tuple(loc.Cbar for loc in locs), K, tuple(loc.Q for loc in locs),
-                             np.array([loc.P for loc in locs]))
-
-
-def central_gain(sc: HybridScenario) -> np.ndarray:
-    """Centralized observer on the stacked outputs: x_c' = (A + K_c C) x_c - K_c y (see `jd.stacked_gain`)."""
-    return _placed("design.central_poles", jd.stacked_gain, sc.A, np.vstack(sc.C), sc.central_poles, sc.rank_tol)
-
-
-def _placed(field: str, place, *args) -> np.ndarray:
-    """A gain placed with the design (the scenario's load checked that the poles can be placed,
-    without placing them); a numerical failure of the placement names the field."""
-    try:
-        return place(*args)
-    except ValueError as exc:
-        from dse.errors import ScenarioError
-
-        raise ScenarioError(field, f"pole placement failed: {exc}") from None
-
-
-@dataclass
-class Design:
-    """The design quantities of one scenario (named arrays, as cached)."""
-
-    scenario: HybridScenario
-    design: dict
-
-    @property
-    def obs(self) -> ho.ObserverDesign:
-        if "_obs" not in self.__dict__:
-            self.__dict__["_obs"] = observer_design(self.scenario)
-        return self.__dict__["_obs"]
-
-    def spec(self, name: str) -> RunSpec:
-        return next(r for r in self.scenario.runs if r.name == name)
-
-
-@dataclass
-class MultiDesign:
-    """The designs of a reproduction's scenarios ('paper' and 'generic', or one user scenario)."""
-
-    parts: dict
-
-    def __getitem__(self, key: str) -> Design:
-        return self.parts[key]
-
-
-def lambda_variants(sc: HybridScenario) -> list[tuple[str, float]]:
+def lambda_variants(sc: HybridFile) -> list[tuple[str, float]]:
     """('', λ of the design) and ('_paper', the printed λ) when the scenario gives one that differs."""
-    lam_p = float(sc.paper_values.get("lambda", sc.lam))
+    lam_p = sc.printed_lam
     return [("", sc.lam)] + ([("_paper", lam_p)] if lam_p != sc.lam else [])
 
 
-def design_quantities(sc: HybridScenario, seed: int, extras: bool = False, mismatch: bool = True
-                      ) -> dict[str, np.ndarray]:
-    """Every deterministic design quantity; `extras` adds the ones only the paper's claims use
-    (Section 5's vertex-loss design, and with `mismatch` the model-mismatch demonstration of
-    Section 4, which a run computes beside its simulations)."""
-    d = observer_design(sc)
+def design_quantities(sc: HybridFile, seed: int, extras: bool = False) -> dict[str, np.ndarray]:
+    """Every deterministic design quantity; `extras` adds Section 5's vertex-loss design, which
+    only the paper's claims use."""
+    d = sc.observer
     m, n = d.m, d.n
     out: dict[str, np.ndarray] = {}
     nA = float(np.linalg.norm(sc.A, 2))
@@ -127,7 +69,7 @@ def design_quantities(sc: HybridScenario, seed: int, extras: bool = False, misma
     out["c_i"] = np.array([jd.transient_constant(Fi, sc.lam_bar) for Fi in F])
     out["Q_mixed"] = np.array(jd.mixed_norm(scipy.linalg.block_diag(*d.Q), [n] * m, d.n_i))
     out["Q_2"] = np.array(np.linalg.norm(scipy.linalg.block_diag(*d.Q), 2))
-    out["eig_central"] = np.linalg.eigvals(sc.A + central_gain(sc) @ np.vstack(sc.C))
+    out["eig_central"] = np.linalg.eigvals(sc.A + sc.central_gain @ np.vstack(sc.C))
     rho = jd.rho_exact(d.P)
     out["rho"], out["rho_exact"], out["rho_words"] = np.array(rho.rho), np.array(rho.exact), np.array(rho.words)
     out["rho_upper"] = np.array(rho.upper)
@@ -157,18 +99,16 @@ def design_quantities(sc: HybridScenario, seed: int, extras: bool = False, misma
                 out[f"r27{label}"] = np.array(jd.r_symmetric(sig, nA, lam, sc.T))
                 out[f"q27{label}"] = np.array(jd.q_symmetric(sig, nA, lam, sc.T))
                 out[f"q27_minimal{label}"] = np.array(jd.q_symmetric_minimal(sig, nA, lam, sc.T))
-    out["graph_strong"] = np.array([jd.is_strongly_connected(G) for G in sc.graphs])
-    out["graph_symmetric"] = np.array([bool(np.array_equal(G, G.T)) for G in sc.graphs])
+    out["graph_strong"] = np.array([jd.is_strongly_connected(G) for G in sc.graph_masks])
+    out["graph_symmetric"] = np.array([bool(np.array_equal(G, G.T)) for G in sc.graph_masks])
     out["graph_vertex_redundant"] = np.array([all(jd.is_strongly_connected(np.delete(np.delete(G, i, 0), i, 1))
-                                                  for i in range(m)) for G in sc.graphs])
+                                                  for i in range(m)) for G in sc.graph_masks])
     if extras:
         out.update(section5_design(sc, d, nA))
-        if mismatch:
-            out.update(model_mismatch(sc, seed))
     return out
 
 
-def constants(design: dict, sc: HybridScenario, run: RunSpec) -> dict[str, float]:
+def constants(design: dict, sc: HybridFile, run: RunSection) -> dict[str, float]:
     """The constants of the proofs: b = q e^(||A||T)|Q| (45), c = max c_i (15), d = c b e^(λT) /
     (1 - e^(-(λ̄-λ)T)) (51), b' and d' (their 2-norm analogues for the symmetric case), and
     g = 2mq||A||e^(||A||(T+β)) of (62)-(63)."""
@@ -196,12 +136,12 @@ def alpha_used(design: dict) -> tuple[float | None, str]:
 
 # -- the sampled checks of Lemmas 5 and 6 ----------------------------------------------------------
 
-def lemma_samples(sc: HybridScenario, seed: int) -> dict[str, np.ndarray]:
+def lemma_samples(sc: HybridFile, seed: int) -> dict[str, np.ndarray]:
     """Lemma 5: products of N = (m-1)²+1 steps P(S⊗I) with S flocking matrices of strongly
     connected graphs (every one for m <= 4, else 4,000 random ones), sampled at random plus every
     constant sequence; Lemma 6: random doubly stochastic F with a strongly connected graph. Both
     within a flop budget (LEMMA5_FLOPS, LEMMA6_FLOPS) and in batches of bounded memory."""
-    d = observer_design(sc)
+    d = sc.observer
     m, n = d.m, d.n
     mn = m * n
     N = (m - 1) ** 2 + 1
@@ -270,7 +210,7 @@ def mixed_norm_bound(M: np.ndarray, n: int, m: int) -> np.ndarray:
 
 # -- the paper's extras ----------------------------------------------------------------------------
 
-def section5_design(sc: HybridScenario, d: ho.ObserverDesign, nA: float) -> dict[str, np.ndarray]:
+def section5_design(sc: HybridFile, d: ho.ObserverDesign, nA: float) -> dict[str, np.ndarray]:
     """Section 5: joint observability and strong connectivity without agent i; for every d = m
     minus one agent that stays jointly observable, ρ_d (its upper bound) and q_d of (22); q* = max."""
     m, n = d.m, d.n
@@ -279,9 +219,9 @@ def section5_design(sc: HybridScenario, d: ho.ObserverDesign, nA: float) -> dict
                == n for i in range(m)]
     out["redundant_observable"] = np.array(red_obs)
     out["redundant_connected"] = np.array([[jd.is_strongly_connected(np.delete(np.delete(G, i, 0), i, 1))
-                                            for i in range(m)] for G in sc.graphs])
+                                            for i in range(m)] for G in sc.graph_masks])
     rho_d, q_d = [], []
-    lam_p = float(sc.paper_values.get("lambda", sc.lam))
+    lam_p = sc.printed_lam
     for i in range(m):
         keep = [j for j in range(m) if j != i]
         if red_obs[i] and m - 1 >= 2:
@@ -296,7 +236,7 @@ def section5_design(sc: HybridScenario, d: ho.ObserverDesign, nA: float) -> dict
     return out
 
 
-def model_mismatch(sc: HybridScenario, seed: int, steps: int = 2000, dt: float = 0.01, size: float = 1e-3
+def model_mismatch(sc: HybridFile, seed: int, steps: int = 2000, dt: float = 0.01, size: float = 1e-3
                    ) -> dict[str, np.ndarray]:
     """Section 4's key point: a centralized Kalman filter (filterpy) on all outputs, with the model
     A + δE (||δE|| = size) instead of A, against the same filter with the exact model; noise-free
@@ -346,7 +286,7 @@ def random_orthogonal(gen: np.random.Generator, k: int) -> np.ndarray:
     return Qm * np.sign(np.diag(Rm))
 
 
-def local_design_checks(sc: HybridScenario, d: ho.ObserverDesign, seed: int) -> dict[str, np.ndarray]:
+def local_design_checks(sc: HybridFile, d: ho.ObserverDesign, seed: int) -> dict[str, np.ndarray]:
     """Per agent: the residuals of C_i = C̄_i L_i and L_i A = Ā_i L_i (relative to ||C_i||,
     ||A|| ||L_i||), the rank of the observability matrix of (C̄_i, Ā_i), and footnote 3: the
     largest entry of P_i(M L_i) - P_i(L_i) for a random orthogonal M and a random M of
@@ -357,7 +297,7 @@ def local_design_checks(sc: HybridScenario, d: ho.ObserverDesign, seed: int) -> 
     rows = {k: [] for k in ("residual_C", "residual_A", "kappa_L", "discarded", "row_space_dist", "obs_rank_local",
                             "P_basis_dev", "kappa_ML")}
     for i in range(d.m):
-        loc = jd.local_design(sc.A, sc.C[i], rank_tol=sc.rank_tol, L=None if sc.L_given is None else sc.L_given[i])
+        loc = sc.locs[i]
         basis = jd.observable_basis(sc.A, sc.C[i], sc.rank_tol)
         L = loc.L
         nL = float(np.linalg.norm(L, 2))

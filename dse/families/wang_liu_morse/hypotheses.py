@@ -1,6 +1,7 @@
-"""The hypotheses of the hybrid observer's theorems, as checks of their own.
+"""The hypotheses of the hybrid observer's theorems, registered on their checks (the family's
+`ClaimSet` is made here; the claims modules add the claims to it).
 
-Scenario-level (one row per scenario):
+Per scenario:
 
 - ``joint_observability``: (16), ∩ image P_i = 0, i.e. σ_min([I - P_1; ...; I - P_m]) > 0;
 - ``strong_connectivity``: every neighbour graph the scenario uses is strongly connected
@@ -10,51 +11,70 @@ Scenario-level (one row per scenario):
   and α of Lemma 5 (Theorems 1, 2, Lemma 4 and (63) rest on it);
 - ``q_eq27``: the design q satisfies (27), the condition of the symmetric special case.
 
-Run-level (one row per run that needs it; ids carry the run's name):
+Per run that needs it (ids carry the run's name):
 
+- ``<run>.strong_connectivity``: every graph the run uses is strongly connected (only when some
+  graph of the scenario is not: the scenario's row then fails, and each run is judged by the
+  graphs it uses);
 - ``<run>.q_eq22`` / ``<run>.q_eq27``: a run whose q is not the design q (a symmetric-rule
   run is judged by (27));
 - ``<run>.eq10``: (10), ε_i + ε_j <= β and ε_i + ε_j + β < Δ, and Δq + ε <= T (Lemma 1,
   Lemma 3, Theorem 2; Section 4 with ε = max |t_i0|);
-- ``<run>.windows``: N(t) is constant on every window 𝓘_s(k) of (23) (Lemma 3, Theorem 2);
-- ``<run>.strong_connectivity``: every graph the run uses is strongly connected (only when some
-  graph of the scenario is not: the scenario-level row then fails, and each run is judged by the
-  graphs it uses).
+- ``<run>.windows``: N(t) is constant on every window 𝓘_s(k) of (23) (Lemma 3, Theorem 2).
 
-Ids: ``wang-liu-morse.hyp.[<scenario>.]<name>``; the scenario is named when a reproduction
-checks several. Claims that span several scenarios or runs check each (scenario, run) cell
-against the hypotheses that cell rests on (`cell_failures`) and name the cells left out.
-Every check reads the design stage only (`design.Design`, or a run's results, which carry it),
-so that `dse check` decides them without simulating.
+Ids: ``wang-liu-morse.hyp.[<scenario>.]<name>``, the scenario named when a run checks several.
+Claims that span several scenarios or runs check each (scenario, run) cell against the
+hypotheses that cell rests on (`cell_failures`) and name the cells left out; `rests_on` gives
+the hypotheses that concern every cell of a claim. Every check reads the design stage only.
 """
 from __future__ import annotations
 
 import math
-from typing import Callable
 
 import numpy as np
 
-import dse.estimators.hybrid_observer as ho
 import dse.estimators.jointly_observable_design as jd
-from dse.verify.rules import Holds, Hypothesis
+from dse.contract.claims import ClaimSet, Where
+from dse.verify.rules import Holds
 
-from .bounds import run_epsilon
-from .scenario import HybridScenario, RunSpec
+from .scenario import HybridFile, RunSection
+from .simulation import run_epsilon, schedule_for
+from .stages import Part
 
 PID = "wang-liu-morse"
 EPS = float(np.finfo(float).eps)
-SCENARIO_LEVEL = ("joint_observability", "strong_connectivity", "local_observers", "q_eq22", "q_eq27")
 #: hypotheses the scenario validation already enforces (they hold on every valid scenario)
 VALIDATED = ("joint_observability", "local_observers")
 
+claims = ClaimSet(select_design=lambda design, name: design.named(name))
+HYP = PID + ".hyp.{scenario.}"
 
-def hyp_id(part: str, name: str, multi: bool) -> str:
-    return f"{PID}.hyp.{part}.{name}" if multi else f"{PID}.hyp.{name}"
+
+def hyp_id(label: str, name: str, several: bool) -> str:
+    return f"{PID}.hyp.{label}.{name}" if several else f"{PID}.hyp.{name}"
 
 
-# -- scenario level --------------------------------------------------------------------------------
+def rests_on(*names: str):
+    """The hypotheses every cell of a claim rests on, scenario by scenario: the validated ones
+    always, strong connectivity when every graph of the scenario has it (otherwise each run is
+    gated by the graphs it uses), and in a one-scenario run 'q_eq22' when every run with rule (13)
+    uses the design q (otherwise each cell is gated by its own row)."""
+    def ids(where: Where) -> tuple[str, ...]:
+        several = len(where.scenarios) > 1
+        out = []
+        for sc in where.run.scenarios:
+            for name in names:
+                if name in VALIDATED or (name == "strong_connectivity" and sc.all_strongly_connected) or (
+                        name == "q_eq22" and not several and all(r.q == sc.q_design for r in sc.runs if r.rule == "mean")):
+                    out.append(hyp_id(sc.name, name, several))
+        return tuple(out)
+    return ids
 
-def joint_observability(r) -> Holds:
+
+# -- per scenario --------------------------------------------------------------------------------------
+
+@claims.hypothesis(HYP + "joint_observability", "{scenario: }(16): (C, A) jointly observable, ∩ image P_i = 0")
+def joint_observability(r: Part) -> Holds:
     """(16): the smallest singular value of [I - P_1; ...; I - P_m] is above the rank tolerance
     the observable subspaces were computed with (it is 0 iff a nonzero x lies in every image P_i)."""
     smin = float(r.design["sigma_min_16"])
@@ -62,27 +82,21 @@ def joint_observability(r) -> Holds:
     return Holds(smin > tol, smin, tol, f"σ_min([I - P_1; ...; I - P_m]) = {smin:.6g} vs the rank tolerance {tol:g}")
 
 
-def strong_connectivity(r, graphs: list[int] | None = None) -> Holds:
+@claims.hypothesis(HYP + "strong_connectivity", "{scenario: }every neighbour graph N(t) is strongly connected")
+def strong_connectivity(r: Part, graphs: list[int] | None = None) -> Holds:
     """Every neighbour graph (of the scenario, or the ones in `graphs`) is strongly connected."""
-    names = r.scenario.graph_names
-    idx = list(range(len(r.scenario.graphs))) if graphs is None else graphs
-    ok = [bool(jd.is_strongly_connected(r.scenario.graphs[g])) for g in idx]
-    bad = [names[g] for g, o in zip(idx, ok) if not o]
+    sc = r.scenario
+    idx = list(range(len(sc.graph_masks))) if graphs is None else graphs
+    ok = [bool(jd.is_strongly_connected(sc.graph_masks[g])) for g in idx]
+    bad = [sc.graphs.names[g] for g, o in zip(idx, ok) if not o]
     return Holds(all(ok), int(sum(ok)), len(ok), f"{sum(ok)} of {len(ok)} neighbour graphs strongly connected "
                                                  "(arc j -> i iff j ∈ N_i, self-arcs included)"
                                                  + (f"; not: {', '.join(bad)}" if bad else ""))
 
 
-def graphs_of(sc: HybridScenario, run: RunSpec) -> list[int]:
-    """The graphs a run uses."""
-    return [run.graph] if run.switching == "fixed" else list(range(len(sc.graphs)))
-
-
-def all_strongly_connected(sc: HybridScenario) -> bool:
-    return all(jd.is_strongly_connected(g) for g in sc.graphs)
-
-
-def local_observers(r) -> Holds:
+@claims.hypothesis(HYP + "local_observers", "{scenario: }(15): the local observers decay at least as fast as "
+                   "e^(-λ̄t), λ < λ̄")
+def local_observers(r: Part) -> Holds:
     """(15) with λ < λ̄: every local observer matrix F_i has spectral abscissa <= -λ̄ (to the
     round-off of its computed eigenvalues, Bauer-Fike) and c_i = sup ||e^(F_i τ)|| e^(λ̄τ) is finite."""
     sc = r.scenario
@@ -115,7 +129,12 @@ def number(q: int) -> int | float:
         return math.inf
 
 
-def q_eq22(r, q: int) -> Holds:
+@claims.hypothesis(HYP + "q_eq22", "{scenario: }the design q satisfies (22) (ρ of (17), α of Lemma 5)")
+def design_q_eq22(r: Part) -> Holds:
+    return q_eq22(r, r.scenario.q_design)
+
+
+def q_eq22(r: Part, q: int) -> Holds:
     """q satisfies (22) with α of Lemma 5. With ρ exact the answer is exact; with ρ only
     bracketed (m >= 6) it holds when q meets (22) for the upper bound of ρ, fails when q misses
     it for the lower bound, and is undecided in between."""
@@ -131,9 +150,8 @@ def q_eq22(r, q: int) -> Holds:
             f"T = {sc.T:g}) needs q >= {big(lo)} "
             f"[(21) with (19): {big(_int(dz['q_thm21']))}; minimal sufficient from the proof of Lemma 4: "
             f"{big(_int(dz['q_minimal']))}; with α as printed in (18): {big(_int(dz['q_thm22_printed_alpha']))}]")
-    lam_p = float(sc.paper_values.get("lambda", sc.lam))
-    if lam_p != sc.lam:
-        text += (f"; for the printed λ = {lam_p:g}: q >= {big(_int(dz['q_thm22_paper']))} (α as printed: "
+    if sc.printed_lam != sc.lam:
+        text += (f"; for the printed λ = {sc.printed_lam:g}: q >= {big(_int(dz['q_thm22_paper']))} (α as printed: "
                  f"{big(_int(dz['q_thm22_printed_alpha_paper']))})")
     if exact:
         return Holds(q >= lo, q, number(lo), text)
@@ -145,7 +163,12 @@ def q_eq22(r, q: int) -> Holds:
                  text + "; ρ is only bracketed and q lies between the two requirements")
 
 
-def q_eq27(r, q: int) -> Holds:
+@claims.hypothesis(HYP + "q_eq27", "{scenario: }the design q satisfies (27) (σ of (26), symmetric special case)")
+def design_q_eq27(r: Part) -> Holds:
+    return q_eq27(r, r.scenario.q_design)
+
+
+def q_eq27(r: Part, q: int) -> Holds:
     """q satisfies (27) for σ of (26) (all connected graphs on m vertices, m <= 6)."""
     dz, sc = r.design, r.scenario
     if "sigma" not in dz:
@@ -156,17 +179,56 @@ def q_eq27(r, q: int) -> Holds:
     text = (f"q = {q:,}; (27) with σ = {float(dz['sigma']):.10g} (over {int(dz['sigma_graphs'])} connected graphs), "
             f"||A|| = {float(dz['norm_A']):.6g}, λ = {sc.lam:g}, T = {sc.T:g} needs q >= {need:,} (minimal sufficient "
             f"{int(dz['q27_minimal']):,})")
-    lam_p = float(sc.paper_values.get("lambda", sc.lam))
-    if lam_p != sc.lam and "q27_paper" in dz:
-        text += f"; for the printed λ = {lam_p:g}: q >= {int(dz['q27_paper']):,}"
+    if sc.printed_lam != sc.lam and "q27_paper" in dz:
+        text += f"; for the printed λ = {sc.printed_lam:g}: q >= {int(dz['q27_paper']):,}"
     return Holds(q >= need, q, need, text)
 
 
-# -- run level ---------------------------------------------------------------------------------------
+# -- per run -----------------------------------------------------------------------------------------------
+
+def each_run(where: Where) -> list[tuple[str, RunSection]]:
+    return [(run.name, run) for run in where.scenario_object.runs]
 
 
+def graphs_of(sc: HybridFile, run: RunSection) -> list[int]:
+    """The graphs a run uses."""
+    return [run.graph_index] if run.switching == "fixed" else list(range(len(sc.graph_masks)))
 
-def eq10(run: RunSpec, T: float) -> Holds:
+
+def _jittered(where: Where) -> bool:
+    return where.item.timing in ("async", "offset")
+
+
+@claims.hypothesis(HYP + "{item}.strong_connectivity", "{scenario: }run {item}: every graph it uses is strongly "
+                   "connected", each=each_run, when=lambda w: not w.scenario_object.all_strongly_connected)
+def run_strong_connectivity(r: Part, run: RunSection) -> Holds:
+    return strong_connectivity(r, graphs_of(r.scenario, run))
+
+
+@claims.hypothesis(HYP + "{item}.q_eq27", "{scenario: }run {item}: q satisfies (27)", each=each_run,
+                   when=lambda w: w.item.rule == "symmetric")
+def run_q_eq27(r: Part, run: RunSection) -> Holds:
+    return q_eq27(r, run.q)
+
+
+@claims.hypothesis(HYP + "{item}.q_eq22", "{scenario: }run {item}: q satisfies (22)", each=each_run,
+                   when=lambda w: w.item.rule != "symmetric" and w.item.q != w.scenario_object.q_design)
+def run_q_eq22(r: Part, run: RunSection) -> Holds:
+    return q_eq22(r, run.q)
+
+
+@claims.hypothesis(HYP + "{item}.eq10", "{scenario: }run {item}: (10) and Δq + ε <= T", each=each_run, when=_jittered)
+def run_eq10(r: Part, run: RunSection) -> Holds:
+    return eq10(run, r.scenario.T)
+
+
+@claims.hypothesis(HYP + "{item}.windows", "{scenario: }run {item}: N(t) constant on every window 𝓘_s(k) of (23)",
+                   each=each_run, when=_jittered)
+def run_windows(r: Part, run: RunSection) -> Holds:
+    return windows(r.scenario, run)
+
+
+def eq10(run: RunSection, T: float) -> Holds:
     """(10) for all i, j (i = j included: 2ε <= β, 2ε + β < Δ) and Δq + ε <= T; the last with
     4 eps·T for the rounding of an input Δ = T/q."""
     eps = run_epsilon(run)
@@ -184,14 +246,12 @@ def eq10(run: RunSpec, T: float) -> Holds:
     return Holds(ok, max(a, b, c), 0.0, text)
 
 
-def windows(sc: HybridScenario, run: RunSpec) -> Holds:
+def windows(sc: HybridFile, run: RunSection) -> Holds:
     """N(t) constant on every 𝓘_s(k) = [sT + (k-1)Δ + β - ε, sT + (k-1)Δ + β + ε] (23), s = 0..S-1
     (the window of interval s+1; the first interval included), k = 1..q: no switch of the
     right-continuous schedule in (start, end]."""
     eps = run_epsilon(run)
-    sched = ho.GraphSchedule(sc.graphs, kind=run.switching, fixed=run.graph, T=sc.T, Delta=run.Delta, beta=run.beta,
-                             q=run.q)
-    sw = sched.switch_times((run.intervals + 1) * sc.T)
+    sw = schedule_for(sc, run).switch_times((run.intervals + 1) * sc.T)
     c = (sc.T * np.arange(run.intervals))[:, None] + (np.arange(run.q) * run.Delta + run.beta)[None, :]
     inside = np.searchsorted(sw, c + eps, side="right") - np.searchsorted(sw, c - eps, side="right")
     bad = int((inside > 0).sum())
@@ -199,76 +259,36 @@ def windows(sc: HybridScenario, run: RunSpec) -> Holds:
                                    f"in the run, switching = '{run.switching}')")
 
 
-# -- which hypothesis a run's q rests on --------------------------------------------------------------
+# -- the hypotheses of one (scenario, run) cell ----------------------------------------------------------------
 
-def q_name(sc: HybridScenario, run: RunSpec) -> str:
-    """The hypothesis row that decides the q of `run`."""
-    if run.rule == "symmetric":
-        return f"{run.name}.q_eq27"
-    return "q_eq22" if run.q == sc.q_design else f"{run.name}.q_eq22"
-
-
-def run_rows(sc: HybridScenario) -> list[tuple[str, str, Callable]]:
-    """(name, statement, check(r)) for the run-level hypotheses of a scenario."""
-    rows = []
-    connected = all_strongly_connected(sc)
-    for run in sc.runs:
-        if not connected:
-            rows.append((f"{run.name}.strong_connectivity", f"run {run.name}: every graph it uses is strongly connected",
-                         lambda r, run=run: strong_connectivity(r, graphs_of(r.scenario, run))))
-        if run.rule == "symmetric":
-            rows.append((f"{run.name}.q_eq27", f"run {run.name}: q satisfies (27)",
-                         lambda r, q=run.q: q_eq27(r, q)))
-        elif run.q != sc.q_design:
-            rows.append((f"{run.name}.q_eq22", f"run {run.name}: q satisfies (22)", lambda r, q=run.q: q_eq22(r, q)))
-        if run.timing in ("async", "offset"):
-            rows.append((f"{run.name}.eq10", f"run {run.name}: (10) and Δq + ε <= T",
-                         lambda r, run=run: eq10(run, r.scenario.T)))
-            rows.append((f"{run.name}.windows", f"run {run.name}: N(t) constant on every window 𝓘_s(k) of (23)",
-                         lambda r, run=run: windows(r.scenario, run)))
-    return rows
-
-
-SCENARIO_ROWS: tuple[tuple[str, str, Callable], ...] = (
-    ("joint_observability", "(16): (C, A) jointly observable, ∩ image P_i = 0", joint_observability),
-    ("strong_connectivity", "every neighbour graph N(t) is strongly connected", strong_connectivity),
-    ("local_observers", "(15): the local observers decay at least as fast as e^(-λ̄t), λ < λ̄", local_observers),
-    ("q_eq22", "the design q satisfies (22) (ρ of (17), α of Lemma 5)", lambda r: q_eq22(r, r.scenario.q_design)),
-    ("q_eq27", "the design q satisfies (27) (σ of (26), symmetric special case)",
-     lambda r: q_eq27(r, r.scenario.q_design)),
-)
-
-
-def rows_of(sc: HybridScenario) -> list[tuple[str, str, Callable]]:
-    return list(SCENARIO_ROWS) + run_rows(sc)
-
-
-def hypotheses(scenarios: dict[str, HybridScenario]) -> list[Hypothesis]:
-    multi = len(scenarios) > 1
-    out = []
-    for part, sc in scenarios.items():
-        for name, statement, fn in rows_of(sc):
-            out.append(Hypothesis(hyp_id(part, name, multi), (f"{part}: " if multi else "") + statement,
-                                  lambda res, part=part, fn=fn: fn(res[part])))
-    return out
-
-
-def cell_failures(res, part: str, run: RunSpec, needs: tuple[str, ...]) -> list[tuple[str, Holds]]:
-    """The hypotheses among `needs` ('q', 'eq10', 'windows' or a scenario-level name) that do
-    not hold (or cannot be decided) for one (scenario, run) cell, with their ids."""
-    r = res[part]
+def _cell_hypothesis(r: Part, run: RunSection, need: str) -> tuple[str | None, Holds | None]:
+    """The hypothesis row ('q', 'eq10', 'windows' or a scenario-level name) that decides `need` for
+    one run, and its check; (None, None) when the run has no such row."""
     sc = r.scenario
-    multi = len(res.parts) > 1
-    table = {name: fn for name, _, fn in rows_of(sc)}
+    if need == "strong_connectivity":
+        if sc.all_strongly_connected:
+            return need, strong_connectivity(r)
+        return f"{run.name}.{need}", strong_connectivity(r, graphs_of(sc, run))
+    if need == "q":
+        if run.rule == "symmetric":
+            return f"{run.name}.q_eq27", q_eq27(r, run.q)
+        return ("q_eq22" if run.q == sc.q_design else f"{run.name}.q_eq22"), q_eq22(r, run.q)
+    if need in ("eq10", "windows"):
+        if run.timing not in ("async", "offset"):
+            return None, None
+        return f"{run.name}.{need}", eq10(run, sc.T) if need == "eq10" else windows(sc, run)
+    checks = {"joint_observability": joint_observability, "local_observers": local_observers,
+              "q_eq22": design_q_eq22, "q_eq27": design_q_eq27}
+    return need, checks[need](r)
+
+
+def cell_failures(res, label: str, run: RunSection, needs: tuple[str, ...]) -> list[tuple[str, Holds]]:
+    """The hypotheses among `needs` that do not hold (or cannot be decided) for one (scenario, run)
+    cell, with their ids."""
+    several = len(res.parts) > 1
     out = []
     for need in needs:
-        if need == "strong_connectivity":
-            name = f"{run.name}.strong_connectivity" if not all_strongly_connected(sc) else need
-        else:
-            name = q_name(sc, run) if need == "q" else (f"{run.name}.{need}" if need in ("eq10", "windows") else need)
-        if name not in table:
-            continue
-        h = table[name](r)
-        if h.holds is not True:
-            out.append((hyp_id(part, name, multi), h))
+        name, h = _cell_hypothesis(res[label], run, need)
+        if h is not None and h.holds is not True:
+            out.append((hyp_id(label, name, several), h))
     return out

@@ -1,25 +1,28 @@
-"""The hybrid-observer scenario family: a jointly observable (A, C_1..C_m), local observer
-gains, a set of neighbour graphs, and a list of runs (synchronous, asynchronous with jittered
-iteration times, event-time offsets, agents leaving and joining).
+"""The hybrid-observer scenario file, declared once: a jointly observable (A, C_1..C_m), local
+observer gains, a set of neighbour graphs, and a list of runs (synchronous, asynchronous with
+jittered iteration times, event-time offsets, agents leaving and joining).
 
-Every key is declared once below (type, default, bounds, unit, meaning); docs/scenarios.md
-is generated from these declarations. Rules that tie keys of different tables together
-(matrix sizes against n and m, q against the design, timing against T) are checked when the
-file is read, each naming its key. Agents are labelled 1..m in scenario files, as in the
-paper; internally 0..m-1.
+Every key is declared below (type, default, bounds, unit, meaning); docs/scenarios.md is
+generated from these declarations. The rules that tie tables together (matrix sizes against n
+and m, q against the design, timing against T) are the file's validator, each error naming its
+key, and the same validator fills in the defaults that depend on other tables. The validated
+model is the scenario the stages read: matrices and designs are cached properties of it. Agents
+are labelled 1..m in scenario files, as in the paper; internally 0..m-1.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, PrivateAttr, model_validator
 
+import dse.estimators.hybrid_observer as ho
 import dse.estimators.jointly_observable_design as jd
-from dse.scenario.declare import Matrix, Real, Section, computed, key, matrix, parse
 from dse.errors import ScenarioError, printable
+from dse.scenario.declare import (Matrix, Real, ScenarioFile, Section, computed_default, derived_default, key,
+                                  matrix, name_key, parse)
 from dse.scenario.fields import load_toml
 
 TIMINGS = ("sync", "async", "offset")
@@ -44,7 +47,38 @@ SIGMA_MAX_AGENTS = 6
 MAX_GROWTH_EXPONENT = 300.0
 
 
-Positive = Annotated[int, Field(ge=1)]
+def default_poles(lam_bar: float, k: int) -> tuple[float, ...]:
+    """Distinct real poles strictly beyond -λ̄: -λ̄(1.25 + 0.25 j), j = 0..k-1."""
+    return tuple(-lam_bar * (1.25 + 0.25 * j) for j in range(k))
+
+
+def default_central_poles(sc: "HybridFile") -> list[float]:
+    """-λ̄(1.25 + 0.25 j), j = 0..n-1"""
+    return list(default_poles(sc.lam_bar, sc.n))
+
+
+def default_runs(sc: "HybridFile") -> list["RunSection"]:
+    """sync, ideal, async (and symmetric when every graph is symmetric and m <= 6)"""
+    runs = [RunSection(name="sync", monte_carlo=True), RunSection(name="ideal", ideal=True, monte_carlo=True),
+            RunSection(name="async", timing="async", reference_run="sync", monte_carlo=True)]
+    if all(np.array_equal(G, G.T) for G in sc.graph_masks) and sc.m <= SIGMA_MAX_AGENTS:
+        runs.append(RunSection(name="symmetric", rule="symmetric", q="symmetric", monte_carlo=True))
+    return runs
+
+
+def default_run_name(index: int) -> str:
+    """run<index>"""
+    return f"run{index}"
+
+
+def default_switching(sc: "HybridFile") -> str:
+    """fixed with one graph, else alternate_interval"""
+    return "alternate_interval" if len(sc.graph_masks) > 1 else "fixed"
+
+
+def default_Delta(sc: "HybridFile", q: int) -> float:
+    """T / q"""
+    return sc.T / q
 
 
 class SystemSection(Section):
@@ -82,7 +116,7 @@ class DesignSection(Section):
                                  constraint="required with gains = 'given', only then")
     poles: list[list[Real]] | None = key(None, doc="the poles of Ā_i + K_i C̄_i, n_i per agent (gains = 'place')",
                                          unit="1/time", constraint="only with gains = 'place'")
-    central_poles: list[Real] | None = key(computed("-λ̄(1.25 + 0.25 j), j = 0..n-1"),
+    central_poles: list[Real] | None = key(derived_default(default_central_poles),
                                            doc="poles of the centralized reference observer on the stacked outputs",
                                            unit="1/time", constraint="n negative real poles")
 
@@ -97,8 +131,14 @@ class GraphsSection(Section):
     neighbors: list[list[list[int]]] = key(doc="per graph, per agent i = 1..m, the labels j of its neighbours "
                                            "(1..m, without i itself, each at most once)", min_length=1,
                                            constraint="m rows per graph")
-    names: list[str] | None = key(computed("G1, G2, ..."), doc="a name per graph (figures, tables)",
-                                  constraint="1 to 64 characters, no control or format characters")
+
+    @computed_default
+    def _graph_names(data):
+        """G1, G2, ..."""
+        return [f"G{k + 1}" for k in range(len(data["neighbors"]))]
+
+    names: list[str] = key(_graph_names, doc="a name per graph (figures, tables)",
+                           constraint="1 to 64 characters, no control or format characters")
 
 
 class InitialSection(Section):
@@ -116,8 +156,13 @@ class MonteCarloSection(Section):
     and x_i(0) with independent N(0, scale²) entries (runs with monte_carlo = true)."""
 
     trials: int = key(64, doc="trials of the runs with monte_carlo = true", ge=1, le=MAX_TRIALS)
-    quick_trials: int | None = key(computed("min(trials, 16)"), doc="trials in quick runs", ge=1, le=MAX_TRIALS,
-                                   constraint="<= trials")
+
+    @computed_default
+    def _quick_trials(data):
+        """min(trials, 16)"""
+        return min(data["trials"], 16)
+
+    quick_trials: int = key(_quick_trials, doc="trials in quick runs", ge=1, le=MAX_TRIALS, constraint="<= trials")
     scale: Real = key(5.0, doc="standard deviation of the random initial conditions", unit="state", gt=0)
 
 
@@ -150,15 +195,20 @@ class LeaveSection(Section):
                                     "(its state frozen while away), open_loop (its local observer and "
                                     "propagation kept running, no communication)")
 
+    @property
+    def index(self) -> int:
+        """The agent, 0-based."""
+        return self.agent - 1
+
 
 class RunSection(Section):
     """One simulated run (the claims check every run of the kind they are about)."""
 
-    name: str = key(computed("run<index>"), doc="run name (unique)", pattern=r"^[A-Za-z0-9_-]{1,64}$")
+    name: str = key(derived_default(default_run_name), doc="run name (unique)", pattern=r"^[A-Za-z0-9_-]{1,64}$")
     timing: Literal[TIMINGS] = key("sync", doc="sync: iterations at t_i(s-1) + kΔ; async: jittered by δ_is(k) "  # type: ignore[valid-type]
                                    "∈ [-ε_i, ε_i] (Theorem 2); offset: event times t_is = t_i0 + sT (Section 4)")
     switching: Literal[SWITCHINGS] | None = key(
-        computed("fixed with one graph, else alternate_interval"),
+        derived_default(default_switching),
         doc="fixed: graph `graph` throughout; alternate_interval: the graphs in turn, one per period T; "
         "alternate_iteration: one per iteration, switching at (s-1)T + (k-1)Δ + β + Δ/2")
     graph: int = key(1, doc="the graph of switching = fixed (1-based)", ge=1)
@@ -175,13 +225,24 @@ class RunSection(Section):
                                      "async)", unit="time", constraint=">= 0")
     beta: Real = key(0.0, doc="broadcast delay β: agent j sends z_j(k-1) at τ_j(k-1) + β", unit="time", ge=0,
                      constraint="< Delta")
-    Delta: Real | None = key(computed("T / q"), doc="nominal spacing Δ of the iterations", unit="time", gt=0,
-                             constraint="q·Δ + max ε <= T")
+    Delta: Real | None = key(derived_default(default_Delta), doc="nominal spacing Δ of the iterations", unit="time",
+                             gt=0, constraint="q·Δ + max ε <= T")
     offsets: list[Real] | None = key(None, doc="event-time offsets t_i0, one per agent (timing = offset)",
                                      unit="time", constraint="spread < T")
     leave: LeaveSection | None = key(None, doc="an agent that leaves and re-joins")
     reference_run: str = key("", doc="an earlier run of the same observer with synchronous timing: an asynchronous "
                              "run must reproduce it exactly (Theorem 2)")
+    #: where the validated q comes from: given, theory (22) or symmetric (27)
+    _q_label: str = PrivateAttr("given")
+
+    @property
+    def q_label(self) -> str:
+        return self._q_label
+
+    @property
+    def graph_index(self) -> int:
+        """The graph of switching = fixed, 0-based."""
+        return self.graph - 1
 
 
 class PaperValuesSection(Section):
@@ -191,11 +252,12 @@ class PaperValuesSection(Section):
     lambda_bar: Real | None = key(None, doc="the printed λ̄", unit="1/time", gt=0)
 
 
-class HybridFile(Section):
+class HybridFile(ScenarioFile):
     """A hybrid-observer scenario file."""
 
-    name: str = key("scenario", doc="scenario name: the output directory OUT/run/<name>/",
-                    pattern=r"^[A-Za-z0-9_-]{1,64}$")
+    unkeyed = {"name": True, "monte_carlo": {"trials": True, "quick_trials": True}, "graphs": {"names": True}}
+
+    name: str = name_key()
     system: SystemSection = key(doc="the plant and the agents' outputs")
     design: DesignSection = key(doc="the observer design")
     graphs: GraphsSection = key(doc="the neighbour graphs")
@@ -203,423 +265,270 @@ class HybridFile(Section):
     monte_carlo: MonteCarloSection = key(MonteCarloSection, doc="random initial conditions")
     noise: NoiseSection = key(NoiseSection, doc="the input of runs with noise = true")
     sampling: SamplingSection = key(SamplingSection, doc="sampling of the continuous-time errors")
-    runs: list[RunSection] | None = key(
-        computed("sync, ideal, async (and symmetric when every graph is symmetric and m <= 6)"),
-        doc="the simulated runs", min_length=1, max_length=64)
+    runs: list[RunSection] | None = key(derived_default(default_runs), doc="the simulated runs", min_length=1,
+                                        max_length=64)
     paper_values: PaperValuesSection = key(PaperValuesSection, doc="printed values (paper reproduction only)")
 
+    @model_validator(mode="after")
+    def _tie_tables(self) -> "HybridFile":
+        """The rules across tables, in the order their errors are reported, then the derived defaults."""
+        self.C                                                     # sizes, m, n, (16)
+        if self.lam >= self.lam_bar:
+            raise ScenarioError("design.lambda", f"must be < lambda_bar = {self.lam_bar:g} (the constant d of Theorem 1 "
+                                                 f"divides by 1 - e^(-(λ̄-λ)T)), got {self.lam:g}")
+        self.local_gains                                           # L_i, K_i or poles, (15)
+        _set(self.design, central_poles=_central_poles(self))
+        self.graph_masks
+        self.q_design
+        self.initial_state
+        mc = self.monte_carlo
+        if mc.quick_trials > mc.trials:
+            raise ScenarioError("monte_carlo.quick_trials", f"must be <= trials = {mc.trials}, got {mc.quick_trials}")
+        self.noise_b
+        if self.T / self.sampling.step > MAX_SAMPLES_PER_INTERVAL:
+            raise ScenarioError("sampling.step", f"T / step = {self.T / self.sampling.step:,.0f} samples per interval, "
+                                                 f"more than the supported {MAX_SAMPLES_PER_INTERVAL:,}")
+        from .validation import settled_runs
 
-# -- the scenario as compute uses it ------------------------------------------------------------------
+        _set(self, runs=settled_runs(self, self.runs if self.runs is not None else default_runs(self)))
+        return self
 
-@dataclass(frozen=True)
-class Leave:
-    agent: int          # 0-based
-    at: float
-    rejoin: float
-    policy: str
+    # -- the system ------------------------------------------------------------------------------------
 
+    @cached_property
+    def A(self) -> np.ndarray:
+        A = matrix(self.system.A, "system.A")
+        n = A.shape[0]
+        if A.shape != (n, n):
+            raise ScenarioError("system.A", f"must be square, got {A.shape[0]}x{A.shape[1]}")
+        if n > MAX_STATE:
+            raise ScenarioError("system.A", f"state dimension n = {n}; this family handles at most {MAX_STATE}")
+        return A
 
-@dataclass(frozen=True)
-class RunSpec:
-    name: str
-    timing: str
-    switching: str
-    graph: int
-    intervals: int
-    noise: bool
-    rule: str
-    q: int
-    q_label: str
-    mc: bool
-    ideal: bool
-    epsilon: tuple[float, ...]
-    beta: float
-    Delta: float
-    offsets: tuple[float, ...]
-    leave: Leave | None
-    reference_run: str
-    jitter_seed_label: str = ""
+    @cached_property
+    def C(self) -> tuple[np.ndarray, ...]:
+        """The output matrices; (C, A) jointly observable (16) at the rank tolerance."""
+        n = self.A.shape[0]
+        C = tuple(matrix(c, f"system.C[{i}]") for i, c in enumerate(self.system.C))
+        for i, Ci in enumerate(C):
+            if Ci.shape[1] != n:
+                raise ScenarioError(f"system.C[{i}]", f"must have n = {n} columns, got {Ci.shape[1]}")
+            if not np.any(Ci):
+                raise ScenarioError(f"system.C[{i}]", "is zero (every agent must sense something: C_i != 0)")
+        m = len(C)
+        if m < 2:
+            raise ScenarioError("system.C", "needs at least 2 agents (with one agent there is nothing to distribute)")
+        if m > MAX_AGENTS:
+            raise ScenarioError("system.C", f"{m} agents; this family handles at most {MAX_AGENTS}")
+        if m * n > MAX_AGENT_STATES:
+            raise ScenarioError("system.C", f"m·n = {m * n} estimator states per trial; this family handles at most "
+                                            f"{MAX_AGENT_STATES}")
+        rank = jd.observable_basis(self.A, np.vstack(C), self.rank_tol).rows.shape[0]
+        if rank < n:
+            raise ScenarioError("system.C", f"(C, A) is not jointly observable: the observable space of the stacked "
+                                            f"outputs has dimension {rank} < n = {n} (relative rank tolerance "
+                                            f"{self.rank_tol:g}); condition (16) fails")
+        return C
 
-    def key(self) -> dict[str, Any]:
-        return {k: (v.__dict__ if isinstance(v, Leave) else v) for k, v in self.__dict__.items()}
-
-
-@dataclass(frozen=True)
-class HybridScenario:
-    name: str
-    A: np.ndarray
-    C: tuple
-    rank_tol: float
-    T: float
-    q_design: int
-    q_label: str
-    lam: float
-    lam_bar: float
-    gains: str
-    L_given: tuple | None
-    K_given: tuple | None
-    poles: tuple | None
-    central_poles: tuple
-    graph_names: tuple[str, ...]
-    graphs: np.ndarray
-    x0: np.ndarray
-    w0: np.ndarray | None
-    xhat0: np.ndarray
-    trials: int
-    quick_trials: int
-    ic_scale: float
-    noise_b: np.ndarray | None
-    noise_omega: float
-    runs: tuple[RunSpec, ...]
-    paper_values: dict = field(default_factory=dict)
-    sample_step: float = 0.01
-    stored_samples: int = 20_001
+    @property
+    def n(self) -> int:
+        return self.A.shape[0]
 
     @property
     def m(self) -> int:
         return len(self.C)
 
     @property
-    def n(self) -> int:
-        return self.A.shape[0]
+    def rank_tol(self) -> float:
+        return float(self.system.rank_tol)
 
-    def key(self) -> dict[str, Any]:
-        d = {}
-        for k, v in self.__dict__.items():
-            if k in ("name", "quick_trials", "trials", "graph_names"):
-                continue
-            if k == "runs":
-                d[k] = [r.key() for r in v]
-            elif isinstance(v, np.ndarray):
-                d[k] = v.tolist()
-            elif isinstance(v, tuple) and v and isinstance(v[0], np.ndarray):
-                d[k] = [x.tolist() for x in v]
-            else:
-                d[k] = v
-        return d
+    @property
+    def T(self) -> float:
+        return float(self.design.T)
 
-    @classmethod
-    def from_dict(cls, data: Any) -> "HybridScenario":
-        f = parse(HybridFile, data)
-        A, C, rank_tol = _system(f.system)
-        n, m = A.shape[0], len(C)
-        nA = float(np.linalg.norm(A, 2))
-        des = f.design
-        T, lam, lam_bar = float(des.T), float(des.lam), float(des.lambda_bar)
-        if lam >= lam_bar:
-            raise ScenarioError("design.lambda", f"must be < lambda_bar = {lam_bar:g} (the constant d of Theorem 1 "
-                                                 f"divides by 1 - e^(-(λ̄-λ)T)), got {lam:g}")
-        L_given, K_given, poles, locs = _local_design(des, A, C, rank_tol, lam_bar)
-        central_poles = tuple(float(p) for p in des.central_poles) if des.central_poles is not None \
-            else default_poles(lam_bar, n)
-        if len(central_poles) != n or max(central_poles) >= 0:
-            raise ScenarioError("design.central_poles", f"must be {n} negative real poles")
-        why = jd.unplaceable(central_poles, jd.stacked_rank(np.vstack(C), rank_tol)[0])
-        if why:
-            raise ScenarioError("design.central_poles", f"pole placement for the centralized reference fails: {why}")
-        graphs, names = _graphs(f.graphs, m)
-        q_design, q_label = _design_q(des.q, m, nA, lam, T, locs)
-        x0, w0, xh = _initial(f.initial, n, m, locs, L_given)
-        mc = f.monte_carlo
-        quick = mc.quick_trials if mc.quick_trials is not None else min(mc.trials, 16)
-        if quick > mc.trials:
-            raise ScenarioError("monte_carlo.quick_trials", f"must be <= trials = {mc.trials}, got {quick}")
-        noise_b = None
-        if f.noise.b is not None:
-            noise_b = np.array(f.noise.b, float)
-            if noise_b.shape != (n,):
-                raise ScenarioError("noise.b", f"must have n = {n} entries, got {noise_b.size}")
-        step = float(f.sampling.step)
-        if T / step > MAX_SAMPLES_PER_INTERVAL:
-            raise ScenarioError("sampling.step", f"T / step = {T / step:,.0f} samples per interval, more than the "
-                                                 f"supported {MAX_SAMPLES_PER_INTERVAL:,}")
-        runs = parse_runs(f.runs, m=m, T=T, q_design=q_design, q_label=q_label, graphs=graphs, noise_b=noise_b,
-                          nA=nA, lam=lam, locs=locs, growth=float(np.max(np.linalg.eigvals(A).real)))
-        pv = {k: v for k, v in (("lambda", f.paper_values.lam), ("lambda_bar", f.paper_values.lambda_bar))
-              if v is not None}
-        return cls(f.name, A, C, rank_tol, T, q_design, q_label, lam, lam_bar, des.gains, L_given, K_given, poles,
-                   central_poles, names, graphs, x0, w0, xh, mc.trials, quick, float(mc.scale), noise_b,
-                   float(f.noise.omega), runs, pv, step, f.sampling.stored)
+    @property
+    def lam(self) -> float:
+        return float(self.design.lam)
 
+    @property
+    def lam_bar(self) -> float:
+        return float(self.design.lambda_bar)
 
-def _system(s: SystemSection) -> tuple[np.ndarray, tuple, float]:
-    A = matrix(s.A, "system.A")
-    n = A.shape[0]
-    if A.shape != (n, n):
-        raise ScenarioError("system.A", f"must be square, got {A.shape[0]}x{A.shape[1]}")
-    if n > MAX_STATE:
-        raise ScenarioError("system.A", f"state dimension n = {n}; this family handles at most {MAX_STATE}")
-    C = tuple(matrix(c, f"system.C[{i}]") for i, c in enumerate(s.C))
-    for i, Ci in enumerate(C):
-        if Ci.shape[1] != n:
-            raise ScenarioError(f"system.C[{i}]", f"must have n = {n} columns, got {Ci.shape[1]}")
-        if not np.any(Ci):
-            raise ScenarioError(f"system.C[{i}]", "is zero (every agent must sense something: C_i != 0)")
-    m = len(C)
-    if m < 2:
-        raise ScenarioError("system.C", "needs at least 2 agents (with one agent there is nothing to distribute)")
-    if m > MAX_AGENTS:
-        raise ScenarioError("system.C", f"{m} agents; this family handles at most {MAX_AGENTS}")
-    if m * n > MAX_AGENT_STATES:
-        raise ScenarioError("system.C", f"m·n = {m * n} estimator states per trial; this family handles at most "
-                                        f"{MAX_AGENT_STATES}")
-    rank_tol = float(s.rank_tol)
-    rank = jd.observable_basis(A, np.vstack(C), rank_tol).rows.shape[0]
-    if rank < n:
-        raise ScenarioError("system.C", f"(C, A) is not jointly observable: the observable space of the stacked "
-                                        f"outputs has dimension {rank} < n = {n} (relative rank tolerance "
-                                        f"{rank_tol:g}); condition (16) fails")
-    return A, C, rank_tol
+    @property
+    def printed_lam(self) -> float:
+        """The printed λ when the file gives one, else the design's."""
+        return float(self.paper_values.lam if self.paper_values.lam is not None else self.lam)
 
+    @cached_property
+    def norm_A(self) -> float:
+        return float(np.linalg.norm(self.A, 2))
 
-def _local_design(des: DesignSection, A: np.ndarray, C: tuple, rank_tol: float, lam_bar: float):
-    n, m = A.shape[0], len(C)
-    L_given = None
-    if des.L is not None:
-        L_given = tuple(matrix(Li, f"design.L[{i}]") for i, Li in enumerate(des.L))
-        if len(L_given) != m:
-            raise ScenarioError("design.L", f"must list one matrix per agent ({m}), got {len(L_given)}")
-        for i, Li in enumerate(L_given):
-            if Li.shape[1] != n or not jd.same_kernel(Li, A, C[i], rank_tol):
+    # -- the local observers -------------------------------------------------------------------------
+
+    @cached_property
+    def L_given(self) -> tuple[np.ndarray, ...] | None:
+        des = self.design
+        if des.L is None:
+            return None
+        L = tuple(matrix(Li, f"design.L[{i}]") for i, Li in enumerate(des.L))
+        if len(L) != self.m:
+            raise ScenarioError("design.L", f"must list one matrix per agent ({self.m}), got {len(L)}")
+        for i, Li in enumerate(L):
+            if Li.shape[1] != self.n or not jd.same_kernel(Li, self.A, self.C[i], self.rank_tol):
                 raise ScenarioError(f"design.L[{i}]", "must have full row rank and kernel equal to the unobservable "
                                                       f"space of (C_{i + 1}, A)")
-    locs = [jd.local_design(A, C[i], rank_tol=rank_tol, L=None if L_given is None else L_given[i]) for i in range(m)]
-    K_given = poles = None
-    if des.gains == "given":
-        if des.K is None:
-            raise ScenarioError("design.K", "missing (needed for gains = 'given')")
-        if L_given is None:
-            raise ScenarioError("design.L", "missing (a given K is expressed in a given basis L)")
-        if des.poles is not None:
-            raise ScenarioError("design.poles", "only with gains = 'place'")
-        K_given = tuple(matrix(Ki, f"design.K[{i}]") for i, Ki in enumerate(des.K))
-        if len(K_given) != m:
-            raise ScenarioError("design.K", f"must list one matrix per agent ({m}), got {len(K_given)}")
-        for i, Ki in enumerate(K_given):
-            if Ki.shape != (locs[i].n_i, C[i].shape[0]):
-                raise ScenarioError(f"design.K[{i}]", f"must have shape {locs[i].n_i}x{C[i].shape[0]}, got "
-                                                      f"{Ki.shape[0]}x{Ki.shape[1]}")
-    else:
-        if des.K is not None:
-            raise ScenarioError("design.K", "only allowed with gains = 'given'")
-        if des.poles is not None:
-            if len(des.poles) != m:
-                raise ScenarioError("design.poles", f"must list one pole set per agent ({m})")
-            poles = tuple(tuple(float(x) for x in p) for p in des.poles)
-            for i, p in enumerate(poles):
-                if len(p) != locs[i].n_i:
-                    raise ScenarioError(f"design.poles[{i}]", f"must have n_i = {locs[i].n_i} poles")
-        else:
-            poles = tuple(default_poles(lam_bar, loc.n_i) for loc in locs)
-        for i in range(m):
-            why = jd.unplaceable(poles[i], np.linalg.matrix_rank(locs[i].Cbar))
-            if why:
-                raise ScenarioError(f"design.poles[{i}]", f"pole placement fails: {why}")
-    # placed gains are computed with the design (scipy.signal is slow to import): their observers' spectral
-    # abscissa is the largest requested pole here, and the achieved one is the hypothesis local_observers
-    abscissas = [jd.spectral_abscissa(locs[i].Abar + K_given[i] @ locs[i].Cbar) for i in range(m)] \
-        if K_given is not None else [max(p) for p in poles]
-    for i, sa in enumerate(abscissas):
-        if sa > -lam_bar + 1e-9:
-            raise ScenarioError("design.lambda_bar", f"agent {i + 1}'s local observer has spectral abscissa "
-                                                     f"{sa:.6g} > -λ̄ = {-lam_bar:g}: (15) cannot hold")
-    return L_given, K_given, poles, locs
+        return L
 
+    @cached_property
+    def locs(self) -> list:
+        """Each agent's L_i, Ā_i, C̄_i, Q_i, P_i (`jd.local_design`)."""
+        L = self.L_given
+        return [jd.local_design(self.A, self.C[i], rank_tol=self.rank_tol, L=None if L is None else L[i])
+                for i in range(self.m)]
 
-def _graphs(g: GraphsSection, m: int) -> tuple[np.ndarray, tuple[str, ...]]:
-    graphs = []
-    for k, rows in enumerate(g.neighbors):
-        f = f"graphs.neighbors[{k}]"
-        if len(rows) != m:
-            raise ScenarioError(f, f"must list the neighbours of each of the {m} agents, got {len(rows)}")
-        for i, labels in enumerate(rows):
-            for j in labels:
-                if not 1 <= j <= m:
-                    raise ScenarioError(f"{f}[{i}]", f"agent labels are 1..{m}, got {j}")
-                if j == i + 1:
-                    raise ScenarioError(f"{f}[{i}]", f"lists agent {j} as its own neighbour (every agent is; do not "
-                                                     "list it)")
-            if len(set(labels)) != len(labels):
-                raise ScenarioError(f"{f}[{i}]", f"repeats a neighbour: {labels}")
-        graphs.append(jd.neighbour_mask([[j - 1 for j in labels] for labels in rows], m))
-    names = tuple(g.names) if g.names is not None else tuple(f"G{k + 1}" for k in range(len(graphs)))
-    if len(names) != len(graphs):
-        raise ScenarioError("graphs.names", f"must name each of the {len(graphs)} graphs, got {len(names)}")
-    for k, label in enumerate(names):
-        if not label.strip() or len(label) > 64 or printable(label) != label:
-            raise ScenarioError(f"graphs.names[{k}]", "must be 1 to 64 characters without control or format "
-                                                      f"(bidirectional, zero-width) characters, got '{label[:64]}'")
-    return np.array(graphs), names
+    @cached_property
+    def local_gains(self) -> tuple[tuple | None, tuple | None]:
+        """(K_i given, None) or (None, the poles to place); (15) must be reachable: every local observer's
+        spectral abscissa below -λ̄ (placed gains are computed with the design: scipy.signal is slow to
+        import; their abscissa is the largest requested pole here, the achieved one a hypothesis)."""
+        from .validation import gains_choice
 
+        K, poles = gains_choice(self)
+        abscissas = [jd.spectral_abscissa(loc.Abar + K[i] @ loc.Cbar) for i, loc in enumerate(self.locs)] \
+            if K is not None else [max(p) for p in poles]
+        for i, sa in enumerate(abscissas):
+            if sa > -self.lam_bar + 1e-9:
+                raise ScenarioError("design.lambda_bar", f"agent {i + 1}'s local observer has spectral abscissa "
+                                                         f"{sa:.6g} > -λ̄ = {-self.lam_bar:g}: (15) cannot hold")
+        return K, poles
 
-def _design_q(q_raw: int | str, m: int, nA: float, lam: float, T: float, locs) -> tuple[int, str]:
-    if not isinstance(q_raw, str):
-        return int(q_raw), "given"
-    if q_raw == "theory":
-        # (22) grows with ρ: its value at ρ = 0 is a lower bound, enough to refuse without computing ρ
-        q = jd.sufficient_q(0.0, m, nA, lam, T).q_thm22
-        if q > MAX_Q:
-            raise ScenarioError("design.q", f"the theory q is {jd.readable_int(q)} or more (> {MAX_Q:,}): too many iterations to "
-                                            "simulate; give an integer q (the hypotheses report the required q)")
-        rho = jd.rho_exact(np.array([loc.P for loc in locs]))
-        if rho.upper >= 1:
-            raise ScenarioError("design.q", f"ρ of (17) is only bracketed in [{rho.rho:.6g}, {rho.upper:.6g}]: no "
-                                            "sufficient q is known; give an integer q")
-        q = jd.sufficient_q(rho.upper, m, nA, lam, T).q_thm22
-    else:
-        if m > SIGMA_MAX_AGENTS:
-            raise ScenarioError("design.q", f"'symmetric' needs m <= {SIGMA_MAX_AGENTS} (σ of (26) by enumeration)")
-        q = symmetric_q(jd.sigma_symmetric(np.array([loc.P for loc in locs]))[0], nA, lam, T, "design.q")
-    if q > MAX_Q:
-        raise ScenarioError("design.q", f"the {q_raw} q is {jd.readable_int(q)} (> {MAX_Q:,}): too many iterations to simulate; "
-                                        "give an integer q (the hypotheses report the required q)")
-    return q, q_raw
+    @cached_property
+    def observer(self) -> ho.ObserverDesign:
+        """The hybrid observer's design: L_i, Ā_i, C̄_i, K_i (given or placed now), Q_i, P_i."""
+        K, poles = self.local_gains
+        locs = self.locs
+        if K is None:
+            K = tuple(_placed(f"design.poles[{i}]", jd.place_gain, loc.Abar, loc.Cbar, p)
+                      for i, (loc, p) in enumerate(zip(locs, poles)))
+        return ho.ObserverDesign(self.A, self.C, tuple(loc.L for loc in locs), tuple(loc.Abar for loc in locs),
+                                 tuple(loc.Cbar for loc in locs), tuple(K), tuple(loc.Q for loc in locs),
+                                 np.array([loc.P for loc in locs]))
 
+    @cached_property
+    def central_gain(self) -> np.ndarray:
+        """Centralized observer on the stacked outputs: x_c' = (A + K_c C) x_c - K_c y (see `jd.stacked_gain`)."""
+        return _placed("design.central_poles", jd.stacked_gain, self.A, np.vstack(self.C), self.design.central_poles,
+                       self.rank_tol)
 
-def _initial(ini: InitialSection, n: int, m: int, locs, L_given) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-    x0 = np.array(ini.x0, float)
-    if x0.shape != (n,):
-        raise ScenarioError("initial.x0", f"must have n = {n} entries, got {x0.size}")
-    xh = matrix(ini.xhat0, "initial.xhat0", shape=(m, n))
-    w0 = None
-    if ini.w0 is not None:
+    # -- graphs, q, initial conditions, input ------------------------------------------------------------
+
+    @cached_property
+    def graph_masks(self) -> np.ndarray:
+        """The neighbour graphs as masks N[i, j] (i receives from j; self-arcs set), (graphs, m, m)."""
+        from .validation import graph_masks
+
+        return graph_masks(self.graphs, self.m)
+
+    @cached_property
+    def all_strongly_connected(self) -> bool:
+        return all(jd.is_strongly_connected(g) for g in self.graph_masks)
+
+    @cached_property
+    def q_design(self) -> int:
+        """The design q: given, or the smallest q of (22) ('theory') or of (27) ('symmetric')."""
+        from .validation import design_q
+
+        return design_q(self)
+
+    @property
+    def q_label(self) -> str:
+        return self.design.q if isinstance(self.design.q, str) else "given"
+
+    @cached_property
+    def initial_state(self) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+        """x(0), the stacked w_i(0) (None: 0) and the x_i(0) of trial 0."""
+        ini, n, m = self.initial, self.n, self.m
+        x0 = np.array(ini.x0, float)
+        if x0.shape != (n,):
+            raise ScenarioError("initial.x0", f"must have n = {n} entries, got {x0.size}")
+        xh = matrix(ini.xhat0, "initial.xhat0", shape=(m, n))
+        if ini.w0 is None:
+            return x0, None, xh
         if len(ini.w0) != m:
             raise ScenarioError("initial.w0", f"must list one vector per agent ({m}), got {len(ini.w0)}")
         for i, w in enumerate(ini.w0):
-            if len(w) != locs[i].n_i:
-                raise ScenarioError(f"initial.w0[{i}]", f"must have n_i = {locs[i].n_i} entries (rank of agent "
+            if len(w) != self.locs[i].n_i:
+                raise ScenarioError(f"initial.w0[{i}]", f"must have n_i = {self.locs[i].n_i} entries (rank of agent "
                                                         f"{i + 1}'s observability matrix), got {len(w)}")
-        if L_given is None:
+        if self.L_given is None:
             raise ScenarioError("initial.w0", "needs design.L (w_i lives in the coordinates of L_i); omit w0 to start "
                                               "every local observer at w_i = 0")
-        w0 = np.concatenate([np.array(w, float) for w in ini.w0])
-    return x0, w0, xh
+        return x0, np.concatenate([np.array(w, float) for w in ini.w0]), xh
+
+    @property
+    def x0(self) -> np.ndarray:
+        return self.initial_state[0]
+
+    @property
+    def w0(self) -> np.ndarray | None:
+        return self.initial_state[1]
+
+    @property
+    def xhat0(self) -> np.ndarray:
+        return self.initial_state[2]
+
+    @cached_property
+    def noise_b(self) -> np.ndarray | None:
+        if self.noise.b is None:
+            return None
+        b = np.array(self.noise.b, float)
+        if b.shape != (self.n,):
+            raise ScenarioError("noise.b", f"must have n = {self.n} entries, got {b.size}")
+        return b
+
+    def trials_for(self, opts) -> int:
+        """Monte Carlo trials of the runs with monte_carlo = true under these options (`--trials` wins)."""
+        mc = self.monte_carlo
+        return opts.trials if opts.trials is not None else (mc.quick_trials if opts.quick else mc.trials)
+
+    def spec(self, name: str) -> RunSection:
+        """The run of this name."""
+        return next(r for r in self.runs if r.name == name)
 
 
-def symmetric_q(sigma: float, norm_A: float, lam: float, T: float, field: str) -> int:
-    """q of (27), or a ScenarioError naming `field` when σ is not below 1."""
+def _set(section: Section, **values: Any) -> None:
+    """Fill in derived defaults on a validated (frozen) section, once, from its file's validator."""
+    for name, value in values.items():
+        object.__setattr__(section, name, value)
+
+
+def _central_poles(sc: HybridFile) -> list[float]:
+    poles = [float(p) for p in sc.design.central_poles] if sc.design.central_poles is not None \
+        else default_central_poles(sc)
+    if len(poles) != sc.n or max(poles) >= 0:
+        raise ScenarioError("design.central_poles", f"must be {sc.n} negative real poles")
+    why = jd.unplaceable(poles, jd.stacked_rank(np.vstack(sc.C), sc.rank_tol)[0])
+    if why:
+        raise ScenarioError("design.central_poles", f"pole placement for the centralized reference fails: {why}")
+    return poles
+
+
+def _placed(field: str, place, *args) -> np.ndarray:
+    """A gain placed with the design (the scenario's load checked that the poles can be placed,
+    without placing them); a numerical failure of the placement names the field."""
     try:
-        return jd.q_symmetric(sigma, norm_A, lam, T)
+        return place(*args)
     except ValueError as exc:
-        raise ScenarioError(field, f"(27) gives no q: {exc}") from None
+        raise ScenarioError(field, f"pole placement failed: {exc}") from None
 
 
-def default_poles(lam_bar: float, k: int) -> tuple[float, ...]:
-    """Distinct real poles strictly beyond -λ̄: -λ̄(1.25 + 0.25 j), j = 0..k-1."""
-    return tuple(-lam_bar * (1.25 + 0.25 * j) for j in range(k))
-
-
-def default_runs(graphs: np.ndarray) -> list[RunSection]:
-    runs = [RunSection(name="sync", monte_carlo=True), RunSection(name="ideal", ideal=True, monte_carlo=True),
-            RunSection(name="async", timing="async", reference_run="sync", monte_carlo=True)]
-    if all(np.array_equal(G, G.T) for G in graphs) and graphs.shape[1] <= SIGMA_MAX_AGENTS:
-        runs.append(RunSection(name="symmetric", rule="symmetric", q="symmetric", monte_carlo=True))
-    return runs
-
-
-def parse_runs(value: list[RunSection] | None, *, m: int, T: float, q_design: int, q_label: str, graphs: np.ndarray,
-               noise_b, nA: float, lam: float, locs, growth: float = 0.0) -> tuple[RunSpec, ...]:
-    runs: list[RunSpec] = []
-    names: set[str] = set()
-    sigma = None
-    for r_i, raw in enumerate(value if value is not None else default_runs(graphs)):
-        f = f"runs[{r_i}]"
-        name = raw.name if raw.name is not None else f"run{r_i}"
-        if name in names:
-            raise ScenarioError(f"{f}.name", f"must be unique, got '{name}' twice")
-        names.add(name)
-        switching = raw.switching or ("alternate_interval" if len(graphs) > 1 else "fixed")
-        if raw.graph > len(graphs):
-            raise ScenarioError(f"{f}.graph", f"must be <= the number of graphs ({len(graphs)}), got {raw.graph}")
-        graph = raw.graph - 1
-        if raw.noise and noise_b is None:
-            raise ScenarioError(f"{f}.noise", "needs a [noise] table with b")
-        used = [graphs[graph]] if switching == "fixed" else list(graphs)
-        if raw.rule == "symmetric" and not all(np.array_equal(G, G.T) for G in used):
-            raise ScenarioError(f"{f}.rule", "the convex rule (25) is for symmetric graphs; a graph this run uses is "
-                                             "directed (use switching = 'fixed' with a symmetric graph)")
-        if raw.q == "design":
-            q, q_lab = q_design, q_label
-        elif raw.q == "symmetric":
-            if m > SIGMA_MAX_AGENTS:
-                raise ScenarioError(f"{f}.q", f"'symmetric' needs m <= {SIGMA_MAX_AGENTS} (σ of (26) by enumeration)")
-            if sigma is None:
-                sigma = jd.sigma_symmetric(np.array([loc.P for loc in locs]))[0]
-            q, q_lab = symmetric_q(sigma, nA, lam, T, f"{f}.q"), "symmetric"
-            if q > MAX_Q:
-                raise ScenarioError(f"{f}.q", f"q of (27) is {jd.readable_int(q)} (> {MAX_Q:,}); give an integer")
-        else:
-            q, q_lab = int(raw.q), "given"
-        eps = tuple(float(x) for x in raw.epsilon) if raw.epsilon is not None else (0.0,) * m
-        if len(eps) != m:
-            raise ScenarioError(f"{f}.epsilon", f"must have one bound per agent ({m}), got {len(eps)}")
-        if any(x < 0 for x in eps):
-            raise ScenarioError(f"{f}.epsilon", "bounds must be >= 0")
-        offsets = tuple(float(x) for x in raw.offsets) if raw.offsets is not None else (0.0,) * m
-        if len(offsets) != m:
-            raise ScenarioError(f"{f}.offsets", f"must have one offset per agent ({m}), got {len(offsets)}")
-        if raw.timing != "async" and any(eps):
-            raise ScenarioError(f"{f}.epsilon", "jitter bounds only apply to timing = 'async'")
-        if raw.timing != "offset" and any(offsets):
-            raise ScenarioError(f"{f}.offsets", "offsets only apply to timing = 'offset'")
-        if raw.timing == "offset":
-            eps = tuple(abs(o) for o in offsets)
-            if max(offsets) - min(offsets) >= T:
-                raise ScenarioError(f"{f}.offsets", f"the spread of the offsets must be < T = {T:g} (the index-aligned "
-                                                    "exchange needs every agent's interval data before any reset)")
-        beta = float(raw.beta)
-        Delta = float(raw.Delta) if raw.Delta is not None else T / q
-        if beta >= Delta:
-            raise ScenarioError(f"{f}.beta", f"must be < Delta = {Delta:g}, got {beta:g}")
-        jit = max(eps) if raw.timing == "async" else 0.0
-        if Delta * q + jit > T * (1 + 1e-12):
-            raise ScenarioError(f"{f}.Delta", f"q Δ + ε = {Delta * q + jit:.6g} must be <= T = {T:g} (all q iterations "
-                                              "must fit in an event interval)")
-        if raw.timing == "async" and jit > 0 and 2 * jit >= Delta:
-            raise ScenarioError(f"{f}.epsilon", f"2ε = {2 * jit:g} must be < Δ = {Delta:g} (iteration times would "
-                                                "reorder)")
-        if raw.timing != "sync" and raw.ideal:
-            raise ScenarioError(f"{f}.ideal", "only for synchronous runs")
-        horizon = raw.intervals * T + max(abs(x) for x in offsets)
-        if growth * horizon > MAX_GROWTH_EXPONENT:
-            raise ScenarioError(f"{f}.intervals", f"the plant's state grows like e^({growth:.3g} t) (the largest real part "
-                                                  f"of eig(A)); over the horizon {horizon:g} it would leave the "
-                                                  f"floating-point range: at most "
-                                                  f"{int(MAX_GROWTH_EXPONENT / growth / T):,} intervals of T = {T:g}")
-        leave = _leave(raw.leave, f"{f}.leave", m, T, offsets, raw.intervals)
-        if raw.reference_run and raw.reference_run not in names - {name}:
-            raise ScenarioError(f"{f}.reference_run", f"must name an earlier run, got '{raw.reference_run}'")
-        runs.append(RunSpec(name, raw.timing, switching, graph, raw.intervals, raw.noise, raw.rule, q, q_lab,
-                            raw.monte_carlo, raw.ideal, eps, beta, Delta, offsets, leave, raw.reference_run, name))
-    return tuple(runs)
-
-
-def _leave(lv: LeaveSection | None, f: str, m: int, T: float, offsets, intervals: int) -> Leave | None:
-    if lv is None:
-        return None
-    if lv.agent > m:
-        raise ScenarioError(f"{f}.agent", f"must be <= m = {m}, got {lv.agent}")
-    ag = lv.agent - 1
-    if lv.rejoin <= lv.at:
-        raise ScenarioError(f"{f}.rejoin", f"must be > leave.at = {lv.at:g}")
-    for name, t in (("at", lv.at), ("rejoin", lv.rejoin)):
-        s = (t - offsets[ag]) / T
-        if abs(s - round(s)) > 1e-9:
-            raise ScenarioError(f"{f}.{name}", f"must be an event time of agent {ag + 1} (t_i0 + sT), got {t:g}")
-    if lv.rejoin > offsets[ag] + intervals * T:
-        raise ScenarioError(f"{f}.rejoin", "must fall inside the run's horizon")
-    return Leave(ag, float(lv.at), float(lv.rejoin), lv.policy)
-
-
-def load(path: Path) -> HybridScenario:
+def load(path: Path) -> HybridFile:
     data = load_toml(path)
     data.pop("family", None)
-    return HybridScenario.from_dict(data)
+    return parse(HybridFile, data)
 
 
-def paper_scenario() -> HybridScenario:
-    return load(Path(__file__).with_name("paper.toml"))
-
-
-def generic_scenario() -> HybridScenario:
-    return load(Path(__file__).with_name("generic.toml"))
+def paper_scenarios() -> tuple[HybridFile, HybridFile]:
+    """The paper's Section 6 example and the generic system on which Theorem 1's hypotheses hold."""
+    here = Path(__file__).parent
+    return load(here / "paper.toml"), load(here / "generic.toml")

@@ -21,8 +21,10 @@ import pandas as pd
 
 from dse.outputs.tables import matrix_rows, spec
 
-from . import bounds
-from .design import Q_KEYS, MultiDesign, constants, lambda_variants
+from . import simulation
+from .monitor import COUNTS, MAXIMA, WORST
+from .design import Q_KEYS, alpha_used, constants, lambda_variants
+from .stages import Parts
 
 SC = ("scenario", "", "scenario name (the paper's reproduction has 'paper' and 'generic')")
 RUN = ("run", "", "run name")
@@ -269,21 +271,19 @@ def _design_rows(name: str, dz: dict, sc) -> list[dict]:
 
 def _graph_tables(name: str, sc, dz: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
     arcs, props = [], []
-    for g, G in enumerate(sc.graphs):
+    for g, G in enumerate(sc.graph_masks):
         for i in range(sc.m):
             for j in range(sc.m):
                 if i != j and G[i, j]:
-                    arcs.append({"scenario": name, "graph": g + 1, "name": sc.graph_names[g], "receiver": i + 1,
+                    arcs.append({"scenario": name, "graph": g + 1, "name": sc.graphs.names[g], "receiver": i + 1,
                                  "sender": j + 1})
-        props.append({"scenario": name, "graph": g + 1, "name": sc.graph_names[g], "arcs": int(G.sum() - sc.m),
+        props.append({"scenario": name, "graph": g + 1, "name": sc.graphs.names[g], "arcs": int(G.sum() - sc.m),
                       "strongly_connected": bool(dz["graph_strong"][g]), "symmetric": bool(dz["graph_symmetric"][g]),
                       "vertex_redundant": bool(dz["graph_vertex_redundant"][g])})
     return pd.DataFrame(arcs, columns=GRAPHS.column_names), pd.DataFrame(props, columns=GRAPH_PROPERTIES.column_names)
 
 
 def _runs(name: str, sc, dz: dict) -> pd.DataFrame:
-    from .design import alpha_used
-
     alpha, _ = alpha_used(dz)
     N = (sc.m - 1) ** 2 + 1
     rows = []
@@ -291,10 +291,10 @@ def _runs(name: str, sc, dz: dict) -> pd.DataFrame:
         k = constants(dz, sc, run)
         lv = run.leave
         rows.append({"scenario": name, "run": run.name, "timing": run.timing, "switching": run.switching,
-                     "graph": run.graph + 1, "rule": run.rule, "q": run.q, "q_label": run.q_label, "Delta": run.Delta,
-                     "beta": run.beta, "epsilon": bounds.run_epsilon(run), "intervals": run.intervals,
-                     "horizon": run.intervals * sc.T, "noise": run.noise, "ideal": run.ideal, "monte_carlo": run.mc,
-                     "leave_agent": lv.agent + 1 if lv else None, "leave_at": lv.at if lv else math.nan,
+                     "graph": run.graph, "rule": run.rule, "q": run.q, "q_label": run.q_label, "Delta": run.Delta,
+                     "beta": run.beta, "epsilon": simulation.run_epsilon(run), "intervals": run.intervals,
+                     "horizon": run.intervals * sc.T, "noise": run.noise, "ideal": run.ideal, "monte_carlo": run.monte_carlo,
+                     "leave_agent": lv.agent if lv else None, "leave_at": lv.at if lv else math.nan,
                      "rejoin_at": lv.rejoin if lv else math.nan, "leave_policy": lv.policy if lv else "",
                      "reference_run": run.reference_run, "b": k["b"], "c": k["c"], "d": k["d"], "b_sym": k["b_sym"],
                      "d_sym": k["d_sym"], "g": k["g"], "decay": math.exp(-sc.lam * sc.T), "p": run.q // N,
@@ -305,14 +305,14 @@ def _runs(name: str, sc, dz: dict) -> pd.DataFrame:
 def _event_times(name: str, sc) -> pd.DataFrame:
     frames = []
     for run in sc.runs:
-        ev = bounds.event_times(sc, run)
+        ev = simulation.event_times(sc, run)
         m, S1 = ev.shape
         frames.append(pd.DataFrame({"scenario": name, "run": run.name, "node": np.repeat(np.arange(1, m + 1), S1),
                                     "s": np.tile(np.arange(S1), m), "t": ev.ravel() / 1e9, "t_ns": ev.ravel()}))
     return pd.concat(frames, ignore_index=True)
 
 
-def design_tables(design: MultiDesign) -> list:
+def design_tables(design: Parts) -> list:
     """The design stage's tables (`dse check` prints them; a run has them too)."""
     out: dict[str, list] = {}
 
@@ -411,7 +411,7 @@ def continuous_bounds(r, run, a: dict) -> tuple[np.ndarray, np.ndarray]:
     """Theorem 1's continuous bound for trial 0 at the stored samples, as printed and corrected
     (NaN for runs it is not about)."""
     t = a["g_t_ns"] / 1e9
-    if not (bounds.is_theorem_run(run) and run.timing == "sync"):
+    if not (simulation.is_theorem_run(run) and run.timing == "sync"):
         return np.full(len(t), np.nan), np.full(len(t), np.nan)
     sc = r.scenario
     k = constants(r.design, sc, run)
@@ -474,7 +474,7 @@ def _source_sets(name: str, r, run) -> pd.DataFrame:
 
 
 def _fits(name: str, r, run) -> pd.DataFrame | None:
-    if not (bounds.is_theorem_run(run) and run.timing == "sync"):
+    if not (simulation.is_theorem_run(run) and run.timing == "sync"):
         return None
     a = r.runs[run.name]
     B = len(a["trial_fit_rate"])
@@ -485,17 +485,17 @@ def _fits(name: str, r, run) -> pd.DataFrame | None:
 
 def _checks(name: str, r, run) -> pd.DataFrame:
     a = r.runs[run.name]
-    tol, _ = bounds.simulation_tolerance(r.scenario, r.design, run, a)
+    tol, _ = simulation.simulation_tolerance(r.scenario, r.design, run, a)
     rows = [("tolerance", tol, "round-off allowance relative to the size of the states")]
-    for k, text in bounds.WORST.items():
+    for k, text in WORST.items():
         rows += [(f"{k}_slack", a[f"w_{k}_slack"], f"smallest slack up - lo of {text}"),
                  (f"{k}_lo", a[f"w_{k}_lo"], "the measured side at the smallest slack"),
                  (f"{k}_up", a[f"w_{k}_up"], "the bound side at the smallest slack"),
                  (f"{k}_relative", a[f"w_{k}_rel"], "smallest slack relative to the bound"),
                  (f"{k}_cases", a[f"w_{k}_count"], "cases compared"), (f"{k}_nonfinite", a[f"w_{k}_bad"],
                                                                       "cases with a non-finite side")]
-    rows += [(k, a[f"max_{k}"], text) for k, text in bounds.MAXIMA.items()]
-    rows += [(f"{k}_cases", a[f"count_{k}"], f"cases behind the {k} maximum") for k in bounds.COUNTS]
+    rows += [(k, a[f"max_{k}"], text) for k, text in MAXIMA.items()]
+    rows += [(f"{k}_cases", a[f"count_{k}"], f"cases behind the {k} maximum") for k in COUNTS]
     rows += [("reception_violations", a["reception_violations"], "messages outside the receiver's reception interval"),
              ("distinct_intervals", a["distinct_intervals"], "distinct weight sequences among the intervals"),
              ("trials", a["trials"], "trials simulated"), ("samples", a["g_total"], "samples of the continuous errors"),
@@ -526,14 +526,14 @@ def _metrics(name: str, r) -> list[dict]:
         add("err_ratio", a["net_max"][-1] / start if start > 0 else math.nan, run=run.name)
         for i in range(r.scenario.m):
             add("err_final_mean", a["ev_mean"][-1, i], node=i + 1, run=run.name)
-        if bounds.is_theorem_run(run) and run.timing == "sync" and np.isfinite(a["trial_fit_rate"]).any():
+        if simulation.is_theorem_run(run) and run.timing == "sync" and np.isfinite(a["trial_fit_rate"]).any():
             add("decay_rate_median", np.nanmedian(a["trial_fit_rate"]), run=run.name)
     return rows
 
 
 def run_tables(res) -> list:
     """Every table of a run: the design tables, then the sampled lemmas and the simulated runs."""
-    out = list(design_tables(res.design()))
+    out = list(design_tables(res))
     groups: dict[str, list] = {}
     per_run = (INTERVALS, _intervals), (EVENTS, _events), (NODES, _nodes), (NODE_SERIES, _node_series), \
         (NETWORK_SERIES, _network_series), (STATE_SERIES, _state_series), (ITERATES, _iterates), \
