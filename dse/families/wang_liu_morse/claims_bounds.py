@@ -12,8 +12,8 @@ from dse.verify.rules import ERRATUM, FAIL, PASS, Verdict, identity, inequality,
 
 from . import claims_simulation  # noqa: F401 (its claims come first in the report)
 from . import hypotheses as hy
-from .checks import (EQ44, IDEAL, PID, SYM, THM, _combine, alpha_used, at_most_one, cells, cells_with, claims,
-                     constants, fit_rate, simulation_tolerance, trial0_event_norms, worst_verdict)
+from .checks import (EQ44, IDEAL, PID, SYM, THM, Cells, alpha_used, at_most_one, claims, combine, constants,
+                     fit_rate, simulation_tolerance, worst_verdict)
 from .scenario import RunSection
 from .simulation import is_theorem_run, run_epsilon
 from .stages import Part, Parts
@@ -31,7 +31,7 @@ def _matrix_tolerance(r: Part, run: RunSection, scale: float) -> tuple[float, st
 @claims.claim(PID + ".lemma4.eq44", "Lemma 4, (44)", "|A(s)| <= e^(-λT) when q satisfies (22)", "inequality",
               hypotheses=EQ44)
 def check_eq44(res: Parts) -> Verdict:
-    cs = cells_with(res, lambda r, run: run.rule == "mean" and run.leave is None, ("q", "strong_connectivity"))
+    cs = Cells(res, lambda r, run: run.rule == "mean" and run.leave is None, ("q", "strong_connectivity"), timing=True)
     out = []
     for label, r, run in cs.items:
         vals = r.runs[run.name]["A_mixed"]
@@ -58,7 +58,7 @@ def check_eq44_q50(res: Parts) -> Verdict:
         out.append((f"paper/{run.name}", inequality(vals, np.full_like(vals, lim),
                                                     detail=f"max |A(s)| = {vals.max():.3g} vs e^(-λT) = {lim:.6g} "
                                                            f"(q = {run.q})")))
-    return _combine(out, detail=" Outside the hypotheses (q = 50 misses (22) and (27), see the hypotheses "
+    return combine(out, detail=" Outside the hypotheses (q = 50 misses (22) and (27), see the hypotheses "
                                 "q_eq22 and q_eq27): (44) holds empirically, because ρ = 0.")
 
 
@@ -66,7 +66,7 @@ def check_eq44_q50(res: Parts) -> Verdict:
               "inequality")
 def check_eq45_49(res: Parts) -> Verdict:
     """(45) and (49) follow from |P_i| <= 1 and row-stochastic weights, whatever q is."""
-    cs = cells(res, lambda r, run: run.rule == "mean")
+    cs = Cells(res, lambda r, run: run.rule == "mean")
     out = []
     for label, r, run in cs.items:
         a = r.runs[run.name]
@@ -90,7 +90,7 @@ def check_eq45_49(res: Parts) -> Verdict:
 def check_c3(res: Parts) -> Verdict:
     """With ē ≡ 0 (w_i(0) = L_i x(0)) and p = floor(q/N): max_i||π_is(q)|| <= α^p max_i||π_is(0)|| and
     |e(s)| <= e^(||A||T) α^p |e(s-1)|, plus the simulation's round-off allowance (evaluated during the run)."""
-    cs = cells(res, lambda r, run: run.ideal and run.rule == "mean" and run.leave is None and not run.noise,
+    cs = Cells(res, lambda r, run: run.ideal and run.rule == "mean" and run.leave is None and not run.noise,
                ("strong_connectivity",))
     out = []
     for label, r, run in cs.items:
@@ -115,7 +115,7 @@ def check_c3(res: Parts) -> Verdict:
 @claims.claim(PID + ".thm1.event_bound", "Theorem 1, (51)", "|e(s)| <= e^(-λsT)(|e(0)| + d|ē(0)|)", "inequality",
               hypotheses=THM, args=("sync",))
 def check_event_bound(res: Parts, timing: str) -> Verdict:
-    cs = cells_with(res, lambda r, run: run.timing == timing and is_theorem_run(run), ("q", "strong_connectivity"))
+    cs = Cells(res, lambda r, run: run.timing == timing and is_theorem_run(run), ("q", "strong_connectivity"), timing=True)
     out = []
     for label, r, run in cs.items:
         a = r.runs[run.name]
@@ -130,7 +130,7 @@ def check_event_bound(res: Parts, timing: str) -> Verdict:
 @claims.claim(PID + ".thm1.continuous_bound", "Theorem 1, proof", "||e_i(t)|| <= e^(||A||T - λt)(|e(0)| + d|ē(0)|) "
               "for t >= 0", "inequality", hypotheses=THM)
 def check_continuous_bound(res: Parts) -> Verdict:
-    cs = cells(res, lambda r, run: run.timing == "sync" and is_theorem_run(run), ("q", "strong_connectivity"))
+    cs = Cells(res, lambda r, run: run.timing == "sync" and is_theorem_run(run), ("q", "strong_connectivity"))
     rows = [(label, float(r.runs[run.name]["max_cont_printed"]), float(r.runs[run.name]["max_cont_corrected"]),
              simulation_tolerance(r, run)[1]) for label, r, run in cs.items]
     if not rows:
@@ -152,7 +152,7 @@ def check_rate(res: Parts) -> Verdict:
     """'Each e_i tends to zero as fast as e^(-λt)': the bound (51) restarted at every event index
     s0 >= 1 holds for every later s (with the local observers' round-off carried along). Least-squares
     rates are reported, not judged."""
-    cs = cells(res, lambda r, run: run.timing == "sync" and is_theorem_run(run), ("q", "strong_connectivity"))
+    cs = Cells(res, lambda r, run: run.timing == "sync" and is_theorem_run(run), ("q", "strong_connectivity"))
     out = []
     for label, r, run in cs.items:
         a = r.runs[run.name]
@@ -172,8 +172,8 @@ def check_rate(res: Parts) -> Verdict:
 @claims.claim(PID + ".sec6.rate", "Sec. 6", "the example converges at rate λ = 2", "inequality", scope="paper-example")
 def check_paper_rate(res: Parts) -> Verdict:
     r = res["paper"]
-    e, fl = trial0_event_norms(r, "sync")
     a = r.runs["sync"]
+    e, fl = np.linalg.norm(a["t0_e_post"], axis=-1).max(axis=-1), a["t0_floor"]
     t = a["event_ns"][0] / 1e9
     rate0, first, last = fit_rate(t, e, fl)
     pv = r.scenario.paper_values
@@ -202,8 +202,8 @@ claims.claim(PID + ".thm2.event_bound", "Theorem 2", "asynchronous: the same bou
 def check_special(res: Parts) -> Verdict:
     """Lemma 7: ||A(s)||_2 <= e^(-λT) (54), and ||e(s)||_2 <= e^(-λsT)(||e(0)||_2 + d'||ē(0)||_2) with
     d' = c q e^(||A||T)||Q||_2 e^(λT)/(1 - e^(-(λ̄-λ)T)) (the same proof in 2-norms)."""
-    cs = cells_with(res, lambda r, run: run.rule == "symmetric" and run.leave is None and not run.noise,
-                    ("q", "strong_connectivity"))
+    cs = Cells(res, lambda r, run: run.rule == "symmetric" and run.leave is None and not run.noise,
+               ("q", "strong_connectivity"), timing=True)
     out = []
     for label, r, run in cs.items:
         a = r.runs[run.name]
@@ -225,7 +225,7 @@ def check_lemma8(res: Parts) -> Verdict:
     """(62) |G(s)| <= 2mqε||A||e^(||A||(T+β)). The proof's intermediate inequality
     ||e^(Mt) - e^(Mτ)|| <= ||M(t-τ)||e^(||Mt||) is false in general; ||M|||t-τ|e^(||M|| max(|t|,|τ|))
     replaces it and gives the same conclusion because |t_i0| <= ε <= β under (10)."""
-    cs = cells(res, lambda r, run: run.timing == "offset" and run.leave is None, ("eq10",))
+    cs = Cells(res, lambda r, run: run.timing == "offset" and run.leave is None, ("eq10",))
     out = []
     for label, r, run in cs.items:
         a = r.runs[run.name]
@@ -244,7 +244,7 @@ def check_lemma8(res: Parts) -> Verdict:
 @claims.claim(PID + ".sec4.eq63", "(63)", "|e(s)| <= e^(-λsT)(|e(0)| + d|ē(0)|) + εg Σ e^(-λ(s-k)T)||x((k-1)T)||",
               "inequality", hypotheses=THM)
 def check_eq63(res: Parts) -> Verdict:
-    cs = cells(res, lambda r, run: run.timing == "offset" and is_theorem_run(run),
+    cs = Cells(res, lambda r, run: run.timing == "offset" and is_theorem_run(run),
                ("q", "eq10", "windows", "strong_connectivity"))
     out = []
     for label, r, run in cs.items:

@@ -8,7 +8,7 @@ import numpy as np
 import dse.estimators.jointly_observable_design as jd
 from dse.verify.rules import ERRATUM, FAIL, PASS, Verdict, identity, inequality, not_checkable, roundoff_tolerance
 
-from .checks import EPS, OBS, PID, _combine, alpha_used, claims
+from .checks import EPS, OBS, PID, alpha_used, claims, combine
 from .stages import Parts
 
 # Reference values for the Section 6 example, computed independently of this code (numpy/scipy
@@ -69,7 +69,7 @@ def check_local_design(res: Parts) -> Verdict:
         status = PASS if (ratio.max() <= 1 and rank_ok) else FAIL
         out.append((name, Verdict(status, measured=float(err[k]), reference=0.0, tolerance=float(tol[k]),
                                   margin=float(tol[k] - err[k]), detail=detail)))
-    return _combine(out)
+    return combine(out)
 
 
 @claims.claim(PID + ".eq16.joint_observability", "(16)", "(C, A) jointly observable ⟺ ∩ image P_i = 0", "inequality")
@@ -91,7 +91,7 @@ def check_joint_observability(res: Parts) -> Verdict:
             out.append((name, not_checkable(detail + "; the rank decision is too close to call")))
         else:
             out.append((name, Verdict(FAIL, measured=smin, reference=sc.rank_tol, detail=detail)))
-    return _combine(out)
+    return combine(out)
 
 
 @claims.claim(PID + ".sec6.reduced_models", "Sec. 6", "the printed Ā_i, C̄_i follow from the printed L_i", "identity",
@@ -170,7 +170,7 @@ def check_rho(res: Parts) -> Verdict:
             out.append((name, not_checkable(detail + "; the upper bound is not below 1")))
             continue
         out.append((name, inequality(up, 1.0, strict=True, tolerance=tol, detail=detail)))
-    return _combine(out)
+    return combine(out)
 
 
 @claims.claim(PID + ".eq18.alpha", "(18) vs Lemma 5", "α = 1 - (m-1)(1-ρ)/(m(m-1)²) as printed in (18)", "identity")
@@ -188,7 +188,7 @@ def check_alpha(res: Parts) -> Verdict:
         out.append((name, Verdict(status, measured=ap, reference=a5, printed=ap, corrected=a5, tolerance=4 * EPS,
                                   margin=float(a5 - ap),
                                   detail=detail + "; (18) prints m(m-1)^2 where the proof of Lemma 5 uses m^((m-1)^2)")))
-    return _combine(out)
+    return combine(out)
 
 
 @claims.claim(PID + ".lemma5.product_bound", "Lemma 5, (46)", "|P(S_μ⊗I)···P(S_1⊗I)| <= α for μ >= (m-1)²+1 flocking "
@@ -210,7 +210,7 @@ def check_lemma5(res: Parts) -> Verdict:
                                             f"{int(dz['lemma5_pool'])} strongly connected graphs (random + every "
                                             f"constant sequence), largest |·| = {float(dz['lemma5_max']):.6g}; {atext}; "
                                             f"{text}")))
-    return _combine(out)
+    return combine(out)
 
 
 @claims.claim(PID + ".eq26.sigma", "(26), Lemma 6", "σ = max over symmetric strongly connected graphs of ||P(M_G⊗I)|| "
@@ -232,7 +232,7 @@ def check_sigma(res: Parts) -> Verdict:
                                                                       f"{REFERENCE_SIGMA} (6 digits)")
             v = v2 if v2.status != PASS else v
         out.append((name, v))
-    return _combine(out)
+    return combine(out)
 
 
 @claims.claim(PID + ".lemma6.norm_below_one", "Lemma 6", "||P(F⊗I)||_2 < 1 for doubly stochastic F with positive "
@@ -245,4 +245,4 @@ def check_lemma6(res: Parts) -> Verdict:
         out.append((name, inequality(float(dz["lemma6_max"]), 1.0, strict=True, tolerance=tol,
                                      detail=f"max ||P(F⊗I)||_2 over {int(dz['lemma6_count'])} random doubly stochastic F "
                                             f"with positive diagonal and a strongly connected graph; {text}")))
-    return _combine(out)
+    return combine(out)

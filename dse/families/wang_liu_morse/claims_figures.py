@@ -9,7 +9,7 @@ from dse.verify.rules import FAIL, PASS, Verdict, inequality, not_checkable, rou
 
 from . import claims_bounds  # noqa: F401 (its claims come first in the report)
 from . import hypotheses as hy
-from .checks import PID, _combine, claims, fit_rate, stored_times
+from .checks import PID, claims, combine, fit_rate, stored_times
 from .stages import Parts
 
 
@@ -64,7 +64,7 @@ def check_central(res: Parts) -> Verdict:
                                             f"max(1, ||x||)")))
     if not out:
         return not_checkable("no noise-free synchronous run")
-    return _combine(out)
+    return combine(out)
 
 
 @claims.claim(PID + ".sec6.fig3_noise", "Sec. 6, Fig. 3", "performance in the face of system noise: bounded error",

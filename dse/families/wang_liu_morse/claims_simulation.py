@@ -9,7 +9,7 @@ from dse.verify.rules import ERRATUM, FAIL, PASS, Verdict, identity, inequality,
 
 from . import claims_design  # noqa: F401 (its claims come first in the report)
 from . import hypotheses as hy
-from .checks import EPS, PID, cells, claims, simulation_tolerance
+from .checks import EPS, PID, Cells, claims, simulation_tolerance
 from .scenario import RunSection
 from .simulation import run_epsilon
 from .stages import Part, Parts
@@ -27,7 +27,7 @@ def _sources(r: Part, run: RunSection) -> Verdict:
 @claims.claim(PID + ".eq41.error_recursion", "(37)-(43)", "e(s) = A(s) e(s-1) + B(s) ē(s-1) along every noise-free "
               "run", "identity")
 def check_eq41(res: Parts) -> Verdict:
-    cs = cells(res, lambda r, run: not run.noise and run.timing != "offset")
+    cs = Cells(res, lambda r, run: not run.noise and run.timing != "offset")
     out = []
     for label, r, run in cs.items:
         a = r.runs[run.name]
@@ -47,7 +47,7 @@ def check_eq41(res: Parts) -> Verdict:
 def check_eq61_sign(res: Parts) -> Verdict:
     """(61) with +Γ as printed and with -Γ; the identity is algebraic for the index-aligned
     exchange (no hypothesis), so the corrected sign must hold to round-off."""
-    cs = cells(res, lambda r, run: run.timing == "offset" and not run.noise and run.leave is None)
+    cs = Cells(res, lambda r, run: run.timing == "offset" and not run.noise and run.leave is None)
     rows = []
     for label, r, run in cs.items:
         a = r.runs[run.name]
@@ -71,7 +71,7 @@ def check_eq61_sign(res: Parts) -> Verdict:
 
 @claims.claim(PID + ".lemma2.source_sets", "Lemma 2, (36)", "synchronous: S_is(k) = N_i((s-1)T+(k-1)Δ+β)", "identity")
 def check_lemma2(res: Parts) -> Verdict:
-    cs = cells(res, lambda r, run: run.timing == "sync")
+    cs = Cells(res, lambda r, run: run.timing == "sync")
     return cs.verdict([(label, _sources(r, run)) for label, r, run in cs.items], "synchronous run")
 
 
@@ -79,7 +79,7 @@ def check_lemma2(res: Parts) -> Verdict:
               "windows (23): S_is(k) = N_i((s-1)T+(k-1)Δ+β) and every message lands in its reception interval",
               "identity")
 def check_lemma3(res: Parts) -> Verdict:
-    cs = cells(res, lambda r, run: run.timing == "async", ("eq10", "windows"))
+    cs = Cells(res, lambda r, run: run.timing == "async", ("eq10", "windows"))
     return cs.verdict([(label, _sources(r, run)) for label, r, run in cs.items], "asynchronous run")
 
 
@@ -88,7 +88,7 @@ def check_lemma3(res: Parts) -> Verdict:
 def check_lemma1(res: Parts) -> Verdict:
     """Windows 𝓘_s(k) = [sT + (k-1)Δ + β - ε, sT + (k-1)Δ + β + ε] are disjoint and inside
     [sT, (s+1)T); the gaps are differences of inputs of size T, so the allowance is 10·q·eps·T."""
-    cs = cells(res, lambda r, run: run.timing in ("async", "offset"), ("eq10",))
+    cs = Cells(res, lambda r, run: run.timing in ("async", "offset"), ("eq10",))
     out = []
     for label, r, run in cs.items:
         eps = run_epsilon(run)
@@ -111,7 +111,7 @@ def check_async_equals_sync(res: Parts) -> Verdict:
     so the iterates are computed from the same numbers in the same order. Compared: a 64-bit
     fingerprint of every trial's e(s) over every event index, a hash of trial 0's iterates over
     every interval, and trial 0's stored values themselves."""
-    cs = cells(res, lambda r, run: run.timing == "async" and bool(run.reference_run), ("eq10", "windows"))
+    cs = Cells(res, lambda r, run: run.timing == "async" and bool(run.reference_run), ("eq10", "windows"))
     out = []
     for label, r, run in cs.items:
         ref = r.spec(run.reference_run)
