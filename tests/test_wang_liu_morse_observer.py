@@ -12,9 +12,9 @@ from scipy.integrate import solve_ivp
 
 import dse.estimators.hybrid_observer as ho
 import dse.estimators.jointly_observable_design as jd
-from dse.families.wang_liu_morse import claims as cl
-from dse.families.wang_liu_morse import compute as cp
-from dse.families.wang_liu_morse.scenario import paper_scenario
+from dse.families.wang_liu_morse.checks import fit_rate
+from dse.families.wang_liu_morse.figures import log10_safe
+from dse.families.wang_liu_morse.scenario import paper_scenarios
 
 from test_wang_liu_morse_design import random_jointly_observable
 
@@ -25,8 +25,8 @@ DRING = jd.neighbour_mask([[3], [0], [1], [2]], 4)
 
 @pytest.fixture(scope="module")
 def paper():
-    sc = paper_scenario()
-    return sc, cp.observer_design(sc)
+    sc = paper_scenarios()[0]
+    return sc, sc.observer
 
 
 def build(A, Cs, lam_bar=1.5):
@@ -171,9 +171,8 @@ def test_roundoff_floor_and_rate_fit():
     v = np.maximum(50 * np.exp(-1.7 * t), 1e-13 * (1 + 0.3 * np.sin(t)))
     v[-3] = 0.0                                                        # an exact zero must not break anything
     floor = np.full_like(t, 1e3 * np.finfo(float).eps)
-    rate, first, stop = cl.fit_rate(t, v, floor)
+    rate, first, stop = fit_rate(t, v, floor)
     assert rate == pytest.approx(1.7, rel=1e-9) and stop == int(np.argmax(v <= floor))
-    from dse.families.wang_liu_morse.outputs import log10_safe
     assert np.isfinite(log10_safe(v)).all() and log10_safe(np.array([0.0]))[0] == -300.0
 
 

@@ -22,13 +22,16 @@ import dse.estimators.hybrid_observer as ho
 from dse import api
 from dse.scenario.declare import key, reference_rows
 from dse.errors import ScenarioError
-from dse.engine.driver import RunOptions
+from dse.contract.cost import refuse_if_too_large
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
+from dse.engine.cache import MemoryCache
 from dse.simulate.seeding import stream_seed
 from dse.simulate.units import RNG_UNIT, UnitStreams, block_seeds
 from dse.sweeps.run import network_metrics
-from dse.families.wang_liu_morse import bounds
-from dse.families.wang_liu_morse.design import central_gain, constants, observer_design
-from dse.families.wang_liu_morse.reproduction import SCENARIO_MODEL
+from dse.families.wang_liu_morse import simulation
+from dse.families.wang_liu_morse.design import constants
+from dse.families.wang_liu_morse.scenario import HybridFile
 
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "dse" / "families" / "wang_liu_morse"
@@ -46,13 +49,18 @@ TWO = {"family": "hybrid-observer", "name": "two",
 
 
 def scenario(data: dict):
-    return api.load(copy.deepcopy(data)).scenarios[0].legacy.scenarios["scenario"]
+    return api.load(copy.deepcopy(data)).scenario
+
+
+def design_of(repro) -> dict:
+    """The design quantities of a one-scenario run (the design stage, computed in memory)."""
+    return repro.design(RunOptions(), StageContext(MemoryCache()))["scenario"].design
 
 
 # -- declared keys -------------------------------------------------------------------------------------
 
 def test_every_key_is_declared_with_a_meaning():
-    rows = [(path, r) for path, table, _ in reference_rows(SCENARIO_MODEL) for r in table]
+    rows = [(path, r) for path, table, _ in reference_rows(HybridFile) for r in table]
     assert len(rows) > 40 and {"lambda", "q", "neighbors", "step", "stored"} <= {r["key"] for _, r in rows}
     for path, r in rows:
         assert r["meaning"].strip(), f"{path}.{r['key']} has no meaning"
@@ -138,8 +146,7 @@ def test_check_design_tables_against_independent_values():
     offs = ev[(ev["run"] == "offsets") & (ev["s"] == 0)]
     assert offs["t"].tolist() == [0.001, -0.001]
     runs = chk.tables["runs"].set_index("run")
-    k = constants(chk.reproduction.scenarios[0].legacy.design(RunOptions()).parts["scenario"].design, scenario(TWO),
-                  scenario(TWO).runs[0])
+    k = constants(design_of(chk.reproduction), scenario(TWO), scenario(TWO).runs[0])
     assert runs.loc["sync", "d"] == k["d"] and runs.loc["sync", "q"] == 2 * math.ceil(r) + 1
     # the hypotheses on the design alone are the ones a run reports
     hyps = {h["id"]: h for h in chk.hypotheses}
@@ -167,21 +174,22 @@ def two_run():
 
 def _full_record(sc, run, seed: int):
     """Every trial of a run with the initial conditions the streamed run draws, kept whole."""
-    d = observer_design(sc)
-    B = sc.trials if run.mc else 1
+    d = sc.observer
+    B = sc.monte_carlo.trials if run.monte_carlo else 1
     units = -(-B // RNG_UNIT)
     streams = UnitStreams(block_seeds(stream_seed(seed, "initial-conditions"), units),
                           [min(RNG_UNIT, B - u * RNG_UNIT) for u in range(units)])
     nw = sum(d.n_i)
-    x0 = sc.ic_scale * streams.standard_normal((sc.n,))
-    w0 = sc.ic_scale * streams.standard_normal((nw,))
-    xh = sc.ic_scale * streams.standard_normal((sc.m, sc.n))
+    scale = sc.monte_carlo.scale
+    x0 = scale * streams.standard_normal((sc.n,))
+    w0 = scale * streams.standard_normal((nw,))
+    xh = scale * streams.standard_normal((sc.m, sc.n))
     x0[0], xh[0], w0[0] = sc.x0, sc.xhat0, 0.0
     if run.ideal:
         w0 = np.concatenate([x0 @ L.T for L in d.L], axis=1)
-    return d, ho.simulate(d, bounds.timing_for(sc, run, seed), bounds.schedule_for(sc, run), x0=x0, w0=w0, xhat0=xh,
-                          intervals=run.intervals, dt_plot=sc.sample_step, rule=run.rule,
-                          central_gain=central_gain(sc), xc0=xh.mean(axis=1))
+    return d, ho.simulate(d, simulation.timing_for(sc, run, seed), simulation.schedule_for(sc, run), x0=x0, w0=w0,
+                          xhat0=xh, intervals=run.intervals, dt_plot=sc.sampling.step, rule=run.rule,
+                          central_gain=sc.central_gain, xc0=xh.mean(axis=1))
 
 
 def test_tables_equal_the_quantities_of_every_trial(two_run):
@@ -215,7 +223,7 @@ def test_tables_equal_the_quantities_of_every_trial(two_run):
     # the worst cases kept while streaming are the worst over every (s, trial) of the same inequalities,
     # here formed on the whole arrays (the restarted bound over every s0 < s: O(S²) per trial)
     a = res.runs["sync"]
-    tol, _ = bounds.simulation_tolerance(sc, res.design, run, a)
+    tol, _ = simulation.simulation_tolerance(sc, res.design, run, a)
     direct = whole_array_bounds(sc, d, run, full, res.design, tol)
     checks = two_run.tables["checks"].query("run == 'sync'").set_index("quantity")["value"]
     assert checks["eq51_cases"] == direct["slack51"].size
@@ -314,10 +322,10 @@ STREAM = {**TWO, "name": "stream", "monte_carlo": {"trials": 2100, "quick_trials
 
 def test_results_do_not_depend_on_the_memory_chunk():
     sc = scenario(STREAM)
-    design = api.load(copy.deepcopy(STREAM)).scenarios[0].legacy.design(RunOptions()).parts["scenario"].design
+    design = design_of(api.load(copy.deepcopy(STREAM)))
     for run in sc.runs:
-        small = bounds.simulate_run(sc, design, run, sc.trials, 5, budget_bytes=1.0)            # one unit per chunk
-        large = bounds.simulate_run(sc, design, run, sc.trials, 5, budget_bytes=2**40)          # every unit at once
+        small = simulation.simulate_run(sc, design, run, sc.monte_carlo.trials, 5, budget_bytes=1.0)   # one unit a chunk
+        large = simulation.simulate_run(sc, design, run, sc.monte_carlo.trials, 5, budget_bytes=2**40)  # all at once
         assert small.keys() == large.keys()
         for name in small:
             nan_ok = np.asarray(small[name]).dtype.kind == "f"
@@ -336,7 +344,7 @@ def test_long_horizon_runs_in_bounded_memory(tmp_path):
             "runs": [{"name": "sync", "intervals": 500, "monte_carlo": True}]}
     code = ("import json, sys\n"
             "from dse import api\n"
-            "from dse.engine.driver import RunOptions\n"
+            "from dse.contract.options import RunOptions\n"
             "repro = api.load(json.loads(sys.argv[1]))\n"
             "opts = RunOptions(max_memory_mib=300)\n"
             "est = repro.cost(opts).as_dict()\n"
@@ -359,16 +367,19 @@ def test_what_cannot_be_streamed_is_refused_before_running():
             "runs": [{"name": "sync", "intervals": 20_000, "monte_carlo": True}],
             "system": {"A": [[-0.2, 0.3], [0.0, -0.1]], "C": [[[1.0, -1.0]], [[0.0, 1.0]]]}}
     repro = api.load(data)
-    with pytest.raises(ScenarioError, match=r"^sampling\.stored: the run needs about [\d,]+ MiB .* memory budget of "
+    opts = RunOptions(max_memory_mib=300)
+    with pytest.raises(ScenarioError, match=r"^sampling\.stored: the run keeps about [\d,]+ MiB .* the memory budget of "
                                             r"300 MiB"):
-        repro.scenarios[0].legacy.compute(RunOptions(max_memory_mib=300), cache=None)
+        refuse_if_too_large(repro.cost(opts), opts)
+    with pytest.raises(ScenarioError, match=r"^sampling\.stored: "):       # the driver refuses it before computing
+        api.execute(repro, opts)
 
 
 def test_estimate_against_a_measured_run(two_run):
     """The estimate is meant within a factor 2; a loaded test machine is allowed a factor 3."""
-    est = two_run.reproduction.scenarios[0].legacy.estimate(RunOptions(seed=3))
+    est = two_run.reproduction.cost(RunOptions(seed=3))
     measured = two_run.provenance["compute_s"]
-    assert measured / 3 <= est["seconds"] <= 3 * measured + 8.0           # + the figures and recordings not run here
+    assert measured / 3 <= est.seconds <= 3 * measured + 8.0           # + the figures and recordings not run here
     # peak memory is measured in a process of its own (test_long_horizon_runs_in_bounded_memory): the pytest
     # process's high-water mark is that of every test before this one
 

@@ -19,11 +19,22 @@ import scipy.linalg as sla
 
 from dse.outputs import record
 from dse.errors import ScenarioError
+import dse.families
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
 from dse.engine.cache import StageCache
-from dse.engine.driver import RunOptions, evaluate_claims, reverify, run
-from dse.families.wang_liu_morse.reproduction import from_dict, paper
+from dse.engine.driver import evaluate_claims, reverify, run
 
 RERUN = Path(sys.executable).parent / "rerun"
+
+
+def from_dict(data: dict):
+    """A user's run of a scenario file's body (without its `family` key)."""
+    return dse.families.from_dict({"family": "hybrid-observer", **data})
+
+
+def paper():
+    return dse.families.paper("wang-liu-morse")
 PKG = Path(__file__).resolve().parent.parent / "dse" / "families" / "wang_liu_morse"
 
 USER = """
@@ -237,13 +248,13 @@ def test_q_below_the_bound_makes_the_theorems_not_checkable(tmp_path):
     the identities still are. A run with its own q below the bound is left out of the claims by name."""
     data = tomllib.loads(USER)
     probe = from_dict(copy.deepcopy(data))
-    q22 = probe.scenarios["scenario"].q_design
+    q22 = probe.scenario.q_design
     data["design"]["q"] = q22 - 1
     for r in data["runs"]:
         r["intervals"] = min(r["intervals"], 10)
     data["runs"].append({"name": "enough", "q": q22, "intervals": 10})
     repro = from_dict(data)
-    ev = evaluate_claims(repro, repro.compute(RunOptions(seed=1, quick=True), StageCache(tmp_path)))
+    ev = evaluate_claims(repro, repro.compute(RunOptions(seed=1, quick=True), StageContext(StageCache(tmp_path))))
     v = {r["id"]: r for r in ev.claims}
     hyps = {h["id"]: h for h in ev.hypotheses}
     assert hyps["wang-liu-morse.hyp.q_eq22"]["holds"] is False

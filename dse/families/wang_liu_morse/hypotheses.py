@@ -1,32 +1,12 @@
 """The hypotheses of the hybrid observer's theorems, registered on their checks (the family's
-`ClaimSet` is made here; the claims modules add the claims to it).
-
-Per scenario:
-
-- ``joint_observability``: (16), ∩ image P_i = 0, i.e. σ_min([I - P_1; ...; I - P_m]) > 0;
-- ``strong_connectivity``: every neighbour graph the scenario uses is strongly connected
-  (Theorems 1 and 2: N(t) strongly connected for all t);
-- ``local_observers``: (15) with λ < λ̄: every Ā_i + K_i C̄_i has spectral abscissa < -λ̄;
-- ``q_eq22``: the design q satisfies (22), q > N·ceil((λ + ||A||)T / ln(1/α)), with ρ of (17)
-  and α of Lemma 5 (Theorems 1, 2, Lemma 4 and (63) rest on it);
-- ``q_eq27``: the design q satisfies (27), the condition of the symmetric special case.
-
-Per run that needs it (ids carry the run's name):
-
-- ``<run>.strong_connectivity``: every graph the run uses is strongly connected (only when some
-  graph of the scenario is not: the scenario's row then fails, and each run is judged by the
-  graphs it uses);
-- ``<run>.q_eq22`` / ``<run>.q_eq27``: a run whose q is not the design q (a symmetric-rule
-  run is judged by (27));
-- ``<run>.eq10``: (10), ε_i + ε_j <= β and ε_i + ε_j + β < Δ, and Δq + ε <= T (Lemma 1,
-  Lemma 3, Theorem 2; Section 4 with ε = max |t_i0|);
-- ``<run>.windows``: N(t) is constant on every window 𝓘_s(k) of (23) (Lemma 3, Theorem 2).
-
-Ids: ``wang-liu-morse.hyp.[<scenario>.]<name>``, the scenario named when a run checks several.
-Claims that span several scenarios or runs check each (scenario, run) cell against the
-hypotheses that cell rests on (`cell_failures`) and name the cells left out; `rests_on` gives
-the hypotheses that concern every cell of a claim. Every check reads the design stage only.
-"""
+`ClaimSet` is made here; the claims modules add the claims to it). Per scenario: (16) joint
+observability, strong connectivity of every neighbour graph (Theorems 1 and 2 need N(t) strongly
+connected at every t), (15) for the local observers with λ < λ̄, and the design q against (22)
+(ρ of (17), α of Lemma 5) and against (27). Per run that needs it: the graphs it uses strongly
+connected (when some graph of the scenario is not), its own q against (22) or (27) when it is not
+the design q, and for jittered iterations or event-time offsets (10) with Δq + ε <= T and N(t)
+constant on the windows 𝓘_s(k) of (23). Ids `wang-liu-morse.hyp.[<scenario>.][<run>.]<name>`,
+the scenario named when a run checks several. Every check reads the design stage only."""
 from __future__ import annotations
 
 import math

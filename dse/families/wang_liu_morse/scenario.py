@@ -1,13 +1,9 @@
-"""The hybrid-observer scenario file, declared once: a jointly observable (A, C_1..C_m), local
-observer gains, a set of neighbour graphs, and a list of runs (synchronous, asynchronous with
-jittered iteration times, event-time offsets, agents leaving and joining).
-
-Every key is declared below (type, default, bounds, unit, meaning); docs/scenarios.md is
-generated from these declarations. The rules that tie tables together (matrix sizes against n
-and m, q against the design, timing against T) are the file's validator, each error naming its
-key, and the same validator fills in the defaults that depend on other tables. The validated
-model is the scenario the stages read: matrices and designs are cached properties of it. Agents
-are labelled 1..m in scenario files, as in the paper; internally 0..m-1.
+"""The hybrid-observer scenario file, declared once (docs/scenarios.md is generated from it): a
+jointly observable (A, C_1..C_m), local observer gains, neighbour graphs, and runs (synchronous,
+jittered, with event-time offsets, an agent leaving and re-joining). The rules that tie tables
+together are the file's validator (`validation`), each error naming its key; it also fills in the
+defaults that depend on other tables. The validated model is the scenario the stages read, its
+matrices and designs cached properties. Agents are 1..m in files, as in the paper; 0..m-1 inside.
 """
 from __future__ import annotations
 
@@ -20,7 +16,7 @@ from pydantic import Field, PrivateAttr, model_validator
 
 import dse.estimators.hybrid_observer as ho
 import dse.estimators.jointly_observable_design as jd
-from dse.errors import ScenarioError, printable
+from dse.errors import ScenarioError
 from dse.scenario.declare import (Matrix, Real, ScenarioFile, Section, computed_default, derived_default, key,
                                   matrix, name_key, parse)
 from dse.scenario.fields import load_toml
@@ -272,15 +268,15 @@ class HybridFile(ScenarioFile):
     @model_validator(mode="after")
     def _tie_tables(self) -> "HybridFile":
         """The rules across tables, in the order their errors are reported, then the derived defaults."""
+        from . import validation as v
+
         self.C                                                     # sizes, m, n, (16)
         if self.lam >= self.lam_bar:
             raise ScenarioError("design.lambda", f"must be < lambda_bar = {self.lam_bar:g} (the constant d of Theorem 1 "
                                                  f"divides by 1 - e^(-(λ̄-λ)T)), got {self.lam:g}")
         self.local_gains                                           # L_i, K_i or poles, (15)
-        _set(self.design, central_poles=_central_poles(self))
-        self.graph_masks
-        self.q_design
-        self.initial_state
+        _set(self.design, central_poles=v.central_poles(self))
+        self.graph_masks, self.q_design, self.x0, self.xhat0, self.w0
         mc = self.monte_carlo
         if mc.quick_trials > mc.trials:
             raise ScenarioError("monte_carlo.quick_trials", f"must be <= trials = {mc.trials}, got {mc.quick_trials}")
@@ -288,47 +284,24 @@ class HybridFile(ScenarioFile):
         if self.T / self.sampling.step > MAX_SAMPLES_PER_INTERVAL:
             raise ScenarioError("sampling.step", f"T / step = {self.T / self.sampling.step:,.0f} samples per interval, "
                                                  f"more than the supported {MAX_SAMPLES_PER_INTERVAL:,}")
-        from .validation import settled_runs
-
-        _set(self, runs=settled_runs(self, self.runs if self.runs is not None else default_runs(self)))
+        _set(self, runs=v.settled_runs(self, self.runs if self.runs is not None else default_runs(self)))
         return self
-
-    # -- the system ------------------------------------------------------------------------------------
 
     @cached_property
     def A(self) -> np.ndarray:
         A = matrix(self.system.A, "system.A")
-        n = A.shape[0]
-        if A.shape != (n, n):
+        if A.shape[0] != A.shape[1]:
             raise ScenarioError("system.A", f"must be square, got {A.shape[0]}x{A.shape[1]}")
-        if n > MAX_STATE:
-            raise ScenarioError("system.A", f"state dimension n = {n}; this family handles at most {MAX_STATE}")
+        if A.shape[0] > MAX_STATE:
+            raise ScenarioError("system.A", f"state dimension n = {A.shape[0]}; this family handles at most {MAX_STATE}")
         return A
 
     @cached_property
     def C(self) -> tuple[np.ndarray, ...]:
         """The output matrices; (C, A) jointly observable (16) at the rank tolerance."""
-        n = self.A.shape[0]
-        C = tuple(matrix(c, f"system.C[{i}]") for i, c in enumerate(self.system.C))
-        for i, Ci in enumerate(C):
-            if Ci.shape[1] != n:
-                raise ScenarioError(f"system.C[{i}]", f"must have n = {n} columns, got {Ci.shape[1]}")
-            if not np.any(Ci):
-                raise ScenarioError(f"system.C[{i}]", "is zero (every agent must sense something: C_i != 0)")
-        m = len(C)
-        if m < 2:
-            raise ScenarioError("system.C", "needs at least 2 agents (with one agent there is nothing to distribute)")
-        if m > MAX_AGENTS:
-            raise ScenarioError("system.C", f"{m} agents; this family handles at most {MAX_AGENTS}")
-        if m * n > MAX_AGENT_STATES:
-            raise ScenarioError("system.C", f"m·n = {m * n} estimator states per trial; this family handles at most "
-                                            f"{MAX_AGENT_STATES}")
-        rank = jd.observable_basis(self.A, np.vstack(C), self.rank_tol).rows.shape[0]
-        if rank < n:
-            raise ScenarioError("system.C", f"(C, A) is not jointly observable: the observable space of the stacked "
-                                            f"outputs has dimension {rank} < n = {n} (relative rank tolerance "
-                                            f"{self.rank_tol:g}); condition (16) fails")
-        return C
+        from .validation import output_matrices
+
+        return output_matrices(self)
 
     @property
     def n(self) -> int:
@@ -340,87 +313,66 @@ class HybridFile(ScenarioFile):
 
     @property
     def rank_tol(self) -> float:
-        return float(self.system.rank_tol)
+        return self.system.rank_tol
 
     @property
     def T(self) -> float:
-        return float(self.design.T)
+        return self.design.T
 
     @property
     def lam(self) -> float:
-        return float(self.design.lam)
+        return self.design.lam
 
     @property
     def lam_bar(self) -> float:
-        return float(self.design.lambda_bar)
+        return self.design.lambda_bar
 
     @property
     def printed_lam(self) -> float:
         """The printed λ when the file gives one, else the design's."""
-        return float(self.paper_values.lam if self.paper_values.lam is not None else self.lam)
+        return self.paper_values.lam if self.paper_values.lam is not None else self.lam
 
     @cached_property
     def norm_A(self) -> float:
         return float(np.linalg.norm(self.A, 2))
 
-    # -- the local observers -------------------------------------------------------------------------
-
     @cached_property
     def L_given(self) -> tuple[np.ndarray, ...] | None:
-        des = self.design
-        if des.L is None:
-            return None
-        L = tuple(matrix(Li, f"design.L[{i}]") for i, Li in enumerate(des.L))
-        if len(L) != self.m:
-            raise ScenarioError("design.L", f"must list one matrix per agent ({self.m}), got {len(L)}")
-        for i, Li in enumerate(L):
-            if Li.shape[1] != self.n or not jd.same_kernel(Li, self.A, self.C[i], self.rank_tol):
-                raise ScenarioError(f"design.L[{i}]", "must have full row rank and kernel equal to the unobservable "
-                                                      f"space of (C_{i + 1}, A)")
-        return L
+        from .validation import given_bases
+
+        return given_bases(self)
 
     @cached_property
     def locs(self) -> list:
         """Each agent's L_i, Ā_i, C̄_i, Q_i, P_i (`jd.local_design`)."""
         L = self.L_given
-        return [jd.local_design(self.A, self.C[i], rank_tol=self.rank_tol, L=None if L is None else L[i])
-                for i in range(self.m)]
+        return [jd.local_design(self.A, C, rank_tol=self.rank_tol, L=None if L is None else L[i])
+                for i, C in enumerate(self.C)]
 
     @cached_property
     def local_gains(self) -> tuple[tuple | None, tuple | None]:
-        """(K_i given, None) or (None, the poles to place); (15) must be reachable: every local observer's
-        spectral abscissa below -λ̄ (placed gains are computed with the design: scipy.signal is slow to
-        import; their abscissa is the largest requested pole here, the achieved one a hypothesis)."""
+        """(the given K_i, None) or (None, the poles to place), (15) reachable (`validation.gains_choice`)."""
         from .validation import gains_choice
 
-        K, poles = gains_choice(self)
-        abscissas = [jd.spectral_abscissa(loc.Abar + K[i] @ loc.Cbar) for i, loc in enumerate(self.locs)] \
-            if K is not None else [max(p) for p in poles]
-        for i, sa in enumerate(abscissas):
-            if sa > -self.lam_bar + 1e-9:
-                raise ScenarioError("design.lambda_bar", f"agent {i + 1}'s local observer has spectral abscissa "
-                                                         f"{sa:.6g} > -λ̄ = {-self.lam_bar:g}: (15) cannot hold")
-        return K, poles
+        return gains_choice(self)
 
     @cached_property
     def observer(self) -> ho.ObserverDesign:
-        """The hybrid observer's design: L_i, Ā_i, C̄_i, K_i (given or placed now), Q_i, P_i."""
+        """The hybrid observer's design: L_i, Ā_i, C̄_i, K_i (given, or placed now), Q_i, P_i."""
         K, poles = self.local_gains
-        locs = self.locs
         if K is None:
             K = tuple(_placed(f"design.poles[{i}]", jd.place_gain, loc.Abar, loc.Cbar, p)
-                      for i, (loc, p) in enumerate(zip(locs, poles)))
+                      for i, (loc, p) in enumerate(zip(self.locs, poles)))
+        locs = self.locs
         return ho.ObserverDesign(self.A, self.C, tuple(loc.L for loc in locs), tuple(loc.Abar for loc in locs),
                                  tuple(loc.Cbar for loc in locs), tuple(K), tuple(loc.Q for loc in locs),
                                  np.array([loc.P for loc in locs]))
 
     @cached_property
     def central_gain(self) -> np.ndarray:
-        """Centralized observer on the stacked outputs: x_c' = (A + K_c C) x_c - K_c y (see `jd.stacked_gain`)."""
+        """Centralized observer on the stacked outputs: x_c' = (A + K_c C) x_c - K_c y (`jd.stacked_gain`)."""
         return _placed("design.central_poles", jd.stacked_gain, self.A, np.vstack(self.C), self.design.central_poles,
                        self.rank_tol)
-
-    # -- graphs, q, initial conditions, input ------------------------------------------------------------
 
     @cached_property
     def graph_masks(self) -> np.ndarray:
@@ -445,37 +397,22 @@ class HybridFile(ScenarioFile):
         return self.design.q if isinstance(self.design.q, str) else "given"
 
     @cached_property
-    def initial_state(self) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-        """x(0), the stacked w_i(0) (None: 0) and the x_i(0) of trial 0."""
-        ini, n, m = self.initial, self.n, self.m
-        x0 = np.array(ini.x0, float)
-        if x0.shape != (n,):
-            raise ScenarioError("initial.x0", f"must have n = {n} entries, got {x0.size}")
-        xh = matrix(ini.xhat0, "initial.xhat0", shape=(m, n))
-        if ini.w0 is None:
-            return x0, None, xh
-        if len(ini.w0) != m:
-            raise ScenarioError("initial.w0", f"must list one vector per agent ({m}), got {len(ini.w0)}")
-        for i, w in enumerate(ini.w0):
-            if len(w) != self.locs[i].n_i:
-                raise ScenarioError(f"initial.w0[{i}]", f"must have n_i = {self.locs[i].n_i} entries (rank of agent "
-                                                        f"{i + 1}'s observability matrix), got {len(w)}")
-        if self.L_given is None:
-            raise ScenarioError("initial.w0", "needs design.L (w_i lives in the coordinates of L_i); omit w0 to start "
-                                              "every local observer at w_i = 0")
-        return x0, np.concatenate([np.array(w, float) for w in ini.w0]), xh
-
-    @property
     def x0(self) -> np.ndarray:
-        return self.initial_state[0]
+        x0 = np.array(self.initial.x0, float)
+        if x0.shape != (self.n,):
+            raise ScenarioError("initial.x0", f"must have n = {self.n} entries, got {x0.size}")
+        return x0
 
-    @property
-    def w0(self) -> np.ndarray | None:
-        return self.initial_state[1]
-
-    @property
+    @cached_property
     def xhat0(self) -> np.ndarray:
-        return self.initial_state[2]
+        return matrix(self.initial.xhat0, "initial.xhat0", shape=(self.m, self.n))
+
+    @cached_property
+    def w0(self) -> np.ndarray | None:
+        """The stacked w_i(0) of trial 0 (None: 0)."""
+        from .validation import initial_w
+
+        return initial_w(self)
 
     @cached_property
     def noise_b(self) -> np.ndarray | None:
@@ -502,19 +439,8 @@ def _set(section: Section, **values: Any) -> None:
         object.__setattr__(section, name, value)
 
 
-def _central_poles(sc: HybridFile) -> list[float]:
-    poles = [float(p) for p in sc.design.central_poles] if sc.design.central_poles is not None \
-        else default_central_poles(sc)
-    if len(poles) != sc.n or max(poles) >= 0:
-        raise ScenarioError("design.central_poles", f"must be {sc.n} negative real poles")
-    why = jd.unplaceable(poles, jd.stacked_rank(np.vstack(sc.C), sc.rank_tol)[0])
-    if why:
-        raise ScenarioError("design.central_poles", f"pole placement for the centralized reference fails: {why}")
-    return poles
-
-
 def _placed(field: str, place, *args) -> np.ndarray:
-    """A gain placed with the design (the scenario's load checked that the poles can be placed,
+    """A gain placed with the design (the file's validation checked that the poles can be placed,
     without placing them); a numerical failure of the placement names the field."""
     try:
         return place(*args)
@@ -522,13 +448,11 @@ def _placed(field: str, place, *args) -> np.ndarray:
         raise ScenarioError(field, f"pole placement failed: {exc}") from None
 
 
-def load(path: Path) -> HybridFile:
-    data = load_toml(path)
-    data.pop("family", None)
-    return parse(HybridFile, data)
-
-
 def paper_scenarios() -> tuple[HybridFile, HybridFile]:
     """The paper's Section 6 example and the generic system on which Theorem 1's hypotheses hold."""
-    here = Path(__file__).parent
-    return load(here / "paper.toml"), load(here / "generic.toml")
+    def load(name: str) -> HybridFile:
+        data = load_toml(Path(__file__).with_name(name))
+        data.pop("family", None)
+        return parse(HybridFile, data)
+
+    return load("paper.toml"), load("generic.toml")

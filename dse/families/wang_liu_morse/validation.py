@@ -1,7 +1,8 @@
 """The rules of a hybrid-observer file that tie its tables together (the file's validator calls
-them in the order their errors are reported): the local gains against the local designs, the
-neighbour graphs against m, the design q against (22) and (27), and each run against the design,
-the graphs and T; each error names its key. `settled_runs` also fills in the runs' defaults that
+them in the order their errors are reported): the outputs against A and (16), the local bases,
+gains and poles against the local designs and (15), the centralized poles, the neighbour graphs
+against m, the design q against (22) and (27), w_i(0), and each run against the design, the
+graphs and T; each error names its key. `settled_runs` also fills in the runs' defaults that
 depend on other tables (name, switching, q, Δ, zero jitter and offsets)."""
 from __future__ import annotations
 
@@ -11,12 +12,65 @@ import dse.estimators.jointly_observable_design as jd
 from dse.errors import ScenarioError, printable
 from dse.scenario.declare import matrix
 
-from .scenario import (MAX_GROWTH_EXPONENT, MAX_Q, SIGMA_MAX_AGENTS, GraphsSection, HybridFile, LeaveSection,
-                       RunSection, default_Delta, default_poles, default_run_name, default_switching)
+from .scenario import (MAX_AGENT_STATES, MAX_AGENTS, MAX_GROWTH_EXPONENT, MAX_Q, SIGMA_MAX_AGENTS, GraphsSection,
+                       HybridFile, LeaveSection, RunSection, default_central_poles, default_Delta, default_poles,
+                       default_run_name, default_switching)
+
+
+def output_matrices(sc: HybridFile) -> tuple[np.ndarray, ...]:
+    """C_i with n columns, nonzero; 2 <= m <= MAX_AGENTS, m·n <= MAX_AGENT_STATES; (16) at the rank tolerance."""
+    n = sc.A.shape[0]
+    C = tuple(matrix(c, f"system.C[{i}]") for i, c in enumerate(sc.system.C))
+    for i, Ci in enumerate(C):
+        if Ci.shape[1] != n:
+            raise ScenarioError(f"system.C[{i}]", f"must have n = {n} columns, got {Ci.shape[1]}")
+        if not np.any(Ci):
+            raise ScenarioError(f"system.C[{i}]", "is zero (every agent must sense something: C_i != 0)")
+    m = len(C)
+    if m < 2:
+        raise ScenarioError("system.C", "needs at least 2 agents (with one agent there is nothing to distribute)")
+    if m > MAX_AGENTS:
+        raise ScenarioError("system.C", f"{m} agents; this family handles at most {MAX_AGENTS}")
+    if m * n > MAX_AGENT_STATES:
+        raise ScenarioError("system.C", f"m·n = {m * n} estimator states per trial; this family handles at most "
+                                        f"{MAX_AGENT_STATES}")
+    rank = jd.observable_basis(sc.A, np.vstack(C), sc.rank_tol).rows.shape[0]
+    if rank < n:
+        raise ScenarioError("system.C", f"(C, A) is not jointly observable: the observable space of the stacked "
+                                        f"outputs has dimension {rank} < n = {n} (relative rank tolerance "
+                                        f"{sc.rank_tol:g}); condition (16) fails")
+    return C
+
+
+def given_bases(sc: HybridFile) -> tuple[np.ndarray, ...] | None:
+    """The given L_i: one per agent, full row rank, kernel the unobservable space of (C_i, A)."""
+    if sc.design.L is None:
+        return None
+    L = tuple(matrix(Li, f"design.L[{i}]") for i, Li in enumerate(sc.design.L))
+    if len(L) != sc.m:
+        raise ScenarioError("design.L", f"must list one matrix per agent ({sc.m}), got {len(L)}")
+    for i, Li in enumerate(L):
+        if Li.shape[1] != sc.n or not jd.same_kernel(Li, sc.A, sc.C[i], sc.rank_tol):
+            raise ScenarioError(f"design.L[{i}]", "must have full row rank and kernel equal to the unobservable "
+                                                  f"space of (C_{i + 1}, A)")
+    return L
 
 
 def gains_choice(sc: HybridFile) -> tuple[tuple | None, tuple | None]:
-    """(the given K_i, None) with gains = 'given', else (None, the poles to place)."""
+    """(the given K_i, None) with gains = 'given', else (None, the poles to place); every local
+    observer's spectral abscissa below -λ̄ (15) (placed gains are computed with the design, scipy.signal
+    being slow to import: their abscissa is the largest requested pole here, the achieved one a hypothesis)."""
+    K, poles = _gains(sc)
+    abscissas = [jd.spectral_abscissa(loc.Abar + K[i] @ loc.Cbar) for i, loc in enumerate(sc.locs)] \
+        if K is not None else [max(p) for p in poles]
+    for i, sa in enumerate(abscissas):
+        if sa > -sc.lam_bar + 1e-9:
+            raise ScenarioError("design.lambda_bar", f"agent {i + 1}'s local observer has spectral abscissa "
+                                                     f"{sa:.6g} > -λ̄ = {-sc.lam_bar:g}: (15) cannot hold")
+    return K, poles
+
+
+def _gains(sc: HybridFile) -> tuple[tuple | None, tuple | None]:
     des, m, locs = sc.design, sc.m, sc.locs
     if des.gains != "given":
         if des.K is not None:
@@ -49,6 +103,35 @@ def gains_choice(sc: HybridFile) -> tuple[tuple | None, tuple | None]:
             raise ScenarioError(f"design.K[{i}]", f"must have shape {locs[i].n_i}x{sc.C[i].shape[0]}, got "
                                                   f"{Ki.shape[0]}x{Ki.shape[1]}")
     return K, None
+
+
+def central_poles(sc: HybridFile) -> list[float]:
+    """The centralized reference's poles (given or default): n negative real poles that can be placed."""
+    poles = [float(p) for p in sc.design.central_poles] if sc.design.central_poles is not None \
+        else default_central_poles(sc)
+    if len(poles) != sc.n or max(poles) >= 0:
+        raise ScenarioError("design.central_poles", f"must be {sc.n} negative real poles")
+    why = jd.unplaceable(poles, jd.stacked_rank(np.vstack(sc.C), sc.rank_tol)[0])
+    if why:
+        raise ScenarioError("design.central_poles", f"pole placement for the centralized reference fails: {why}")
+    return poles
+
+
+def initial_w(sc: HybridFile) -> np.ndarray | None:
+    """The stacked w_i(0) (n_i entries each, in the given bases L_i), or None (every w_i(0) = 0)."""
+    w0 = sc.initial.w0
+    if w0 is None:
+        return None
+    if len(w0) != sc.m:
+        raise ScenarioError("initial.w0", f"must list one vector per agent ({sc.m}), got {len(w0)}")
+    for i, w in enumerate(w0):
+        if len(w) != sc.locs[i].n_i:
+            raise ScenarioError(f"initial.w0[{i}]", f"must have n_i = {sc.locs[i].n_i} entries (rank of agent "
+                                                    f"{i + 1}'s observability matrix), got {len(w)}")
+    if sc.L_given is None:
+        raise ScenarioError("initial.w0", "needs design.L (w_i lives in the coordinates of L_i); omit w0 to start "
+                                          "every local observer at w_i = 0")
+    return np.concatenate([np.array(w, float) for w in w0])
 
 
 def graph_masks(g: GraphsSection, m: int) -> np.ndarray:
