@@ -9,7 +9,6 @@ wall and CPU time. Measurements, not tests.
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import statistics
 import subprocess
@@ -22,26 +21,24 @@ import numpy as np
 
 import dse.estimators.hybrid_observer as ho
 import dse.estimators.jointly_observable_design as jd
-from dse.families.wang_liu_morse import bounds
-from dse.families.wang_liu_morse.design import central_gain, observer_design
-from dse.families.wang_liu_morse.scenario import generic_scenario, paper_scenario
+from dse.families.wang_liu_morse import simulation
+from dse.families.wang_liu_morse.scenario import paper_scenarios
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def _simulate(sc, run, x0, w0, xh):
-    d = observer_design(sc)
     timing = ho.Timing(sc.T, run.q, run.Delta, run.beta, np.asarray(run.offsets, float))
-    return ho.simulate(d, timing, bounds.schedule_for(sc, run), x0=x0, w0=w0, xhat0=xh, intervals=run.intervals,
-                       central_gain=central_gain(sc))
+    return ho.simulate(sc.observer, timing, simulation.schedule_for(sc, run), x0=x0, w0=w0, xhat0=xh,
+                       intervals=run.intervals, central_gain=sc.central_gain)
 
 
 def bench_hybrid(trials: int = 256, repeats: int = 3) -> list[dict]:
     rows = []
-    for sc in (paper_scenario(), generic_scenario()):
+    for sc in paper_scenarios():
         run = next(r for r in sc.runs if r.name == "sync")
         rng = np.random.default_rng(0)
-        d = observer_design(sc)
+        d = sc.observer
         x0 = rng.standard_normal((trials, sc.n))
         w0 = rng.standard_normal((trials, sum(d.n_i)))
         xh = rng.standard_normal((trials, sc.m, sc.n))
@@ -58,7 +55,7 @@ def bench_hybrid(trials: int = 256, repeats: int = 3) -> list[dict]:
         rows.append({"name": f"hybrid observer {sc.name}/sync: m={sc.m}, q={run.q}, {run.intervals} intervals",
                      "trials": trials, "batched_ms_per_trial": 1e3 * b, "single_trial_ms": 1e3 * s,
                      "iterations_per_s_batched": run.q * run.intervals * trials / (b * trials), "ratio": s / b})
-    P = observer_design(paper_scenario()).P
+    P = paper_scenarios()[0].observer.P
     t0 = time.perf_counter()
     res = jd.rho_exact(P)
     rows.append({"name": "ρ by exact branch and bound, m = 4", "words": res.words,
@@ -72,14 +69,15 @@ def bench_hybrid_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
     from .common import estimator_row, timed
 
     rows = []
-    sizes = [(paper_scenario(), None, (64,) if quick else (64, 1024))]
+    paper, generic = paper_scenarios()
+    sizes = [(paper, None, (64,) if quick else (64, 1024))]
     if not quick:   # generic: q = 786 iterations per interval; 8 of its 80 intervals keep the run short
-        sizes.append((generic_scenario(), 8, (256,)))
+        sizes.append((generic, 8, (256,)))
     for sc, intervals, trial_sizes in sizes:
         run = next(r for r in sc.runs if r.name == "sync")
         if intervals is not None:
-            run = dataclasses.replace(run, intervals=intervals)
-        d = observer_design(sc)
+            run = run.model_copy(update={"intervals": intervals})
+        d = sc.observer
         for trials in trial_sizes:
             rng = np.random.default_rng(0)
             x0 = rng.standard_normal((trials, sc.n))

@@ -403,3 +403,46 @@ def test_a_graph_that_is_not_strongly_connected_is_reported_per_run():
     assert row["verdict"] == "pass" and "[scenario/good]" in row["detail"]
     assert "bad.strong_connectivity does not hold" in row["detail"]
     assert "wang-liu-morse.hyp.strong_connectivity" not in row["hypotheses"]
+
+
+# -- stage keys ------------------------------------------------------------------------------------------------
+
+def test_stage_keys_follow_the_code_the_stages_run(tmp_path, monkeypatch):
+    """A stage's key is derived from the source of every module it imports, transitively: an edit
+    to dse.simulate.seeding (which the old, hand-written module list of the run stage missed)
+    changes the run stage's key; an edit to a claims module or to another family's stage does not
+    (no stage imports a claims module)."""
+    from dse.contract import stages as st
+    from dse.contract.stages import StageResult
+    from dse.families.wang_liu_morse import stages
+
+    closure = st.code_closure(stages.run_stage.module)
+    assert {"dse.simulate.seeding", "dse.simulate.units", "dse.estimators.hybrid_observer",
+            "dse.families.wang_liu_morse.monitor", "dse.families.wang_liu_morse.scenario"} <= closure
+    assert not any(m.startswith(("dse.families.wang_liu_morse.claims", "dse.families.wang_liu_morse.checks",
+                                 "dse.families.wang_liu_morse.hypotheses")) for m in closure)
+    sc = scenario(TWO)
+    design = StageResult()
+    design.key = "design-0"
+    arguments = {"sc": sc, "design": design, "run": "sync", "trials": 9, "seed": 0, "budget_bytes": 1e9}
+    original = st.module_file
+
+    def key_after_editing(module: str | None) -> str:
+        if module is not None:
+            copy = tmp_path / f"{module}.py"
+            copy.write_bytes(original(module).read_bytes() + b"\n# an edit\n")
+            monkeypatch.setattr(st, "module_file", lambda name: copy if name == module else original(name))
+        for cached in (st.direct_imports, st.code_closure, st.code_hash):
+            cached.cache_clear()
+        try:
+            return st.StageContext(MemoryCache()).cache.key("run", stages.run_stage.params(arguments))
+        finally:
+            monkeypatch.setattr(st, "module_file", original)
+            for cached in (st.direct_imports, st.code_closure, st.code_hash):
+                cached.cache_clear()
+
+    base = key_after_editing(None)
+    assert key_after_editing("dse.simulate.seeding") != base
+    assert key_after_editing("dse.families.wang_liu_morse.claims_bounds") == base
+    assert key_after_editing("dse.families.template.stages") == base
+    assert key_after_editing(None) == base

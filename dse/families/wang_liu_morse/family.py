@@ -12,7 +12,10 @@ from dataclasses import replace
 from dse.contract.family import Family, Paper
 from dse.contract.options import RunOptions
 
+from dse.scenario.declare import parse
+
 from . import generator
+from .scenario import HybridFile
 
 TITLE = "Wang, Liu & Morse: A hybrid observer for estimating the state of a distributed linear system"
 
@@ -54,14 +57,11 @@ batch. Monte Carlo: random initial conditions (trial 0 = the given ones) on a le
 trials seeded by name; the bounds are evaluated while the run is simulated and only their worst cases are kept, so the
 numbers do not depend on the memory budget. Every tolerance is a round-off allowance derived from operation counts and
 condition numbers, stated in the claim's detail. Reconstruction notes: docs/papers/wang-liu-morse.md."""
+    scenario_model = HybridFile
     example = "generic.toml"
     edges = generator.EDGES
 
     def scenario_from_dict(self, data):
-        from dse.scenario.declare import parse
-
-        from .scenario import HybridFile
-
         return parse(HybridFile, data)
 
     def paper_scenarios(self):
