@@ -55,9 +55,10 @@ def check_central(res: Parts) -> Verdict:
         xs = np.maximum(1.0, a["t0_xnorm"])
         fl = tol * xs
         rate, _, _ = fit_rate(t, ce, fl, skip=min(100, len(t) // 4))
-        design = -max(sc.design.central_poles)
+        poles = sc.design.central_poles
+        design = -max(poles)
         out.append((name, inequality(ce, kappa * ce[0] + fl,
-                                     detail=f"centralized observer on the stacked outputs (poles {list(sc.design.central_poles)}), "
+                                     detail=f"centralized observer on the stacked outputs (poles {list(poles)}), "
                                             f"run {spec.name}, trial 0: max ||e_c(t)|| / (||e^(Ft)|| ||e_c(0)||) over "
                                             f"{len(t)} stored samples (of {int(a['g_total'])}); fitted decay rate "
                                             f"{rate:.4f} vs the slowest pole's {design:g} (reported); {text} × "

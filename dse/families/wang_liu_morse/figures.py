@@ -13,7 +13,7 @@ import pandas as pd
 from dse.contract.views import View
 from dse.outputs.figures import new_figure, plain_log_labels, save_figure, set_margins
 
-from . import simulation
+from .simulation import is_theorem_run
 from .checks import fit_rate, in_theorem1
 
 TINY = 1e-300
@@ -166,7 +166,7 @@ def _bounds_figure(res, tables, scenario: str, path: Path) -> None:
     fig, axes = new_figure(ncols=2, width=5.6)
     sync = next((s for s in r.scenario.runs if s.timing == "sync" and in_theorem1(r, s) and not s.ideal), None)
     if sync is None:
-        sync = next((s for s in r.scenario.runs if s.timing == "sync" and simulation.is_theorem_run(s)), None)
+        sync = next((s for s in r.scenario.runs if s.timing == "sync" and is_theorem_run(s)), None)
     ax = axes[0, 0]
     if sync is not None:
         ev = tables.rows("events", scenario, sync.name)
@@ -181,7 +181,7 @@ def _bounds_figure(res, tables, scenario: str, path: Path) -> None:
         ax.set_title(f"{scenario}/{sync.name}: event-sampled error vs (51), q = {sync.q}", fontsize=9)
         ax.legend()
     ax.set_xlabel("t = sT")
-    ideal = next((s for s in r.scenario.runs if s.ideal and simulation.is_theorem_run(s)), None)
+    ideal = next((s for s in r.scenario.runs if s.ideal and is_theorem_run(s)), None)
     ax = axes[0, 1]
     if ideal is not None:
         net = tables.rows("network_series", scenario, ideal.name)
@@ -209,7 +209,7 @@ def _decay_figure(res, tables, path: Path) -> None:
     fig, axes = new_figure()
     ax = axes[0, 0]
     for idx, (name, r) in enumerate(res.parts.items()):
-        sync = next((s for s in r.scenario.runs if s.timing == "sync" and not s.ideal and simulation.is_theorem_run(s)), None)
+        sync = next((s for s in r.scenario.runs if s.timing == "sync" and not s.ideal and is_theorem_run(s)), None)
         if sync is None:
             continue
         ev = tables.rows("events", name, sync.name)

@@ -28,7 +28,7 @@ SIZES = {"five_agents_rho_positive": (5, (3, 5)), "six_agents_shared_outputs": (
          "large_state": ((2, 4), (6, 9)), "scalar_state": ((2, 5), 1), "q_at_bound": ((2, 4), (2, 5)),
          "q_below_bound": ((2, 4), (2, 5)), "symmetric_rule_at_bound": ((2, 4), (2, 5))}
 REAL_PART = {"stable": lambda rng: -float(rng.uniform(0.05, 0.8)),
-             "unstable": lambda rng: float(rng.uniform(0.05, 0.5)) if rng.random() < 0.6 else -float(rng.uniform(0.05, 0.5)),
+             "unstable": lambda rng: (1 if rng.random() < 0.6 else -1) * float(rng.uniform(0.05, 0.5)),
              "marginal": lambda rng: 0.0 if rng.random() < 0.7 else -float(rng.uniform(0.05, 0.5)),
              "mixed": lambda rng: float(rng.uniform(-0.6, 0.4))}
 

@@ -177,7 +177,7 @@ class ChunkMonitor(ho.Monitor):
     intervals and events (see the module docstring)."""
 
     def __init__(self, ctx: dict, acc: RunAccumulator, sizes: list[int], first: int):
-        self.ctx, self.acc, self.sizes, self.first = ctx, acc, sizes, first
+        self.ctx, self.acc = ctx, acc
         self.edges = np.cumsum([0, *sizes])
         self.has0 = first == 0
 
@@ -188,8 +188,6 @@ class ChunkMonitor(ho.Monitor):
         B, m = L.B, L.m
         self.prev = None
         self.exact = None                          # e^(F_i sT) ē_i(0), per trial
-        self.dev_prev = self.dev2_prev = None
-        self.carried, self.carried_sym = np.zeros(B), np.zeros(B)
         self.restart_min = np.full(B, np.inf)
         self.X_prev = None
         self.K0 = self.K0sym = None

@@ -43,8 +43,8 @@ def is_theorem_run(run: RunSection) -> bool:
 
 
 def schedule_for(sc: HybridFile, run: RunSection) -> ho.GraphSchedule:
-    return ho.GraphSchedule(sc.graph_masks, kind=run.switching, fixed=run.graph_index, T=sc.T, Delta=run.Delta, beta=run.beta,
-                            q=run.q)
+    return ho.GraphSchedule(sc.graph_masks, kind=run.switching, fixed=run.graph_index, T=sc.T, Delta=run.Delta,
+                            beta=run.beta, q=run.q)
 
 
 def timing_for(sc: HybridFile, run: RunSection, seed: int) -> ho.Timing:
@@ -247,7 +247,8 @@ def simulate_run(sc: HybridFile, design: dict, run: RunSection, trials: int, see
            "qQ": run.q * float(design["Q_mixed"]), "B_mixed": plan["B_mixed"],
            "symmetric": run.rule == "symmetric" and run.leave is None and not run.noise,
            "eq63": run.timing == "offset" and theorem,
-           "steps_block": scipy.linalg.block_diag(*[scipy.linalg.expm(d.F(i) * (ho.to_ns(sc.T) / ho.NS)) for i in range(m)]).T,
+           "steps_block": scipy.linalg.block_diag(*[scipy.linalg.expm(d.F(i) * (ho.to_ns(sc.T) / ho.NS))
+                                                    for i in range(m)]).T,
            "Cs": Cs, "make_kf": make_kf,
            "matrices": MatrixCache(sc, d, eAT, offset_exponentials(sc, ev)), "iter_keep": plan["sources0"].shape[0]}
     _, _, grid0, dt_ns, samples = ho.sample_grid(ev[:, 0], ho.to_ns(sc.T), run.intervals, sc.sampling.step)

@@ -16,7 +16,7 @@ from dse.contract.stages import StageResult, stage
 
 from . import simulation
 from .design import design_quantities, lemma_samples, model_mismatch
-from .monitor import COUNTS, MAXIMA, WORST, Worst
+from .monitor import MAXIMA, WORST, Worst
 from .scenario import HybridFile, RunSection
 
 #: design arrays that may hold inf or NaN: padding of unequal spectra, c_i of a defective local observer,
