@@ -12,7 +12,7 @@ from scipy.integrate import solve_ivp
 
 import dse.estimators.hybrid_observer as ho
 import dse.estimators.jointly_observable_design as jd
-from dse.families.wang_liu_morse.checks import fit_rate
+from dse.families.wang_liu_morse.claims.common import fit_rate
 from dse.families.wang_liu_morse.figures import log10_safe
 from dse.families.wang_liu_morse.scenario import paper_scenarios
 

@@ -419,8 +419,8 @@ def test_stage_keys_follow_the_code_the_stages_run(tmp_path, monkeypatch):
     closure = st.code_closure(stages.run_stage.module)
     assert {"dse.simulate.seeding", "dse.simulate.units", "dse.estimators.hybrid_observer",
             "dse.families.wang_liu_morse.monitor", "dse.families.wang_liu_morse.scenario"} <= closure
-    assert not any(m.startswith(("dse.families.wang_liu_morse.claims", "dse.families.wang_liu_morse.checks",
-                                 "dse.families.wang_liu_morse.hypotheses")) for m in closure)
+    assert not any(m.startswith(("dse.families.wang_liu_morse.claims", "dse.families.wang_liu_morse.figures",
+                                 "dse.families.wang_liu_morse.recordings", "dse.contract.claims")) for m in closure)
     sc = scenario(TWO)
     design = StageResult()
     design.key = "design-0"
@@ -443,6 +443,6 @@ def test_stage_keys_follow_the_code_the_stages_run(tmp_path, monkeypatch):
 
     base = key_after_editing(None)
     assert key_after_editing("dse.simulate.seeding") != base
-    assert key_after_editing("dse.families.wang_liu_morse.claims_bounds") == base
+    assert key_after_editing("dse.families.wang_liu_morse.claims.bounds") == base
     assert key_after_editing("dse.families.template.stages") == base
     assert key_after_editing(None) == base

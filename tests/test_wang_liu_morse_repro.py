@@ -19,7 +19,7 @@ import scipy.linalg as sla
 
 from dse.outputs import record
 from dse.errors import ScenarioError
-import dse.families
+import dse.registry
 from dse.contract.options import RunOptions
 from dse.contract.stages import StageContext
 from dse.engine.cache import StageCache
@@ -30,11 +30,11 @@ RERUN = Path(sys.executable).parent / "rerun"
 
 def from_dict(data: dict):
     """A user's run of a scenario file's body (without its `family` key)."""
-    return dse.families.from_dict({"family": "hybrid-observer", **data})
+    return dse.registry.from_dict({"family": "hybrid-observer", **data})
 
 
 def paper():
-    return dse.families.paper("wang-liu-morse")
+    return dse.registry.paper("wang-liu-morse")
 PKG = Path(__file__).resolve().parent.parent / "dse" / "families" / "wang_liu_morse"
 
 USER = """

@@ -11,7 +11,6 @@ The sampled checks of Lemmas 5 and 6 are a separate, slower stage (`lemma_sample
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it

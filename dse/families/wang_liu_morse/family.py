@@ -1,10 +1,10 @@
 """The hybrid-observer family (Wang, Liu & Morse): its modules are scenario (the declared file,
 with validation the cross-table rules), design, simulation and monitor (the computations),
-stages (the cached stages and what they give the claims), hypotheses, checks and claims_*
-(hypotheses and claims on their checks), tables, figures and recordings (the outputs), cost
-(the cost model) and generator (random valid scenarios); this one ties them together. The
-paper's reproduction checks two systems: the Section 6 example and a generic one on which
-Theorem 1's hypotheses hold exactly."""
+stages (the cached stages and what they give the claims), the claims package (hypotheses and
+claims on their checks), tables, figures and recordings (the outputs), cost (the cost model)
+and generator (random valid scenarios); this one ties them together. The paper's reproduction
+checks two systems: the Section 6 example and a generic one on which Theorem 1's hypotheses
+hold exactly."""
 from __future__ import annotations
 
 from dataclasses import replace

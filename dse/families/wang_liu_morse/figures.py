@@ -14,7 +14,7 @@ from dse.contract.views import View
 from dse.outputs.figures import new_figure, plain_log_labels, save_figure, set_margins
 
 from .simulation import is_theorem_run
-from .checks import fit_rate, in_theorem1
+from .claims.common import fit_rate, in_theorem1
 
 TINY = 1e-300
 AGENT_COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75),

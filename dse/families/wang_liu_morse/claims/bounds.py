@@ -10,13 +10,11 @@ import numpy as np
 
 from dse.verify.rules import ERRATUM, FAIL, PASS, Verdict, identity, inequality, not_checkable, roundoff_tolerance
 
-from . import claims_simulation  # noqa: F401 (its claims come first in the report)
-from . import hypotheses as hy
-from .checks import (EQ44, IDEAL, PID, SYM, THM, Cells, alpha_used, at_most_one, claims, combine, constants,
+from ..scenario import RunSection
+from ..simulation import is_theorem_run, run_epsilon
+from ..stages import Part, Parts
+from .common import (EQ44, IDEAL, PID, SYM, THM, Cells, alpha_used, at_most_one, claims, combine, constants,
                      fit_rate, simulation_tolerance, worst_verdict)
-from .scenario import RunSection
-from .simulation import is_theorem_run, run_epsilon
-from .stages import Part, Parts
 
 # max_i ||e_i(sT)|| of the Section 6 example's synchronous run with the paper's initial conditions,
 # computed independently of this code (numpy/scipy scratch computations) to 3 significant digits

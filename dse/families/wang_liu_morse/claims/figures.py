@@ -7,10 +7,9 @@ import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily
 
 from dse.verify.rules import FAIL, PASS, Verdict, inequality, not_checkable, roundoff_tolerance
 
-from . import claims_bounds  # noqa: F401 (its claims come first in the report)
+from ..stages import Parts
 from . import hypotheses as hy
-from .checks import PID, claims, combine, fit_rate, stored_times
-from .stages import Parts
+from .common import PID, claims, combine, fit_rate, stored_times
 
 
 def norm_exponential_on(F: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -17,9 +17,9 @@ import dse.estimators.jointly_observable_design as jd
 from dse.contract.claims import ClaimSet, Where
 from dse.verify.rules import Holds
 
-from .scenario import HybridFile, RunSection
-from .simulation import run_epsilon, schedule_for
-from .stages import Part
+from ..scenario import HybridFile, RunSection
+from ..simulation import run_epsilon, schedule_for
+from ..stages import Part
 
 PID = "wang-liu-morse"
 EPS = float(np.finfo(float).eps)

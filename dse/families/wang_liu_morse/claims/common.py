@@ -12,11 +12,11 @@ import numpy as np
 
 from dse.verify.rules import ERRATUM, FAIL, NOT_CHECKABLE, PASS, Verdict, not_checkable
 
-from . import design, simulation
+from .. import design, simulation
+from ..scenario import RunSection
+from ..simulation import is_theorem_run
+from ..stages import Part, Parts
 from .hypotheses import PID, cell_failures, claims, q_eq22, rests_on
-from .scenario import RunSection
-from .simulation import is_theorem_run
-from .stages import Part, Parts
 
 __all__ = ["PID", "claims"]
 EPS = float(np.finfo(float).eps)

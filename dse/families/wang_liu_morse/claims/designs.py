@@ -8,8 +8,8 @@ import numpy as np
 import dse.estimators.jointly_observable_design as jd
 from dse.verify.rules import ERRATUM, FAIL, PASS, Verdict, identity, inequality, not_checkable, roundoff_tolerance
 
-from .checks import EPS, OBS, PID, alpha_used, claims, combine
-from .stages import Parts
+from ..stages import Parts
+from .common import EPS, OBS, PID, alpha_used, claims, combine
 
 # Reference values for the Section 6 example, computed independently of this code (numpy/scipy
 # scratch computations): the printed reduced models, and σ of (26) to 6 digits.

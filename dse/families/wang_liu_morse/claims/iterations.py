@@ -7,12 +7,10 @@ import numpy as np
 
 from dse.verify.rules import ERRATUM, FAIL, PASS, Verdict, identity, inequality, not_checkable, roundoff_tolerance
 
-from . import claims_design  # noqa: F401 (its claims come first in the report)
-from . import hypotheses as hy
-from .checks import EPS, PID, Cells, claims, simulation_tolerance
-from .scenario import RunSection
-from .simulation import run_epsilon
-from .stages import Part, Parts
+from ..scenario import RunSection
+from ..simulation import run_epsilon
+from ..stages import Part, Parts
+from .common import EPS, PID, Cells, claims, simulation_tolerance
 
 
 def _sources(r: Part, run: RunSection) -> Verdict:
