@@ -24,7 +24,7 @@ from dse.scenario.declare import key, reference_rows
 from dse.errors import ScenarioError
 from dse.contract.cost import refuse_if_too_large
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.engine.cache import MemoryCache
 from dse.simulate.seeding import stream_seed
 from dse.simulate.units import RNG_UNIT, UnitStreams, block_seeds
@@ -435,7 +435,7 @@ def test_stage_keys_follow_the_code_the_stages_run(tmp_path, monkeypatch):
         for cached in (st.direct_imports, st.code_closure, st.code_hash):
             cached.cache_clear()
         try:
-            return st.StageContext(MemoryCache()).cache.key("run", stages.run_stage.params(arguments))
+            return MemoryCache().key("run", stages.run_stage.params(arguments))
         finally:
             monkeypatch.setattr(st, "module_file", original)
             for cached in (st.direct_imports, st.code_closure, st.code_hash):

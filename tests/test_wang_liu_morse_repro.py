@@ -21,7 +21,7 @@ from dse.outputs import record
 from dse.errors import ScenarioError
 import dse.registry
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.engine.cache import StageCache
 from dse.engine.driver import evaluate_claims, reverify, run
 
