@@ -26,25 +26,12 @@ from __future__ import annotations
 import numpy as np
 
 from . import small_matrix as sm
-from .link_models import LinkModel, StepLinks, greedy_matching, swap_permutation
+from .link_models import LinkModel, StepLinks, step_permutation
 from .network_step import StepContext, predict
+from .protocol import NetworkFilter
 from .sensor_network import SensorNetworkModel
 
-__all__ = ["GossipSwapRun", "step_permutation", "kalman_update", "TokenSampler"]
-
-
-def step_permutation(links: LinkModel, step: StepLinks, B: int, priority: np.ndarray | None
-                     ) -> tuple[np.ndarray, np.ndarray]:
-    """(source, hops), each (N, B): the state node i holds after the step's swaps came from
-    source[i], over hops[i] links."""
-    topo = links.topology
-    if not links.synchronous:
-        return swap_permutation(topo, step, B)
-    if links.kind == "matchings":
-        matching = step.rounds[0]
-    else:
-        matching = greedy_matching(topo, priority, step.rounds[0])
-    return swap_permutation(topo, step, B, matching=matching)
+__all__ = ["GossipSwapRun", "kalman_update", "TokenSampler"]
 
 
 def kalman_update(P: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -77,7 +64,7 @@ def kalman_update(P: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarr
     return K, post
 
 
-class GossipSwapRun:
+class GossipSwapRun(NetworkFilter):
     """A batch of B trials of the GIKF; `estimate` (N, n, B) and `cov` (n, n, N, B) hold x̂(k|k)
     and P(k|k) after each step, `xbar`, `Pbar` the predictions for the next."""
 
@@ -121,6 +108,10 @@ class GossipSwapRun:
         """(N, B): e_iᵀ P_i⁻¹ e_i with P the filter's own posterior covariance."""
         v = np.moveaxis(err, 1, 0)
         return sm.quad_form(sm.spd_inverse(self.cov), v)
+
+    def prior_covariance(self) -> np.ndarray:
+        """(n, n, N, B): the covariance of the state each node holds for the next step."""
+        return self.Pbar
 
 
 class TokenSampler:

@@ -29,7 +29,8 @@ from typing import Protocol
 
 import numpy as np
 
-__all__ = ["LINK_KINDS", "Topology", "LinkModel", "StepLinks", "greedy_matching", "swap_permutation"]
+__all__ = ["LINK_KINDS", "Topology", "LinkModel", "StepLinks", "greedy_matching", "swap_permutation",
+           "step_permutation"]
 
 LINK_KINDS = ("reliable", "failures", "matchings", "poisson")
 #: the Poisson count is truncated where the omitted probability is below this
@@ -90,6 +91,24 @@ class Topology:
             out[u].append(int(v))
             out[v].append(int(u))
         return out
+
+    def covering_walk(self, stay: int = 1) -> list[int]:
+        """A walk from node 0 that visits every node (depth-first, backtracking along the way it came),
+        staying `stay` steps at each node it reaches."""
+        nb = self.neighbours()
+        seen: set[int] = set()
+        walk: list[int] = []
+
+        def visit(i: int) -> None:
+            seen.add(i)
+            walk.extend([i] * stay)
+            for j in sorted(nb[i]):
+                if j not in seen:
+                    visit(j)
+                    walk.append(i)
+
+        visit(0)
+        return walk
 
     def is_bipartite(self) -> bool:
         import networkx as nx
@@ -193,6 +212,23 @@ class LinkModel:
         out.step_mask = out.rounds[0]
         return out
 
+    def stay_witness(self) -> tuple[bool | None, str]:
+        """Can a node go through a step without exchanging (a diagonal entry of the mean permutation of a
+        filter that swaps states over matchings)? True with the reason, or None when no witness was found."""
+        if self.kind == "poisson":
+            return True, "with positive probability no link of a node rings in a step"
+        if self.kind in ("failures", "matchings") and self.p_fail > 0:
+            return True, "with positive probability every link of a node fails"
+        topo = self.topology
+        rng = np.random.default_rng(0)
+        for _ in range(200):      # a maximal matching that leaves some node unmatched (greedy from random orders)
+            chosen = greedy_matching(topo, rng.random((topo.E, 1)))[:, 0]
+            covered = (topo.node_edges[:, chosen]).any(axis=1)
+            if not covered.all():
+                return True, (f"the maximal matching {topo.edges[chosen].tolist()} leaves node "
+                              f"{int(np.argmin(covered))} alone")
+        return None, "no maximal matching leaving a node unmatched was found in 200 random orders"
+
     # -- exact moments of a synchronous round ------------------------------------------------------
     def edge_activity(self) -> np.ndarray | None:
         """(E,) P(edge works in a round) when rounds are independent edge by edge (reliable,
@@ -259,3 +295,17 @@ def swap_permutation(topo: Topology, links: StepLinks, B: int, *, matching: np.n
         hi, hj = hops[i, bb], hops[j, bb]
         hops[i, bb], hops[j, bb] = hj + 1, hi + 1
     return src, hops
+
+
+def step_permutation(links: LinkModel, step: StepLinks, B: int, priority: np.ndarray | None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(source, hops), each (N, B): the state node i holds after the step's swaps came from
+    source[i], over hops[i] links."""
+    topo = links.topology
+    if not links.synchronous:
+        return swap_permutation(topo, step, B)
+    if links.kind == "matchings":
+        matching = step.rounds[0]
+    else:
+        matching = greedy_matching(topo, priority, step.rounds[0])
+    return swap_permutation(topo, step, B, matching=matching)

@@ -1,28 +1,22 @@
 """Every network filter on the same trials: one plant, one graph, one link model, common random numbers.
 
-`simulate_units` runs B trials (a few RNG units of trials, trials on the last axis) of the plant
-and of every estimator in lock step: at each step k the sensors measure x(k), every estimator
-processes the same measurements and the same link draws (and communication noise), and the
-error of every node's estimate of x(k) is accumulated into per-unit sums. The random numbers
-come from separate streams (plant, links, noise, gossip), so adding or removing an estimator
-does not change what the others see.
+`simulate_units` runs B trials (a few RNG units of trials, trials on the last axis) of the plant and of
+every estimator it is given (`protocol.DesignedEstimator`s: whatever the registry holds) in lock step: at
+each step k the sensors measure x(k), and every filter steps on the same measurements, the same link draws
+and the same communication noise (`protocol.NetworkFilter`). The random numbers come from separate streams
+(plant, links, noise, gossip), so adding or removing an estimator does not change what the others see.
+The filters run in error coordinates (`protocol`): their estimates are their errors.
 
-Estimators (by kind):
-
-* ``central``: the centralized Kalman filter on all measurements (`dse.estimators.kalman`);
-* ``local``: every node's own Kalman filter, no communication;
-* ``gossip``: `gossip_swap_kalman.GossipSwapRun`;
-* a `constant_gain_fusion.FusionFilter` (Carli, re-injection, pairwise averaging);
-* an `information_fusion.InformationFilter` (Kalman-consensus, diffusion, consensus on information).
-
-Per-unit sums over trials, each (U, S, N) at the S recorded steps unless stated: ``sq`` Σ‖e_i‖²,
-``sq2`` Σ‖e_i‖⁴, ``dist`` Σ‖x̂_i − x̂_c‖², ``dist2``, ``cross`` Σ (x − x̂_c)ᵀ(x̂_c − x̂_i) and
-``cross2`` (the orthogonality of the centralized error to every other estimate), ``nees``
-Σ e_iᵀP_i⁻¹e_i with the estimator's own covariance and ``nees2``, ``xnees`` the same with a given
-exact covariance, ``dis`` and ``dis2`` (U, S) the per-trial disagreement (1/N) Σ_i ‖x̂_i − mean_j x̂_j‖²,
-``dis_node`` (U, S, N) its terms ‖x̂_i − mean_j x̂_j‖² per node,
-``net`` and ``net2`` (U, S) the per-trial node average of ‖e_i‖²,
-``msgs`` and ``scalars`` (U, N) messages and scalars sent over the whole run (every step).
+An `Accumulator` beside the filters' steps keeps what the claims and tables read, as per-unit sums over
+trials, each (U, S, W) at the S recorded steps unless stated (W = the filter's number of estimates):
+``sq`` Σ‖e_i‖², ``sq2`` Σ‖e_i‖⁴, ``dist`` Σ‖x̂_i − x̂_c‖² and ``dist2`` (x̂_c the reference estimator's),
+``cross`` Σ (x − x̂_c)ᵀ(x̂_c − x̂_i) and ``cross2`` (the orthogonality of the reference error to every other
+estimate), ``nees`` Σ e_iᵀP_i⁻¹e_i with the filter's own covariance and ``nees2``, ``xnees`` the same with a
+given exact covariance, ``dis`` and ``dis2`` (U, S) the per-trial disagreement (1/N) Σ_i ‖x̂_i − mean_j x̂_j‖²,
+``dis_node`` (U, S, W) its terms ‖x̂_i − mean_j x̂_j‖² per node, ``net`` and ``net2`` (U, S) the per-trial
+node average of ‖e_i‖², ``msgs`` and ``scalars`` (U, N) messages and real numbers sent over the whole run
+(every step, counted from the links and the filter's `Communication`); ``token`` (times, B): tr P̄_q at a
+uniformly random node q of the filters that swap states; ``paths``: sample trials kept whole.
 """
 from __future__ import annotations
 
@@ -33,17 +27,17 @@ from typing import Any, Protocol
 import numpy as np
 
 from . import small_matrix as sm
-from .constant_gain_fusion import FusionFilter, FusionRun
-from .gossip_swap_kalman import GossipSwapRun, step_permutation
-from .information_fusion import InformationFilter, InformationRun
-from .link_models import LinkModel
+from .link_models import LinkModel, StepLinks, step_permutation
 from .network_mixing import link_count
-from .network_step import StepContext, apply_gain, innovation, predict, slice_context
+from .network_step import StepContext, slice_context
+from .protocol import DesignedEstimator
 from .sensor_network import SensorNetworkModel
 
-__all__ = ["Setup", "simulate_units", "STATS", "communication", "record_steps"]
+__all__ = ["Setup", "simulate_units", "STATS", "PER_TRIAL_SUMS", "record_steps"]
 
 STATS = ("sq", "sq2", "dist", "dist2", "cross", "cross2", "nees", "nees2", "xnees")
+#: the per-trial sums beside `STATS` (a diverging filter may make any of them infinite: a result, not a failure)
+PER_TRIAL_SUMS = ("dis", "dis2", "dis_node", "net", "net2", "msgs", "scalars")
 
 
 class Draws(Protocol):
@@ -61,101 +55,12 @@ class Setup:
     model: SensorNetworkModel
     links: LinkModel
     n_steps: int
-    estimators: dict[str, Any]                    # name -> "central" | "local" | "gossip" | filter object
+    estimators: dict[str, DesignedEstimator]      # name -> designed estimator, in the order they step
     exact_cov: dict[str, np.ndarray] = field(default_factory=dict)   # name -> (K, N, n, n)
     token_times: tuple[int, ...] = ()
     n_paths: int = 1
     record_steps: tuple[int, ...] = ()            # steps whose statistics are kept (all if empty)
-    sub_batch: int = 250                          # trials an estimator steps at once (cache-sized arrays)
-
-
-class _Central:
-    def __init__(self, model: SensorNetworkModel, K: int, B: int):
-        self.model = model
-        cov = model.central_covariances(K)
-        self.gains, self.P_post = cov.gains, cov.P_post
-        self.P_inv = np.linalg.inv(cov.P_post)
-        self.xbar = np.broadcast_to(model.x0[:, None], (model.n, B)).copy()
-
-    def step(self, ctx: StepContext) -> np.ndarray:
-        m = self.model
-        y = ctx.y.reshape(-1, ctx.y.shape[-1])
-        est = self.xbar + self.gains[ctx.k] @ (y - m.H_all @ self.xbar)
-        self.xbar = m.F @ est
-        self.estimate = est[None]
-        return self.estimate
-
-    def shift(self, delta: np.ndarray) -> None:
-        self.xbar = self.xbar + delta
-
-
-class _Local:
-    def __init__(self, model: SensorNetworkModel, K: int, B: int):
-        self.model = model
-        covs = model.local_covariances(K)
-        self.gains = np.stack([c.gains for c in covs], axis=1)          # (K, N, n, m)
-        self.P_post = np.stack([c.P_post for c in covs], axis=1)        # (K, N, n, n)
-        self.P_inv = np.linalg.inv(self.P_post)
-        self.xbar = np.broadcast_to(model.x0[None, :, None], (model.N, model.n, B)).copy()
-
-    def step(self, ctx: StepContext) -> np.ndarray:
-        m = self.model
-        est = self.xbar + apply_gain(self.gains[ctx.k], innovation(ctx.y, m.H, self.xbar))
-        self.xbar = predict(m.F, est)
-        self.estimate = est
-        return est
-
-    def shift(self, delta: np.ndarray) -> None:
-        self.xbar = self.xbar + delta[None]
-
-
-def _make(kind, setup: Setup, B: int):
-    if isinstance(kind, FusionFilter):
-        return FusionRun(kind, B)
-    if isinstance(kind, InformationFilter):
-        return InformationRun(kind, B)
-    if kind == "central":
-        return _Central(setup.model, setup.n_steps, B)
-    if kind == "local":
-        return _Local(setup.model, setup.n_steps, B)
-    if kind == "gossip":
-        return GossipSwapRun(setup.model, setup.links, B)
-    raise ValueError(f"unknown estimator {kind!r}")
-
-
-def _own_nees(run, err: np.ndarray, k: int) -> np.ndarray | None:
-    if isinstance(run, _Central):
-        return np.einsum("inb,nm,imb->ib", err, run.P_inv[k], err)
-    if isinstance(run, _Local):
-        return np.einsum("inb,inm,imb->ib", err, run.P_inv[k], err)
-    if isinstance(run, (GossipSwapRun, InformationRun)):
-        return run.nees(err)
-    return None
-
-
-def communication(kind, links: LinkModel, n: int) -> tuple[str, int, int]:
-    """(pattern, messages per contact, scalars per message) of an estimator.
-
-    A message is one transmission from a node to one neighbour; a contact is one working link
-    seen from one of its ends (a node sends one message per contact). Patterns: ``none``;
-    ``rounds`` (every synchronous round, or every Poisson exchange); ``step`` (the links an
-    estimator uses once per step); ``swap`` (the GIKF's matched links or exchanges). Payloads,
-    n states: estimates n; GIKF estimate and covariance n + n(n+1)/2; Kalman-consensus the
-    measurement information u_j and the prior estimate (2n; U_j is constant and sent once);
-    diffusion the measurement information and, in a second exchange, the intermediate estimate
-    (two messages of n); CI the information pair n + n(n+1)/2 per round."""
-    half = n * (n + 1) // 2
-    if isinstance(kind, str) and kind in ("central", "local"):
-        return "none", 0, 0
-    if isinstance(kind, str) and kind == "gossip":
-        return "swap", 1, n + half
-    if isinstance(kind, FusionFilter):
-        return "rounds", 1, n
-    if kind.kind == "information-consensus":
-        return "rounds", 1, n + half
-    if kind.kind == "diffusion":
-        return "step", 2, n
-    return "step", 1, 2 * n
+    sub_batch: int = 250                          # trials a filter steps at once (cache-sized arrays)
 
 
 def _contacts(topo, mask, offsets, sizes) -> np.ndarray:
@@ -185,54 +90,140 @@ def record_steps(n_steps: int, every: int | None = None, extra=()) -> tuple[int,
     return tuple(sorted(set(range(0, n_steps, stride)) | {n_steps - 1} | {int(e) for e in extra if 0 <= e < n_steps}))
 
 
+class Accumulator:
+    """The per-unit sums of the module doc, from the filters' estimates after each step."""
+
+    def __init__(self, setup: Setup, sizes: np.ndarray, cuts: list[slice]):
+        self.setup, self.sizes, self.cuts = setup, sizes, cuts
+        self.offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        B, K, n = int(sizes.sum()), setup.n_steps, setup.model.n
+        self.steps = setup.record_steps or tuple(range(K))
+        self.where = {k: i for i, k in enumerate(self.steps)}
+        self.comm = {name: est.communication() for name, est in setup.estimators.items()}
+        self.reference = next((name for name, est in setup.estimators.items() if est.spec.reference), None)
+        self.sums: dict[str, dict[str, np.ndarray]] = {}
+        self.token = {name: np.zeros((len(setup.token_times), B)) for name, est in setup.estimators.items()
+                      if est.spec.swaps}
+        self.P = min(setup.n_paths, B)
+        self.paths = {"x": np.zeros((K, n, self.P))}
+        self.reference_error = None
+
+    def per_unit(self, a: np.ndarray) -> np.ndarray:
+        """(..., B) -> (U, ...): sums over the trials of each unit."""
+        return np.moveaxis(np.add.reduceat(a, self.offsets, axis=-1), -1, 0)
+
+    def link_contacts(self, step_links: StepLinks) -> dict[str, np.ndarray]:
+        """(U, N) contacts of the step per pattern: every round (or exchange), the step's links."""
+        lm, topo, sizes = self.setup.links, self.setup.links.topology, self.sizes
+        if lm.synchronous:
+            return {"rounds": sum(_contacts(topo, mask, self.offsets, sizes) for mask in step_links.rounds),
+                    "step": _contacts(topo, step_links.rounds[0], self.offsets, sizes)}
+        return {"rounds": _event_contacts(topo, step_links.events, self.offsets, len(sizes)),
+                "step": _contacts(topo, step_links.step_mask, self.offsets, sizes)}
+
+    def begin(self, k: int, x_true: np.ndarray) -> None:
+        self.reference_error = None
+        if self.P:
+            self.paths["x"][k] = x_true
+        self.x_true = x_true
+
+    def record_token(self, name: str, parts: list, q_node: np.ndarray, k: int) -> None:
+        """tr P̄_q of the state a uniformly random node q holds before step k."""
+        self.token[name][self.setup.token_times.index(k)] = np.concatenate(
+            [sm.trace(r.prior_covariance())[q_node[c], np.arange(c.stop - c.start)] for r, c in zip(parts, self.cuts)])
+
+    def _allocate(self, name: str, width: int) -> dict[str, np.ndarray]:
+        U, S, N = len(self.sizes), len(self.steps), self.setup.model.N
+        a = {s: np.zeros((U, S, width)) for s in STATS}
+        a.update(dis=np.zeros((U, S)), dis2=np.zeros((U, S)), dis_node=np.zeros((U, S, width)),
+                 net=np.zeros((U, S)), net2=np.zeros((U, S)), msgs=np.zeros((U, N)), scalars=np.zeros((U, N)))
+        self.sums[name] = a
+        self.paths[name] = np.zeros((self.setup.n_steps, width, self.setup.model.n, self.P))
+        return a
+
+    def add(self, name: str, parts: list, est: np.ndarray, k: int, contacts: dict[str, np.ndarray]) -> None:
+        """The statistics of filter `name` after step k: its estimates `est` (W, n, B) are its errors."""
+        a = self.sums.get(name) or self._allocate(name, est.shape[0])
+        comm = self.comm[name]
+        if comm.pattern != "none":
+            c = (self.per_unit(np.concatenate([(r.hops > 0) for r in parts], axis=-1).astype(float))
+                 if (comm.pattern == "swap" and self.setup.links.synchronous)
+                 else contacts["rounds" if comm.pattern in ("rounds", "swap") else "step"]) * comm.messages_per_contact
+            a["msgs"] += c
+            a["scalars"] += c * comm.scalars_per_message
+        if self.P:
+            self.paths[name][k] = self.x_true[None] + est[:, :, :self.P]
+        if k in self.where:
+            self._record(name, a, parts, -est, k)            # x − x̂ in error coordinates (W, n, B)
+
+    def _record(self, name: str, a: dict, parts: list, err: np.ndarray, k: int) -> None:
+        i, per_unit = self.where[k], self.per_unit
+        if name == self.reference:
+            self.reference_error = err
+        sq = np.einsum("inb,inb->ib", err, err)
+        a["sq"][:, i] = per_unit(sq)
+        a["sq2"][:, i] = per_unit(sq * sq)
+        net = sq.mean(axis=0)
+        a["net"][:, i] = per_unit(net)
+        a["net2"][:, i] = per_unit(net * net)
+        e_c = self.reference_error
+        if e_c is not None:
+            d = err - e_c
+            dd = np.einsum("inb,inb->ib", d, d)
+            a["dist"][:, i] = per_unit(dd)
+            a["dist2"][:, i] = per_unit(dd * dd)
+            cr = np.einsum("inb,nb->ib", d, e_c[0])               # (x − x̂_c)ᵀ (x̂_c − x̂_i)
+            a["cross"][:, i] = per_unit(cr)
+            a["cross2"][:, i] = per_unit(cr * cr)
+        if err.shape[0] > 1:
+            dev = err - err.mean(axis=0, keepdims=True)
+            dn = np.einsum("inb,inb->ib", dev, dev)                 # ‖x̂_i − mean_j x̂_j‖² per node
+            dis = dn.mean(axis=0)
+            a["dis"][:, i] = per_unit(dis)
+            a["dis2"][:, i] = per_unit(dis * dis)
+            a["dis_node"][:, i] = per_unit(dn)
+        own = [r.nees(err[..., c]) for r, c in zip(parts, self.cuts)]
+        own = None if own[0] is None else np.concatenate(own, axis=-1)
+        if own is not None:
+            a["nees"][:, i] = per_unit(own)
+            a["nees2"][:, i] = per_unit(own * own)
+        if name in self.setup.exact_cov:
+            inv = np.linalg.inv(self.setup.exact_cov[name][k])
+            a["xnees"][:, i] = per_unit(np.einsum("inb,inm,imb->ib", err, inv, err))
+
+
+def _deliveries(ctx: StepContext, lm: LinkModel, B: int) -> None:
+    """Which nodes heard a neighbour in the step (per round, or over its exchanges), over how many links."""
+    topo = lm.topology
+    if lm.synchronous:
+        counts = [link_count(topo, mask, B) for mask in ctx.links.rounds]
+        ctx.heard = [c > 0 for c in counts]
+        ctx.step_heard, ctx.step_count = ctx.heard[0], counts[0]
+    else:
+        ctx.step_count = link_count(topo, ctx.links.step_mask, B)
+        ctx.step_heard = ctx.step_count > 0
+
+
 def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossip: Draws) -> dict[str, Any]:
     """Simulate the trials of a few RNG units (`plant.sizes`) and return per-unit sums (module doc).
 
     Statistics are kept at `setup.record_steps` (all steps when empty); message counts at every step."""
     m, lm, K = setup.model, setup.links, setup.n_steps
     sizes = np.array(plant.sizes)
-    B, U = int(sizes.sum()), len(sizes)
-    offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    B = int(sizes.sum())
     N, n = m.N, m.n
     topo = lm.topology
-    kinds = setup.estimators
     cuts = [slice(a, min(a + setup.sub_batch, B)) for a in range(0, B, setup.sub_batch)]
-    runs = {name: [_make(kind, setup, c.stop - c.start) for c in cuts] for name, kind in kinds.items()}
-    kcf = next((name for name, kd in kinds.items() if isinstance(kd, InformationFilter) and kd.kind == "kalman-consensus"),
-               None)
-    for name, kd in kinds.items():      # diffusion shares the Kalman-consensus filter's covariance recursion
-        if kcf is not None and isinstance(kd, InformationFilter) and kd.kind == "diffusion" and \
-                list(kinds).index(kcf) < list(kinds).index(name):
-            runs[name] = [InformationRun(kd, c.stop - c.start, twin=t) for c, t in zip(cuts, runs[kcf])]
-    comm = {name: communication(kind, lm, n) for name, kind in kinds.items()}
-    has_gossip = any(isinstance(k, str) and k == "gossip" for k in kinds.values())
-    steps = setup.record_steps or tuple(range(K))
-    where = {k: i for i, k in enumerate(steps)}
-    S = len(steps)
-
-    def per_unit(a):                                   # (..., B) -> (U, ...)
-        return np.moveaxis(np.add.reduceat(a, offsets, axis=-1), -1, 0)
-
-    acc = {}
-    for name in runs:
-        width = 1 if kinds[name] == "central" else N
-        acc[name] = {s: np.zeros((U, S, width)) for s in STATS}
-        acc[name].update(dis=np.zeros((U, S)), dis2=np.zeros((U, S)), dis_node=np.zeros((U, S, width)),
-                         net=np.zeros((U, S)), net2=np.zeros((U, S)),
-                         msgs=np.zeros((U, N)), scalars=np.zeros((U, N)))
-    q_node = gossip.integers(0, N) if has_gossip else None
-    token = {name: np.zeros((len(setup.token_times), B)) for name, kd in kinds.items() if kd == "gossip"}
-    P = min(setup.n_paths, B)
-    paths = {"x": np.zeros((K, n, P))}
-    paths.update({name: np.zeros((K, 1 if kinds[name] == "central" else N, n, P)) for name in runs})
-
+    runs: dict[str, list] = {}
+    for name, est in setup.estimators.items():     # each built knowing the filters built before it (shares_with)
+        runs[name] = [est.build(c.stop - c.start, {p: parts[j] for p, parts in runs.items()})
+                      for j, c in enumerate(cuts)]
+    swaps = any(est.spec.swaps for est in setup.estimators.values())
+    acc = Accumulator(setup, sizes, cuts)
+    q_node = gossip.integers(0, N) if swaps else None
     seconds = dict.fromkeys(runs, 0.0)
-    # Error coordinates: every estimator is equivariant under adding the same vector to the state, its
-    # prediction and all its estimates (gains act on innovations, fusion weights sum to one, CI's q = Ω x̂),
-    # so the filters run on x ≡ 0 with measurements y = v, initial estimates x0 − x(0), and each
-    # prediction shifted by −w: their estimates are then the errors x̂ − x exactly, without the
-    # cancellation of x − x̂ when an unstable plant makes x huge. The true state is kept for the sample
-    # trials only (recordings).
+    # error coordinates (`protocol`): x ≡ 0, y = v, first prediction x0 − x(0), predictions shifted by −w;
+    # the true state is kept for the sample trials only (recordings)
     x0_draw = _factor(m.P0) @ plant.standard_normal((n,)).T
     for parts in runs.values():
         for r, c in zip(parts, cuts):
@@ -240,23 +231,12 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
     x_true = m.x0[:, None] + x0_draw[:, :setup.n_paths]
     Lq = _factor(m.Q)
     sigma = lm.noise_std
-    cols = np.arange(B)
     for k in range(K):
         y = _measurement_noise(m, plant.standard_normal((N, m.m)))          # H x + v with x ≡ 0
         step_links = lm.draw(links)
         ctx = StepContext(k, y, step_links)
-        contacts = {}
-        if lm.synchronous:
-            counts = [link_count(topo, mask, B) for mask in step_links.rounds]
-            ctx.heard = [c > 0 for c in counts]
-            ctx.step_heard, ctx.step_count = ctx.heard[0], counts[0]
-            contacts["rounds"] = sum(_contacts(topo, mask, offsets, sizes) for mask in step_links.rounds)
-            contacts["step"] = _contacts(topo, step_links.rounds[0], offsets, sizes)
-        else:
-            ctx.step_count = link_count(topo, step_links.step_mask, B)
-            ctx.step_heard = ctx.step_count > 0
-            contacts["rounds"] = _event_contacts(topo, step_links.events, offsets, U)
-            contacts["step"] = _contacts(topo, step_links.step_mask, offsets, sizes)
+        _deliveries(ctx, lm, B)
+        contacts = acc.link_contacts(step_links)
         if sigma:
             if lm.synchronous:
                 ctx.noise = [np.moveaxis(noise.standard_normal((N, n)), 0, -1) for _ in range(lm.rounds)]
@@ -264,73 +244,26 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
             else:
                 ctx.event_noise = np.moveaxis(noise.standard_normal((lm.max_events, 2, n)), 0, -1)
                 ctx.node_noise = np.moveaxis(noise.standard_normal((N, n)), 0, -1)
-        if has_gossip and lm.synchronous and lm.kind != "matchings":
+        if swaps and lm.synchronous and lm.kind != "matchings":
             ctx.gossip_priority = gossip.random((topo.E,)).T
-        if has_gossip:
+        if swaps:
             ctx.swap = step_permutation(lm, step_links, B, ctx.gossip_priority)
-        if P:
-            paths["x"][k] = x_true
-        record = k in where
-        e_c = None
+        acc.begin(k, x_true)
         ctxs = [slice_context(ctx, c) for c in cuts] if len(cuts) > 1 else [ctx]
         for name, parts in runs.items():
-            if name in token and k in setup.token_times:
-                token[name][setup.token_times.index(k)] = np.concatenate(
-                    [sm.trace(r.Pbar)[q_node[c], np.arange(c.stop - c.start)] for r, c in zip(parts, cuts)])
+            if name in acc.token and k in setup.token_times:
+                acc.record_token(name, parts, q_node, k)
             t0 = time.process_time()
             est = np.concatenate([r.step(cx) for r, cx in zip(parts, ctxs)], axis=-1)
             seconds[name] += time.process_time() - t0
-            pattern, per_contact, payload = comm[name]
-            a = acc[name]
-            if pattern != "none":
-                c = (per_unit(np.concatenate([(r.hops > 0) for r in parts], axis=-1).astype(float))
-                     if (pattern == "swap" and lm.synchronous)
-                     else contacts["rounds" if pattern in ("rounds", "swap") else "step"]) * per_contact
-                a["msgs"] += c
-                a["scalars"] += c * payload
-            if P:
-                paths[name][k] = x_true[None] + est[:, :, :P]
-            if not record:
-                continue
-            i = where[k]
-            err = -est                                                # x − x̂ in error coordinates (N, n, B)
-            if kinds[name] == "central":
-                e_c = err
-            sq = np.einsum("inb,inb->ib", err, err)
-            a["sq"][:, i] = per_unit(sq)
-            a["sq2"][:, i] = per_unit(sq * sq)
-            net = sq.mean(axis=0)
-            a["net"][:, i] = per_unit(net)
-            a["net2"][:, i] = per_unit(net * net)
-            if e_c is not None:
-                d = err - e_c
-                dd = np.einsum("inb,inb->ib", d, d)
-                a["dist"][:, i] = per_unit(dd)
-                a["dist2"][:, i] = per_unit(dd * dd)
-                cr = np.einsum("inb,nb->ib", d, e_c[0])               # (x − x̂_c)ᵀ (x̂_c − x̂_i)
-                a["cross"][:, i] = per_unit(cr)
-                a["cross2"][:, i] = per_unit(cr * cr)
-            if err.shape[0] > 1:
-                dev = err - err.mean(axis=0, keepdims=True)
-                dn = np.einsum("inb,inb->ib", dev, dev)                 # ‖x̂_i − mean_j x̂_j‖² per node
-                dis = dn.mean(axis=0)
-                a["dis"][:, i] = per_unit(dis)
-                a["dis2"][:, i] = per_unit(dis * dis)
-                a["dis_node"][:, i] = per_unit(dn)
-            own = [_own_nees(r, err[..., c], k) for r, c in zip(parts, cuts)]
-            own = None if own[0] is None else np.concatenate(own, axis=-1)
-            if own is not None:
-                a["nees"][:, i] = per_unit(own)
-                a["nees2"][:, i] = per_unit(own * own)
-            if name in setup.exact_cov:
-                inv = np.linalg.inv(setup.exact_cov[name][k])
-                a["xnees"][:, i] = per_unit(np.einsum("inb,inm,imb->ib", err, inv, err))
+            acc.add(name, parts, est, k, contacts)
         w = Lq @ plant.standard_normal((n,)).T
         for parts in runs.values():
             for r, c in zip(parts, cuts):
                 r.shift(-w[:, c])
-        x_true = m.F @ x_true + w[:, :P]
-    return {"sums": acc, "token": token, "paths": paths, "sizes": sizes, "steps": np.array(steps), "seconds": seconds}
+        x_true = m.F @ x_true + w[:, :acc.P]
+    return {"sums": acc.sums, "token": acc.token, "paths": acc.paths, "sizes": sizes, "steps": np.array(acc.steps),
+            "seconds": seconds}
 
 
 def _factor(Q: np.ndarray) -> np.ndarray:

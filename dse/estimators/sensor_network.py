@@ -23,7 +23,7 @@ import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily
 
 from .kalman import kalman_covariances, steady_state_gain
 
-__all__ = ["SensorNetworkModel", "detectable", "observable", "split_gains"]
+__all__ = ["SensorNetworkModel", "detectable", "observable", "stabilizable", "split_gains", "walk_gramian_ratio"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -128,6 +128,28 @@ def detectable(F: np.ndarray, H: np.ndarray) -> bool:
 def observable(F: np.ndarray, H: np.ndarray) -> bool:
     """PBH test for every eigenvalue of F."""
     return all(_pbh_rank_ok(F, H, lam) for lam in np.linalg.eigvals(F))
+
+
+def stabilizable(F: np.ndarray, Q: np.ndarray) -> bool:
+    """(F, Q^½) stabilizable: (Fᵀ, Q^½ᵀ) detectable (PBH test on the modes |λ| ≥ 1)."""
+    lam, V = np.linalg.eigh(0.5 * (Q + Q.T))
+    half = V * np.sqrt(np.maximum(lam, 0))
+    return detectable(F.T, half.T)
+
+
+def walk_gramian_ratio(model: SensorNetworkModel, walk: Sequence[int]) -> float:
+    """λ_min/λ_max of the observability Gramian Σ_i (F^i)ᵀ H_{w_i}ᵀ H_{w_i} F^i along a walk w of nodes
+    (Kar & Moura's weak detectability D.1 holds when it is invertible); the sum stops when F^i exceeds 1e150."""
+    Gram = np.zeros((model.n, model.n))
+    Fi = np.eye(model.n)
+    for node in walk:
+        Hf = model.H[node] @ Fi
+        Gram += Hf.T @ Hf
+        Fi = model.F @ Fi
+        if np.abs(Fi).max() > 1e150:
+            break
+    ev = np.linalg.eigvalsh(0.5 * (Gram + Gram.T))
+    return float(ev[0] / max(ev[-1], 1e-300))
 
 
 def split_gains(model: SensorNetworkModel) -> np.ndarray:

@@ -1,22 +1,27 @@
-"""The claims checked on a compare scenario: the references and exact recursions against the
-simulation, the optimality of the centralized filter, the consistency properties the papers prove
-for their covariances, and the orderings the papers claim (Savas et al.: re-injection against
-Carli's filter under noisy links; Kar & Moura: weak consensus of the GIKF).
+"""The hypotheses and claims checked on a compare scenario, each registered on its check: the references
+and exact recursions against the simulation, the optimality of the centralized filter, the consistency
+properties the papers prove for their covariances, and the orderings the papers claim (Savas et al.:
+re-injection against Carli's filter under noisy links; Kar & Moura: weak consensus of the GIKF).
 
-Statistical tests keep their level at the sample size: exact χ² laws where the error is Gaussian
-with a known covariance (given the link draws), the two-sample Kolmogorov-Smirnov test for the
-token law, normal z-tests of means of many independent trials only with an effective-sample-size
-gate; every claim's cells share its confidence (Bonferroni).
+Hypotheses are decided on the design alone (`dse check`). Statistical tests keep their level at the sample
+size: exact χ² laws where the error is Gaussian with a known covariance (given the link draws), the
+two-sample Kolmogorov-Smirnov test for the token law, normal z-tests of means of many independent trials
+only with an effective-sample-size gate; every claim's cells share its confidence (Bonferroni). Which
+estimators run is decided by the design, so a claim about one that does not run is `not-checkable` with the
+reason (a finding of the run, not a gate of the scenario).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from dse.simulate.stats import chi2_two_sided_p, effective_sample_size, normal_two_sided_p
-from dse.verify.rules import (EPS, Claim, Verdict, inequality, not_checkable, p_value_test, roundoff_tolerance)
+from dse.contract.claims import ClaimSet
+from dse.simulate.stats import chi2_two_sided_p, normal_two_sided_p
+from dse.verify.rules import Holds, Verdict, inequality, not_checkable, p_value_test, roundoff_tolerance
 
-from . import hypotheses as H
-from .summary import central_exact_at, stats
+from .stages import token_times
+from .statistics import ks_test, stats
+
+claims = ClaimSet()
 
 #: z-tests of Monte Carlo means need at least this many trials and this effective sample size
 MIN_TRIALS_Z = 500
@@ -24,20 +29,102 @@ MIN_ESS = 200
 #: the Kolmogorov-Smirnov comparison needs this many trials in each sample
 MIN_TRIALS_KS = 50
 
-LINEAR = ("carli", "reinjection", "pairwise", "kcf", "diffusion", "ci")
+NOISY = "compare.hyp.noisy_links"
+NOISELESS = "compare.hyp.noiseless_links"
+CARLI_NOISE = "compare.hyp.carli_noise_dominated"
+STABLE = "compare.hyp.mean_square_stable"
+C1 = "compare.hyp.kar_moura.C1"
+D1 = "compare.hyp.kar_moura.D1"
+S1 = "compare.hyp.kar_moura.S1"
+COLLECTIVE = "compare.hyp.collective_detectability"
+LOCAL = "compare.hyp.local_detectability"
 
 
-def _ks(x, y):
-    """Two-sample Kolmogorov-Smirnov test: scipy's exact p-value where it can compute it, else the
-    asymptotic one (accurate at the sample sizes here, and conservative where the laws have atoms)."""
-    import warnings
+# -- hypotheses --------------------------------------------------------------------------------------------
 
-    from scipy.stats import ks_2samp
+@claims.hypothesis(NOISY, "the links add communication noise (σ_c > 0)")
+def noisy(d) -> Holds:
+    s = d.scenario.links.noise_std
+    return Holds(s > 0, s, 0.0, f"communication noise σ_c = {s:g}")
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return ks_2samp(x, y, method="exact" if max(len(x), len(y)) <= 2000 else "asymp")
 
+@claims.hypothesis(NOISELESS, "the links add no communication noise (σ_c = 0)")
+def noiseless(d) -> Holds:
+    s = d.scenario.links.noise_std
+    return Holds(s == 0, s, 0.0, f"communication noise σ_c = {s:g}")
+
+
+@claims.hypothesis(CARLI_NOISE, "communication noise dominates Carli's filter: its steady mean-square error exceeds "
+                   "that of the same local filters without fusion")
+def carli_noise(d) -> Holds:
+    t = d.tuned
+    if "carli" not in d.running or "carli_local_steady" not in t:
+        return Holds(None, detail="Carli's filter does not run on this scenario: " + d.estimators["carli"].reason)
+    if d.links.kind == "matchings":
+        return Holds(None, detail="under random matchings the steady state has no closed form here (the gains were "
+                                  "tuned on independent links of the same mean activity)")
+    carli, local = t["carli_steady"], t["carli_local_steady"]
+    if not (np.isfinite(carli) or np.isfinite(local)):
+        return Holds(None, detail="neither steady state exists (mean-square unstable)")
+    return Holds(bool(carli > local), carli, local,
+                 f"exact steady network MSE of Carli's filter with its tuned gain {carli:.6g} against the same local "
+                 f"filters without fusion {local:.6g}: communication "
+                 + ("hurts (the noise it integrates outweighs the averaging; the regime of Savas et al.'s Fig. 1)"
+                    if carli > local else "helps"))
+
+
+@claims.hypothesis(STABLE, "Carli's and the re-injection filter's mean-square error recursions are stable (ρ < 1)")
+def stable(d) -> Holds:
+    rows = {e: g["rho"] for e, g in d.gains.items() if e in ("carli", "reinjection")}
+    if len(rows) < 2:
+        return Holds(None, detail="Carli's or the re-injection filter does not run on this scenario")
+    if d.links.kind == "matchings":
+        return Holds(None, detail="under random matchings the mean second-moment recursion has no closed form here")
+    worst = max(rows.values())
+    return Holds(bool(worst < 1), worst, 1.0, "spectral radius of the exact mean second-moment step: " +
+                 ", ".join(f"{e} {r:.6g}" for e, r in rows.items()))
+
+
+@claims.hypothesis(C1, "C.1: the GIKF's mean communication matrix is irreducible and aperiodic")
+def c1(d) -> Holds:
+    v = d.numbers["c1"]
+    return Holds(v, None, None, "mean of the GIKF's swap permutation irreducible and aperiodic: " + d.numbers["c1_detail"])
+
+
+@claims.hypothesis(D1, "D.1: weak detectability (a covering walk with an invertible observability Gramian)")
+def d1(d) -> Holds:
+    v, r = d.numbers["d1"], d.numbers["d1_ratio"]
+    text = (f"Gramian Σ (F^i)ᵀ H_{{w_i}}ᵀ H_{{w_i}} F^i along a covering walk of length {d.numbers['d1_walk_length']}: "
+            f"λ_min/λ_max = {r:.3g}")
+    if v is None:
+        text += "; (F, H) is observable but this walk's Gramian is singular: undecided"
+    elif not v:
+        text += "; (F, H) of all sensors together is not observable, so no walk's Gramian is invertible"
+    return Holds(v, r, 1e-10, text)
+
+
+@claims.hypothesis(S1, "S.1: (F, Q^½) stabilizable")
+def s1(d) -> Holds:
+    v = d.numbers["stabilizable"]
+    return Holds(bool(v), None, None, "(F, Q^½) stabilizable (PBH test on the modes |λ| ≥ 1)")
+
+
+@claims.hypothesis(COLLECTIVE, "collective detectability of (F, H)")
+def collective(d) -> Holds:
+    v = d.numbers["collective_detectable"]
+    return Holds(bool(v), None, None, "(F, H) of all sensors together detectable: the centralized filter's error is bounded")
+
+
+@claims.hypothesis(LOCAL, "local detectability at every node")
+def local(d) -> Holds:
+    loc = np.asarray(d.numbers["local_detectable"])
+    return Holds(bool(loc.all()), int(loc.sum()), len(loc),
+                 f"{int(loc.sum())} of {len(loc)} nodes can detect the state alone (what filters without communication "
+                 "need; weak detectability asks only for the network)")
+
+
+
+# -- claims ------------------------------------------------------------------------------------------------
 
 def _chi2_p(total, trials, n):
     return chi2_two_sided_p(np.asarray(total, float), trials * n)
@@ -49,6 +136,8 @@ def _finite(*arrays) -> bool:
 
 # -- 1. the reference --------------------------------------------------------------------------------------
 
+@claims.claim("compare.central.filterpy", "reference (filterpy)", "the centralized Kalman filter agrees with "
+              "filterpy's KalmanFilter on the stacked model to round-off", "identity")
 def filterpy_reference(res) -> Verdict:
     r = res.reference
     if not r:
@@ -65,14 +154,17 @@ def filterpy_reference(res) -> Verdict:
 
 # -- 2. exact recursions against the simulation --------------------------------------------------------
 
+@claims.claim("compare.exact.monte_carlo", "exact moment recursions", "the exact second moments of the linear "
+              "network filters (Carli, re-injection, pairwise averaging; Kalman-consensus, diffusion and CI on reliable "
+              "links) agree with the simulation", "statistical")
 def exact_vs_monte_carlo(res) -> Verdict:
     B, n = res.trials, res.design.model.n
     idx = res.check_indices()
     ps, cells, skipped = [], [], []
     worst = (None, None)
     random_links = res.design.links.random or not res.design.links.synchronous
-    for est in LINEAR:
-        if est not in res.exact or est not in res.mc:
+    for est, designed in res.design.estimators.items():
+        if not designed.spec.joint_moments or est not in res.exact or est not in res.mc:
             continue
         s = res.mc[est]
         ex = res.exact[est]["mse"][res.steps[idx]]                   # (C, N)
@@ -121,12 +213,15 @@ def _state_rms(res) -> np.ndarray:
     m = res.design.model
     S = m.P0 + np.outer(m.x0, m.x0)
     out = []
-    for _ in range(res.scenario.steps):
+    for _ in range(res.scenario.simulation.steps):
         out.append(np.sqrt(max(float(np.trace(S)), 0.0)))
         S = m.F @ S @ m.F.T + m.Q
     return np.array(out)
 
 
+@claims.claim("compare.central.orthogonality", "orthogonality principle", "the centralized filter's error is "
+              "orthogonal to every other estimate's distance from it, so the excess mean-square error over the "
+              "centralized filter is the mean-square distance to it", "statistical")
 def orthogonality(res) -> Verdict:
     """E[(x − x̂_c)ᵀ(x̂_c − x̂_i)] = 0, tested cell by cell (node, step) by a normal z-test of the mean over
     trials, beyond a round-off allowance: an estimator that equals the centralized filter up to rounding
@@ -144,7 +239,7 @@ def orthogonality(res) -> Verdict:
     m = res.design.model
     steps = np.asarray(res.steps)[idx]
     err_rms = np.sqrt(np.maximum(stats(res, "central").mse[idx], 0.0)).reshape(len(idx), -1)[:, :1]
-    ops = (steps + 1.0) * (res.scenario.rounds + 1) * (m.n + m.N * m.m)
+    ops = (steps + 1.0) * (res.scenario.links.rounds + 1) * (m.n + m.N * m.m)
     allowance = np.array([roundoff_tolerance(scale=float(e * x), operations=float(o))[0]
                           for e, x, o in zip(err_rms[:, 0], _state_rms(res)[steps], ops)])[:, None]
     ps, names, skipped = [], [], []
@@ -174,6 +269,8 @@ def orthogonality(res) -> Verdict:
 
 # -- 4. the centralized filter is a lower bound --------------------------------------------------------------
 
+@claims.claim("compare.central.lower_bound", "optimality of the centralized filter", "no estimator has a smaller "
+              "exact mean-square error than the centralized Kalman filter, at any node and step", "inequality")
 def lower_bound(res) -> Verdict:
     if "central" not in res.exact:
         return not_checkable("the centralized filter does not run")
@@ -189,7 +286,7 @@ def lower_bound(res) -> Verdict:
         return not_checkable("no other estimator has exact moments on this scenario")
     m = res.design.model
     scale = float(max(np.max(central), 1e-300))
-    tol, how = roundoff_tolerance(scale=scale, operations=float(res.scenario.steps) * (m.N * m.n) ** 2 / max(m.N, 1))
+    tol, how = roundoff_tolerance(scale=scale, operations=float(res.scenario.simulation.steps) * (m.N * m.n) ** 2 / max(m.N, 1))
     return inequality(np.concatenate(lows), np.concatenate(ups), tolerance=tol,
                       detail=f"exact MSE of every node of {', '.join(names)} at every step against the centralized "
                              f"filter's (the conditional mean given every measurement); {how}.")
@@ -197,6 +294,9 @@ def lower_bound(res) -> Verdict:
 
 # -- 5. filters whose covariance is the conditional covariance ----------------------------------------------
 
+@claims.claim("compare.kalman.conditional_covariance", "Kar & Moura (8)-(10); Kalman (1960)", "the covariances "
+              "of the centralized, local and GIKF filters are their errors' conditional covariances (GIKF: given the "
+              "swap path)", "statistical")
 def conditional_covariances(res) -> Verdict:
     B, n = res.trials, res.design.model.n
     idx = res.check_indices()
@@ -221,6 +321,9 @@ def conditional_covariances(res) -> Verdict:
 
 # -- 6. CI is conservative -------------------------------------------------------------------------------
 
+@claims.claim("compare.ci.conservative.exact", "Battistelli & Chisci (2014), consistency of CI", "with noiseless "
+              "links the CI filter's covariance bounds its error covariance: E[e_i e_iᵀ] ⪯ Ω_i⁻¹ (exact, reliable "
+              "links)", "inequality", hypotheses=(NOISELESS,))
 def ci_conservative_exact(res) -> Verdict:
     ex = res.exact.get("ci")
     if ex is None:
@@ -230,13 +333,16 @@ def ci_conservative_exact(res) -> Verdict:
     low = np.linalg.eigvalsh(0.5 * (diff + np.swapaxes(diff, -1, -2)))[..., 0]
     m = res.design.model
     scale = float(np.abs(ex["own_cov"]).max())
-    tol, how = roundoff_tolerance(scale=scale, operations=float(res.scenario.steps) * m.N * m.n ** 2,
+    tol, how = roundoff_tolerance(scale=scale, operations=float(res.scenario.simulation.steps) * m.N * m.n ** 2,
                                   condition=float(np.max(np.linalg.cond(ex["own_cov"]))))
     return inequality(np.zeros_like(low).ravel(), low.ravel(), tolerance=tol,
                       detail="smallest eigenvalue of Ω_i⁻¹ − E[e_i e_iᵀ] (the filter's covariance minus the exact "
                              f"error covariance) at every node and step; {how}.")
 
 
+@claims.claim("compare.ci.conservative.monte_carlo", "Battistelli & Chisci (2014), consistency of CI", "with "
+              "noiseless links the CI filter's covariance bounds its error covariance (random links: one-sided χ² "
+              "test)", "statistical", hypotheses=(NOISELESS,))
 def ci_conservative_mc(res) -> Verdict:
     if "ci" not in res.mc:
         return not_checkable("the CI filter does not run")
@@ -256,6 +362,10 @@ def ci_conservative_mc(res) -> Verdict:
 
 # -- 7. Savas et al.: re-injection against Carli under noisy links ----------------------------------------
 
+@claims.claim("compare.savas.reinjection_beats_carli", "Savas et al. §III-B, §IV, Figs. 1 and 3", "under noisy "
+              "links, in the regime where communication noise dominates Carli's filter, the re-injection filter with "
+              "gains tuned for its steady state has a smaller steady-state mean-square error than Carli's filter with "
+              "its tuned gain, on the same links and rounds", "inequality", hypotheses=(NOISY, CARLI_NOISE, STABLE))
 def reinjection_beats_carli(res) -> Verdict:
     g = res.design.gains
     if "carli" not in g or "reinjection" not in g:
@@ -265,7 +375,7 @@ def reinjection_beats_carli(res) -> Verdict:
     tol, how = roundoff_tolerance(scale=carli, operations=float((m.N * m.n) ** 2), condition=1.0 / max(
         1e-300, 1 - max(g["reinjection"]["rho"], g["carli"]["rho"])))
     extra = ""
-    k = res.scenario.eval_step
+    k = res.scenario.simulation.eval_step
     if "carli" in res.mc and "reinjection" in res.mc:
         sr, sc_ = stats(res, "reinjection"), stats(res, "carli")
         i = res.eval_index
@@ -283,12 +393,13 @@ def reinjection_beats_carli(res) -> Verdict:
 
 # -- 8. Kar & Moura: the law of a random sensor's covariance is the token chain's ---------------------------
 
+@claims.claim("compare.kar_moura.random_sensor_law", "Kar & Moura Thm 10(i) and its proof", "weak consensus: "
+              "the conditional covariance at a uniformly random sensor has, at every step, the law of Riccati iterates "
+              "along a stationary token walk with the mean communication kernel (20), which converges to one "
+              "invariant law under weak detectability", "statistical", hypotheses=(C1, D1, S1))
 def random_sensor_law(res) -> Verdict:
     if "gikf" not in res.token or "chain" not in res.token:
         return not_checkable("the GIKF does not run")
-    
-    from .compute import token_times
-
     a, b = res.token["gikf"], res.token["chain"]
     if a.shape[1] < MIN_TRIALS_KS:
         return not_checkable(f"needs ≥ {MIN_TRIALS_KS} trials per sample; ran {a.shape[1]}")
@@ -296,7 +407,7 @@ def random_sensor_law(res) -> Verdict:
     for t, (x, y) in enumerate(zip(a, b)):
         if not (_finite(x) and _finite(y)):
             return not_checkable("covariance traces not finite")
-        r = _ks(x, y)
+        r = ks_test(x, y)
         ps.append(r.pvalue)
         stats_.append(r.statistic)
         parts.append(f"k = {token_times(res.scenario)[t]}: D = {r.statistic:.4f}, medians {np.median(x):.5g} / "
@@ -308,34 +419,3 @@ def random_sensor_law(res) -> Verdict:
         "(conservative where the laws have atoms): " + "; ".join(parts) + "."))
 
 
-def catalogue() -> list[Claim]:
-    return [
-        Claim("compare.central.filterpy", "reference (filterpy)", "the centralized Kalman filter agrees with filterpy's "
-              "KalmanFilter on the stacked model to round-off", "identity", filterpy_reference),
-        Claim("compare.exact.monte_carlo", "exact moment recursions", "the exact second moments of the linear network "
-              "filters (Carli, re-injection, pairwise averaging; Kalman-consensus, diffusion and CI on reliable links) "
-              "agree with the simulation", "statistical", exact_vs_monte_carlo),
-        Claim("compare.central.orthogonality", "orthogonality principle", "the centralized filter's error is orthogonal "
-              "to every other estimate's distance from it, so the excess mean-square error over the centralized filter "
-              "is the mean-square distance to it", "statistical", orthogonality),
-        Claim("compare.central.lower_bound", "optimality of the centralized filter", "no estimator has a smaller exact "
-              "mean-square error than the centralized Kalman filter, at any node and step", "inequality", lower_bound),
-        Claim("compare.kalman.conditional_covariance", "Kar & Moura (8)-(10); Kalman (1960)", "the covariances of the "
-              "centralized, local and GIKF filters are their errors' conditional covariances (GIKF: given the swap "
-              "path)", "statistical", conditional_covariances),
-        Claim("compare.ci.conservative.exact", "Battistelli & Chisci (2014), consistency of CI", "with noiseless links "
-              "the CI filter's covariance bounds its error covariance: E[e_i e_iᵀ] ⪯ Ω_i⁻¹ (exact, reliable links)",
-              "inequality", ci_conservative_exact, hypotheses=(H.NOISELESS,)),
-        Claim("compare.ci.conservative.monte_carlo", "Battistelli & Chisci (2014), consistency of CI", "with noiseless "
-              "links the CI filter's covariance bounds its error covariance (random links: one-sided χ² test)",
-              "statistical", ci_conservative_mc, hypotheses=(H.NOISELESS,)),
-        Claim("compare.savas.reinjection_beats_carli", "Savas et al. §III-B, §IV, Figs. 1 and 3", "under noisy links, in "
-              "the regime where communication noise dominates Carli's filter, the re-injection filter with gains "
-              "tuned for its steady state has a smaller steady-state mean-square error than Carli's filter with its "
-              "tuned gain, on the same links and rounds", "inequality", reinjection_beats_carli,
-              hypotheses=(H.NOISY, H.CARLI_NOISE, H.STABLE)),
-        Claim("compare.kar_moura.random_sensor_law", "Kar & Moura Thm 10(i) and its proof", "weak consensus: the "
-              "conditional covariance at a uniformly random sensor has, at every step, the law of Riccati iterates "
-              "along a stationary token walk with the mean communication kernel (20), which converges to one invariant "
-              "law under weak detectability", "statistical", random_sensor_law, hypotheses=(H.C1, H.D1, H.S1)),
-    ]

@@ -1,29 +1,26 @@
-"""The `compare` scenario family: one discrete-time linear-Gaussian plant, one graph and one link
-model, given to every estimator that applies.
+"""The `compare` scenario file, declared once: one discrete-time linear-Gaussian plant, one graph and one link
+model, given to every registered estimator that applies.
 
-Every key is declared once below (type, default, bounds, unit, meaning); `docs/scenarios.md` is
-generated from the declarations. Rules that tie keys of different tables together (matrix sizes
-against the state dimension, the link model's own keys, gains given per sensor type) are checked
-when the file is read, each naming its key.
+Every key is declared below (type, default, bounds, unit, meaning); docs/scenarios.md is generated from the
+declarations. Rules that tie keys of different tables together (matrix sizes against the state dimension,
+the graph's degrees against the weights, gains given per sensor type) are the file's validator, each error
+naming its key. The validated file is the scenario the stages read: the matrices, the sensor network model,
+the link model and the consensus weights are its cached properties.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, Literal
+from functools import cached_property
+from typing import Literal
 
 import numpy as np
 from pydantic import model_validator
 
-from dse.scenario.declare import Matrix, Real, Section, computed, covariance, key, matrix, parse
 from dse.errors import ScenarioError
+from dse.estimators.network import registry
+from dse.scenario.declare import (Matrix, Real, ScenarioFile, Section, computed_default, covariance, key, matrix,
+                                  name_key)
 from dse.scenario.graphs import GraphSection, GraphSpec, graph_from_section, max_degree
 
-#: every estimator of the family, in the order of the tables
-ESTIMATORS = ("central", "local", "gikf", "carli", "reinjection", "pairwise", "kcf", "diffusion", "ci")
-LABELS = {"central": "centralized KF", "local": "local KF (no communication)", "gikf": "GIKF (Kar & Moura)",
-          "carli": "two-stage consensus (Carli et al.)", "reinjection": "re-injection (Savas et al.)",
-          "pairwise": "pairwise averaging (Tanwani)", "kcf": "Kalman-consensus (Olfati-Saber)",
-          "diffusion": "diffusion KF, ATC (Cattivelli & Sayed)", "ci": "consensus on information (Battistelli & Chisci)"}
 MAX_NODES = 500
 MAX_STATE = 10
 MAX_ROWS = 4
@@ -35,11 +32,21 @@ class PlantSection(Section):
 
     F: Matrix = key(doc="state transition matrix (n x n)", constraint=f"square, n <= {MAX_STATE}")
     Q: Matrix = key(doc="process noise covariance (n x n)", unit="state²", constraint="symmetric, positive semidefinite")
-    P0: Matrix | None = key(computed("identity"), doc="covariance of x(0) (n x n); every filter starts from it",
-                            unit="state²", constraint="symmetric, positive definite (the information filters start "
-                                                      "from its inverse)")
-    x0: list[Real] | None = key(computed("zeros"), doc="mean of x(0), every node's first estimate", unit="state",
-                                constraint="n entries")
+
+    @computed_default
+    def _identity(data):
+        """identity"""
+        return [[float(i == j) for j in range(len(data["F"]))] for i in range(len(data["F"]))]
+
+    P0: Matrix = key(_identity, doc="covariance of x(0) (n x n); every filter starts from it", unit="state²",
+                     constraint="symmetric, positive definite (the information filters start from its inverse)")
+
+    @computed_default
+    def _zeros(data):
+        """zeros"""
+        return [0.0] * len(data["F"])
+
+    x0: list[Real] = key(_zeros, doc="mean of x(0), every node's first estimate", unit="state", constraint="n entries")
 
 
 class SensorType(Section):
@@ -95,9 +102,9 @@ class WeightsSection(Section):
         "metropolis", doc="metropolis: q_ij = 1/(1 + max(d_i, d_j)); laplacian: q_ij = eps on every link")
     eps: Real | None = key(None, doc="the Laplacian weight (kind = laplacian)", gt=0,
                            constraint="required with kind = laplacian, only then; < 1/d_max")
-    alpha: Real | None = key(computed("1/(1 + d_max)"), doc="weight α of Tanwani's pairwise averaging (6), "
-                             "Π = I − α L (the paper allows up to 1/d_max; at 1/d_max a synchronous round on a "
-                             "bipartite graph has an eigenvalue −1 that never averages out)", gt=0, le=0.5,
+    alpha: Real | None = key(None, doc="weight α of Tanwani's pairwise averaging (6), Π = I − α L; none: 1/(1 + "
+                             "d_max) (the paper allows up to 1/d_max; at 1/d_max a synchronous round on a bipartite "
+                             "graph has an eigenvalue −1 that never averages out)", gt=0, le=0.5,
                              constraint="<= 1/d_max")
     kcf_epsilon: Real = key(0.1, doc="ε of the Kalman-consensus filter's consensus gain γ = ε/(1 + ‖M‖)", gt=0, le=10)
 
@@ -150,9 +157,22 @@ class EstimatorsSection(Section):
     """Which estimators run (each one that does not apply to the link model is reported as not applicable,
     with the reason)."""
 
-    include: list[Literal[ESTIMATORS]] | None = key(  # type: ignore[valid-type]
-        computed("all"), doc="estimator ids: " + ", ".join(ESTIMATORS), min_length=1,
-        constraint="the centralized filter always runs (it is the reference)")
+    @computed_default
+    def _every(data):
+        """all"""
+        return list(registry())
+
+    include: list[str] = key(_every, doc="estimator ids: " + ", ".join(registry()), min_length=1,
+                             constraint="registered estimator ids; the centralized filter always runs (it is the "
+                                        "reference)")
+
+    @model_validator(mode="after")
+    def _registered(self):
+        known = registry()
+        for i, name in enumerate(self.include):
+            if name not in known:
+                raise ScenarioError(f"include[{i}]", f"must be one of {', '.join(known)}; got {name!r}")
+        return self
 
 
 class SimulationSection(Section):
@@ -160,26 +180,38 @@ class SimulationSection(Section):
 
     steps: int = key(100, doc="steps k = 0..steps−1", ge=2, le=MAX_STEPS)
     trials: int = key(4000, doc="Monte Carlo trials", ge=100, le=10_000_000)
-    quick_trials: int | None = key(computed("min(trials, 1000)"), doc="trials in quick runs", ge=100,
-                                   le=10_000_000)
-    eval_step: int | None = key(computed("steps − 1"), doc="step at which the node tables and the claims "
-                                "compare the estimators", ge=1, constraint="< steps")
+
+    @computed_default
+    def _quick(data):
+        """min(trials, 1000)"""
+        return min(data["trials"], 1000)
+
+    quick_trials: int = key(_quick, doc="trials in quick runs", ge=100, le=10_000_000)
+
+    @computed_default
+    def _last(data):
+        """steps − 1"""
+        return data["steps"] - 1
+
+    eval_step: int = key(_last, doc="step at which the node tables and the claims compare the estimators", ge=1,
+                         constraint="< steps")
     paths: int = key(1, doc="sample trials kept whole for the recording", ge=0, le=20)
     exact_max_dimension: int = key(400, doc="exact joint recursions run when N n is at most this (their cost "
                                    "grows as (N n)³ per step)", ge=2, le=5000)
 
     @model_validator(mode="after")
     def _eval(self):
-        if self.eval_step is not None and self.eval_step >= self.steps:
+        if self.eval_step >= self.steps:
             raise ScenarioError("eval_step", f"must be < steps = {self.steps}, got {self.eval_step}")
         return self
 
 
-class CompareFile(Section):
+class CompareFile(ScenarioFile):
     """A compare scenario file."""
 
-    name: str = key("scenario", doc="scenario name: the output directory OUT/run/<name>/",
-                    pattern=r"^[A-Za-z0-9_-]{1,64}$")
+    unkeyed = {"name": True, "simulation": {"trials": True, "quick_trials": True}}
+
+    name: str = name_key()
     plant: PlantSection = key(doc="the plant")
     sensors: SensorsSection = key(doc="the sensors")
     graph: GraphSection = key(doc="the communication graph")
@@ -189,120 +221,130 @@ class CompareFile(Section):
     estimators: EstimatorsSection = key(EstimatorsSection, doc="the estimators")
     simulation: SimulationSection = key(SimulationSection, doc="horizon and Monte Carlo")
 
+    @model_validator(mode="after")
+    def _cross_table_rules(self):
+        """Sizes against the state dimension and the graph, weights against the degrees, gains per sensor
+        type; every property below is computed here once, so that an invalid file fails when read."""
+        if self.N > MAX_NODES:
+            raise ScenarioError("graph.n", f"{self.N} nodes; this family handles at most {MAX_NODES}")
+        if self.n > MAX_STATE:
+            raise ScenarioError("plant.F", f"state dimension {self.n} > {MAX_STATE}")
+        self.Q, self.P0, self.x0, self.sensor_types, self.assign      # each raises naming its key
+        dmax = self.max_degree
+        w = self.weights
+        if w.kind == "laplacian" and w.eps >= 1.0 / dmax:
+            raise ScenarioError("weights.eps", f"must be < 1/d_max = {1.0 / dmax:.6g}, got {w.eps:g}")
+        if self.alpha > 1.0 / dmax + 1e-15:
+            raise ScenarioError("weights.alpha", f"must be <= 1/d_max = {1.0 / dmax:.6g}, got {self.alpha:g}")
+        self.given_gains
+        return self
 
-@dataclass(frozen=True)
-class CompareScenario:
-    name: str
-    F: np.ndarray
-    Q: np.ndarray
-    P0: np.ndarray
-    x0: np.ndarray
-    H_types: tuple
-    R_types: tuple
-    assign: tuple[int, ...]
-    graph: GraphSpec
-    link_model: str
-    p_fail: float
-    rate: float
-    rounds: int
-    noise_std: float
-    weights_kind: str
-    eps: float
-    alpha: float
-    kcf_epsilon: float
-    gain_base: str
-    given_gains: tuple
-    carli_scale: float | str
-    reinjection_scale: float | str
-    reinjection_zeta: float | str
-    pairwise_scale: float
-    include: tuple[str, ...]
-    steps: int
-    trials: int
-    quick_trials: int
-    eval_step: int
-    paths: int
-    exact_max_dimension: int
+    # -- the scenario the stages read ----------------------------------------------------------------------
+
+    @cached_property
+    def network(self) -> GraphSpec:
+        return graph_from_section(self.graph, "graph", connected=True, min_nodes=2)
 
     @property
     def N(self) -> int:
-        return self.graph.n
+        return self.network.n
+
+    @cached_property
+    def F(self) -> np.ndarray:
+        F = matrix(self.plant.F, "plant.F")
+        if F.shape[0] != F.shape[1]:
+            raise ScenarioError("plant.F", f"must be square, got {F.shape[0]}x{F.shape[1]}")
+        return F
 
     @property
     def n(self) -> int:
         return self.F.shape[0]
 
-    def key(self) -> dict[str, Any]:
-        """Everything that determines the numbers (for the stage cache)."""
-        out = {}
-        for f in self.__dataclass_fields__:
-            if f in ("name", "trials", "quick_trials", "paths"):
-                continue
-            v = getattr(self, f)
-            out[f] = [np.asarray(a).tolist() for a in v] if f in ("H_types", "R_types", "given_gains") else \
-                (v.tolist() if isinstance(v, np.ndarray) else v)
-        return out
+    @cached_property
+    def Q(self) -> np.ndarray:
+        return covariance(self.plant.Q, "plant.Q", n=self.n)
 
-    @classmethod
-    def from_dict(cls, data: Any) -> "CompareScenario":
-        f = parse(CompareFile, data)
-        graph = graph_from_section(f.graph, "graph", connected=True, min_nodes=2)
-        N = graph.n
-        if N > MAX_NODES:
-            raise ScenarioError("graph.n", f"{N} nodes; this family handles at most {MAX_NODES}")
-        F = matrix(f.plant.F, "plant.F")
-        n = F.shape[0]
-        if F.shape != (n, n):
-            raise ScenarioError("plant.F", f"must be square, got {F.shape[0]}x{F.shape[1]}")
-        if n > MAX_STATE:
-            raise ScenarioError("plant.F", f"state dimension {n} > {MAX_STATE}")
-        Q = covariance(f.plant.Q, "plant.Q", n=n)
-        P0 = covariance(f.plant.P0, "plant.P0", n=n, definite=True) if f.plant.P0 is not None else np.eye(n)
-        x0 = np.zeros(n) if f.plant.x0 is None else np.asarray(f.plant.x0, float)
-        if x0.shape != (n,):
-            raise ScenarioError("plant.x0", f"must have {n} entries, got {x0.size}")
-        Hs, Rs = [], []
-        for t, st in enumerate(f.sensors.types):
-            H = matrix(st.H, f"sensors.types[{t}].H", shape=(None, n))
+    @cached_property
+    def P0(self) -> np.ndarray:
+        return covariance(self.plant.P0, "plant.P0", n=self.n, definite=True)
+
+    @cached_property
+    def x0(self) -> np.ndarray:
+        x0 = np.asarray(self.plant.x0, float)
+        if x0.shape != (self.n,):
+            raise ScenarioError("plant.x0", f"must have {self.n} entries, got {x0.size}")
+        return x0
+
+    @cached_property
+    def sensor_types(self) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+        """(H, R) of every sensor type."""
+        out = []
+        for t, st in enumerate(self.sensors.types):
+            H = matrix(st.H, f"sensors.types[{t}].H", shape=(None, self.n))
             if H.shape[0] > MAX_ROWS:
                 raise ScenarioError(f"sensors.types[{t}].H", f"{H.shape[0]} rows; at most {MAX_ROWS}")
-            Hs.append(H)
-            Rs.append(covariance(st.R, f"sensors.types[{t}].R", n=H.shape[0], definite=True))
-        T = len(Hs)
-        if f.sensors.assign is None:
-            assign = tuple(i % T for i in range(N))
-        else:
-            assign = tuple(f.sensors.assign)
-            if len(assign) != N:
-                raise ScenarioError("sensors.assign", f"must have one entry per node ({N}), got {len(assign)}")
-            bad = [a for a in assign if not 0 <= a < T]
-            if bad:
-                raise ScenarioError("sensors.assign", f"type index {bad[0]} out of range 0..{T - 1}")
-        G = graph.build()
-        dmax = max_degree(G)
-        w = f.weights
-        if w.kind == "laplacian" and w.eps >= 1.0 / dmax:
-            raise ScenarioError("weights.eps", f"must be < 1/d_max = {1.0 / dmax:.6g}, got {w.eps:g}")
-        alpha = w.alpha if w.alpha is not None else 1.0 / (1.0 + dmax)
-        if alpha > 1.0 / dmax + 1e-15:
-            raise ScenarioError("weights.alpha", f"must be <= 1/d_max = {1.0 / dmax:.6g}, got {alpha:g}")
-        g = f.gains
-        given = ()
-        if g.base == "given":
-            if len(g.given) != T:
-                raise ScenarioError("gains.given", f"one gain per sensor type ({T}), got {len(g.given)}")
-            given = tuple(matrix(K, f"gains.given[{t}]", shape=(n, Hs[t].shape[0])) for t, K in enumerate(g.given))
-        include = tuple(e for e in ESTIMATORS if f.estimators.include is None or e in f.estimators.include
-                        or e == "central")
-        s = f.simulation
-        lk = f.links
-        return cls(name=f.name, F=F, Q=Q, P0=P0, x0=x0, H_types=tuple(Hs), R_types=tuple(Rs), assign=assign,
-                   graph=graph, link_model=lk.model, p_fail=float(lk.p_fail), rate=float(lk.rate or 0.0),
-                   rounds=lk.rounds, noise_std=float(lk.noise_std), weights_kind=w.kind, eps=float(w.eps or 0.0),
-                   alpha=float(alpha), kcf_epsilon=float(w.kcf_epsilon), gain_base=g.base, given_gains=given,
-                   carli_scale=g.carli_scale, reinjection_scale=g.reinjection_scale,
-                   reinjection_zeta=g.reinjection_zeta, pairwise_scale=float(g.pairwise_scale), include=include,
-                   steps=s.steps, trials=s.trials,
-                   quick_trials=s.quick_trials if s.quick_trials is not None else min(s.trials, 1000),
-                   eval_step=s.eval_step if s.eval_step is not None else s.steps - 1, paths=s.paths,
-                   exact_max_dimension=s.exact_max_dimension)
+            out.append((H, covariance(st.R, f"sensors.types[{t}].R", n=H.shape[0], definite=True)))
+        return tuple(out)
+
+    @cached_property
+    def assign(self) -> tuple[int, ...]:
+        """The sensor type of every node (types repeat over the nodes by default)."""
+        T = len(self.sensors.types)
+        if self.sensors.assign is None:
+            return tuple(i % T for i in range(self.N))
+        assign = tuple(self.sensors.assign)
+        if len(assign) != self.N:
+            raise ScenarioError("sensors.assign", f"must have one entry per node ({self.N}), got {len(assign)}")
+        bad = [a for a in assign if not 0 <= a < T]
+        if bad:
+            raise ScenarioError("sensors.assign", f"type index {bad[0]} out of range 0..{T - 1}")
+        return assign
+
+    @cached_property
+    def max_degree(self) -> int:
+        return max_degree(self.network.build())
+
+    @cached_property
+    def alpha(self) -> float:
+        """α of the pairwise averaging: `weights.alpha`, by default 1/(1 + d_max)."""
+        return float(self.weights.alpha if self.weights.alpha is not None else 1.0 / (1.0 + self.max_degree))
+
+    @cached_property
+    def given_gains(self) -> tuple[np.ndarray, ...]:
+        """The base gain of every sensor type (base = given), n x m_t each."""
+        g = self.gains
+        if g.base != "given":
+            return ()
+        if len(g.given) != len(self.sensor_types):
+            raise ScenarioError("gains.given", f"one gain per sensor type ({len(self.sensor_types)}), got {len(g.given)}")
+        return tuple(matrix(K, f"gains.given[{t}]", shape=(self.n, self.sensor_types[t][0].shape[0]))
+                     for t, K in enumerate(g.given))
+
+    @cached_property
+    def estimator_names(self) -> tuple[str, ...]:
+        """The estimators that run, in the registry's order (the reference always)."""
+        return tuple(name for name, est in registry().items() if name in self.estimators.include or est.reference)
+
+    @cached_property
+    def model(self):
+        """The plant and the sensors at the nodes (`sensor_network.SensorNetworkModel`)."""
+        from dse.estimators.sensor_network import SensorNetworkModel
+
+        return SensorNetworkModel.build(self.F, self.Q, [self.sensor_types[t][0] for t in self.assign],
+                                        [self.sensor_types[t][1] for t in self.assign], self.P0, self.x0)
+
+    @cached_property
+    def link_model(self):
+        """The graph's links under the link model (`link_models.LinkModel`)."""
+        from dse.estimators.link_models import LinkModel, Topology
+
+        lk = self.links
+        topo = Topology.from_edges(self.N, list(self.network.build().edges()))
+        return LinkModel(topo, lk.model, rounds=lk.rounds, p_fail=float(lk.p_fail), rate=float(lk.rate or 0.0),
+                         noise_std=float(lk.noise_std))
+
+    @cached_property
+    def edge_weights(self) -> np.ndarray:
+        """q_e of the consensus and combination rounds on every edge."""
+        topo = self.link_model.topology
+        return topo.metropolis_weights() if self.weights.kind == "metropolis" else np.full(topo.E, self.weights.eps)

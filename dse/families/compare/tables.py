@@ -1,17 +1,19 @@
-"""Every number of a compare run as documented tidy tables (first column `scenario`)."""
+"""Every number of a compare run as documented tidy tables (first column `scenario`), one row per estimator
+of the registry (`dse.estimators.network`) where a table has one."""
 from __future__ import annotations
 
 import numpy as np
 import pandas as pd
 
+from dse.estimators.network import registry
 from dse.outputs.tables import spec
 
-from .design import Design, applicability_rows
-from .scenario import ESTIMATORS, LABELS
-from .summary import NEES_BAND, exact_at, exact_disagreement_at, nees_band, stats
+from .design import Design
+from .stages import token_times
+from .statistics import NEES_BAND, exact_at, exact_disagreement_at, is_reference, ks_test, nees_band, stats
 
 _S = ("scenario", "", "scenario name")
-_E = ("estimator", "", "estimator id: " + ", ".join(ESTIMATORS))
+_E = ("estimator", "", "estimator id: " + ", ".join(registry()))
 
 APPLICABILITY = spec("applicability", "estimator", [
     _S, _E, ("label", "", "what the estimator is"), ("applies", "", "true when it runs on this scenario"),
@@ -91,20 +93,27 @@ METRICS = spec("metrics", "metric of an estimator (network-wide when node is emp
     ("node", "", "node (empty: network-wide)"), _E, ("value", "as the quantity", "the value at the evaluation step")])
 
 
+def applicability_rows(d: Design) -> list[dict]:
+    rows = []
+    for name, est in d.estimators.items():
+        g = est.tuning
+        rows.append({"scenario": d.scenario.name, "estimator": name, "label": est.spec.title, "applies": est.applies,
+                     "reason": est.reason, "exact": est.exact, "exact_reason": est.exact_reason if est.applies else "",
+                     "gain_scale": g.get("scale", np.nan), "zeta": g.get("zeta", np.nan),
+                     "mean_square_radius": g.get("rho", np.nan), "steady_mse": g.get("steady_mse", np.nan)})
+    return rows
+
+
 def design_tables(d: Design) -> list:
     sc = d.scenario
-    rows = [{"scenario": sc.name, **r} for r in applicability_rows(d)]
-    out = [(APPLICABILITY, pd.DataFrame(rows, columns=APPLICABILITY.column_names))]
+    out = [(APPLICABILITY, pd.DataFrame(applicability_rows(d), columns=APPLICABILITY.column_names))]
     g = []
-    for est in ("carli", "reinjection", "pairwise"):
-        f = d.estimators.get(est)
-        if f is None:
-            continue
-        K = f.gains
-        for i in range(K.shape[0]):
+    for name, est in d.running.items():
+        K = est.gains
+        for i in range(K.shape[0] if K is not None else 0):
             for a in range(K.shape[1]):
                 for b in range(d.model.rows[i]):
-                    g.append({"scenario": sc.name, "estimator": est, "node": i, "row": a, "col": b, "value": K[i, a, b]})
+                    g.append({"scenario": sc.name, "estimator": name, "node": i, "row": a, "col": b, "value": K[i, a, b]})
     out.append((GAINS, pd.DataFrame(g, columns=GAINS.column_names)))
     out.append((WEIGHTS, pd.DataFrame({"scenario": sc.name, "u": d.topology.edges[:, 0], "v": d.topology.edges[:, 1],
                                        "consensus_weight": d.weights, "pairwise_weight": sc.alpha},
@@ -114,81 +123,81 @@ def design_tables(d: Design) -> list:
     return out
 
 
-def _nan(a):
-    return np.full(np.shape(a), np.nan) if a is None else a
+def _estimator_rows(res, est: str, reference_exact) -> tuple[dict, list, list, list]:
+    """The estimator's row of `estimators`, its rows of `nodes` and `series`, and its `metrics`."""
+    sc, i, k = res.scenario, res.eval_index, res.scenario.simulation.eval_step
+    ref = is_reference(res, est)
+    st = stats(res, est)
+    W = st.mse.shape[1]
+    ex = exact_at(res, est)
+    exact = ex is not None
+    mse_mc = st.mse[i]
+    net_mc, net_se = float(st.network[i]), float(st.network_se[i])
+    network = float(ex[i].mean()) if exact else net_mc
+    excess = (network - float(reference_exact[k])) if (exact and reference_exact is not None) else \
+        (float(st.excess[i].mean()) if st.excess is not None else 0.0 if ref else np.nan)
+    exc_mc = float(st.excess[i].mean()) if st.excess is not None else (0.0 if ref else np.nan)
+    exc_se = float(np.mean(st.excess_se[i])) if st.excess_se is not None else 0.0
+    nees = float(st.nees[i].mean()) if st.nees is not None else np.nan
+    msgs, scal = float(st.messages.mean()), float(st.scalars.mean())
+    row = {"scenario": sc.name, "estimator": est, "label": res.design.estimators[est].spec.title, "step": k,
+           "network_mse": network, "exact": exact, "network_mse_mc": net_mc, "network_mse_mc_se": net_se,
+           "excess": excess, "excess_mc": exc_mc, "excess_mc_se": exc_se, "nees": nees,
+           "disagreement": float(st.disagreement[i]), "messages_per_step": msgs, "scalars_per_step": scal}
+    lo, hi = nees_band(res.trials, res.design.model.n)
+    nodes = [{"scenario": sc.name, "estimator": est, "node": (pd.NA if ref else node), "step": k,
+              "mse_mc": mse_mc[node], "mse_mc_se": st.mse_se[i, node], "mse_exact": ex[i, node] if exact else np.nan,
+              "excess_exact": (ex[i, node] - reference_exact[k]) if (exact and reference_exact is not None) else np.nan,
+              "excess_mc": st.excess[i, node] if st.excess is not None else (0.0 if ref else np.nan),
+              "excess_mc_se": st.excess_se[i, node] if st.excess_se is not None else 0.0,
+              "nees_mc": st.nees[i, node] if st.nees is not None else np.nan, "nees_lo": lo, "nees_hi": hi,
+              "disagreement_mc": st.disagreement_node[i, node],
+              "messages_per_step": st.messages[node] if not ref else 0.0,
+              "scalars_per_step": st.scalars[node] if not ref else 0.0} for node in range(W)]
+    dis_ex = exact_disagreement_at(res, est)
+    series = [{"scenario": sc.name, "estimator": est, "step": int(step), "network_mse_mc": st.network[j],
+               "network_mse_mc_se": st.network_se[j], "network_mse_exact": ex[j].mean() if exact else np.nan,
+               "excess_mc": st.excess[j].mean() if st.excess is not None else (0.0 if ref else np.nan),
+               "nees_mc": st.nees[j].mean() if st.nees is not None else np.nan,
+               "disagreement_mc": st.disagreement[j], "disagreement_exact": dis_ex[j] if dis_ex is not None else np.nan}
+              for j, step in enumerate(res.steps)]
+    vals = {"network_mse": network, "excess": excess, "nees": nees, "disagreement": float(st.disagreement[i]),
+            "messages_per_step": msgs, "scalars_per_step": scal}
+    if est in res.design.gains:
+        vals["steady_mse"] = res.design.gains[est]["steady_mse"]
+    metrics = [{"scenario": sc.name, "metric": f"{est}.{q}", "node": pd.NA, "estimator": est, "value": v}
+               for q, v in vals.items()]
+    metrics += [{"scenario": sc.name, "metric": f"{est}.mse", "node": node, "estimator": est,
+                 "value": float(ex[i, node] if exact else mse_mc[node])} for node in range(W if not ref else 0)]
+    return row, nodes, series, metrics
+
+
+def _token_rows(res) -> list[dict]:
+    """The law of the GIKF's random-sensor covariance against the token chain's, at the token times."""
+    rows = []
+    for t, (x, y) in enumerate(zip(res.token["gikf"], res.token["chain"])):
+        r = ks_test(x, y)
+        rows.append({"scenario": res.scenario.name, "step": token_times(res.scenario)[t], "trials": x.size,
+                     "median_random_sensor": float(np.median(x)), "median_token_chain": float(np.median(y)),
+                     "ks_statistic": float(r.statistic), "p_value": float(r.pvalue)})
+    return rows
 
 
 def run_tables(res) -> list:
-    sc, d = res.scenario, res.design
-    out = design_tables(d)
-    i, k = res.eval_index, sc.eval_step
-    n = d.model.n
-    lo, hi = nees_band(res.trials, n)
-    central_exact = res.exact["central"]["mse"][:, 0] if "central" in res.exact else None
+    out = design_tables(res.design)
+    reference = next((name for name in res.mc if is_reference(res, name)), None)
+    reference_exact = res.exact[reference]["mse"][:, 0] if reference in res.exact else None
     est_rows, node_rows, series_rows, metric_rows = [], [], [], []
-    for est in ESTIMATORS:
-        if est not in res.mc:
-            continue
-        st = stats(res, est)
-        W = st.mse.shape[1]
-        ex = exact_at(res, est)
-        exact = ex is not None
-        mse_mc = st.mse[i]
-        net_mc, net_se = float(st.network[i]), float(st.network_se[i])
-        network = float(ex[i].mean()) if exact else net_mc
-        excess = (network - float(central_exact[k])) if (exact and central_exact is not None) else \
-            (float(st.excess[i].mean()) if st.excess is not None else 0.0 if est == "central" else np.nan)
-        exc_mc = float(st.excess[i].mean()) if st.excess is not None else (0.0 if est == "central" else np.nan)
-        exc_se = float(np.mean(st.excess_se[i])) if st.excess_se is not None else 0.0
-        nees = float(st.nees[i].mean()) if st.nees is not None else np.nan
-        msgs, scal = float(st.messages.mean()), float(st.scalars.mean())
-        est_rows.append({"scenario": sc.name, "estimator": est, "label": LABELS[est], "step": k, "network_mse": network,
-                         "exact": exact, "network_mse_mc": net_mc, "network_mse_mc_se": net_se, "excess": excess,
-                         "excess_mc": exc_mc, "excess_mc_se": exc_se, "nees": nees,
-                         "disagreement": float(st.disagreement[i]), "messages_per_step": msgs, "scalars_per_step": scal})
-        for node in range(W):
-            node_rows.append({
-                "scenario": sc.name, "estimator": est, "node": (pd.NA if est == "central" else node), "step": k,
-                "mse_mc": mse_mc[node], "mse_mc_se": st.mse_se[i, node],
-                "mse_exact": ex[i, node] if exact else np.nan,
-                "excess_exact": (ex[i, node] - central_exact[k]) if (exact and central_exact is not None) else np.nan,
-                "excess_mc": st.excess[i, node] if st.excess is not None else (0.0 if est == "central" else np.nan),
-                "excess_mc_se": st.excess_se[i, node] if st.excess_se is not None else 0.0,
-                "nees_mc": st.nees[i, node] if st.nees is not None else np.nan, "nees_lo": lo, "nees_hi": hi,
-                "disagreement_mc": st.disagreement_node[i, node],
-                "messages_per_step": st.messages[node] if est != "central" else 0.0,
-                "scalars_per_step": st.scalars[node] if est != "central" else 0.0})
-        dis_ex = exact_disagreement_at(res, est)
-        for j, step in enumerate(res.steps):
-            series_rows.append({
-                "scenario": sc.name, "estimator": est, "step": int(step), "network_mse_mc": st.network[j],
-                "network_mse_mc_se": st.network_se[j], "network_mse_exact": ex[j].mean() if exact else np.nan,
-                "excess_mc": st.excess[j].mean() if st.excess is not None else (0.0 if est == "central" else np.nan),
-                "nees_mc": st.nees[j].mean() if st.nees is not None else np.nan,
-                "disagreement_mc": st.disagreement[j], "disagreement_exact": dis_ex[j] if dis_ex is not None else np.nan})
-        vals = {"network_mse": network, "excess": excess, "nees": nees, "disagreement": float(st.disagreement[i]),
-                "messages_per_step": msgs, "scalars_per_step": scal}
-        if est in d.gains:
-            vals["steady_mse"] = d.gains[est]["steady_mse"]
-        for q, v in vals.items():
-            metric_rows.append({"scenario": sc.name, "metric": f"{est}.{q}", "node": pd.NA, "estimator": est, "value": v})
-        for node in range(W if est != "central" else 0):
-            metric_rows.append({"scenario": sc.name, "metric": f"{est}.mse", "node": node, "estimator": est,
-                                "value": float(ex[i, node] if exact else mse_mc[node])})
+    for est in res.mc:
+        row, nodes, series, metrics = _estimator_rows(res, est, reference_exact)
+        est_rows.append(row)
+        node_rows += nodes
+        series_rows += series
+        metric_rows += metrics
     out.append((ESTIMATOR_TABLE, pd.DataFrame(est_rows, columns=ESTIMATOR_TABLE.column_names)))
     out.append((NODES, pd.DataFrame(node_rows, columns=NODES.column_names).astype({"node": "Int64"})))
     out.append((SERIES, pd.DataFrame(series_rows, columns=SERIES.column_names)))
     if "gikf" in res.token and "chain" in res.token:
-        
-        from .claims import _ks
-        from .compute import token_times
-
-        rows = []
-        for t, (x, y) in enumerate(zip(res.token["gikf"], res.token["chain"])):
-            r = _ks(x, y)
-            rows.append({"scenario": sc.name, "step": token_times(sc)[t], "trials": x.size,
-                         "median_random_sensor": float(np.median(x)), "median_token_chain": float(np.median(y)),
-                         "ks_statistic": float(r.statistic), "p_value": float(r.pvalue)})
-        out.append((TOKEN, pd.DataFrame(rows, columns=TOKEN.column_names)))
+        out.append((TOKEN, pd.DataFrame(_token_rows(res), columns=TOKEN.column_names)))
     out.append((METRICS, pd.DataFrame(metric_rows, columns=METRICS.column_names).astype({"node": "Int64"})))
     return out

@@ -20,7 +20,7 @@ class Stats:
 
     mse: np.ndarray
     mse_se: np.ndarray
-    excess: np.ndarray | None
+    excess: np.ndarray | None          # distance to the reference (None for the reference itself)
     excess_se: np.ndarray | None
     cross: np.ndarray | None
     cross_se: np.ndarray | None
@@ -42,12 +42,16 @@ def _mean_se(s1, s2, B):
         return mean, np.sqrt(var * B / max(B - 1, 1) / B)
 
 
+def is_reference(res, est: str) -> bool:
+    return res.design.estimators[est].spec.reference
+
+
 def stats(res, est: str) -> Stats:
     s = res.mc[est]
-    B, K = res.trials, res.scenario.steps
+    B, K = res.trials, res.scenario.simulation.steps
     mse, mse_se = _mean_se(s["sq"], s["sq2"], B)
     excess = excess_se = cross = cross_se = None
-    if "dist" in s and est != "central":
+    if not is_reference(res, est):
         excess, excess_se = _mean_se(s["dist"], s["dist2"], B)
         cross, cross_se = _mean_se(s["cross"], s["cross2"], B)
     nees = nees_se = None
@@ -56,8 +60,7 @@ def stats(res, est: str) -> Stats:
     dis, dis_se = _mean_se(s["dis"], s["dis2"], B)
     net, net_se = _mean_se(s["net"], s["net2"], B)
     return Stats(mse, mse_se, excess, excess_se, cross, cross_se, nees, nees_se, dis, dis_se, s["dis_node"] / B,
-                 net, net_se,
-                 s["msgs"] / (B * K), s["scalars"] / (B * K))
+                 net, net_se, s["msgs"] / (B * K), s["scalars"] / (B * K))
 
 
 def nees_band(trials: int, n: int, level: float = NEES_BAND) -> tuple[float, float]:
@@ -67,26 +70,10 @@ def nees_band(trials: int, n: int, level: float = NEES_BAND) -> tuple[float, flo
     return float(chi2.ppf(a, trials * n) / trials), float(chi2.ppf(1 - a, trials * n) / trials)
 
 
-def exact_mse(res, est: str) -> np.ndarray | None:
-    """(K, W) exact mean-square error per node, or None."""
-    ex = res.exact.get(est)
-    return None if ex is None else ex["mse"]
-
-
 def exact_at(res, est: str) -> np.ndarray | None:
-    """(S, W) exact mean-square error at the recorded steps."""
-    m = exact_mse(res, est)
-    return None if m is None else m[res.steps]
-
-
-def central_exact_at(res) -> np.ndarray:
-    return res.exact["central"]["mse"][res.steps][:, 0]
-
-
-def best_mse(res, est: str) -> tuple[np.ndarray, bool]:
-    """(S, W) MSE: exact when the estimator has exact moments, else the Monte Carlo mean."""
-    ex = exact_at(res, est)
-    return (ex, True) if ex is not None else (stats(res, est).mse, False)
+    """(S, W) exact mean-square error at the recorded steps, or None."""
+    ex = res.exact.get(est)
+    return None if ex is None else ex["mse"][res.steps]
 
 
 def exact_disagreement_at(res, est: str) -> np.ndarray | None:
@@ -94,3 +81,15 @@ def exact_disagreement_at(res, est: str) -> np.ndarray | None:
     if ex is None or "disagreement" not in ex:
         return None
     return ex["disagreement"][res.steps]
+
+
+def ks_test(x, y):
+    """Two-sample Kolmogorov-Smirnov test: scipy's exact p-value where it can compute it, else the
+    asymptotic one (accurate at the sample sizes here, and conservative where the laws have atoms)."""
+    import warnings
+
+    from scipy.stats import ks_2samp
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return ks_2samp(x, y, method="exact" if max(len(x), len(y)) <= 2000 else "asymp")

@@ -7,7 +7,9 @@
   exact recursions dashed);
 * `figures/nees.png`: the NEES of the estimators that carry a covariance, with the χ² band;
 * `<name>.rrd`: every estimator's curves on one view (timeline `k`), the NEES, the disagreement,
-  the graph, the comparison table and the claims.
+  the graph, the comparison table, and the claims (the recording scaffold's tab).
+
+Colours, markers and labels follow the registry's order (`dse.estimators.network`).
 """
 from __future__ import annotations
 
@@ -15,16 +17,21 @@ from pathlib import Path
 
 import numpy as np
 
+from dse.contract.views import Outputs, View, recording
+from dse.estimators.network import registry
 from dse.outputs import record as rec_
-from dse.outputs.figures import draw_all, new_figure, save_figure
+from dse.outputs.figures import new_figure, save_figure
 from dse.simulate.stats import z_for_confidence
 
-from .scenario import ESTIMATORS, LABELS
-
 BAND = 0.95
-COLORS = {e: rec_.color(i) for i, e in enumerate(ESTIMATORS)}
-COLORS["central"] = (0, 0, 0)
-MARKERS = dict(zip(ESTIMATORS, "*ovs^D<>p"))
+
+
+def _styles() -> tuple[dict, dict, dict]:
+    """(colour, marker, label) of every registered estimator; the reference in black."""
+    reg = registry()
+    colors = {e: (0, 0, 0) if est.reference else rec_.color(i) for i, (e, est) in enumerate(reg.items())}
+    markers = {e: "*ovs^D<>p"[i % 9] for i, e in enumerate(reg)}
+    return colors, markers, {e: est.title for e, est in reg.items()}
 
 
 def _rgb(c):
@@ -36,6 +43,7 @@ def error_vs_communication(res, tables, path: Path) -> None:
     as the floor and the frontier of the lowest error for a budget; estimators far off the scale
     (a diverging filter) are drawn on the top edge with their value. Right: the same estimators
     ranked by their MSE relative to the centralized filter, each bar labelled with its budget."""
+    colors, markers, labels = _styles()
     t = tables["estimators"]
     app = tables["applicability"]
     fig, axes = new_figure(ncols=2, width=7.0, height=5.6)
@@ -48,14 +56,14 @@ def error_vs_communication(res, tables, path: Path) -> None:
     top = _top(vals, floor)
     for _, r in rows.iterrows():
         est, y = r["estimator"], r["network_mse"]
-        c = _rgb(COLORS[est])
+        c = _rgb(colors[est])
         if y > top:
             ax.plot([r["scalars_per_step"]], [top * 1.15], marker="^", color=c, ms=9, ls="none",
-                    label=f"{LABELS[est]} (off scale: {y:.3g})")
+                    label=f"{labels[est]} (off scale: {y:.3g})")
             continue
         err = None if r["exact"] else z * r["network_mse_mc_se"]
-        ax.errorbar([r["scalars_per_step"]], [y], yerr=err, fmt=MARKERS[est], color=c, ms=8, capsize=3,
-                    label=f"{LABELS[est]}" + ("" if r["exact"] else " (Monte Carlo)"))
+        ax.errorbar([r["scalars_per_step"]], [y], yerr=err, fmt=markers[est], color=c, ms=8, capsize=3,
+                    label=f"{labels[est]}" + ("" if r["exact"] else " (Monte Carlo)"))
     if np.isfinite(floor):
         ax.axhline(floor, color="k", ls="--", lw=1, label="centralized KF (all measurements at one place)")
     front = _pareto(rows)
@@ -67,9 +75,9 @@ def error_vs_communication(res, tables, path: Path) -> None:
     ax.set_yscale("log")
     ax.set_ylim(top=top * 1.35)
     ax.set_xlabel("real numbers sent per node and step")
-    ax.set_ylabel(f"network mean-square error at k = {res.scenario.eval_step}")
-    title = f"{res.scenario.name}: error against communication ({res.scenario.link_model} links"
-    title += f", σ_c = {res.scenario.noise_std:g})" if res.scenario.noise_std else ")"
+    ax.set_ylabel(f"network mean-square error at k = {res.scenario.simulation.eval_step}")
+    title = f"{res.scenario.name}: error against communication ({res.scenario.links.model} links"
+    title += f", σ_c = {res.scenario.links.noise_std:g})" if res.scenario.links.noise_std else ")"
     ax.set_title(title)
     skipped = app[~app["applies"] & (app["reason"] != "not requested (dse.estimators.include)")]
     if len(skipped):
@@ -79,10 +87,10 @@ def error_vs_communication(res, tables, path: Path) -> None:
     ranked = rows.sort_values("network_mse")
     ratio = ranked["network_mse"].to_numpy() / floor if np.isfinite(floor) else ranked["network_mse"].to_numpy()
     ypos = np.arange(len(ranked))[::-1]
-    bx.barh(ypos, ratio, color=[_rgb(COLORS[e]) for e in ranked["estimator"]])
+    bx.barh(ypos, ratio, color=[_rgb(colors[e]) for e in ranked["estimator"]])
     for yv, rv, (_, r) in zip(ypos, ratio, ranked.iterrows()):
         bx.text(rv, yv, f"  {rv:.3g}×, {r['scalars_per_step']:.3g} numbers/step", va="center", fontsize=7)
-    bx.set_yticks(ypos, [LABELS[e] for e in ranked["estimator"]], fontsize=7)
+    bx.set_yticks(ypos, [labels[e] for e in ranked["estimator"]], fontsize=7)
     bx.set_xscale("log")
     bx.axvline(1.0, color="k", ls="--", lw=1)
     bx.set_xlabel("network MSE / centralized KF's")
@@ -114,19 +122,20 @@ def _pareto(t) -> np.ndarray:
 
 
 def mse_vs_time(res, tables, path: Path) -> None:
+    colors, _, labels = _styles()
     s = tables["series"]
     fig, axes = new_figure(ncols=1, width=10.0, height=5.0)
     ax = axes[0, 0]
     z = z_for_confidence(BAND)
-    for est in ESTIMATORS:
+    for est in labels:
         r = s[s["estimator"] == est]
         if not len(r):
             continue
         k, mc, se = r["step"].to_numpy(), r["network_mse_mc"].to_numpy(), r["network_mse_mc_se"].to_numpy()
         if not np.all(np.isfinite(mc)):
             continue
-        c = _rgb(COLORS[est])
-        ax.plot(k, mc, color=c, lw=1.2, label=LABELS[est])
+        c = _rgb(colors[est])
+        ax.plot(k, mc, color=c, lw=1.2, label=labels[est])
         ax.fill_between(k, np.maximum(mc - z * se, 1e-300), mc + z * se, color=c, alpha=0.2, lw=0)
         ex = r["network_mse_exact"].to_numpy()
         if np.isfinite(ex).any():
@@ -140,16 +149,17 @@ def mse_vs_time(res, tables, path: Path) -> None:
 
 
 def nees_figure(res, tables, path: Path) -> None:
+    colors, _, labels = _styles()
     s = tables["series"]
     nodes = tables["nodes"]
     lo, hi = float(nodes["nees_lo"].iloc[0]), float(nodes["nees_hi"].iloc[0])
     fig, axes = new_figure(ncols=1, width=10.0, height=4.5)
     ax = axes[0, 0]
-    for est in ESTIMATORS:
+    for est in labels:
         r = s[s["estimator"] == est]
         if not len(r) or not np.isfinite(r["nees_mc"]).any():
             continue
-        ax.plot(r["step"], r["nees_mc"], color=_rgb(COLORS[est]), label=LABELS[est])
+        ax.plot(r["step"], r["nees_mc"], color=_rgb(colors[est]), label=labels[est])
     ax.axhspan(lo, hi, color="0.8", alpha=0.5, label="χ² band of one consistent node (99%)")
     ax.axhline(res.design.model.n, color="k", lw=0.8)
     ax.set_yscale("log")
@@ -158,15 +168,6 @@ def nees_figure(res, tables, path: Path) -> None:
     ax.set_title("consistency: NEES with each filter's own covariance (n when consistent)")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, borderaxespad=0)
     save_figure(fig, path)
-
-
-def figure_jobs(res, tables, out_dir: Path) -> list:
-    """One callable per figure (for `dse.outputs.figures.draw_all`)."""
-    figs = out_dir / "figures"
-    figs.mkdir(parents=True, exist_ok=True)
-    return [lambda: error_vs_communication(res, tables, figs / "error_vs_communication.png"),
-            lambda: mse_vs_time(res, tables, figs / "mse_vs_time.png"),
-            lambda: nees_figure(res, tables, figs / "nees.png")]
 
 
 def _comparison_markdown(tables) -> str:
@@ -182,78 +183,84 @@ def _comparison_markdown(tables) -> str:
     return "\n".join(rows)
 
 
-def write_recording(res, tables, path: Path, claims: list[dict], prov: dict, summary: str) -> None:
+
+
+def _tabs():
     import rerun.blueprint as rrb
 
+    comparison = rrb.Horizontal(
+        rrb.Vertical(
+            rrb.TimeSeriesView(origin="/mse", name="network mean-square error: every estimator (dots Monte Carlo, lines "
+                               "exact)", contents=["/mse/**"], plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop)),
+            rrb.TimeSeriesView(origin="/nees", name="mean NEES with each filter's own covariance", contents=["/nees/**"],
+                               plot_legend=rrb.PlotLegend(visible=False)),
+            row_shares=[3, 2]),
+        rrb.Vertical(rrb.TextDocumentView(origin="/comparison", name="comparison at the evaluation step"),
+                     rrb.GraphView(origin="/graph", name="communication graph"), row_shares=[1, 1]),
+        column_shares=[3, 2], name="comparison")
+    details = rrb.Grid(
+        rrb.TimeSeriesView(origin="/disagreement", name="disagreement between nodes",
+                           plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop)),
+        rrb.TimeSeriesView(origin="/excess", name="mean-square distance to the centralized filter",
+                           plot_legend=rrb.PlotLegend(visible=False)),
+        rrb.TimeSeriesView(origin="/trial", name="trial 0: truth (white) and node 0's estimate of the first state",
+                           plot_legend=rrb.PlotLegend(visible=False)),
+        name="details")
+    return [comparison, details]
+
+
+def _log_series(rec, s, colors: dict, labels: dict, references: set) -> None:
+    for est in labels:
+        r = s[s["estimator"] == est]
+        if not len(r):
+            continue
+        idx = rec_.sequence_index("k", r["step"].to_numpy())
+        col = colors[est]
+        rec_.send_series(rec, f"mse/{est}/monte_carlo", idx, r["network_mse_mc"].to_numpy(), names=f"{labels[est]} (MC)",
+                         colors=[col], points=True)
+        ex = r["network_mse_exact"].to_numpy()
+        if np.isfinite(ex).any():
+            rec_.send_series(rec, f"mse/{est}/exact", idx, ex, names=f"{labels[est]} (exact)", colors=[col])
+        if np.isfinite(r["nees_mc"]).any():
+            rec_.send_series(rec, f"nees/{est}", idx, r["nees_mc"].to_numpy(), names=labels[est], colors=[col])
+        rec_.send_series(rec, f"disagreement/{est}", idx, r["disagreement_mc"].to_numpy(), names=labels[est],
+                         colors=[col])
+        if est not in references:
+            rec_.send_series(rec, f"excess/{est}", idx, r["excess_mc"].to_numpy(), names=labels[est], colors=[col])
+
+
+def _log_trial(rec, paths: dict, colors: dict, labels: dict) -> None:
+    """Trial 0: the first state and node 0's estimate of it by every estimator."""
+    if not (paths and "x" in paths and paths["x"].shape[-1] and np.all(np.isfinite(paths["x"][:, 0, 0]))):
+        return
+    idx = rec_.sequence_index("k", np.arange(paths["x"].shape[0]))
+    rec_.send_series(rec, "trial/truth", idx, paths["x"][:, 0, 0], names="x₁(k)", colors=[(230, 230, 230)], width=2.5)
+    for est in labels:
+        p = paths.get(est)
+        if p is not None and np.all(np.isfinite(p[:, 0, 0, 0])):
+            rec_.send_series(rec, f"trial/{est}", idx, p[:, 0, 0, 0], names=labels[est], colors=[colors[est]])
+
+
+def _recording(out: Outputs, path: Path) -> None:
+    res, tables = out.results, out.tables
     sc = res.scenario
-    blueprint = rrb.Blueprint(
-        rrb.Tabs(
-            rrb.Horizontal(
-                rrb.Vertical(
-                    rrb.TimeSeriesView(origin="/mse", name="network mean-square error: every estimator (dots Monte "
-                                       "Carlo, lines exact)", contents=["/mse/**"],
-                                       plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop)),
-                    rrb.TimeSeriesView(origin="/nees", name="mean NEES with each filter's own covariance",
-                                       contents=["/nees/**"], plot_legend=rrb.PlotLegend(visible=False)),
-                    row_shares=[3, 2]),
-                rrb.Vertical(rrb.TextDocumentView(origin="/comparison", name="comparison at the evaluation step"),
-                             rrb.GraphView(origin="/graph", name="communication graph"), row_shares=[1, 1]),
-                column_shares=[3, 2], name="comparison"),
-            rrb.Grid(rrb.TimeSeriesView(origin="/disagreement", name="disagreement between nodes",
-                                        plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop)),
-                     rrb.TimeSeriesView(origin="/excess", name="mean-square distance to the centralized filter",
-                                        plot_legend=rrb.PlotLegend(visible=False)),
-                     rrb.TimeSeriesView(origin="/trial", name="trial 0: truth (white) and node 0's estimate of the "
-                                        "first state", plot_legend=rrb.PlotLegend(visible=False)),
-                     name="details"),
-            rrb.Horizontal(rrb.TextDocumentView(origin="/report", name="claims"),
-                           rrb.TextDocumentView(origin="/claims", name="claim detail"), name="claims"),
-        ),
-        rrb.TimePanel(timeline="k", expanded=False),
-        collapse_panels=True,
-    )
-    s = tables["series"]
-    with rec_.recording(path, application_id="dse-compare", recording_id=f"compare-{sc.name}-seed{res.seed}",
-                        blueprint=blueprint, properties={"seed": res.seed, "trials": res.trials,
-                                                         "links": sc.link_model, "noise_std": sc.noise_std}) as rec:
-        rec_.log_graph(rec, "graph", sc.graph.positions(), [tuple(e) for e in res.design.topology.edges.tolist()])
+    colors, _, labels = _styles()
+
+    def log(rec):
+        rec_.log_graph(rec, "graph", sc.network.positions(), [tuple(e) for e in res.design.topology.edges.tolist()])
         rec_.log_markdown(rec, "comparison", _comparison_markdown(tables))
-        for est in ESTIMATORS:
-            r = s[s["estimator"] == est]
-            if not len(r):
-                continue
-            idx = rec_.sequence_index("k", r["step"].to_numpy())
-            col = COLORS[est]
-            mc = r["network_mse_mc"].to_numpy()
-            rec_.send_series(rec, f"mse/{est}/monte_carlo", idx, mc, names=f"{LABELS[est]} (MC)", colors=[col],
-                             points=True)
-            ex = r["network_mse_exact"].to_numpy()
-            if np.isfinite(ex).any():
-                rec_.send_series(rec, f"mse/{est}/exact", idx, ex, names=f"{LABELS[est]} (exact)", colors=[col])
-            if np.isfinite(r["nees_mc"]).any():
-                rec_.send_series(rec, f"nees/{est}", idx, r["nees_mc"].to_numpy(), names=LABELS[est], colors=[col])
-            rec_.send_series(rec, f"disagreement/{est}", idx, r["disagreement_mc"].to_numpy(), names=LABELS[est],
-                             colors=[col])
-            if est != "central":
-                rec_.send_series(rec, f"excess/{est}", idx, r["excess_mc"].to_numpy(), names=LABELS[est], colors=[col])
-        if res.paths and "x" in res.paths and res.paths["x"].shape[-1] and np.all(np.isfinite(res.paths["x"][:, 0, 0])):
-            K = res.paths["x"].shape[0]
-            idx = rec_.sequence_index("k", np.arange(K))
-            rec_.send_series(rec, "trial/truth", idx, res.paths["x"][:, 0, 0], names="x₁(k)", colors=[(230, 230, 230)],
-                             width=2.5)
-            for est in ESTIMATORS:
-                p = res.paths.get(est)
-                if p is None or not np.all(np.isfinite(p[:, 0, 0, 0])):
-                    continue
-                rec_.send_series(rec, f"trial/{est}", idx, p[:, 0, 0, 0], names=LABELS[est], colors=[COLORS[est]])
-        rec_.log_claims(rec, claims, summary)
+        _log_series(rec, tables["series"], colors, labels, {e for e, est in registry().items() if est.reference})
+        _log_trial(rec, res.paths, colors, labels)
+
+    recording(path, out, recording_id=f"compare-{sc.name}-seed{res.seed}", tabs=_tabs, timeline="k", log=log,
+              properties={"links": sc.links.model, "noise_std": sc.links.noise_std},
+              summary=out.summary(extra=f"{res.trials:,} trials, {sc.simulation.steps} steps, {sc.N} nodes, "
+                                        f"{sc.links.model} links"))
 
 
-def write_outputs(res, tables, out_dir: Path, claims: list[dict], prov: dict) -> None:
-    """The recording and the figures, drawn side by side in forked workers (`prov["workers"]`)."""
-    counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
-    summary = (f"# {res.scenario.name}: {counts['pass']} pass, {counts['fail']} fail, {counts['not-checkable']} not "
-               f"checkable, {counts['error']} error\n\nseed {res.seed}, {res.trials:,} trials, {res.scenario.steps} steps, "
-               f"{res.scenario.N} nodes, {res.scenario.link_model} links")
-    record = lambda: write_recording(res, tables, out_dir / f"{res.scenario.name}.rrd", claims, prov, summary)  # noqa: E731
-    draw_all([record] + figure_jobs(res, tables, out_dir), workers=int(prov.get("workers") or 1))
+def views(out: Outputs) -> list[View]:
+    res, tables = out.results, out.tables
+    return [View(f"{res.scenario.name}.rrd", lambda path: _recording(out, path)),
+            View("figures/error_vs_communication.png", lambda path: error_vs_communication(res, tables, path)),
+            View("figures/mse_vs_time.png", lambda path: mse_vs_time(res, tables, path)),
+            View("figures/nees.png", lambda path: nees_figure(res, tables, path))]
