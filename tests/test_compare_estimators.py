@@ -345,12 +345,12 @@ def test_information_exact_moments_match_monte_carlo(kind):
 def test_centralized_reference_matches_filterpy():
     from filterpy.kalman import KalmanFilter
 
-    from dse.estimators.network_comparison import _Central
+    from dse.estimators.network.central import CentralizedKalman
 
     model = small_model(3, m=2)
     links = LinkModel(ring(3), "reliable")
     ctxs, _ = contexts(model, links, 6, 2, 5)
-    c = _Central(model, 6, 2)
+    c = CentralizedKalman(model, 6, 2)
     kf = KalmanFilter(dim_x=2, dim_z=6)
     kf.F, kf.H, kf.Q, kf.R, kf.P, kf.x = model.F, model.H_all, model.Q, model.R_all, model.P0.copy(), model.x0.copy()
     for ctx in ctxs:
@@ -377,9 +377,10 @@ def test_greedy_matching_is_a_maximal_matching_of_the_allowed_edges():
 @pytest.mark.parametrize("link_kind", ["reliable", "failures", "matchings"])
 def test_every_filter_is_equivariant_so_error_coordinates_are_exact(link_kind):
     """The simulation runs the filters on x ≡ 0 with y = v and predictions shifted by −w
-    (dse.estimators.network_comparison): the estimate it gets must be x̂ − x of the same filter run on the
+    (dse.estimators.protocol): the estimate it gets must be x̂ − x of the same filter run on the
     true states, to round-off (relative to the state's size)."""
-    from dse.estimators.network_comparison import _Central, _Local
+    from dse.estimators.network.central import CentralizedKalman
+    from dse.estimators.network.local import LocalKalman
 
     model = small_model(4, seed=3)
     topo = ring(4)
@@ -390,7 +391,8 @@ def test_every_filter_is_equivariant_so_error_coordinates_are_exact(link_kind):
     makers = [lambda: FusionRun(FusionFilter(model, links, G, w, "consensus"), B),
               lambda: FusionRun(FusionFilter(model, links, G, w, "reinjection", 0.4), B),
               lambda: FusionRun(FusionFilter(model, links, G, np.full(topo.E, 0.3), "pairwise"), B),
-              lambda: GossipSwapRun(model, links, B), lambda: _Central(model, 6, B), lambda: _Local(model, 6, B)]
+              lambda: GossipSwapRun(model, links, B), lambda: CentralizedKalman(model, 6, B),
+              lambda: LocalKalman(model, 6, B)]
     makers += [lambda kind=kind: InformationRun(InformationFilter(model, links, kind, w, 0.2), B)
                for kind in ("kalman-consensus", "diffusion", "information-consensus")]
     ctxs, xs = contexts(model, links, 6, B, 9, rounds=2)

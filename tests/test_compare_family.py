@@ -1,5 +1,5 @@
 """The compare scenario family: validation, applicability, common random numbers, independence of the
-memory chunk and of the worker split, and the outputs of a run."""
+memory chunk and of the worker split, the outputs of a run, and stage keys that follow the code."""
 from __future__ import annotations
 
 import copy
@@ -7,11 +7,11 @@ import copy
 import numpy as np
 import pytest
 
-import dse.families as reproductions
+import dse.families
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
+from dse.engine.cache import MemoryCache
 from dse.errors import ScenarioError
-from dse.engine.driver import RunOptions
-from dse.families.compare import compute
-from dse.families.compare.scenario import CompareScenario
 
 
 def tiny(**links) -> dict:
@@ -29,10 +29,8 @@ def tiny(**links) -> dict:
     return data
 
 
-def scenario(data: dict) -> CompareScenario:
-    d = dict(data)
-    d.pop("family")
-    return CompareScenario.from_dict(d)
+def design(data: dict, opts: RunOptions):
+    return dse.families.from_dict(data).design(opts, StageContext(MemoryCache()))
 
 
 @pytest.mark.parametrize("path,value,message", [
@@ -52,7 +50,7 @@ def test_invalid_scenarios_name_the_field(path, value, message):
         node = node.setdefault(p, {}) if isinstance(p, str) else node[p]
     node[path[-1]] = value
     with pytest.raises(ScenarioError) as err:
-        reproductions.family_from_dict(data)
+        dse.families.from_dict(data)
     assert message in str(err.value), str(err.value)
 
 
@@ -61,26 +59,27 @@ def test_shipped_scenarios_load():
 
     from dse.scenario.fields import load_toml
 
-    for f in sorted((Path(reproductions.__file__).parent / "compare" / "scenarios").glob("*.toml")):
-        reproductions.family_from_dict(load_toml(f))
+    files = sorted((Path(dse.families.__file__).parent / "compare" / "scenarios").glob("*.toml"))
+    assert files
+    for f in files:
+        dse.families.from_dict(load_toml(f))
 
 
 def test_applicability_follows_the_link_model():
-    d = compute.compute_design(scenario(tiny(model="poisson", rate=0.5)), RunOptions(quick=True))
-    for est in ("carli", "reinjection"):
-        ok, why = d.status[est]
-        assert not ok and "synchronous" in why
-    assert d.status["pairwise"][0] and d.exact["pairwise"][0]
-    d = compute.compute_design(scenario(tiny(model="matchings")), RunOptions(quick=True))
-    assert d.status["carli"][0] and not d.exact["carli"][0]
-    assert not d.exact["kcf"][0] and "random links" in d.exact["kcf"][1]
-    d = compute.compute_design(scenario(tiny(model="reliable")), RunOptions(quick=True))
-    assert all(d.exact[e][0] for e in ("carli", "reinjection", "pairwise", "kcf", "diffusion", "ci"))
+    est = design(tiny(model="poisson", rate=0.5), RunOptions(quick=True)).estimators
+    for name in ("carli", "reinjection"):
+        assert not est[name].applies and "synchronous" in est[name].reason
+    assert est["pairwise"].applies and est["pairwise"].exact
+    est = design(tiny(model="matchings"), RunOptions(quick=True)).estimators
+    assert est["carli"].applies and not est["carli"].exact
+    assert not est["kcf"].exact and "random links" in est["kcf"].exact_reason
+    est = design(tiny(model="reliable"), RunOptions(quick=True)).estimators
+    assert all(est[e].exact for e in ("carli", "reinjection", "pairwise", "kcf", "diffusion", "ci"))
 
 
 def _mc(data, opts, trials=2000):
-    d = compute.compute_design(scenario(data), opts)
-    return compute.simulate(d, opts, trials)["mc"]
+    opts = RunOptions(seed=opts.seed, trials=trials, workers=opts.workers, max_memory_mib=opts.max_memory_mib)
+    return dse.families.from_dict(data).compute(opts, StageContext(MemoryCache())).results.mc
 
 
 def test_results_do_not_depend_on_the_memory_chunk_or_the_worker_split():
@@ -145,20 +144,69 @@ def test_estimators_equal_to_the_centralized_filter_up_to_rounding_are_orthogona
     centralized error, so a z-test without a round-off allowance rejected orthogonality at z ≈ 12 (found by
     the calibration benchmark on 6 of 200 generated scenarios). With the allowance the claim passes, and the
     allowance stays negligible against Carli's filter's real distance."""
-    from dse.engine.cache import MemoryCache
     from dse.engine.driver import evaluate_claims
-    from dse.families.compare.summary import stats
+    from dse.families.compare.statistics import stats
 
     data = {"family": "compare", "name": "gen-random-178",
             "plant": {"F": [[0.9671, 0.1398, 0.0], [0.0, 0.9671, 0.1398], [0.0, 0.0, 0.9671]],
                       "Q": [[0.2287, -0.1048, -0.0147], [-0.1048, 0.4026, 0.0919], [-0.0147, 0.0919, 0.0751]]},
             "sensors": {"types": [{"H": [[1.379, 0.561, -0.358]], "R": [[1.1772]]}]}, "graph": {"kind": "ring", "n": 3},
             "simulation": {"steps": 19, "trials": 600, "quick_trials": 600}, "links": {"model": "reliable", "rounds": 3}}
-    repro = reproductions.family_from_dict(data)
-    res = repro.compute(RunOptions(seed=178, quick=True), MemoryCache())
+    repro = dse.families.from_dict(data)
+    computed = repro.compute(RunOptions(seed=178, quick=True), StageContext(MemoryCache()))
+    res = computed.results
     idx = res.check_indices()
     assert np.sqrt(res.mc["kcf"]["dist"][idx] / res.trials).max() < 1e-13         # the same filter up to rounding
-    claim = next(r for r in evaluate_claims(repro, res).claims if r["id"] == "compare.central.orthogonality")
+    claim = next(r for r in evaluate_claims(repro, computed).claims if r["id"] == "compare.central.orthogonality")
     assert claim["verdict"] == "pass", claim["detail"]
     carli = stats(res, "carli")
     assert carli.excess[idx].min() > 1e-4          # a real distance from the centralized filter, far above rounding
+
+
+# -- stage keys follow the code ------------------------------------------------------------------------------
+
+@pytest.fixture
+def fresh_code_hashes():
+    from dse.contract import stages
+
+    def clear():
+        for f in (stages.direct_imports, stages.code_closure, stages.code_hash):
+            f.cache_clear()
+    clear()
+    yield
+    clear()
+
+
+def _monte_carlo_key(sc) -> str:
+    """The cache key of the Monte Carlo stage (upstream results stand in by their keys)."""
+    from dse.contract.stages import StageResult
+    from dse.engine.cache import canonical_json
+    from dse.estimators.network import registry
+    from dse.families.compare.stages import monte_carlo
+
+    tuned, exact = StageResult(), StageResult()
+    tuned.key, exact.key = "design-x", "exact_moments-x"
+    args = (sc, True, tuned, exact, 0, 1000, tuple(registry().values()), 1, 1e9)
+    return canonical_json(monte_carlo.params(monte_carlo.bound(args, {})))
+
+
+@pytest.mark.parametrize("module,changes", [
+    ("dse.estimators.network_step", True),          # every filter's predict and innovation (imported by the harness)
+    ("dse.simulate.seeding", True),                 # the random streams
+    ("dse.estimators.constant_gain_fusion", True),  # imported inside functions by the carli declaration
+    ("dse.families.compare.claims", False),         # the claims never change a stage's numbers
+    ("dse.families.tran.design", False),            # another family
+])
+def test_editing_a_module_a_stage_runs_changes_its_key_and_no_other_edit_does(module, changes, tmp_path, monkeypatch,
+                                                                                fresh_code_hashes):
+    from dse.contract import stages
+
+    sc = dse.families.from_dict(tiny()).scenario
+    before = _monte_carlo_key(sc)
+    original = stages.module_file
+    edited = tmp_path / "edited.py"
+    edited.write_bytes(original(module).read_bytes() + b"\n# an edit\n")
+    monkeypatch.setattr(stages, "module_file", lambda name: edited if name == module else original(name))
+    for f in (stages.direct_imports, stages.code_closure, stages.code_hash):
+        f.cache_clear()
+    assert (_monte_carlo_key(sc) != before) == changes
