@@ -145,7 +145,6 @@ def test_estimators_equal_to_the_centralized_filter_up_to_rounding_are_orthogona
     the calibration benchmark on 6 of 200 generated scenarios). With the allowance the claim passes, and the
     allowance stays negligible against Carli's filter's real distance."""
     from dse.engine.driver import evaluate_claims
-    from dse.families.compare.statistics import stats
 
     data = {"family": "compare", "name": "gen-random-178",
             "plant": {"F": [[0.9671, 0.1398, 0.0], [0.0, 0.9671, 0.1398], [0.0, 0.0, 0.9671]],
@@ -159,7 +158,7 @@ def test_estimators_equal_to_the_centralized_filter_up_to_rounding_are_orthogona
     assert np.sqrt(res.mc["kcf"]["dist"][idx] / res.trials).max() < 1e-13         # the same filter up to rounding
     claim = next(r for r in evaluate_claims(repro, computed).claims if r["id"] == "compare.central.orthogonality")
     assert claim["verdict"] == "pass", claim["detail"]
-    carli = stats(res, "carli")
+    carli = res.stats("carli")
     assert carli.excess[idx].min() > 1e-4          # a real distance from the centralized filter, far above rounding
 
 

@@ -76,9 +76,9 @@ def test_a_registered_estimator_runs_beside_the_others_and_changes_none_of_their
     exact_claim = next(r for r in ev.claims if r["id"] == "compare.exact.monte_carlo")
     assert exact_claim["verdict"] == "pass" and "predictor (χ²" in exact_claim["detail"], exact_claim["detail"]
     assert not [r for r in ev.claims if r["verdict"] in ("fail", "error")]
-    rows = repro.tables(res)
-    table = dict((spec.name, frame) for spec, frame in rows)
-    assert "predictor" in set(table["estimators"]["estimator"]) and "predictor" in set(table["applicability"]["estimator"])
+    table = {spec.name: frame for spec, frame in repro.tables(res)}
+    for name in ("estimators", "applicability", "nodes", "series"):
+        assert "predictor" in set(table[name]["estimator"]), name
 
     unregister("predictor")
     assert "predictor" not in registry()

@@ -31,7 +31,7 @@ from .network_step import StepContext, predict
 from .protocol import NetworkFilter
 from .sensor_network import SensorNetworkModel
 
-__all__ = ["GossipSwapRun", "kalman_update", "TokenSampler"]
+__all__ = ["GossipSwapRun", "kalman_update", "TokenSampler", "token_chain_traces", "weak_consensus_conditions"]
 
 
 def kalman_update(P: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -141,3 +141,43 @@ class TokenSampler:
             P = P + (sigma ** 2 * h) * np.eye(self.model.n)[:, :, None]
         _, post = kalman_update(P, self.H[:, :, self.loc], self.R[:, :, self.loc])
         self.P = sm.const_sandwich(self.model.F, post) + self.model.Q[:, :, None]
+
+
+def token_chain_traces(model: SensorNetworkModel, links: LinkModel, n_steps: int, times: tuple[int, ...],
+                       link_draws, gossip_draws) -> np.ndarray:
+    """(len(times), B): tr P̃(t) of the token chain at `times`, for the B trials of the draws (the chain's
+    start and the matchings' priorities from `gossip_draws`, its communication from `link_draws`)."""
+    B = link_draws.n
+    tok = TokenSampler(model, links, B, gossip_draws.integers(0, model.N))
+    out = np.zeros((len(times), B))
+    for k in range(n_steps):
+        if k in times:
+            out[times.index(k)] = np.trace(tok.P, axis1=0, axis2=1)
+        step = links.draw(link_draws)
+        greedy = links.synchronous and links.kind != "matchings"
+        tok.step(step, gossip_draws.random((links.topology.E,)).T if greedy else None)
+    return out
+
+
+def weak_consensus_conditions(model: SensorNetworkModel, links: LinkModel) -> dict:
+    """Kar & Moura's conditions for weak consensus, decided for the swaps of this filter on a link model.
+
+    C.1 (``c1``): the mean swap permutation is irreducible (the token moves along every edge of the connected
+    graph) and aperiodic (an odd cycle, or a node that can stay put, `LinkModel.stay_witness`); None when
+    neither is found. D.1 (``d1``): weak detectability, decided by the Gramian along a covering walk (staying
+    n steps at each node when nodes can stay put) repeated n times: True when invertible (λ_min/λ_max >
+    1e-10, ``d1_ratio``), False when (F, H) of all sensors is not observable, else None. S.1
+    (``stabilizable``): (F, Q^½) stabilizable."""
+    from .sensor_network import observable, stabilizable, walk_gramian_ratio
+
+    loops, why = links.stay_witness()
+    bipartite = links.topology.is_bipartite()
+    walk = links.topology.covering_walk(stay=model.n if loops else 1) * model.n
+    ratio = walk_gramian_ratio(model, walk)
+    observable_ = observable(model.F, model.H_all)
+    return {"collective_observable": observable_, "stabilizable": stabilizable(model.F, model.Q),
+            "c1": True if (not bipartite or loops) else (None if loops is None else False),
+            "c1_detail": "the graph is connected (irreducible) and " + (
+                "has an odd cycle (aperiodic)" if not bipartite else f"bipartite; self-loops: {why}"),
+            "d1_ratio": ratio, "d1_walk_length": len(walk),
+            "d1": True if ratio > 1e-10 else (False if not observable_ else None)}

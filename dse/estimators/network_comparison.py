@@ -1,5 +1,10 @@
 """Every network filter on the same trials: one plant, one graph, one link model, common random numbers.
 
+`simulate` runs any number of trials, chunk by chunk of RNG units (as many per chunk as the memory budget
+allows) and, with several workers, with the estimators split over forked processes; every chunk and every
+worker draws the same random numbers for a trial, so the results are the same bits whatever the budget and
+the workers.
+
 `simulate_units` runs B trials (a few RNG units of trials, trials on the last axis) of the plant and of
 every estimator it is given (`protocol.DesignedEstimator`s: whatever the registry holds) in lock step: at
 each step k the sensors measure x(k), and every filter steps on the same measurements, the same link draws
@@ -20,11 +25,16 @@ uniformly random node q of the filters that swap states; ``paths``: sample trial
 """
 from __future__ import annotations
 
+import dataclasses
+import functools
 import time
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Iterator, Protocol
 
 import numpy as np
+
+from dse.simulate.seeding import block_seeds, stream_seed
+from dse.simulate.units import RNG_UNIT, UnitStreams, run_jobs, units_per_chunk
 
 from . import small_matrix as sm
 from .link_models import LinkModel, StepLinks, step_permutation
@@ -33,7 +43,8 @@ from .network_step import StepContext, slice_context
 from .protocol import DesignedEstimator
 from .sensor_network import SensorNetworkModel
 
-__all__ = ["Setup", "simulate_units", "STATS", "PER_TRIAL_SUMS", "record_steps"]
+__all__ = ["Setup", "simulate", "simulate_units", "unit_chunks", "worker_groups", "Stats", "stats", "nees_band",
+           "ks_test", "effective_sample_size", "STATS", "PER_TRIAL_SUMS", "record_steps"]
 
 STATS = ("sq", "sq2", "dist", "dist2", "cross", "cross2", "nees", "nees2", "xnees")
 #: the per-trial sums beside `STATS` (a diverging filter may make any of them infinite: a result, not a failure)
@@ -264,6 +275,177 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
         x_true = m.F @ x_true + w[:, :acc.P]
     return {"sums": acc.sums, "token": acc.token, "paths": acc.paths, "sizes": sizes, "steps": np.array(acc.steps),
             "seconds": seconds}
+
+
+STREAMS = ("plant", "links", "noise", "gossip")
+
+
+def unit_chunks(seed: int, label: str, streams: tuple[str, ...], trials: int, bytes_per_trial: float,
+                budget_bytes: float) -> Iterator[tuple[UnitStreams, ...]]:
+    """The `streams` (named under `label`) of `trials` trials in RNG units, as many units per chunk as
+    `budget_bytes` allows: a trial's draws depend only on the seed and its index."""
+    n_units = -(-trials // RNG_UNIT)
+    sizes = [min(RNG_UNIT, trials - u * RNG_UNIT) for u in range(n_units)]
+    seeds = {s: block_seeds(stream_seed(seed, label, s), n_units) for s in streams}
+    per_chunk = units_per_chunk(bytes_per_trial, budget_bytes)
+    for start in range(0, n_units, per_chunk):
+        stop = min(start + per_chunk, n_units)
+        yield tuple(UnitStreams(seeds[s][start:stop], sizes[start:stop]) for s in streams)
+
+
+def bytes_per_trial(setup: Setup) -> float:
+    """Memory of one trial in a chunk: estimates, covariances per node where they depend on the trial, and
+    the temporaries of one step (about eight arrays of the largest size)."""
+    N, n, lm = setup.model.N, setup.model.n, setup.links
+    per = sum(N * n + (3 * N * n * n if est.trialwise_covariance() else 0) for est in setup.estimators.values())
+    events = lm.max_events * 2 * n if not lm.synchronous else 0
+    return 8.0 * (8 * per + N * n * 4 + lm.topology.E * 4 + events)
+
+
+def simulate_group(setup: Setup, seed: int, trials: int, budget_bytes: float, label: str) -> dict[str, Any]:
+    """Every estimator of `setup` on `trials` trials, chunk by chunk, folded in unit order."""
+    sums: dict[str, dict[str, list]] = {}
+    token: dict[str, list] = {}
+    paths, seconds, cpu0 = None, {}, time.process_time()
+    for streams in unit_chunks(seed, label, STREAMS, trials, bytes_per_trial(setup), budget_bytes):
+        out = simulate_units(setup, *streams)
+        for est, acc in out["sums"].items():
+            for name, arr in acc.items():
+                sums.setdefault(est, {}).setdefault(name, []).append(arr)
+        for est, arr in out["token"].items():
+            token.setdefault(est, []).append(arr)
+        for est, t in out["seconds"].items():
+            seconds[est] = seconds.get(est, 0.0) + t
+        paths = out["paths"] if paths is None else paths
+    return {"mc": {est: {name: np.concatenate(parts).sum(axis=0) for name, parts in acc.items()}
+                   for est, acc in sums.items()},
+            "token": {e: np.concatenate(v, axis=1) for e, v in token.items()}, "paths": paths, "steps": out["steps"],
+            "seconds": seconds, "cpu_s": time.process_time() - cpu0}
+
+
+def worker_groups(estimators: dict[str, DesignedEstimator], workers: int) -> list[list[str]]:
+    """The estimators split into at most `workers` groups of similar cost (`cost_weight`, heaviest first),
+    each with the reference (the distances are to its estimates); an estimator that reuses another's
+    recursion (`shares_with`) stays with it."""
+    head = [name for name, est in estimators.items() if est.spec.reference]
+    names = [name for name in estimators if name not in head]
+    if workers <= 1 or len(names) < 2:
+        return [list(estimators)]
+    units: list[list[str]] = []
+    for name in names:
+        home = next((u for u in units if estimators[name].spec.shares_with in u), None)
+        home.append(name) if home is not None else units.append([name])
+
+    def weight(unit):
+        return sum(estimators[e].spec.cost_weight for e in unit)
+
+    units.sort(key=lambda u: -weight(u))
+    groups: list[list[str]] = [[] for _ in range(min(workers, len(units)))]
+    load = [0.0] * len(groups)
+    for u in units:
+        g = int(np.argmin(load))
+        groups[g] += u
+        load[g] += weight(u)
+    return [head + [e for e in estimators if e in g] for g in groups if g]
+
+
+def simulate(setup: Setup, seed: int, trials: int, budget_bytes: float, workers: int = 1,
+             label: str = "compare") -> dict[str, Any]:
+    """Every estimator on `trials` trials (module doc): ``mc`` the folded sums per estimator, ``token``,
+    ``paths``, the recorded ``steps``, CPU ``seconds`` per estimator and ``group_cpu_s`` per worker. The
+    workers are forked: the estimators' declarations are inherited, not pickled."""
+    groups = worker_groups(setup.estimators, workers)
+    jobs = [(sum(setup.estimators[e].spec.cost_weight for e in g), functools.partial(
+        simulate_group, dataclasses.replace(setup, estimators={e: setup.estimators[e] for e in g}), seed, trials,
+        budget_bytes, label)) for g in groups]
+    parts = run_jobs(jobs, workers=len(groups))
+    out = {"mc": {}, "token": {}, "paths": {}, "seconds": {}, "steps": parts[0]["steps"],
+           "group_cpu_s": [p["cpu_s"] for p in parts]}
+    for p in parts:
+        for what in ("mc", "token", "paths", "seconds"):
+            out[what].update({e: v for e, v in p[what].items() if e not in out[what]})
+    out["mc"] = {e: out["mc"][e] for e in setup.estimators if e in out["mc"]}
+    return out
+
+
+# -- the estimates the sums give ------------------------------------------------------------------------------
+
+@dataclass
+class Stats:
+    """Means over trials and their standard errors from the folded sums, (S, W) at the recorded steps."""
+
+    mse: np.ndarray
+    mse_se: np.ndarray
+    excess: np.ndarray | None          # mean ‖x̂_i − x̂_c‖² (None for the reference itself)
+    excess_se: np.ndarray | None
+    cross: np.ndarray | None
+    cross_se: np.ndarray | None
+    nees: np.ndarray | None            # None for a filter without its own covariance
+    nees_se: np.ndarray | None
+    disagreement: np.ndarray           # (S,)
+    disagreement_se: np.ndarray
+    disagreement_node: np.ndarray      # (S, W) mean of ‖x̂_i − mean_j x̂_j‖²
+    network: np.ndarray                # (S,) node average of the MSE
+    network_se: np.ndarray
+    messages: np.ndarray               # (N,) per node and step
+    scalars: np.ndarray
+
+
+def mean_and_se(s1, s2, B: int) -> tuple[np.ndarray, np.ndarray]:
+    """The mean over B trials and its standard error (sample standard deviation / √B) from Σ a and Σ a²."""
+    with np.errstate(invalid="ignore", over="ignore"):      # a diverging filter's sums may be infinite
+        mean = s1 / B
+        var = np.maximum(s2 / B - mean * mean, 0.0)
+        return mean, np.sqrt(var * B / max(B - 1, 1) / B)
+
+
+def stats(sums: dict[str, np.ndarray], trials: int, n_steps: int, reference: bool) -> Stats:
+    """The estimates of one estimator's folded sums over `trials` trials of `n_steps` steps."""
+    s, B = sums, trials
+    mse, mse_se = mean_and_se(s["sq"], s["sq2"], B)
+    excess = excess_se = cross = cross_se = None
+    if not reference:
+        excess, excess_se = mean_and_se(s["dist"], s["dist2"], B)
+        cross, cross_se = mean_and_se(s["cross"], s["cross2"], B)
+    nees = nees_se = None
+    if np.any(s["nees"] != 0):
+        nees, nees_se = mean_and_se(s["nees"], s["nees2"], B)
+    dis, dis_se = mean_and_se(s["dis"], s["dis2"], B)
+    net, net_se = mean_and_se(s["net"], s["net2"], B)
+    return Stats(mse, mse_se, excess, excess_se, cross, cross_se, nees, nees_se, dis, dis_se, s["dis_node"] / B,
+                 net, net_se, s["msgs"] / (B * n_steps), s["scalars"] / (B * n_steps))
+
+
+def effective_sample_size(s1, s2) -> np.ndarray:
+    """(Σ a)² / Σ a² of nonnegative per-trial values a (the trials' count when they are equal)."""
+    s1, s2 = np.asarray(s1, float), np.asarray(s2, float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(s2 > 0, s1 * s1 / np.where(s2 > 0, s2, 1.0), 0.0)
+
+
+#: the confidence of the NEES band of a consistent filter
+NEES_BAND = 0.99
+
+
+def nees_band(trials: int, n: int, level: float = NEES_BAND) -> tuple[float, float]:
+    """If a filter's covariance is the covariance of its Gaussian error, the sum of B independent NEES values
+    is χ²(B n): the mean NEES lies in [χ²_{Bn}(α/2), χ²_{Bn}(1 − α/2)] / B with probability 1 − α = level."""
+    from scipy.stats import chi2
+
+    a = (1 - level) / 2
+    return float(chi2.ppf(a, trials * n) / trials), float(chi2.ppf(1 - a, trials * n) / trials)
+
+
+def ks_test(x, y):
+    """Two-sample Kolmogorov-Smirnov test: scipy's exact p-value where it can compute it, else the
+    asymptotic one (accurate at the sample sizes here, and conservative where the laws have atoms)."""
+    import warnings
+
+    from scipy.stats import ks_2samp
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return ks_2samp(x, y, method="exact" if max(len(x), len(y)) <= 2000 else "asymp")
 
 
 def _factor(Q: np.ndarray) -> np.ndarray:

@@ -100,6 +100,15 @@ class SensorNetworkModel:
         """Each node's Kalman filter on its own measurements alone (no communication)."""
         return [kalman_covariances(self.F, self.H[i], self.Q, self.R[i], self.P0, n_steps) for i in range(self.N)]
 
+    def state_rms(self, n_steps: int) -> np.ndarray:
+        """√E‖x(k)‖² of the plant at every step k = 0..n_steps−1: S(0) = P0 + x0x0ᵀ, S(k+1) = F S(k) Fᵀ + Q."""
+        S = self.P0 + np.outer(self.x0, self.x0)
+        out = []
+        for _ in range(n_steps):
+            out.append(np.sqrt(max(float(np.trace(S)), 0.0)))
+            S = self.F @ S @ self.F.T + self.Q
+        return np.array(out)
+
     def locally_detectable(self) -> np.ndarray:
         """(N,) bool: (F, H_i) detectable, i.e. node i's own Kalman filter has a bounded error."""
         return np.array([detectable(self.F, self.H[i]) for i in range(self.N)])

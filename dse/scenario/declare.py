@@ -66,6 +66,17 @@ def name_key(default: str = "scenario") -> Any:
                constraint="1 to 64 letters, digits, '-' or '_'")
 
 
+def only_with(section: Section, name: str, switch: str, *values: str) -> None:
+    """The rule of a key that belongs to some values of a switch key (`rate` with `model = 'poisson'`): it is
+    required when `section.<switch>` is one of `values` and rejected otherwise (a ScenarioError naming it)."""
+    given, value = getattr(section, name) is not None, getattr(section, switch)
+    when = " or ".join(f"{switch} = '{v}'" for v in values)
+    if value in values and not given:
+        raise ScenarioError(name, f"missing (needed for {when})")
+    if value not in values and given:
+        raise ScenarioError(name, f"only with {when} ({switch} is '{value}')")
+
+
 def computed_default(fn):
     """A default computed from the keys declared before it in the same table: `fn(data)` gets them
     (validated) and the first line of its docstring is what the reference page shows as the default."""

@@ -13,6 +13,9 @@ import dataclasses
 import functools
 import importlib
 import pkgutil
+from typing import Annotated
+
+from pydantic import AfterValidator
 
 from dse.estimators.protocol import NetworkEstimator
 
@@ -50,3 +53,13 @@ def register(estimator: NetworkEstimator) -> NetworkEstimator:
 
 def unregister(name: str) -> None:
     _REGISTERED.pop(name, None)
+
+
+def _registered(name: str) -> str:
+    if name not in registry():
+        raise ValueError(f"must be one of {', '.join(registry())}; got {name!r}")
+    return name
+
+
+#: the name of a registered estimator in a scenario file, checked against the registry when the file is read
+EstimatorName = Annotated[str, AfterValidator(_registered)]

@@ -15,11 +15,11 @@ from __future__ import annotations
 import numpy as np
 
 from dse.contract.claims import ClaimSet
+from dse.estimators.network_comparison import effective_sample_size, ks_test
 from dse.simulate.stats import chi2_two_sided_p, normal_two_sided_p
 from dse.verify.rules import Holds, Verdict, inequality, not_checkable, p_value_test, roundoff_tolerance
 
 from .stages import token_times
-from .statistics import ks_test, stats
 
 claims = ClaimSet()
 
@@ -36,28 +36,21 @@ STABLE = "compare.hyp.mean_square_stable"
 C1 = "compare.hyp.kar_moura.C1"
 D1 = "compare.hyp.kar_moura.D1"
 S1 = "compare.hyp.kar_moura.S1"
-COLLECTIVE = "compare.hyp.collective_detectability"
-LOCAL = "compare.hyp.local_detectability"
 
 
 # -- hypotheses --------------------------------------------------------------------------------------------
 
-@claims.hypothesis(NOISY, "the links add communication noise (σ_c > 0)")
-def noisy(d) -> Holds:
+@claims.hypothesis(NOISELESS, "the links add no communication noise (σ_c = 0)", args=(False,))
+@claims.hypothesis(NOISY, "the links add communication noise (σ_c > 0)", args=(True,))     # registered first
+def communication_noise(d, noisy: bool) -> Holds:
     s = d.scenario.links.noise_std
-    return Holds(s > 0, s, 0.0, f"communication noise σ_c = {s:g}")
-
-
-@claims.hypothesis(NOISELESS, "the links add no communication noise (σ_c = 0)")
-def noiseless(d) -> Holds:
-    s = d.scenario.links.noise_std
-    return Holds(s == 0, s, 0.0, f"communication noise σ_c = {s:g}")
+    return Holds((s > 0) if noisy else (s == 0), s, 0.0, f"communication noise σ_c = {s:g}")
 
 
 @claims.hypothesis(CARLI_NOISE, "communication noise dominates Carli's filter: its steady mean-square error exceeds "
                    "that of the same local filters without fusion")
 def carli_noise(d) -> Holds:
-    t = d.tuned
+    t = d.network.tuned
     if "carli" not in d.running or "carli_local_steady" not in t:
         return Holds(None, detail="Carli's filter does not run on this scenario: " + d.estimators["carli"].reason)
     if d.links.kind == "matchings":
@@ -87,8 +80,8 @@ def stable(d) -> Holds:
 
 @claims.hypothesis(C1, "C.1: the GIKF's mean communication matrix is irreducible and aperiodic")
 def c1(d) -> Holds:
-    v = d.numbers["c1"]
-    return Holds(v, None, None, "mean of the GIKF's swap permutation irreducible and aperiodic: " + d.numbers["c1_detail"])
+    return Holds(d.numbers["c1"], None, None,
+                 "mean of the GIKF's swap permutation irreducible and aperiodic: " + d.numbers["c1_detail"])
 
 
 @claims.hypothesis(D1, "D.1: weak detectability (a covering walk with an invertible observability Gramian)")
@@ -105,17 +98,16 @@ def d1(d) -> Holds:
 
 @claims.hypothesis(S1, "S.1: (F, Q^½) stabilizable")
 def s1(d) -> Holds:
-    v = d.numbers["stabilizable"]
-    return Holds(bool(v), None, None, "(F, Q^½) stabilizable (PBH test on the modes |λ| ≥ 1)")
+    return Holds(bool(d.numbers["stabilizable"]), None, None, "(F, Q^½) stabilizable (PBH test on the modes |λ| ≥ 1)")
 
 
-@claims.hypothesis(COLLECTIVE, "collective detectability of (F, H)")
+@claims.hypothesis("compare.hyp.collective_detectability", "collective detectability of (F, H)")
 def collective(d) -> Holds:
-    v = d.numbers["collective_detectable"]
-    return Holds(bool(v), None, None, "(F, H) of all sensors together detectable: the centralized filter's error is bounded")
+    return Holds(bool(d.numbers["collective_detectable"]), None, None,
+                 "(F, H) of all sensors together detectable: the centralized filter's error is bounded")
 
 
-@claims.hypothesis(LOCAL, "local detectability at every node")
+@claims.hypothesis("compare.hyp.local_detectability", "local detectability at every node")
 def local(d) -> Holds:
     loc = np.asarray(d.numbers["local_detectable"])
     return Holds(bool(loc.all()), int(loc.sum()), len(loc),
@@ -123,18 +115,11 @@ def local(d) -> Holds:
                  "need; weak detectability asks only for the network)")
 
 
-
 # -- claims ------------------------------------------------------------------------------------------------
-
-def _chi2_p(total, trials, n):
-    return chi2_two_sided_p(np.asarray(total, float), trials * n)
-
 
 def _finite(*arrays) -> bool:
     return all(np.all(np.isfinite(np.asarray(a, float))) for a in arrays if a is not None)
 
-
-# -- 1. the reference --------------------------------------------------------------------------------------
 
 @claims.claim("compare.central.filterpy", "reference (filterpy)", "the centralized Kalman filter agrees with "
               "filterpy's KalmanFilter on the stacked model to round-off", "identity")
@@ -152,11 +137,9 @@ def filterpy_reference(res) -> Verdict:
                              f"{how} (condition of the innovation covariance).")
 
 
-# -- 2. exact recursions against the simulation --------------------------------------------------------
-
 @claims.claim("compare.exact.monte_carlo", "exact moment recursions", "the exact second moments of the linear "
-              "network filters (Carli, re-injection, pairwise averaging; Kalman-consensus, diffusion and CI on reliable "
-              "links) agree with the simulation", "statistical")
+              "network filters (Carli, re-injection, pairwise averaging; Kalman-consensus, diffusion and CI on "
+              "reliable links) agree with the simulation", "statistical")
 def exact_vs_monte_carlo(res) -> Verdict:
     B, n = res.trials, res.design.model.n
     idx = res.check_indices()
@@ -169,12 +152,12 @@ def exact_vs_monte_carlo(res) -> Verdict:
         s = res.mc[est]
         ex = res.exact[est]["mse"][res.steps[idx]]                   # (C, N)
         if not random_links:
-            p = _chi2_p(s["xnees"][idx], B, n)
+            p = chi2_two_sided_p(np.asarray(s["xnees"][idx], float), B * n)
             law = "χ²"
         else:
-            st = stats(res, est)
+            st = res.stats(est)
             mse, se = st.mse[idx], st.mse_se[idx]
-            ess = effective_sample_size_from_sums(s["sq"][idx], s["sq2"][idx])
+            ess = effective_sample_size(s["sq"][idx], s["sq2"][idx])
             if B < MIN_TRIALS_Z or np.min(ess) < MIN_ESS:
                 skipped.append(f"{est} (effective sample size {np.min(ess):.0f})")
                 continue
@@ -200,25 +183,6 @@ def exact_vs_monte_carlo(res) -> Verdict:
     return p_value_test(np.concatenate(ps), trials=B, measured=worst[1][0], reference=worst[1][1], detail=detail)
 
 
-def effective_sample_size_from_sums(s1, s2):
-    s1, s2 = np.asarray(s1, float), np.asarray(s2, float)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(s2 > 0, s1 * s1 / np.where(s2 > 0, s2, 1.0), 0.0)
-
-
-# -- 3. orthogonality: the excess over the centralized filter is the distance to it ----------------------
-
-def _state_rms(res) -> np.ndarray:
-    """√E‖x(k)‖² of the plant at every step k = 0..K−1: S(0) = P0 + x0x0ᵀ, S(k+1) = F S(k) Fᵀ + Q."""
-    m = res.design.model
-    S = m.P0 + np.outer(m.x0, m.x0)
-    out = []
-    for _ in range(res.scenario.simulation.steps):
-        out.append(np.sqrt(max(float(np.trace(S)), 0.0)))
-        S = m.F @ S @ m.F.T + m.Q
-    return np.array(out)
-
-
 @claims.claim("compare.central.orthogonality", "orthogonality principle", "the centralized filter's error is "
               "orthogonal to every other estimate's distance from it, so the excess mean-square error over the "
               "centralized filter is the mean-square distance to it", "statistical")
@@ -238,15 +202,16 @@ def orthogonality(res) -> Verdict:
     idx = res.check_indices()
     m = res.design.model
     steps = np.asarray(res.steps)[idx]
-    err_rms = np.sqrt(np.maximum(stats(res, "central").mse[idx], 0.0)).reshape(len(idx), -1)[:, :1]
+    err_rms = np.sqrt(np.maximum(res.stats("central").mse[idx], 0.0)).reshape(len(idx), -1)[:, :1]
     ops = (steps + 1.0) * (res.scenario.links.rounds + 1) * (m.n + m.N * m.m)
+    state_rms = m.state_rms(res.scenario.simulation.steps)[steps]
     allowance = np.array([roundoff_tolerance(scale=float(e * x), operations=float(o))[0]
-                          for e, x, o in zip(err_rms[:, 0], _state_rms(res)[steps], ops)])[:, None]
+                          for e, x, o in zip(err_rms[:, 0], state_rms, ops)])[:, None]
     ps, names, skipped = [], [], []
     for est in res.mc:
         if est == "central":
             continue
-        st = stats(res, est)
+        st = res.stats(est)
         excess = np.maximum(np.abs(st.cross[idx]) - allowance, 0.0)
         z = excess / np.maximum(st.cross_se[idx], 1e-300)
         if not _finite(z):
@@ -267,8 +232,6 @@ def orthogonality(res) -> Verdict:
         (f" Left out (errors not finite): {', '.join(skipped)}." if skipped else "")))
 
 
-# -- 4. the centralized filter is a lower bound --------------------------------------------------------------
-
 @claims.claim("compare.central.lower_bound", "optimality of the centralized filter", "no estimator has a smaller "
               "exact mean-square error than the centralized Kalman filter, at any node and step", "inequality")
 def lower_bound(res) -> Verdict:
@@ -286,13 +249,12 @@ def lower_bound(res) -> Verdict:
         return not_checkable("no other estimator has exact moments on this scenario")
     m = res.design.model
     scale = float(max(np.max(central), 1e-300))
-    tol, how = roundoff_tolerance(scale=scale, operations=float(res.scenario.simulation.steps) * (m.N * m.n) ** 2 / max(m.N, 1))
+    ops = float(res.scenario.simulation.steps) * (m.N * m.n) ** 2 / max(m.N, 1)
+    tol, how = roundoff_tolerance(scale=scale, operations=ops)
     return inequality(np.concatenate(lows), np.concatenate(ups), tolerance=tol,
                       detail=f"exact MSE of every node of {', '.join(names)} at every step against the centralized "
                              f"filter's (the conditional mean given every measurement); {how}.")
 
-
-# -- 5. filters whose covariance is the conditional covariance ----------------------------------------------
 
 @claims.claim("compare.kalman.conditional_covariance", "Kar & Moura (8)-(10); Kalman (1960)", "the covariances "
               "of the centralized, local and GIKF filters are their errors' conditional covariances (GIKF: given the "
@@ -307,7 +269,7 @@ def conditional_covariances(res) -> Verdict:
         total = res.mc[est]["nees"][idx]
         if not _finite(total):
             continue
-        ps.append(np.ravel(_chi2_p(total, B, n)))
+        ps.append(np.ravel(chi2_two_sided_p(np.asarray(total, float), B * n)))
         names.append(est)
     if not ps:
         return not_checkable("none of the centralized, local and GIKF filters runs")
@@ -318,8 +280,6 @@ def conditional_covariances(res) -> Verdict:
         f"the covariance received): {', '.join(names)}, every node, steps " +
         ", ".join(str(int(res.steps[i])) for i in idx) + "."))
 
-
-# -- 6. CI is conservative -------------------------------------------------------------------------------
 
 @claims.claim("compare.ci.conservative.exact", "Battistelli & Chisci (2014), consistency of CI", "with noiseless "
               "links the CI filter's covariance bounds its error covariance: E[e_i e_iᵀ] ⪯ Ω_i⁻¹ (exact, reliable "
@@ -360,8 +320,6 @@ def ci_conservative_mc(res) -> Verdict:
         "trials (every node, steps " + ", ".join(str(int(res.steps[i])) for i in idx) + ")."))
 
 
-# -- 7. Savas et al.: re-injection against Carli under noisy links ----------------------------------------
-
 @claims.claim("compare.savas.reinjection_beats_carli", "Savas et al. §III-B, §IV, Figs. 1 and 3", "under noisy "
               "links, in the regime where communication noise dominates Carli's filter, the re-injection filter with "
               "gains tuned for its steady state has a smaller steady-state mean-square error than Carli's filter with "
@@ -377,7 +335,7 @@ def reinjection_beats_carli(res) -> Verdict:
     extra = ""
     k = res.scenario.simulation.eval_step
     if "carli" in res.mc and "reinjection" in res.mc:
-        sr, sc_ = stats(res, "reinjection"), stats(res, "carli")
+        sr, sc_ = res.stats("reinjection"), res.stats("carli")
         i = res.eval_index
         extra = (f" At step {k}: Monte Carlo network MSE {sr.mse[i].mean():.6g} (re-injection) and "
                  f"{sc_.mse[i].mean():.6g} (Carli)")
@@ -390,8 +348,6 @@ def reinjection_beats_carli(res) -> Verdict:
         f"{g['reinjection']['zeta']:.4g}) against Carli's (ℓ = {g['carli']['scale']:.4g}), same rounds and links; "
         f"{how}.{extra}"))
 
-
-# -- 8. Kar & Moura: the law of a random sensor's covariance is the token chain's ---------------------------
 
 @claims.claim("compare.kar_moura.random_sensor_law", "Kar & Moura Thm 10(i) and its proof", "weak consensus: "
               "the conditional covariance at a uniformly random sensor has, at every step, the law of Riccati iterates "

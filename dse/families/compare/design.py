@@ -12,8 +12,6 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, Mapping, Sequence
 
-import numpy as np
-
 from dse.estimators.protocol import DesignedEstimator, Network, NetworkEstimator
 
 from .scenario import CompareFile
@@ -37,18 +35,6 @@ class Design:
     def links(self):
         return self.network.links
 
-    @property
-    def topology(self):
-        return self.network.links.topology
-
-    @property
-    def weights(self) -> np.ndarray:
-        return self.network.weights
-
-    @property
-    def tuned(self) -> dict[str, float]:
-        return self.network.tuned
-
     @cached_property
     def running(self) -> dict[str, DesignedEstimator]:
         """The estimators that apply, in the registry's order."""
@@ -61,25 +47,13 @@ class Design:
 
     @cached_property
     def numbers(self) -> dict[str, Any]:
-        """What the hypotheses are decided by. C.1: the GIKF's token moves along the edges of the graph and
-        stays put with positive probability when the link model allows it: irreducible because the graph
-        is connected, aperiodic with an odd cycle or a self-loop. D.1: the Gramian along a covering walk
-        (depth first, staying n steps at each node when self-loops are possible) repeated n times."""
-        from dse.estimators.sensor_network import observable, stabilizable, walk_gramian_ratio
+        """What the hypotheses are decided by: detectability of the nodes and of the network, and Kar & Moura's
+        conditions for the GIKF's weak consensus (`gossip_swap_kalman.weak_consensus_conditions`)."""
+        from dse.estimators.gossip_swap_kalman import weak_consensus_conditions
 
-        m, links = self.model, self.links
-        loops, why = links.stay_witness()
-        bipartite = links.topology.is_bipartite()
-        walk = links.topology.covering_walk(stay=m.n if loops else 1) * m.n
-        ratio = walk_gramian_ratio(m, walk)
-        observable_ = observable(m.F, m.H_all)
+        m = self.model
         return {"local_detectable": m.locally_detectable(), "collective_detectable": m.collectively_detectable(),
-                "collective_observable": observable_, "stabilizable": stabilizable(m.F, m.Q),
-                "c1": True if (not bipartite or loops) else (None if loops is None else False),
-                "c1_detail": "the graph is connected (irreducible) and " + (
-                    "has an odd cycle (aperiodic)" if not bipartite else f"bipartite; self-loops: {why}"),
-                "d1_ratio": ratio, "d1_walk_length": len(walk),
-                "d1": True if ratio > 1e-10 else (False if not observable_ else None)}
+                **weak_consensus_conditions(m, self.links)}
 
 
 def design_of(sc: CompareFile, quick: bool, tuned: Mapping[str, float], specs: Sequence[NetworkEstimator]) -> Design:

@@ -16,23 +16,9 @@ import numpy as np
 
 from dse.estimators.network import registry
 
-FAMILY = "compare"
-
-EDGES: tuple[str, ...] = (
-    "reliable_noisy_scalar",
-    "failures",
-    "matchings",
-    "poisson",
-    "poisson_noisy",
-    "weak_detectability",
-    "unstable_plant",
-    "two_nodes",
-    "two_row_sensors",
-    "given_gains",
-    "laplacian_weights",
-    "no_exact",
-    "few_estimators",
-)
+EDGES: tuple[str, ...] = ("reliable_noisy_scalar", "failures", "matchings", "poisson", "poisson_noisy",
+                          "weak_detectability", "unstable_plant", "two_nodes", "two_row_sensors", "given_gains",
+                          "laplacian_weights", "no_exact", "few_estimators")
 
 
 def _rng(seed: int, edge: str | None) -> np.random.Generator:
@@ -79,7 +65,7 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
         types.append({"H": _matrix(H), "R": _matrix(R)})
     kind = "line" if N < 3 or rng.random() < 0.4 else "ring"
     data: dict[str, Any] = {
-        "family": FAMILY, "name": f"gen-{edge or 'random'}-{seed}",
+        "family": "compare", "name": f"gen-{edge or 'random'}-{seed}",
         "plant": {"F": _matrix(F), "Q": _matrix(Q)},
         "sensors": {"types": types},
         "graph": {"kind": kind, "n": N},

@@ -16,15 +16,14 @@ import numpy as np
 from pydantic import model_validator
 
 from dse.errors import ScenarioError
-from dse.estimators.network import registry
+from dse.estimators.network import EstimatorName, registry
 from dse.scenario.declare import (Matrix, Real, ScenarioFile, Section, computed_default, covariance, key, matrix,
-                                  name_key)
+                                  name_key, only_with)
 from dse.scenario.graphs import GraphSection, GraphSpec, graph_from_section, max_degree
 
 MAX_NODES = 500
 MAX_STATE = 10
 MAX_ROWS = 4
-MAX_STEPS = 20_000
 
 
 class PlantSection(Section):
@@ -86,10 +85,7 @@ class LinksSection(Section):
 
     @model_validator(mode="after")
     def _model_keys(self):
-        if self.model == "poisson" and self.rate is None:
-            raise ScenarioError("rate", "missing (needed for model = 'poisson')")
-        if self.model != "poisson" and self.rate is not None:
-            raise ScenarioError("rate", f"only with model = 'poisson' (model is '{self.model}')")
+        only_with(self, "rate", "model", "poisson")
         if self.model in ("reliable", "poisson") and self.p_fail != 0.0:
             raise ScenarioError("p_fail", f"only with model = 'failures' or 'matchings' (model is '{self.model}')")
         return self
@@ -110,10 +106,7 @@ class WeightsSection(Section):
 
     @model_validator(mode="after")
     def _kind(self):
-        if self.kind == "laplacian" and self.eps is None:
-            raise ScenarioError("eps", "missing (needed for kind = 'laplacian')")
-        if self.kind != "laplacian" and self.eps is not None:
-            raise ScenarioError("eps", f"only with kind = 'laplacian' (kind is '{self.kind}')")
+        only_with(self, "eps", "kind", "laplacian")
         return self
 
 
@@ -139,10 +132,7 @@ class GainsSection(Section):
 
     @model_validator(mode="after")
     def _given(self):
-        if self.base == "given" and self.given is None:
-            raise ScenarioError("given", "missing (needed for base = 'given')")
-        if self.base != "given" and self.given is not None:
-            raise ScenarioError("given", f"only with base = 'given' (base is '{self.base}')")
+        only_with(self, "given", "base", "given")
         for name in ("carli_scale", "reinjection_scale"):
             v = getattr(self, name)
             if not isinstance(v, str) and not v > 0:
@@ -162,23 +152,15 @@ class EstimatorsSection(Section):
         """all"""
         return list(registry())
 
-    include: list[str] = key(_every, doc="estimator ids: " + ", ".join(registry()), min_length=1,
-                             constraint="registered estimator ids; the centralized filter always runs (it is the "
-                                        "reference)")
-
-    @model_validator(mode="after")
-    def _registered(self):
-        known = registry()
-        for i, name in enumerate(self.include):
-            if name not in known:
-                raise ScenarioError(f"include[{i}]", f"must be one of {', '.join(known)}; got {name!r}")
-        return self
+    include: list[EstimatorName] = key(_every, doc="estimator ids: " + ", ".join(registry()), min_length=1,
+                                       constraint="registered estimator ids; the centralized filter always runs (it "
+                                                  "is the reference)")
 
 
 class SimulationSection(Section):
     """The horizon and the Monte Carlo simulation (trials in units of 1,000, common random numbers)."""
 
-    steps: int = key(100, doc="steps k = 0..steps−1", ge=2, le=MAX_STEPS)
+    steps: int = key(100, doc="steps k = 0..steps−1", ge=2, le=20_000)
     trials: int = key(4000, doc="Monte Carlo trials", ge=100, le=10_000_000)
 
     @computed_default
@@ -316,7 +298,8 @@ class CompareFile(ScenarioFile):
         if g.base != "given":
             return ()
         if len(g.given) != len(self.sensor_types):
-            raise ScenarioError("gains.given", f"one gain per sensor type ({len(self.sensor_types)}), got {len(g.given)}")
+            raise ScenarioError("gains.given", f"one gain per sensor type ({len(self.sensor_types)}), "
+                                               f"got {len(g.given)}")
         return tuple(matrix(K, f"gains.given[{t}]", shape=(self.n, self.sensor_types[t][0].shape[0]))
                      for t, K in enumerate(g.given))
 

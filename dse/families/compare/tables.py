@@ -6,11 +6,11 @@ import numpy as np
 import pandas as pd
 
 from dse.estimators.network import registry
+from dse.estimators.network_comparison import NEES_BAND, ks_test, nees_band
 from dse.outputs.tables import spec
 
 from .design import Design
 from .stages import token_times
-from .statistics import NEES_BAND, exact_at, exact_disagreement_at, is_reference, ks_test, nees_band, stats
 
 _S = ("scenario", "", "scenario name")
 _E = ("estimator", "", "estimator id: " + ", ".join(registry()))
@@ -94,29 +94,23 @@ METRICS = spec("metrics", "metric of an estimator (network-wide when node is emp
 
 
 def applicability_rows(d: Design) -> list[dict]:
-    rows = []
-    for name, est in d.estimators.items():
-        g = est.tuning
-        rows.append({"scenario": d.scenario.name, "estimator": name, "label": est.spec.title, "applies": est.applies,
-                     "reason": est.reason, "exact": est.exact, "exact_reason": est.exact_reason if est.applies else "",
-                     "gain_scale": g.get("scale", np.nan), "zeta": g.get("zeta", np.nan),
-                     "mean_square_radius": g.get("rho", np.nan), "steady_mse": g.get("steady_mse", np.nan)})
-    return rows
+    return [{"scenario": d.scenario.name, "estimator": name, "label": est.spec.title, "applies": est.applies,
+             "reason": est.reason, "exact": est.exact, "exact_reason": est.exact_reason if est.applies else "",
+             "gain_scale": est.tuning.get("scale", np.nan), "zeta": est.tuning.get("zeta", np.nan),
+             "mean_square_radius": est.tuning.get("rho", np.nan), "steady_mse": est.tuning.get("steady_mse", np.nan)}
+            for name, est in d.estimators.items()]
 
 
 def design_tables(d: Design) -> list:
     sc = d.scenario
     out = [(APPLICABILITY, pd.DataFrame(applicability_rows(d), columns=APPLICABILITY.column_names))]
-    g = []
-    for name, est in d.running.items():
-        K = est.gains
-        for i in range(K.shape[0] if K is not None else 0):
-            for a in range(K.shape[1]):
-                for b in range(d.model.rows[i]):
-                    g.append({"scenario": sc.name, "estimator": name, "node": i, "row": a, "col": b, "value": K[i, a, b]})
+    g = [{"scenario": sc.name, "estimator": name, "node": i, "row": a, "col": b, "value": est.gains[i, a, b]}
+         for name, est in d.running.items() if est.gains is not None
+         for i, a in np.ndindex(est.gains.shape[:2]) for b in range(d.model.rows[i])]
     out.append((GAINS, pd.DataFrame(g, columns=GAINS.column_names)))
-    out.append((WEIGHTS, pd.DataFrame({"scenario": sc.name, "u": d.topology.edges[:, 0], "v": d.topology.edges[:, 1],
-                                       "consensus_weight": d.weights, "pairwise_weight": sc.alpha},
+    edges = d.links.topology.edges
+    out.append((WEIGHTS, pd.DataFrame({"scenario": sc.name, "u": edges[:, 0], "v": edges[:, 1],
+                                       "consensus_weight": d.network.weights, "pairwise_weight": sc.alpha},
                                       columns=WEIGHTS.column_names)))
     out.append((DETECT, pd.DataFrame({"scenario": sc.name, "node": np.arange(sc.N), "sensor_type": list(sc.assign),
                                       "locally_detectable": d.numbers["local_detectable"]}, columns=DETECT.column_names)))
@@ -126,10 +120,10 @@ def design_tables(d: Design) -> list:
 def _estimator_rows(res, est: str, reference_exact) -> tuple[dict, list, list, list]:
     """The estimator's row of `estimators`, its rows of `nodes` and `series`, and its `metrics`."""
     sc, i, k = res.scenario, res.eval_index, res.scenario.simulation.eval_step
-    ref = is_reference(res, est)
-    st = stats(res, est)
+    ref = res.is_reference(est)
+    st = res.stats(est)
     W = st.mse.shape[1]
-    ex = exact_at(res, est)
+    ex = res.exact_at(est)
     exact = ex is not None
     mse_mc = st.mse[i]
     net_mc, net_se = float(st.network[i]), float(st.network_se[i])
@@ -154,7 +148,7 @@ def _estimator_rows(res, est: str, reference_exact) -> tuple[dict, list, list, l
               "disagreement_mc": st.disagreement_node[i, node],
               "messages_per_step": st.messages[node] if not ref else 0.0,
               "scalars_per_step": st.scalars[node] if not ref else 0.0} for node in range(W)]
-    dis_ex = exact_disagreement_at(res, est)
+    dis_ex = res.exact_at(est, "disagreement")
     series = [{"scenario": sc.name, "estimator": est, "step": int(step), "network_mse_mc": st.network[j],
                "network_mse_mc_se": st.network_se[j], "network_mse_exact": ex[j].mean() if exact else np.nan,
                "excess_mc": st.excess[j].mean() if st.excess is not None else (0.0 if ref else np.nan),
@@ -185,7 +179,7 @@ def _token_rows(res) -> list[dict]:
 
 def run_tables(res) -> list:
     out = design_tables(res.design)
-    reference = next((name for name in res.mc if is_reference(res, name)), None)
+    reference = next((name for name in res.mc if res.is_reference(name)), None)
     reference_exact = res.exact[reference]["mse"][:, 0] if reference in res.exact else None
     est_rows, node_rows, series_rows, metric_rows = [], [], [], []
     for est in res.mc:

@@ -1,15 +1,9 @@
-"""Figures and the recording of a compare run, drawn from its tables.
-
-* `figures/error_vs_communication.png`: one point per estimator, network mean-square error at the
-  evaluation step against the real numbers each node sends per step, with the centralized filter as
-  the floor: what each estimator buys with its communication budget;
-* `figures/mse_vs_time.png`: every estimator's network MSE over time (Monte Carlo with its band,
-  exact recursions dashed);
-* `figures/nees.png`: the NEES of the estimators that carry a covariance, with the χ² band;
-* `<name>.rrd`: every estimator's curves on one view (timeline `k`), the NEES, the disagreement,
-  the graph, the comparison table, and the claims (the recording scaffold's tab).
-
-Colours, markers and labels follow the registry's order (`dse.estimators.network`).
+"""Figures and the recording of a compare run, drawn from its tables: `figures/error_vs_communication.png`
+(network MSE at the evaluation step against the real numbers each node sends per step, the centralized filter
+as the floor), `figures/mse_vs_time.png` (Monte Carlo with its band, exact recursions dashed), `figures/nees.png`
+(with the χ² band of a consistent filter) and `<name>.rrd` (every estimator's curves on timeline `k`, the NEES,
+the disagreement, the graph and the comparison table, on the recording scaffold with its claims tab). Colours,
+markers and labels follow the registry's order (`dse.estimators.network`).
 """
 from __future__ import annotations
 
@@ -121,14 +115,27 @@ def _pareto(t) -> np.ndarray:
     return np.array(front)
 
 
-def mse_vs_time(res, tables, path: Path) -> None:
+def _per_estimator(tables, height: float):
+    """A figure for one curve per estimator of the `series` table: (figure, axes, colours, labels, rows)."""
     colors, _, labels = _styles()
     s = tables["series"]
-    fig, axes = new_figure(ncols=1, width=10.0, height=5.0)
-    ax = axes[0, 0]
+    fig, axes = new_figure(ncols=1, width=10.0, height=height)
+    return fig, axes[0, 0], colors, labels, [(est, s[s["estimator"] == est]) for est in labels]
+
+
+def _finish(fig, ax, path: Path, ylabel: str, title: str) -> None:
+    ax.set_yscale("log")
+    ax.set_xlabel("step k")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, borderaxespad=0)
+    save_figure(fig, path)
+
+
+def mse_vs_time(res, tables, path: Path) -> None:
+    fig, ax, colors, labels, rows = _per_estimator(tables, 5.0)
     z = z_for_confidence(BAND)
-    for est in labels:
-        r = s[s["estimator"] == est]
+    for est, r in rows:
         if not len(r):
             continue
         k, mc, se = r["step"].to_numpy(), r["network_mse_mc"].to_numpy(), r["network_mse_mc_se"].to_numpy()
@@ -140,34 +147,21 @@ def mse_vs_time(res, tables, path: Path) -> None:
         ex = r["network_mse_exact"].to_numpy()
         if np.isfinite(ex).any():
             ax.plot(k, ex, color=c, ls="--", lw=1)
-    ax.set_yscale("log")
-    ax.set_xlabel("step k")
-    ax.set_ylabel("network mean-square error")
-    ax.set_title(f"{res.scenario.name}: Monte Carlo (band {BAND:.0%}) and exact (dashed)")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, borderaxespad=0)
-    save_figure(fig, path)
+    _finish(fig, ax, path, "network mean-square error",
+            f"{res.scenario.name}: Monte Carlo (band {BAND:.0%}) and exact (dashed)")
 
 
 def nees_figure(res, tables, path: Path) -> None:
-    colors, _, labels = _styles()
-    s = tables["series"]
+    fig, ax, colors, labels, rows = _per_estimator(tables, 4.5)
     nodes = tables["nodes"]
     lo, hi = float(nodes["nees_lo"].iloc[0]), float(nodes["nees_hi"].iloc[0])
-    fig, axes = new_figure(ncols=1, width=10.0, height=4.5)
-    ax = axes[0, 0]
-    for est in labels:
-        r = s[s["estimator"] == est]
-        if not len(r) or not np.isfinite(r["nees_mc"]).any():
-            continue
-        ax.plot(r["step"], r["nees_mc"], color=_rgb(colors[est]), label=labels[est])
+    for est, r in rows:
+        if len(r) and np.isfinite(r["nees_mc"]).any():
+            ax.plot(r["step"], r["nees_mc"], color=_rgb(colors[est]), label=labels[est])
     ax.axhspan(lo, hi, color="0.8", alpha=0.5, label="χ² band of one consistent node (99%)")
     ax.axhline(res.design.model.n, color="k", lw=0.8)
-    ax.set_yscale("log")
-    ax.set_xlabel("step k")
-    ax.set_ylabel("mean NEES (node average)")
-    ax.set_title("consistency: NEES with each filter's own covariance (n when consistent)")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, borderaxespad=0)
-    save_figure(fig, path)
+    _finish(fig, ax, path, "mean NEES (node average)",
+            "consistency: NEES with each filter's own covariance (n when consistent)")
 
 
 def _comparison_markdown(tables) -> str:
@@ -209,7 +203,7 @@ def _tabs():
     return [comparison, details]
 
 
-def _log_series(rec, s, colors: dict, labels: dict, references: set) -> None:
+def _log_series(rec, s, colors: dict, labels: dict) -> None:
     for est in labels:
         r = s[s["estimator"] == est]
         if not len(r):
@@ -225,7 +219,7 @@ def _log_series(rec, s, colors: dict, labels: dict, references: set) -> None:
             rec_.send_series(rec, f"nees/{est}", idx, r["nees_mc"].to_numpy(), names=labels[est], colors=[col])
         rec_.send_series(rec, f"disagreement/{est}", idx, r["disagreement_mc"].to_numpy(), names=labels[est],
                          colors=[col])
-        if est not in references:
+        if not registry()[est].reference:
             rec_.send_series(rec, f"excess/{est}", idx, r["excess_mc"].to_numpy(), names=labels[est], colors=[col])
 
 
@@ -247,9 +241,10 @@ def _recording(out: Outputs, path: Path) -> None:
     colors, _, labels = _styles()
 
     def log(rec):
-        rec_.log_graph(rec, "graph", sc.network.positions(), [tuple(e) for e in res.design.topology.edges.tolist()])
+        edges = res.design.links.topology.edges.tolist()
+        rec_.log_graph(rec, "graph", sc.network.positions(), [tuple(e) for e in edges])
         rec_.log_markdown(rec, "comparison", _comparison_markdown(tables))
-        _log_series(rec, tables["series"], colors, labels, {e for e, est in registry().items() if est.reference})
+        _log_series(rec, tables["series"], colors, labels)
         _log_trial(rec, res.paths, colors, labels)
 
     recording(path, out, recording_id=f"compare-{sc.name}-seed{res.seed}", tabs=_tabs, timeline="k", log=log,
