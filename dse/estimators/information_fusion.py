@@ -350,22 +350,3 @@ def exact_moments(f: InformationFilter, n_steps: int) -> dict[str, np.ndarray]:
     mse = np.einsum("kiaa->ki", blocks)
     return {"blocks": blocks, "mse": mse, "disagreement": dis, "network": mse.mean(axis=1), "own_cov": own}
 
-
-# -- as estimators of the compare arena (dse.estimators.network: kcf, diffusion, ci) ---------------------
-
-def design_on(est, kind: str, epsilon: float = 0.1) -> None:
-    """Design a `DesignedEstimator` as the filter of `kind` on the scenario's links and consensus weights;
-    its exact moments exist with every link working, within the size of the joint recursion."""
-    net = est.network
-    est.config = InformationFilter(net.model, net.links, kind, net.weights, epsilon)
-    ok, why = est.config.exact_available
-    est.exact_reason = why if not ok else net.joint_size_reason()
-
-
-def exact_of(est, n_steps: int) -> dict[str, np.ndarray]:
-    return exact_moments(est.config, n_steps)
-
-
-def trialwise(links: LinkModel) -> bool:
-    """With random links the gains depend on which links worked: a covariance per node and trial."""
-    return links.random

@@ -7,11 +7,11 @@ link, round and direction.
 """
 from __future__ import annotations
 
-from dse.estimators.information_fusion import InformationRun, design_on, exact_of, trialwise
+from dse.estimators.network._information import build, design_on, exact, trialwise
 from dse.estimators.protocol import Communication, NetworkEstimator
 
 ESTIMATOR = NetworkEstimator(
-    name="ci", title="consensus on information (Battistelli & Chisci)", rank=80, exact=exact_of, cost_weight=37,
+    name="ci", title="consensus on information (Battistelli & Chisci)", rank=80, exact=exact, cost_weight=37,
     design=lambda est: design_on(est, "information-consensus"), per_exchange=True, joint_moments=True,
-    build=lambda est, B, peers: InformationRun(est.config, B), trialwise_covariance=trialwise,
+    build=build, trialwise_covariance=trialwise,
     communication=lambda links, n: Communication("rounds", 1, n + n * (n + 1) // 2))

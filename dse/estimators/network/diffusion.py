@@ -8,11 +8,11 @@ Sends two messages of n numbers per link and direction per step (measurement inf
 """
 from __future__ import annotations
 
-from dse.estimators.information_fusion import InformationRun, design_on, exact_of, trialwise
+from dse.estimators.network._information import build, design_on, exact, trialwise
 from dse.estimators.protocol import Communication, NetworkEstimator
 
 ESTIMATOR = NetworkEstimator(
-    name="diffusion", title="diffusion KF, ATC (Cattivelli & Sayed)", rank=70, exact=exact_of, cost_weight=17,
+    name="diffusion", title="diffusion KF, ATC (Cattivelli & Sayed)", rank=70, exact=exact, cost_weight=17,
     design=lambda est: design_on(est, "diffusion"), shares_with="kcf",
-    build=lambda est, B, peers: InformationRun(est.config, B, twin=peers.get("kcf")), joint_moments=True,
+    build=lambda est, B, peers: build(est, B, peers, twin="kcf"), joint_moments=True,
     trialwise_covariance=trialwise, communication=lambda links, n: Communication("step", 2, n))

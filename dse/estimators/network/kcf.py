@@ -8,7 +8,7 @@ Exact moments on reliable links; ε is `weights.kcf_epsilon`.
 """
 from __future__ import annotations
 
-from dse.estimators.information_fusion import InformationRun, design_on, exact_of, trialwise
+from dse.estimators.network._information import build, design_on, exact, trialwise
 from dse.estimators.protocol import Communication, NetworkEstimator
 
 
@@ -17,6 +17,6 @@ def design(est) -> None:
 
 
 ESTIMATOR = NetworkEstimator(
-    name="kcf", title="Kalman-consensus (Olfati-Saber)", rank=60, design=design, exact=exact_of, cost_weight=36,
-    build=lambda est, B, peers: InformationRun(est.config, B), joint_moments=True, trialwise_covariance=trialwise,
+    name="kcf", title="Kalman-consensus (Olfati-Saber)", rank=60, design=design, exact=exact, cost_weight=36,
+    build=build, joint_moments=True, trialwise_covariance=trialwise,
     communication=lambda links, n: Communication("step", 1, 2 * n))

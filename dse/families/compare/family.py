@@ -12,7 +12,6 @@ from dse.contract.family import Family
 from dse.contract.options import RunOptions
 from dse.estimators.network import registry
 from dse.scenario.declare import parse
-from dse.simulate.units import RNG_UNIT
 
 from . import generator
 from .scenario import CompareFile
@@ -96,6 +95,7 @@ def estimate(sc: CompareFile, opts: RunOptions, trials: int) -> Cost:
     (`per_exchange`). The exact recursions cost (N n)³ per step, the gain tuning a number of steady states, each
     a Lyapunov solve ((N n)³) or an iterative solve on random links. Meant within a factor 2."""
     from dse.estimators.network_comparison import PER_TRIAL_SUMS, STATS
+    from dse.simulate.units import RNG_UNIT
 
     B, N, n, K = trials, sc.N, sc.n, sc.simulation.steps
     links = sc.link_model
