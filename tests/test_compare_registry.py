@@ -99,3 +99,49 @@ def test_an_estimator_name_is_registered_once(with_predictor):
         register(PREDICTOR)
     with pytest.raises(dse.errors.ScenarioError, match="estimators.include.0.: must be one of"):
         dse.families.from_dict({**tiny(), "estimators": {"include": ["kalman"]}})
+
+
+MODULE = '''"""A test's estimator: every node predicts with the plant alone (no measurement, nothing sent)."""
+import numpy as np
+
+from dse.estimators.protocol import NetworkEstimator, NetworkFilter
+
+
+class Predict(NetworkFilter):
+    def __init__(self, model, B):
+        self.F, self.x = model.F, np.broadcast_to(model.x0[None, :, None], (model.N, model.n, B)).copy()
+
+    def step(self, ctx):
+        est, self.x = self.x, np.matmul(self.F, self.x)
+        return est
+
+    def shift(self, delta):
+        self.x = self.x + delta[None]
+
+
+ESTIMATOR = NetworkEstimator(name="predict", title="prediction only", rank=99,
+                             build=lambda est, B, peers: Predict(est.network.model, B))
+'''
+
+
+def test_a_module_of_the_estimators_package_is_an_estimator_with_no_registration_line(tmp_path, monkeypatch):
+    import sys
+
+    import dse.estimators.network as package
+
+    (tmp_path / "predict.py").write_text(MODULE)
+    monkeypatch.setattr(package, "__path__", [*package.__path__, str(tmp_path)])
+    package.builtin.cache_clear()
+    try:
+        est = registry()["predict"]
+        assert est.module == "dse.estimators.network.predict" and list(registry())[-1] == "predict"
+        assert len(est.key()["code"]) == 16                       # keyed by its own source
+        scenario = dse.families.from_dict(tiny()).scenario
+        assert scenario.estimator_names[-1] == "predict"           # runs by default
+        design = dse.families.from_dict(tiny()).design(RunOptions(quick=True), StageContext(MemoryCache()))
+        assert design.running["predict"].communication().pattern == "none"
+    finally:
+        monkeypatch.undo()
+        sys.modules.pop("dse.estimators.network.predict", None)
+        package.builtin.cache_clear()
+    assert "predict" not in registry()

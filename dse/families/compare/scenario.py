@@ -149,12 +149,13 @@ class EstimatorsSection(Section):
 
     @computed_default
     def _every(data):
-        """all"""
+        """every registered estimator"""
         return list(registry())
 
-    include: list[EstimatorName] = key(_every, doc="estimator ids: " + ", ".join(registry()), min_length=1,
-                                       constraint="registered estimator ids; the centralized filter always runs (it "
-                                                  "is the reference)")
+    include: list[EstimatorName] = key(_every, doc="ids of the estimators to run, among the registered ones (one "
+                                       "module each in dse/estimators/network/; the `applicability` table lists "
+                                       "them)", min_length=1, constraint="registered estimator ids; the centralized "
+                                       "filter always runs (it is the reference)")
 
 
 class SimulationSection(Section):
