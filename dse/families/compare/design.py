@@ -1,10 +1,8 @@
 """The deterministic design of a compare scenario: every registered estimator designed for it (whether it
 applies to the link model and why not, its gains tuned where asked, whether its exact moments are
 computed; `dse.estimators.network`), and the numbers the hypotheses are decided by (detectability, the
-GIKF's mean communication). No Monte Carlo: `dse check` computes it alone.
-
-The estimators' searches (gain scales, steady states) are the design stage (`stages.tune`); the design is
-rebuilt from their numbers wherever a stage needs it.
+GIKF's mean communication). No Monte Carlo: `dse check` computes it alone. The estimators' searches are the
+design stage (`stages.tune`); the design is rebuilt from their numbers wherever a stage needs it.
 """
 from __future__ import annotations
 

@@ -1,9 +1,6 @@
-"""The compare family: not a paper, an arena. One plant, one graph and one link model given to every
-registered estimator that applies (`dse.estimators.network`), on common random numbers. Its modules:
-scenario (the declared file), design (every estimator designed for the scenario, and the hypotheses'
-numbers), stages (design, exact moments, Monte Carlo, token chain, and the results the claims read), claims
-(hypotheses and claims on their checks), tables, views (figures and the recording), generator, and this one
-(with the cost model).
+"""The compare family: not a paper, an arena where every registered estimator (`dse.estimators.network`)
+runs on one scenario. Its modules: scenario, design (every estimator designed, the hypotheses' numbers),
+stages (and the results the claims read), claims, tables, views, generator, and this one (with the cost model).
 """
 from __future__ import annotations
 
