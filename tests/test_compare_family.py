@@ -7,7 +7,7 @@ import copy
 import numpy as np
 import pytest
 
-import dse.families
+from dse import registry
 from dse.contract.options import RunOptions
 from dse.contract.stages import StageContext
 from dse.engine.cache import MemoryCache
@@ -30,7 +30,7 @@ def tiny(**links) -> dict:
 
 
 def design(data: dict, opts: RunOptions):
-    return dse.families.from_dict(data).design(opts, StageContext(MemoryCache()))
+    return registry.from_dict(data).design(opts, StageContext(MemoryCache()))
 
 
 @pytest.mark.parametrize("path,value,message", [
@@ -50,7 +50,7 @@ def test_invalid_scenarios_name_the_field(path, value, message):
         node = node.setdefault(p, {}) if isinstance(p, str) else node[p]
     node[path[-1]] = value
     with pytest.raises(ScenarioError) as err:
-        dse.families.from_dict(data)
+        registry.from_dict(data)
     assert message in str(err.value), str(err.value)
 
 
@@ -59,10 +59,10 @@ def test_shipped_scenarios_load():
 
     from dse.scenario.fields import load_toml
 
-    files = sorted((Path(dse.families.__file__).parent / "compare" / "scenarios").glob("*.toml"))
+    files = sorted((registry.family("compare").directory() / "scenarios").glob("*.toml"))
     assert files
     for f in files:
-        dse.families.from_dict(load_toml(f))
+        registry.from_dict(load_toml(f))
 
 
 def test_applicability_follows_the_link_model():
@@ -79,7 +79,7 @@ def test_applicability_follows_the_link_model():
 
 def _mc(data, opts, trials=2000):
     opts = RunOptions(seed=opts.seed, trials=trials, workers=opts.workers, max_memory_mib=opts.max_memory_mib)
-    return dse.families.from_dict(data).compute(opts, StageContext(MemoryCache())).results.mc
+    return registry.from_dict(data).compute(opts, StageContext(MemoryCache())).results.mc
 
 
 def test_results_do_not_depend_on_the_memory_chunk_or_the_worker_split():
@@ -151,7 +151,7 @@ def test_estimators_equal_to_the_centralized_filter_up_to_rounding_are_orthogona
                       "Q": [[0.2287, -0.1048, -0.0147], [-0.1048, 0.4026, 0.0919], [-0.0147, 0.0919, 0.0751]]},
             "sensors": {"types": [{"H": [[1.379, 0.561, -0.358]], "R": [[1.1772]]}]}, "graph": {"kind": "ring", "n": 3},
             "simulation": {"steps": 19, "trials": 600, "quick_trials": 600}, "links": {"model": "reliable", "rounds": 3}}
-    repro = dse.families.from_dict(data)
+    repro = registry.from_dict(data)
     computed = repro.compute(RunOptions(seed=178, quick=True), StageContext(MemoryCache()))
     res = computed.results
     idx = res.check_indices()
@@ -180,12 +180,12 @@ def _monte_carlo_key(sc) -> str:
     """The cache key of the Monte Carlo stage (upstream results stand in by their keys)."""
     from dse.contract.stages import StageResult
     from dse.engine.cache import canonical_json
-    from dse.estimators.network import registry
+    from dse.estimators import network
     from dse.families.compare.stages import monte_carlo
 
     tuned, exact = StageResult(), StageResult()
     tuned.key, exact.key = "design-x", "exact_moments-x"
-    args = (sc, True, tuned, exact, 0, 1000, tuple(registry().values()), 1, 1e9)
+    args = (sc, True, tuned, exact, 0, 1000, tuple(network.registry().values()), 1, 1e9)
     return canonical_json(monte_carlo.params(monte_carlo.bound(args, {})))
 
 
@@ -194,13 +194,13 @@ def _monte_carlo_key(sc) -> str:
     ("dse.simulate.seeding", True),                 # the random streams
     ("dse.estimators.constant_gain_fusion", True),  # imported inside functions by the carli declaration
     ("dse.families.compare.claims", False),         # the claims never change a stage's numbers
-    ("dse.families.tran.design", False),            # another family
+    ("dse.outputs.report", False),                  # the report's writer
 ])
 def test_editing_a_module_a_stage_runs_changes_its_key_and_no_other_edit_does(module, changes, tmp_path, monkeypatch,
                                                                                 fresh_code_hashes):
     from dse.contract import stages
 
-    sc = dse.families.from_dict(tiny()).scenario
+    sc = registry.from_dict(tiny()).scenario
     before = _monte_carlo_key(sc)
     original = stages.module_file
     edited = tmp_path / "edited.py"

@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import dse.errors
-import dse.families
+from dse import registry
 from dse.contract.options import RunOptions
 from dse.contract.stages import StageContext
 from dse.engine.cache import MemoryCache
 from dse.engine.driver import evaluate_claims
-from dse.estimators.network import register, registry, unregister
+from dse.errors import ScenarioError
+from dse.estimators import network
 from dse.estimators.protocol import NetworkEstimator, NetworkFilter
 
 from test_compare_family import tiny
@@ -53,13 +53,13 @@ PREDICTOR = NetworkEstimator(name="predictor", title="open-loop predictor (test)
 
 @pytest.fixture
 def with_predictor():
-    register(PREDICTOR)
+    network.register(PREDICTOR)
     yield
-    unregister("predictor")
+    network.unregister("predictor")
 
 
 def _run(data, seed=4):
-    repro = dse.families.from_dict(data)
+    repro = registry.from_dict(data)
     computed = repro.compute(RunOptions(seed=seed, quick=True, workers=1), StageContext(MemoryCache()))
     return repro, computed
 
@@ -80,8 +80,8 @@ def test_a_registered_estimator_runs_beside_the_others_and_changes_none_of_their
     for name in ("estimators", "applicability", "nodes", "series"):
         assert "predictor" in set(table[name]["estimator"]), name
 
-    unregister("predictor")
-    assert "predictor" not in registry()
+    network.unregister("predictor")
+    assert "predictor" not in network.registry()
     _, without = _run(data)
     other = without.results
     assert list(other.mc) == [e for e in res.mc if e != "predictor"]
@@ -96,9 +96,9 @@ def test_a_registered_estimator_runs_beside_the_others_and_changes_none_of_their
 
 def test_an_estimator_name_is_registered_once(with_predictor):
     with pytest.raises(ValueError, match="already registered"):
-        register(PREDICTOR)
-    with pytest.raises(dse.errors.ScenarioError, match="estimators.include.0.: must be one of"):
-        dse.families.from_dict({**tiny(), "estimators": {"include": ["kalman"]}})
+        network.register(PREDICTOR)
+    with pytest.raises(ScenarioError, match="estimators.include.0.: must be one of"):
+        registry.from_dict({**tiny(), "estimators": {"include": ["kalman"]}})
 
 
 MODULE = '''"""A test's estimator: every node predicts with the plant alone (no measurement, nothing sent)."""
@@ -133,15 +133,15 @@ def test_a_module_of_the_estimators_package_is_an_estimator_with_no_registration
     monkeypatch.setattr(package, "__path__", [*package.__path__, str(tmp_path)])
     package.builtin.cache_clear()
     try:
-        est = registry()["predict"]
-        assert est.module == "dse.estimators.network.predict" and list(registry())[-1] == "predict"
+        est = network.registry()["predict"]
+        assert est.module == "dse.estimators.network.predict" and list(network.registry())[-1] == "predict"
         assert len(est.key()["code"]) == 16                       # keyed by its own source
-        scenario = dse.families.from_dict(tiny()).scenario
+        scenario = registry.from_dict(tiny()).scenario
         assert scenario.estimator_names[-1] == "predict"           # runs by default
-        design = dse.families.from_dict(tiny()).design(RunOptions(quick=True), StageContext(MemoryCache()))
+        design = registry.from_dict(tiny()).design(RunOptions(quick=True), StageContext(MemoryCache()))
         assert design.running["predict"].communication().pattern == "none"
     finally:
         monkeypatch.undo()
         sys.modules.pop("dse.estimators.network.predict", None)
         package.builtin.cache_clear()
-    assert "predict" not in registry()
+    assert "predict" not in network.registry()

@@ -3,12 +3,11 @@ and exact recursions against the simulation, the optimality of the centralized f
 properties the papers prove for their covariances, and the orderings the papers claim (Savas et al.:
 re-injection against Carli's filter under noisy links; Kar & Moura: weak consensus of the GIKF).
 
-Hypotheses are decided on the design alone (`dse check`). Statistical tests keep their level at the sample
+Hypotheses are decided on the design alone (`dse check`); `requires=` declares what the run must contain
+for a claim to be checked at all (the estimators it is about). Statistical tests keep their level at the sample
 size: exact χ² laws where the error is Gaussian with a known covariance (given the link draws), the
 two-sample Kolmogorov-Smirnov test for the token law, normal z-tests of means of many independent trials
-only with an effective-sample-size gate; every claim's cells share its confidence (Bonferroni). Which
-estimators run is decided by the design, so a claim about one that does not run is `not-checkable` with the
-reason (a finding of the run, not a gate of the scenario).
+only with an effective-sample-size gate; every claim's cells share its confidence (Bonferroni).
 """
 from __future__ import annotations
 
@@ -122,11 +121,10 @@ def _finite(*arrays) -> bool:
 
 
 @claims.claim("compare.central.filterpy", "reference (filterpy)", "the centralized Kalman filter agrees with "
-              "filterpy's KalmanFilter on the stacked model to round-off", "identity")
+              "filterpy's KalmanFilter on the stacked model to round-off", "identity",
+              requires=[(lambda res: bool(res.reference), "the centralized filter does not run")])
 def filterpy_reference(res) -> Verdict:
     r = res.reference
-    if not r:
-        return not_checkable("the centralized filter does not run")
     m = res.design.model
     ops = float(r["steps"]) * (m.N * m.m + m.n) * 10
     tol_x, how = roundoff_tolerance(scale=float(max(r["sx"], 1.0)), operations=ops, condition=float(r["cond"]))
@@ -185,7 +183,10 @@ def exact_vs_monte_carlo(res) -> Verdict:
 
 @claims.claim("compare.central.orthogonality", "orthogonality principle", "the centralized filter's error is "
               "orthogonal to every other estimate's distance from it, so the excess mean-square error over the "
-              "centralized filter is the mean-square distance to it", "statistical")
+              "centralized filter is the mean-square distance to it", "statistical",
+              requires=[(lambda res: "central" in res.mc, "the centralized filter does not run"),
+                        (lambda res: res.trials >= MIN_TRIALS_Z,
+                         lambda res: f"needs ≥ {MIN_TRIALS_Z} trials for the normal z-test; ran {res.trials}")])
 def orthogonality(res) -> Verdict:
     """E[(x − x̂_c)ᵀ(x̂_c − x̂_i)] = 0, tested cell by cell (node, step) by a normal z-test of the mean over
     trials, beyond a round-off allowance: an estimator that equals the centralized filter up to rounding
@@ -195,10 +196,6 @@ def orthogonality(res) -> Verdict:
     scale RMS(x − x̂_c) · RMS(x) and the operations of k steps of (rounds + 1) updates of n + N·m terms.
     The z statistic is (|mean| − allowance)⁺ / standard error."""
     B = res.trials
-    if "central" not in res.mc:
-        return not_checkable("the centralized filter does not run")
-    if B < MIN_TRIALS_Z:
-        return not_checkable(f"needs ≥ {MIN_TRIALS_Z} trials for the normal z-test; ran {B}")
     idx = res.check_indices()
     m = res.design.model
     steps = np.asarray(res.steps)[idx]
@@ -233,10 +230,9 @@ def orthogonality(res) -> Verdict:
 
 
 @claims.claim("compare.central.lower_bound", "optimality of the centralized filter", "no estimator has a smaller "
-              "exact mean-square error than the centralized Kalman filter, at any node and step", "inequality")
+              "exact mean-square error than the centralized Kalman filter, at any node and step", "inequality",
+              requires=[(lambda res: "central" in res.exact, "the centralized filter does not run")])
 def lower_bound(res) -> Verdict:
-    if "central" not in res.exact:
-        return not_checkable("the centralized filter does not run")
     central = res.exact["central"]["mse"][:, 0]
     lows, ups, names = [], [], []
     for est, ex in res.exact.items():
@@ -283,12 +279,11 @@ def conditional_covariances(res) -> Verdict:
 
 @claims.claim("compare.ci.conservative.exact", "Battistelli & Chisci (2014), consistency of CI", "with noiseless "
               "links the CI filter's covariance bounds its error covariance: E[e_i e_iᵀ] ⪯ Ω_i⁻¹ (exact, reliable "
-              "links)", "inequality", hypotheses=(NOISELESS,))
+              "links)", "inequality", hypotheses=(NOISELESS,),
+              requires=[(lambda res: "ci" in res.exact, "the CI filter has no exact moments on this scenario (random "
+                                                        "links or too large): see compare.ci.conservative.monte_carlo")])
 def ci_conservative_exact(res) -> Verdict:
-    ex = res.exact.get("ci")
-    if ex is None:
-        return not_checkable("the CI filter has no exact moments on this scenario (random links or too large): "
-                             "see compare.ci.conservative.monte_carlo")
+    ex = res.exact["ci"]
     diff = ex["own_cov"] - ex["blocks"]
     low = np.linalg.eigvalsh(0.5 * (diff + np.swapaxes(diff, -1, -2)))[..., 0]
     m = res.design.model
@@ -302,12 +297,10 @@ def ci_conservative_exact(res) -> Verdict:
 
 @claims.claim("compare.ci.conservative.monte_carlo", "Battistelli & Chisci (2014), consistency of CI", "with "
               "noiseless links the CI filter's covariance bounds its error covariance (random links: one-sided χ² "
-              "test)", "statistical", hypotheses=(NOISELESS,))
+              "test)", "statistical", hypotheses=(NOISELESS,),
+              requires=[(lambda res: "ci" in res.mc, "the CI filter does not run"),
+                        (lambda res: "ci" not in res.exact, "checked exactly: see compare.ci.conservative.exact")])
 def ci_conservative_mc(res) -> Verdict:
-    if "ci" not in res.mc:
-        return not_checkable("the CI filter does not run")
-    if "ci" in res.exact:
-        return not_checkable("checked exactly: see compare.ci.conservative.exact")
     from scipy.stats import chi2
 
     B, n = res.trials, res.design.model.n
@@ -323,11 +316,11 @@ def ci_conservative_mc(res) -> Verdict:
 @claims.claim("compare.savas.reinjection_beats_carli", "Savas et al. §III-B, §IV, Figs. 1 and 3", "under noisy "
               "links, in the regime where communication noise dominates Carli's filter, the re-injection filter with "
               "gains tuned for its steady state has a smaller steady-state mean-square error than Carli's filter with "
-              "its tuned gain, on the same links and rounds", "inequality", hypotheses=(NOISY, CARLI_NOISE, STABLE))
+              "its tuned gain, on the same links and rounds", "inequality", hypotheses=(NOISY, CARLI_NOISE, STABLE),
+              requires=[(lambda res: {"carli", "reinjection"} <= set(res.design.gains),
+                         "Carli's or the re-injection filter does not run on this scenario")])
 def reinjection_beats_carli(res) -> Verdict:
     g = res.design.gains
-    if "carli" not in g or "reinjection" not in g:
-        return not_checkable("Carli's or the re-injection filter does not run on this scenario")
     rein, carli = g["reinjection"]["steady_mse"], g["carli"]["steady_mse"]
     m = res.design.model
     tol, how = roundoff_tolerance(scale=carli, operations=float((m.N * m.n) ** 2), condition=1.0 / max(
@@ -352,13 +345,12 @@ def reinjection_beats_carli(res) -> Verdict:
 @claims.claim("compare.kar_moura.random_sensor_law", "Kar & Moura Thm 10(i) and its proof", "weak consensus: "
               "the conditional covariance at a uniformly random sensor has, at every step, the law of Riccati iterates "
               "along a stationary token walk with the mean communication kernel (20), which converges to one "
-              "invariant law under weak detectability", "statistical", hypotheses=(C1, D1, S1))
+              "invariant law under weak detectability", "statistical", hypotheses=(C1, D1, S1),
+              requires=[(lambda res: {"gikf", "chain"} <= set(res.token), "the GIKF does not run"),
+                        (lambda res: res.token["gikf"].shape[1] >= MIN_TRIALS_KS,
+                         lambda res: f"needs ≥ {MIN_TRIALS_KS} trials per sample; ran {res.token['gikf'].shape[1]}")])
 def random_sensor_law(res) -> Verdict:
-    if "gikf" not in res.token or "chain" not in res.token:
-        return not_checkable("the GIKF does not run")
     a, b = res.token["gikf"], res.token["chain"]
-    if a.shape[1] < MIN_TRIALS_KS:
-        return not_checkable(f"needs ≥ {MIN_TRIALS_KS} trials per sample; ran {a.shape[1]}")
     ps, stats_, parts = [], [], []
     for t, (x, y) in enumerate(zip(a, b)):
         if not (_finite(x) and _finite(y)):
