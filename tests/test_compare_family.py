@@ -9,7 +9,7 @@ import pytest
 
 from dse import registry
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.engine.cache import MemoryCache
 from dse.errors import ScenarioError
 

@@ -1,6 +1,7 @@
 """The compare family: not a paper, an arena where every registered estimator (`dse.estimators.network`)
 runs on one scenario. Its modules: scenario, design (every estimator designed, the hypotheses' numbers),
-stages (and the results the claims read), claims, tables, views, generator, and this one (with the cost model).
+stages, results (what the claims read, and the run of the stages), claims, tables, views, generator, and
+this one (with the cost model).
 """
 from __future__ import annotations
 
@@ -62,10 +63,10 @@ its generalisation to this setting and what it sends."""
         return self.module("claims").claims
 
     def design(self, run, opts, ctx):
-        return self.module("stages").design(run.scenario, opts.quick, ctx, tuple(registry().values()))
+        return self.module("results").design(run.scenario, opts.quick, ctx, tuple(registry().values()))
 
     def simulate(self, run, opts, ctx, design):
-        return self.module("stages").simulate(run.scenario, design, opts.seed, self.trials(run, opts), opts.quick,
+        return self.module("results").simulate(run.scenario, design, opts.seed, self.trials(run, opts), opts.quick,
                                               opts.workers, opts.chunk_budget_bytes(), ctx)
 
     def trials(self, run, opts: RunOptions) -> int:

@@ -1,7 +1,7 @@
 """Stages of the compare family: the design (the estimators' gain searches), the exact moments, the
 centralized filter against filterpy, the Monte Carlo of every estimator on common random numbers (streamed in
-RNG units, folded in unit order), and Kar & Moura's token chain. The estimators' declarations are stage
-arguments: each is keyed by its name and the code of its module.
+RNG units, folded in unit order), and Kar & Moura's token chain (run in that order by `results.simulate`).
+The estimators' declarations are stage arguments: each is keyed by its name and the code of its module.
 
 Random streams (`dse.simulate.seeding`), under ``compare``: ``plant`` (x(0), w, v), ``links`` (the link
 draws), ``noise`` (communication noise), ``gossip`` (the swap matchings' priorities and the random node q of
@@ -11,12 +11,10 @@ estimators are split over workers.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
-from dse.contract.stages import StageContext, StageResult, stage
-from dse.estimators.network_comparison import PER_TRIAL_SUMS, STATS, Setup, Stats, record_steps, stats, unit_chunks
+from dse.contract.stages import StageResult, stage
+from dse.estimators.network_comparison import PER_TRIAL_SUMS, STATS, Setup, record_steps, unit_chunks
 from dse.estimators.network_comparison import simulate as simulate_trials
 
 from .design import Design, design_of
@@ -46,13 +44,6 @@ def tune(sc: CompareFile, quick: bool, estimators: tuple) -> dict[str, np.ndarra
     """The numbers the estimators' designs searched for, by name (an unstable gain's steady state is inf)."""
     tuned = design_of(sc, quick, {}, estimators).network.tuned
     return {"names": np.array(list(tuned), dtype=str), "values": np.array([float(v) for v in tuned.values()])}
-
-
-def design(sc: CompareFile, quick: bool, ctx: StageContext, estimators: tuple) -> Design:
-    tuned = ctx.run(tune, sc, quick, estimators)
-    d = rebuilt(sc, quick, tuned, estimators)
-    d.tuning_stage = tuned
-    return d
 
 
 @stage(allow_nonfinite=lambda estimators, **_: tuple(f"{e.name}__{k}" for e in estimators for k in MOMENTS))
@@ -116,67 +107,3 @@ def token_chain(sc: CompareFile, seed: int, trials: int, budget_bytes: float) ->
                          8.0 * (m.n ** 2 * 6 + lm.topology.E * 4 + m.N * 4), budget_bytes)
     return {"chain": np.concatenate([token_chain_traces(m, lm, sc.simulation.steps, token_times(sc), links, gossip)
                                      for links, gossip in chunks], axis=1)}
-
-
-# -- the results the claims and tables read ---------------------------------------------------------------
-
-@dataclass
-class Results:
-    scenario: CompareFile
-    design: Design
-    seed: int
-    trials: int
-    steps: np.ndarray                                   # recorded steps
-    exact: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
-    mc: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)   # folded sums per estimator
-    token: dict[str, np.ndarray] = field(default_factory=dict)
-    paths: dict[str, np.ndarray] = field(default_factory=dict)
-    reference: dict[str, np.ndarray] = field(default_factory=dict)
-
-    def stats(self, est: str) -> Stats:
-        """Means and standard errors of an estimator's Monte Carlo sums."""
-        return stats(self.mc[est], self.trials, self.scenario.simulation.steps, self.is_reference(est))
-
-    def is_reference(self, est: str) -> bool:
-        return self.design.estimators[est].spec.reference
-
-    def exact_at(self, est: str, moment: str = "mse") -> np.ndarray | None:
-        """An exact moment ((S, W) mean-square error, (S,) disagreement) at the recorded steps, or None."""
-        ex = self.exact.get(est, {})
-        return ex[moment][self.steps] if moment in ex else None
-
-    @property
-    def eval_index(self) -> int:
-        return int(np.searchsorted(self.steps, self.scenario.simulation.eval_step))
-
-    def check_indices(self) -> list[int]:
-        """Recorded steps at which the claims compare: the middle of the horizon and the evaluation step."""
-        s = self.scenario.simulation
-        return sorted(int(np.searchsorted(self.steps, k)) for k in {s.eval_step, s.steps // 2}
-                      if k in set(self.steps.tolist()))
-
-
-def _nested(arrays: StageResult) -> dict[str, dict[str, np.ndarray]]:
-    """'<head>__<name>' arrays as {head: {name: array}} (arrays without a head left out)."""
-    out: dict[str, dict[str, np.ndarray]] = {}
-    for key, value in arrays.items():
-        head, _, name = key.partition("__")
-        if name:
-            out.setdefault(head, {})[name] = value
-    return out
-
-
-def simulate(sc: CompareFile, d: Design, seed: int, trials: int, quick: bool, workers: int, budget_bytes: float,
-             ctx: StageContext) -> Results:
-    """Every stage after the design, gathered for the claims and the tables."""
-    keyed = (sc, quick, d.tuning_stage)
-    exact = ctx.run(exact_moments, *keyed, d.specs)
-    mc = ctx.run(monte_carlo, *keyed, exact, seed, trials, d.specs, workers, budget_bytes)
-    sums = _nested(mc)
-    res = Results(sc, d, seed, trials, mc["steps"], _nested(exact), token=sums.pop("token", {}),
-                  paths=sums.pop("path", {}), mc=sums)
-    if "central" in d.running:
-        res.reference = dict(ctx.run(filterpy_reference, sc))
-    if res.token:                       # a filter that swaps states ran: the law of its random node's covariance
-        res.token["chain"] = ctx.run(token_chain, sc, seed, trials, budget_bytes)["chain"]
-    return res
