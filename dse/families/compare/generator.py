@@ -21,10 +21,6 @@ EDGES: tuple[str, ...] = ("reliable_noisy_scalar", "failures", "matchings", "poi
                           "laplacian_weights", "no_exact", "few_estimators")
 
 
-def _rng(seed: int, edge: str | None) -> np.random.Generator:
-    return np.random.default_rng([seed, zlib.crc32((edge or "random").encode())])
-
-
 def _plant(rng, n: int, unstable: bool = False):
     if n == 1:
         F = np.array([[1.0 if unstable else rng.uniform(0.8, 1.0)]])
@@ -44,7 +40,7 @@ def _matrix(a) -> list:
 
 
 def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
-    rng = _rng(seed, edge)
+    rng = np.random.default_rng([seed, zlib.crc32((edge or "random").encode())])
     e = edge or ""
     n = 1 if e == "reliable_noisy_scalar" else int(rng.integers(2, 4))
     N = 2 if e == "two_nodes" else int(rng.integers(3, 7))
