@@ -4,7 +4,7 @@ one scalar sensor per node (x and y positions alternating, so no node tracks the
 
 The target (issue 17) is the Monte Carlo of all the estimators under a minute on this 2-core
 machine; the design (gain tuning on the exact steady states) and the exact recursions are timed
-beside it. The estimators are split over `workers` processes (`compute.estimator_groups`); the wall
+beside it. The estimators are split over `workers` processes (`network_comparison.worker_groups`); the wall
 time depends on what else runs on the machine, so the CPU time of the busiest worker (what the wall
 time is on an otherwise idle machine) is reported beside it. Run alone: `.venv/bin/python -m benchmarks.bench_compare [--links failures] [--steps 500]`.
 """
@@ -52,26 +52,33 @@ def scenario(links: str = "failures", steps: int = 500, trials: int = 1000, node
 
 def bench_compare(links: str = "failures", steps: int = 500, trials: int = 1000, tuned: bool = False,
                   noise: float = 0.0, workers: int = 2) -> dict:
-    """Wall times of the design, the exact recursions and the Monte Carlo of every estimator."""
-    from dse.engine.driver import RunOptions
-    from dse.families.compare import compute
-    from dse.families.compare.scenario import CompareScenario
+    """Wall times of the design, the exact recursions and the Monte Carlo of every estimator (the family's
+    stage functions, called uncached)."""
+    from dse import registry
+    from dse.contract.context import StageContext
+    from dse.contract.options import RunOptions
+    from dse.engine.cache import MemoryCache
+    from dse.estimators.network_comparison import Setup
+    from dse.estimators.network_comparison import simulate as simulate_trials
+    from dse.families.compare import stages
 
-    data = scenario(links, steps, trials, noise=noise, tuned=tuned)
-    data.pop("family")
-    sc = CompareScenario.from_dict(data)
+    run = registry.from_dict(scenario(links, steps, trials, noise=noise, tuned=tuned))
+    sc = run.scenario
     opts = RunOptions(seed=0, trials=trials, workers=workers)
     t0 = time.perf_counter()
-    d = compute.compute_design(sc, opts)
+    d = run.design(opts, StageContext(MemoryCache()))
     t1 = time.perf_counter()
-    exact = compute.compute_exact(d)
-    d.__dict__["_exact_blocks"] = {k.split("__")[0]: v for k, v in exact.items() if k.endswith("__blocks")
-                                   and k.split("__")[0] not in ("central", "local")}
+    exact = stages.exact_moments(sc, opts.quick, d.tuning_stage, d.specs)
     t2 = time.perf_counter()
-    out = compute.simulate(d, opts, trials)
+    exact_cov = {name: exact[f"{name}__blocks"] for name, est in d.running.items()
+                 if est.spec.joint_moments and f"{name}__blocks" in exact}
+    setup = Setup(d.model, d.links, sc.simulation.steps, d.running, exact_cov=exact_cov,
+                  token_times=stages.token_times(sc), n_paths=sc.simulation.paths, record_steps=stages.recorded(sc))
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = simulate_trials(setup, opts.seed, trials, opts.chunk_budget_bytes(), workers)
     t3 = time.perf_counter()
     finite = all(np.all(np.isfinite(s["sq"])) for s in out["mc"].values())
-    return {"name": f"compare: {len(d.estimators)} estimators, {sc.N} nodes, n = {sc.n}, {links} links"
+    return {"name": f"compare: {len(d.running)} estimators, {sc.model.N} nodes, n = {sc.model.n}, {links} links"
                     + (f", σ_c = {noise:g}" if noise else "") + (", tuned gains" if tuned else ""),
             "trials": trials, "steps": steps, "workers": workers, "mc_s": t3 - t2,
             "mc_cpu_per_worker_s": max(out["group_cpu_s"]), "design_s": t1 - t0, "exact_s": t2 - t1,
