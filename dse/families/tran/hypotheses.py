@@ -1,4 +1,5 @@
-"""The hypotheses the coestimation theorems rest on, decided on a scenario with their numbers.
+"""The hypotheses the coestimation theorems rest on, decided on a scenario's design with their numbers
+(registered on the family's `ClaimSet`, which `claims.py` completes with the claims).
 
 Thm 2.1 / Cor 2.1 / Prop 4.1 (fixed roles): P_i solves (10) for some Q_i > 0, i.e.
 Q_i = −(Ā_i(g_i)ᵀP_i + P_iĀ_i(g_i)) is positive definite (so Ā_i(g_i) is Hurwitz, the "local
@@ -17,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dse.verify.rules import Holds, Hypothesis, roundoff_tolerance
+from dse.contract.claims import ClaimSet
+from dse.verify.rules import Holds, roundoff_tolerance
 
 STEP_RTOL = 1e-3   # integration error estimate allowed, relative to the trajectories' scale
 
@@ -34,6 +36,9 @@ H_NOISE = "tran.hyp.noise_bounded"
 H_SFIX = "tran.hyp.S_fixed_hurwitz"
 H_SDE = "tran.hyp.sde_step"
 
+#: the family's hypotheses and claims, in report order (ids are the paper's in every run)
+claims = ClaimSet()
+
 
 def _decide(margin: np.ndarray, tol: np.ndarray) -> bool | None:
     """True when every margin exceeds its round-off allowance, False when one is below minus it,
@@ -45,12 +50,40 @@ def _decide(margin: np.ndarray, tol: np.ndarray) -> bool | None:
     return None
 
 
+@claims.hypothesis(H_A, "A is Hurwitz")
 def a_hurwitz(d) -> Holds:
     v = float(d["A_max_real"])
     return Holds(v < 0, value=v, threshold=0.0, detail=f"max Re λ(A) = {v:.4g} (a standing assumption: passive nodes "
                                                       "run open loop)")
 
 
+@claims.hypothesis(H_GRAPH, "the graph is undirected (L = Lᵀ ⪰ 0)")
+def graph_undirected(d) -> Holds:
+    asym, lmin = float(d["lap_asymmetry"]), float(d["lap_min_eig"])
+    tol = 1e-12 * max(1.0, float(d["lap_max_eig"]))
+    return Holds(asym == 0.0 and lmin > -tol, value=lmin, threshold=0.0,
+                 detail=f"Laplacian symmetric (max |L − Lᵀ| = {asym:g}) and positive semidefinite (λ_min = {lmin:.3g})")
+
+
+@claims.hypothesis(H_CONNECTED, "the graph is connected (stated, not used)")
+def graph_connected(d) -> Holds:
+    f = float(d["lap_fiedler"])
+    tol = 1e-9 * max(1.0, float(d["lap_max_eig"]))
+    return Holds(f > tol, value=f, threshold=0.0,
+                 detail=f"λ₂(L) = {f:.4g}. Stated by the theorems, used by none of their proofs (only L ⪰ 0 is): "
+                        "no claim rests on it")
+
+
+@claims.hypothesis(H_OBSV, "(A, C) collectively observable (footnote 2; not used)")
+def collective_observability(d) -> Holds:
+    n = d.scenario.n
+    coll = int(d["rank_obsv_collective"])
+    return Holds(coll == n, value=coll, threshold=n,
+                 detail=f"rank obsv(A, [C_1; …; C_N]) = {coll} (n = {n}); per node type {d['rank_obsv_local'].tolist()}. "
+                        "A well-posedness assumption (footnote 2) that no proof uses: no claim rests on it")
+
+
+@claims.hypothesis(H_INPUT, "‖w(t)‖ ≤ w̄ and ‖ẇ(t)‖ ≤ w̄ for all t ≥ 0 (certified w̄)")
 def input_bound(d) -> Holds:
     method = str(d["w_method"])
     how = {"period": f"by branch and bound over the whole period {float(d['w_period']):.6g} of the norm",
@@ -67,9 +100,8 @@ def input_bound(d) -> Holds:
 
 
 def _lmi_solver_text(d) -> str:
-    sc = d.scenario
     parts = []
-    for t, ty in enumerate(sc.types):
+    for t, ty in enumerate(d.scenario.types):
         hur = float(np.max(d["lmi_hurwitz_sweep"][t]))
         cert = f"; Ā(g) unstable at some g ∈ [0, 1] (max Re λ = {hur:.3g}): no P exists" if hur >= 0 else ""
         parts.append(f"type '{ty.name}': Clarabel feasibility status {d['lmi_status'][t]}; normalised margin "
@@ -78,6 +110,7 @@ def _lmi_solver_text(d) -> str:
     return "; ".join(parts)
 
 
+@claims.hypothesis(H_LMI, "the P_i used satisfy (28)-(29) with ε_i (Thm 3.1, Lemma 3.1, Remark 4.1)")
 def vertex_lmi(d) -> Holds:
     cert, tol, eps = d["certified_eps"], d["certified_tol"], d["eps_nodes"]
     margin = cert - eps
@@ -90,54 +123,32 @@ def vertex_lmi(d) -> Holds:
                         f"{tol[worst]:.2g}). Solver: {_lmi_solver_text(d)}")
 
 
+@claims.hypothesis(H_FIXED, "fixed roles: Q_i = −(Ā_iᵀP_i + P_iĀ_i) > 0, i.e. (10) with Q_i > 0 (Thm 2.1, Prop 4.1)")
 def fixed_local(d) -> Holds:
-    sc = d.scenario
     qmin, tol = d["fixed_Qi_min"], d["fixed_Qi_tol"]
     worst = int(np.argmin(qmin))
     return Holds(_decide(qmin, tol), value=qmin.tolist(), threshold=0.0,
-                 detail=f"fixed roles g = {list(sc.fixed_active)}: min eig Q_i = −(Ā_iᵀP_i + P_iĀ_i) per node "
-                        f"{np.round(qmin, 8).tolist()} (worst node {worst + 1}, round-off allowance {tol[worst]:.2g}); "
-                        f"λ_min(Q̄) = {float(d['fixed_qbar_min']):.4g}")
+                 detail=f"fixed roles g = {list(d.scenario.fixed_roles.active)}: min eig Q_i = −(Ā_iᵀP_i + P_iĀ_i) per "
+                        f"node {np.round(qmin, 8).tolist()} (worst node {worst + 1}, round-off allowance "
+                        f"{tol[worst]:.2g}); λ_min(Q̄) = {float(d['fixed_qbar_min']):.4g}")
 
 
+@claims.hypothesis(H_QSTAR, "q* > 0 (the vertex dissipation of the tighter variant of (18))")
 def qstar_positive(d) -> Holds:
     q = float(d["qstar"])
     if not np.isfinite(q):
         return Holds(None, value=q, threshold=0.0, detail="q* not computed (the 2^N vertex enumeration is skipped for "
                                                           "this many nodes)")
     sc = d.scenario
-    q_dim = sc.n + sc.p
     # entries of −(Ā(g)ᵀP + PĀ(g)) + 2α(L⊗I): at most 2·q·max|Ā|·λ_max(P) + ‖2α(L⊗I)‖ in size
-    tol = roundoff_tolerance(scale=2 * q_dim * float(np.abs(d["S_fixed"]).max()) * float(d["lamP_max"]) +
-                             float(d["qbar_single_norm"]), operations=sc.N * q_dim)[0]
+    tol = roundoff_tolerance(scale=2 * sc.q * float(np.abs(d["S_fixed"]).max()) * float(d["lamP_max"]) +
+                             float(d["qbar_single_norm"]), operations=sc.N * sc.q)[0]
     return Holds(_decide(np.array([q]), np.array([tol])), value=q, threshold=0.0,
                  detail=f"q* = min over g ∈ {{0,1}}^N of λ_min(−(Ā(g)ᵀP + PĀ(g)) + 2α(L⊗I)) = {q:.4g} at g = "
                         f"{d['qstar_g'].tolist()}")
 
 
-def graph_undirected(d) -> Holds:
-    asym, lmin = float(d["lap_asymmetry"]), float(d["lap_min_eig"])
-    tol = 1e-12 * max(1.0, float(d["lap_max_eig"]))
-    return Holds(asym == 0.0 and lmin > -tol, value=lmin, threshold=0.0,
-                 detail=f"Laplacian symmetric (max |L − Lᵀ| = {asym:g}) and positive semidefinite (λ_min = {lmin:.3g})")
-
-
-def graph_connected(d) -> Holds:
-    f = float(d["lap_fiedler"])
-    tol = 1e-9 * max(1.0, float(d["lap_max_eig"]))
-    return Holds(f > tol, value=f, threshold=0.0,
-                 detail=f"λ₂(L) = {f:.4g}. Stated by the theorems, used by none of their proofs (only L ⪰ 0 is): "
-                        "no claim rests on it")
-
-
-def collective_observability(d) -> Holds:
-    n = d.scenario.n
-    coll = int(d["rank_obsv_collective"])
-    return Holds(coll == n, value=coll, threshold=n,
-                 detail=f"rank obsv(A, [C_1; …; C_N]) = {coll} (n = {n}); per node type {d['rank_obsv_local'].tolist()}. "
-                        "A well-posedness assumption (footnote 2) that no proof uses: no claim rests on it")
-
-
+@claims.hypothesis(H_SFIX, "S at the fixed roles is Hurwitz (the fixed-role error system is stable)")
 def s_fixed_hurwitz(d) -> Holds:
     """S at the fixed roles Hurwitz: the fixed-role error (and the simulation's rounding errors) do not grow.
     Decided on the computed eigenvalues up to the Bauer-Fike allowance cond(V)·‖S‖·Nq·eps."""
@@ -158,6 +169,8 @@ def sde_deviation(d) -> tuple[float, float]:
     return tuple(float(np.max(np.abs(law[f"sim_var_{k}"][ok] / lam[ok] - 1.0))) for k in ("h", "half"))
 
 
+@claims.hypothesis(H_SDE, "the stochastic step is in its convergent regime (the simulated law approaches (60) as h "
+                   "halves)")
 def sde_step(d) -> Holds:
     """The stochastic step is in the scheme's convergent regime: halving it at least halves the difference
     between the simulated recursion's law and (60) (or both are at round-off level, below 1e-6)."""
@@ -165,10 +178,20 @@ def sde_step(d) -> Holds:
     ok = bool(np.isfinite(dh) and np.isfinite(dhalf) and (dh <= 1e-6 or dhalf <= 0.5 * dh))
     return Holds(ok, value=[dh, dhalf], threshold=0.5,
                  detail=f"largest relative difference of var(u_jᵀz) between the simulated recursion and (60) along the "
-                        f"principal directions: {dh:.3g} at h = {d.scenario.sde_step:g}, {dhalf:.3g} at h/2 (halving h "
-                        "must at least halve it: the scheme converges to (60) and the step is in that regime)")
+                        f"principal directions: {dh:.3g} at h = {d.scenario.stochastic.step:g}, {dhalf:.3g} at h/2 "
+                        "(halving h must at least halve it: the scheme converges to (60) and the step is in that regime)")
 
 
+@claims.hypothesis(H_NOISE, "bounded noise intensities ‖v‖ ≤ v*, ‖h_i‖ ≤ h* (Prop 4.1)")
+def noise_bounded(d) -> Holds:
+    law = d.law
+    v, h, r = float(law["v_star"]), float(law["h_star"]), float(law["r_star_roles"])
+    return Holds(True, value=[v, h], threshold=None,
+                 detail=f"constant intensities: v* = ‖v‖ = {v:.4g}, h* = max‖h_i‖ = {h:.4g}, r* = max_i ‖[L_ih_i; J_ih_i]‖ "
+                        f"= {r:.4g} (any role g_i ∈ [0, 1])")
+
+
+@claims.hypothesis(H_INTEG, "the deterministic runs are accurate (step halving)")
 def integration(d) -> Holds:
     if d.integration is None:
         return Holds(None, value=None, threshold=STEP_RTOL,
@@ -186,32 +209,5 @@ def integration(d) -> Holds:
         ok &= rel <= STEP_RTOL
         parts.append(f"{run}: 2·max|Δ(x̂, ŵ)| = {est:.3g} against scale {scale:.3g} (relative {rel:.2g})")
     return Holds(ok, value=worst if ok else float("nan"), threshold=STEP_RTOL,
-                 detail=f"ETD2RK at h = {d.scenario.step:g} against h/2, error estimate relative to the trajectories' "
-                        f"size ≤ {STEP_RTOL:g}: " + "; ".join(parts))
-
-
-def noise_bounded(d) -> Holds:
-    law = d.law
-    v, h, r = float(law["v_star"]), float(law["h_star"]), float(law["r_star_roles"])
-    return Holds(True, value=[v, h], threshold=None,
-                 detail=f"constant intensities: v* = ‖v‖ = {v:.4g}, h* = max‖h_i‖ = {h:.4g}, r* = max_i ‖[L_ih_i; J_ih_i]‖ "
-                        f"= {r:.4g} (any role g_i ∈ [0, 1])")
-
-
-def catalogue() -> list[Hypothesis]:
-    h = Hypothesis
-    return [
-        h(H_A, "A is Hurwitz", a_hurwitz),
-        h(H_GRAPH, "the graph is undirected (L = Lᵀ ⪰ 0)", graph_undirected),
-        h(H_CONNECTED, "the graph is connected (stated, not used)", graph_connected),
-        h(H_OBSV, "(A, C) collectively observable (footnote 2; not used)", collective_observability),
-        h(H_INPUT, "‖w(t)‖ ≤ w̄ and ‖ẇ(t)‖ ≤ w̄ for all t ≥ 0 (certified w̄)", input_bound),
-        h(H_LMI, "the P_i used satisfy (28)-(29) with ε_i (Thm 3.1, Lemma 3.1, Remark 4.1)", vertex_lmi),
-        h(H_FIXED, "fixed roles: Q_i = −(Ā_iᵀP_i + P_iĀ_i) > 0, i.e. (10) with Q_i > 0 (Thm 2.1, Prop 4.1)", fixed_local),
-        h(H_QSTAR, "q* > 0 (the vertex dissipation of the tighter variant of (18))", qstar_positive),
-        h(H_SFIX, "S at the fixed roles is Hurwitz (the fixed-role error system is stable)", s_fixed_hurwitz),
-        h(H_SDE, "the stochastic step is in its convergent regime (the simulated law approaches (60) as h halves)",
-          sde_step),
-        h(H_NOISE, "bounded noise intensities ‖v‖ ≤ v*, ‖h_i‖ ≤ h* (Prop 4.1)", noise_bounded),
-        h(H_INTEG, "the deterministic runs are accurate (step halving)", integration),
-    ]
+                 detail=f"ETD2RK at h = {d.scenario.simulation.step:g} against h/2, error estimate relative to the "
+                        f"trajectories' size ≤ {STEP_RTOL:g}: " + "; ".join(parts))

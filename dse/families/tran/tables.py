@@ -19,10 +19,12 @@ import numpy as np
 import pandas as pd
 
 import dse.estimators.input_state_coestimation as ce
+import dse.estimators.lyapunov_bounds as lb
 from dse.outputs.tables import TableSpec, spec
 
-from .compute import Results
-from .design import Design, mean_square_constants
+from .design import Design
+from .law import mean_square_constants
+from .runs import Results, mc_moments
 
 SC = ("scenario", "", "scenario name")
 COMPONENT = ("component", "1", "0..n−1: state x_{k+1}; n..n+p−1: input w_{k−n+1}")
@@ -186,7 +188,7 @@ def design_tables(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
     rows = []
     for t, ty in enumerate(sc.types):
         given = a["given_sweep"][t] if "given_sweep" in a else np.full(2, np.nan)
-        rows.append({"scenario": name, "type": ty.name, "index": t, "nodes": int(sum(k == t for k in sc.node_type)),
+        rows.append({"scenario": name, "type": ty.name, "index": t, "nodes": int(sum(k == t for k in sc.type_of)),
                      "eps": ty.eps, "sigma": ty.sigma, "comparison_sigma": ty.comparison_sigma,
                      "lmi_status": str(a["lmi_status"][t]), "lmi_margin": float(a["lmi_margin"][t]),
                      "lmi_margin_status": str(a["lmi_margin_status"][t]), "lmi_verified": float(a["lmi_verified"][t]),
@@ -199,12 +201,12 @@ def design_tables(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
                      "rank_obsv": int(a["rank_obsv_local"][t]), "rank_obsv_augmented": int(a["rank_obsv_augmented"][t]),
                      "fn3_max_real": float(a["fn3_max_real"][t])})
     out = [(NODE_TYPES, pd.DataFrame(rows, columns=NODE_TYPES.column_names))]
-    G = sc.graph.build()
+    G = sc.network.build()
     P = a["P"]
     lamP = [np.linalg.eigvalsh(Pi) for Pi in P]
     out.append((NODE_DESIGN, pd.DataFrame({
-        "scenario": name, "node": np.arange(sc.N), "type": [names[t] for t in sc.node_type], "x": sc.positions[:, 0],
-        "y": sc.positions[:, 1], "degree": [G.degree(i) for i in range(sc.N)], "fixed_role": np.asarray(sc.fixed_active),
+        "scenario": name, "node": np.arange(sc.N), "type": [names[t] for t in sc.type_of], "x": sc.nodes.positions[:, 0],
+        "y": sc.nodes.positions[:, 1], "degree": [G.degree(i) for i in range(sc.N)], "fixed_role": np.asarray(sc.fixed_roles.active),
         "P_source": a["P_source"].astype(str), "P_eig_min": [w[0] for w in lamP], "P_eig_max": [w[-1] for w in lamP],
         "P_cond": [w[-1] / w[0] for w in lamP], "certified_eps": a["certified_eps"], "certified_tol": a["certified_tol"],
         "eps_required": a["eps_nodes"], "lemma_max_eig": a["lemma_sweep"].max(axis=1), "fixed_Q_min_eig": a["fixed_Qi_min"],
@@ -295,7 +297,7 @@ def matrices_frame(d: Design) -> pd.DataFrame:
             add("P_given", ty.P, t)
         if np.all(np.isfinite(a["P_comparison"][t])):
             add("P_comparison", a["P_comparison"][t], t)
-        if sc.P_mode == "lyapunov":
+        if sc.coupling.P == "lyapunov":
             add("Q_lyapunov", ty.Q, t)
         A0, A1 = ce.error_vertices(sc.A, sc.B, ty.C, ty.L, ty.J, ty.sigma, ty.K)
         add("Abar0", A0, t)
@@ -348,7 +350,7 @@ def _role_sweep(d: Design) -> pd.DataFrame:
     a, sc = d.arrays, d.scenario
     g = a["g_sweep"]
     names = _type_names(d)
-    t_of = np.asarray(sc.node_type)
+    t_of = np.asarray(sc.type_of)
     given = a["given_sweep"][t_of] if "given_sweep" in a else np.full((sc.N, len(g)), np.nan)
     return pd.DataFrame({"scenario": sc.name, "node": np.repeat(np.arange(sc.N), len(g)),
                          "type": np.repeat([names[t] for t in t_of], len(g)), "g": np.tile(g, sc.N),
@@ -358,12 +360,8 @@ def _role_sweep(d: Design) -> pd.DataFrame:
 
 # -- run tables ------------------------------------------------------------------------------------------
 
-def _errors(sc, r) -> np.ndarray:
-    return ce.errors_from_estimates(r["x"], r["w"], r["e"], sc.n)
-
-
 def _tail_rms(sc, r, z) -> tuple[np.ndarray, np.ndarray]:
-    m = r["t"] >= sc.tail_start
+    m = r["t"] >= sc.simulation.tail_start
     zt = z[m]
     return (np.sqrt(np.mean(np.sum(zt[..., :sc.n] ** 2, -1), axis=0)), np.sqrt(np.mean(np.sum(zt[..., sc.n:] ** 2, -1), axis=0)))
 
@@ -398,11 +396,11 @@ def nodes_frame(res: Results) -> pd.DataFrame:
     sc, d, law = res.scenario, res.design, res.design.law
     n = sc.n
     co = res.runs["coest"]
-    z = _errors(sc, co)
+    z = res.errors("coest")
     rms_x, rms_w = _tail_rms(sc, co, z)
     if "comparison" in res.runs:
         cp = res.runs["comparison"]
-        crms_x, crms_w = _tail_rms(sc, cp, _errors(sc, cp))
+        crms_x, crms_w = _tail_rms(sc, cp, res.errors("comparison"))
     else:
         crms_x = crms_w = np.full(sc.N, np.nan)
     R, mc_mean, mc_cov, mc_sq, mc_sq_se = _fixed_mc(res)
@@ -415,7 +413,7 @@ def nodes_frame(res: Results) -> pd.DataFrame:
         gap_inf = _loewner_gap(S_inf[i, :n, :n], kb_inf)
         gap_T = _loewner_gap(S_T[i, :n, :n], kb_T)
         rows.append({
-            "scenario": sc.name, "node": i, "type": names[sc.node_type[i]], "fixed_role": sc.fixed_active[i],
+            "scenario": sc.name, "node": i, "type": names[sc.type_of[i]], "fixed_role": sc.fixed_roles.active[i],
             "active_fraction": float(np.mean(co["g"][:, i] > 0.5)), "final_x_error": float(np.linalg.norm(z[-1, i, :n])),
             "final_w_error": float(np.linalg.norm(z[-1, i, n:])), "tail_rms_x": float(rms_x[i]), "tail_rms_w": float(rms_w[i]),
             "comparison_tail_rms_x": float(crms_x[i]), "comparison_tail_rms_w": float(crms_w[i]),
@@ -488,7 +486,7 @@ def errors_frame(res: Results) -> pd.DataFrame:
         if run not in res.runs:
             continue
         r = res.runs[run]
-        z = _errors(sc, r)
+        z = res.errors(run)
         nx, nw = np.linalg.norm(z[..., :sc.n], axis=-1), np.linalg.norm(z[..., sc.n:], axis=-1)
         Vi = np.einsum("tni,nij,tnj->tn", z, P, z) if run != "comparison" else np.full(nx.shape, np.nan)
         T = len(r["t"])
@@ -502,8 +500,6 @@ def errors_frame(res: Results) -> pd.DataFrame:
 
 
 def mc_series_frame(res: Results) -> pd.DataFrame:
-    from .claims import mc_moments
-
     sc = res.scenario
     ex = res.runs["exact_fixed"]
     parts = []
@@ -511,8 +507,6 @@ def mc_series_frame(res: Results) -> pd.DataFrame:
         r = res.runs[run]
         mean, sd, R = mc_moments(r, "V")
         c = mean_square_constants(res.design, fixed=run != "sde_roles")
-        import dse.estimators.lyapunov_bounds as lb
-
         exact = ex["EV"][:len(mean)] if run != "sde_roles" else np.full(len(mean), np.nan)
         parts.append(pd.DataFrame({"scenario": sc.name, "run": run, "t": r["t"], "trials": R, "V_mean": mean, "V_sd": sd,
                                    "V_se": sd / np.sqrt(R), "exact_EV": exact,
@@ -532,7 +526,7 @@ def law_cells_frame(res: Results) -> pd.DataFrame:
         R = int(r["trials"])
         C, K = r["proj_mean"].shape
         parts.append(pd.DataFrame({
-            "scenario": sc.name, "run": run, "t": np.repeat(r["probe_index"] * sc.record_dt, K),
+            "scenario": sc.name, "run": run, "t": np.repeat(r["probe_index"] * sc.simulation.record_dt, K),
             "direction": np.tile(np.arange(K), C), "exact_mean": ex[f"mean_proj_{key}"][sel].ravel(),
             "mc_mean": r["proj_mean"].ravel(), "law_var": law["probe_var"][sel].ravel(),
             "recursion_var": law[f"sim_var_{key}"][sel].ravel(), "mc_var": (r["proj_m2"] / max(R - 1, 1)).ravel(),
@@ -545,7 +539,7 @@ def law_cells_frame(res: Results) -> pd.DataFrame:
 def central_frame(res: Results) -> pd.DataFrame:
     sc = res.scenario
     c, co = res.runs["central"], res.runs["coest"]
-    stride = int(round(sc.kf_dt / sc.record_dt))
+    stride = int(round(sc.reference.dt / sc.simulation.record_dt))
     truth_det = np.concatenate([co["x"], co["w"]], axis=1)[::stride]
     parts = []
     for run, est, truth, t in (("deterministic", c["det_s"], truth_det, c["det_t"]),
@@ -579,7 +573,7 @@ def metrics_frame(res: Results) -> pd.DataFrame:
         if run not in res.runs:
             continue
         r = res.runs[run]
-        z = _errors(sc, r)
+        z = res.errors(run)
         norm = np.linalg.norm(z, axis=-1)                       # (T, nodes)
         tail = norm[-max(1, len(norm) // 10):]
         add(f"{run}_err_final_max", norm[-1].max(), run)

@@ -1,7 +1,7 @@
 """The centralized references (project additions, not in the paper).
 
-`central_deterministic`, `central_stochastic`: a Kalman filter (filterpy) on the augmented state s = [x; w] with all currently
-active sensors, along the deterministic run and the first stochastic run.
+`central_deterministic`, `central_stochastic` (stages): a Kalman filter (filterpy) on the augmented state
+s = [x; w] with all currently active sensors, along the deterministic run and the first stochastic run.
 
 The unknown input is modelled as a random walk ẇ = q_w^{1/2} ξ; the model ṡ = F s + noise,
 F = [[A, B], [0, 0]], is discretised exactly at dt by Van Loan's method. Node i contributes
@@ -21,9 +21,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import expm
 
+from dse.contract.stages import stage
 from dse.estimators.kalman_bucy import kalman_bucy_riccati, kalman_bucy_steady
 from dse.estimators.lyapunov_bounds import discrete_noise
 from dse.simulate.seeding import stream_seed
+
+from .scenario import CoestimationFile
 
 #: the measurement noise blockdiag(h_i h_iᵀ) of the Kalman-Bucy reference is rank one per node; this
 #: fraction of its largest entry (or this value when the noise is zero) is added on the diagonal so that
@@ -41,15 +44,15 @@ def van_loan(F: np.ndarray, Qc: np.ndarray, dt: float) -> tuple[np.ndarray, np.n
     return Phi, (Qd + Qd.T) / 2
 
 
-def run_kalman(sc, t: np.ndarray, x: np.ndarray, g: np.ndarray, *, noise=None, rng=None) -> dict[str, np.ndarray]:
-    """Filter the truth x (T, n) sampled at t (uniform, step = sc.kf_dt); returns the estimates (T, n + p)."""
+def run_kalman(sc: CoestimationFile, t: np.ndarray, x: np.ndarray, g: np.ndarray, *, noise=None, rng=None) -> dict[str, np.ndarray]:
+    """Filter the truth x (T, n) sampled at t (uniform, step = reference.dt); returns the estimates (T, n + p)."""
     from filterpy.kalman import KalmanFilter   # imports scipy.stats (about 1 s): only where the filter runs
 
     n, p = sc.n, sc.p
     dt = float(t[1] - t[0])
     F = np.block([[sc.A, sc.B], [np.zeros((p, n + p))]])
     Qc = np.zeros((n + p, n + p))
-    Qc[n:, n:] = sc.kf_q_w * np.eye(p)
+    Qc[n:, n:] = sc.reference.q_w * np.eye(p)
     if noise is not None:
         v = noise.process[:, 0]
         Qc[:n, :n] += np.outer(v, v)
@@ -68,7 +71,7 @@ def run_kalman(sc, t: np.ndarray, x: np.ndarray, g: np.ndarray, *, noise=None, r
             H = np.hstack([np.vstack([C[i] for i in act]), np.zeros((len(act) * sc.m, p))])
             y = H[:, :n] @ x[k]
             if noise is None:
-                R = sc.kf_r * np.eye(len(y))
+                R = sc.reference.r_deterministic * np.eye(len(y))
             else:
                 blocks = [np.outer(noise.measurement[i, :, 0], noise.measurement[i, :, 0]) / dt for i in act]
                 R = np.zeros((len(y), len(y)))
@@ -81,26 +84,34 @@ def run_kalman(sc, t: np.ndarray, x: np.ndarray, g: np.ndarray, *, noise=None, r
     return {"t": t, "s": out}
 
 
-def central_deterministic(sc, det_run: dict) -> dict[str, np.ndarray]:
+def _stride(sc: CoestimationFile) -> int:
+    return int(round(sc.reference.dt / sc.simulation.record_dt))
+
+
+@stage(name="central-det")
+def central_deterministic(sc: CoestimationFile, det_run: dict) -> dict[str, np.ndarray]:
     """The filter along the deterministic run, with the active sensors and with every sensor."""
-    stride = int(round(sc.kf_dt / sc.record_dt))
+    stride = _stride(sc)
     det = run_kalman(sc, det_run["t"][::stride], det_run["x"][::stride], det_run["g"][::stride])
     every = run_kalman(sc, det_run["t"][::stride], det_run["x"][::stride], np.ones_like(det_run["g"][::stride]))
     return {"det_t": det["t"], "det_s": det["s"], "det_all_s": every["s"]}
 
 
-def central_stochastic(sc, sde_run: dict, noise) -> dict[str, np.ndarray]:
-    """The filter along the first stored stochastic trial (none without one)."""
+@stage(name="central-sde")
+def central_stochastic(sc: CoestimationFile, sde_run: dict, law: dict) -> dict[str, np.ndarray]:
+    """The filter along the first stored stochastic trial (none without one), with the seed's noise."""
+    from .design import noise_of
+
     if not sde_run["kept_x"].size:
         return {}
-    stride = int(round(sc.kf_dt / sc.record_dt))
+    noise, stride = noise_of(law), _stride(sc)
     rng = np.random.default_rng(stream_seed(0, "tran", "central-kf-noise"))
     st = run_kalman(sc, sde_run["t"][::stride], sde_run["kept_x"][0, ::stride], sde_run["kept_g"][0, ::stride],
                     noise=noise, rng=rng)
     return {"sde_t": st["t"], "sde_s": st["s"]}
 
 
-def kalman_bucy_reference(sc, noise, g, t_final: float) -> tuple[np.ndarray, np.ndarray]:
+def kalman_bucy_reference(sc: CoestimationFile, noise, g, t_final: float) -> tuple[np.ndarray, np.ndarray]:
     """(steady-state, final-time) Kalman-Bucy covariance of x with the sensors of the nodes with g_i > 0,
     R = blockdiag(h_i h_iᵀ) + jitter·I (KB_JITTER), P(0) = 0. The steady state is NaN when scipy's CARE
     solver cannot reorder the Hamiltonian pencil (a nearly singular R); the final-time covariance then

@@ -17,7 +17,6 @@ import zlib
 from typing import Any
 
 import numpy as np
-from scipy.linalg import solve_continuous_are, solve_continuous_lyapunov
 
 FAMILY = "coestimation"
 
@@ -62,6 +61,8 @@ def _process(rng: np.random.Generator, n: int, p: int) -> tuple[np.ndarray, np.n
 def _augmented_gains(rng, A, B, C, weight: float) -> tuple[np.ndarray, np.ndarray]:
     """[L; J] from the Riccati equation of the observer of (x, w) (w constant): it makes the error matrix
     [[A − LC, −B], [JC, 0]] Hurwitz when the augmented pair is detectable."""
+    from scipy.linalg import solve_continuous_are
+
     n, p = B.shape
     m = C.shape[0]
     Aa = np.block([[A, B], [np.zeros((p, n + p))]])
@@ -128,18 +129,10 @@ def _graph(rng, N: int, edge: str | None) -> dict[str, Any]:
     return {"kind": kind, "n": N}
 
 
-def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
-    if edge is not None and edge not in EDGES:
-        raise ValueError(f"unknown edge case {edge!r}; one of {', '.join(EDGES)}")
-    rng = np.random.default_rng([seed, zlib.crc32((edge or "random").encode())])
-    N = {"two_nodes": 2, "six_nodes": 6}.get(edge, int(rng.integers(2, 7)))
-    n = int(rng.integers(2, 5))
-    p = int(rng.integers(1, 3))
-    m = int(rng.integers(1, min(n, 2) + 1))
-    A, B = _process(rng, n, p)
-    t_end = float(rng.choice([2.0, 3.0, 4.0]))
-    n_types = 1 if N == 2 and rng.random() < 0.5 else 2
-    types, type_list = {}, []
+def _types(rng, A, B, n: int, p: int, m: int, n_types: int, edge: str | None) -> dict[str, dict[str, Any]]:
+    """Node types: C_i picks m states (sometimes mixed), σ_iK_i a small leakage, observer gains (28)-(29)
+    usually feasible; the infeasible edge cases spoil the first type's J or L."""
+    types = {}
     for k in range(n_types):
         C = np.zeros((m, n))
         C[np.arange(m), rng.choice(n, size=m, replace=False)] = 1.0
@@ -155,27 +148,48 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
                           "J": _f(np.round(J, 4)), "K": _f(K), "sigma": sigma,
                           "eps": float(rng.choice([1e-6, 1e-4, 1e-2])),
                           "comparison_sigma": float(np.round(rng.uniform(0.2, 2.0), 3))}
+    return types
+
+
+def _given_P(types: dict, A, B, n: int, p: int) -> None:
+    """What a user would paste: a solution of (28)-(29) when there is one, else (10) at g = 1."""
+    import dse.estimators.common_lyapunov as cl
+    from scipy.linalg import solve_continuous_lyapunov
+
+    for ty in types.values():
+        C, L, J, K = (np.array(ty[k]) for k in ("C", "L", "J", "K"))
+        Ab0 = np.block([[A, -B], [np.zeros((p, n)), -ty["sigma"] * K]])
+        Ab1 = np.block([[A - L @ C, -B], [J @ C, -ty["sigma"] * K]])
+        r = cl.common_lyapunov((Ab0, Ab1), ty["eps"], feasibility=False)   # its maximiser and margin only
+        if r.P is not None and r.margin > 0:
+            X = r.P * max(1.0, 2.0 * ty["eps"] / r.margin)
+        elif np.linalg.eigvals(Ab1).real.max() < 0:
+            X = solve_continuous_lyapunov(Ab1.T, -np.eye(n + p))
+        else:
+            X = np.eye(n + p)
+        X = np.round((X + X.T) / 2, 6)
+        ty["P"] = _f(X if np.linalg.eigvalsh(X).min() > 0 else np.eye(n + p))
+
+
+def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
+    if edge is not None and edge not in EDGES:
+        raise ValueError(f"unknown edge case {edge!r}; one of {', '.join(EDGES)}")
+    rng = np.random.default_rng([seed, zlib.crc32((edge or "random").encode())])
+    N = {"two_nodes": 2, "six_nodes": 6}.get(edge, int(rng.integers(2, 7)))
+    n = int(rng.integers(2, 5))
+    p = int(rng.integers(1, 3))
+    m = int(rng.integers(1, min(n, 2) + 1))
+    A, B = _process(rng, n, p)
+    t_end = float(rng.choice([2.0, 3.0, 4.0]))
+    n_types = 1 if N == 2 and rng.random() < 0.5 else 2
+    types = _types(rng, A, B, n, p, m, n_types, edge)
     type_list = [f"t{int(i) % n_types}" for i in range(N)]
     role_mode = {"fixed_roles": "fixed", "proximity_roles": "proximity", "lyapunov_P": "fixed"}.get(
         edge, str(rng.choice(["fixed", "proximity"])))
     P_mode = {"lyapunov_P": "lyapunov", "given_P": "given"}.get(edge, "lmi")
     active = [float(x) for x in rng.choice([0.0, 1.0, 0.5], size=N, p=[0.4, 0.5, 0.1])]
-    if P_mode == "given":   # what a user would paste: a solution of (28)-(29) when there is one, else (10) at g = 1
-        import dse.estimators.common_lyapunov as cl
-
-        for ty in types.values():
-            C, L, J, K = (np.array(ty[k]) for k in ("C", "L", "J", "K"))
-            Ab0 = np.block([[A, -B], [np.zeros((p, n)), -ty["sigma"] * K]])
-            Ab1 = np.block([[A - L @ C, -B], [J @ C, -ty["sigma"] * K]])
-            r = cl.common_lyapunov((Ab0, Ab1), ty["eps"], feasibility=False)   # its maximiser and margin only
-            if r.P is not None and r.margin > 0:
-                X = r.P * max(1.0, 2.0 * ty["eps"] / r.margin)
-            elif np.linalg.eigvals(Ab1).real.max() < 0:
-                X = solve_continuous_lyapunov(Ab1.T, -np.eye(n + p))
-            else:
-                X = np.eye(n + p)
-            X = np.round((X + X.T) / 2, 6)
-            ty["P"] = _f(X if np.linalg.eigvalsh(X).min() > 0 else np.eye(n + p))
+    if P_mode == "given":
+        _given_P(types, A, B, n, p)
     positions = np.round(rng.uniform(-2.0, 2.0, size=(N, 2)), 3)
     if role_mode == "proximity":
         ps = [int(x) for x in rng.choice(n, size=2, replace=False)]
@@ -204,7 +218,13 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
     }
     if P_mode == "lyapunov":   # (10) is solved at the roles of the run
         data["fixed_roles"] = {"active": active}
-    # the initial estimates and the Q_i of (10), from a stream of their own (the draws above do not change)
+    _initial_estimates_and_Q(data, seed, edge, types, N, n, p, P_mode)
+    return data
+
+
+def _initial_estimates_and_Q(data: dict, seed: int, edge: str | None, types: dict, N: int, n: int, p: int,
+                             P_mode: str) -> None:
+    """The initial estimates and the Q_i of (10), from a stream of their own (the draws above do not change)."""
     extra = np.random.default_rng([seed, zlib.crc32((edge or "random").encode()), 1])
     if P_mode == "lyapunov":
         for ty in types.values():
@@ -213,4 +233,3 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
     if edge in ("lyapunov_P", "two_nodes", "six_nodes") or extra.random() < 0.3:
         data["nodes"]["xhat0"] = _f(np.round(extra.uniform(-1.0, 1.0, (N, n)), 3))
         data["nodes"]["what0"] = _f(np.round(extra.uniform(-1.0, 1.0, (1, p)), 3))
-    return data

@@ -1,26 +1,27 @@
-"""Figures (PNG) and the Rerun recording of the coestimation family, drawn from the run's tables.
+"""The views of a coestimation run: figures (PNG) and the Rerun recording, drawn from the run's tables.
 
 Figures 2-11 of the paper (Fig. 2 reconstructed) for the paper's example, the same views with
 plain names and titles for users' scenarios, plus roles, bounds and Monte Carlo figures. One
-recording `<scenario>.rrd` on timeline `t` (duration): the graph at fixed positions with each
-node's role g_i(t) as colour and size, the target and each node's estimate in the plane, states
-and inputs against truth, errors against the bounds, the stochastic Monte Carlo against (46) and
-the exact moments, the LMI results and the claims. Every number comes from the tables
-(`tables.py`); the scenario gives only the layout (graph, positions, names).
+recording `<scenario>.rrd` on timeline `t` (duration), on the shared recording scaffold: the graph
+at fixed positions with each node's role g_i(t) as colour and size, the target and each node's
+estimate in the plane, states and inputs against truth, errors against the bounds, the stochastic
+Monte Carlo against (46) and the exact moments, the LMI results (and the scaffold's claims tab).
+Every number comes from the tables (`tables.py`); the scenario gives only the layout (graph,
+positions, names).
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from dse.outputs.figures import draw_all, new_figure, plain_log_labels, save_figure, sequential_colors, set_margins
+from dse.contract.views import Outputs, View, recording
+from dse.outputs.figures import new_figure, plain_log_labels, save_figure, sequential_colors, set_margins
 from dse.simulate.stats import z_for_confidence
 from dse.outputs.tables import Tables
 
-from .compute import Results
+from .runs import Results
 
 PAPER_STATE_LABELS = ("x₁ (x position)", "x₂ (x velocity)", "x₃ (y position)", "x₄ (y velocity)")
 FRAME_DT = 0.1  # seconds between recorded network/plane frames ...
@@ -135,7 +136,7 @@ class RunView:
         t, e = _grid(est, ("node", "component"), "value")
         xw = _grid(self._rows("truth", run if stochastic else "deterministic"), ("component",), "value")[1]
         if run == "fixed":
-            g = np.broadcast_to(np.asarray(sc.fixed_active, float), e.shape[:2])
+            g = np.broadcast_to(np.asarray(sc.fixed_roles.active, float), e.shape[:2])
         else:
             g = _grid(self._rows("roles", run if stochastic else "coest"), ("node",), "g")[1]
         return {"t": t, "x": xw[:, :sc.n], "w": xw[:, sc.n:], "e": e, "g": g}
@@ -225,7 +226,7 @@ def _inputs_figure(res: Results, run: dict, title: str, path: Path) -> None:
 
 def _plane_figure(res: Results, run: dict, title: str, path: Path, labels: list[str]) -> None:
     sc = res.scenario
-    a, b = sc.position_states
+    a, b = sc.roles.position_states
     cols = _node_colors(sc.N)
     fig, axes = new_figure(width=6.4, height=5.4)
     ax = axes[0, 0]
@@ -245,14 +246,14 @@ def _draw_network(ax, res: Results, g: np.ndarray | None = None, tag_active: boo
     import matplotlib.patches as mpatches
 
     sc = res.scenario
-    pos = sc.positions
-    for u, v in sc.graph.build().edges():
+    pos = sc.nodes.positions
+    for u, v in sc.network.build().edges():
         ax.plot(pos[[u, v], 0], pos[[u, v], 1], color="0.75", lw=0.8, zorder=1)
     active_frac = g.mean(0) if g is not None else np.zeros(sc.N)
     for i in range(sc.N):
-        if sc.role_mode == "proximity":
-            ax.add_patch(mpatches.Circle(pos[i], sc.radius, fill=False, color="0.85", lw=0.5, zorder=0))
-        marker = "o" if sc.node_type[i] == 0 else "s"
+        if sc.roles.mode == "proximity":
+            ax.add_patch(mpatches.Circle(pos[i], sc.roles.radius, fill=False, color="0.85", lw=0.5, zorder=0))
+        marker = "o" if sc.type_of[i] == 0 else "s"
         ax.scatter(*pos[i], s=60 + 200 * active_frac[i], marker=marker, c=[[0.85, 0.2, 0.1, 0.3 + 0.7 * active_frac[i]]],
                    edgecolors="k", zorder=3)
         tag = " AN" if tag_active and g is not None and np.any(g[:, i] > 0.5) else ""
@@ -264,7 +265,7 @@ def _graph_figure(res: Results, run: dict, path: Path, title: str, labels: list[
     fig, axes = new_figure(width=6.4, height=5.4)
     ax = axes[0, 0]
     _draw_network(ax, res, run["g"], tag_active=False)
-    a, b = sc.position_states
+    a, b = sc.roles.position_states
     ax.plot(run["x"][:, a], run["x"][:, b], "k--", lw=1, label="target path (deterministic run)")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(labels[a])
@@ -326,40 +327,36 @@ def _mc_figure(tables: Tables, path: Path) -> None:
     _save(fig, path, left=0.8)
 
 
-def figure_jobs(view: RunView, out_dir: Path, paper: bool = True) -> list:
-    """One callable per figure (see `dse.outputs.figures.draw_all`)."""
-    res = view.res
-    figs = out_dir / "figures"
-    sc = res.scenario
+def figure_views(view: RunView, paper: bool) -> list[View]:
+    """One view per figure (the paper's figure names and titles in its reproduction, plain ones otherwise)."""
+    res, sc = view.res, view.res.scenario
     labels = state_labels(res, paper)
 
-    def where(key):
+    def fig(key, draw):
         name, title = _figure(key, paper)
-        return title, figs / f"{name}.png"
+        return View(f"figures/{name}.png", lambda path: draw(title, path))
 
-    co = view.run("coest")
-    jobs = [lambda: _graph_figure(res, co, where("graph")[1], where("graph")[0], labels),
-            lambda: _states_figure(res, co, *where("states"), labels),
-            lambda: _inputs_figure(res, co, *where("inputs")),
-            lambda: _plane_figure(res, co, *where("plane"), labels),
-            lambda: _roles_figure(res, co, figs / "roles.png"),
-            lambda: _bounds_figure(view, figs / "bounds.png"),
-            lambda: _mc_figure(view.tables, figs / "mean_square.png")]
-    cp = view.run("comparison")
+    co, cp, runs = view.run("coest"), view.run("comparison"), view.stochastic_runs()
+    out = [fig("graph", lambda title, path: _graph_figure(res, co, path, title, labels)),
+           fig("states", lambda title, path: _states_figure(res, co, title, path, labels)),
+           fig("inputs", lambda title, path: _inputs_figure(res, co, title, path)),
+           fig("plane", lambda title, path: _plane_figure(res, co, title, path, labels)),
+           View("figures/roles.png", lambda path: _roles_figure(res, co, path)),
+           View("figures/bounds.png", lambda path: _bounds_figure(view, path)),
+           View("figures/mean_square.png", lambda path: _mc_figure(view.tables, path))]
     if cp is not None:
-        jobs += [lambda: _states_figure(res, cp, *where("comp_states"), labels),
-                 lambda: _inputs_figure(res, cp, *where("comp_inputs")),
-                 lambda: _plane_figure(res, cp, *where("comp_plane"), labels)]
-    runs = view.stochastic_runs()
+        out += [fig("comp_states", lambda title, path: _states_figure(res, cp, title, path, labels)),
+                fig("comp_inputs", lambda title, path: _inputs_figure(res, cp, title, path)),
+                fig("comp_plane", lambda title, path: _plane_figure(res, cp, title, path, labels))]
     if runs:
         xs = np.stack([r["x"] for r in runs])
         band = (xs.min(0), xs.max(0), len(runs))
-        a, b = sc.position_states
-        others = [k for k in range(sc.n) if k not in (a, b)]
-        jobs += [lambda: _states_figure(res, runs[0], *where("sde_pos"), labels, states=[a, b], band=band),
-                 lambda: _states_figure(res, runs[0], *where("sde_other"), labels, states=others or [a], band=band),
-                 lambda: _inputs_figure(res, runs[0], *where("sde_inputs"))]
-    return jobs
+        a, b = sc.roles.position_states
+        others = [k for k in range(sc.n) if k not in (a, b)] or [a]
+        out += [fig("sde_pos", lambda title, path: _states_figure(res, runs[0], title, path, labels, [a, b], band)),
+                fig("sde_other", lambda title, path: _states_figure(res, runs[0], title, path, labels, others, band)),
+                fig("sde_inputs", lambda title, path: _inputs_figure(res, runs[0], title, path))]
+    return out
 
 
 # -- recording --------------------------------------------------------------------------------
@@ -404,158 +401,169 @@ def lmi_markdown(tables: Tables) -> str:
     return "\n".join(lines)
 
 
-def write_recording(view: RunView, path: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:
-    import rerun as rr            # in the worker that writes the recording only
+def _tabs(n: int, p: int, labels: list[str], paper: bool) -> list:
+    """The recording's own tabs (the scaffold adds the claims)."""
     import rerun.blueprint as rrb
 
-    from dse.outputs import record as rec_
-
-    res, tables = view.res, view.tables
-    sc = res.scenario
-    n, p, N = sc.n, sc.p, sc.N
-    co = view.run("coest")
-    bv = bound_values(tables)
-    t_ns = np.round(co["t"] * 1e9).astype(np.int64)
-    idx = rec_.duration_index("t", t_ns)
-    cols = [_rgb(c) for c in _node_colors(N)]
-    a, b = sc.position_states
-    labels = state_labels(res, paper)
     figs_est, figs_comp = (" (Figs. 3-4)", " (Figs. 6-7)") if paper else ("", "")
-    blueprint = rrb.Blueprint(
-        rrb.Tabs(
-            rrb.Horizontal(
-                rrb.Vertical(rrb.GraphView(origin="/graph", name="graph: node size/colour = role g_i(t)"),
-                             rrb.TimeSeriesView(origin="/roles", name="roles g_i(t)"), row_shares=[3, 2]),
-                rrb.Spatial2DView(origin="/plane", name="target (black) and node estimates in the plane"),
-                column_shares=[2, 3], name="network"),
-            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/states/x{k + 1}", name=f"{labels[k]}: nodes vs truth")
-                       for k in range(n)],
-                     *[rrb.TimeSeriesView(origin=f"/states/w{k + 1}", name=f"w{k + 1}: nodes vs truth") for k in range(p)],
-                     grid_columns=2, name=f"estimates{figs_est}"),
-            rrb.Grid(*[rrb.TimeSeriesView(origin=f"/comparison/x{k + 1}", name=f"comparison arch.: {labels[k]}")
-                       for k in range(n)], grid_columns=2, name=f"comparison{figs_comp}"),
-            rrb.Grid(rrb.TimeSeriesView(origin="/bounds/roles", name="‖z(t)‖ vs (18) variants (log)"),
-                     rrb.TimeSeriesView(origin="/bounds/fixed", name="fixed roles: ‖z‖ vs (18)"),
-                     rrb.TimeSeriesView(origin="/mc", name="E{z^T P z}: Monte Carlo, exact, (46)"),
-                     rrb.TimeSeriesView(origin="/errors", name="mean node errors: coestimation, comparison, central KF"),
-                     name="errors and bounds"),
-            rrb.Horizontal(rrb.TextDocumentView(origin="/lmi", name="LMI results"),
-                           rrb.TextDocumentView(origin="/report", name="claims"),
-                           rrb.TextDocumentView(origin="/claims", name="claim detail"), name="LMIs and claims"),
-        ),
-        rrb.TimePanel(timeline="t", expanded=False),
-        collapse_panels=True,
-    )
-    props = {"seed": res.seed, "trials": res.trials, "alpha": sc.alpha, "beta": sc.beta, "radius": sc.radius,
-             "N": N, "P_mode": sc.P_mode, "versions": json.dumps(prov.get("versions", {})), "git": prov.get("git", "")}
-    with rec_.recording(path, application_id="dse-tran", recording_id=f"tran-{sc.name}-seed{res.seed}",
-                        blueprint=blueprint, properties=props) as rec:
-        # graph: static edges, per-frame node colours/sizes from g_i(t)
-        stride = max(1, int(round(FRAME_DT / sc.record_dt)), -(-len(co["t"]) // MAX_FRAMES))
-        frames = np.arange(0, len(co["t"]), stride)
-        ids = np.array([str(i) for i in range(N)])
-        rec.log("graph", rr.GraphEdges([(str(u), str(v)) for u, v in sc.graph.build().edges()],
-                                       graph_type=rr.GraphType.Undirected), static=True)
-        rec.log("graph", rr.GraphNodes.from_fields(show_labels=True), static=True)
-        rec.log("plane/target_path", rr.LineStrips2D([co["x"][:, [a, b]]], colors=[(0, 0, 0)], radii=0.02), static=True)
-        if sc.role_mode == "proximity":
-            circ = np.linspace(0, 2 * np.pi, 60)
-            rec.log("plane/sensing_discs", rr.LineStrips2D([sc.positions[i] + sc.radius * np.c_[np.cos(circ), np.sin(circ)]
-                                                             for i in range(N)], colors=[(200, 200, 200)], radii=0.01),
-                    static=True)
-        # one column send per entity for all frames (N nodes per frame)
-        F = len(frames)
-        g = co["g"][frames]
-        node_cols = np.stack([60 + 195 * g, 120 * (1 - g), 200 * (1 - g)], axis=-1).astype(np.uint8).reshape(F * N, 3)
-        fidx = rec_.duration_index("t", t_ns[frames])
-        per_frame = [N] * F
-        names = np.array([str(i + 1) for i in range(N)])
-        rec.send_columns("graph", indexes=fidx, columns=rr.GraphNodes.columns(
-            node_ids=np.tile(ids, F), positions=np.tile(rec_.display_positions(sc.positions), (F, 1)), colors=node_cols,
-            radii=(8 + 14 * g).ravel(), labels=np.char.add(np.tile(names, F), np.where(g > 0.5, "·A", "").ravel())
-        ).partition(per_frame))
-        rec.send_columns("plane/nodes", indexes=fidx, columns=rr.Points2D.columns(
-            positions=np.tile(sc.positions, (F, 1)), colors=node_cols, radii=(0.08 + 0.17 * g).ravel(),
-            labels=np.tile(names, F)).partition(per_frame))
-        rec.send_columns("plane/target", indexes=fidx, columns=rr.Points2D.columns(
-            positions=co["x"][frames][:, [a, b]], colors=np.zeros((F, 3), np.uint8), radii=np.full(F, 0.12)))
-        rec.send_columns("plane/estimates", indexes=fidx, columns=rr.Points2D.columns(
-            positions=co["e"][frames][:, :, [a, b]].reshape(F * N, 2), colors=np.tile(np.array(cols, np.uint8), (F, 1)),
-            radii=np.full(F * N, 0.07)).partition(per_frame))
-        rec_.send_series(rec, "roles", idx, co["g"], names=[f"g_{i + 1}" for i in range(N)], colors=cols)
-        rec_.send_series(rec, "roles/n_active", idx, (co["g"] > 0.5).sum(1), names="# active", colors=[(0, 0, 0)], width=2)
-        # truth and per-node estimates (by state, and by node)
-        names = [f"node {i + 1}" for i in range(N)]
+    return [
+        rrb.Horizontal(rrb.Vertical(rrb.GraphView(origin="/graph", name="graph: node size/colour = role g_i(t)"),
+                                    rrb.TimeSeriesView(origin="/roles", name="roles g_i(t)"), row_shares=[3, 2]),
+                       rrb.Spatial2DView(origin="/plane", name="target (black) and node estimates in the plane"),
+                       column_shares=[2, 3], name="network"),
+        rrb.Grid(*[rrb.TimeSeriesView(origin=f"/states/x{k + 1}", name=f"{labels[k]}: nodes vs truth") for k in range(n)],
+                 *[rrb.TimeSeriesView(origin=f"/states/w{k + 1}", name=f"w{k + 1}: nodes vs truth") for k in range(p)],
+                 grid_columns=2, name=f"estimates{figs_est}"),
+        rrb.Grid(*[rrb.TimeSeriesView(origin=f"/comparison/x{k + 1}", name=f"comparison arch.: {labels[k]}")
+                   for k in range(n)], grid_columns=2, name=f"comparison{figs_comp}"),
+        rrb.Grid(rrb.TimeSeriesView(origin="/bounds/roles", name="‖z(t)‖ vs (18) variants (log)"),
+                 rrb.TimeSeriesView(origin="/bounds/fixed", name="fixed roles: ‖z‖ vs (18)"),
+                 rrb.TimeSeriesView(origin="/mc", name="E{z^T P z}: Monte Carlo, exact, (46)"),
+                 rrb.TimeSeriesView(origin="/errors", name="mean node errors: coestimation, comparison, central KF"),
+                 name="errors and bounds"),
+        rrb.TextDocumentView(origin="/lmi", name="LMI results")]
+
+
+def _ns(t) -> np.ndarray:
+    """Times (s) as integer nanoseconds (the recording's duration index)."""
+    return np.round(np.asarray(t) * 1e9).astype(np.int64)
+
+
+def _log_network(rec, view: RunView) -> None:
+    """The graph with each node's role g_i(t) as colour and size, the target and the estimates in the plane."""
+    import rerun as rr
+
+    from dse.outputs import record
+
+    sc, co = view.res.scenario, view.run("coest")
+    N, (a, b), pos = sc.N, sc.roles.position_states, sc.nodes.positions
+    cols = [_rgb(c) for c in _node_colors(N)]
+    stride = max(1, int(round(FRAME_DT / sc.simulation.record_dt)), -(-len(co["t"]) // MAX_FRAMES))
+    frames = np.arange(0, len(co["t"]), stride)
+    rec.log("graph", rr.GraphEdges([(str(u), str(v)) for u, v in sc.network.build().edges()],
+                                   graph_type=rr.GraphType.Undirected), static=True)
+    rec.log("graph", rr.GraphNodes.from_fields(show_labels=True), static=True)
+    rec.log("plane/target_path", rr.LineStrips2D([co["x"][:, [a, b]]], colors=[(0, 0, 0)], radii=0.02), static=True)
+    if sc.roles.mode == "proximity":
+        circ = np.linspace(0, 2 * np.pi, 60)
+        rec.log("plane/sensing_discs", rr.LineStrips2D([pos[i] + sc.roles.radius * np.c_[np.cos(circ), np.sin(circ)]
+                                                         for i in range(N)], colors=[(200, 200, 200)], radii=0.01),
+                static=True)
+    # one column send per entity for all frames (N nodes per frame)
+    F, g = len(frames), co["g"][frames]
+    node_cols = np.stack([60 + 195 * g, 120 * (1 - g), 200 * (1 - g)], axis=-1).astype(np.uint8).reshape(F * N, 3)
+    fidx, per_frame = record.duration_index("t", _ns(co["t"])[frames]), [N] * F
+    names = np.array([str(i + 1) for i in range(N)])
+    rec.send_columns("graph", indexes=fidx, columns=rr.GraphNodes.columns(
+        node_ids=np.tile(np.array([str(i) for i in range(N)]), F), positions=np.tile(record.display_positions(pos), (F, 1)),
+        colors=node_cols, radii=(8 + 14 * g).ravel(),
+        labels=np.char.add(np.tile(names, F), np.where(g > 0.5, "·A", "").ravel())).partition(per_frame))
+    rec.send_columns("plane/nodes", indexes=fidx, columns=rr.Points2D.columns(
+        positions=np.tile(pos, (F, 1)), colors=node_cols, radii=(0.08 + 0.17 * g).ravel(),
+        labels=np.tile(names, F)).partition(per_frame))
+    rec.send_columns("plane/target", indexes=fidx, columns=rr.Points2D.columns(
+        positions=co["x"][frames][:, [a, b]], colors=np.zeros((F, 3), np.uint8), radii=np.full(F, 0.12)))
+    rec.send_columns("plane/estimates", indexes=fidx, columns=rr.Points2D.columns(
+        positions=co["e"][frames][:, :, [a, b]].reshape(F * N, 2), colors=np.tile(np.array(cols, np.uint8), (F, 1)),
+        radii=np.full(F * N, 0.07)).partition(per_frame))
+    idx = record.duration_index("t", _ns(co["t"]))
+    record.send_series(rec, "roles", idx, co["g"], names=[f"g_{i + 1}" for i in range(N)], colors=cols)
+    record.send_series(rec, "roles/n_active", idx, (co["g"] > 0.5).sum(1), names="# active", colors=[(0, 0, 0)], width=2)
+
+
+def _log_estimates(rec, view: RunView) -> None:
+    """Truth and per-node estimates (by state, and by node), the comparison architecture's and the central KF's."""
+    from dse.outputs import record
+
+    sc, co, cp = view.res.scenario, view.run("coest"), view.run("comparison")
+    n, p, N = sc.n, sc.p, sc.N
+    idx = record.duration_index("t", _ns(co["t"]))
+    cols, names, black = [_rgb(c) for c in _node_colors(N)], [f"node {i + 1}" for i in range(N)], [(0, 0, 0)]
+    for k, (path, series, truth) in enumerate([(f"x{k + 1}", co["e"][:, :, k], co["x"][:, k]) for k in range(n)] +
+                                              [(f"w{k + 1}", co["e"][:, :, n + k], co["w"][:, k]) for k in range(p)]):
+        record.send_series(rec, f"states/{path}/nodes", idx, series, names=names, colors=cols, width=1)
+        record.send_series(rec, f"states/{path}/truth", idx, truth, names="true", colors=black, width=2.5)
+        record.send_series(rec, f"truth/{path}", idx, truth, names=path, colors=black)
+    net, per_node = view.errors("coest")
+    for i in range(N):
+        record.send_series(rec, f"nodes/{i}/estimate", idx, co["e"][:, i],
+                           names=[f"x̂{k + 1}" for k in range(n)] + [f"ŵ{k + 1}" for k in range(p)])
+        record.send_series(rec, f"nodes/{i}/error", idx, np.c_[per_node["norm_x"][:, i], per_node["norm_w"][:, i]],
+                           names=["‖x̃_i‖", "‖w̃_i‖"])
+    if cp is not None:
         for k in range(n):
-            rec_.send_series(rec, f"states/x{k + 1}/nodes", idx, co["e"][:, :, k], names=names, colors=cols, width=1)
-            rec_.send_series(rec, f"states/x{k + 1}/truth", idx, co["x"][:, k], names="true", colors=[(0, 0, 0)], width=2.5)
-            rec_.send_series(rec, f"truth/x{k + 1}", idx, co["x"][:, k], names=f"x{k + 1}", colors=[(0, 0, 0)])
-        for k in range(p):
-            rec_.send_series(rec, f"states/w{k + 1}/nodes", idx, co["e"][:, :, n + k], names=names, colors=cols, width=1)
-            rec_.send_series(rec, f"states/w{k + 1}/truth", idx, co["w"][:, k], names="true", colors=[(0, 0, 0)], width=2.5)
-            rec_.send_series(rec, f"truth/w{k + 1}", idx, co["w"][:, k], names=f"w{k + 1}", colors=[(0, 0, 0)])
-        net, per_node = view.errors("coest")
-        for i in range(N):
-            rec_.send_series(rec, f"nodes/{i}/estimate", idx, co["e"][:, i],
-                             names=[f"x̂{k + 1}" for k in range(n)] + [f"ŵ{k + 1}" for k in range(p)])
-            rec_.send_series(rec, f"nodes/{i}/error", idx, np.c_[per_node["norm_x"][:, i], per_node["norm_w"][:, i]],
-                             names=["‖x̃_i‖", "‖w̃_i‖"])
-        cp = view.run("comparison")
-        if cp is not None:
-            for k in range(n):
-                rec_.send_series(rec, f"comparison/x{k + 1}/nodes", idx, cp["e"][:, :, k], names=names, colors=cols, width=1)
-                rec_.send_series(rec, f"comparison/x{k + 1}/truth", idx, cp["x"][:, k], names="true", colors=[(0, 0, 0)],
-                                 width=2.5)
-            rec_.send_series(rec, "errors/comparison", idx, view.errors("comparison")[0][["norm_x", "norm_w"]].to_numpy(),
-                             names=["comparison mean ‖x̃‖", "comparison mean ‖w̃‖"], colors=[(214, 39, 40), (255, 152, 150)])
-        rec_.send_series(rec, "errors/coestimation", idx, net[["norm_x", "norm_w"]].to_numpy(),
-                         names=["coestimation mean ‖x̃‖", "coestimation mean ‖w̃‖"], colors=[(31, 119, 180), (174, 199, 232)])
-        c = tables["central"]
-        c = c[c["run"] == "deterministic"].sort_values(["t", "component"])
-        kt = np.unique(c["t"].to_numpy())
-        kidx = rec_.duration_index("t", np.round(kt * 1e9).astype(np.int64))
-        est, truth = c["estimate"].to_numpy().reshape(len(kt), -1), c["truth"].to_numpy().reshape(len(kt), -1)
-        rec_.send_series(rec, "central/estimate", kidx, est, names=[f"KF x̂{k + 1}" for k in range(n)] +
-                         [f"KF ŵ{k + 1}" for k in range(p)])
-        rec_.send_series(rec, "errors/central_kf", kidx, np.c_[np.linalg.norm(est[:, :n] - truth[:, :n], axis=1),
-                                                                np.linalg.norm(est[:, n:] - truth[:, n:], axis=1)],
-                         names=["central KF ‖x̃‖", "central KF ‖w̃‖"], colors=[(0, 0, 0), (127, 127, 127)])
-        # bounds
-        nz = net["norm_z"].to_numpy()
-        rec_.send_series(rec, "bounds/roles/norm_z", idx, nz, names="‖z(t)‖", colors=[(0, 0, 0)], width=2)
-        for name in ("single", "pernode", "certified", "qstar"):
-            val = bv[("bound18", name)]
-            if np.isfinite(val):
-                rec_.send_series(rec, f"bounds/roles/bound18_{name}", idx, np.full(len(nz), val), names=f"(18) {name}")
-        nzf = view.errors("fixed")[0]["norm_z"].to_numpy()
-        rec_.send_series(rec, "bounds/fixed/norm_z", idx, nzf, names="‖z(t)‖", colors=[(0, 0, 0)], width=2)
-        rec_.send_series(rec, "bounds/fixed/bound18", idx, np.full(len(nzf), bv[("bound18", "fixed")]), names="(18)")
-        rec_.send_series(rec, "bounds/roles/V", idx, net["V"].to_numpy(), names="V = zᵀPz", colors=[(44, 160, 44)])
-        # Monte Carlo
-        mc = tables["mc_series"]
-        zc95 = z_for_confidence(0.95)
-        for run in ("sde_fixed", "sde_roles"):
-            r = mc[mc["run"] == run].sort_values("t")
-            sidx = rec_.duration_index("t", np.round(r["t"].to_numpy() * 1e9).astype(np.int64))
-            m, se = r["V_mean"].to_numpy(), r["V_se"].to_numpy()
-            rec_.send_series(rec, f"mc/{run}/mean_V", sidx, np.c_[m, m - zc95 * se, m + zc95 * se],
-                             names=[f"{run}: mean V", f"{run}: 95% low", f"{run}: 95% high"])
-            rec_.send_series(rec, f"mc/{run}/bound46", sidx, r["bound46"].to_numpy(), names=f"{run}: (46)")
-            if run == "sde_fixed":
-                rec_.send_series(rec, "mc/sde_fixed/exact", sidx, r["exact_EV"].to_numpy(), names="fixed roles: exact E{V}",
-                                 colors=[(0, 0, 0)])
-        rec_.log_markdown(rec, "lmi", lmi_markdown(tables))
-        counts = {s: sum(c["verdict"] == s for c in claims) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
-        rec_.log_claims(rec, claims, f"# {sc.name}: {counts}")
+            record.send_series(rec, f"comparison/x{k + 1}/nodes", idx, cp["e"][:, :, k], names=names, colors=cols, width=1)
+            record.send_series(rec, f"comparison/x{k + 1}/truth", idx, cp["x"][:, k], names="true", colors=black,
+                               width=2.5)
+        record.send_series(rec, "errors/comparison", idx, view.errors("comparison")[0][["norm_x", "norm_w"]].to_numpy(),
+                           names=["comparison mean ‖x̃‖", "comparison mean ‖w̃‖"], colors=[(214, 39, 40), (255, 152, 150)])
+    record.send_series(rec, "errors/coestimation", idx, net[["norm_x", "norm_w"]].to_numpy(),
+                       names=["coestimation mean ‖x̃‖", "coestimation mean ‖w̃‖"], colors=[(31, 119, 180), (174, 199, 232)])
+    c = view.tables["central"]
+    c = c[c["run"] == "deterministic"].sort_values(["t", "component"])
+    kt = np.unique(c["t"].to_numpy())
+    kidx = record.duration_index("t", _ns(kt))
+    est, truth = c["estimate"].to_numpy().reshape(len(kt), -1), c["truth"].to_numpy().reshape(len(kt), -1)
+    record.send_series(rec, "central/estimate", kidx, est, names=[f"KF x̂{k + 1}" for k in range(n)] +
+                       [f"KF ŵ{k + 1}" for k in range(p)])
+    record.send_series(rec, "errors/central_kf", kidx, np.c_[np.linalg.norm(est[:, :n] - truth[:, :n], axis=1),
+                                                             np.linalg.norm(est[:, n:] - truth[:, n:], axis=1)],
+                       names=["central KF ‖x̃‖", "central KF ‖w̃‖"], colors=[(0, 0, 0), (127, 127, 127)])
 
 
-def write_outputs(res: Results, tables: Tables, out_dir: Path, claims: list[dict], prov: dict, paper: bool = True) -> None:
-    """The figures and the recording, drawn together in forked workers (`prov["workers"]`) from one view of the
-    tables (split before the workers fork)."""
-    view = RunView(res, tables)
+def _log_bounds(rec, view: RunView) -> None:
+    """‖z(t)‖ against the variants of (18); the Monte Carlo E{V} against (46) and the exact moments; the LMIs."""
+    from dse.outputs import record
+
+    bv, net = bound_values(view.tables), view.errors("coest")[0]
+    idx = record.duration_index("t", _ns(view.run("coest")["t"]))
+    nz = net["norm_z"].to_numpy()
+    record.send_series(rec, "bounds/roles/norm_z", idx, nz, names="‖z(t)‖", colors=[(0, 0, 0)], width=2)
+    for name in ("single", "pernode", "certified", "qstar"):
+        if np.isfinite(bv[("bound18", name)]):
+            record.send_series(rec, f"bounds/roles/bound18_{name}", idx, np.full(len(nz), bv[("bound18", name)]),
+                               names=f"(18) {name}")
+    nzf = view.errors("fixed")[0]["norm_z"].to_numpy()
+    record.send_series(rec, "bounds/fixed/norm_z", idx, nzf, names="‖z(t)‖", colors=[(0, 0, 0)], width=2)
+    record.send_series(rec, "bounds/fixed/bound18", idx, np.full(len(nzf), bv[("bound18", "fixed")]), names="(18)")
+    record.send_series(rec, "bounds/roles/V", idx, net["V"].to_numpy(), names="V = zᵀPz", colors=[(44, 160, 44)])
+    mc, zc95 = view.tables["mc_series"], z_for_confidence(0.95)
+    for run in ("sde_fixed", "sde_roles"):
+        r = mc[mc["run"] == run].sort_values("t")
+        sidx = record.duration_index("t", _ns(r["t"].to_numpy()))
+        m, se = r["V_mean"].to_numpy(), r["V_se"].to_numpy()
+        record.send_series(rec, f"mc/{run}/mean_V", sidx, np.c_[m, m - zc95 * se, m + zc95 * se],
+                           names=[f"{run}: mean V", f"{run}: 95% low", f"{run}: 95% high"])
+        record.send_series(rec, f"mc/{run}/bound46", sidx, r["bound46"].to_numpy(), names=f"{run}: (46)")
+        if run == "sde_fixed":
+            record.send_series(rec, "mc/sde_fixed/exact", sidx, r["exact_EV"].to_numpy(),
+                               names="fixed roles: exact E{V}", colors=[(0, 0, 0)])
+    record.log_markdown(rec, "lmi", lmi_markdown(view.tables))
+
+
+def _recording(out: Outputs, view: RunView, path: Path, paper: bool) -> None:
+    sc = view.res.scenario
+    labels = state_labels(view.res, paper)
+
+    def log(rec):
+        _log_network(rec, view)
+        _log_estimates(rec, view)
+        _log_bounds(rec, view)
+
+    recording(path, out, recording_id=f"tran-{sc.name}-seed{out.seed}", application_id="dse-tran", timeline="t",
+              tabs=lambda: _tabs(sc.n, sc.p, labels, paper), log=log,
+              properties={"alpha": sc.coupling.alpha, "beta": sc.roles.beta, "radius": sc.roles.radius, "N": sc.N,
+                          "P_mode": sc.coupling.P})
+
+
+def views(out: Outputs) -> list[View]:
+    """The figures and the recording, drawn (in forked workers) from one view of the tables, split before the
+    workers fork."""
+    res, paper = out.results, out.reproduction.is_paper
+    view = RunView(res, out.tables)
     view.stochastic_runs()
     for run in ("coest", "comparison", "fixed"):
         if view.run(run) is not None:
             view.errors(run)
-    record = lambda: write_recording(view, out_dir / f"{res.scenario.name}.rrd", claims, prov, paper)  # noqa: E731
-    draw_all([record] + figure_jobs(view, out_dir, paper), workers=int(prov.get("workers", 1) or 1))
+    name = res.scenario.name
+    return [View(f"{name}.rrd", lambda path: _recording(out, view, path, paper))] + figure_views(view, paper)
