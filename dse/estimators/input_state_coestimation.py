@@ -190,3 +190,53 @@ def errors_from_estimates(x, w, e, n: int) -> np.ndarray:
 def input_forcing(K, sigma, w, wdot) -> np.ndarray:
     """φ_i = [0_n; −σ_i K_i w − ẇ] of (9), for w, ẇ (..., p) -> the input part (..., N, p)."""
     return -np.einsum("i,ipk,...k->...ip", np.asarray(sigma, float), np.asarray(K, float), w) - wdot[..., None, :]
+
+
+def error_rate(A, B, C, L, J, K, sigma, P, lap, alpha: float, z, g, w, wdot) -> tuple[np.ndarray, np.ndarray]:
+    """ż of the error system (26)/(33) along recorded samples, z (T, N, q), roles g (T, N), input w and ẇ
+    (T, p): (ż, its scale), both (T, N, q). The scale is the sum of the magnitudes of the terms of each
+    component (|Ā(g)||z| + α|H|(|L|⊗I)|z| + |φ|), the size of the inputs the rounding of ż is proportional to."""
+    n, N = np.asarray(A).shape[0], np.asarray(lap).shape[0]
+    Ab0, Ab1 = (np.stack([error_matrix(A, B, C[i], L[i], J[i], sigma[i], K[i], gv) for i in range(N)])
+                for gv in (0.0, 1.0))
+    dA = Ab1 - Ab0
+    local = np.einsum("inm,tim->tin", Ab0, z) + g[..., None] * np.einsum("inm,tim->tin", dA, z)
+    H = np.linalg.inv(P)
+    coup = -alpha * np.einsum("ij,iab,tjb->tia", lap, H, z)
+    phi = np.zeros_like(z)
+    phi[..., n:] = input_forcing(K, sigma, w, wdot)
+    az = np.abs(z)
+    scale = (np.einsum("inm,tim->tin", np.abs(Ab0), az) + g[..., None] * np.einsum("inm,tim->tin", np.abs(dA), az)
+             + alpha * np.einsum("ij,iab,tjb->tia", np.abs(lap), np.abs(H), az))
+    scale[..., n:] -= input_forcing(np.abs(K), sigma, np.abs(w), np.abs(wdot))  # σ|K||w| + |ẇ|
+    return local + coup + phi, scale
+
+
+def error_map(n: int, p: int, N: int) -> np.ndarray:
+    """Z with z = Z u + (terms in w): z_i = [x − x̂_i; ŵ_i − w] from the simulated state u = [x; e_1; …; e_N]."""
+    q = n + p
+    Z = np.zeros((N * q, n + N * q))
+    for i in range(N):
+        Z[i * q:i * q + n, :n] = np.eye(n)
+        Z[i * q:i * q + n, n + i * q:n + i * q + n] = -np.eye(n)
+        Z[i * q + n:(i + 1) * q, n + i * q + n:n + (i + 1) * q] = np.eye(p)
+    return Z
+
+
+def noise_input_matrix(L, J, v, h, g) -> np.ndarray:
+    """G of the stochastic error system (44)-(45) (dimensions fixed): G = [1_N ⊗ v̄, blockdiag(r_i)] with
+    v̄ = [v; 0] and r_i = g_i [−L_i h_i; J_i h_i], for the process-noise intensity v (n,) and the
+    measurement-noise intensities h (N, m) (one scalar Brownian motion each)."""
+    N, p = len(h), np.asarray(J).shape[1]
+    vbar = np.concatenate([v, np.zeros(p)])
+    q = len(vbar)
+    Gm = np.zeros((N * q, 1 + N))
+    Gm[:, 0] = np.tile(vbar, N)
+    for i in range(N):
+        Gm[i * q:(i + 1) * q, 1 + i] = g[i] * np.concatenate([-L[i] @ h[i], J[i] @ h[i]])
+    return Gm
+
+
+def node_blocks(M: np.ndarray, N: int, q: int) -> np.ndarray:
+    """The N diagonal (q, q) blocks of a stacked (Nq, Nq) matrix."""
+    return np.stack([M[i * q:(i + 1) * q, i * q:(i + 1) * q] for i in range(N)])

@@ -185,3 +185,24 @@ def noise_covariance_traces(S: np.ndarray, G: np.ndarray, dt: float, n_steps: in
             if k in where:
                 kept[where[k]] = Sig
     return traces, kept
+
+
+def principal_directions(P: np.ndarray, covariances, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The k principal directions of the quadratic form V = zᵀPz under each covariance Σ: u_j = P^{1/2}v_j,
+    v_j the eigenvectors of P^{1/2}ΣP^{1/2} and λ_j = var(u_jᵀz) its largest eigenvalues (Σ_j λ_j = tr(PΣ)
+    over all j), P = blockdiag(P_i) given by its blocks (N, q, q). Directions below the numerical rank of Σ
+    (λ_j ≤ 1e-8 λ_1: eigh's relative error there is eps·λ_1/λ_j) carry round-off, not noise: NaN, λ_j = 0;
+    a Σ that overflowed (an unstable system) gives NaN. Returns ((cells, k, Nq), (cells, k))."""
+    root = block_diag([(U * np.sqrt(np.maximum(w, 0))) @ U.T for w, U in (np.linalg.eigh(Pi) for Pi in P)])
+    dirs, lam = [], []
+    for S in covariances:
+        if not np.all(np.isfinite(S)):
+            dirs.append(np.full((k, len(S)), np.nan))
+            lam.append(np.full(k, np.nan))
+            continue
+        w, V = np.linalg.eigh(root @ S @ root)
+        order = np.argsort(w)[::-1][:k]
+        lost = w[order] <= 1e-8 * max(w[order[0]], 0.0)
+        lam.append(np.where(lost, 0.0, w[order]))
+        dirs.append(np.where(lost[:, None], np.nan, (root @ V[:, order]).T))
+    return np.array(dirs), np.array(lam)

@@ -383,3 +383,37 @@ def simulate(net: NetworkObserver, roles, signal: SinusoidalInput, x0, e0, *, t_
     if not allow_nonfinite and not np.all(np.isfinite(u)):
         raise FloatingPointError("the simulation produced non-finite values")
     return Trajectory(t_rec, signal(t_rec), xs, es, gs, {k: np.stack(v) for k, v in reduced.items()})
+
+
+def compose_steps(Phi: np.ndarray, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """(Φᵏ, Σ_{j<k} Φʲ Q Φʲᵀ) by binary doubling: the k-step composition of u⁺ = Φu + κ, κ ~ N(0, Q)
+    (only positive semidefinite sums, O(log k) products)."""
+    D = len(Phi)
+    P_acc, Q_acc = np.eye(D), np.zeros_like(Q)
+    P_pow, Q_pow = Phi, Q                      # the 2^j-step composition
+    while k:
+        if k & 1:                              # append 2^j steps after the accumulated ones
+            Q_acc = P_pow @ Q_acc @ P_pow.T + Q_pow
+            P_acc = P_pow @ P_acc
+        k >>= 1
+        if k:
+            Q_pow = P_pow @ Q_pow @ P_pow.T + Q_pow
+            P_pow = P_pow @ P_pow
+    return P_acc, (Q_acc + Q_acc.T) / 2
+
+
+def recorded_error_covariance(net: NetworkObserver, prepared: Prepared, g, record_every: int, idx: np.ndarray,
+                              Z: np.ndarray) -> np.ndarray:
+    """The exact covariance of Zu (the errors) at the record indices `idx` (an arithmetic sequence from its step)
+    of `simulate` with fixed roles g from a known start: the recursion of `linear_gaussian_step`, composed over
+    the `record_every` steps of a record and over the stride between the indices (positive semidefinite sums
+    only)."""
+    Phi, Q = linear_gaussian_step(net, prepared, g)
+    with np.errstate(over="ignore", invalid="ignore"):
+        Phi, Q = compose_steps(Phi, Q, record_every)
+        Phi, Q = compose_steps(Phi, Q, int(idx[0]))
+        out, Sig = [], np.zeros_like(Q)
+        for _ in idx:
+            Sig = Phi @ Sig @ Phi.T + Q
+            out.append(Z @ Sig @ Z.T)
+    return np.array(out)

@@ -32,7 +32,6 @@ REFERENCE = {            # regression values of our reconstruction of the paper'
 }
 PE = "paper-example"
 LMI, FIX, INP, INT = hy.H_LMI, hy.H_FIXED, hy.H_INPUT, hy.H_INTEG
-__all__ = ["claims"]
 
 
 # -- helpers ----------------------------------------------------------------------------------
@@ -42,26 +41,11 @@ def lyapunov_values(res: Results, z: np.ndarray) -> np.ndarray:
 
 
 def error_derivative(res: Results, run: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """ż from the error system (26)/(33) along a run: (z, ż, |ż|-scale), all (T, N, q). The scale is
-    the sum of the magnitudes of the terms of each component (|Ā(g)||z| + α|H|(|L|⊗I)|z| + |φ|), the
-    size of the inputs the rounding of ż is proportional to."""
-    sc, G = res.scenario, gains(res.scenario)
-    r, z, n, alpha = res.runs[run], res.errors(run), sc.n, sc.coupling.alpha
-    Ab0, Ab1 = (np.stack([ce.error_matrix(sc.A, sc.B, G["C"][i], G["L"][i], G["J"][i], G["sigma"][i], G["K"][i], g)
-                          for i in range(sc.N)]) for g in (0.0, 1.0))
-    g = r["g"]
-    dA = Ab1 - Ab0
-    local = np.einsum("inm,tim->tin", Ab0, z) + g[..., None] * np.einsum("inm,tim->tin", dA, z)
-    H = np.linalg.inv(res.P)
-    coup = -alpha * np.einsum("ij,iab,tjb->tia", sc.lap, H, z)
-    phi = np.zeros_like(z)
-    wdot = res.signal().rate(r["t"])
-    phi[..., n:] = ce.input_forcing(G["K"], G["sigma"], r["w"], wdot)
-    az = np.abs(z)
-    scale = (np.einsum("inm,tim->tin", np.abs(Ab0), az) + g[..., None] * np.einsum("inm,tim->tin", np.abs(dA), az)
-             + alpha * np.einsum("ij,iab,tjb->tia", np.abs(sc.lap), np.abs(H), az))
-    scale[..., n:] -= ce.input_forcing(np.abs(G["K"]), G["sigma"], np.abs(r["w"]), np.abs(wdot))  # σ|K||w| + |ẇ|
-    return z, local + coup + phi, scale
+    """ż from the error system (26)/(33) along a run: (z, ż, |ż|-scale), all (T, N, q) (`ce.error_rate`)."""
+    sc, G, r, z = res.scenario, gains(res.scenario), res.runs[run], res.errors(run)
+    zdot, scale = ce.error_rate(sc.A, sc.B, G["C"], G["L"], G["J"], G["K"], G["sigma"], res.P, sc.lap,
+                                sc.coupling.alpha, z, r["g"], r["w"], res.signal().rate(r["t"]))
+    return z, zdot, scale
 
 
 def tail(res: Results, run: str) -> np.ndarray:
