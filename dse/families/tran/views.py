@@ -1,4 +1,4 @@
-"""The views of a coestimation run: figures (PNG) and the Rerun recording, drawn from the run's tables.
+"""The views of a coestimation run: figures (PNG) and the Rerun recording.
 
 Figures 2-11 of the paper (Fig. 2 reconstructed) for the paper's example, the same views with
 plain names and titles for users' scenarios, plus roles, bounds and Monte Carlo figures. One
@@ -6,20 +6,19 @@ recording `<scenario>.rrd` on timeline `t` (duration), on the shared recording s
 at fixed positions with each node's role g_i(t) as colour and size, the target and each node's
 estimate in the plane, states and inputs against truth, errors against the bounds, the stochastic
 Monte Carlo against (46) and the exact moments, the LMI results (and the scaffold's claims tab).
-Every number comes from the tables (`tables.py`); the scenario gives only the layout (graph,
-positions, names).
+Trajectories are the recorded runs the tables hold; bounds, moments and the LMI results are read
+from the tables.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from dse.contract.views import Outputs, View, recording
 from dse.outputs.figures import new_figure, plain_log_labels, save_figure, sequential_colors, set_margins
-from dse.simulate.stats import z_for_confidence
 from dse.outputs.tables import Tables
+from dse.simulate.stats import z_for_confidence
 
 from .runs import Results
 
@@ -51,120 +50,57 @@ FIGURES = {
 }
 
 
-def _figure(key: str, paper: bool) -> tuple[str, str]:
-    pf, pt, uf, ut = FIGURES[key]
-    return (pf, pt) if paper else (uf, ut)
-
-
-def state_labels(res: Results, paper: bool) -> list[str]:
-    n = res.scenario.n
-    return list(PAPER_STATE_LABELS) if paper and n == 4 else [f"x{k + 1}" for k in range(n)]
-
-
 def _node_colors(N: int):
     return sequential_colors(N, "tab20") if N <= 20 else sequential_colors(N, "viridis")
 
 
-# -- reading the tables -------------------------------------------------------------------------
-
-def _segments(frame: pd.DataFrame, column: str) -> dict[str, slice] | None:
-    """{value: its rows} of a table whose rows of each `column` value are contiguous (as the tables are
-    written); None when they are not."""
-    codes, labels = pd.factorize(frame[column], sort=False)
-    if not len(codes):
-        return {}
-    starts = np.r_[0, np.flatnonzero(np.diff(codes)) + 1]
-    stops = np.r_[starts[1:], len(codes)]
-    first = codes[starts]
-    if len(np.unique(first)) != len(first):
-        return None
-    return {str(labels[c]): slice(int(a), int(b)) for c, a, b in zip(first, starts, stops)}
+def _rgb(c) -> tuple[int, int, int]:
+    return tuple(int(255 * x) for x in c[:3])
 
 
-def _grid(frame: pd.DataFrame, keys: tuple[str, ...], value: str) -> tuple[np.ndarray, np.ndarray]:
-    """(t (T,), values (T, *sizes)) of a tidy frame with one row per (t, *keys), keys 0-based integers. Rows
-    in (t, *keys) order, as the tables are written, are reshaped directly; others are sorted first."""
-    def parts(f):
-        return f["t"].to_numpy(float), [f[k].to_numpy(dtype=np.int64) for k in keys]
-    t, ks = parts(frame)
-    sizes = tuple(int(k.max()) + 1 for k in ks)
-    per = int(np.prod(sizes))
-    T = len(t) // per
-    if T * per != len(t) or not _in_order(t, ks, sizes, T, per):
-        frame = frame.sort_values(["t", *keys])
-        t, ks = parts(frame)
-    return t[::per], frame[value].to_numpy(float).reshape((T, *sizes))
-
-
-def _in_order(t, ks, sizes, T: int, per: int) -> bool:
-    grid = np.indices(sizes).reshape(len(sizes), per)
-    tt = t.reshape(T, per)
-    return (all(np.array_equal(k.reshape(T, per), np.broadcast_to(g, (T, per))) for k, g in zip(ks, grid))
-            and bool(np.all(tt == tt[:, :1])) and bool(np.all(np.diff(tt[:, 0]) > 0)))
-
-
-class RunView:
-    """The trajectories of the tables as arrays, per run, each table split once: figures and the recording
-    read the same runs many times (a boolean mask over the 1.6 million rows of `estimates` costs as much as
-    splitting it). Built before the figure workers fork, so that they share it."""
-
-    def __init__(self, res: Results, tables: Tables):
-        self.res, self.tables = res, tables
-        self._split = {name: _segments(tables[name], "run") for name in ("estimates", "truth", "roles")}
-        self._runs: dict[str, dict | None] = {}
-
-    def _rows(self, name: str, run: str) -> pd.DataFrame:
-        frame, parts = self.tables[name], self._split[name]
-        if parts is None:
-            return frame[frame["run"] == run]
-        return frame.iloc[parts[run]] if run in parts else frame.iloc[:0]
-
-    def run(self, run: str) -> dict[str, np.ndarray] | None:
-        """A run's samples: t (T,), x (T, n), w (T, p), e (T, N, q), g (T, N); None if absent. Noise-free runs
-        share the truth ("deterministic") and the roles of the scenario's run ("coest"); the fixed run has the
-        scenario's fixed roles."""
-        if run not in self._runs:
-            self._runs[run] = self._read(run)
-        return self._runs[run]
-
-    def _read(self, run: str) -> dict[str, np.ndarray] | None:
-        est = self._rows("estimates", run)
-        if est.empty:
-            return None
-        sc = self.res.scenario
-        stochastic = run.startswith("stochastic")
-        t, e = _grid(est, ("node", "component"), "value")
-        xw = _grid(self._rows("truth", run if stochastic else "deterministic"), ("component",), "value")[1]
-        if run == "fixed":
-            g = np.broadcast_to(np.asarray(sc.fixed_roles.active, float), e.shape[:2])
-        else:
-            g = _grid(self._rows("roles", run if stochastic else "coest"), ("node",), "g")[1]
-        return {"t": t, "x": xw[:, :sc.n], "w": xw[:, sc.n:], "e": e, "g": g}
-
-    def stochastic_runs(self) -> list[dict]:
-        runs, k = [], 0
-        while (r := self.run(f"stochastic_{k}")) is not None:
-            runs.append(r)
-            k += 1
-        return runs
-
-
-    def errors(self, run: str) -> tuple[pd.DataFrame, dict[str, np.ndarray]]:
-        """The `errors` rows of a run: the network's (by time) and, per node, norm_x and norm_w as (T, N)."""
-        if "errors" not in self._split:
-            self._split["errors"] = _segments(self.tables["errors"], "run")
-        rows = self._rows("errors", run)
-        net = rows["node"].isna().to_numpy()
-        whole = rows[net]
-        if not np.all(np.diff(whole["t"].to_numpy(float)) > 0):
-            whole = whole.sort_values("t")
-        per = rows[~net]
-        return whole, {c: _grid(per, ("node",), c)[1] for c in ("norm_x", "norm_w")}
+def _ns(t) -> np.ndarray:
+    """Times (s) as integer nanoseconds (the recording's duration index)."""
+    return np.round(np.asarray(t) * 1e9).astype(np.int64)
 
 
 def bound_values(tables: Tables) -> dict[tuple[str, str], float]:
     b = tables["bounds"]
     return {(q, v): float(x) for q, v, x in zip(b["quantity"], b["variant"], b["value"])}
+
+
+class Drawing:
+    """What the figures and the recording of one run share: its recorded runs (t, x, w, e, g), their error
+    norms, the tables, the layout (positions, colours, state labels) and the paper's names or plain ones."""
+
+    def __init__(self, res: Results, tables: Tables, paper: bool):
+        self.res, self.tables, self.paper, self.sc = res, tables, paper, res.scenario
+        n = self.sc.n
+        self.labels = list(PAPER_STATE_LABELS) if paper and n == 4 else [f"x{k + 1}" for k in range(n)]
+        self.cols = _node_colors(self.sc.N)
+
+    def run(self, name: str) -> dict[str, np.ndarray] | None:
+        """A noise-free run (coest, fixed, comparison) or stored stochastic trial `stochastic_<k>`."""
+        if not name.startswith("stochastic"):
+            return self.res.runs.get(name)
+        s, k = self.res.runs["sde_roles"], int(name.split("_")[1])
+        return {"t": s["t"], "x": s["kept_x"][k], "w": s["w"], "e": s["kept_e"][k], "g": s["kept_g"][k]} \
+            if k < len(s["kept_x"]) else None
+
+    def stochastic_runs(self) -> list[dict]:
+        return [self.run(f"stochastic_{k}") for k in range(len(self.res.runs["sde_roles"]["kept_x"]))]
+
+    def errors(self, name: str) -> dict[str, np.ndarray]:
+        """Per node ‖x̃_i‖, ‖w̃_i‖ (T, N); the network's mean of each, ‖z‖ and V = zᵀPz (T,) (the `errors` table)."""
+        z, n = self.res.errors(name), self.sc.n
+        nx, nw = np.linalg.norm(z[..., :n], axis=-1), np.linalg.norm(z[..., n:], axis=-1)
+        return {"norm_x": nx, "norm_w": nw, "net_x": nx.mean(1), "net_w": nw.mean(1),
+                "norm_z": np.linalg.norm(z.reshape(len(z), -1), axis=1),
+                "V": np.einsum("tni,nij,tnj->tn", z, self.res.P, z).sum(1)}
+
+    def where(self, key: str) -> tuple[str, str]:
+        """(file under figures/, title) of a figure."""
+        pf, pt, uf, ut = FIGURES[key]
+        return (pf, pt) if self.paper else (uf, ut)
 
 
 # -- figures ----------------------------------------------------------------------------------
@@ -186,102 +122,69 @@ def _legend_below(fig, ax, fontsize: float = 6, max_columns: int = 13) -> float:
     return 0.6 + rows * 1.5 * fontsize / 72
 
 
-def _states_figure(res: Results, run: dict, title: str, path: Path, labels: list[str], states=None, band=None) -> None:
-    sc = res.scenario
-    states = list(range(sc.n)) if states is None else states
-    cols = _node_colors(sc.N)
-    ncols = 2 if len(states) > 1 else 1
-    nrows = int(np.ceil(len(states) / ncols))
-    fig, axes = new_figure(ncols=ncols, nrows=nrows, width=5.2, height=3.2)
-    for a, k in enumerate(states):
+def _series_figure(dr: Drawing, run: dict, title: str, path: Path, components: list[int], band=None) -> None:
+    """Each node's estimate of the given components of (x, w) against the truth (dashed), optionally with the
+    min/max envelope of the true state over the stored stochastic runs."""
+    sc, n = dr.sc, dr.sc.n
+    ncols = 2 if len(components) > 1 and components[0] < n else max(1, len(components))
+    fig, axes = new_figure(ncols=ncols, nrows=int(np.ceil(len(components) / ncols)), width=5.2,
+                           height=3.2 if components[0] < n else 3.4)
+    for a, k in enumerate(components):
         ax = axes.flat[a]
         if band is not None:
             ax.fill_between(run["t"], band[0][:, k], band[1][:, k], color="tab:orange", alpha=0.45, lw=0.6,
                             edgecolor="tab:orange", zorder=5, label=f"true state, min/max over {band[2]} runs")
         for i in range(sc.N):
-            ax.plot(run["t"], run["e"][:, i, k], color=cols[i], lw=0.8, label=f"node {i + 1}" if a == 0 else None)
-        ax.plot(run["t"], run["x"][:, k], "k--", lw=1.4, label="true" if a == 0 else None)
+            ax.plot(run["t"], run["e"][:, i, k], color=dr.cols[i], lw=0.8, label=f"node {i + 1}" if a == 0 else None)
+        ax.plot(run["t"], run["x"][:, k] if k < n else run["w"][:, k - n], "k--", lw=1.4, label="true" if a == 0 else None)
         ax.set_xlabel("t (s)")
-        ax.set_ylabel(labels[k])
-    for ax in axes.flat[len(states):]:
+        ax.set_ylabel(dr.labels[k] if k < n else f"w{k - n + 1}")
+    for ax in axes.flat[len(components):]:
         ax.set_visible(False)
     fig.suptitle(title, fontsize=9)
     _save(fig, path, top=0.45, bottom=_legend_below(fig, axes.flat[0]))
 
 
-def _inputs_figure(res: Results, run: dict, title: str, path: Path) -> None:
-    sc = res.scenario
-    cols = _node_colors(sc.N)
-    fig, axes = new_figure(ncols=sc.p, width=5.2, height=3.4)
-    for k in range(sc.p):
-        ax = axes[0, k]
-        for i in range(sc.N):
-            ax.plot(run["t"], run["e"][:, i, sc.n + k], color=cols[i], lw=0.8, label=f"node {i + 1}" if k == 0 else None)
-        ax.plot(run["t"], run["w"][:, k], "k--", lw=1.4, label="true" if k == 0 else None)
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel(f"w{k + 1}")
-    fig.suptitle(title, fontsize=9)
-    _save(fig, path, top=0.45, bottom=_legend_below(fig, axes[0, 0]))
-
-
-def _plane_figure(res: Results, run: dict, title: str, path: Path, labels: list[str]) -> None:
-    sc = res.scenario
-    a, b = sc.roles.position_states
-    cols = _node_colors(sc.N)
-    fig, axes = new_figure(width=6.4, height=5.4)
-    ax = axes[0, 0]
-    _draw_network(ax, res, run["g"])
-    for i in range(sc.N):
-        ax.plot(run["e"][:, i, a], run["e"][:, i, b], color=cols[i], lw=0.8)
-    ax.plot(run["x"][:, a], run["x"][:, b], "k--", lw=1.6, label="true trajectory")
-    ax.set_xlabel(labels[a])
-    ax.set_ylabel(labels[b])
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.legend(fontsize=7, loc="lower left")
-    ax.set_title(title, fontsize=9)
-    _save(fig, path)
-
-
-def _draw_network(ax, res: Results, g: np.ndarray | None = None, tag_active: bool = True) -> None:
+def _network_figure(dr: Drawing, run: dict, title: str, path: Path, graph: bool) -> None:
+    """The nodes in the plane (marker size and opacity: the fraction of time active; sensing discs with proximity
+    roles) and the target's path; `graph`: Fig. 2's layout, else each node's position estimate (Figs. 5, 8)."""
     import matplotlib.patches as mpatches
 
-    sc = res.scenario
-    pos = sc.nodes.positions
+    sc, g = dr.sc, run["g"]
+    pos, (a, b) = sc.nodes.positions, sc.roles.position_states
+    fig, axes = new_figure(width=6.4, height=5.4)
+    ax = axes[0, 0]
     for u, v in sc.network.build().edges():
         ax.plot(pos[[u, v], 0], pos[[u, v], 1], color="0.75", lw=0.8, zorder=1)
-    active_frac = g.mean(0) if g is not None else np.zeros(sc.N)
+    active_frac = g.mean(0)
     for i in range(sc.N):
         if sc.roles.mode == "proximity":
             ax.add_patch(mpatches.Circle(pos[i], sc.roles.radius, fill=False, color="0.85", lw=0.5, zorder=0))
-        marker = "o" if sc.type_of[i] == 0 else "s"
-        ax.scatter(*pos[i], s=60 + 200 * active_frac[i], marker=marker, c=[[0.85, 0.2, 0.1, 0.3 + 0.7 * active_frac[i]]],
-                   edgecolors="k", zorder=3)
-        tag = " AN" if tag_active and g is not None and np.any(g[:, i] > 0.5) else ""
+        ax.scatter(*pos[i], s=60 + 200 * active_frac[i], marker="o" if sc.type_of[i] == 0 else "s",
+                   c=[[0.85, 0.2, 0.1, 0.3 + 0.7 * active_frac[i]]], edgecolors="k", zorder=3)
+        tag = " AN" if not graph and np.any(g[:, i] > 0.5) else ""
         ax.annotate(f"{i + 1}{tag}", pos[i], xytext=(5, 5), textcoords="offset points", fontsize=7)
-
-
-def _graph_figure(res: Results, run: dict, path: Path, title: str, labels: list[str]) -> None:
-    sc = res.scenario
-    fig, axes = new_figure(width=6.4, height=5.4)
-    ax = axes[0, 0]
-    _draw_network(ax, res, run["g"], tag_active=False)
-    a, b = sc.roles.position_states
-    ax.plot(run["x"][:, a], run["x"][:, b], "k--", lw=1, label="target path (deterministic run)")
+        if not graph:
+            ax.plot(run["e"][:, i, a], run["e"][:, i, b], color=dr.cols[i], lw=0.8)
+    ax.plot(run["x"][:, a], run["x"][:, b], "k--", lw=1 if graph else 1.6,
+            label="target path (deterministic run)" if graph else "true trajectory")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel(labels[a])
-    ax.set_ylabel(labels[b])
-    ax.set_title(f"{title}\nmarker size and opacity = fraction of time active in the deterministic run\n"
-                 f"circles = {sc.types[0].name}, squares = other types", fontsize=8)
+    ax.set_xlabel(dr.labels[a])
+    ax.set_ylabel(dr.labels[b])
     ax.legend(fontsize=7, loc="lower left")
-    _save(fig, path, top=0.65)
+    if graph:
+        ax.set_title(f"{title}\nmarker size and opacity = fraction of time active in the deterministic run\n"
+                     f"circles = {sc.types[0].name}, squares = other types", fontsize=8)
+    else:
+        ax.set_title(title, fontsize=9)
+    _save(fig, path, **({"top": 0.65} if graph else {}))
 
 
-def _roles_figure(res: Results, run: dict, path: Path) -> None:
-    sc = res.scenario
-    cols = _node_colors(sc.N)
+def _roles_figure(dr: Drawing, path: Path) -> None:
+    run = dr.run("coest")
     fig, axes = new_figure(nrows=2, width=9, height=2.6)
-    for i in range(sc.N):
-        axes[0, 0].plot(run["t"], run["g"][:, i], color=cols[i], lw=1, label=f"node {i + 1}")
+    for i in range(dr.sc.N):
+        axes[0, 0].plot(run["t"], run["g"][:, i], color=dr.cols[i], lw=1, label=f"node {i + 1}")
     axes[0, 0].set_ylabel("g_i(t)")
     axes[1, 0].plot(run["t"], (run["g"] > 0.5).sum(1), "k-")
     axes[1, 0].set_ylabel("# active (g > 1/2)")
@@ -289,16 +192,15 @@ def _roles_figure(res: Results, run: dict, path: Path) -> None:
     _save(fig, path, hspace=0.55, top=0.2, bottom=_legend_below(fig, axes[0, 0], max_columns=14))
 
 
-def _bounds_figure(view: RunView, path: Path) -> None:
-    b = bound_values(view.tables)
+def _bounds_figure(dr: Drawing, path: Path) -> None:
+    b = bound_values(dr.tables)
     fig, axes = new_figure(ncols=2, width=5.4, height=4)
     for ax, run, label, bounds in (
             (axes[0, 0], "coest", "time-varying roles",
              [("(18), single ε", b[("bound18", "single")]), ("(18), per-node ε_i", b[("bound18", "pernode")]),
               ("(18), certified ε_i", b[("bound18", "certified")]), ("(18), vertex q*", b[("bound18", "qstar")])]),
             (axes[0, 1], "fixed", "fixed roles (Thm 2.1)", [("(18), Q̄ = Q + 2αL⊗I", b[("bound18", "fixed")])])):
-        e = view.errors(run)[0]
-        ax.semilogy(e["t"], e["norm_z"], "k-", label="‖z(t)‖")
+        ax.semilogy(dr.run(run)["t"], dr.errors(run)["norm_z"], "k-", label="‖z(t)‖")
         for (name, val), col in zip(bounds, sequential_colors(len(bounds), "plasma")):
             if np.isfinite(val):
                 ax.axhline(val, color=col, ls="--", label=f"{name} = {val:.3g}")
@@ -327,43 +229,39 @@ def _mc_figure(tables: Tables, path: Path) -> None:
     _save(fig, path, left=0.8)
 
 
-def figure_views(view: RunView, paper: bool) -> list[View]:
+def figure_views(dr: Drawing) -> list[View]:
     """One view per figure (the paper's figure names and titles in its reproduction, plain ones otherwise)."""
-    res, sc = view.res, view.res.scenario
-    labels = state_labels(res, paper)
+    sc = dr.sc
+    states, inputs = list(range(sc.n)), list(range(sc.n, sc.q))
 
     def fig(key, draw):
-        name, title = _figure(key, paper)
+        name, title = dr.where(key)
         return View(f"figures/{name}.png", lambda path: draw(title, path))
 
-    co, cp, runs = view.run("coest"), view.run("comparison"), view.stochastic_runs()
-    out = [fig("graph", lambda title, path: _graph_figure(res, co, path, title, labels)),
-           fig("states", lambda title, path: _states_figure(res, co, title, path, labels)),
-           fig("inputs", lambda title, path: _inputs_figure(res, co, title, path)),
-           fig("plane", lambda title, path: _plane_figure(res, co, title, path, labels)),
-           View("figures/roles.png", lambda path: _roles_figure(res, co, path)),
-           View("figures/bounds.png", lambda path: _bounds_figure(view, path)),
-           View("figures/mean_square.png", lambda path: _mc_figure(view.tables, path))]
+    co, cp, runs = dr.run("coest"), dr.run("comparison"), dr.stochastic_runs()
+    out = [fig("graph", lambda title, path: _network_figure(dr, co, title, path, graph=True)),
+           fig("states", lambda title, path: _series_figure(dr, co, title, path, states)),
+           fig("inputs", lambda title, path: _series_figure(dr, co, title, path, inputs)),
+           fig("plane", lambda title, path: _network_figure(dr, co, title, path, graph=False)),
+           View("figures/roles.png", lambda path: _roles_figure(dr, path)),
+           View("figures/bounds.png", lambda path: _bounds_figure(dr, path)),
+           View("figures/mean_square.png", lambda path: _mc_figure(dr.tables, path))]
     if cp is not None:
-        out += [fig("comp_states", lambda title, path: _states_figure(res, cp, title, path, labels)),
-                fig("comp_inputs", lambda title, path: _inputs_figure(res, cp, title, path)),
-                fig("comp_plane", lambda title, path: _plane_figure(res, cp, title, path, labels))]
+        out += [fig("comp_states", lambda title, path: _series_figure(dr, cp, title, path, states)),
+                fig("comp_inputs", lambda title, path: _series_figure(dr, cp, title, path, inputs)),
+                fig("comp_plane", lambda title, path: _network_figure(dr, cp, title, path, graph=False))]
     if runs:
         xs = np.stack([r["x"] for r in runs])
         band = (xs.min(0), xs.max(0), len(runs))
-        a, b = sc.roles.position_states
-        others = [k for k in range(sc.n) if k not in (a, b)] or [a]
-        out += [fig("sde_pos", lambda title, path: _states_figure(res, runs[0], title, path, labels, [a, b], band)),
-                fig("sde_other", lambda title, path: _states_figure(res, runs[0], title, path, labels, others, band)),
-                fig("sde_inputs", lambda title, path: _inputs_figure(res, runs[0], title, path))]
+        plane = list(sc.roles.position_states)
+        others = [k for k in states if k not in plane] or plane[:1]
+        out += [fig("sde_pos", lambda title, path: _series_figure(dr, runs[0], title, path, plane, band)),
+                fig("sde_other", lambda title, path: _series_figure(dr, runs[0], title, path, others, band)),
+                fig("sde_inputs", lambda title, path: _series_figure(dr, runs[0], title, path, inputs))]
     return out
 
 
 # -- recording --------------------------------------------------------------------------------
-
-def _rgb(c) -> tuple[int, int, int]:
-    return tuple(int(255 * x) for x in c[:3])
-
 
 def lmi_markdown(tables: Tables) -> str:
     nt, b = tables["node_types"], bound_values(tables)
@@ -401,11 +299,12 @@ def lmi_markdown(tables: Tables) -> str:
     return "\n".join(lines)
 
 
-def _tabs(n: int, p: int, labels: list[str], paper: bool) -> list:
+def _tabs(dr: Drawing) -> list:
     """The recording's own tabs (the scaffold adds the claims)."""
     import rerun.blueprint as rrb
 
-    figs_est, figs_comp = (" (Figs. 3-4)", " (Figs. 6-7)") if paper else ("", "")
+    n, p, labels = dr.sc.n, dr.sc.p, dr.labels
+    figs_est, figs_comp = (" (Figs. 3-4)", " (Figs. 6-7)") if dr.paper else ("", "")
     return [
         rrb.Horizontal(rrb.Vertical(rrb.GraphView(origin="/graph", name="graph: node size/colour = role g_i(t)"),
                                     rrb.TimeSeriesView(origin="/roles", name="roles g_i(t)"), row_shares=[3, 2]),
@@ -424,20 +323,15 @@ def _tabs(n: int, p: int, labels: list[str], paper: bool) -> list:
         rrb.TextDocumentView(origin="/lmi", name="LMI results")]
 
 
-def _ns(t) -> np.ndarray:
-    """Times (s) as integer nanoseconds (the recording's duration index)."""
-    return np.round(np.asarray(t) * 1e9).astype(np.int64)
-
-
-def _log_network(rec, view: RunView) -> None:
+def _log_network(rec, dr: Drawing) -> None:
     """The graph with each node's role g_i(t) as colour and size, the target and the estimates in the plane."""
     import rerun as rr
 
     from dse.outputs import record
 
-    sc, co = view.res.scenario, view.run("coest")
+    sc, co = dr.sc, dr.run("coest")
     N, (a, b), pos = sc.N, sc.roles.position_states, sc.nodes.positions
-    cols = [_rgb(c) for c in _node_colors(N)]
+    cols = [_rgb(c) for c in dr.cols]
     stride = max(1, int(round(FRAME_DT / sc.simulation.record_dt)), -(-len(co["t"]) // MAX_FRAMES))
     frames = np.arange(0, len(co["t"]), stride)
     rec.log("graph", rr.GraphEdges([(str(u), str(v)) for u, v in sc.network.build().edges()],
@@ -471,35 +365,36 @@ def _log_network(rec, view: RunView) -> None:
     record.send_series(rec, "roles/n_active", idx, (co["g"] > 0.5).sum(1), names="# active", colors=[(0, 0, 0)], width=2)
 
 
-def _log_estimates(rec, view: RunView) -> None:
+def _log_estimates(rec, dr: Drawing) -> None:
     """Truth and per-node estimates (by state, and by node), the comparison architecture's and the central KF's."""
     from dse.outputs import record
 
-    sc, co, cp = view.res.scenario, view.run("coest"), view.run("comparison")
+    sc, co, cp = dr.sc, dr.run("coest"), dr.run("comparison")
     n, p, N = sc.n, sc.p, sc.N
     idx = record.duration_index("t", _ns(co["t"]))
-    cols, names, black = [_rgb(c) for c in _node_colors(N)], [f"node {i + 1}" for i in range(N)], [(0, 0, 0)]
+    cols, names, black = [_rgb(c) for c in dr.cols], [f"node {i + 1}" for i in range(N)], [(0, 0, 0)]
     for k, (path, series, truth) in enumerate([(f"x{k + 1}", co["e"][:, :, k], co["x"][:, k]) for k in range(n)] +
                                               [(f"w{k + 1}", co["e"][:, :, n + k], co["w"][:, k]) for k in range(p)]):
         record.send_series(rec, f"states/{path}/nodes", idx, series, names=names, colors=cols, width=1)
         record.send_series(rec, f"states/{path}/truth", idx, truth, names="true", colors=black, width=2.5)
         record.send_series(rec, f"truth/{path}", idx, truth, names=path, colors=black)
-    net, per_node = view.errors("coest")
+    err = dr.errors("coest")
     for i in range(N):
         record.send_series(rec, f"nodes/{i}/estimate", idx, co["e"][:, i],
                            names=[f"x̂{k + 1}" for k in range(n)] + [f"ŵ{k + 1}" for k in range(p)])
-        record.send_series(rec, f"nodes/{i}/error", idx, np.c_[per_node["norm_x"][:, i], per_node["norm_w"][:, i]],
+        record.send_series(rec, f"nodes/{i}/error", idx, np.c_[err["norm_x"][:, i], err["norm_w"][:, i]],
                            names=["‖x̃_i‖", "‖w̃_i‖"])
     if cp is not None:
         for k in range(n):
             record.send_series(rec, f"comparison/x{k + 1}/nodes", idx, cp["e"][:, :, k], names=names, colors=cols, width=1)
             record.send_series(rec, f"comparison/x{k + 1}/truth", idx, cp["x"][:, k], names="true", colors=black,
                                width=2.5)
-        record.send_series(rec, "errors/comparison", idx, view.errors("comparison")[0][["norm_x", "norm_w"]].to_numpy(),
+        ec = dr.errors("comparison")
+        record.send_series(rec, "errors/comparison", idx, np.c_[ec["net_x"], ec["net_w"]],
                            names=["comparison mean ‖x̃‖", "comparison mean ‖w̃‖"], colors=[(214, 39, 40), (255, 152, 150)])
-    record.send_series(rec, "errors/coestimation", idx, net[["norm_x", "norm_w"]].to_numpy(),
+    record.send_series(rec, "errors/coestimation", idx, np.c_[err["net_x"], err["net_w"]],
                        names=["coestimation mean ‖x̃‖", "coestimation mean ‖w̃‖"], colors=[(31, 119, 180), (174, 199, 232)])
-    c = view.tables["central"]
+    c = dr.tables["central"]
     c = c[c["run"] == "deterministic"].sort_values(["t", "component"])
     kt = np.unique(c["t"].to_numpy())
     kidx = record.duration_index("t", _ns(kt))
@@ -511,23 +406,23 @@ def _log_estimates(rec, view: RunView) -> None:
                        names=["central KF ‖x̃‖", "central KF ‖w̃‖"], colors=[(0, 0, 0), (127, 127, 127)])
 
 
-def _log_bounds(rec, view: RunView) -> None:
+def _log_bounds(rec, dr: Drawing) -> None:
     """‖z(t)‖ against the variants of (18); the Monte Carlo E{V} against (46) and the exact moments; the LMIs."""
     from dse.outputs import record
 
-    bv, net = bound_values(view.tables), view.errors("coest")[0]
-    idx = record.duration_index("t", _ns(view.run("coest")["t"]))
-    nz = net["norm_z"].to_numpy()
+    bv, err = bound_values(dr.tables), dr.errors("coest")
+    idx = record.duration_index("t", _ns(dr.run("coest")["t"]))
+    nz = err["norm_z"]
     record.send_series(rec, "bounds/roles/norm_z", idx, nz, names="‖z(t)‖", colors=[(0, 0, 0)], width=2)
     for name in ("single", "pernode", "certified", "qstar"):
         if np.isfinite(bv[("bound18", name)]):
             record.send_series(rec, f"bounds/roles/bound18_{name}", idx, np.full(len(nz), bv[("bound18", name)]),
                                names=f"(18) {name}")
-    nzf = view.errors("fixed")[0]["norm_z"].to_numpy()
+    nzf = dr.errors("fixed")["norm_z"]
     record.send_series(rec, "bounds/fixed/norm_z", idx, nzf, names="‖z(t)‖", colors=[(0, 0, 0)], width=2)
     record.send_series(rec, "bounds/fixed/bound18", idx, np.full(len(nzf), bv[("bound18", "fixed")]), names="(18)")
-    record.send_series(rec, "bounds/roles/V", idx, net["V"].to_numpy(), names="V = zᵀPz", colors=[(44, 160, 44)])
-    mc, zc95 = view.tables["mc_series"], z_for_confidence(0.95)
+    record.send_series(rec, "bounds/roles/V", idx, err["V"], names="V = zᵀPz", colors=[(44, 160, 44)])
+    mc, zc95 = dr.tables["mc_series"], z_for_confidence(0.95)
     for run in ("sde_fixed", "sde_roles"):
         r = mc[mc["run"] == run].sort_values("t")
         sidx = record.duration_index("t", _ns(r["t"].to_numpy()))
@@ -538,32 +433,21 @@ def _log_bounds(rec, view: RunView) -> None:
         if run == "sde_fixed":
             record.send_series(rec, "mc/sde_fixed/exact", sidx, r["exact_EV"].to_numpy(),
                                names="fixed roles: exact E{V}", colors=[(0, 0, 0)])
-    record.log_markdown(rec, "lmi", lmi_markdown(view.tables))
-
-
-def _recording(out: Outputs, view: RunView, path: Path, paper: bool) -> None:
-    sc = view.res.scenario
-    labels = state_labels(view.res, paper)
-
-    def log(rec):
-        _log_network(rec, view)
-        _log_estimates(rec, view)
-        _log_bounds(rec, view)
-
-    recording(path, out, recording_id=f"tran-{sc.name}-seed{out.seed}", application_id="dse-tran", timeline="t",
-              tabs=lambda: _tabs(sc.n, sc.p, labels, paper), log=log,
-              properties={"alpha": sc.coupling.alpha, "beta": sc.roles.beta, "radius": sc.roles.radius, "N": sc.N,
-                          "P_mode": sc.coupling.P})
+    record.log_markdown(rec, "lmi", lmi_markdown(dr.tables))
 
 
 def views(out: Outputs) -> list[View]:
-    """The figures and the recording, drawn (in forked workers) from one view of the tables, split before the
-    workers fork."""
-    res, paper = out.results, out.reproduction.is_paper
-    view = RunView(res, out.tables)
-    view.stochastic_runs()
-    for run in ("coest", "comparison", "fixed"):
-        if view.run(run) is not None:
-            view.errors(run)
-    name = res.scenario.name
-    return [View(f"{name}.rrd", lambda path: _recording(out, view, path, paper))] + figure_views(view, paper)
+    """The recording and the figures (drawn in forked workers)."""
+    dr = Drawing(out.results, out.tables, out.reproduction.is_paper)
+    sc = dr.sc
+
+    def draw_recording(path: Path) -> None:
+        def log(rec):
+            _log_network(rec, dr)
+            _log_estimates(rec, dr)
+            _log_bounds(rec, dr)
+        recording(path, out, recording_id=f"tran-{sc.name}-seed{out.seed}", application_id="dse-tran", timeline="t",
+                  tabs=lambda: _tabs(dr), log=log, properties={"alpha": sc.coupling.alpha, "beta": sc.roles.beta,
+                                                              "radius": sc.roles.radius, "N": sc.N, "P_mode": sc.coupling.P})
+
+    return [View(f"{sc.name}.rrd", draw_recording)] + figure_views(dr)
