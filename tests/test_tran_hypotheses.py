@@ -6,11 +6,13 @@ import numpy as np
 import pytest
 
 import dse.families as reproductions
-from dse.estimators.sinusoid_sup import input_sup_bounds
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
 from dse.engine.cache import StageCache
-from dse.engine.driver import RunOptions, evaluate_claims
-from dse.families.tran import generators
-from dse.families.tran.claims import _one_sided_upper
+from dse.engine.driver import evaluate_claims
+from dse.estimators.sinusoid_sup import input_sup_bounds
+from dse.families.tran import generator as generators
+from dse.families.tran.claims import one_sided_upper as _one_sided_upper
 
 
 def _sampled(o, a, f, ph, t):
@@ -66,14 +68,14 @@ def test_generator_is_deterministic_and_valid():
     for k, edge in enumerate((None,) + generators.EDGES):
         a, b = generators.generate(k, edge), generators.generate(k, edge)
         assert a == b and a["family"] == "coestimation"
-        reproductions.family_from_dict(a)   # passes the family's validation
+        reproductions.from_dict(a)   # passes the family's validation
     with pytest.raises(ValueError):
         generators.generate(0, "no-such-edge")
 
 
 def _evaluate(seed, edge, tmp_path):
-    repro = reproductions.family_from_dict(generators.generate(seed, edge))
-    res = repro.compute(RunOptions(seed=seed, quick=True, workers=1), StageCache(tmp_path / "cache"))
+    repro = reproductions.from_dict(generators.generate(seed, edge))
+    res = repro.compute(RunOptions(seed=seed, quick=True, workers=1), StageContext(StageCache(tmp_path / "cache")))
     ev = evaluate_claims(repro, res)
     return {h["id"]: h for h in ev.hypotheses}, {c["id"]: c for c in ev.claims}
 

@@ -20,12 +20,16 @@ from scipy.linalg import expm, solve_continuous_are, solve_continuous_lyapunov
 import dse.estimators.input_state_coestimation as ce
 import dse.families as reproductions
 from dse import api
-from dse.scenario.declare import reference_rows
+from dse.contract.cost import refuse_if_too_large
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
+from dse.engine.cache import MemoryCache
 from dse.errors import ScenarioError
-from dse.engine.driver import RunOptions
 from dse.families.tran import claims as tran_claims
-from dse.families.tran import compute, cost, design, hypotheses
-from dse.families.tran.reproduction import SCENARIO_MODEL
+from dse.families.tran import cost, design, hypotheses, law, runs
+from dse.families.tran.runs import mc_moments
+from dse.families.tran.scenario import CoestimationFile as SCENARIO_MODEL
+from dse.scenario.declare import reference_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "dse" / "families" / "tran" / "paper.toml"
@@ -81,8 +85,8 @@ def test_the_paper_file_comments_every_key():
         if re.match(r"^\s*[A-Za-z_][\w.]*\s*=", line):
             assert "#" in line, f"paper.toml: no comment on {line.strip()!r}"
     data = tomllib.loads(PAPER.read_text())
-    sc = reproductions.family_from_dict(data).scenario
-    assert sc.record_dt == 0.01 and sc.kf_dt == 0.01 and sc.sde_step == sc.step   # the defaults the file relies on
+    sc = reproductions.from_dict(data).scenario
+    assert sc.simulation.record_dt == 0.01 and sc.reference.dt == 0.01 and sc.stochastic.step == sc.simulation.step
 
 
 @pytest.mark.parametrize("change, field, words", [
@@ -107,13 +111,13 @@ def test_the_paper_file_comments_every_key():
 ])
 def test_invalid_input_names_its_field(change, field, words):
     with pytest.raises(ScenarioError) as err:
-        reproductions.family_from_dict(with_(SMALL, **change))
+        reproductions.from_dict(with_(SMALL, **change))
     assert err.value.field == field and words in err.value.reason, str(err.value)
 
 
 def test_disconnected_graph_is_accepted_and_reported():
     data = with_(SMALL, graph={"kind": "edges", "n": 4, "edges": [[0, 1], [2, 3]]})
-    repro = reproductions.family_from_dict(data)
+    repro = reproductions.from_dict(data)
     check = api.check(repro, quick=True)
     hyp = {h["id"]: h for h in check.hypotheses}
     assert hyp["tran.hyp.graph_connected"]["holds"] is False and hyp["tran.hyp.graph_undirected"]["holds"] is True
@@ -133,7 +137,7 @@ def small_run(tmp_path_factory):
 def test_design_is_the_runs_design_and_hypotheses_are_decided_on_it(small_run):
     run, _ = small_run
     repro = run.reproduction
-    d = repro.scenarios[0].legacy.design(RunOptions(quick=True, seed=2))
+    d = repro.design(RunOptions(quick=True, seed=2), StageContext(MemoryCache()))
     same = run.computed.design
     for part in ("arrays", "law"):
         a, b = getattr(d, part), getattr(same, part)
@@ -158,8 +162,8 @@ def test_lyapunov_P_uses_the_scenarios_Q(small_run):
     run, _ = small_run
     sc, d = run.results.scenario, run.results.design
     for i in range(sc.N):
-        ty = sc.types[sc.node_type[i]]
-        Ab = ce.error_matrix(sc.A, sc.B, ty.C, ty.L, ty.J, ty.sigma, ty.K, sc.roles_active[i])
+        ty = sc.types[sc.type_of[i]]
+        Ab = ce.error_matrix(sc.A, sc.B, ty.C, ty.L, ty.J, ty.sigma, ty.K, sc.roles.active[i])
         P = d.P[i]
         np.testing.assert_allclose(Ab.T @ P + P @ Ab + ty.Q, 0.0, atol=1e-12 * np.abs(P).max() * np.abs(Ab).max())
     assert d["fixed_Qi_min"][0] == pytest.approx(np.linalg.eigvalsh(sc.types[0].Q)[0], rel=1e-9)
@@ -186,8 +190,8 @@ def _stacked_G(sc, law) -> np.ndarray:
     G = np.zeros((sc.N * q, 1 + sc.N))
     G[:, 0] = np.tile(np.r_[law["v"], np.zeros(sc.p)], sc.N)
     for i in range(sc.N):
-        ty = sc.types[sc.node_type[i]]
-        G[i * q:(i + 1) * q, 1 + i] = sc.fixed_active[i] * np.r_[-ty.L @ law["h"][i], ty.J @ law["h"][i]]
+        ty = sc.types[sc.type_of[i]]
+        G[i * q:(i + 1) * q, 1 + i] = sc.fixed_roles.active[i] * np.r_[-ty.L @ law["h"][i], ty.J @ law["h"][i]]
     return G
 
 
@@ -200,7 +204,8 @@ def test_nodes_table_equals_the_independent_computations(small_run):
     sc, d, law = res.scenario, res.design, res.design.law
     n, q, T = sc.n, sc.q, float(law["t_sde"])
     G = [sc.per_node(k) for k in ("C", "L", "J", "K", "sigma")]
-    S = ce.stacked_error_matrix(sc.A, sc.B, *G[:3], G[3], G[4], d.P, sc.lap, sc.alpha, np.asarray(sc.fixed_active))
+    S = ce.stacked_error_matrix(sc.A, sc.B, *G[:3], G[3], G[4], d.P, sc.lap, sc.coupling.alpha,
+                                np.asarray(sc.fixed_roles.active))
     GG = _stacked_G(sc, law) @ _stacked_G(sc, law).T
     steady = solve_continuous_lyapunov(S, -GG)
     D = len(S)
@@ -211,12 +216,12 @@ def test_nodes_table_equals_the_independent_computations(small_run):
     np.testing.assert_allclose(nodes["cov_steady_trace"], [np.trace(blk(steady, i)) for i in range(sc.N)], rtol=1e-9)
     np.testing.assert_allclose(nodes["cov_final_trace"], [np.trace(blk(final, i)) for i in range(sc.N)], rtol=1e-7)
     m = ce.errors_from_estimates(res.runs["fixed"]["x"], res.runs["fixed"]["w"], res.runs["fixed"]["e"], n)
-    k_T = int(round(T / sc.record_dt))
+    k_T = int(round(T / sc.simulation.record_dt))
     np.testing.assert_allclose(nodes["second_moment_final_trace"],
                                [m[k_T, i] @ m[k_T, i] + np.trace(blk(final, i)) for i in range(sc.N)], rtol=1e-7)
-    C = np.vstack([G[0][i] for i in range(sc.N) if sc.fixed_active[i] > 0])
+    C = np.vstack([G[0][i] for i in range(sc.N) if sc.fixed_roles.active[i] > 0])
     R = np.zeros((len(C), len(C)))
-    for j, i in enumerate([i for i in range(sc.N) if sc.fixed_active[i] > 0]):
+    for j, i in enumerate([i for i in range(sc.N) if sc.fixed_roles.active[i] > 0]):
         R[j, j] = law["h"][i, 0] ** 2
     R += 1e-9 * np.abs(R).max() * np.eye(len(R))
     Q = np.outer(law["v"], law["v"])
@@ -244,12 +249,12 @@ def _direct_final_errors(res, k_T: int) -> np.ndarray:
 
     sc, d = res.scenario, res.design
     trials = int(res.runs["sde_fixed"]["trials"])
-    seq = stream_seed(res.seed, "tran", "sde", ("fixed", sc.sde_step))
+    h, dt = sc.stochastic.step, sc.simulation.record_dt
+    seq = stream_seed(res.seed, "tran", "sde", ("fixed", h))
     streams = UnitStreams(block_seeds(seq, 1), [trials])
     net = design.coestimation(sc, d.P)
-    tr = sim.simulate(net, compute.role_law(sc, True), design.input_signal(sc), sc.x0, sc.e0, t_end=k_T * sc.record_dt,
-                      h=sc.sde_step, record_every=int(round(sc.record_dt / sc.sde_step)), n_trials=trials, noise=d.noise,
-                      rng=streams, keep=trials)
+    tr = sim.simulate(net, runs.role_law(sc, True), design.input_signal(sc), sc.process.x0, sc.e0, t_end=k_T * dt,
+                      h=h, record_every=int(round(dt / h)), n_trials=trials, noise=d.noise, rng=streams, keep=trials)
     return ce.errors_from_estimates(tr.x[:, -1], tr.w[-1], tr.e[:, -1], sc.n)
 
 
@@ -260,18 +265,18 @@ def test_series_and_bounds_are_what_the_claims_use(small_run):
     for k in ("wbar", "lamP_min", "lamP_max"):
         assert b[(k, "")] == float(res.design[k])
     assert b[("bound18", "fixed")] == float(res.design["fixed_bound18"])
-    c = tran_claims._sde_constants(res, fixed=False)
+    c = law.mean_square_constants(res.design, fixed=False)
     assert b[("kappa", "roles")] == c["kappa"] and b[("eta", "roles")] == c["eta"]
     mc = t["mc_series"]
     roles = mc[mc["run"] == "sde_roles"].sort_values("t")
-    mean, sd, R = tran_claims.mc_moments(res.runs["sde_roles"], "V")
+    mean, sd, R = mc_moments(res.runs["sde_roles"], "V")
     np.testing.assert_array_equal(roles["V_mean"], mean)
     np.testing.assert_array_equal(roles["V_sd"], sd)
     fixed = mc[mc["run"] == "sde_fixed"].sort_values("t")
     np.testing.assert_array_equal(fixed["exact_EV"], res.runs["exact_fixed"]["EV"])
     err = t["errors"]
     net = err[(err["run"] == "coest") & err["node"].isna()].sort_values("t")
-    z = tran_claims.errors(res, "coest")
+    z = res.errors("coest")
     np.testing.assert_allclose(net["V"], tran_claims.lyapunov_values(res, z), rtol=1e-13)
     S = t["matrices"]
     for name, g in (("S_all_passive", 0.0), ("S_all_active", 1.0)):
@@ -299,19 +304,19 @@ def test_metrics_are_tidy(small_run):
 def test_estimate_is_within_a_factor_of_three_of_the_measured_run(small_run):
     """The cost model (CPU seconds) against the CPU time of the run (imports excluded: already loaded)."""
     run, measured = small_run
-    est = cost.estimate(run.results.scenario, RunOptions(quick=True))
+    est = run.reproduction.cost(RunOptions(quick=True))
     predicted = est.seconds - cost.STARTUP_S
     assert 1 / 3 < predicted / measured < 3, (predicted, measured, est.detail)
 
 
 def test_monte_carlo_is_identical_whatever_the_memory_budget():
-    repro = reproductions.family_from_dict(with_(SMALL, stochastic={"trials": 2500, "runs": 2}))
+    repro = reproductions.from_dict(with_(SMALL, stochastic={"trials": 2500, "runs": 2}))
     sc = repro.scenario
-    d = compute.design(sc, True, 4)
+    d = repro.design(RunOptions(quick=True, seed=4), StageContext(MemoryCache()))
     probes = {int(k): u for k, u in zip(d.law["probe_index"], d.law["probe_dirs"])}
-    kw = dict(fixed=True, trials=2500, seed=4, t_end=0.5, keep=3, h=sc.sde_step, probes=probes)
-    tiny = compute.run_stochastic(sc, d, budget_bytes=1.0, **kw)          # one unit of 1,000 trials at a time
-    large = compute.run_stochastic(sc, d, budget_bytes=2.0**30, **kw)     # all three units together
+    kw = dict(fixed=True, trials=2500, seed=4, t_end=0.5, keep=3, h=sc.stochastic.step, probes=probes)
+    tiny = runs.run_stochastic(sc, d.P, d.noise, budget_bytes=1.0, **kw)          # one unit of 1,000 trials at a time
+    large = runs.run_stochastic(sc, d.P, d.noise, budget_bytes=2.0**30, **kw)     # all three units together
     assert tiny.keys() == large.keys() and int(tiny["trials"]) == 2500
     for k in tiny:
         np.testing.assert_array_equal(tiny[k], large[k], err_msg=k)
@@ -319,10 +324,11 @@ def test_monte_carlo_is_identical_whatever_the_memory_budget():
 
 def test_unstreamable_samples_beyond_the_budget_are_refused_before_running():
     data = with_(SMALL, simulation={"t_end": 1e4, "step": 1e-3, "record_dt": 1e-3})
-    repro = reproductions.family_from_dict(data)
+    repro = reproductions.from_dict(data)
     start = time.process_time()
-    with pytest.raises(ScenarioError) as err:
-        repro.compute(RunOptions(quick=True, max_memory_mib=2000), None)
+    with pytest.raises(ScenarioError) as err:     # the driver refuses it before computing (dse.api.execute)
+        opts = RunOptions(quick=True, max_memory_mib=2000)
+        refuse_if_too_large(repro.cost(opts), opts)
     assert err.value.field == "simulation.record_dt" and "MiB" in err.value.reason
     assert time.process_time() - start < 5
 
@@ -332,14 +338,14 @@ def test_the_issue_horizon_is_estimated_in_days_and_checked_quickly(capsys):
     10,001, estimated in days, and `dse check` answers without simulating."""
     data = tomllib.loads(PAPER.read_text())
     data["simulation"].update(t_end=1e4, step=1e-5)
-    repro = reproductions.family_from_dict(data)
-    assert repro.scenario.record_dt == 1.0 and repro.scenario.kf_dt == 1.0
+    repro = reproductions.from_dict(data)
+    assert repro.scenario.simulation.record_dt == 1.0 and repro.scenario.reference.dt == 1.0
     start = time.process_time()
     check = api.check(repro, quick=True)
     assert time.process_time() - start < 10
     assert check.estimate["seconds"] > 86400 and check.estimate["peak_memory_mib"] < 4000
     assert "days" in check.estimate["detail"]
-    compute._announce(repro.scenario, RunOptions(quick=True))      # what `dse run` prints before it starts
+    cost.announce(repro.scenario, repro.cost(RunOptions(quick=True)))      # what `dse run` prints before it starts
     assert "days" in capsys.readouterr().err
 
 

@@ -12,17 +12,24 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import dse.families
 from dse import api
-
-from dse.outputs import record
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
+from dse.engine.cache import StageCache
+from dse.engine.driver import evaluate_claims, run
 from dse.errors import ScenarioError
-from dse.engine.driver import RunOptions, run
+from dse.outputs import record
 from dse.scenario.fields import load_toml
-from dse.families.tran import reproduction as tran
 
 ROOT = Path(__file__).resolve().parent.parent
 RERUN = Path(sys.executable).parent / "rerun"
 PAPER_TOML = ROOT / "dse" / "families" / "tran" / "paper.toml"
+
+
+def from_dict(data):
+    return dse.families.from_dict({"family": "coestimation", **data})
+
 
 USER = {
     "name": "ring5",
@@ -47,7 +54,7 @@ USER = {
 @pytest.fixture(scope="module")
 def quick_paper(tmp_path_factory):
     out = tmp_path_factory.mktemp("tran")
-    summary = run(tran.paper(), out, RunOptions(quick=True, workers=2))   # as `dse reproduce`: forked workers
+    summary = run(dse.families.paper("tran"), out, RunOptions(quick=True, workers=2))   # as `dse reproduce`: forked workers
     return out, summary
 
 
@@ -100,7 +107,7 @@ NOTES_CITATION = re.compile(r"\bspecs?\b", re.IGNORECASE)
 def test_user_scenario_runs_and_is_consistent(tmp_path):
     """A scenario of our own: LMI-designed P, proximity roles; hypotheses hold, claims pass, no claim or
     text about the paper's example in the outputs."""
-    repro = tran.from_dict(copy.deepcopy(USER))
+    repro = from_dict(copy.deepcopy(USER))
     summary = run(repro, tmp_path, RunOptions(quick=True, workers=1), out_dir=tmp_path / "run" / "ring5")
     out = tmp_path / "run" / "ring5"
     doc = json.loads((out / "report.json").read_text())
@@ -126,7 +133,7 @@ def test_user_scenario_with_infeasible_lmi_is_not_checkable():
     data = copy.deepcopy(USER)
     data["node_type"]["vel"]["L"] = [[-6.0], [-6.0]]
     data["coupling"]["P"] = "lmi"
-    result = api.run(tran.from_dict(data), quick=True)      # the report's contents, without figures and recordings
+    result = api.run(from_dict(data), quick=True)      # the report's contents, without figures and recordings
     hyp = next(h for h in result.evaluation.hypotheses if h["id"] == "tran.hyp.vertex_lmi")
     assert hyp["holds"] is False
     assert "infeasible" in hyp["detail"] or "solver_error" in hyp["detail"]
@@ -144,10 +151,8 @@ def test_lyapunov_P_leaves_thm31_not_checkable(tmp_path):
     data["coupling"]["P"] = "lyapunov"
     data["roles"] = {"mode": "fixed", "active": [1, 1, 0, 0, 0]}
     data.pop("fixed_roles")
-    repro = tran.from_dict(data)
-    from dse.engine.cache import StageCache
-    from dse.engine.driver import evaluate_claims
-    res = repro.compute(RunOptions(quick=True, workers=1), StageCache(tmp_path / "cache"))
+    repro = from_dict(data)
+    res = repro.compute(RunOptions(quick=True, workers=1), StageContext(StageCache(tmp_path / "cache")))
     ev = evaluate_claims(repro, res)
     hyps = {h["id"]: h["holds"] for h in ev.hypotheses}
     v = {c["id"]: c["verdict"] for c in ev.claims}
@@ -197,7 +202,7 @@ BAD = [
 @pytest.mark.parametrize("path, value, message", BAD, ids=[m for *_, m in BAD])
 def test_bad_scenarios_name_the_field(path, value, message):
     with pytest.raises(ScenarioError) as err:
-        tran.from_dict(edit(USER, path, value))
+        from_dict(edit(USER, path, value))
     assert str(err.value).startswith(message.split(":")[0] + ":"), str(err.value)
     assert message in str(err.value), str(err.value)
 
@@ -205,8 +210,8 @@ def test_bad_scenarios_name_the_field(path, value, message):
 def test_paper_toml_round_trip():
     data = load_toml(PAPER_TOML)
     assert data.pop("family") == "coestimation"
-    sc = tran.from_dict(data).scenario
-    assert sc.N == 12 and sc.graph.build().number_of_edges() == 17
+    sc = from_dict(data).scenario
+    assert sc.N == 12 and sc.network.build().number_of_edges() == 17
     assert np.allclose(sc.types[0].P, sc.types[0].P.T)
 
 

@@ -6,8 +6,8 @@ Every key is declared below (type, default, bounds, unit, meaning); docs/scenari
 from these declarations. Matrices are read as float arrays. Rules within a table are the
 sections' validators; rules that tie tables together (dimensions, one entry per node, step
 multiples) are `CoestimationFile.check_tables`, each error naming its key. Defaults computed from
-other keys are functions whose docstring is the documented default. The validated file is the
-scenario the stages read; derived quantities are its cached properties.
+other keys are functions (beside their key) whose docstring is the documented default. The
+validated file is the scenario the stages read; derived quantities are its properties.
 """
 from __future__ import annotations
 
@@ -35,17 +35,13 @@ BASE_RECORD_DT = 0.01
 #: default horizon of the stochastic runs in quick mode
 QUICK_T_END = 20.0
 
-
-def _as_list(a: np.ndarray) -> list:
-    return a.tolist()
-
-
+_LIST = PlainSerializer(lambda a: a.tolist())
 #: a matrix given as a list of equal-length rows, read as a float array
-Rows = Annotated[Matrix, AfterValidator(lambda rows: matrix(rows, "")), PlainSerializer(_as_list)]
+Rows = Annotated[Matrix, AfterValidator(lambda rows: matrix(rows, "")), _LIST]
 #: a vector, read as a float array
-Vector = Annotated[list[Real], AfterValidator(lambda v: np.array(v, float)), PlainSerializer(_as_list)]
+Vector = Annotated[list[Real], AfterValidator(lambda v: np.array(v, float)), _LIST]
 #: a symmetric positive definite matrix (symmetrised exactly: the project's covariance policy)
-Definite = Annotated[Matrix, AfterValidator(lambda rows: covariance(rows, "", definite=True)), PlainSerializer(_as_list)]
+Definite = Annotated[Matrix, AfterValidator(lambda rows: covariance(rows, "", definite=True)), _LIST]
 #: a role g_i ∈ [0, 1]
 Role = Annotated[float, Field(allow_inf_nan=False, ge=0, le=1)]
 
@@ -59,11 +55,22 @@ class ProcessSection(Section):
     x0: Vector = key(doc="initial state x(0) (deterministic; also in the stochastic runs)", unit="state",
                      constraint="n entries")
 
-
-@file_default
-def _zero_input(sc):
-    """zeros"""
-    return np.zeros(sc.p)
+    @model_validator(mode="after")
+    def _dimensions(self):
+        A, B, n = self.A, self.B, self.A.shape[0]
+        if A.shape[0] != A.shape[1]:
+            raise ScenarioError("A", f"must be square, got {A.shape[0]}x{A.shape[1]}")
+        if n > MAX_STATE:
+            raise ScenarioError("A", f"n = {n} states; this family handles at most {MAX_STATE}")
+        if np.linalg.eigvals(A).real.max() >= 0:
+            raise ScenarioError("A", "must be Hurwitz (passive nodes run open loop; a standing assumption)")
+        if B.shape[0] != n:
+            raise ScenarioError("B", f"must have {n} rows, got {B.shape[0]}")
+        if B.shape[1] > MAX_INPUT:
+            raise ScenarioError("B", f"p = {B.shape[1]} inputs; this family handles at most {MAX_INPUT}")
+        if len(self.x0) != n:
+            raise ScenarioError("x0", f"must have {n} entries, got {len(self.x0)}")
+        return self
 
 
 class InputSection(Section):
@@ -71,35 +78,46 @@ class InputSection(Section):
     sin(frequency_kj t + phase_kj). Its bounds sup‖w‖ and sup‖ẇ‖ over all t ≥ 0 (the w̄ of (15)) are
     certified from these values."""
 
-    offset: Vector | None = key(_zero_input, doc="constant part of each input component", unit="input",
-                                constraint="p entries")
+    @file_default
+    def _zeros(sc):
+        """zeros"""
+        return np.zeros(sc.p)
+
+    offset: Vector | None = key(_zeros, doc="constant part of each input component", unit="input", constraint="p entries")
     amplitude: Rows = key(doc="amplitudes, one row per input component", unit="input",
                           constraint=f"p rows of J entries, J <= {MAX_SINUSOIDS}")
     frequency: Rows = key(doc="angular frequencies, the same shape as amplitude", unit="rad/s", constraint=">= 0")
     phase: Rows = key(doc="phases, the same shape as amplitude", unit="rad")
 
-
-@file_default
-def _graph_positions(sc):
-    """the graph's drawing positions"""
-    return sc.network.positions()
-
-
-@file_default
-def _zero_states(sc):
-    """zeros"""
-    return np.zeros((sc.N, sc.n))
-
-
-@file_default
-def _zero_inputs(sc):
-    """zeros"""
-    return np.zeros((sc.N, sc.p))
+    @model_validator(mode="after")
+    def _sinusoids(self):
+        if not (self.amplitude.shape == self.frequency.shape == self.phase.shape):
+            raise ScenarioError("frequency", "amplitude, frequency and phase must have the same shape")
+        if self.frequency.shape[1] > MAX_SINUSOIDS:
+            raise ScenarioError("frequency", f"at most {MAX_SINUSOIDS} sinusoids per component")
+        if self.frequency.min() < 0:
+            raise ScenarioError("frequency", "must be >= 0")
+        return self
 
 
 class NodesSection(Section):
     """The nodes: the type of each (its sensing modality and gains), where it is, and where its
     estimates start."""
+
+    @file_default
+    def _graph_positions(sc):
+        """the graph's drawing positions"""
+        return sc.network.positions()
+
+    @file_default
+    def _zero_states(sc):
+        """zeros"""
+        return np.zeros((sc.N, sc.n))
+
+    @file_default
+    def _zero_inputs(sc):
+        """zeros"""
+        return np.zeros((sc.N, sc.p))
 
     type: list[str] = key(doc="node type of each node, by the name of its [node_type.<name>] table",
                           constraint="one entry per node")
@@ -112,27 +130,24 @@ class NodesSection(Section):
                              "or one row per node", unit="input", constraint="1 or N rows of p entries")
 
 
-@file_default
-def _table_name(sc, name):
-    """the table's name"""
-    return name
-
-
-@file_default
-def _identity(sc, name):
-    """identity"""
-    return np.eye(sc.q)
-
-
-@computed_default
-def _own_sigma(data):
-    """sigma"""
-    return data["sigma"]
-
-
 class NodeTypeSection(Section):
     """A node type: what its nodes measure, y_i = C_i x (2), and the gains of (3)-(4). The tables are
     named freely ([node_type.position], [node_type.velocity], ...) and referred to by nodes.type."""
+
+    @file_default
+    def _table_name(sc, name):
+        """the table's name"""
+        return name
+
+    @file_default
+    def _identity(sc, name):
+        """identity"""
+        return np.eye(sc.q)
+
+    @computed_default
+    def _own_sigma(data):
+        """sigma"""
+        return data["sigma"]
 
     name: str | None = key(_table_name, doc="name shown in the figures and tables", max_length=80,
                            constraint="no control or format characters (also in the table's name)")
@@ -150,6 +165,26 @@ class NodeTypeSection(Section):
                              constraint="symmetric, positive definite")
     comparison_sigma: Real = key(_own_sigma, doc="σ_i of the comparison architecture (36)-(37)", gt=0)
 
+    def check(self, field: str, n: int, p: int, m: int | None, given_P: bool) -> None:
+        """Its dimensions against the process (n, p) and the other types (m), and σ_iK_i."""
+        C = self.C
+        if C.shape[1] != n:
+            raise ScenarioError(f"{field}.C", f"must have shape {C.shape[0]}x{n}, got {C.shape[0]}x{C.shape[1]}")
+        if m is not None and C.shape[0] != m:
+            raise ScenarioError(f"{field}.C", f"every node type needs the same output dimension m = {m}, got {C.shape[0]}")
+        m = C.shape[0]
+        if m > MAX_OUTPUT:
+            raise ScenarioError(f"{field}.C", f"m = {m} outputs; this family handles at most {MAX_OUTPUT}")
+        for name, shape in (("L", (n, m)), ("J", (p, m)), ("K", (p, p)), ("P", (n + p,) * 2), ("Q", (n + p,) * 2)):
+            M = getattr(self, name)
+            if M is not None and M.shape != shape:
+                raise ScenarioError(f"{field}.{name}", f"must have shape {shape[0]}x{shape[1]}, got {M.shape[0]}x{M.shape[1]}")
+            if name == "K" and np.linalg.eigvals(self.sigma * self.K).real.min() <= 0:
+                raise ScenarioError(f"{field}.K", "sigma*K must have eigenvalues with positive real part (the input "
+                                                  "leakage -sigma K must be Hurwitz)")
+        if given_P and self.P is None:
+            raise ScenarioError(f"{field}.P", "missing (needed for coupling.P = 'given')")
+
 
 class CouplingSection(Section):
     """The coupling of (3)-(4): α Σ_j a_ij with H_i = P_i⁻¹ (34)."""
@@ -161,21 +196,19 @@ class CouplingSection(Section):
                               constraint="lyapunov needs roles.mode = fixed")
 
 
-@file_default
-def _all_active(sc):
-    """all ones"""
-    return [1.0] * sc.N
-
-
-@file_default
-def _plane(sc):
-    """[0, 2] (or [0, 1] when n = 2)"""
-    return [0, 2 if sc.n > 2 else 1]
-
-
 class RolesSection(Section):
     """The roles g_i(t) ∈ [0, 1] of the estimator (22)-(23): fixed, or by proximity to the target, ġ_i =
     β (a_i(t) − g_i) with a_i = 1 while the target position is within radius of node i (g_i(0) = a_i(0))."""
+
+    @file_default
+    def _all_active(sc):
+        """all ones"""
+        return [1.0] * sc.N
+
+    @file_default
+    def _plane(sc):
+        """[0, 2] (or [0, 1] when n = 2)"""
+        return [0, 2 if sc.n > 2 else 1]
 
     mode: Literal["fixed", "proximity"] = key("fixed", doc="fixed: g_i = active[i]; proximity: the law above")
     active: list[Role] | None = key(_all_active, doc="g_i of every node (mode = fixed)",
@@ -203,27 +236,25 @@ class RolesSection(Section):
         return self
 
 
-@file_default
-def _scenario_roles(sc):
-    """roles.active with fixed roles, else all ones"""
-    return list(sc.roles.active)
-
-
 class FixedRolesSection(Section):
     """The fixed-role scenario of Thm 2.1, Cor 2.1 and Prop 4.1 (run besides the scenario's own roles)."""
 
-    active: list[Role] | None = key(_scenario_roles, doc="g_i of every node",
-                                    constraint="one entry per node, each in [0, 1]")
+    @file_default
+    def _scenario_roles(sc):
+        """roles.active with fixed roles, else all ones"""
+        return list(sc.roles.active)
 
-
-@file_default
-def _coupling_alpha(sc):
-    """coupling.alpha"""
-    return sc.coupling.alpha
+    active: list[Role] | None = key(_scenario_roles, doc="g_i of every node", constraint="one entry per node, each in "
+                                    "[0, 1]")
 
 
 class ComparisonSection(Section):
     """The comparison ("estimation") architecture (36)-(37), run on the same process with the scenario's roles."""
+
+    @file_default
+    def _coupling_alpha(sc):
+        """coupling.alpha"""
+        return sc.coupling.alpha
 
     gamma: Real = key(0.1, doc="leakage γ of (36)-(37)", gt=0)
     alpha: Real | None = key(_coupling_alpha, doc="its coupling strength", gt=0)
@@ -240,31 +271,28 @@ def _multiple(a: float, b: float, fa: str, fb: str) -> None:
         raise ScenarioError(fa, f"must be an integer multiple of {fb} = {b:g}, got {a:g}")
 
 
-@file_default
-def _record_dt(sc):
-    """0.01, or the smallest common multiple of the two steps that divides t_end and keeps at most 10,000 samples"""
-    t_end, step = sc.simulation.t_end, sc.simulation.step
-    sde_step = sc.stochastic.step if sc.stochastic.step is not None else step
-    candidates = [BASE_RECORD_DT] if t_end / BASE_RECORD_DT <= DEFAULT_RECORDS else []
-    k0 = max(1, int(np.ceil(t_end / (DEFAULT_RECORDS * step) - 1e-9)))
-    candidates += [k * step for k in range(k0, k0 + 100_000)]
-    for dt in candidates:
-        if t_end / dt <= DEFAULT_RECORDS * (1 + 1e-9) and _divides(dt, t_end) and _divides(step, dt) \
-                and _divides(sde_step, dt):
-            return float(dt)
-    raise ScenarioError("simulation.record_dt", "no default fits t_end and the steps: give a record_dt that is a "
-                                                "multiple of step and divides t_end")
-
-
-@computed_default
-def _quarter(data):
-    """t_end / 4"""
-    return 0.25 * data["t_end"]
-
-
 class SimulationSection(Section):
     """The deterministic runs: ETD2RK with the stiff linear part integrated exactly, each also at half the
     step (the integration check)."""
+
+    @file_default
+    def _record_dt(sc):
+        """0.01, or the smallest common multiple of the two steps that divides t_end and keeps at most 10,000 samples"""
+        t_end, step = sc.simulation.t_end, sc.simulation.step
+        sde_step = sc.stochastic.step if sc.stochastic.step is not None else step
+        candidates = [BASE_RECORD_DT] if t_end / BASE_RECORD_DT <= DEFAULT_RECORDS else []
+        k0 = max(1, int(np.ceil(t_end / (DEFAULT_RECORDS * step) - 1e-9)))
+        for dt in candidates + [k * step for k in range(k0, k0 + 100_000)]:
+            if t_end / dt <= DEFAULT_RECORDS * (1 + 1e-9) and _divides(dt, t_end) and _divides(step, dt) \
+                    and _divides(sde_step, dt):
+                return float(dt)
+        raise ScenarioError("simulation.record_dt", "no default fits t_end and the steps: give a record_dt that is a "
+                                                    "multiple of step and divides t_end")
+
+    @computed_default
+    def _quarter(data):
+        """t_end / 4"""
+        return 0.25 * data["t_end"]
 
     t_end: Real = key(40.0, doc="horizon T", unit="s", gt=0, le=MAX_T_END,
                       constraint="a multiple of step, of stochastic.step and of record_dt")
@@ -282,28 +310,25 @@ class SimulationSection(Section):
         return self
 
 
-@computed_default
-def _quick_trials(data):
-    """max(min(trials, 40), runs)"""
-    return max(min(data["trials"], 40), data["runs"])
-
-
-@file_default
-def _simulation_step(sc):
-    """simulation.step"""
-    return sc.simulation.step
-
-
-@file_default
-def _quick_horizon(sc):
-    """min(t_end, 20), a multiple of record_dt"""
-    dt = sc.simulation.record_dt
-    return max(1, int(np.floor(min(sc.simulation.t_end, QUICK_T_END) / dt + 1e-9))) * dt
-
-
 class StochasticSection(Section):
     """The stochastic variant (40)-(41): dx = (Ax + Bw)dt + v dW_v, y_i dt = C_i x dt + h_i dS_i, with the
     intensities v ~ U(0, process_range)ⁿ and h_i ~ U(0, measurement_range)ᵐ drawn once per seed."""
+
+    @computed_default
+    def _quick_trials(data):
+        """max(min(trials, 40), runs)"""
+        return max(min(data["trials"], 40), data["runs"])
+
+    @file_default
+    def _simulation_step(sc):
+        """simulation.step"""
+        return sc.simulation.step
+
+    @file_default
+    def _quick_horizon(sc):
+        """min(t_end, 20), a multiple of record_dt"""
+        dt = sc.simulation.record_dt
+        return max(1, int(np.floor(min(sc.simulation.t_end, QUICK_T_END) / dt + 1e-9))) * dt
 
     process_range: Real = key(0.2, doc="upper end of the uniform draws of the process-noise intensity v", unit="state/√s",
                               ge=0)
@@ -325,16 +350,15 @@ class StochasticSection(Section):
         return self
 
 
-@file_default
-def _reference_dt(sc):
-    """the smallest multiple of record_dt >= 0.01"""
-    dt = sc.simulation.record_dt
-    return dt * max(1, int(np.ceil(BASE_RECORD_DT / dt - 1e-9)))
-
-
 class ReferenceSection(Section):
     """The centralized reference (a project addition): a Kalman filter on (x, w) with every active sensor,
     w modelled as a random walk, discretised exactly at dt."""
+
+    @file_default
+    def _reference_dt(sc):
+        """the smallest multiple of record_dt >= 0.01"""
+        dt = sc.simulation.record_dt
+        return dt * max(1, int(np.ceil(BASE_RECORD_DT / dt - 1e-9)))
 
     dt: Real | None = key(_reference_dt, doc="its step", unit="s", constraint="a multiple of record_dt")
     q_w: Real = key(1.0, doc="intensity of the random walk that models w", unit="input²/s", gt=0)
@@ -361,111 +385,56 @@ class CoestimationFile(ScenarioFile):
     stochastic: StochasticSection = key(StochasticSection, doc="the stochastic runs")
     reference: ReferenceSection = key(ReferenceSection, doc="the centralized reference")
 
-    # -- rules across tables (each error names its key) ---------------------------------------------------
-
     def check_tables(self) -> None:
-        self._check_process()
-        self._check_network()
-        self._check_types()
-        self._check_nodes()
-        self._check_roles()
-        sim = self.simulation
-        sde_step = self.stochastic.step if self.stochastic.step is not None else sim.step
-        _multiple(sim.t_end, sim.step, "simulation.t_end", "simulation.step")
-        _multiple(sim.t_end, sde_step, "simulation.t_end", "stochastic.step")
-        self.fill_defaults()
-        self._check_samples()
-
-    def _check_process(self) -> None:
-        A, B, inp = self.process.A, self.process.B, self.input
-        if A.shape[0] != A.shape[1]:
-            raise ScenarioError("process.A", f"must be square, got {A.shape[0]}x{A.shape[1]}")
-        if self.n > MAX_STATE:
-            raise ScenarioError("process.A", f"n = {self.n} states; this family handles at most {MAX_STATE}")
-        if np.linalg.eigvals(A).real.max() >= 0:
-            raise ScenarioError("process.A", "must be Hurwitz (passive nodes run open loop; a standing assumption)")
-        if B.shape[0] != self.n:
-            raise ScenarioError("process.B", f"must have {self.n} rows, got {B.shape[0]}")
-        if self.p > MAX_INPUT:
-            raise ScenarioError("process.B", f"p = {self.p} inputs; this family handles at most {MAX_INPUT}")
-        if len(self.process.x0) != self.n:
-            raise ScenarioError("process.x0", f"must have {self.n} entries, got {len(self.process.x0)}")
-        if inp.offset is not None and len(inp.offset) != self.p:
-            raise ScenarioError("input.offset", f"must have p = {self.p} entries, got {len(inp.offset)}")
+        """Dimensions and one entry per node (the network's size bounded by the dense matrices of the stacked
+        dimension n + N(n + p); a disconnected graph is accepted: only L ⪰ 0 is used by the proofs, connectivity
+        is a reported hypothesis), then the step multiples, with the defaults filled in between."""
+        n, p, N, inp, nodes = self.n, self.p, self.N, self.input, self.nodes
+        if inp.offset is not None and len(inp.offset) != p:
+            raise ScenarioError("input.offset", f"must have p = {p} entries, got {len(inp.offset)}")
         for name in ("amplitude", "frequency", "phase"):
-            if getattr(inp, name).shape[0] != self.p:
-                raise ScenarioError(f"input.{name}", f"must have p = {self.p} rows, got {getattr(inp, name).shape[0]}")
-        if not (inp.amplitude.shape == inp.frequency.shape == inp.phase.shape):
-            raise ScenarioError("input.frequency", "amplitude, frequency and phase must have the same shape")
-        if inp.frequency.shape[1] > MAX_SINUSOIDS:
-            raise ScenarioError("input.frequency", f"at most {MAX_SINUSOIDS} sinusoids per component")
-        if inp.frequency.min() < 0:
-            raise ScenarioError("input.frequency", "must be >= 0")
-
-    def _check_network(self) -> None:
-        """The theorems use L ⪰ 0 only: a disconnected network is meaningful (connectivity is a reported
-        hypothesis); its size is bounded by the dense matrices of the stacked dimension n + N(n + p)."""
+            if getattr(inp, name).shape[0] != p:
+                raise ScenarioError(f"input.{name}", f"must have p = {p} rows, got {getattr(inp, name).shape[0]}")
         field = "graph.rows" if self.network.kind == "grid" else "graph.n"
-        if self.N > MAX_NODES:
-            raise ScenarioError(field, f"{self.N} nodes; this family handles at most {MAX_NODES} (dense matrices of the "
+        if N > MAX_NODES:
+            raise ScenarioError(field, f"{N} nodes; this family handles at most {MAX_NODES} (dense matrices of the "
                                        "stacked dimension n + N(n + p) in the integrator, the noise factors and the spectra)")
-        if self.N * self.q > MAX_STACKED:
-            raise ScenarioError(field, f"N(n + p) = {self.N * self.q}; this family handles at most {MAX_STACKED} (dense "
+        if N * self.q > MAX_STACKED:
+            raise ScenarioError(field, f"N(n + p) = {N * self.q}; this family handles at most {MAX_STACKED} (dense "
                                        "matrices of the stacked dimension)")
-
-    def _check_types(self) -> None:
-        n, p, m = self.n, self.p, None
+        m = None
         for k, t in self.node_type.items():
             for field, text in ((f"node_type.{printable(k)}", k), (f"node_type.{printable(k)}.name", t.name or "")):
                 if printable(text) != text:
                     raise ScenarioError(field, f"must not contain control or format characters, got '{printable(text)}'")
-            f = f"node_type.{k}"
-            if t.C.shape[1] != n:
-                raise ScenarioError(f"{f}.C", f"must have shape {t.C.shape[0]}x{n}, got {t.C.shape[0]}x{t.C.shape[1]}")
-            if m is not None and t.C.shape[0] != m:
-                raise ScenarioError(f"{f}.C", f"every node type needs the same output dimension m = {m}, got "
-                                              f"{t.C.shape[0]}")
+            t.check(f"node_type.{k}", n, p, m, self.coupling.P == "given")
             m = t.C.shape[0]
-            if m > MAX_OUTPUT:
-                raise ScenarioError(f"{f}.C", f"m = {m} outputs; this family handles at most {MAX_OUTPUT}")
-            for name, shape in (("L", (n, m)), ("J", (p, m)), ("K", (p, p)), ("P", (n + p,) * 2), ("Q", (n + p,) * 2)):
-                M = getattr(t, name)
-                if M is not None and M.shape != shape:
-                    raise ScenarioError(f"{f}.{name}", f"must have shape {shape[0]}x{shape[1]}, got "
-                                                       f"{M.shape[0]}x{M.shape[1]}")
-                if name == "K" and np.linalg.eigvals(t.sigma * t.K).real.min() <= 0:
-                    raise ScenarioError(f"{f}.K", "sigma*K must have eigenvalues with positive real part (the input "
-                                                  "leakage -sigma K must be Hurwitz)")
-            if self.coupling.P == "given" and t.P is None:
-                raise ScenarioError(f"{f}.P", "missing (needed for coupling.P = 'given')")
-
-    def _check_nodes(self) -> None:
-        nodes, names, N = self.nodes, list(self.node_type), self.N
         if len(nodes.type) != N:
             raise ScenarioError("nodes.type", f"must have one entry per node ({N}), got {len(nodes.type)}")
         for i, name in enumerate(nodes.type):
-            if name not in names:
-                raise ScenarioError(f"nodes.type[{i}]", f"must be one of {', '.join(names)}; got '{name}'")
+            if name not in self.node_type:
+                raise ScenarioError(f"nodes.type[{i}]", f"must be one of {', '.join(self.node_type)}; got '{name}'")
         if nodes.positions is not None and nodes.positions.shape != (N, 2):
             raise ScenarioError("nodes.positions", f"must have shape {N}x2, got {nodes.positions.shape[0]}x"
                                                    f"{nodes.positions.shape[1]}")
-        for name, width in (("xhat0", self.n), ("what0", self.p)):
-            M = getattr(nodes, name)
+        for name, M, width in (("xhat0", nodes.xhat0, n), ("what0", nodes.what0, p)):
             if M is not None and M.shape[1] != width:
                 raise ScenarioError(f"nodes.{name}", f"must have shape {M.shape[0]}x{width}, got {M.shape[0]}x{M.shape[1]}")
             if M is not None and len(M) not in (1, N):
-                raise ScenarioError(f"nodes.{name}", f"must have 1 row (every node) or one row per node ({N}), got "
-                                                     f"{len(M)}")
-
-    def _check_roles(self) -> None:
+                raise ScenarioError(f"nodes.{name}", f"must have 1 row (every node) or one row per node ({N}), got {len(M)}")
         for field, active in (("roles.active", self.roles.active), ("fixed_roles.active", self.fixed_roles.active)):
-            if active is not None and len(active) != self.N:
-                raise ScenarioError(field, f"must have one entry per node ({self.N}), got {len(active)}")
+            if active is not None and len(active) != N:
+                raise ScenarioError(field, f"must have one entry per node ({N}), got {len(active)}")
         if self.coupling.P == "lyapunov" and self.roles.mode != "fixed":
             raise ScenarioError("coupling.P", "'lyapunov' (solving (10)) needs fixed roles; use 'lmi' or 'given'")
+        sim, st = self.simulation, self.stochastic
+        _multiple(sim.t_end, sim.step, "simulation.t_end", "simulation.step")
+        _multiple(sim.t_end, st.step if st.step is not None else sim.step, "simulation.t_end", "stochastic.step")
+        self.fill_defaults()
+        self._check_samples()
 
     def _check_samples(self) -> None:
-        sim, st = self.simulation, self.stochastic
+        sim, st, ps = self.simulation, self.stochastic, self.roles.position_states
         if sim.record_dt < sim.step:
             raise ScenarioError("simulation.record_dt", f"must be >= simulation.step = {sim.step:g}, got {sim.record_dt:g}")
         _multiple(sim.record_dt, sim.step, "simulation.record_dt", "simulation.step")
@@ -475,7 +444,6 @@ class CoestimationFile(ScenarioFile):
             raise ScenarioError("stochastic.quick_t_end", f"must be <= t_end = {sim.t_end:g}, got {st.quick_t_end:g}")
         _multiple(st.quick_t_end, sim.record_dt, "stochastic.quick_t_end", "simulation.record_dt")
         _multiple(self.reference.dt, sim.record_dt, "reference.dt", "simulation.record_dt")
-        ps = self.roles.position_states
         if self.roles.mode == "proximity" and (len(ps) != 2 or ps[0] == ps[1] or not all(0 <= s < self.n for s in ps)):
             raise ScenarioError("roles.position_states", f"must be two distinct state indices in 0..{self.n - 1} "
                                                          "(the target's plane position)")
@@ -506,13 +474,13 @@ class CoestimationFile(ScenarioFile):
     def m(self) -> int:
         return self.types[0].C.shape[0]
 
-    @cached_property
-    def network(self) -> GraphSpec:
-        return graph_from_section(self.graph, "graph", connected=False, min_nodes=2)
-
     @property
     def N(self) -> int:
         return self.network.n
+
+    @cached_property
+    def network(self) -> GraphSpec:
+        return graph_from_section(self.graph, "graph", connected=False, min_nodes=2)
 
     @cached_property
     def lap(self) -> np.ndarray:
@@ -525,16 +493,13 @@ class CoestimationFile(ScenarioFile):
     @cached_property
     def type_of(self) -> tuple[int, ...]:
         """The index (in `types`) of each node's type."""
-        names = list(self.node_type)
-        return tuple(names.index(name) for name in self.nodes.type)
+        return tuple(list(self.node_type).index(name) for name in self.nodes.type)
 
     @cached_property
     def e0(self) -> np.ndarray:
         """The nodes' initial estimates [x̂_i(0); ŵ_i(0)], (N, n + p)."""
-        nodes, N = self.nodes, self.N
-        return np.concatenate([np.broadcast_to(nodes.xhat0, (N, self.n)), np.broadcast_to(nodes.what0, (N, self.p))],
-                              axis=1)
+        N, nodes = self.N, self.nodes
+        return np.concatenate([np.broadcast_to(nodes.xhat0, (N, self.n)), np.broadcast_to(nodes.what0, (N, self.p))], 1)
 
     def per_node(self, attr: str) -> np.ndarray:
         return np.stack([np.asarray(getattr(self.types[t], attr), float) for t in self.type_of])
-
