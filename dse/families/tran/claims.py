@@ -582,31 +582,24 @@ def check_comparison_reconstructed(res: Results) -> Verdict:
                                                   f"comparison run; statuses {d['comp_status_b'].tolist()}")
 
 
-def _tail_kf(err: np.ndarray, n: int) -> list[float]:
-    return [np.sqrt(np.mean(np.sum(err[:, :n] ** 2, 1))), np.sqrt(np.mean(np.sum(err[:, n:] ** 2, 1)))]
-
-
 @claims.claim("tran.ref.central_kf", "project addition", "the centralized Kalman filter (all active sensors) is at least "
               "as accurate as coestimation on the example", "inequality", scope=PE)
 def check_central(res: Results) -> Verdict:
-    sc, c, r = res.scenario, res.runs["central"], res.runs["coest"]
+    sc, c, r, n = res.scenario, res.runs["central"], res.runs["coest"], res.scenario.n
     stride = int(round(sc.reference.dt / sc.simulation.record_dt))
-    n = sc.n
     mt = (r["t"] >= sc.simulation.tail_start)[::stride]
     truth = np.concatenate([r["x"][::stride], r["w"][::stride]], axis=1)[mt]
-    kf = tuple(float(v) for v in _tail_kf(c["det_s"][mt] - truth, n))
-    co = rms(res.errors("coest")[tail(res, "coest")], n)
-    extra = ""
-    if "det_all_s" in c:
-        extra += (f"; with all {sc.N} sensors always on: {np.round(_tail_kf(c['det_all_s'][mt] - truth, n), 5).tolist()}")
+    kf, co = rms(c["det_s"][mt] - truth, n), rms(res.errors("coest")[tail(res, "coest")], n)
+    extra = f"; with all {sc.N} sensors always on: {np.round(rms(c['det_all_s'][mt] - truth, n), 5).tolist()}" \
+        if "det_all_s" in c else ""
     if "sde_s" in c:
         s = res.runs["sde_roles"]
         ms = (s["t"] >= min(sc.simulation.tail_start, s["t"][-1] / 2))
         e_kf = c["sde_s"] - np.concatenate([s["kept_x"][0], s["w"]], axis=1)[::stride]
         zs = np.concatenate([s["kept_x"][0][:, None, :] - s["kept_e"][0][..., :n],
                              s["kept_e"][0][..., n:] - s["w"][:, None, :]], axis=-1)[ms]
-        extra += (f"; stochastic run 0: KF {np.round(_tail_kf(e_kf[ms[::stride]], n), 4).tolist()}"
-                  f" vs coestimation {np.round(rms(zs, n), 4).tolist()} (not checked: one run)")
+        extra += (f"; stochastic run 0: KF {np.round(rms(e_kf[ms[::stride]], n), 4).tolist()} vs coestimation "
+                  f"{np.round(rms(zs, n), 4).tolist()} (not checked: one run)")
     return inequality(np.array(kf), np.array(co),
                       detail=f"centralized filterpy KF on (x, w) with the active sensors (R = {sc.reference.r_deterministic:g} "
                              f"I, q_w = {sc.reference.q_w:g}): tail RMS {np.round(kf, 5).tolist()} vs coestimation "

@@ -176,15 +176,9 @@ METRICS = spec("metrics", "metric, run and node (empty node: the whole network)"
 
 # -- design tables ------------------------------------------------------------------------------------
 
-def _type_names(d: Design) -> list[str]:
-    return [t.name for t in d.scenario.types]
-
-
 def design_tables(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
     sc, a = d.scenario, d.arrays
-    name = sc.name
-    names = _type_names(d)
-    extras = "comp_status" in a
+    name, names, extras = sc.name, [t.name for t in sc.types], "comp_status" in a
     rows = []
     for t, ty in enumerate(sc.types):
         given = a["given_sweep"][t] if "given_sweep" in a else np.full(2, np.nan)
@@ -311,8 +305,7 @@ def matrices_frame(d: Design) -> pd.DataFrame:
     add("initial_estimates", sc.e0)
     if np.all(a["qstar_g"] >= 0):
         add("qstar_vertex", a["qstar_g"][None, :])
-    frame = pd.concat(parts, ignore_index=True)[MATRICES.column_names]
-    return frame.astype({"index": "Int64"})
+    return pd.concat(parts, ignore_index=True)[MATRICES.column_names].astype({"index": "Int64"})
 
 
 def _entries(M: np.ndarray, **keys) -> pd.DataFrame:
@@ -322,16 +315,9 @@ def _entries(M: np.ndarray, **keys) -> pd.DataFrame:
     return pd.DataFrame({**{k: [v] * M.size for k, v in keys.items()}, "row": r, "col": c, "value": M.ravel()})
 
 
-CELL_NAMES = ("all_passive", "all_active", "fixed")
-
-
-def _cell_names(n_cells: int) -> list[str]:
-    return list(CELL_NAMES) + [f"random_{k}" for k in range(n_cells - len(CELL_NAMES))]
-
-
 def spectra_frames(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
     a, sc = d.arrays, d.scenario
-    cells = _cell_names(len(a["S_max_real"]))
+    cells = ["all_passive", "all_active", "fixed"] + [f"random_{k}" for k in range(len(a["S_max_real"]) - 3)]
     parts = []
     for c, cell in enumerate(cells):
         parts.append(pd.DataFrame({"scenario": sc.name, "matrix": f"S_{cell}", "index": np.arange(a["S_eig_real"].shape[1]),
@@ -348,9 +334,7 @@ def spectra_frames(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
 
 def _role_sweep(d: Design) -> pd.DataFrame:
     a, sc = d.arrays, d.scenario
-    g = a["g_sweep"]
-    names = _type_names(d)
-    t_of = np.asarray(sc.type_of)
+    g, names, t_of = a["g_sweep"], [t.name for t in sc.types], np.asarray(sc.type_of)
     given = a["given_sweep"][t_of] if "given_sweep" in a else np.full((sc.N, len(g)), np.nan)
     return pd.DataFrame({"scenario": sc.name, "node": np.repeat(np.arange(sc.N), len(g)),
                          "type": np.repeat([names[t] for t in t_of], len(g)), "g": np.tile(g, sc.N),
@@ -407,13 +391,12 @@ def nodes_frame(res: Results) -> pd.DataFrame:
     m_final = res.runs["exact_fixed"]["mean_final"]
     S_inf, S_T = law["Sigma_steady"], law["Sigma_final"]
     kb_inf, kb_T = law["kb_steady"], law["kb_final"]
-    names = _type_names(d)
     rows = []
     for i in range(sc.N):
         gap_inf = _loewner_gap(S_inf[i, :n, :n], kb_inf)
         gap_T = _loewner_gap(S_T[i, :n, :n], kb_T)
         rows.append({
-            "scenario": sc.name, "node": i, "type": names[sc.type_of[i]], "fixed_role": sc.fixed_roles.active[i],
+            "scenario": sc.name, "node": i, "type": sc.types[sc.type_of[i]].name, "fixed_role": sc.fixed_roles.active[i],
             "active_fraction": float(np.mean(co["g"][:, i] > 0.5)), "final_x_error": float(np.linalg.norm(z[-1, i, :n])),
             "final_w_error": float(np.linalg.norm(z[-1, i, n:])), "tail_rms_x": float(rms_x[i]), "tail_rms_w": float(rms_w[i]),
             "comparison_tail_rms_x": float(crms_x[i]), "comparison_tail_rms_w": float(crms_w[i]),
@@ -541,21 +524,14 @@ def central_frame(res: Results) -> pd.DataFrame:
     c, co = res.runs["central"], res.runs["coest"]
     stride = int(round(sc.reference.dt / sc.simulation.record_dt))
     truth_det = np.concatenate([co["x"], co["w"]], axis=1)[::stride]
-    parts = []
-    for run, est, truth, t in (("deterministic", c["det_s"], truth_det, c["det_t"]),
-                               ("deterministic_all_sensors", c["det_all_s"], truth_det, c["det_t"])):
-        parts.append(_central_rows(sc.name, run, t, est, truth))
+    rows = [("deterministic", c["det_t"], c["det_s"], truth_det), ("deterministic_all_sensors", c["det_t"], c["det_all_s"],
+                                                                   truth_det)]
     if "sde_s" in c:
         s = res.runs["sde_roles"]
-        truth = np.concatenate([s["kept_x"][0], s["w"]], axis=1)[::stride]
-        parts.append(_central_rows(sc.name, "stochastic_0", c["sde_t"], c["sde_s"], truth))
+        rows.append(("stochastic_0", c["sde_t"], c["sde_s"], np.concatenate([s["kept_x"][0], s["w"]], axis=1)[::stride]))
+    parts = [_long(sc.name, run, t, est, ("component",), "estimate").assign(truth=truth.reshape(-1))
+             for run, t, est, truth in rows]
     return pd.concat(parts, ignore_index=True)[CENTRAL.column_names]
-
-
-def _central_rows(name, run, t, est, truth) -> pd.DataFrame:
-    frame = _long(name, run, t, est, ("component",), "estimate")
-    frame["truth"] = truth.reshape(-1)
-    return frame
 
 
 def metrics_frame(res: Results) -> pd.DataFrame:
@@ -589,5 +565,4 @@ def metrics_frame(res: Results) -> pd.DataFrame:
         add(f"{run}_integration_scale", e["scale"], run)
     add("exact_EV_final", res.runs["exact_fixed"]["EV"][-1], "sde_fixed")
     add("mc_EV_final", res.runs["sde_fixed"]["V_mean"][-1], "sde_fixed")
-    frame = pd.DataFrame(rows, columns=METRICS.column_names)
-    return frame.astype({"node": "Int64"})
+    return pd.DataFrame(rows, columns=METRICS.column_names).astype({"node": "Int64"})
