@@ -43,6 +43,14 @@ class Cost:
         return f"about {self.seconds:.3g} s and {self.peak_mib:.0f} MiB peak memory ({self.detail})"
 
 
+def human_seconds(s: float) -> str:
+    """A duration as people read it: seconds, or minutes, hours, days beyond two of them."""
+    for unit, size in (("days", 86400.0), ("hours", 3600.0), ("minutes", 60.0)):
+        if s >= 2 * size:
+            return f"{s / size:.3g} {unit}"
+    return f"{s:.3g} s"
+
+
 def refuse_if_too_large(cost: Cost, opts: RunOptions) -> None:
     """Refuse, before anything runs, a run whose kept part and one unit of trials do not fit the
     memory budget left beside the interpreter (INTERPRETER_MIB per process, as in

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import sys
 
-from dse.contract.cost import MIB, Cost
+from dse.contract.cost import MIB, Cost, human_seconds
 from dse.contract.options import INTERPRETER_MIB, RunOptions
 from dse.simulate.units import RNG_UNIT, units_per_chunk
 
@@ -67,13 +67,6 @@ KF_STEP_S = 5e-5
 #: CPU seconds: figures, recording and report; per table row (building, Parquet, CSV, the figures' reading)
 OUTPUTS_S = 2.0
 ROW_S = 1.2e-6
-
-
-def human_seconds(s: float) -> str:
-    for unit, size in (("days", 86400.0), ("hours", 3600.0), ("minutes", 60.0)):
-        if s >= 2 * size:
-            return f"{s / size:.3g} {unit}"
-    return f"{s:.3g} s"
 
 
 def _dims(sc: CoestimationFile) -> tuple[int, float]:

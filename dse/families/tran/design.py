@@ -24,6 +24,7 @@ import dse.estimators.input_state_coestimation as ce
 import dse.estimators.lyapunov_bounds as lb
 import dse.estimators.observer_network_simulation as sim
 from dse.contract.stages import stage
+from dse.estimators.jointly_observable_design import observability_matrix as obsv
 from dse.verify.rules import roundoff_tolerance
 
 from .scenario import CoestimationFile
@@ -105,14 +106,6 @@ def error_matrix(sc: CoestimationFile, i: int, g: float) -> np.ndarray:
     """Ā_i(g) of (27) for node i."""
     ty = sc.types[sc.type_of[i]]
     return ce.error_matrix(sc.A, sc.B, ty.C, ty.L, ty.J, ty.sigma, ty.K, g)
-
-
-def obsv(A: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """The observability matrix [C; CA; …; CAⁿ⁻¹] (as python-control's `obsv`, without importing it)."""
-    blocks = [np.asarray(C, float)]
-    for _ in range(1, A.shape[0]):
-        blocks.append(blocks[-1] @ A)
-    return np.vstack(blocks)
 
 
 def _lyapunov_rounding(A: np.ndarray, P: np.ndarray) -> float:

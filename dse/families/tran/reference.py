@@ -88,7 +88,7 @@ def _stride(sc: CoestimationFile) -> int:
     return int(round(sc.reference.dt / sc.simulation.record_dt))
 
 
-@stage(name="central-det")
+@stage(name="central-det", allow_nonfinite=("det_s", "det_all_s"))
 def central_deterministic(sc: CoestimationFile, det_run: dict) -> dict[str, np.ndarray]:
     """The filter along the deterministic run, with the active sensors and with every sensor."""
     stride = _stride(sc)
@@ -97,7 +97,7 @@ def central_deterministic(sc: CoestimationFile, det_run: dict) -> dict[str, np.n
     return {"det_t": det["t"], "det_s": det["s"], "det_all_s": every["s"]}
 
 
-@stage(name="central-sde")
+@stage(name="central-sde", allow_nonfinite=("sde_s",))
 def central_stochastic(sc: CoestimationFile, sde_run: dict, law: dict) -> dict[str, np.ndarray]:
     """The filter along the first stored stochastic trial (none without one), with the seed's noise."""
     from .design import noise_of

@@ -31,7 +31,7 @@ from .scenario import CoestimationFile
 # a diverging run (an unstable error system: the hypotheses do not hold) is kept with its non-finite values
 RUN_MAY_BE_NAN = ("x", "w", "e", "g", "V_mean", "V_m2", "V_max", "late_mean", "late_m2", "proj_mean", "proj_m2",
                   "final_mean", "final_m2", "final_sq_mean", "final_sq_m2", "xerr_mean", "werr_mean", "kept_x",
-                  "kept_e", "kept_g", "EV", "mean_proj_h", "mean_proj_half", "mean_final", "det_s", "det_all_s", "sde_s")
+                  "kept_e", "kept_g")
 #: the deterministic runs and their progress labels; the `_half` twins are the step-halving check, the `_sde`
 #: ones the fixed-role noise-free run at the stochastic step (the exact mean of the SDE) when it has its own
 DETERMINISTIC = {"coest": "coestimation", "coest_half": "coestimation, h/2", "fixed": "fixed roles",
