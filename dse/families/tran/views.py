@@ -263,29 +263,27 @@ def figure_views(dr: Drawing) -> list[View]:
 
 # -- recording --------------------------------------------------------------------------------
 
+def _md_table(header: list[str], rows) -> list[str]:
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)] + ["| " + " | ".join(r) + " |" for r in rows]
+
+
 def lmi_markdown(tables: Tables) -> str:
-    nt, b = tables["node_types"], bound_values(tables)
-    cells = tables["s_cells"].set_index("cell")
-    spectra = tables["spectra"]
-    lines = ["# LMI results", "", "## (28)-(29): coestimation, per node type", "",
-             "| type | ε | Clarabel status | normalised margin t* | verified max eig at P* | given P: max eig g=0 | g=1 |",
-             "|---|---|---|---|---|---|---|"]
-    for r in nt.itertuples():
-        lines.append(f"| {r.type} | {r.eps:g} | {r.lmi_status} | {r.lmi_margin:.4g} | {r.lmi_verified:.4g} | "
-                     f"{'' if np.isnan(r.given_max_eig_g0) else f'{r.given_max_eig_g0:.4g}'} | "
-                     f"{'' if np.isnan(r.given_max_eig_g1) else f'{r.given_max_eig_g1:.4g}'} |")
+    """The LMIs (28)-(29) per node type, the comparison LMIs (38)-(39) and the bounds, as a text document."""
+    nt, b, cells, spectra = tables["node_types"], bound_values(tables), tables["s_cells"].set_index("cell"), tables["spectra"]
+    opt = lambda x: "" if np.isnan(x) else f"{x:.4g}"  # noqa: E731
+    lines = ["# LMI results", "", "## (28)-(29): coestimation, per node type", ""] + _md_table(
+        ["type", "ε", "Clarabel status", "normalised margin t*", "verified max eig at P*", "given P: max eig g=0", "g=1"],
+        [(r.type, f"{r.eps:g}", r.lmi_status, f"{r.lmi_margin:.4g}", f"{r.lmi_verified:.4g}", opt(r.given_max_eig_g0),
+          opt(r.given_max_eig_g1)) for r in nt.itertuples()])
     lines += ["", "## (38)-(39): the comparison architecture", ""]
     if (nt["comparison_status_at_sigma"] != "").any():   # at the coestimation σ: the paper's example only
-        lines += ["| type | σ (coestimation) | status | t* | smallest feasible σ | σ_b used | status | t* |",
-                  "|---|---|---|---|---|---|---|---|"]
-        for r in nt.itertuples():
-            lines.append(f"| {r.type} | {r.sigma:g} | {r.comparison_status_at_sigma} | {r.comparison_margin_at_sigma:.4g} | "
-                         f"{r.comparison_sigma_min:.4g} | {r.comparison_sigma:g} | {r.comparison_status} | "
-                         f"{r.comparison_margin:.4g} |")
+        lines += _md_table(["type", "σ (coestimation)", "status", "t*", "smallest feasible σ", "σ_b used", "status", "t*"],
+                           [(r.type, f"{r.sigma:g}", r.comparison_status_at_sigma, f"{r.comparison_margin_at_sigma:.4g}",
+                             f"{r.comparison_sigma_min:.4g}", f"{r.comparison_sigma:g}", r.comparison_status,
+                             f"{r.comparison_margin:.4g}") for r in nt.itertuples()])
     else:
-        lines += ["| type | σ_b used | status | t* |", "|---|---|---|---|"]
-        for r in nt.itertuples():
-            lines.append(f"| {r.type} | {r.comparison_sigma:g} | {r.comparison_status} | {r.comparison_margin:.4g} |")
+        lines += _md_table(["type", "σ_b used", "status", "t*"], [(r.type, f"{r.comparison_sigma:g}", r.comparison_status,
+                                                                   f"{r.comparison_margin:.4g}") for r in nt.itertuples()])
     smin = [float(spectra[spectra["matrix"] == f"S_{c}"]["real"].min()) for c in ("all_passive", "all_active")]
     lines += ["", "## Bounds", "", f"- w̄ = {b[('wbar', '')]:.6g} (sup‖w‖ = {b[('w_sup', '')]:.6g}, sup‖ẇ‖ = "
               f"{b[('wdot_sup', '')]:.6g}); φ̄ = {b[('phibar', 'paper')]:.6g} (tight {b[('phibar', 'tight')]:.6g})",
