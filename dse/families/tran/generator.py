@@ -20,22 +20,9 @@ import numpy as np
 
 FAMILY = "coestimation"
 
-EDGES: tuple[str, ...] = (
-    "infeasible_lmi_large_J",
-    "infeasible_lmi_unstable_vertex",
-    "beat_frequencies",
-    "incommensurate_frequencies",
-    "fixed_roles",
-    "proximity_roles",
-    "two_nodes",
-    "six_nodes",
-    "lyapunov_P",
-    "given_P",
-    "zero_noise",
-    "small_noise",
-    "large_noise",
-    "disconnected_graph",
-)
+EDGES: tuple[str, ...] = ("infeasible_lmi_large_J", "infeasible_lmi_unstable_vertex", "beat_frequencies",
+                          "incommensurate_frequencies", "fixed_roles", "proximity_roles", "two_nodes", "six_nodes",
+                          "lyapunov_P", "given_P", "zero_noise", "small_noise", "large_noise", "disconnected_graph")
 
 
 def _process(rng: np.random.Generator, n: int, p: int) -> tuple[np.ndarray, np.ndarray]:
