@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import dse.families as reproductions
+from dse import registry as reproductions
 from dse.contract.options import RunOptions
 from dse.contract.stages import StageContext
 from dse.engine.cache import StageCache

@@ -18,7 +18,7 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import expm, solve_continuous_are, solve_continuous_lyapunov
 
 import dse.estimators.input_state_coestimation as ce
-import dse.families as reproductions
+from dse import registry as reproductions
 from dse import api
 from dse.contract.cost import refuse_if_too_large
 from dse.contract.options import RunOptions

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import dse.families
+from dse import registry
 from dse import api
 from dse.contract.options import RunOptions
 from dse.contract.stages import StageContext
@@ -28,7 +28,7 @@ PAPER_TOML = ROOT / "dse" / "families" / "tran" / "paper.toml"
 
 
 def from_dict(data):
-    return dse.families.from_dict({"family": "coestimation", **data})
+    return registry.from_dict({"family": "coestimation", **data})
 
 
 USER = {
@@ -54,7 +54,7 @@ USER = {
 @pytest.fixture(scope="module")
 def quick_paper(tmp_path_factory):
     out = tmp_path_factory.mktemp("tran")
-    summary = run(dse.families.paper("tran"), out, RunOptions(quick=True, workers=2))   # as `dse reproduce`: forked workers
+    summary = run(registry.paper("tran"), out, RunOptions(quick=True, workers=2))   # as `dse reproduce`: forked workers
     return out, summary
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-import dse.families
+from dse import registry
 from dse.contract import stages
 from dse.contract.stages import StageResult, code_closure
 from dse.engine.cache import MemoryCache
@@ -18,7 +18,7 @@ STAGE_MODULES = ("design", "law", "runs", "reference")
 
 @pytest.fixture(scope="module")
 def scenario():
-    return dse.families.paper("tran").scenario
+    return registry.paper("tran").scenario
 
 
 @pytest.fixture
@@ -81,10 +81,10 @@ def test_editing_an_imported_module_changes_the_key_and_only_then(module, change
 def test_keys_follow_the_arguments(scenario):
     a = _keys(scenario)
     assert len(set(a.values())) == len(a)
-    data = dse.families.family("coestimation").generate(0)
-    other = dse.families.from_dict(data).scenario
+    data = registry.family("coestimation").generate(0)
+    other = registry.from_dict(data).scenario
     assert _keys(other)["design"] != a["design"]
-    name_only = dse.families.from_dict({**data, "name": "renamed", "stochastic": {**data["stochastic"], "trials": 30}})
+    name_only = registry.from_dict({**data, "name": "renamed", "stochastic": {**data["stochastic"], "trials": 30}})
     assert _keys(name_only.scenario) == _keys(other)      # the name and the trial counts change no number
 
 

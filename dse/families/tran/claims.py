@@ -1,9 +1,10 @@
 """The claims of the coestimation paper, each registered on its check (ids `tran.<where>.<what>`, in
 report order) on the family's `ClaimSet`, whose hypotheses are `hypotheses.py`.
 
-Every claim names the hypotheses its conclusion rests on; the claims about the paper's own example
-(its printed numbers, figures, the example's gains, a fixed counterexample) have scope
-"paper-example" and are absent from users' runs. Bounds that hold with a huge slack pass and report
+Every claim names the hypotheses its conclusion rests on, and with `requires` what the run must
+contain to be checked at all (a given P_i, the comparison run, a vertex enumeration); the claims
+about the paper's own example (its printed numbers, figures, the example's gains, a fixed
+counterexample) have scope "paper-example" and are absent from users' runs. Bounds that hold with a huge slack pass and report
 the slack ratio: slack is a finding, not a failure. Every tolerance is a round-off or integration
 allowance derived from the computation, stated in the detail.
 """
@@ -119,11 +120,10 @@ def check_error_dynamics(res: Results) -> Verdict:
 # -- LMIs -----------------------------------------------------------------------------------
 
 @claims.claim("tran.eq62.printed_P", "(62)-(63)", "the printed P_i satisfy (28)-(29) with the printed ε for the "
-              "printed gains", "inequality", scope=PE)
+              "printed gains", "inequality", scope=PE,
+              requires=[(lambda res: "given_sweep" in res.design, "the scenario gives no P_i")])
 def check_printed_P(res: Results) -> Verdict:
     d, sc = res.design, res.scenario
-    if "given_sweep" not in d:
-        return not_checkable("the scenario gives no P_i")
     sweep = d["given_sweep"]
     eps = np.array([t.eps for t in sc.types])
     vert = sweep[:, [0, -1]]
@@ -157,11 +157,10 @@ def check_lmi_feasible(res: Results) -> Verdict:
 
 
 @claims.claim("tran.ex51.J_tradeoff", "Sec. 5.1 (after Fig. 5)", "J_i cannot be made large while keeping (28)-(29) "
-              "feasible", "qualitative", scope=PE)
+              "feasible", "qualitative", scope=PE,
+              requires=[(lambda res: "J_sweep_margin" in res.design, "the J sweep was not computed")])
 def check_J_sweep(res: Results) -> Verdict:
     d = res.design
-    if "J_sweep_margin" not in d:
-        return not_checkable("the J sweep was not computed")
     scale, margin = d["J_sweep"], d["J_sweep_margin"]
     first_bad = [float(scale[np.argmax(m < 0)]) if np.any(m < 0) else None for m in margin]
     ok = bool(np.all(margin[:, 0] > 0)) and any(x is not None for x in first_bad)
@@ -290,12 +289,12 @@ claims.claim("tran.cor21.ultimate_bound", "Cor 2.1, (18)", "‖z(t)‖ ≤ sqrt(
 # -- time-varying roles: Thm 3.1, Cor 3.1 ------------------------------------------------------
 
 @claims.claim("tran.thm31.vertices", "Thm 3.1 proof", "S(g)ᵀP + PS(g) ≤ −Q̄_ε for all role vectors g", "inequality",
-              hypotheses=(LMI,))
+              hypotheses=(LMI,), requires=[(lambda res: np.isfinite(float(res.design["thm31_vertex_max"])),
+                                            "the 2^N vertex enumeration is skipped for this many nodes in this mode; "
+                                            "the per-node vertex check (tran.lemma31.vertex_lmis) covers it by block "
+                                            "affinity")])
 def check_thm31_vertices(res: Results) -> Verdict:
     v, tol = float(res.design["thm31_vertex_max"]), float(res.design["thm31_vertex_tol"])
-    if not np.isfinite(v):
-        return not_checkable("the 2^N vertex enumeration is skipped for this many nodes in this mode; the per-node "
-                             "vertex check (tran.lemma31.vertex_lmis) covers it by block affinity")
     return inequality(np.array([v]), np.array([tol]),
                       detail=f"max over all 2^{res.scenario.N} role vertices of λ_max(S(g)ᵀP + PS(g) + Q̄_ε) = {v:.4g} "
                              f"(single ε = {res.design['eps_nodes'].min():g}) ≤ 0 up to the round-off allowance {tol:.2g} "
@@ -526,11 +525,9 @@ def check_rem42_text(res: Results) -> Verdict:
 
 
 @claims.claim("tran.ex52.noisier_velocity", "Sec. 5.2", "estimates of states 2 and 4 are noisier than of states 1 and "
-              "3", "inequality", scope=PE)
+              "3", "inequality", scope=PE, requires=[(lambda res: res.runs["sde_roles"]["kept_e"].size > 0, "no stored runs")])
 def check_noisier_velocity(res: Results) -> Verdict:
     r = res.runs["sde_roles"]
-    if r["kept_e"].size == 0:
-        return not_checkable("no stored runs")
     n = res.scenario.n
     z = r["kept_x"][:, :, None, :] - r["kept_e"][..., :n]          # (runs, T, N, n)
     rough = np.sqrt(np.mean(np.diff(z, axis=1) ** 2, axis=(0, 1, 2)))  # RMS increment per state
@@ -543,10 +540,10 @@ def check_noisier_velocity(res: Results) -> Verdict:
 # -- comparison, reference, numerics ----------------------------------------------------------
 
 @claims.claim("tran.rem31.comparison", "Remarks 2.1, 3.1; Figs. 3-8", "coestimation estimates x and w better than the "
-              "estimation architecture (36)-(37) on the example", "qualitative", scope=PE)
+              "estimation architecture (36)-(37) on the example", "qualitative", scope=PE,
+              requires=[(lambda res: "comparison" in res.runs, "the comparison LMIs (38)-(39) have no solution at the "
+                                                               "scenario's comparison_sigma")])
 def check_comparison(res: Results) -> Verdict:
-    if "comparison" not in res.runs:
-        return not_checkable("the comparison LMIs (38)-(39) have no solution at the scenario's comparison_sigma")
     sc, m = res.scenario, tail(res, "coest")
     co = rms(res.errors("coest")[m], sc.n)
     cp = rms(res.errors("comparison")[m], sc.n)
