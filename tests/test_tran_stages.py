@@ -92,3 +92,18 @@ def test_no_stage_imports_the_claims():
     for m in STAGE_MODULES:
         closure = code_closure(f"dse.families.tran.{m}")
         assert not {"dse.families.tran.claims", "dse.families.tran.hypotheses"} & closure, m
+
+
+def test_design_then_simulate_is_the_run():
+    """The contract's two steps (design, then simulate on it: `dse check`'s design reused) give the run's
+    hypotheses and claims, as the family's one-pool `compute` does."""
+    from dse.contract.family import Family
+    from dse.contract.options import RunOptions
+    from dse.contract.stages import StageContext
+    from dse.engine.driver import evaluate_claims
+
+    fam = registry.family("coestimation")
+    run, opts = registry.from_dict(fam.generate(3)), RunOptions(quick=True, seed=3)
+    one = evaluate_claims(run, fam.compute(run, opts, StageContext(MemoryCache())))
+    two = evaluate_claims(run, Family.compute(fam, run, opts, StageContext(MemoryCache())))
+    assert one.claims == two.claims and one.hypotheses == two.hypotheses

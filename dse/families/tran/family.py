@@ -142,7 +142,9 @@ one-sided t tests for the mean-square bounds, under the report's family-wise con
         return design.Design(run.scenario, opts.quick, opts.seed, design.merge_design(core, parts), law)
 
     def simulate(self, run, opts, ctx, design):
-        return self._simulate(run, opts, ctx, design.arrays, design.law, [])[1]
+        """The runs on top of `design` (its core and law read back from the cache: the runs are keyed by them)."""
+        core, law = self._seeded(run, opts, ctx)
+        return self._simulate(run, opts, ctx, core, law, [], design)[1]
 
     def compute(self, run, opts, ctx):
         """The design's core and the law first; then its parts, every run and the Monte Carlo in one pool of
@@ -151,7 +153,7 @@ one-sided t tests for the mean-square bounds, under the report's family-wise con
         core, law = self._seeded(run, opts, ctx)
         return Computed(*self._simulate(run, opts, ctx, core, law, self._parts(run, opts, core)))
 
-    def _simulate(self, run, opts, ctx, core, law, parts):
+    def _simulate(self, run, opts, ctx, core, law, parts, d=None):
         runs, design, cost, reference = (self.module(m) for m in ("runs", "design", "cost", "reference"))
         sc, trials, budget = run.scenario, self.trials(run, opts), opts.chunk_budget_bytes()
         t_sde, h = design.t_stochastic(sc, opts.quick), sc.stochastic.step
@@ -167,7 +169,9 @@ one-sided t tests for the mean-square bounds, under the report's family-wise con
         central = self._run_many(ctx, [(2 * kf, reference.central_deterministic, (sc, results.runs["coest"])),
                                        (kf, reference.central_stochastic, (sc, results.runs["sde_roles"], law))],
                                  opts, f"{sc.name}: centralized filters")
-        d = results.design = design.Design(sc, opts.quick, opts.seed, design.merge_design(core, done[len(calls):]), law)
+        if d is None:
+            d = design.Design(sc, opts.quick, opts.seed, design.merge_design(core, done[len(calls):]), law)
+        results.design = d
         d.integration = {r: runs.integration_error(results.runs, r) for r in ("coest", "fixed")}
         results.runs["exact_fixed"] = runs.fixed_means(sc, d, results.runs)
         results.runs["central"] = {**central[0], **central[1]}
