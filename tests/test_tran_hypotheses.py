@@ -7,7 +7,7 @@ import pytest
 
 from dse import registry as reproductions
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.engine.cache import StageCache
 from dse.engine.driver import evaluate_claims
 from dse.estimators.sinusoid_sup import input_sup_bounds

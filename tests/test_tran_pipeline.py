@@ -22,7 +22,7 @@ from dse import registry as reproductions
 from dse import api
 from dse.contract.cost import refuse_if_too_large
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.engine.cache import MemoryCache
 from dse.errors import ScenarioError
 from dse.families.tran import claims as tran_claims

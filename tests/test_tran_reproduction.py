@@ -15,7 +15,7 @@ import pytest
 from dse import registry
 from dse import api
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.engine.cache import StageCache
 from dse.engine.driver import evaluate_claims, run
 from dse.errors import ScenarioError

@@ -59,7 +59,7 @@ def _edited(monkeypatch, tmp_path, module: str) -> None:
 
 
 @pytest.mark.parametrize("module, changed", [
-    ("dse.simulate.seeding", {"design", "law", "det", "monte-carlo", "central"}),
+    ("dse.simulate.seeding", {"law", "det", "monte-carlo", "central"}),
     ("dse.estimators.linear_flows", {"law", "det", "monte-carlo", "central"}),
     ("dse.estimators.observer_network_simulation", {"design", "law", "det", "monte-carlo", "central"}),
     ("dse.families.tran.runs", {"det", "monte-carlo"}),
@@ -99,7 +99,7 @@ def test_design_then_simulate_is_the_run():
     hypotheses and claims, as the family's one-pool `compute` does."""
     from dse.contract.family import Family
     from dse.contract.options import RunOptions
-    from dse.contract.stages import StageContext
+    from dse.contract.context import StageContext
     from dse.engine.driver import evaluate_claims
 
     fam = registry.family("coestimation")
