@@ -16,7 +16,7 @@ import typing
 from typing import Annotated, Any, ClassVar, Literal, Mapping, get_args, get_origin
 
 from annotated_types import Ge, Gt, Le, Lt, MaxLen, MinLen
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 from pydantic.fields import FieldInfo
 from pydantic_core import PydanticCustomError, PydanticUndefined
 
@@ -59,36 +59,6 @@ class ScenarioFile(Section):
     def key(self) -> dict[str, Any]:
         return self.model_dump(mode="json", exclude=self.unkeyed)
 
-    def check_tables(self) -> None:
-        """Rules that tie several tables together (a family's own): raise ScenarioError naming the
-        key. Run once every table is valid on its own; the keys declared with `file_default` that
-        the file leaves out are None until `fill_defaults()`, which runs after this (call it
-        earlier where a rule needs them)."""
-
-    def fill_defaults(self) -> None:
-        """Set every key declared with `file_default` that the file leaves out, in declaration order."""
-        for section, entry in _sections(self):
-            for name, info in type(section).model_fields.items():
-                fn = getattr(info.default_factory, "from_file", None)
-                if fn is not None and getattr(section, name) is None:
-                    object.__setattr__(section, name, fn(self) if entry is None else fn(self, entry))
-
-    @model_validator(mode="after")
-    def _whole_file(self):
-        self.check_tables()
-        self.fill_defaults()
-        return self
-
-
-def _sections(model: Section, entry: str | None = None):
-    """`model` and every section in it (in tables of tables, with their name), in declaration order."""
-    yield model, entry
-    for name in type(model).model_fields:
-        value = getattr(model, name)
-        for k, v in (value.items() if isinstance(value, dict) else [(entry, value)]):
-            if isinstance(v, Section):
-                yield from _sections(v, k)
-
 
 def name_key(default: str = "scenario") -> Any:
     """The `name` key every scenario file has."""
@@ -127,19 +97,6 @@ def derived_default(fn):
 
     unset.__doc__ = fn.__doc__
     return unset
-
-
-def file_default(fn):
-    """A default computed from other tables of the file, for `key(file_default(fn), ...)`: `fn(file)`
-    gets the validated file (a `ScenarioFile`; for a key of a table in a table of tables, that
-    table's name as a second argument) and the first line of its docstring is what the reference
-    page shows as the default. The key reads None until the file fills it (`ScenarioFile.fill_defaults`)."""
-    computed_default(fn)
-
-    def factory():
-        return None
-    factory.__doc__, factory.from_file = fn.__doc__, fn
-    return factory
 
 
 def key(default: Any = PydanticUndefined, *, doc: str, unit: str = "", constraint: str = "", **constraints) -> Any:

@@ -5,8 +5,9 @@ proximity to the target), the comparison architecture and the stochastic variant
 Every key is declared below (type, default, bounds, unit, meaning); docs/scenarios.md is generated
 from these declarations. Matrices are read as float arrays. Rules within a table are the
 sections' validators; rules that tie tables together (dimensions, one entry per node, step
-multiples) are `CoestimationFile.check_tables`, each error naming its key. Defaults computed from
-other keys are functions (beside their key) whose docstring is the documented default. The
+multiples) are `CoestimationFile`'s validator, each error naming its key. Defaults computed from
+other tables are functions (beside their key, `derived_default`) whose docstring is the documented
+default; the file's validator sets them. The
 validated file is the scenario the stages read; derived quantities are its properties.
 """
 from __future__ import annotations
@@ -18,8 +19,8 @@ import numpy as np
 from pydantic import AfterValidator, Field, PlainSerializer, model_validator
 
 from dse.errors import ScenarioError, printable
-from dse.scenario.declare import (Matrix, Real, ScenarioFile, Section, computed_default, covariance, file_default, key,
-                                  matrix, name_key)
+from dse.scenario.declare import (Matrix, Real, ScenarioFile, Section, computed_default, covariance, derived_default,
+                                  key, matrix, name_key)
 from dse.scenario.graphs import GraphSection, GraphSpec, graph_from_section, laplacian
 
 P_MODES = ("given", "lmi", "lyapunov")
@@ -78,12 +79,12 @@ class InputSection(Section):
     sin(frequency_kj t + phase_kj). Its bounds sup‖w‖ and sup‖ẇ‖ over all t ≥ 0 (the w̄ of (15)) are
     certified from these values."""
 
-    @file_default
     def _zeros(sc):
         """zeros"""
         return np.zeros(sc.p)
 
-    offset: Vector | None = key(_zeros, doc="constant part of each input component", unit="input", constraint="p entries")
+    offset: Vector | None = key(derived_default(_zeros), doc="constant part of each input component", unit="input",
+                                constraint="p entries")
     amplitude: Rows = key(doc="amplitudes, one row per input component", unit="input",
                           constraint=f"p rows of J entries, J <= {MAX_SINUSOIDS}")
     frequency: Rows = key(doc="angular frequencies, the same shape as amplitude", unit="rad/s", constraint=">= 0")
@@ -104,42 +105,37 @@ class NodesSection(Section):
     """The nodes: the type of each (its sensing modality and gains), where it is, and where its
     estimates start."""
 
-    @file_default
     def _graph_positions(sc):
         """the graph's drawing positions"""
         return sc.network.positions()
 
-    @file_default
     def _zero_states(sc):
         """zeros"""
         return np.zeros((sc.N, sc.n))
 
-    @file_default
     def _zero_inputs(sc):
         """zeros"""
         return np.zeros((sc.N, sc.p))
 
     type: list[str] = key(doc="node type of each node, by the name of its [node_type.<name>] table",
                           constraint="one entry per node")
-    positions: Rows | None = key(_graph_positions, doc="positions c_i in the plane (the centres of the sensing discs "
-                                 "of proximity roles; also where figures draw the nodes)", unit="position",
-                                 constraint="N rows of 2 entries")
-    xhat0: Rows | None = key(_zero_states, doc="initial state estimates x̂_i(0) of (3)/(22): one row for every node, "
-                             "or one row per node", unit="state", constraint="1 or N rows of n entries")
-    what0: Rows | None = key(_zero_inputs, doc="initial input estimates ŵ_i(0) of (4)/(23): one row for every node, "
-                             "or one row per node", unit="input", constraint="1 or N rows of p entries")
+    positions: Rows | None = key(derived_default(_graph_positions), doc="positions c_i in the plane (the centres of "
+                                 "the sensing discs of proximity roles; also where figures draw the nodes)",
+                                 unit="position", constraint="N rows of 2 entries")
+    xhat0: Rows | None = key(derived_default(_zero_states), doc="initial state estimates x̂_i(0) of (3)/(22): one row "
+                             "for every node, or one row per node", unit="state", constraint="1 or N rows of n entries")
+    what0: Rows | None = key(derived_default(_zero_inputs), doc="initial input estimates ŵ_i(0) of (4)/(23): one row "
+                             "for every node, or one row per node", unit="input", constraint="1 or N rows of p entries")
 
 
 class NodeTypeSection(Section):
     """A node type: what its nodes measure, y_i = C_i x (2), and the gains of (3)-(4). The tables are
     named freely ([node_type.position], [node_type.velocity], ...) and referred to by nodes.type."""
 
-    @file_default
     def _table_name(sc, name):
         """the table's name"""
         return name
 
-    @file_default
     def _identity(sc, name):
         """identity"""
         return np.eye(sc.q)
@@ -149,7 +145,7 @@ class NodeTypeSection(Section):
         """sigma"""
         return data["sigma"]
 
-    name: str | None = key(_table_name, doc="name shown in the figures and tables", max_length=80,
+    name: str | None = key(derived_default(_table_name), doc="name shown in the figures and tables", max_length=80,
                            constraint="no control or format characters (also in the table's name)")
     C: Rows = key(doc="output matrix C_i (m x n); every type has the same m", constraint=f"n columns, m <= {MAX_OUTPUT}")
     L: Rows = key(doc="state injection gain L_i (n x m) of (3)", constraint="n x m")
@@ -160,8 +156,8 @@ class NodeTypeSection(Section):
     eps: Real = key(1e-6, doc="ε_i of the vertex LMIs (28)-(29): Ā_i(g)ᵀP_i + P_iĀ_i(g) ≤ −ε_i I at g = 0 and 1", gt=0)
     P: Definite | None = key(None, doc="P_i ((n+p) x (n+p)) used with coupling.P = 'given': H_i = P_i⁻¹ (34)",
                              constraint="symmetric, positive definite")
-    Q: Definite | None = key(_identity, doc="Q_i ((n+p) x (n+p)) of the Lyapunov equation (10), Ā_iᵀP_i + P_iĀ_i + "
-                             "Q_i = 0 at the fixed roles, used with coupling.P = 'lyapunov'",
+    Q: Definite | None = key(derived_default(_identity), doc="Q_i ((n+p) x (n+p)) of the Lyapunov equation (10), "
+                             "Ā_iᵀP_i + P_iĀ_i + Q_i = 0 at the fixed roles, used with coupling.P = 'lyapunov'",
                              constraint="symmetric, positive definite")
     comparison_sigma: Real = key(_own_sigma, doc="σ_i of the comparison architecture (36)-(37)", gt=0)
 
@@ -200,25 +196,23 @@ class RolesSection(Section):
     """The roles g_i(t) ∈ [0, 1] of the estimator (22)-(23): fixed, or by proximity to the target, ġ_i =
     β (a_i(t) − g_i) with a_i = 1 while the target position is within radius of node i (g_i(0) = a_i(0))."""
 
-    @file_default
     def _all_active(sc):
         """all ones"""
         return [1.0] * sc.N
 
-    @file_default
     def _plane(sc):
         """[0, 2] (or [0, 1] when n = 2)"""
         return [0, 2 if sc.n > 2 else 1]
 
     mode: Literal["fixed", "proximity"] = key("fixed", doc="fixed: g_i = active[i]; proximity: the law above")
-    active: list[Role] | None = key(_all_active, doc="g_i of every node (mode = fixed)",
+    active: list[Role] | None = key(derived_default(_all_active), doc="g_i of every node (mode = fixed)",
                                     constraint="one entry per node, each in [0, 1]; only with mode = fixed")
     radius: Real | None = key(None, doc="sensing radius r (mode = proximity)", unit="position", gt=0,
                               constraint="required with mode = proximity, only then")
     beta: Real | None = key(None, doc="rate β of the role transitions (mode = proximity)", unit="1/s", gt=0,
                             constraint="required with mode = proximity, only then")
-    position_states: list[int] | None = key(_plane, doc="the two state indices that are the target's position in the "
-                                            "plane (mode = proximity)",
+    position_states: list[int] | None = key(derived_default(_plane), doc="the two state indices that are the target's "
+                                            "position in the plane (mode = proximity)",
                                             constraint="two distinct indices in 0..n−1; only with mode = proximity")
 
     @model_validator(mode="after")
@@ -239,25 +233,23 @@ class RolesSection(Section):
 class FixedRolesSection(Section):
     """The fixed-role scenario of Thm 2.1, Cor 2.1 and Prop 4.1 (run besides the scenario's own roles)."""
 
-    @file_default
     def _scenario_roles(sc):
         """roles.active with fixed roles, else all ones"""
         return list(sc.roles.active)
 
-    active: list[Role] | None = key(_scenario_roles, doc="g_i of every node", constraint="one entry per node, each in "
-                                    "[0, 1]")
+    active: list[Role] | None = key(derived_default(_scenario_roles), doc="g_i of every node",
+                                    constraint="one entry per node, each in [0, 1]")
 
 
 class ComparisonSection(Section):
     """The comparison ("estimation") architecture (36)-(37), run on the same process with the scenario's roles."""
 
-    @file_default
     def _coupling_alpha(sc):
         """coupling.alpha"""
         return sc.coupling.alpha
 
     gamma: Real = key(0.1, doc="leakage γ of (36)-(37)", gt=0)
-    alpha: Real | None = key(_coupling_alpha, doc="its coupling strength", gt=0)
+    alpha: Real | None = key(derived_default(_coupling_alpha), doc="its coupling strength", gt=0)
     P_lower: Real = key(1e-3, doc="lower bound P_i ⪰ P_lower·I of its LMIs (38)-(39) (max-margin solution)", gt=0)
 
 
@@ -275,7 +267,6 @@ class SimulationSection(Section):
     """The deterministic runs: ETD2RK with the stiff linear part integrated exactly, each also at half the
     step (the integration check)."""
 
-    @file_default
     def _record_dt(sc):
         """0.01, or the smallest common multiple of the two steps that divides t_end and keeps at most 10,000 samples"""
         t_end, step = sc.simulation.t_end, sc.simulation.step
@@ -297,8 +288,8 @@ class SimulationSection(Section):
     t_end: Real = key(40.0, doc="horizon T", unit="s", gt=0, le=MAX_T_END,
                       constraint="a multiple of step, of stochastic.step and of record_dt")
     step: Real = key(0.005, doc="integration step h", unit="s", ge=MIN_STEP, le=MAX_STEP)
-    record_dt: Real | None = key(_record_dt, doc="interval of the recorded samples: the trajectories, tables, figures "
-                                 "and every check along a run use these samples", unit="s",
+    record_dt: Real | None = key(derived_default(_record_dt), doc="interval of the recorded samples: the trajectories, "
+                                 "tables, figures and every check along a run use these samples", unit="s",
                                  constraint="a multiple of step and of stochastic.step, dividing t_end")
     tail_start: Real = key(_quarter, doc="start of the tail window (RMS errors, ultimate bounds)", unit="s", ge=0,
                            constraint="< t_end")
@@ -319,12 +310,10 @@ class StochasticSection(Section):
         """max(min(trials, 40), runs)"""
         return max(min(data["trials"], 40), data["runs"])
 
-    @file_default
     def _simulation_step(sc):
         """simulation.step"""
         return sc.simulation.step
 
-    @file_default
     def _quick_horizon(sc):
         """min(t_end, 20), a multiple of record_dt"""
         dt = sc.simulation.record_dt
@@ -337,10 +326,10 @@ class StochasticSection(Section):
     trials: int = key(200, doc="Monte Carlo trials of each stochastic run (time-varying roles, fixed roles, fixed "
                       "roles at half the step)", ge=10, le=100_000, constraint=">= runs")
     quick_trials: int = key(_quick_trials, doc="trials in quick runs", ge=10, le=100_000, constraint=">= runs")
-    step: Real | None = key(_simulation_step, doc="integration step of the stochastic runs", unit="s", ge=MIN_STEP,
-                            le=MAX_STEP)
-    quick_t_end: Real | None = key(_quick_horizon, doc="horizon of the stochastic runs in quick mode", unit="s", gt=0,
-                                   constraint="<= t_end, a multiple of record_dt")
+    step: Real | None = key(derived_default(_simulation_step), doc="integration step of the stochastic runs", unit="s",
+                            ge=MIN_STEP, le=MAX_STEP)
+    quick_t_end: Real | None = key(derived_default(_quick_horizon), doc="horizon of the stochastic runs in quick mode",
+                                   unit="s", gt=0, constraint="<= t_end, a multiple of record_dt")
 
     @model_validator(mode="after")
     def _enough_trials(self):
@@ -354,13 +343,12 @@ class ReferenceSection(Section):
     """The centralized reference (a project addition): a Kalman filter on (x, w) with every active sensor,
     w modelled as a random walk, discretised exactly at dt."""
 
-    @file_default
     def _reference_dt(sc):
         """the smallest multiple of record_dt >= 0.01"""
         dt = sc.simulation.record_dt
         return dt * max(1, int(np.ceil(BASE_RECORD_DT / dt - 1e-9)))
 
-    dt: Real | None = key(_reference_dt, doc="its step", unit="s", constraint="a multiple of record_dt")
+    dt: Real | None = key(derived_default(_reference_dt), doc="its step", unit="s", constraint="a multiple of record_dt")
     q_w: Real = key(1.0, doc="intensity of the random walk that models w", unit="input²/s", gt=0)
     r_deterministic: Real = key(1e-4, doc="fictitious measurement noise covariance r·I of the noise-free runs",
                                 unit="output²", gt=0)
@@ -385,7 +373,29 @@ class CoestimationFile(ScenarioFile):
     stochastic: StochasticSection = key(StochasticSection, doc="the stochastic runs")
     reference: ReferenceSection = key(ReferenceSection, doc="the centralized reference")
 
-    def check_tables(self) -> None:
+    def _fill_defaults(self) -> None:
+        """Set the keys the file leaves out whose defaults depend on other tables, in declaration order."""
+        def fill(section, name, fn, *args):
+            if getattr(section, name) is None:
+                object.__setattr__(section, name, fn(self, *args))
+        fill(self.input, "offset", InputSection._zeros)
+        for name, fn in (("positions", NodesSection._graph_positions), ("xhat0", NodesSection._zero_states),
+                         ("what0", NodesSection._zero_inputs)):
+            fill(self.nodes, name, fn)
+        for k, t in self.node_type.items():
+            fill(t, "name", NodeTypeSection._table_name, k)
+            fill(t, "Q", NodeTypeSection._identity, k)
+        fill(self.roles, "active", RolesSection._all_active)
+        fill(self.roles, "position_states", RolesSection._plane)
+        fill(self.fixed_roles, "active", FixedRolesSection._scenario_roles)
+        fill(self.comparison, "alpha", ComparisonSection._coupling_alpha)
+        fill(self.simulation, "record_dt", SimulationSection._record_dt)
+        fill(self.stochastic, "step", StochasticSection._simulation_step)
+        fill(self.stochastic, "quick_t_end", StochasticSection._quick_horizon)
+        fill(self.reference, "dt", ReferenceSection._reference_dt)
+
+    @model_validator(mode="after")
+    def _tables(self):
         """Dimensions and one entry per node (the network's size bounded by the dense matrices of the stacked
         dimension n + N(n + p); a disconnected graph is accepted: only L ⪰ 0 is used by the proofs, connectivity
         is a reported hypothesis), then the step multiples, with the defaults filled in between."""
@@ -430,8 +440,9 @@ class CoestimationFile(ScenarioFile):
         sim, st = self.simulation, self.stochastic
         _multiple(sim.t_end, sim.step, "simulation.t_end", "simulation.step")
         _multiple(sim.t_end, st.step if st.step is not None else sim.step, "simulation.t_end", "stochastic.step")
-        self.fill_defaults()
+        self._fill_defaults()
         self._check_samples()
+        return self
 
     def _check_samples(self) -> None:
         sim, st, ps = self.simulation, self.stochastic, self.roles.position_states
