@@ -10,21 +10,26 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 import dse.estimators.observer_network_simulation as sim
-from dse.families.tran import compute, design
-from dse.families.tran.scenario import paper_scenario
+from dse.families.tran import design, law, runs
+
+
+def paper_scenario():
+    from dse import registry
+
+    return registry.paper("tran").scenario
 
 
 def bench_deterministic(t_end: float = 10.0) -> list[dict]:
     sc = paper_scenario()
-    P = np.stack([sc.types[t].P for t in sc.node_type])
+    P = sc.per_node("P")
     net = design.coestimation(sc, P)
-    roles = compute.role_law(sc, fixed=True)
+    roles = runs.role_law(sc, fixed=True)
     signal = design.input_signal(sc)
     e0 = np.zeros((sc.N, sc.n + sc.p))
     rows = []
     ref = None
     M = net.augmented_drift()
-    g = np.asarray(sc.fixed_active, float)
+    g = np.asarray(sc.fixed_roles.active, float)
 
     def rhs(t, u):
         out = M @ u
@@ -33,14 +38,14 @@ def bench_deterministic(t_end: float = 10.0) -> list[dict]:
         return out
 
     t0 = time.perf_counter()
-    sol = solve_ivp(rhs, (0, t_end), np.r_[sc.x0, e0.ravel()], method="Radau", rtol=1e-10, atol=1e-12,
+    sol = solve_ivp(rhs, (0, t_end), np.r_[sc.process.x0, e0.ravel()], method="Radau", rtol=1e-10, atol=1e-12,
                     t_eval=np.arange(0, t_end + 1e-9, 0.01))
     radau = time.perf_counter() - t0
     ref = sol.y[sc.n:].T
     rows.append({"name": "scipy Radau rtol 1e-10 (reference)", "wall_s": radau, "max_err": 0.0})
     for h in (0.01, 0.005, 0.0025):
         t0 = time.perf_counter()
-        tr = sim.simulate(net, roles, signal, sc.x0, e0, t_end=t_end, h=h, record_every=int(round(0.01 / h)))
+        tr = sim.simulate(net, roles, signal, sc.process.x0, e0, t_end=t_end, h=h, record_every=int(round(0.01 / h)))
         wall = time.perf_counter() - t0
         rows.append({"name": f"ETD2RK h={h}", "wall_s": wall,
                      "max_err": float(np.abs(tr.e[0].reshape(len(tr.t), -1) - ref).max())})
@@ -49,11 +54,12 @@ def bench_deterministic(t_end: float = 10.0) -> list[dict]:
 
 def bench_stochastic(trials: int = 100, t_end: float = 4.0) -> dict:
     sc = paper_scenario()
-    d = compute.design(sc, True, 0)
+    P = sc.per_node("P")
+    noise = law.noise_model(sc, 0)
     t0 = time.perf_counter()
-    compute.run_stochastic(sc, d, fixed=False, trials=trials, seed=0, t_end=t_end, keep=0, h=sc.sde_step)
+    runs.run_stochastic(sc, P, noise, fixed=False, trials=trials, seed=0, t_end=t_end, keep=0, h=sc.stochastic.step)
     wall = time.perf_counter() - t0
-    steps = int(round(t_end / sc.sde_step))
+    steps = int(round(t_end / sc.stochastic.step))
     return {"name": f"SDE, {trials} trials x {steps} steps, 12 nodes", "wall_s": wall,
             "us_per_trial_step": wall / (trials * steps) * 1e6}
 
@@ -65,13 +71,14 @@ def bench_stochastic_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
     from .common import estimator_row, timed
 
     sc = paper_scenario()
-    P = np.stack([sc.types[t].P for t in sc.node_type])
+    P = sc.per_node("P")
     t_end = 1.0 if quick else 4.0
-    steps = int(round(t_end / sc.sde_step))
+    h = sc.stochastic.step
+    steps = int(round(t_end / h))
     net = design.coestimation(sc, P)
-    noise = design.noise_model(sc, 0)
-    prepared = sim.prepare(net, sc.sde_step, noise)          # once per reproduction stage: not timed
-    every = int(round(sc.record_dt / sc.sde_step))
+    noise = law.noise_model(sc, 0)
+    prepared = sim.prepare(net, h, noise)          # once per reproduction stage: not timed
+    every = int(round(sc.simulation.record_dt / h))
     from dse.estimators.input_state_coestimation import block_diag, errors_from_estimates
 
     Pbig = block_diag(list(P))
@@ -83,16 +90,16 @@ def bench_stochastic_rows(quick: bool = False, repeats: int = 3) -> list[dict]:
     e0 = np.zeros((sc.N, sc.n + sc.p))
     rows = []
     for fixed, trials in [(False, k) for k in ((100,) if quick else (100, 1000))] + [(True, 100 if quick else 1000)]:
-        roles = compute.role_law(sc, fixed)
+        roles = runs.role_law(sc, fixed)
         loop_trials = 2 if quick else 5
         rng = np.random.Generator(np.random.SFC64(0))
-        run = lambda k: sim.simulate(net, roles, signal, sc.x0, e0, t_end=t_end, h=sc.sde_step,  # noqa: E731
+        run = lambda k: sim.simulate(net, roles, signal, sc.process.x0, e0, t_end=t_end, h=h,  # noqa: E731
                                      record_every=every, n_trials=k, noise=noise, rng=rng, keep=0, reducer=reducer,
                                      prepared=prepared)
         batched = timed(lambda: run(trials), repeats, per=trials * steps * sc.N, warmup=True)
         loop = timed(lambda: [run(1) for _ in range(loop_trials)], repeats, per=loop_trials * steps * sc.N)
         rows.append(estimator_row(f"coestimation SDE (tran), {'fixed roles' if fixed else 'role switching'}, "
-                                  f"h={sc.sde_step:g}",
+                                  f"h={h:g}",
                                   f"N={sc.N}, n+p={sc.n + sc.p}, {trials:,} trials, t≤{t_end:g}", nodes=sc.N,
                                   state_dim=sc.n + sc.p, trials=trials, steps=steps, batched=batched, loop=loop,
                                   loop_what="same simulator, 1 trial per call", loop_trials=loop_trials,
@@ -117,8 +124,8 @@ def bench_lmis(repeats: int = 3) -> list[dict]:
         rows.append(bound_row(f"tran LMIs (28)-(29), node type {t} ({len(v)} vertices, {v[0].shape[0]}x{v[0].shape[0]})",
                               fast=timed(lambda: cl.common_lyapunov(v, sc.types[t].eps), repeats, per=1e3),
                               fast_what="common Lyapunov LMI (Clarabel)", note=f"status {r.status}"))
-    rows.append(bound_row("tran design stage (all LMIs, sweeps, vertex checks), quick", fast=timed(
-        lambda: design.compute_design(sc, True), 1, per=1e3), fast_what="compute_design(quick=True)"))
+    rows.append(bound_row("tran design stage (LMIs, sweeps, bounds: the design's core)", fast=timed(
+        lambda: design.design_core(sc), 1, per=1e3), fast_what="design_core(scenario)"))
     return rows
 
 
