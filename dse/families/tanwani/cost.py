@@ -1,5 +1,6 @@
 """Time and memory of a random-comm-filter run, estimated from the scenario before anything runs
-(`dse check`, and the refusal of runs whose non-streamable part does not fit the memory budget).
+(`dse check`, the order in which the stages are run, and the driver's refusal of runs whose
+non-streamable part does not fit the memory budget).
 
 Time: each stage's work is counted from the scenario's sizes (`features`) and multiplied by CPU
 seconds per unit (`COEF`, fitted on the development machine by least squares over the stages of
@@ -25,15 +26,16 @@ the budget, at least one RNG unit of 1,000 trials).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
-from dse.errors import ScenarioError
-from dse.engine.driver import RunOptions
+from dse.contract.cost import MIB, Cost
+from dse.contract.options import INTERPRETER_MIB, RunOptions
 from dse.simulate.units import RNG_UNIT, units_per_chunk
 
-from .scenario import FilterNetworkScenario
+from .design import NUMERICS_PATHS, QUICK_SWEEP_POINTS, SWEEP_EIG_MAX, joint_ok, numerics_times
+from .monte_carlo import PAIR_MAX, event_bytes_per_trial, event_window, gridded_bytes_per_trial
+from .references import FILTERPY_FRACTIONS, FILTERPY_MAX_STEPS, MAX_SCHEME_DIM
+from .scenario import RandomCommFile
 
-MIB = 2.0**20
 #: resident memory before any array: Python, numpy, scipy, pandas, pyarrow, matplotlib, rerun
 BASE_MIB = 300.0
 #: resident memory of the figures and recordings being written
@@ -53,21 +55,6 @@ COEF = {
 #: CPU seconds: interpreter start and imports; the paper's topology sweep
 STARTUP_S = 2.5
 TOPOLOGY_S = 3.0
-#: a run estimated longer than this says so when it starts
-LONG_RUN_S = 60.0
-#: flops of a dense nonsymmetric eigenvalue problem and of an LU solve, per cubed dimension
-EIG_FLOPS, SOLVE_FLOPS = 25.0, 0.7
-
-
-@dataclass(frozen=True)
-class Cost:
-    seconds: float
-    peak_mib: float
-    kept_mib: float       # what cannot be streamed (moments, samples, paths, design arrays, tables)
-    chunk_mib: float      # one Monte Carlo chunk, per worker
-    unit_mib: float       # one RNG unit of the largest stage
-    detail: str
-    parts: dict
 
 
 def human_seconds(s: float) -> str:
@@ -77,70 +64,69 @@ def human_seconds(s: float) -> str:
     return f"{s:.3g} s"
 
 
-def features(sc: FilterNetworkScenario, opts: RunOptions) -> dict[str, dict[str, float]]:
-    """The work of every stage, in the units of COEF."""
-    from .compute import MAX_SCHEME_DIM, event_bytes_per_trial, event_window, gridded_bytes_per_trial, trial_counts
-    from .design import NUMERICS_PATHS, QUICK_SWEEP_POINTS, SWEEP_EIG_MAX, joint_ok, numerics_times
+class Sizes:
+    """The sizes the cost of one scenario's run is counted in."""
 
-    s = sc.system
-    N, n = s.N, s.n
-    d, Nn, C, T = (N + 1) * n, N * n, len(s.clocks), sc.n_outputs + 1
-    D9, DS = N * n * n, N * n * (N * n + 1) // 2
-    joint = joint_ok(s)
-    trials, ev_trials = trial_counts(sc, opts)
-    R = len(sc.rates)
-    pts = (min(sc.sweep[2], QUICK_SWEEP_POINTS) if opts.quick else sc.sweep[2]) + 5
+    def __init__(self, sc: RandomCommFile, opts: RunOptions):
+        s = sc.gossip
+        self.N, self.n, self.R, self.C = s.N, s.n, len(sc.rates), len(s.clocks)
+        self.d, self.Nn, self.T = (s.N + 1) * s.n, s.N * s.n, sc.n_outputs + 1
+        self.D9, self.DS = s.N * s.n * s.n, s.N * s.n * (s.N * s.n + 1) // 2
+        self.q = s.n * (s.n + 1) // 2
+        self.joint = joint_ok(s)
+        self.trials, self.ev_trials = sc.trial_counts(opts.trials, opts.quick)
+        self.S = min(sc.simulation.sample_trials, self.ev_trials)
+        self.pts = (min(sc.sweep[2], QUICK_SWEEP_POINTS) if opts.quick else sc.sweep[2]) + 5
+        self.events = sc.main_rate * self.C * sc.horizon
+        budget = opts.chunk_budget_bytes()
+        self.g_bytes, self.e_bytes = gridded_bytes_per_trial(sc), event_bytes_per_trial(sc)
+        self.g_units, self.e_units = -(-self.trials // RNG_UNIT), -(-self.ev_trials // RNG_UNIT)
+        self.g_chunk = min(units_per_chunk(self.g_bytes, budget), self.g_units)
+        self.e_chunk = min(units_per_chunk(self.e_bytes, budget), self.e_units)
+
+
+def features(sc: RandomCommFile, z: Sizes) -> dict[str, dict[str, float]]:
+    """The work of every stage, in the units of COEF."""
+    N, n, d, Nn, C, T, D9, DS, R, joint = z.N, z.n, z.d, z.Nn, z.C, z.T, z.D9, z.DS, z.R, z.joint
     bisect = 45
-    eig = (pts + 2 + R) * D9 ** 3 + ((pts if DS <= SWEEP_EIG_MAX else 0) + R + 1) * DS ** 3 * joint
-    solve = (4 * pts + bisect + 3 * R) * D9 ** 3 + (4 * pts + bisect + 2 * R) * DS ** 3 * joint
+    eig = (z.pts + 2 + R) * D9 ** 3 + ((z.pts if DS <= SWEEP_EIG_MAX else 0) + R + 1) * DS ** 3 * joint
+    solve = (4 * z.pts + bisect + 3 * R) * D9 ** 3 + (4 * z.pts + bisect + 2 * R) * DS ** 3 * joint
     nt = numerics_times(sc)
     path_intervals = NUMERICS_PATHS * (sc.main_rate * C * nt[-1] + len(nt))
     design = {"base": 1.0, "eig": eig, "solve": solve, "build": (C + 4) * Nn ** 4 * joint,
               "steps": R * T * (D9 ** 2 + (DS ** 2 if joint else 0)), "outputs": (R + 1) * T,
               "intervals": path_intervals * (1 + (2 * Nn) ** 3 / 1000.0)}
-    q = n * (n + 1) // 2
-    Dq = N * q
+    Dq = N * z.q
     big = Dq * (Dq + 1) // 2 + Dq
-    second = Dq <= 40
-    scheme = Nn <= MAX_SCHEME_DIM
+    second, scheme = Dq <= 40, Nn <= MAX_SCHEME_DIM
     every = max(1, int(round(sc.output_step / sc.grid_step)))
     refs = {"base": 1.0, "kron": second * C * Dq ** 4, "second": second * (2 * big ** 3 + 1.5 * T * big ** 2),
             "scheme": scheme * (C * 10 * Nn ** 4 + 2 * (C + math.log2(2 * every + 1)) * DS ** 3 + 2 * T * DS ** 2),
             "steps": 2.0 * T * (D9 ** 2 + (DS ** 2 if joint else 0)), "filterpy": _filterpy_steps(sc)}
-    budget = opts.chunk_budget_bytes()
-    g_units = -(-trials // RNG_UNIT)
-    g_chunks = -(-g_units // units_per_chunk(gridded_bytes_per_trial(sc), budget))
-    steps = sc.grid_steps
-    grid = {"trial_steps": R * trials * steps * 4 * d * d, "trial_steps_c": R * trials * steps * (C + d),
-            "unit_steps": R * g_units * steps,
-            "chunk_steps": R * g_chunks * steps * (C + 4), "unit_outputs": R * g_units * T}
-    e_units = -(-ev_trials // RNG_UNIT)
-    e_chunks = -(-e_units // units_per_chunk(event_bytes_per_trial(sc), budget))
-    events = sc.main_rate * C * sc.horizon
-    L = event_window(sc)
-    windows = math.ceil((T - 1) / L)
-    marks = events + T + windows * 3.0 * math.sqrt(max(events / windows, 1.0))
-    event = {"d3": ev_trials * (events + T) * d ** 3, "d2": ev_trials * (events + T) * d * d,
-             "marks": ev_trials * (events + T), "chunk_marks": e_chunks * marks}
-    frozen = {"d3": ev_trials * (events + T) * d ** 3, "d2": ev_trials * (events + T) * d * d,
-              "marks": ev_trials * (events + T), "chunk_marks": e_chunks * (events + T)}
-    S = min(sc.sample_trials, ev_trials)
-    claims = {"base": 1.0, "intervals": S * (events + T) * (1 + (2 * Nn) ** 3 / 1000.0), "outputs": T * (1 + n ** 3)}
-    rows = (R * T * N * 2 + 2 * S * T * N * n + S * T * N + 2 * T * N + (pts + 5) * N + 12 * Nn * Nn
-            + (S + 1) * events + 10 * N * q * 10)
-    out = {"base": 1.0, "rows": rows, "nodes": N * (1 + R)}
-    return {"design": design, "refs": refs, "grid": grid, "event": event, "frozen": frozen, "claims": claims, "out": out}
+    steps, g_chunks = sc.grid_steps, -(-z.g_units // z.g_chunk)
+    grid = {"trial_steps": R * z.trials * steps * 4 * d * d, "trial_steps_c": R * z.trials * steps * (C + d),
+            "unit_steps": R * z.g_units * steps, "chunk_steps": R * g_chunks * steps * (C + 4),
+            "unit_outputs": R * z.g_units * T}
+    e_chunks, windows = -(-z.e_units // z.e_chunk), math.ceil((T - 1) / event_window(sc))
+    marks = z.events + T + windows * 3.0 * math.sqrt(max(z.events / windows, 1.0))
+    per_path = {"d3": z.ev_trials * (z.events + T) * d ** 3, "d2": z.ev_trials * (z.events + T) * d * d,
+                "marks": z.ev_trials * (z.events + T)}
+    claims = {"base": 1.0, "intervals": z.S * (z.events + T) * (1 + (2 * Nn) ** 3 / 1000.0), "outputs": T * (1 + n ** 3)}
+    rows = (R * T * N * 2 + 2 * z.S * T * N * n + z.S * T * N + 2 * T * N + (z.pts + 5) * N + 12 * Nn * Nn
+            + (z.S + 1) * z.events + 10 * N * z.q * 10)
+    return {"design": design, "refs": refs, "grid": grid, "event": {**per_path, "chunk_marks": e_chunks * marks},
+            "frozen": {**per_path, "chunk_marks": e_chunks * (z.events + T)}, "claims": claims,
+            "out": {"base": 1.0, "rows": rows, "nodes": N * (1 + R)}}
 
 
-def _filterpy_steps(sc: FilterNetworkScenario) -> float:
+def _filterpy_steps(sc: RandomCommFile) -> float:
     """Steps of filterpy's sampled filter until its covariance settles, at the four sampling steps of
-    `compute.filterpy_reference`: about 14 time constants of the slowest Kalman–Bucy mode (the Riccati difference contracts at twice its rate), at most 6,000."""
+    `references.filterpy_reference`: about 14 time constants of the slowest Kalman–Bucy mode (the Riccati
+    difference contracts at twice its rate), at most 6,000."""
     import numpy as np
     import scipy.linalg as sla
 
-    from .compute import FILTERPY_FRACTIONS, FILTERPY_MAX_STEPS
-
-    s = sc.system
+    s = sc.gossip
     Hs, Vs = np.vstack(s.H), sla.block_diag(*s.V)
     try:
         P = sla.solve_continuous_are(s.A.T, Hs.T, s.B @ s.B.T, Vs)
@@ -154,50 +140,34 @@ def _filterpy_steps(sc: FilterNetworkScenario) -> float:
     return float(sum(min(FILTERPY_MAX_STEPS, 14.0 / (h * mu)) for h in hs))
 
 
-def stage_seconds(feat: dict[str, dict[str, float]]) -> dict[str, float]:
-    return {stage: sum(COEF[stage][k] * v for k, v in f.items()) for stage, f in feat.items()}
-
-
-def scenario_cost(sc: FilterNetworkScenario, opts: RunOptions) -> dict:
-    from .compute import PAIR_MAX, event_bytes_per_trial, gridded_bytes_per_trial, trial_counts
-    from .design import QUICK_SWEEP_POINTS, joint_ok
-
-    feat = features(sc, opts)
-    sec = stage_seconds(feat)
-    s = sc.system
-    N, n = s.N, s.n
-    d, Nn, T = (N + 1) * n, N * n, sc.n_outputs + 1
-    D9 = N * n * n
-    trials, ev_trials = trial_counts(sc, opts)
-    joint = joint_ok(s)
-    R = len(sc.rates)
-    S = min(sc.sample_trials, ev_trials)
-    q = n * (n + 1) // 2
-    events = sc.main_rate * len(s.clocks) * sc.horizon
-    pts = (min(sc.sweep[2], QUICK_SWEEP_POINTS) if opts.quick else sc.sweep[2]) + 5
+def scenario_cost(sc: RandomCommFile, opts: RunOptions) -> dict:
+    """One scenario's stage seconds (`stages`: design, references, event, frozen, then gridded per rate) and
+    memory (MiB): what it keeps, one chunk, one RNG unit."""
+    z = Sizes(sc, opts)
+    feat = features(sc, z)
+    sec = {stage: sum(COEF[stage][k] * v for k, v in f.items()) for stage, f in feat.items()}
+    N, n, d, T, R, q = z.N, z.n, z.d, z.T, z.R, z.q
     mom = 8.0 * T * N * (2 * n * n + 1)
-    kept = ((R + 2) * mom * 2 + 8.0 * S * T * (2 * d + 4 * N * n * n) + 16.0 * (S + 1) * events
-            + 8.0 * min(PAIR_MAX, ev_trials, trials) * 10 * N * q * 2)
-    design = (8.0 * R * T * ((Nn * Nn if joint else 0) + 2 * D9) + 8.0 * pts * N * n * n * 8
-              + (8.0 * 5 * Nn ** 4 if joint else 0) + 8.0 * 4 * D9 ** 2)
-    Dq = N * q
-    if Dq <= 40:
-        big = Dq * (Dq + 1) // 2 + Dq
+    kept = ((R + 2) * mom * 2 + 8.0 * z.S * T * (2 * d + 4 * N * n * n) + 16.0 * (z.S + 1) * z.events
+            + 8.0 * min(PAIR_MAX, z.ev_trials, z.trials) * 10 * N * q * 2)
+    design = (8.0 * R * T * ((z.Nn * z.Nn if z.joint else 0) + 2 * z.D9) + 8.0 * z.pts * N * n * n * 8
+              + (8.0 * 5 * z.Nn ** 4 if z.joint else 0) + 8.0 * 4 * z.D9 ** 2)
+    if N * q <= 40:
+        big = N * q * (N * q + 1) // 2 + N * q
         design += 8.0 * 3 * big ** 2 + 8.0 * T * big
     tables = ROW_BYTES * feat["out"]["rows"]
-    budget = opts.chunk_budget_bytes()
-    g_bytes, e_bytes = gridded_bytes_per_trial(sc), event_bytes_per_trial(sc)
-    g_units, e_units = -(-trials // RNG_UNIT), -(-ev_trials // RNG_UNIT)
-    chunk_mib = max(min(units_per_chunk(g_bytes, budget), g_units) * RNG_UNIT * g_bytes,
-                    min(units_per_chunk(e_bytes, budget), e_units) * RNG_UNIT * e_bytes) / MIB
-    return {**{f"{k}_s": v for k, v in sec.items()}, "stages": [sec["design"], sec["refs"], sec["event"],
-                                                                sec["frozen"]] + [sec["grid"] / R] * R,
-            "kept_mib": (kept + design + tables) / MIB, "chunk_mib": chunk_mib,
-            "unit_mib": RNG_UNIT * max(g_bytes, e_bytes) / MIB, "trials": trials, "ev_trials": ev_trials,
-            "steps": sc.grid_steps, "events": events}
+    return {**{f"{k}_s": v for k, v in sec.items()},
+            "stages": [sec["design"], sec["refs"], sec["event"], sec["frozen"]] + [sec["grid"] / R] * R,
+            "kept_mib": (kept + design + tables) / MIB,
+            "chunk_mib": max(z.g_chunk * RNG_UNIT * z.g_bytes, z.e_chunk * RNG_UNIT * z.e_bytes) / MIB,
+            "unit_mib": RNG_UNIT * max(z.g_bytes, z.e_bytes) / MIB, "trials": z.trials, "ev_trials": z.ev_trials,
+            "steps": sc.grid_steps, "events": z.events}
 
 
-def estimate(scenarios: list[FilterNetworkScenario], opts: RunOptions, *, paper: bool = False) -> Cost:
+def estimate(scenarios, opts: RunOptions, *, paper: bool = False) -> Cost:
+    """The run's cost. The driver refuses it when what it keeps (beside the libraries' BASE_MIB) and one RNG
+    unit of trials do not fit the memory budget, naming the key that sizes what it keeps: the rates (the
+    stored rings of the sample paths) or the output step (the moments per output time)."""
     costs = {sc.name: scenario_cost(sc, opts) for sc in scenarios}
     workers = max(1, opts.workers)
     stages = [t for c in costs.values() for t in c["stages"]] + ([TOPOLOGY_S] if paper else [])
@@ -217,28 +187,16 @@ def estimate(scenarios: list[FilterNetworkScenario], opts: RunOptions, *, paper:
              for name, c in costs.items()]
     detail = (f"{human_seconds(seconds)} in all on {workers} worker(s); memory {BASE_MIB:.0f} MiB base + {kept:,.0f} MiB "
               f"kept + {chunk:,.0f} MiB per Monte Carlo chunk. " + "; ".join(parts))
-    return Cost(seconds, peak, kept, chunk, unit, detail, costs)
-
-
-def refuse_if_too_large(scenarios: list[FilterNetworkScenario], opts: RunOptions, *, paper: bool = False) -> None:
-    """What cannot be streamed must fit the memory budget, and so must one RNG unit of trials: else one
-    ScenarioError naming the field and the estimate, before anything runs. A long run says so when it starts."""
-    budget = opts.memory_budget_mib
-    c = estimate(scenarios, opts, paper=paper)
-    if BASE_MIB + c.kept_mib + c.unit_mib <= budget:
-        if c.seconds > LONG_RUN_S and not paper:
-            import sys
-
-            print(f"{scenarios[0].name}: estimated {human_seconds(c.seconds)} and {c.peak_mib:,.0f} MiB peak memory "
-                  f"({c.detail})", file=sys.stderr)
-        return
-    name, p = max(c.parts.items(), key=lambda kv: kv[1]["kept_mib"])
-    sc = next(s for s in scenarios if s.name == name)
-    paths_mib = (16.0 + ROW_BYTES) * (sc.sample_trials + 1) * p["events"] / MIB      # the stored rings and their rows
-    field = "communication.rates" if paths_mib > 0.5 * p["kept_mib"] else "simulation.output_step"
-    raise ScenarioError(field, f"'{name}' keeps about {c.kept_mib:,.0f} MiB that cannot be streamed (moments at "
-                               f"{sc.n_outputs + 1:,} output times, {sc.sample_trials} sample trials with about "
-                               f"{p['events']:,.0f} rings each, the frozen clock path, the design arrays and the tables), "
-                               f"besides {BASE_MIB:.0f} MiB of libraries and a {c.unit_mib:,.0f} MiB unit of trials: more "
-                               f"than the memory budget of {budget:,.0f} MiB (--max-memory); fewer rings (a lower rate or "
-                               "a shorter horizon) or fewer output times fit")
+    sc = max(scenarios, key=lambda s: costs[s.name]["kept_mib"])
+    paths_mib = (16.0 + ROW_BYTES) * (sc.simulation.sample_trials + 1) * costs[sc.name]["events"] / MIB
+    return Cost(seconds, peak, detail, kept_mib=kept + BASE_MIB - INTERPRETER_MIB, chunk_mib=chunk, unit_mib=unit,
+                sized_by="communication.rates" if paths_mib > 0.5 * costs[sc.name]["kept_mib"] else "simulation.output_step",
+                kept_what=f"moments at {sc.n_outputs + 1:,} output times, {sc.simulation.sample_trials} sample trials with "
+                          f"about {costs[sc.name]['events']:,.0f} rings each, the frozen clock path, the design arrays and "
+                          f"the tables of '{sc.name}' (and {BASE_MIB - INTERPRETER_MIB:.0f} MiB of libraries)",
+                unit_what=f"unit of {RNG_UNIT:,} trials",
+                stages={"design": sum(c["design_s"] for c in costs.values()),
+                        "references": sum(c["refs_s"] for c in costs.values()),
+                        "gridded": sum(c["grid_s"] for c in costs.values()),
+                        "event": sum(c["event_s"] for c in costs.values()),
+                        "frozen": sum(c["frozen_s"] for c in costs.values()), "topology": TOPOLOGY_S if paper else 0.0})

@@ -22,16 +22,16 @@ import dse.estimators.gossip_covariance as gc
 import dse.estimators.gossip_filter as gf
 import dse.estimators.kalman_bucy as kb
 from dse.estimators.linear_flows import abscissa_tolerance
+from dse.contract.stages import stage
 from dse.simulate.seeding import stream_seed
 from dse.simulate.units import block_generator
 
-from .scenario import FilterNetworkScenario
+from .scenario import MAX_SWEEP_RATE, RandomCommFile
 
 EPS = float(np.finfo(float).eps)
 QUICK_SWEEP_POINTS = 15
 #: the λ sweep gets points at these multiples of the explicit threshold λ_thr of (12)
 THRESHOLD_MULTIPLES = (1.5, 3.0, 10.0, 30.0, 100.0)
-MAX_SWEEP_RATE = 1e9       # above it the abscissa of M_9 cannot be told from 0 (rounding ~ eps·λ)
 EXPLICIT_FIELDS = ("C0", "C1", "C2", "C3", "a1", "a2", "sigma_G", "sigma1_R", "sigman_R", "kappa", "fiedler", "S_norm",
                    "threshold")
 #: clock paths of the `numerics` hypothesis: how many, and how much of the horizon (outputs, expected events)
@@ -48,12 +48,12 @@ CARE_COND_MAX = 1e8        # relative condition number of the filter CARE above 
 class ScenarioDesign:
     """The design arrays of one scenario (`bounds`, a dict of arrays as the stage cache stores them)."""
 
-    scenario: FilterNetworkScenario
+    scenario: RandomCommFile
     bounds: dict[str, np.ndarray]
 
     @property
     def sys(self) -> gf.GossipSystem:
-        return self.scenario.system
+        return self.scenario.gossip
 
     def bound(self, rate: float) -> np.ndarray:
         return self.bounds[f"bound_t_{self.scenario.rates.index(rate)}"]
@@ -85,25 +85,27 @@ def care_condition(s: gf.GossipSystem, P: np.ndarray) -> float:
     return float(inv_norm * terms / np.linalg.norm(P, 2))
 
 
-def grid_regime(sc: FilterNetworkScenario, rate: float) -> float:
+def grid_regime(sc: RandomCommFile, rate: float) -> float:
     """h·(max‖A_i‖₂ + λ d_max): the gridded simulator's step against the fastest rate of its flows and jumps."""
-    s = sc.system
+    s = sc.gossip
     return float(sc.grid_step * (max(np.linalg.norm(A, 2) for A in s.Ai) + rate * int(s.degrees.max())))
 
 
 def kalman_bucy_transient(sc) -> np.ndarray:
     """P_KB at the output times (the centralized reference curve); NaN when the CARE has no stabilising
     solution and the Riccati flow is too stiff for the Hamiltonian sub-steps (see `kalman_bucy_riccati`)."""
-    s = sc.system
+    s = sc.gossip
     try:
         return kb.kalman_bucy_riccati(s.A, s.B, np.vstack(s.H), scipy.linalg.block_diag(*s.V), s.P0, sc.output_step,
                                       sc.n_outputs)
     except np.linalg.LinAlgError:
         return np.full((sc.n_outputs + 1, s.n, s.n), np.nan)
 
-def scenario_design(sc: FilterNetworkScenario, quick: bool = False, seed: int = 0) -> dict[str, np.ndarray]:
+
+@stage(name="design", allow_nonfinite=lambda sc, **_: nonfinite_allowed(sc))
+def scenario_design(sc: RandomCommFile, quick: bool = False, seed: int = 0) -> dict[str, np.ndarray]:
     """The design arrays of one scenario (quick: a coarser λ sweep)."""
-    s = sc.system
+    s = sc.gossip
     N, n = s.N, s.n
     out: dict[str, np.ndarray] = {}
     Hs, Vs = np.vstack(s.H), scipy.linalg.block_diag(*s.V)
@@ -213,19 +215,19 @@ def deviation_error(M: np.ndarray, D: np.ndarray, s, S: np.ndarray) -> float:
     return 10 * M.shape[0] * EPS * kappa * (float(np.abs(D).max()) + r / norm)
 
 
-def numerics_times(sc: FilterNetworkScenario) -> np.ndarray:
+def numerics_times(sc: RandomCommFile) -> np.ndarray:
     """The output times of the `numerics` paths: at most NUMERICS_OUTPUTS steps and about NUMERICS_EVENTS
     expected rings (the per-interval reference costs one matrix exponential per ring), at least one step."""
-    s = sc.system
+    s = sc.gossip
     per_step = sc.main_rate * len(s.clocks) * sc.output_step
     k = max(1, min(sc.n_outputs, NUMERICS_OUTPUTS, int(NUMERICS_EVENTS / max(per_step, 1e-300))))
     return sc.output_times[:k + 1]
 
 
-def numerics_paths(sc: FilterNetworkScenario, seed: int) -> dict[str, np.ndarray]:
+def numerics_paths(sc: RandomCommFile, seed: int) -> dict[str, np.ndarray]:
     """NUMERICS_PATHS clock paths drawn from the seed at the main rate: the batched propagation of P_i(t; τ)
     and Σ_ii(t; τ) (as the event-driven simulator does it) and a plain per-interval Van Loan computation."""
-    s = sc.system
+    s = sc.gossip
     times = numerics_times(sc)
     rng = block_generator(stream_seed(seed, "design-paths", sc.name))
     run = gf.simulate_event_driven(s, sc.main_rate, times, NUMERICS_PATHS, rng, sample=False)
@@ -247,6 +249,6 @@ NONFINITE = ("sweep_bound", "sweep_joint", "sweep_dev_bound", "sweep_dev_joint",
              "numerics_pbound", "numerics_sigma", "numerics_ref_pbound", "numerics_ref_sigma", "kb_condition")
 
 
-def nonfinite_allowed(sc: FilterNetworkScenario) -> tuple[str, ...]:
+def nonfinite_allowed(sc: RandomCommFile) -> tuple[str, ...]:
     per_rate = ("bound_t", "joint_t", "bound_inf", "joint_inf", "absc_bound", "absc_joint")
     return NONFINITE + tuple(f"{k}_{r}" for k in per_rate for r in range(len(sc.rates)))

@@ -11,7 +11,6 @@ fig_topology.png          S4: topology sweep (paper only)
 """
 from __future__ import annotations
 
-import functools
 import math
 from pathlib import Path
 
@@ -19,10 +18,9 @@ import numpy as np
 
 from dse.outputs.figures import new_figure, plain_log_labels, save_figure, set_margins
 
-from .outputs import View
+from .views import PAPER_NOTE, ScenarioTables
 
 Z95 = 1.959964
-PAPER_NOTE = "(scenario of this reproduction: the paper has no numerical example)"
 
 
 def _save(fig, path: Path, **margins) -> None:
@@ -39,12 +37,12 @@ def _node_axes(N, width=4.2, height=3.0):
     return fig, axes.ravel()
 
 
-def _main_series(v: View):
+def _main_series(v: ScenarioTables):
     s = v["series"]
     return s[s["rate"] == v.main_rate]
 
 
-def fig1(v: View, path: Path, note: str = "") -> None:
+def fig1(v: ScenarioTables, path: Path, note: str = "") -> None:
     nodes, edges = v["graph_nodes"], v["graph_edges"]
     pos = nodes[["x", "y"]].to_numpy()
     N = len(pos)
@@ -75,7 +73,7 @@ def fig1(v: View, path: Path, note: str = "") -> None:
     _save(fig, path, left=0.25, top=0.85, wspace=0.8)
 
 
-def fig2(v: View, path: Path, note: str = "") -> None:
+def fig2(v: ScenarioTables, path: Path, note: str = "") -> None:
     N, lam = v.N, v.main_rate
     fig, axes = _node_axes(N)
     s = _main_series(v)
@@ -110,7 +108,7 @@ def fig2(v: View, path: Path, note: str = "") -> None:
     _save(fig, path, left=0.45, top=0.55, wspace=0.45, hspace=0.8)
 
 
-def fig3(v: View, path: Path, note: str = "") -> None:
+def fig3(v: ScenarioTables, path: Path, note: str = "") -> None:
     N = v.N
     fig, axes = _node_axes(N)
     ps = v["path_series"]
@@ -135,7 +133,7 @@ def fig3(v: View, path: Path, note: str = "") -> None:
     _save(fig, path, left=0.45, top=0.55, wspace=0.45, hspace=0.8)
 
 
-def fig4(v: View, path: Path, note: str = "") -> None:
+def fig4(v: ScenarioTables, path: Path, note: str = "") -> None:
     N = v.N
     fig, axes = new_figure(ncols=2, width=5.0, height=3.6)
     ax = axes[0, 0]
@@ -169,7 +167,7 @@ def fig4(v: View, path: Path, note: str = "") -> None:
     _save(fig, path, left=0.6, top=0.6, wspace=0.7)
 
 
-def fig5(v: View, path: Path, note: str = "") -> None:
+def fig5(v: ScenarioTables, path: Path, note: str = "") -> None:
     fig, axes = new_figure(width=6.8, height=4.6)
     ax = axes[0, 0]
     if v.design("abar_hurwitz") != 1:
@@ -203,7 +201,7 @@ def fig5(v: View, path: Path, note: str = "") -> None:
     _save(fig, path, left=0.75, top=0.5)
 
 
-def fig6(v: View, path: Path, note: str = "") -> None:
+def fig6(v: ScenarioTables, path: Path, note: str = "") -> None:
     fig, axes = new_figure(width=6.8, height=4.4)
     ax = axes[0, 0]
     nodes = v["sweep_nodes"]
@@ -227,7 +225,7 @@ def fig6(v: View, path: Path, note: str = "") -> None:
     _save(fig, path, left=0.6)
 
 
-def fig7(v: View, path: Path, note: str = "") -> None:
+def fig7(v: ScenarioTables, path: Path, note: str = "") -> None:
     fig, axes = new_figure(width=6.4, height=4.0)
     ax = axes[0, 0]
     sw = v["sweep"]
@@ -266,14 +264,6 @@ def fig_topology(tables, path: Path, note: str = PAPER_NOTE) -> None:
     _save(fig, path, left=0.75, top=0.45, wspace=0.85)
 
 
-def figure_jobs(views: dict[str, View], tables, fig_dir: Path, *, main: str, paper: bool = False) -> list:
-    """One callable per figure (see `dse.outputs.figures.draw_all`), the per-node grids first."""
-    note = PAPER_NOTE if paper else ""
-    per_scenario = (("fig2_traces", fig2), ("fig3_sample_path", fig3), ("fig4_gaps", fig4), ("fig5_rate", fig5),
-                    ("fig6_traces_vs_rate", fig6), ("fig7_abscissa", fig7))
-    jobs = [functools.partial(draw, v, fig_dir / f"{stem}_{name}.png", note)
-            for stem, draw in per_scenario for name, v in views.items()]
-    jobs.append(functools.partial(fig1, views[main], fig_dir / "fig1_network_events.png", note))
-    if "topology" in tables:
-        jobs.append(functools.partial(fig_topology, tables, fig_dir / "fig_topology.png"))
-    return jobs
+#: the figures drawn for every scenario: (file stem, function)
+PER_SCENARIO = (("fig2_traces", fig2), ("fig3_sample_path", fig3), ("fig4_gaps", fig4), ("fig5_rate", fig5),
+                ("fig6_traces_vs_rate", fig6), ("fig7_abscissa", fig7))

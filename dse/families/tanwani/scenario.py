@@ -1,27 +1,29 @@
-"""The random-comm-filter scenario family: a continuous-time plant, N sensor nodes with
-constant-gain filters, a graph whose edges carry Poisson clocks of rate λ.
+"""The random-comm-filter scenario file, declared once: a continuous-time plant, N sensor nodes with
+constant-gain filters (5), a graph whose edges carry Poisson clocks of rate λ (6).
 
-Every key is declared once below (type, default, bounds, unit, meaning); `docs/scenarios.md` is
-generated from these declarations. Rules that tie keys of different tables together
-(dimensions, one sensor per node, gains, steps) are checked when the scenario is built, each
-error naming its key.
+Every key is declared below (type, default, bounds, unit, meaning); docs/scenarios.md is generated
+from these declarations. The validated model is the scenario the stages read: the matrices, the
+network of filters (`gossip`) and the grids are cached properties, and the rules that tie keys of
+different tables together (dimensions, one sensor per node, gains, steps) are checked by the file's
+validator, each error naming its key.
 """
 from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
 
-from dse.estimators.gossip_filter import MODES, GossipSystem, kalman_bucy_split_gains
-from dse.scenario.declare import Matrix, Real, Section, computed, covariance, key, matrix, parse
 from dse.errors import ScenarioError, printable
-from dse.scenario.graphs import GraphSection, GraphSpec, graph_from_section
+from dse.estimators.gossip_filter import MODES, GossipSystem, kalman_bucy_split_gains
+from dse.scenario.declare import (Matrix, Real, ScenarioFile, Section, computed_default, covariance, key, matrix,
+                                  name_key, parse)
 from dse.scenario.fields import load_toml
+from dse.scenario.graphs import GraphSection, GraphSpec, graph_from_section
 
 GAIN_RULES = ("kalman-bucy-split", "given")
 #: the exact joint covariance of the N errors is a dense (Nn)² system: these bound its size
@@ -29,7 +31,7 @@ MAX_STATE = 8
 MAX_JOINT = 40
 MAX_RATES = 4
 MAX_RATE = 1e4
-MAX_SWEEP_RATE = 1e9
+MAX_SWEEP_RATE = 1e9       # above it the abscissa of M_9 cannot be told from 0 (rounding ~ eps·λ)
 MAX_HORIZON = 1e3
 MAX_OUTPUTS = 2000
 #: grid steps of one gridded run (its time grows with them; its memory does not)
@@ -39,8 +41,47 @@ BASE_GRID_STEP = 0.01
 GRID_ASYMPTOTIC = 1.0
 #: a step given by hand must keep λ·h·d_max below this (at most about one ring per clock and step)
 MAX_RINGS_PER_STEP = 0.5
+SCENARIO_DIR = Path(__file__).with_name("scenarios")
 
 Rate = Annotated[float, Field(allow_inf_nan=False, gt=0, le=MAX_RATE)]
+
+
+def from_file(rule):
+    """A default that needs keys of other tables (a default factory sees only its own table): the key
+    stays None when not given, and `rule(scenario)` is the value the scenario uses (the cached property
+    that reads the key calls it); the first line of its docstring is what the reference page shows."""
+    def default():
+        return None
+    default.__doc__ = rule.__doc__
+    return default
+
+
+def _alpha(sc: "RandomCommFile") -> float:
+    """min(1/2, 1/d_max)"""
+    return min(0.5, 1.0 / sc.d_max)
+
+
+def _P_init(sc: "RandomCommFile") -> np.ndarray:
+    """system.P0"""
+    return sc.plant[2]
+
+
+def _grid_step(sc: "RandomCommFile") -> tuple[float, str]:
+    """the largest h = output_step/k <= 0.01 with h·(max‖A_i‖₂ + λ d_max) <= 1 and λ·h·d_max <= 0.5 for every simulated λ (at most 2,000,000 steps)
+
+    h·(max‖A_i‖₂ + λ d_max) <= 1 keeps the gridded simulator in its asymptotic regime (hypothesis
+    grid_asymptotic); returns h and the rule in words."""
+    lam = max(sc.rates)
+    stiff = max(float(np.linalg.norm(A, 2)) for A in sc.gossip.Ai) + lam * sc.d_max
+    limits = [BASE_GRID_STEP, GRID_ASYMPTOTIC / stiff] + ([MAX_RINGS_PER_STEP / (lam * sc.d_max)] if lam else [])
+    k = max(1, math.ceil(sc.output_step / min(limits) * (1 - 1e-12)))
+    k_cap = max(1, MAX_GRID_STEPS // max(sc.n_outputs, 1))
+    rule = (f"automatic: the largest output_step/k <= min({BASE_GRID_STEP:g}, {GRID_ASYMPTOTIC:g}/(max‖A_i‖₂ + λd_max) = "
+            f"{GRID_ASYMPTOTIC / stiff:.4g}, {MAX_RINGS_PER_STEP:g}/(λd_max)) at λ = {lam:g}, k = {min(k, k_cap)}")
+    if k > k_cap:
+        rule += f" (capped at {MAX_GRID_STEPS:,} steps: the step is larger than the rule asks)"
+        k = k_cap
+    return sc.output_step / k, rule
 
 
 class SystemSection(Section):
@@ -49,10 +90,21 @@ class SystemSection(Section):
 
     A: Matrix = key(doc="state matrix A (n x n)", constraint=f"square, n <= {MAX_STATE}")
     B: Matrix = key(doc="noise input matrix B (n x m): the process noise intensity is BBᵀ", constraint="n rows")
-    P0: Matrix | None = key(computed("identity"), doc="covariance of x(0), hence E[e_i(0)e_i(0)ᵀ] of every node",
-                            unit="state²", constraint="n x n, symmetric positive semidefinite")
-    m0: list[Real] | None = key(computed("zeros"), doc="mean of x(0), also every node's initial estimate x̂_i(0)",
-                                unit="state", constraint="n entries")
+
+    @computed_default
+    def _identity(data):
+        """identity"""
+        return np.eye(len(data["A"])).tolist()
+
+    @computed_default
+    def _zeros(data):
+        """zeros"""
+        return [0.0] * len(data["A"])
+
+    P0: Matrix = key(_identity, doc="covariance of x(0), hence E[e_i(0)e_i(0)ᵀ] of every node", unit="state²",
+                     constraint="n x n, symmetric positive semidefinite")
+    m0: list[Real] = key(_zeros, doc="mean of x(0), also every node's initial estimate x̂_i(0)", unit="state",
+                         constraint="n entries")
 
 
 class SensorSection(Section):
@@ -65,7 +117,7 @@ class SensorSection(Section):
                     constraint="symmetric positive definite")
     L: Matrix | None = key(None, doc="filter gain L_i (n x p_i) of (5)", constraint="required with gains.rule = "
                            "'given', only then")
-    P_init: Matrix | None = key(computed("system.P0"), doc="P_i(0): the initial value of the node's per-path bound "
+    P_init: Matrix | None = key(from_file(_P_init), doc="P_i(0): the initial value of the node's per-path bound "
                                 "(14) and of its mean (9). Prop. III.2 and Thm. III.1 need P_i(0) ⪰ E[e_i(0)e_i(0)ᵀ] = "
                                 "P0 (reported as the hypothesis 'initial'); the simulated errors start from x(0) − m0 "
                                 "whatever P_i(0) is", unit="state²", constraint="n x n, symmetric positive semidefinite")
@@ -76,7 +128,7 @@ class CommunicationSection(Section):
     rings, `edge`) or per ordered pair (only the receiver fuses, `ordered`); a ring moves x̂_i to
     (1 − α)x̂_i + αx̂_j (6), Π = I − α𝓛 (3)."""
 
-    alpha: Real | None = key(computed("min(1/2, 1/d_max)"), doc="fusion weight α of (3) and (6)", gt=0,
+    alpha: Real | None = key(from_file(_alpha), doc="fusion weight α of (3) and (6)", gt=0,
                              constraint="<= 1/d_max (d_max the largest node degree)")
     mode: Literal[MODES] = key("edge", doc="edge: one clock per undirected edge, both endpoints update with the "  # type: ignore[valid-type]
                                "pre-jump values; ordered: one clock per ordered pair, only the receiver updates")
@@ -116,31 +168,45 @@ class SimulationSection(Section):
     output_step: Real = key(0.1, doc="spacing of the output grid (every transient, Monte Carlo moment and table "
                             "series is on it)", unit="s", gt=0,
                             constraint=f"divides the horizon into at most {MAX_OUTPUTS} steps")
-    grid_step: Real | None = key(computed(f"the largest h = output_step/k <= {BASE_GRID_STEP:g} with "
-                                           f"h·(max‖A_i‖₂ + λ d_max) <= {GRID_ASYMPTOTIC:g} and λ·h·d_max <= "
-                                           f"{MAX_RINGS_PER_STEP:g} for every simulated λ (at most "
-                                           f"{MAX_GRID_STEPS:,} steps)"),
-                                 doc="step h of the gridded simulator", unit="s", gt=0,
+    grid_step: Real | None = key(from_file(_grid_step), doc="step h of the gridded simulator", unit="s", gt=0,
                                  constraint=f"divides output_step; λ·h·d_max <= {MAX_RINGS_PER_STEP:g}; at most "
                                             f"{MAX_GRID_STEPS:,} steps over the horizon")
     trials: int = key(10_000, doc="gridded Monte Carlo trials per rate", ge=100, le=10_000_000)
     event_trials: int = key(2_000, doc="event-driven Monte Carlo trials (main rate), also those of the frozen clock "
                             "path", ge=50, le=1_000_000)
-    quick_trials: int | None = key(computed("min(trials, 2000)"), doc="gridded trials in quick runs", ge=100,
-                                   le=10_000_000)
-    quick_event_trials: int | None = key(computed("min(event_trials, 300)"), doc="event-driven trials in quick runs",
-                                         ge=50, le=1_000_000)
+
+    @computed_default
+    def _quick(data):
+        """min(trials, 2000)"""
+        return min(data["trials"], 2_000)
+
+    @computed_default
+    def _quick_event(data):
+        """min(event_trials, 300)"""
+        return min(data["event_trials"], 300)
+
+    quick_trials: int = key(_quick, doc="gridded trials in quick runs", ge=100, le=10_000_000)
+    quick_event_trials: int = key(_quick_event, doc="event-driven trials in quick runs", ge=50, le=1_000_000)
     sample_trials: int = key(3, doc="trials kept whole for the figures and recordings (and stored clock paths)",
                              ge=1, le=20)
 
 
-class RandomCommFile(Section):
+class RandomCommFile(ScenarioFile):
     """A random-comm-filter scenario file."""
 
-    name: str = key("scenario", doc="scenario name: the output directory OUT/run/<name>/",
-                    pattern=r"^[A-Za-z0-9_-]{1,64}$", constraint="1 to 64 letters, digits, '-' or '_'")
-    title: str | None = key(computed("the name"), doc="one line on what the scenario shows (reports, figures, "
-                            "recordings)", max_length=200, constraint="no control or format characters")
+    #: the stages receive the trial counts as arguments; the title changes no number (the name seeds the streams)
+    unkeyed = {"title": True, "simulation": {"trials": True, "event_trials": True, "quick_trials": True,
+                                             "quick_event_trials": True}}
+
+    name: str = name_key()
+
+    @computed_default
+    def _title(data):
+        """the name"""
+        return data["name"]
+
+    title: str = key(_title, doc="one line on what the scenario shows (reports, figures, recordings)", max_length=200,
+                     constraint="no control or format characters")
     system: SystemSection = key(doc="the plant")
     sensors: list[SensorSection] = key(doc="the sensor nodes, one [[sensors]] table per graph node", min_length=2)
     graph: GraphSection = key(doc="the communication graph (a disconnected one is accepted: item 2 of Theorem III.1 "
@@ -149,90 +215,194 @@ class RandomCommFile(Section):
     gains: GainsSection = key(GainsSection, doc="the filter gains")
     simulation: SimulationSection = key(SimulationSection, doc="horizon, grids and Monte Carlo sizes")
 
+    @model_validator(mode="after")
+    def _cross_rules(self):
+        """The rules across tables, in this order (each raises one ScenarioError naming its key)."""
+        if printable(self.title) != self.title:
+            raise ScenarioError("title", f"must not contain control or format characters, got '{printable(self.title)}'")
+        for rule in ("plant", "network", "edges", "sensor_matrices", "gains_L", "alpha", "rates", "n_outputs", "grid"):
+            getattr(self, rule)
+        return self
 
-# -- the scenario compute works with ------------------------------------------------------------------
+    # -- the plant, the network and the sensors ----------------------------------------------------------------
 
-@dataclass(frozen=True)
-class FilterNetworkScenario:
-    name: str
-    title: str
-    graph: GraphSpec
-    system: GossipSystem
-    gain_rule: str
-    rates: tuple[float, ...]
-    sweep: tuple[float, float, int]
-    horizon: float
-    output_step: float
-    grid_step: float
-    trials: int
-    event_trials: int
-    quick_trials: int
-    quick_event_trials: int
-    sample_trials: int
-    #: how grid_step was set: "given", or "automatic" with the rule it satisfies
-    grid_rule: str = "given"
+    @cached_property
+    def plant(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(A, B, P0, m0), checked: A square with n <= MAX_STATE, B with n rows, P0 a covariance, m0 n entries."""
+        sy = self.system
+        A = matrix(sy.A, "system.A")
+        n = A.shape[0]
+        if A.shape[1] != n:
+            raise ScenarioError("system.A", f"must be square, got {A.shape[0]}x{A.shape[1]}")
+        if n > MAX_STATE:
+            raise ScenarioError("system.A", f"state dimension {n} > {MAX_STATE} is not supported")
+        B = matrix(sy.B, "system.B")
+        if B.shape[0] != n:
+            raise ScenarioError("system.B", f"must have {n} rows (the state dimension), got {B.shape[0]}")
+        m0 = np.array(sy.m0, float)
+        P0 = covariance(sy.P0, "system.P0", n=n)
+        if m0.shape != (n,):
+            raise ScenarioError("system.m0", f"must have {n} entries, got {m0.size}")
+        return A, B, P0, m0
+
+    @cached_property
+    def network(self) -> GraphSpec:
+        """The graph (item 1 of Theorem III.1 holds on any graph; item 2 needs connectivity, a hypothesis)."""
+        graph = graph_from_section(self.graph, "graph", connected=False, min_nodes=2)
+        N, n = graph.n, self.plant[0].shape[0]
+        if N * n > MAX_JOINT:
+            raise ScenarioError("graph.rows" if graph.kind == "grid" else "graph.n",
+                                f"N·n = {N * n} > {MAX_JOINT}: the exact joint covariance of the errors (a dense "
+                                f"(Nn)² system) would be too large")
+        return graph
+
+    @cached_property
+    def edges(self) -> tuple[tuple[int, int], ...]:
+        """The undirected edges (u < v), sorted."""
+        edges = tuple(sorted({(int(u), int(v)) for u, v in self.network.edge_array()}))
+        if not edges:
+            raise ScenarioError("graph", "has no edge: there is no communication to study")
+        return edges
+
+    @cached_property
+    def d_max(self) -> int:
+        return int(np.bincount(np.ravel(self.edges), minlength=self.network.n).max())
+
+    @cached_property
+    def sensor_matrices(self) -> tuple[list, list, list, list]:
+        """(H_i, V_i, given L_i, P_i(0)) of every node, checked against the plant and the gain rule."""
+        n, rule = self.plant[0].shape[0], self.gains.rule
+        if len(self.sensors) != self.network.n:
+            raise ScenarioError("sensors", f"must list one sensor per graph node ({self.network.n}), got "
+                                           f"{len(self.sensors)}")
+        H, V, L, P_init = [], [], [], []
+        for i, s in enumerate(self.sensors):
+            fld = f"sensors[{i}]"
+            Hi = matrix(s.H, f"{fld}.H")
+            if Hi.shape[1] != n:
+                raise ScenarioError(f"{fld}.H", f"must have {n} columns, got {Hi.shape[1]}")
+            V.append(covariance(s.V, f"{fld}.V", n=Hi.shape[0], definite=True))
+            if rule == "given":
+                if s.L is None:
+                    raise ScenarioError(f"{fld}.L", "missing (needed for gains.rule = 'given')")
+                L.append(matrix(s.L, f"{fld}.L", shape=(n, Hi.shape[0])))
+            elif s.L is not None:
+                raise ScenarioError(f"{fld}.L", "only allowed with gains.rule = 'given'")
+            H.append(Hi)
+            P_init.append(covariance(s.P_init, f"{fld}.P_init", n=n) if s.P_init is not None else _P_init(self))
+        return H, V, L, P_init
+
+    @cached_property
+    def gains_L(self) -> tuple[np.ndarray, ...]:
+        """The gains L_i: as given, or the centralized Kalman–Bucy gain cut by columns (L_i = N K_i)."""
+        H, V, L, _ = self.sensor_matrices
+        if self.gains.rule == "kalman-bucy-split":
+            A, B = self.plant[:2]
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("error", RuntimeWarning)     # overflow inside the solver (entries near 1e40)
+                    L, _ = kalman_bucy_split_gains(A, B, H, V)
+            except RuntimeWarning as exc:
+                raise ScenarioError("gains.rule", f"the Kalman–Bucy Riccati equation overflows in float64 ({exc}); "
+                                                  f"rescale the system's matrices") from None
+            except (np.linalg.LinAlgError, ValueError) as exc:
+                raise ScenarioError("gains.rule", f"the Kalman–Bucy Riccati equation has no stabilising solution "
+                                                  f"((A, H) not detectable or (A, B) not stabilisable?): {exc}") from None
+            if not np.all(np.isfinite(np.concatenate([l.ravel() for l in L]))):
+                raise ScenarioError("gains.rule", "the Kalman–Bucy Riccati solution is not finite")
+        return tuple(np.asarray(l, float) for l in L)
+
+    @cached_property
+    def alpha(self) -> float:
+        alpha = float(self.communication.alpha) if self.communication.alpha is not None else _alpha(self)
+        if alpha > 1.0 / self.d_max * (1 + 1e-12):
+            raise ScenarioError("communication.alpha", f"must be <= {1.0 / self.d_max:.6g} (1/d_max), got {alpha:g}")
+        return alpha
+
+    @cached_property
+    def gossip(self) -> GossipSystem:
+        """The network of filters: plant, sensors, gains, clocks and fusion weight."""
+        A, B, P0, m0 = self.plant
+        H, V, _, P_init = self.sensor_matrices
+        return GossipSystem(A, B, tuple(H), tuple(V), self.gains_L, self.edges, self.alpha, self.communication.mode,
+                            P0, m0, np.array(P_init))
+
+    # -- rates and grids ------------------------------------------------------------------------------------------
+
+    @cached_property
+    def rates(self) -> tuple[float, ...]:
+        rates = tuple(float(r) for r in self.communication.rates)
+        if len(set(rates)) != len(rates):
+            raise ScenarioError("communication.rates", f"must not repeat a rate, got {list(rates)}")
+        return rates
 
     @property
     def main_rate(self) -> float:
+        """The first rate: the exact event-driven simulator's and the statistical claims'."""
         return self.rates[0]
 
     @property
+    def sweep(self) -> tuple[float, float, int]:
+        lo, hi, pts = self.communication.sweep
+        return float(lo), float(hi), int(pts)
+
+    @property
+    def horizon(self) -> float:
+        return float(self.simulation.horizon)
+
+    @property
+    def output_step(self) -> float:
+        return float(self.simulation.output_step)
+
+    @cached_property
     def n_outputs(self) -> int:
-        return int(round(self.horizon / self.output_step))
+        horizon, step = self.horizon, self.output_step
+        if step > horizon:
+            raise ScenarioError("simulation.output_step", f"must be <= horizon = {horizon:g}, got {step:g}")
+        if not _divides(step, horizon) or round(horizon / step) > MAX_OUTPUTS:
+            raise ScenarioError("simulation.output_step", f"must divide the horizon into at most {MAX_OUTPUTS} steps")
+        return int(round(horizon / step))
 
     @property
     def output_times(self) -> np.ndarray:
         return np.arange(self.n_outputs + 1) * self.output_step
 
+    @cached_property
+    def grid(self) -> tuple[float, str]:
+        """(step h of the gridded simulator, how it was chosen: "given", or the automatic rule in words)."""
+        h = self.simulation.grid_step
+        if h is None:
+            return _grid_step(self)
+        h, rings = float(h), max(self.rates) * float(h) * self.d_max
+        if h > self.output_step or not _divides(h, self.output_step):
+            raise ScenarioError("simulation.grid_step", "must divide simulation.output_step")
+        if round(self.horizon / h) > MAX_GRID_STEPS:
+            raise ScenarioError("simulation.grid_step", f"more than {MAX_GRID_STEPS:,} steps over the horizon")
+        if rings > MAX_RINGS_PER_STEP:
+            raise ScenarioError("simulation.grid_step", f"λ·h·d_max = {rings:.3g} must be <= {MAX_RINGS_PER_STEP:g} for "
+                                                        "the gridded simulator (make the step smaller, or leave "
+                                                        "grid_step out to have it chosen)")
+        return h, "given"
+
+    @property
+    def grid_step(self) -> float:
+        return self.grid[0]
+
+    @property
+    def grid_rule(self) -> str:
+        return self.grid[1]
+
     @property
     def grid_steps(self) -> int:
         return int(round(self.horizon / self.grid_step))
 
-    def key(self) -> dict[str, Any]:
-        """Everything that determines the numbers (for the stage cache)."""
-        s = self.system
-        return {"A": s.A, "B": s.B, "H": list(s.H), "V": list(s.V), "L": list(s.L), "edges": s.edges,
-                "alpha": s.alpha, "mode": s.mode, "P0": s.P0, "m0": s.m0, "P_init": s.P_init, "rates": self.rates,
-                "sweep": self.sweep, "horizon": self.horizon, "output_step": self.output_step,
-                "grid_step": self.grid_step}
-
-    @classmethod
-    def from_dict(cls, data: Any) -> "FilterNetworkScenario":
-        return scenario_from_dict(data)
-
-
-def _edges(graph: GraphSpec) -> tuple[tuple[int, int], ...]:
-    """The undirected edges (u < v), sorted (networkx only for random geometric graphs)."""
-    return tuple(sorted({(int(u), int(v)) for u, v in graph.edge_array()}))
-
-
-def _degrees(N: int, edges) -> np.ndarray:
-    d = np.zeros(N, dtype=int)
-    for i, j in edges:
-        d[i] += 1
-        d[j] += 1
-    return d
-
-
-def automatic_grid_step(output_step: float, horizon: float, rates, Ai: np.ndarray, dmax: int) -> tuple[float, str]:
-    """The largest h = output_step/k (k ≥ 1 an integer) with h <= BASE_GRID_STEP, h·(max‖A_i‖₂ + λ d_max) <=
-    GRID_ASYMPTOTIC (the gridded simulator's asymptotic regime, hypothesis grid_asymptotic) and λ·h·d_max <=
-    MAX_RINGS_PER_STEP for every simulated λ, within MAX_GRID_STEPS steps; and the rule, said in words."""
-    lam = max(rates)
-    stiff = max(float(np.linalg.norm(A, 2)) for A in Ai) + lam * dmax
-    limits = [BASE_GRID_STEP, GRID_ASYMPTOTIC / stiff]
-    if lam * dmax > 0:
-        limits.append(MAX_RINGS_PER_STEP / (lam * dmax))
-    h_max = min(limits)
-    k = max(1, math.ceil(output_step / h_max * (1 - 1e-12)))
-    n_out = int(round(horizon / output_step))
-    k_cap = max(1, MAX_GRID_STEPS // max(n_out, 1))
-    rule = (f"automatic: the largest output_step/k <= min({BASE_GRID_STEP:g}, {GRID_ASYMPTOTIC:g}/(max‖A_i‖₂ + λd_max) = "
-            f"{GRID_ASYMPTOTIC / stiff:.4g}, {MAX_RINGS_PER_STEP:g}/(λd_max)) at λ = {lam:g}, k = {min(k, k_cap)}")
-    if k > k_cap:
-        rule += f" (capped at {MAX_GRID_STEPS:,} steps: the step is larger than the rule asks)"
-        k = k_cap
-    return output_step / k, rule
+    def trial_counts(self, trials: int | None, quick: bool) -> tuple[int, int]:
+        """(gridded, event-driven) trials of a run: a count given for the run and a fifth of it (at least 50),
+        or the file's (quick or default)."""
+        if trials is not None:
+            return trials, max(50, trials // 5)
+        sim = self.simulation
+        return (sim.quick_trials, sim.quick_event_trials) if quick else (sim.trials, sim.event_trials)
 
 
 def _divides(b: float, a: float) -> bool:
@@ -240,126 +410,13 @@ def _divides(b: float, a: float) -> bool:
     return abs(k - round(k)) <= 1e-9 * max(1.0, k) and round(k) >= 1
 
 
-def scenario_from_dict(data: Any) -> FilterNetworkScenario:
-    f = parse(RandomCommFile, data)
-    name = f.name
-    title = f.title if f.title is not None else name
-    if printable(title) != title:
-        raise ScenarioError("title", f"must not contain control or format characters, got '{printable(title)}'")
-    sy = f.system
-    A = matrix(sy.A, "system.A")
-    n = A.shape[0]
-    if A.shape[1] != n:
-        raise ScenarioError("system.A", f"must be square, got {A.shape[0]}x{A.shape[1]}")
-    if n > MAX_STATE:
-        raise ScenarioError("system.A", f"state dimension {n} > {MAX_STATE} is not supported")
-    B = matrix(sy.B, "system.B")
-    if B.shape[0] != n:
-        raise ScenarioError("system.B", f"must have {n} rows (the state dimension), got {B.shape[0]}")
-    P0 = covariance(sy.P0, "system.P0", n=n) if sy.P0 is not None else np.eye(n)
-    m0 = np.array(sy.m0, float) if sy.m0 is not None else np.zeros(n)
-    if m0.shape != (n,):
-        raise ScenarioError("system.m0", f"must have {n} entries, got {m0.size}")
-
-    # item 1 of Theorem III.1 holds on any graph; item 2 needs connectivity, a hypothesis reported per scenario
-    graph = graph_from_section(f.graph, "graph", connected=False, min_nodes=2)
-    N = graph.n
-    n_field = "graph.rows" if graph.kind == "grid" else "graph.n"
-    if N * n > MAX_JOINT:
-        raise ScenarioError(n_field, f"N·n = {N * n} > {MAX_JOINT}: the exact joint covariance of the errors (a dense "
-                                     f"(Nn)² system) would be too large")
-    edges = _edges(graph)
-    if not edges:
-        raise ScenarioError("graph", "has no edge: there is no communication to study")
-    dmax = int(_degrees(N, edges).max())
-
-    rule = f.gains.rule
-    if len(f.sensors) != N:
-        raise ScenarioError("sensors", f"must list one sensor per graph node ({N}), got {len(f.sensors)}")
-    H, V, L, P_init = [], [], [], []
-    for i, s in enumerate(f.sensors):
-        fld = f"sensors[{i}]"
-        Hi = matrix(s.H, f"{fld}.H")
-        if Hi.shape[1] != n:
-            raise ScenarioError(f"{fld}.H", f"must have {n} columns, got {Hi.shape[1]}")
-        p = Hi.shape[0]
-        V.append(covariance(s.V, f"{fld}.V", n=p, definite=True))
-        if rule == "given":
-            if s.L is None:
-                raise ScenarioError(f"{fld}.L", "missing (needed for gains.rule = 'given')")
-            L.append(matrix(s.L, f"{fld}.L", shape=(n, p)))
-        elif s.L is not None:
-            raise ScenarioError(f"{fld}.L", "only allowed with gains.rule = 'given'")
-        H.append(Hi)
-        P_init.append(covariance(s.P_init, f"{fld}.P_init", n=n) if s.P_init is not None else P0)
-    if rule == "kalman-bucy-split":
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("error", RuntimeWarning)     # overflow inside the solver (entries near 1e40)
-                L, _ = kalman_bucy_split_gains(A, B, H, V)
-        except RuntimeWarning as exc:
-            raise ScenarioError("gains.rule", f"the Kalman–Bucy Riccati equation overflows in float64 ({exc}); "
-                                              f"rescale the system's matrices") from None
-        except (np.linalg.LinAlgError, ValueError) as exc:
-            raise ScenarioError("gains.rule", f"the Kalman–Bucy Riccati equation has no stabilising solution "
-                                              f"((A, H) not detectable or (A, B) not stabilisable?): {exc}") from None
-        if not np.all(np.isfinite(np.concatenate([l.ravel() for l in L]))):
-            raise ScenarioError("gains.rule", "the Kalman–Bucy Riccati solution is not finite")
-
-    comm = f.communication
-    alpha = float(comm.alpha) if comm.alpha is not None else min(0.5, 1.0 / dmax)
-    if alpha > 1.0 / dmax * (1 + 1e-12):
-        raise ScenarioError("communication.alpha", f"must be <= {1.0 / dmax:.6g} (1/d_max), got {alpha:g}")
-    rates = tuple(float(r) for r in comm.rates)
-    if len(set(rates)) != len(rates):
-        raise ScenarioError("communication.rates", f"must not repeat a rate, got {list(rates)}")
-    lo, hi, pts = comm.sweep
-
-    sim = f.simulation
-    horizon, output_step = float(sim.horizon), float(sim.output_step)
-    if output_step > horizon:
-        raise ScenarioError("simulation.output_step", f"must be <= horizon = {horizon:g}, got {output_step:g}")
-    n_out = horizon / output_step
-    if not _divides(output_step, horizon) or round(n_out) > MAX_OUTPUTS:
-        raise ScenarioError("simulation.output_step", f"must divide the horizon into at most {MAX_OUTPUTS} steps")
-    system = GossipSystem(A, B, tuple(H), tuple(V), tuple(np.asarray(l, float) for l in L), edges, alpha, comm.mode,
-                          P0, m0, np.array(P_init))
-    if sim.grid_step is None:
-        grid_step, grid_rule = automatic_grid_step(output_step, horizon, rates, system.Ai, dmax)
-    else:
-        grid_step, grid_rule = float(sim.grid_step), "given"
-        if grid_step > output_step or not _divides(grid_step, output_step):
-            raise ScenarioError("simulation.grid_step", "must divide simulation.output_step")
-        if round(horizon / grid_step) > MAX_GRID_STEPS:
-            raise ScenarioError("simulation.grid_step", f"more than {MAX_GRID_STEPS:,} steps over the horizon")
-        if max(rates) * grid_step * dmax > MAX_RINGS_PER_STEP:
-            raise ScenarioError("simulation.grid_step", f"λ·h·d_max = {max(rates) * grid_step * dmax:.3g} must be <= "
-                                                        f"{MAX_RINGS_PER_STEP:g} for the gridded simulator (make the step "
-                                                        "smaller, or leave grid_step out to have it chosen)")
-    quick_trials = sim.quick_trials if sim.quick_trials is not None else min(sim.trials, 2_000)
-    quick_event = sim.quick_event_trials if sim.quick_event_trials is not None else min(sim.event_trials, 300)
-    return FilterNetworkScenario(name, title, graph, system, rule, rates, (float(lo), float(hi), int(pts)), horizon,
-                                 output_step, grid_step, sim.trials, sim.event_trials, quick_trials, quick_event,
-                                 sim.sample_trials, grid_rule)
+def scenario_from_dict(data: Any) -> RandomCommFile:
+    """A validated scenario (one ScenarioError naming the field)."""
+    return parse(RandomCommFile, data)
 
 
-SCENARIO_DIR = Path(__file__).with_name("scenarios")
-PAPER_SCENARIOS = ("s1a", "s1b", "s1c", "s2", "s3")
-
-
-def load_scenario(name: str) -> FilterNetworkScenario:
+def load_scenario(name: str) -> RandomCommFile:
+    """One of the paper's scenario files (scenarios/<name>.toml)."""
     data = load_toml(SCENARIO_DIR / f"{name}.toml")
     data.pop("family", None)
     return scenario_from_dict(data)
-
-
-def paper_scenarios() -> list[FilterNetworkScenario]:
-    return [load_scenario(n) for n in PAPER_SCENARIOS]
-
-
-def with_graph(sc: FilterNetworkScenario, graph: GraphSpec, name: str) -> GossipSystem:
-    """The same plant and sensors on another graph (α = min(1/2, 1/d_max)), for the topology sweep."""
-    edges = _edges(graph)
-    dmax = int(_degrees(graph.n, edges).max())
-    s = sc.system
-    return GossipSystem(s.A, s.B, s.H, s.V, s.L, edges, min(0.5, 1.0 / dmax), s.mode, s.P0, s.m0, s.P_init)

@@ -28,8 +28,10 @@ import pandas as pd
 import dse.estimators.gossip_covariance as gc
 from dse.outputs.tables import TableSpec, spec
 
-from .compute import TOPOLOGIES, Results, ScenarioResults, directions
 from .design import EXPLICIT_FIELDS, Design, ScenarioDesign
+from .references import directions
+from .results import Results, ScenarioResults
+from .topology import TOPOLOGIES
 
 SC = ("scenario", "", "scenario name")
 RATE = ("rate", "1/s", "Poisson rate λ of every clock")
@@ -423,7 +425,7 @@ def _design_entries(d: ScenarioDesign) -> pd.DataFrame:
 
 def _graph_frames(d: ScenarioDesign) -> tuple[pd.DataFrame, pd.DataFrame]:
     sc, s = d.scenario, d.sys
-    pos = sc.graph.positions()
+    pos = sc.network.positions()
     nodes = pd.DataFrame({"scenario": sc.name, "node": np.arange(s.N), "x": pos[:, 0], "y": pos[:, 1],
                           "degree": s.degrees})
     cl = np.array(s.clocks).reshape(-1, 2)

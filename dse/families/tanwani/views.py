@@ -1,18 +1,21 @@
-"""Figures (PNG) and Rerun recordings of the random-comm-filter family, drawn from the run's tables."""
+"""The views of a random-comm-filter run: per scenario a recording `<scenario>.rrd` and the figures
+F2-F7, then F1 on the main scenario and, for the paper, the topology sweep S4; all drawn from the
+run's tables (`figures`, `recording`)."""
 from __future__ import annotations
-
-import functools
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from dse.contract.views import Outputs, View
 
-class View:
+PAPER_NOTE = "(scenario of this reproduction: the paper has no numerical example)"
+
+
+class ScenarioTables:
     """One scenario's rows of every table (figures and recordings read only these)."""
 
-    def __init__(self, tables, name: str, title: str, seed: int):
-        self.name, self.title, self.seed = name, title, seed
+    def __init__(self, tables, name: str, title: str):
+        self.name, self.title = name, title
         self._tables = tables
 
     def __getitem__(self, table: str) -> pd.DataFrame:
@@ -56,19 +59,24 @@ class View:
         return ev.loc[hit, "t"].to_numpy()
 
 
-def _record(v: View, path: Path, claims: list[dict], prov: dict, paper: bool) -> None:
-    from . import recordings     # rerun: imported by the worker that writes a recording only
+def _recording(out: Outputs, v: ScenarioTables):
+    def draw(path):
+        from . import recording     # rerun: imported by the worker that writes a recording only
 
-    recordings.write_scenario(v, path, claims, prov, paper)
+        recording.write(out, v, path)
+    return draw
 
 
-def write_outputs(res, tables, out_dir: Path, claims: list[dict], prov: dict, *, main: str, paper: bool = False) -> None:
-    """Every figure and recording, drawn in `prov["workers"]` forked workers (the recordings first: the longest)."""
-    from dse.outputs.figures import draw_all
-
+def views(out: Outputs) -> list[View]:
+    """Every figure and recording (the recordings first: the longest to draw)."""
     from . import figures
 
-    views = {name: View(tables, name, r.scenario.title, res.seed) for name, r in res.scenarios.items()}
-    records = [functools.partial(_record, v, out_dir / f"{name}.rrd", claims, prov, paper) for name, v in views.items()]
-    jobs = records + figures.figure_jobs(views, tables, out_dir / "figures", main=main, paper=paper)
-    draw_all(jobs, workers=int(prov.get("workers", 1) or 1))
+    res, note = out.results, PAPER_NOTE if out.reproduction.is_paper else ""
+    tabs = {name: ScenarioTables(out.tables, name, r.scenario.title) for name, r in res.scenarios.items()}
+    found = [View(f"{name}.rrd", _recording(out, v)) for name, v in tabs.items()]
+    found += [View(f"figures/{stem}_{name}.png", lambda path, f=draw, v=v: f(v, path, note))
+              for stem, draw in figures.PER_SCENARIO for name, v in tabs.items()]
+    found.append(View("figures/fig1_network_events.png", lambda path: figures.fig1(tabs[res.main], path, note)))
+    if "topology" in out.tables:
+        found.append(View("figures/fig_topology.png", lambda path: figures.fig_topology(out.tables, path, PAPER_NOTE)))
+    return found

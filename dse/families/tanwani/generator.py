@@ -204,14 +204,15 @@ def _given_gains(rng: np.random.Generator, data: dict, A: np.ndarray) -> None:
 
 def _finish(data: dict, seed: int, edge: str | None) -> dict:
     """Pick the simulated rate from the critical rate of (9) and check that the family accepts it."""
-    from .scenario import FilterNetworkScenario
     import dse.estimators.gossip_covariance as gc
+
+    from .scenario import scenario_from_dict
 
     fixed, factor = data.pop("_rate")
     horizon = data.pop("_horizon")
     body = {k: v for k, v in data.items() if k != "family"}
-    sc = FilterNetworkScenario.from_dict({**body, "name": "probe"})
-    crit = gc.critical_rate_bound(sc.system)
+    sc = scenario_from_dict({**body, "name": "probe"})
+    crit = gc.critical_rate_bound(sc.gossip)
     if fixed is not None:
         rate = fixed
     elif crit == 0.0 or not np.isfinite(crit):
@@ -219,13 +220,13 @@ def _finish(data: dict, seed: int, edge: str | None) -> dict:
     else:
         rate = factor * crit
     rate = float(np.clip(rate, 0.05, 500.0))
-    dmax = int(sc.system.degrees.max())
+    dmax = int(sc.gossip.degrees.max())
     # about MAX_EVENTS rings per path at most (the exact simulator's cost grows with them)
-    horizon = min(horizon, max(0.25, round(MAX_EVENTS / (rate * len(sc.system.clocks)), 2)))
+    horizon = min(horizon, max(0.25, round(MAX_EVENTS / (rate * len(sc.gossip.clocks)), 2)))
     data["communication"]["rates"] = [round(rate, 6)]
     data["simulation"] = _simulation(rate, dmax, horizon)
     data["name"] = f"gen-{edge or 'random'}-{seed}"
-    FilterNetworkScenario.from_dict({k: v for k, v in data.items() if k != "family"})
+    scenario_from_dict({k: v for k, v in data.items() if k != "family"})
     return data
 
 
