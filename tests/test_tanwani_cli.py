@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dse.outputs import record
+from dse import registry
 from dse.errors import ScenarioError
 from dse.engine.driver import RunOptions, run
-from dse.families.tanwani import reproduction as R
-from dse.families.tanwani.scenario import FilterNetworkScenario
+from dse.families.tanwani.scenario import scenario_from_dict
+from dse.outputs import record
 
 RERUN = Path(sys.executable).parent / "rerun"
 
@@ -92,8 +92,8 @@ def load_toml_text(text):
 def _user(text):
     """What `dse run FILE.toml` does once the family is registered: parse, drop `family`, from_dict."""
     data = load_toml_text(text)
-    assert data.pop("family") == "random-comm-filter"
-    return R.from_dict(data)
+    assert data["family"] == "random-comm-filter"
+    return registry.from_dict(data)
 
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -105,8 +105,8 @@ def paper_run(tmp_path_factory):
     `dse` command runs it (BLAS threads only contend with the two worker processes)."""
     out = tmp_path_factory.mktemp("tanwani")
     code = ("import json, sys; from pathlib import Path; from dse.engine.driver import RunOptions, run; "
-            "from dse.families.tanwani.reproduction import paper; "
-            f"print(json.dumps(run(paper(), Path({str(out)!r}), RunOptions(quick=True, workers=2))))")
+            "from dse import registry; "
+            f"print(json.dumps(run(registry.paper('tanwani'), Path({str(out)!r}), RunOptions(quick=True, workers=2))))")
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=900,
                           env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0",
                                "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
@@ -211,5 +211,5 @@ def test_bad_input_names_the_field(old, new, message):
     data = load_toml_text(USER.replace(old, new, 1))
     data.pop("family")
     with pytest.raises(ScenarioError) as exc:
-        FilterNetworkScenario.from_dict(data)
+        scenario_from_dict(data)
     assert message in str(exc.value)

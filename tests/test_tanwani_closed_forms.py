@@ -133,7 +133,7 @@ def test_ordered_clocks_give_the_same_bound_but_another_covariance():
 
 @pytest.mark.parametrize("name, rv", [("s2", ref.S2), ("s3", ref.S3)])
 def test_reference_numbers(name, rv):
-    s = load_scenario(name).system
+    s = load_scenario(name).gossip
     assert gc.critical_rate_bound(s) == pytest.approx(rv["crit_bound"], abs=6e-6)
     for lam, (tb, tj) in rv["steady"].items():
         trP = np.trace(gc.bound_steady(s, lam), axis1=1, axis2=2)
@@ -141,7 +141,7 @@ def test_reference_numbers(name, rv):
 
 
 def test_s3_explicit_bound_constants():
-    s = load_scenario("s3").system
+    s = load_scenario("s3").gossip
     for variant in ("faithful", "tight"):
         eb = gc.explicit_bound(s, variant)
         assert eb.threshold == pytest.approx(ref.S3["lam_thr"][variant], rel=5e-3)

@@ -19,19 +19,25 @@ import scipy.linalg as sla
 import dse.estimators.gossip_covariance as gc
 import dse.estimators.gossip_filter as gf
 from dse.scenario.fields import load_toml
-from dse.families.tanwani import claims as tc
-from dse.families.tanwani.scenario import FilterNetworkScenario
+from dse import registry
+from dse.contract.family import Reproduction
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
+from dse.engine.cache import StageCache
+from dse.families.tanwani.claims_item1 import check_event_vs_exact, quadratic_forms_cells
+from dse.families.tanwani.claims_prop import check_prop34
+from dse.families.tanwani.scenario import RandomCommFile, scenario_from_dict
 
 S2 = "dse/families/tanwani/scenarios/s2.toml"
 LAM = 0.5
 
 
-def _scenario(**sim) -> FilterNetworkScenario:
+def _scenario(**sim) -> RandomCommFile:
     d = load_toml(S2)
     d.pop("family", None)
     d["communication"]["rates"] = [LAM]
     d["simulation"].update({"horizon": 2.0, **sim})
-    return FilterNetworkScenario.from_dict(d)
+    return scenario_from_dict(d)
 
 
 def _brute_mean(s: gf.GossipSystem, t: float, max_events: int = 3) -> np.ndarray:
@@ -79,7 +85,7 @@ def _brute_mean(s: gf.GossipSystem, t: float, max_events: int = 3) -> np.ndarray
 
 
 def test_joint_ode_matches_brute_force_conditional_mean():
-    s = _scenario().system
+    s = _scenario().gossip
     brute = _brute_mean(s, 0.1, max_events=3)
     ode = gc.joint_transient(s, LAM, 0.1, 1)[1]
     # omitted m ≥ 4: probability 5.7e-5 times a change ≤ 0.03 of the conditional mean
@@ -91,11 +97,8 @@ def test_joint_ode_matches_brute_force_conditional_mean():
 
 
 def _results(sc, K, seed, tmp_path):
-    from dse.engine.cache import StageCache
-    from dse.engine.driver import RunOptions
-    from dse.families.tanwani.compute import compute
-
-    return compute([sc], RunOptions(seed=seed, trials=5 * K, workers=1), StageCache(tmp_path / "cache"), is_paper=False)
+    run = Reproduction(registry.family("random-comm-filter"), is_paper=False, _scenarios=(sc,))
+    return run.compute(RunOptions(seed=seed, trials=5 * K, workers=1), StageContext(StageCache(tmp_path / "cache"))).results
 
 
 def test_low_rate_event_checks_pass_and_keep_power(tmp_path):
@@ -109,14 +112,14 @@ def test_low_rate_event_checks_pass_and_keep_power(tmp_path):
     se = np.sqrt(np.maximum(ev["qS2"] / n - rb ** 2, 0) / n)
     ref = r.bounds["cell_joint"]
     assert (np.abs(rb - ref) / np.maximum(se, 1e-12)).max() > 10
-    for check in (tc.check_event_vs_exact, tc.check_prop34):
-        v = check(res, sc.name)
+    for check in (check_event_vs_exact, check_prop34):
+        v = check(r)
         assert v.status == "pass", v.detail
     # power: a wrong reference (the bound and the exact mean covariance at 4λ) is still rejected
-    s = sc.system
+    s = sc.gossip
     wrong_P = gc.bound_transient(s, 4 * LAM, sc.output_step, sc.n_outputs)
     wrong_J = gc.diagonal_blocks(gc.joint_transient(s, 4 * LAM, sc.output_step, sc.n_outputs), s.N, s.n)
-    r.bounds["cell_bound"] = tc.quadratic_forms_cells(r, wrong_P)
-    r.bounds["cell_joint"] = tc.quadratic_forms_cells(r, wrong_J)
-    for check in (tc.check_event_vs_exact, tc.check_prop34):
-        assert check(res, sc.name).status == "fail"
+    r.bounds["cell_bound"] = quadratic_forms_cells(r, wrong_P)
+    r.bounds["cell_joint"] = quadratic_forms_cells(r, wrong_J)
+    for check in (check_event_vs_exact, check_prop34):
+        assert check(r).status == "fail"

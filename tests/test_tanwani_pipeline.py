@@ -17,14 +17,15 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-import dse.families as reproductions
-from dse import api
-from dse.scenario.declare import reference_rows
+from dse import api, registry
+from dse.contract import stages as stage_mod
+from dse.contract.options import RunOptions
+from dse.contract.stages import code_closure, code_hash
 from dse.errors import ScenarioError
-from dse.engine.driver import RunOptions
+from dse.families.tanwani import cost, design, monte_carlo
+from dse.families.tanwani.scenario import RandomCommFile
+from dse.scenario.declare import reference_rows
 from dse.sweeps.run import network_metrics
-from dse.families.tanwani import compute, cost
-from dse.families.tanwani.reproduction import SCENARIO_MODEL
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILY_DIR = ROOT / "dse" / "families" / "tanwani"
@@ -55,7 +56,7 @@ def hypotheses(check) -> dict[str, dict]:
 # -- declared keys and degenerate input --------------------------------------------------------------------
 
 def test_every_key_is_declared_with_a_meaning():
-    rows = [(path, r) for path, table, _ in reference_rows(SCENARIO_MODEL) for r in table]
+    rows = [(path, r) for path, table, _ in reference_rows(RandomCommFile) for r in table]
     paths = {f"{path}.{r['key']}" for path, r in rows}
     assert {"sensors[].P_init", "simulation.grid_step", "communication.rates", "system.P0", "graph.edges"} <= paths
     for path, r in rows:
@@ -71,7 +72,7 @@ def test_every_shipped_file_comments_every_key():
         for line in path.read_text().splitlines():
             if re.match(r"^\s*[A-Za-z_][\w.]*\s*=", line):
                 assert "#" in line, f"{path.name}: no comment on {line.strip()!r}"
-        reproductions.family_from_dict(tomllib.loads(path.read_text()))
+        registry.from_dict(tomllib.loads(path.read_text()))
 
 
 @pytest.mark.parametrize("change, field, words", [
@@ -94,7 +95,7 @@ def test_every_shipped_file_comments_every_key():
 ])
 def test_invalid_input_names_its_field(change, field, words):
     with pytest.raises(ScenarioError) as err:
-        reproductions.family_from_dict(with_(**change))
+        registry.from_dict(with_(**change))
     assert err.value.field == field and words in err.value.reason, str(err.value)
 
 
@@ -116,7 +117,7 @@ def test_a_rate_of_20_on_a_star_gets_a_gridded_step_and_says_which():
     assert 20.0 * h * 2 <= 0.5 and np.isclose(0.1 / h, round(0.1 / h))          # λhd_max ≤ 1/2, divides the output step
     assert hypotheses(check)["grid_asymptotic"]["holds"] is True
     # the same step given by hand is what the rule chose; a larger one is rejected with a hint
-    reproductions.family_from_dict(with_(data, simulation__grid_step=float(h)))
+    registry.from_dict(with_(data, simulation__grid_step=float(h)))
 
 
 def test_each_node_starts_its_bound_at_its_own_P_init():
@@ -231,16 +232,16 @@ def test_metrics_are_tidy(small_run):
 def test_estimate_is_within_a_factor_of_three_of_the_measured_run(small_run):
     """The cost model (CPU seconds) against the CPU time of the run (imports excluded: already loaded)."""
     run, measured = small_run
-    est = cost.estimate(run.reproduction.scenarios[0].legacy.scenarios, RunOptions(quick=True))
+    est = run.reproduction.cost(RunOptions(quick=True))
     predicted = est.seconds - cost.STARTUP_S
     assert 1 / 3 < predicted / measured < 3, (predicted, measured, est.detail)
 
 
 def test_monte_carlo_is_identical_whatever_the_memory_budget():
-    sc = reproductions.family_from_dict(with_(simulation__horizon=1.0)).scenarios[0]
-    for stage in (lambda b: compute.simulate_gridded_rate(sc, 4, 2500, 3.0, 60, budget_bytes=b),
-                  lambda b: compute.simulate_event_rate(sc, 4, 2100, budget_bytes=b),
-                  lambda b: compute.simulate_frozen(sc, 4, 2100, budget_bytes=b)):
+    sc = registry.from_dict(with_(simulation__horizon=1.0)).scenario
+    for stage in (lambda b: monte_carlo.simulate_gridded_rate(sc, 4, 2500, 3.0, 60, budget_bytes=b),
+                  lambda b: monte_carlo.simulate_event_rate(sc, 4, 2100, budget_bytes=b),
+                  lambda b: monte_carlo.simulate_frozen(sc, 4, 2100, budget_bytes=b)):
         one, all_ = stage(1.0), stage(2.0**30)            # one unit of 1,000 trials at a time, or all together
         assert one.keys() == all_.keys()
         for k in one:
@@ -251,20 +252,21 @@ def test_unstreamable_paths_beyond_the_budget_are_refused_before_running():
     data = with_(graph={"kind": "complete", "n": 8}, sensors=[EXAMPLE["sensors"][0]] * 8, communication__rates=[1e4],
                  communication__alpha=0.1, simulation__horizon=1000.0, simulation__output_step=0.5,
                  simulation__grid_step=None)
-    repro = reproductions.family_from_dict(data)
+    repro = registry.from_dict(data)
     start = time.process_time()
     with pytest.raises(ScenarioError) as err:
-        repro.compute(RunOptions(quick=True, max_memory_mib=4000), None)
+        api.execute(repro, RunOptions(quick=True, max_memory_mib=4000))      # the driver refuses before computing
     assert err.value.field == "communication.rates" and "MiB" in err.value.reason
     assert time.process_time() - start < 5
 
 
 LONG = """
 import re, sys, tempfile, tomllib
-import dse.families as reproductions
+from dse import registry
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
 from dse.engine.cache import StageCache
-from dse.engine.driver import RunOptions
-from dse.families.tanwani import claims, compute, design  # noqa: F401  (the libraries a run loads, before the baseline)
+from dse.families.tanwani import claims, design, monte_carlo  # noqa: F401  (the libraries a run loads, before the baseline)
 
 def hwm():
     return int(re.search(r"VmHWM:\\s*(\\d+)", open("/proc/self/status").read()).group(1)) / 1024
@@ -272,10 +274,10 @@ def hwm():
 data = tomllib.loads(open(sys.argv[1]).read())
 data["simulation"].update(horizon=200.0, output_step=0.1, grid_step=0.1, quick_trials=2000, quick_event_trials=50)
 data["communication"]["rates"] = [1.0]
-repro = reproductions.family_from_dict(data)
+repro = registry.from_dict(data)
 print("BASE", hwm())
 with tempfile.TemporaryDirectory() as tmp:
-    res = repro.compute(RunOptions(quick=True, max_memory_mib=float(sys.argv[2])), StageCache(tmp))
+    res = repro.compute(RunOptions(quick=True, max_memory_mib=float(sys.argv[2])), StageContext(StageCache(tmp))).results
 mom = res.scenarios["damped3"].grid_moments(1.0)
 print("T", mom.mean.shape[0])
 print("K", mom.count)
@@ -296,3 +298,28 @@ def test_long_horizon_runs_in_bounded_memory():
     out = {k: float(v) for k, v in (line.split() for line in proc.stdout.splitlines())}
     assert (out["T"], out["K"]) == (2001, 2000)
     assert out["PEAK"] < 500 and out["PEAK"] - out["BASE"] < 100, out
+
+
+# -- stage keys follow the code the stages run ------------------------------------------------------------------
+
+def test_a_stage_key_changes_with_the_code_it_imports_and_only_with_it(tmp_path, monkeypatch):
+    """The gridded stage imports the simulator, which imports the exact flows (`linear_flows`): a faked edit of
+    that module changes the stage's key; an edit of the figures (which no stage imports) does not. No stage
+    imports a claims module."""
+    sc = registry.from_dict(EXAMPLE).scenario
+    st = monte_carlo.simulate_gridded_rate
+    for stage in (st, monte_carlo.simulate_event_rate, design.scenario_design):
+        assert not [m for m in code_closure(stage.module) if m.rpartition(".")[2].startswith(("claims", "hypotheses"))]
+    key = lambda: st.params(st.bound((sc, 0, 1000, 3.0), {}))                  # noqa: E731
+    before, real = key(), stage_mod.module_file
+    assert before["code"] == code_hash("dse.families.tanwani.monte_carlo")
+    for target, changes in (("dse.estimators.linear_flows", True), ("dse.families.tanwani.figures", False)):
+        edited = tmp_path / f"{target}.py"
+        edited.write_bytes(real(target).read_bytes() + b"\n# an edit\n")
+        monkeypatch.setattr(stage_mod, "module_file", lambda name, t=target, e=edited: e if name == t else real(name))
+        code_hash.cache_clear()
+        try:
+            assert (key() != before) is changes, target
+        finally:
+            monkeypatch.setattr(stage_mod, "module_file", real)
+            code_hash.cache_clear()

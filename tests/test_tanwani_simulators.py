@@ -300,14 +300,14 @@ def test_gridded_scheme_bias_is_second_order():
 
 
 def test_monte_carlo_stages_are_deterministic_per_seed():
-    from dse.families.tanwani import compute
+    from dse.families.tanwani import monte_carlo
     from dse.families.tanwani.scenario import load_scenario
 
     sc = load_scenario("s1c")
-    a = compute.simulate_gridded_rate(sc, 5, 300, sc.main_rate)
-    b = compute.simulate_gridded_rate(sc, 5, 300, sc.main_rate)
-    c = compute.simulate_gridded_rate(sc, 6, 300, sc.main_rate)
+    a = monte_carlo.simulate_gridded_rate(sc, 5, 300, sc.main_rate)
+    b = monte_carlo.simulate_gridded_rate(sc, 5, 300, sc.main_rate)
+    c = monte_carlo.simulate_gridded_rate(sc, 6, 300, sc.main_rate)
     assert all(np.array_equal(a[k], b[k]) for k in a)
     assert not np.array_equal(a["e_s2"], c["e_s2"])
-    e1, e2 = compute.simulate_event_rate(sc, 5, 60), compute.simulate_event_rate(sc, 5, 60)
+    e1, e2 = monte_carlo.simulate_event_rate(sc, 5, 60), monte_carlo.simulate_event_rate(sc, 5, 60)
     assert all(np.array_equal(e1[k], e2[k]) for k in e1)

@@ -7,7 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from dse.families.tanwani import claims as tc
+from dse.families.tanwani.claims_common import path_mean_pvalues
+from dse.families.tanwani.claims_errata import erratum_states, generator_by_definition, generator_formula
 from dse.families.tanwani.scenario import load_scenario
 
 REPS = 4000
@@ -35,7 +36,7 @@ def test_path_mean_test_keeps_its_level(law, n):
     """The plain z-test rejects these at many times its level; ours at most at its level (with
     the binomial allowance of REPS replications)."""
     x, mu, var = law(np.random.default_rng(n), n)
-    p = tc.path_mean_pvalues(x.sum(1), np.square(x).sum(1), n, mu, var)
+    p = path_mean_pvalues(x.sum(1), np.square(x).sum(1), n, mu, var)
     for level in (0.01, 0.05):
         rate = float(np.mean(p <= level))
         assert rate <= level + 3 * np.sqrt(level / REPS), (law.__name__, n, level, rate)
@@ -44,7 +45,7 @@ def test_path_mean_test_keeps_its_level(law, n):
 def test_path_mean_test_has_power():
     rng = np.random.default_rng(1)
     x = rng.exponential(1.0, (200, 300))
-    p = tc.path_mean_pvalues(x.sum(1), np.square(x).sum(1), 300, 1.3, 1.0)       # the true mean is 1
+    p = path_mean_pvalues(x.sum(1), np.square(x).sum(1), 300, 1.3, 1.0)       # the true mean is 1
     assert np.mean(p <= 0.01) > 0.9
 
 
@@ -62,12 +63,12 @@ def test_efron_bound_for_paired_heavy_tails():
 @pytest.mark.parametrize("name", ["s2", "s3"])
 def test_generator_from_its_definition_is_that_of_9(name):
     sc = load_scenario(name)
-    s = sc.system
+    s = sc.gossip
     r = SimpleNamespace(sys=s, scenario=sc, bound=lambda lam: np.broadcast_to(s.P0, (2, s.N, s.n, s.n)))
-    Q = tc._erratum_states(r)
-    ref, tol = tc.generator_by_definition(r, Q)
+    Q = erratum_states(r)
+    ref, tol = generator_by_definition(r, Q)
     coupling = sum(s.jump(c) - np.eye(s.N) for c in range(len(s.clocks)))
-    corrected = tc._generator_formula(r, Q, coupling)
+    corrected = generator_formula(r, Q, coupling)
     assert np.abs(corrected - ref).max() <= tol < 1e-5 * np.abs(ref).max()
-    printed = tc._generator_formula(r, Q, s.alpha * s.laplacian)
+    printed = generator_formula(r, Q, s.alpha * s.laplacian)
     assert np.abs(printed - ref).max() > 1e3 * tol
