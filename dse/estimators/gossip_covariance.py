@@ -8,7 +8,8 @@
 * the exact mean joint error covariance Σ̄(t) = E[e eᵀ] (expectation over noise and clocks):
   Σ̄' = 𝒜Σ̄ + Σ̄𝒜ᵀ + 𝒢 + λ Σ_c (𝒥_cΣ̄𝒥_cᵀ − Σ̄), 𝒜 = blkdiag(A_i), 𝒥_c = J_c ⊗ I_n;
 * the Lyapunov solutions R of (10) and S of (11), the large-rate limit S_true of the true
-  covariance, and an explicit version of the bound (12) with computable constants.
+  covariance, and an explicit version of the bound (12) with computable constants;
+* both steady states over a range of rates, with their deviations from S and S_true (`steady_state_sweep`).
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from .linear_flows import (abscissa_tolerance, affine_flow_grid, critical_parame
 
 MAX_JOINT_DIM = 40     # N·n above which the dense (Nn)²×(Nn)² generator of Σ̄ is not formed
 MAX_SECOND_DIM = 40    # N·n(n+1)/2 above which the second moments of the P-process are not formed
+_EPS = float(np.finfo(float).eps)
 
 
 def vec(X: np.ndarray) -> np.ndarray:
@@ -451,6 +453,64 @@ def explicit_bound(sys: GossipSystem, variant: str = "faithful") -> ExplicitBoun
     kappa = math.sqrt(max(sn ** 2, 1.0) / min(s1 ** 2, 1.0))
     return ExplicitBound(variant, C0, C1, C2, C3, s1, a2, sigma_G, s1, sn, kappa, fiedler,
                          float(np.linalg.norm(lyapunov_S(sys))), N, sys.alpha)
+
+
+
+# -- the steady states over a range of rates ----------------------------------------------------
+
+def steady_state_sweep(s: GossipSystem, lams: np.ndarray, S: np.ndarray | None, S_true: np.ndarray | None,
+                       eig_max: int) -> dict[str, np.ndarray]:
+    """Steady states of (9) and of the exact mean covariance at every rate of `lams`, their deviations from S and
+    S_true (solved for directly, with their round-off bounds; S None: Ā is not Hurwitz, no deviation) and the
+    spectral abscissae of both generators (that of the exact covariance up to size `eig_max`)."""
+    N, n = s.N, s.n
+    hurwitz = S is not None
+    L = len(lams)
+    P_inf, J_inf = np.full((L, N, n, n), np.nan), np.full((L, N, n, n), np.nan)
+    dev_P, dev_J = np.full((L, N, n, n), np.nan), np.full((L, N, n, n), np.nan)
+    err_P, err_J, cond_J = np.full(L, np.nan), np.full(L, np.nan), np.full(L, np.nan)
+    absc9, tol9 = np.zeros(L), np.zeros(L)
+    abscS = np.full(L, np.nan)
+    for k, lam in enumerate(lams):
+        absc9[k], tol9[k] = bound_abscissa(s, lam), bound_abscissa_tolerance(s, lam)
+        p = bound_steady(s, lam)
+        if p is not None:
+            P_inf[k] = p
+        if hurwitz and (dv := bound_steady_deviation(s, lam, S)) is not None:
+            dev_P[k] = dv
+            err_P[k] = deviation_error(bound_generator(s, lam)[0], dv, s, S)
+        if N * n <= MAX_JOINT_DIM:
+            M, g = joint_generator_sym(s, lam)
+            if len(M) <= eig_max:
+                abscS[k] = float(np.max(np.linalg.eigvals(M).real))
+            if joint_hurwitz(s, lam):
+                lu = scipy.linalg.lu_factor(M)
+                cond_J[k] = 1.0 / max(scipy.linalg.lapack.dgecon(lu[0], float(np.abs(M).sum(axis=0).max()), norm="1")[0], 1e-300)
+                J_inf[k] = diagonal_blocks(from_sym_coords(scipy.linalg.lu_solve(lu, -g), N * n), N, n)
+                if hurwitz and s.mode == "edge":
+                    dj = joint_steady_deviation(s, lam, S_true)
+                    dev_J[k] = diagonal_blocks(dj, N, n)
+                    # as `deviation_error`: the residual's rounding is ~‖𝒜‖‖11ᵀ⊗S_true‖ ≤ ‖M‖‖S_true‖·N
+                    err_J[k] = 10 * M.shape[0] * _EPS * cond_J[k] * (np.abs(dj).max() + N * np.abs(S_true).max())
+    out = dict(sweep_bound=P_inf, sweep_joint=J_inf, sweep_dev_bound=dev_P, sweep_dev_joint=dev_J,
+               sweep_dev_err=err_P, sweep_dev_joint_err=err_J, sweep_cond=cond_J,
+               sweep_absc_bound=absc9, sweep_absc_tol=tol9, sweep_absc_joint=abscS)
+    if hurwitz:
+        for variant in ("faithful", "tight"):
+            eb = explicit_bound(s, variant)
+            out[f"sweep_explicit_{variant}"] = np.array([eb.value(x) for x in lams])
+    return out
+
+
+def deviation_error(M: np.ndarray, D: np.ndarray, s: GossipSystem, S: np.ndarray) -> float:
+    """Round-off bound of the deviation D = 𝒫^∞ − S solved from M vec D = −r (`bound_steady_deviation`):
+    10·dim·eps·κ(M)·(‖D‖ + ‖r‖/‖M‖) with the residual's own rounding ‖r‖ ~ 2‖A_i‖‖S‖ + ‖G_i‖
+    and κ the 1-norm condition number (LAPACK estimate)."""
+    lu = scipy.linalg.lu_factor(M)
+    norm = float(np.abs(M).sum(axis=0).max())
+    kappa = 1.0 / max(scipy.linalg.lapack.dgecon(lu[0], norm, norm="1")[0], 1e-300)
+    r = max(2 * np.linalg.norm(A, 2) * np.linalg.norm(S, 2) + np.linalg.norm(G, 2) for A, G in zip(s.Ai, s.Gi))
+    return 10 * M.shape[0] * _EPS * kappa * (float(np.abs(D).max()) + r / norm)
 
 
 # -- per-path deterministic propagation (frozen clock path) ---------------------------------------

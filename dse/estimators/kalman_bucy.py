@@ -5,7 +5,9 @@
   exactly on a grid (closed form of the deviation from the steady state);
 * `discretised_kalman_covariances`: filterpy's discrete Kalman filter on the sampled model
   F = e^{Ah}, Q_d = ∫_0^h e^{As}BBᵀe^{Aᵀs}ds (Van Loan), measurements Δy_k/h with R = V/h;
-  its covariances converge to the continuous ones as h → 0 (error O(h)).
+  its covariances converge to the continuous ones as h → 0 (error O(h));
+* `sampled_filter_reference`: that filter at a few sampling steps, with scipy's DARE solution and
+  the difference the residuals of both allow; `care_condition`: the CARE's condition number.
 """
 from __future__ import annotations
 
@@ -114,3 +116,49 @@ def discretised_kalman_covariances(A, B, H, V, P0, h: float, n_steps: int,
         if until_steady and k and np.abs(prior[k] - prior[k - 1]).max() <= 10 * n * eps * np.abs(prior[k]).max():
             return prior[:k + 1], post[:k + 1]
     return prior, post
+
+
+def care_condition(A, B, H, V, P) -> float:
+    """First-order relative condition number of the filter CARE at its solution P:
+    ‖L⁻¹‖₂(2‖A‖‖P‖ + ‖BBᵀ‖ + ‖PSP‖)/‖P‖ with L(Y) = A_cY + YA_cᵀ the closed-loop Lyapunov operator."""
+    S = H.T @ np.linalg.solve(V, H)
+    Ac = A - P @ S
+    I = np.eye(len(Ac))
+    inv_norm = 1.0 / float(np.linalg.svd(np.kron(I, Ac) + np.kron(Ac, I), compute_uv=False)[-1])
+    terms = 2 * np.linalg.norm(A, 2) * np.linalg.norm(P, 2) + np.linalg.norm(B @ B.T, 2) + np.linalg.norm(P @ S @ P, 2)
+    return float(inv_norm * terms / np.linalg.norm(P, 2))
+
+
+def dare_residual(F, Qd, H, R, X) -> np.ndarray:
+    """R(X) = FXFᵀ − FXHᵀ(HXHᵀ + R)⁻¹HXFᵀ + Q_d − X of the filter DARE."""
+    Inn = H @ X @ H.T + R
+    return F @ X @ F.T - F @ X @ H.T @ np.linalg.solve(Inn, H @ X @ F.T) + Qd - X
+
+
+def sampled_filter_reference(A, B, H, V, P0, P_kb, fractions, max_steps: int) -> dict[str, np.ndarray]:
+    """filterpy's discrete filter on the sampled model at the sampling steps h = min(0.1, 0.5/ν)·`fractions`,
+    ν the fastest mode of the Kalman–Bucy closed loop A − P_KB HᵀV⁻¹H (so that hν ≤ 1/2, the first-order
+    regime of the sampled filter), each run until its covariance stops changing (at most `max_steps` steps;
+    `filterpy_steady` says whether it did), with scipy's DARE solution X and what their difference may be:
+    to first order an approximate solution Y of the DARE differs from the exact one by 𝒮⁻¹(R(Y)),
+    𝒮(Z) = Z − F_cZF_cᵀ (F_c the closed loop) and R the residual, so two approximate solutions differ by at
+    most ‖𝒮⁻¹‖(‖R(X)‖ + ‖R(Y)‖), doubled for second-order terms, plus rounding (`filterpy_allow`)."""
+    n, eps = A.shape[0], float(np.finfo(float).eps)
+    Ac = A - P_kb @ H.T @ np.linalg.solve(V, H)
+    nu = float(np.abs(np.linalg.eigvals(Ac)).max())
+    hs = min(0.1, 0.5 / max(nu, 1e-12)) * np.array(fractions)
+    pri, post, dare, steady, allow = [], [], [], [], []
+    for h in hs:
+        F, Qd = van_loan(A, B @ B.T, h)
+        X = scipy.linalg.solve_discrete_are(F.T, H.T, Qd, V / h)
+        Kd = X @ H.T @ np.linalg.inv(H @ X @ H.T + V / h)
+        Fc = F @ (np.eye(n) - Kd @ H)
+        inv_norm = 1.0 / float(np.linalg.svd(np.eye(n * n) - np.kron(Fc, Fc), compute_uv=False)[-1])
+        prior, posterior = discretised_kalman_covariances(A, B, H, V, P0, h, max_steps, until_steady=True)
+        res = [float(np.linalg.norm(dare_residual(F, Qd, H, V / h, Y), 2)) for Y in (X, prior[-1])]
+        allow.append(2 * inv_norm * sum(res) + 10 * 4 * n * eps * float(np.linalg.norm(X, 2)))
+        pri.append(prior[-1]), post.append(posterior[-1]), dare.append(X)
+        steady.append(len(prior) < max_steps)
+    return {"filterpy_h": hs, "filterpy_prior": np.array(pri), "filterpy_post": np.array(post),
+            "dare_prior": np.array(dare), "filterpy_steady": np.array(steady), "filterpy_allow": np.array(allow),
+            "kb_fastest_mode": np.array(nu)}

@@ -28,7 +28,6 @@ from dse.simulate.units import block_generator
 
 from .scenario import MAX_SWEEP_RATE, RandomCommFile
 
-EPS = float(np.finfo(float).eps)
 QUICK_SWEEP_POINTS = 15
 #: the λ sweep gets points at these multiples of the explicit threshold λ_thr of (12)
 THRESHOLD_MULTIPLES = (1.5, 3.0, 10.0, 30.0, 100.0)
@@ -73,18 +72,6 @@ def joint_ok(sys: gf.GossipSystem) -> bool:
     return sys.N * sys.n <= gc.MAX_JOINT_DIM
 
 
-def care_condition(s: gf.GossipSystem, P: np.ndarray) -> float:
-    """First-order relative condition number of the filter CARE at its solution P:
-    ‖L⁻¹‖₂(2‖A‖‖P‖ + ‖BBᵀ‖ + ‖PSP‖)/‖P‖ with L(Y) = A_cY + YA_cᵀ the closed-loop Lyapunov operator."""
-    Hs, Vs = np.vstack(s.H), scipy.linalg.block_diag(*s.V)
-    S = Hs.T @ np.linalg.solve(Vs, Hs)
-    Ac = s.A - P @ S
-    inv_norm = 1.0 / float(np.linalg.svd(gc.lyapunov_generator(Ac), compute_uv=False)[-1])
-    terms = 2 * np.linalg.norm(s.A, 2) * np.linalg.norm(P, 2) + np.linalg.norm(s.B @ s.B.T, 2) \
-        + np.linalg.norm(P @ S @ P, 2)
-    return float(inv_norm * terms / np.linalg.norm(P, 2))
-
-
 def grid_regime(sc: RandomCommFile, rate: float) -> float:
     """h·(max‖A_i‖₂ + λ d_max): the gridded simulator's step against the fastest rate of its flows and jumps."""
     s = sc.gossip
@@ -115,7 +102,7 @@ def scenario_design(sc: RandomCommFile, quick: bool = False, seed: int = 0) -> d
         Ac = s.A - K_kb @ Hs
         if np.all(np.isfinite(P_kb)) and np.max(np.linalg.eigvals(Ac).real) < 0:
             out["P_kb"], out["K_kb"] = P_kb, K_kb
-            out["kb_condition"] = np.array(care_condition(s, P_kb))
+            out["kb_condition"] = np.array(kb.care_condition(s.A, s.B, Hs, Vs, P_kb))
     except (np.linalg.LinAlgError, ValueError):
         pass
     out["P_kb_t"] = kalman_bucy_transient(sc)
@@ -158,61 +145,9 @@ def scenario_design(sc: RandomCommFile, quick: bool = False, seed: int = 0) -> d
                 extra += [c.threshold * f for f in THRESHOLD_MULTIPLES]
     lams = np.unique(np.concatenate([lams, [x for x in extra if x <= MAX_SWEEP_RATE]]))
     out["sweep"] = lams
-    out.update(_sweep(s, lams, out, hurwitz))
+    out.update(gc.steady_state_sweep(s, lams, out.get("S"), out.get("S_true"), SWEEP_EIG_MAX))
     out.update(numerics_paths(sc, seed))
     return out
-
-
-def _sweep(s: gf.GossipSystem, lams: np.ndarray, d: dict, hurwitz: bool) -> dict[str, np.ndarray]:
-    """Steady states of (9) and of the exact mean covariance at every sweep rate, their deviations from S and
-    S_true (solved for directly, with their round-off bounds) and the spectral abscissae of both generators."""
-    N, n = s.N, s.n
-    L = len(lams)
-    P_inf, J_inf = np.full((L, N, n, n), np.nan), np.full((L, N, n, n), np.nan)
-    dev_P, dev_J = np.full((L, N, n, n), np.nan), np.full((L, N, n, n), np.nan)
-    err_P, err_J, cond_J = np.full(L, np.nan), np.full(L, np.nan), np.full(L, np.nan)
-    absc9, tol9 = np.zeros(L), np.zeros(L)
-    abscS = np.full(L, np.nan)
-    for k, lam in enumerate(lams):
-        absc9[k], tol9[k] = gc.bound_abscissa(s, lam), gc.bound_abscissa_tolerance(s, lam)
-        p = gc.bound_steady(s, lam)
-        if p is not None:
-            P_inf[k] = p
-        if hurwitz and (dv := gc.bound_steady_deviation(s, lam, d["S"])) is not None:
-            dev_P[k] = dv
-            err_P[k] = deviation_error(gc.bound_generator(s, lam)[0], dv, s, d["S"])
-        if joint_ok(s):
-            M, g = gc.joint_generator_sym(s, lam)
-            if len(M) <= SWEEP_EIG_MAX:
-                abscS[k] = float(np.max(np.linalg.eigvals(M).real))
-            if gc.joint_hurwitz(s, lam):
-                lu = scipy.linalg.lu_factor(M)
-                cond_J[k] = 1.0 / max(scipy.linalg.lapack.dgecon(lu[0], float(np.abs(M).sum(axis=0).max()), norm="1")[0], 1e-300)
-                J_inf[k] = gc.diagonal_blocks(gc.from_sym_coords(scipy.linalg.lu_solve(lu, -g), N * n), N, n)
-                if hurwitz and s.mode == "edge":
-                    dj = gc.joint_steady_deviation(s, lam, d["S_true"])
-                    dev_J[k] = gc.diagonal_blocks(dj, N, n)
-                    # as `deviation_error`: the residual's rounding is ~‖𝒜‖‖11ᵀ⊗S_true‖ ≤ ‖M‖‖S_true‖·N
-                    err_J[k] = 10 * M.shape[0] * EPS * cond_J[k] * (np.abs(dj).max() + N * np.abs(d["S_true"]).max())
-    out = dict(sweep_bound=P_inf, sweep_joint=J_inf, sweep_dev_bound=dev_P, sweep_dev_joint=dev_J,
-               sweep_dev_err=err_P, sweep_dev_joint_err=err_J, sweep_cond=cond_J,
-               sweep_absc_bound=absc9, sweep_absc_tol=tol9, sweep_absc_joint=abscS)
-    if hurwitz:
-        for variant in ("faithful", "tight"):
-            eb = gc.explicit_bound(s, variant)
-            out[f"sweep_explicit_{variant}"] = np.array([eb.value(x) for x in lams])
-    return out
-
-
-def deviation_error(M: np.ndarray, D: np.ndarray, s, S: np.ndarray) -> float:
-    """Round-off bound of the deviation D = 𝒫^∞ − S solved from M vec D = −r (`bound_steady_deviation`):
-    10·dim·eps·κ(M)·(‖D‖ + ‖r‖/‖M‖) with the residual's own rounding ‖r‖ ~ 2‖A_i‖‖S‖ + ‖G_i‖
-    and κ the 1-norm condition number (LAPACK estimate)."""
-    lu = scipy.linalg.lu_factor(M)
-    norm = float(np.abs(M).sum(axis=0).max())
-    kappa = 1.0 / max(scipy.linalg.lapack.dgecon(lu[0], norm, norm="1")[0], 1e-300)
-    r = max(2 * np.linalg.norm(A, 2) * np.linalg.norm(S, 2) + np.linalg.norm(G, 2) for A, G in zip(s.Ai, s.Gi))
-    return 10 * M.shape[0] * EPS * kappa * (float(np.abs(D).max()) + r / norm)
 
 
 def numerics_times(sc: RandomCommFile) -> np.ndarray:

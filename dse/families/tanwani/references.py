@@ -13,7 +13,6 @@ import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily
 import dse.estimators.gossip_covariance as gc
 import dse.estimators.kalman_bucy as kb
 from dse.contract.stages import stage
-from dse.estimators.linear_flows import van_loan
 
 from .design import joint_ok, kalman_bucy_transient
 from .scenario import RandomCommFile
@@ -22,7 +21,6 @@ MAX_TEST_TIMES = 10        # output times at which the Monte Carlo means are tes
 MAX_SCHEME_DIM = 20        # N·n above which the gridded scheme's own mean covariance is not formed
 FILTERPY_FRACTIONS = (1.0, 0.5, 0.25, 0.125)
 FILTERPY_MAX_STEPS = 6000
-EPS = float(np.finfo(float).eps)
 
 
 def directions(n: int) -> np.ndarray:
@@ -69,7 +67,7 @@ def compute_references(sc: RandomCommFile) -> dict[str, np.ndarray]:
     except (np.linalg.LinAlgError, ValueError):
         stable = False
     if stable:
-        out.update(filterpy_reference(s, Hs, Vs, P_kb))
+        out.update(kb.sampled_filter_reference(s.A, s.B, Hs, Vs, s.P0, P_kb, FILTERPY_FRACTIONS, FILTERPY_MAX_STEPS))
     return out
 
 
@@ -110,40 +108,3 @@ def scheme_bias(sc: RandomCommFile) -> dict[str, np.ndarray]:
     b2 = gc.diagonal_blocks(gc.gridded_scheme_covariance(s, lam, h / 2, 2 * every * sc.n_outputs, 2 * every),
                             s.N, s.n) - exact
     return {"scheme_bias_h": b1, "scheme_bias_h2": b2}
-
-
-def _dare_residual(F, Qd, Hs, R, X) -> np.ndarray:
-    Inn = Hs @ X @ Hs.T + R
-    return F @ X @ F.T - F @ X @ Hs.T @ np.linalg.solve(Inn, Hs @ X @ F.T) + Qd - X
-
-
-def filterpy_reference(s, Hs: np.ndarray, Vs: np.ndarray, P_kb: np.ndarray) -> dict[str, np.ndarray]:
-    """filterpy's discrete filter on the sampled model at four sampling steps h, each run until its
-    covariance stops changing (at most FILTERPY_MAX_STEPS steps; `filterpy_steady` says whether it
-    did), with scipy's DARE solution X and what their difference may be: to first order an
-    approximate solution Y of the DARE differs from the exact one by 𝒮⁻¹(R(Y)), 𝒮(Z) = Z − F_cZF_cᵀ
-    (F_c the closed loop) and R the residual, so two approximate solutions differ by at most
-    ‖𝒮⁻¹‖(‖R(X)‖ + ‖R(Y)‖), doubled for second-order terms, plus rounding (`filterpy_allow`).
-
-    The steps scale with the fastest mode ν of the Kalman–Bucy closed loop A − P_KB HᵀV⁻¹H:
-    h = min(0.1, 0.5/ν)·(1, 1/2, 1/4, 1/8), so that hν ≤ 1/2 (the first-order regime of
-    the sampled filter)."""
-    Ac = s.A - P_kb @ Hs.T @ np.linalg.solve(Vs, Hs)
-    nu = float(np.abs(np.linalg.eigvals(Ac)).max())
-    hs = min(0.1, 0.5 / max(nu, 1e-12)) * np.array(FILTERPY_FRACTIONS)
-    pri, post, dare, steady, allow = [], [], [], [], []
-    for h in hs:
-        F, Qd = van_loan(s.A, s.B @ s.B.T, h)
-        X = scipy.linalg.solve_discrete_are(F.T, Hs.T, Qd, Vs / h)
-        Kd = X @ Hs.T @ np.linalg.inv(Hs @ X @ Hs.T + Vs / h)
-        Fc = F @ (np.eye(s.n) - Kd @ Hs)
-        inv_norm = 1.0 / float(np.linalg.svd(np.eye(s.n * s.n) - np.kron(Fc, Fc), compute_uv=False)[-1])
-        prior, posterior = kb.discretised_kalman_covariances(s.A, s.B, Hs, Vs, s.P0, h, FILTERPY_MAX_STEPS,
-                                                             until_steady=True)
-        res = [float(np.linalg.norm(_dare_residual(F, Qd, Hs, Vs / h, Y), 2)) for Y in (X, prior[-1])]
-        allow.append(2 * inv_norm * sum(res) + 10 * 4 * s.n * EPS * float(np.linalg.norm(X, 2)))
-        pri.append(prior[-1]), post.append(posterior[-1]), dare.append(X)
-        steady.append(len(prior) < FILTERPY_MAX_STEPS)
-    return {"filterpy_h": hs, "filterpy_prior": np.array(pri), "filterpy_post": np.array(post),
-            "dare_prior": np.array(dare), "filterpy_steady": np.array(steady), "filterpy_allow": np.array(allow),
-            "kb_fastest_mode": np.array(nu)}
