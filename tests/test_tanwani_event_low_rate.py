@@ -24,8 +24,8 @@ from dse.contract.family import Reproduction
 from dse.contract.options import RunOptions
 from dse.contract.stages import StageContext
 from dse.engine.cache import StageCache
-from dse.families.tanwani.claims_item1 import check_event_vs_exact, quadratic_forms_cells
-from dse.families.tanwani.claims_prop import check_prop34
+from dse.families.tanwani.claims_propositions import check_prop34
+from dse.families.tanwani.claims_theorem import check_event_vs_exact, quadratic_forms_cells
 from dse.families.tanwani.scenario import RandomCommFile, scenario_from_dict
 
 S2 = "dse/families/tanwani/scenarios/s2.toml"

@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import pytest
 
 from dse.scenario.fields import load_toml
-from dse.families.tanwani.claims_reference import reference_differences
+from dse.families.tanwani.claims_references import reference_differences
 from dse.families.tanwani.scenario import scenario_from_dict
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "dse" / "families" / "tanwani" / "scenarios"

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dse.families.tanwani.claims_common import path_mean_pvalues
-from dse.families.tanwani.claims_errata import erratum_states, generator_by_definition, generator_formula
+from dse.families.tanwani.claims_references import erratum_states, generator_by_definition, generator_formula
 from dse.families.tanwani.scenario import load_scenario
 
 REPS = 4000

@@ -21,7 +21,7 @@ order of the imports is the order of the report (the run-level Lemma III.3 first
 scenario's claims, then the paper's topology sweep, the errata and what cannot be checked).
 """
 from . import hypotheses  # noqa: F401
-from . import claims_model, claims_prop, claims_item1, claims_item2, claims_reference, claims_errata  # noqa: F401
+from . import claims_propositions, claims_theorem, claims_references  # noqa: F401
 from .claims_common import claims
 
 __all__ = ["claims"]
