@@ -22,7 +22,7 @@ from dse.scenario.fields import load_toml
 from dse import registry
 from dse.contract.family import Reproduction
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.engine.cache import StageCache
 from dse.families.tanwani.claims_propositions import check_prop34
 from dse.families.tanwani.claims_theorem import check_event_vs_exact, quadratic_forms_cells

@@ -264,7 +264,7 @@ LONG = """
 import re, sys, tempfile, tomllib
 from dse import registry
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.engine.cache import StageCache
 from dse.families.tanwani import claims, design, monte_carlo  # noqa: F401  (the libraries a run loads, before the baseline)
 

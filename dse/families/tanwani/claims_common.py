@@ -11,8 +11,9 @@ import numpy as np
 
 import dse.estimators.gossip_covariance as gc
 from dse.contract.claims import ClaimSet
-from dse.verify.rules import EPS, Verdict, not_checkable, p_value_test, roundoff_tolerance
+from dse.verify.rules import EPS, Verdict, p_value_test, roundoff_tolerance
 
+from .references import MAX_SCHEME_DIM
 from .results import ScenarioResults
 
 claims = ClaimSet(select=lambda res, name: res.scenarios[name], select_design=lambda design, name: design.scenarios[name])
@@ -46,26 +47,25 @@ def rel_diff(a, b) -> float:
     return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-300))
 
 
-# -- references not formed ------------------------------------------------------------------------------
+# -- what a claim requires of the scenario (`requires=` gates: the claim is not checkable without it) ------------
 
-def needs_joint(r: ScenarioResults) -> Verdict | None:
-    if r.joint(r.scenario.main_rate) is None:
-        return not_checkable(f"N·n = {r.sys.N * r.sys.n} > {gc.MAX_JOINT_DIM}: the exact joint covariance was not formed")
-    return None
+#: the exact joint covariance of the errors, formed up to N·n = MAX_JOINT_DIM
+JOINT = (lambda r: r.joint(r.scenario.main_rate) is not None,
+         lambda r: f"N·n = {r.sys.N * r.sys.n} > {gc.MAX_JOINT_DIM}: the exact joint covariance was not formed")
+#: the exact second moments of the P-process over clock paths, formed and accurate
+SECOND = ((lambda r: "cell_P_second" in r.bounds,
+           lambda r: f"N·n(n+1)/2 = {r.sys.N * r.sys.n * (r.sys.n + 1) // 2} > {gc.MAX_SECOND_DIM}: the exact second "
+                     "moments of the P-process over clock paths (needed for a test valid at any sample size) were not "
+                     "formed"),
+          (lambda r: float(r.bounds["cell_P_accuracy"]) <= SECOND_MOMENT_TRUST,
+           lambda r: f"the second moments of the P-process lost their accuracy (strongly non-normal A_i: the same "
+                     f"computation on a doubled step differs by {float(r.bounds['cell_P_accuracy']):.2g} relative, "
+                     f"more than {SECOND_MOMENT_TRUST:g}), so no variance over the clock paths can be trusted"))
 
 
-def needs_second(r: ScenarioResults) -> Verdict | None:
-    s, b = r.sys, r.bounds
-    if "cell_P_second" not in b:
-        return not_checkable(f"N·n(n+1)/2 = {s.N * s.n * (s.n + 1) // 2} > {gc.MAX_SECOND_DIM}: the exact second "
-                             "moments of the P-process over clock paths (needed for a test valid at any sample size) "
-                             "were not formed")
-    acc = float(b["cell_P_accuracy"])
-    if not acc <= SECOND_MOMENT_TRUST:
-        return not_checkable(f"the second moments of the P-process lost their accuracy (strongly non-normal A_i: the "
-                             f"same computation on a doubled step differs by {acc:.2g} relative, more than "
-                             f"{SECOND_MOMENT_TRUST:g}), so no variance over the clock paths can be trusted")
-    return None
+#: the gridded scheme's own exact mean covariance, formed up to N·n = MAX_SCHEME_DIM (`what` it is needed for)
+def SCHEME(what: str) -> tuple:
+    return (lambda r: "scheme_bias_h" in r.bounds), lambda r: f"N·n = {r.sys.N * r.sys.n} > {MAX_SCHEME_DIM}: {what}"
 
 
 # -- round-off of propagated quantities ------------------------------------------------------------------

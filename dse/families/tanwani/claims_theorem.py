@@ -17,19 +17,16 @@ import dse.estimators.gossip_covariance as gc
 from dse.simulate.stats import chi2_two_sided_p
 from dse.verify.rules import FAIL, PASS, Verdict, inequality, not_checkable, p_value_test, roundoff_tolerance
 
-from .claims_common import (MIN_PATHS, MIN_TRIALS, chi2_lower_p, claims, flow_tolerance, fmt, hyp, min_eig,
-                            needs_joint, needs_second, path_mean_pvalues, path_test, second_variance,
-                            transient_tolerance, worst_cell)
-from .references import MAX_SCHEME_DIM, directions, test_times
+from .claims_common import (JOINT, MIN_PATHS, MIN_TRIALS, SCHEME, SECOND, chi2_lower_p, claims, flow_tolerance, fmt,
+                            hyp, min_eig, path_mean_pvalues, path_test, second_variance, transient_tolerance, worst_cell)
+from .references import directions, test_times
 from .results import ScenarioResults
 
 
 @claims.claim("{paper}.thm3_1.item1_exact.{scenario}", "Thm. III.1 item 1, (8)-(9)", "E[e_ie_iᵀ](t) ≤ 𝒫_i(t) in the "
               "matrix order, for all t and λ (exact mean joint covariance ODE vs (9))", "inequality",
-              hypotheses=hyp("alpha", "initial"))
+              hypotheses=hyp("alpha", "initial"), requires=(JOINT,))
 def check_item1_exact(r: ScenarioResults) -> Verdict:
-    if (na := needs_joint(r)) is not None:
-        return na
     s, b = r.sys, r.bounds
     gaps, tols, later = [], [], []
     for lam in r.scenario.rates:
@@ -65,10 +62,8 @@ def _solve_condition(r: ScenarioResults, k: int) -> float:
 
 @claims.claim("{paper}.thm3_1.item1_lower_kb.{scenario}", "Thm. III.1 item 1 (derived lower bound)", "P_KB(t) ≤ "
               "E[e_ie_iᵀ](t): the centralized Kalman–Bucy filter is a lower bound", "inequality",
-              hypotheses=hyp("kalman_bucy"))
+              hypotheses=hyp("kalman_bucy"), requires=(JOINT,))
 def check_item1_kb(r: ScenarioResults) -> Verdict:
-    if (na := needs_joint(r)) is not None:
-        return na
     s, b = r.sys, r.bounds
     slack, raw, tols = [], [], []
     for lam in r.scenario.rates:
@@ -87,15 +82,13 @@ def check_item1_kb(r: ScenarioResults) -> Verdict:
 
 @claims.claim("{paper}.thm3_1.item1_mc.{scenario}", "Thm. III.1 item 1", "Monte Carlo: P_KB ≤ Ê[e_ie_iᵀ] ≤ 𝒫_i "
               "(one-sided tests along fixed directions)", "statistical",
-              hypotheses=hyp("alpha", "initial", "numerics", "kalman_bucy"))
+              hypotheses=hyp("alpha", "initial", "numerics", "kalman_bucy"), requires=SECOND)
 def check_item1_mc(r: ScenarioResults) -> Verdict:
     """Sampled errors of the exact event-driven simulator: (i) E[e_ie_iᵀ] ≤ 𝒫_i along the test
     directions, one-sided (see `path_mean_pvalues`, variance of (uᵀe)² bounded by
     3E[(uᵀP_iu)²] − (uᵀP_KBu)² from the exact P-process moments); (ii) P_KB ≤ E[e_ie_iᵀ]: given the
     clocks every error is N(0, Σ_ii(t; τ)) with Σ_ii(t; τ) ⪰ P_KB(t) on every path, so
     Σ_k (uᵀe_k)²/(uᵀP_KBu) is stochastically above χ²(K): an exact one-sided lower test."""
-    if (na := needs_second(r)) is not None:
-        return na
     ev, b = r.event, r.bounds
     n = int(ev["n"])
     kbq = np.broadcast_to(b["cell_kb"][:, None, :], b["cell_bound"].shape)
@@ -117,18 +110,15 @@ def check_item1_mc(r: ScenarioResults) -> Verdict:
 
 
 @claims.claim("{paper}.sim.gridded_bias.{scenario}", "simulation method", "the gridded simulator's discretisation bias "
-              "is (at least) second order in the step h", "inequality", hypotheses=hyp("grid_asymptotic"))
+              "is (at least) second order in the step h", "inequality", hypotheses=hyp("grid_asymptotic"),
+              requires=(SCHEME("the gridded scheme's own mean covariance was not formed"),))
 def check_grid_bias(r: ScenarioResults) -> Verdict:
     """The gridded simulator's own exact mean covariance against the model's: the Strang
     splitting with alternating clock order is second order, so halving h divides the bias by
     2^p with p ≥ 2. The observed order log2(b(h)/b(h/2)) must be at least 2 − 1/2 (a
     first-order scheme gives p ≈ 1); the hypothesis grid_asymptotic (hκ ≤ 1, κ the fastest
     rate of the flows and jumps) keeps h where the leading term dominates."""
-    b = r.bounds
-    if "scheme_bias_h" not in b:
-        return not_checkable(f"N·n = {r.sys.N * r.sys.n} > {MAX_SCHEME_DIM}: the gridded scheme's own mean covariance "
-                             "was not formed")
-    sc, s = r.scenario, r.sys
+    b, sc, s = r.bounds, r.scenario, r.sys
     e1, e2 = float(np.abs(b["scheme_bias_h"]).max()), float(np.abs(b["scheme_bias_h2"]).max())
     steps = 2 * int(round(sc.horizon / sc.grid_step))
     floor, how = flow_tolerance(r.joint(sc.main_rate), steps, (s.N * s.n) ** 2)
@@ -145,15 +135,12 @@ def check_grid_bias(r: ScenarioResults) -> Verdict:
 
 @claims.claim("{paper}.sim.event_vs_exact.{scenario}", "simulation method, exact mean covariance", "the exact "
               "event-driven simulator (mean of its per-path exact covariances) reproduces the exact mean error "
-              "covariance", "statistical", hypotheses=hyp("numerics", "kalman_bucy"))
+              "covariance", "statistical", hypotheses=hyp("numerics", "kalman_bucy"), requires=(JOINT, *SECOND))
 def check_event_vs_exact(r: ScenarioResults) -> Verdict:
     """Mean over clock paths of uᵀΣ_ii(t; τ)u (the exact per-path covariances of the event-driven
     simulator, a Rao–Blackwellised estimate of E[e_ie_iᵀ]) against the exact mean covariance
     ODE (D1). Per path P_KB(t) ⪯ Σ_ii(t; τ) ⪯ P_i(t; τ), so with k = uᵀP_KBu and Y = uᵀP_iu,
     Var(uᵀΣ_iiu) ≤ E[(Y − k)²], known exactly from the second moments of the P-process."""
-    for na in (needs_joint(r), needs_second(r)):
-        if na is not None:
-            return na
     ev, b = r.event, r.bounds
     n = int(ev["n"])
     k = np.broadcast_to(b["cell_kb"][:, None, :], b["cell_bound"].shape)
@@ -189,7 +176,8 @@ def check_event_given_clocks(r: ScenarioResults) -> Verdict:
 
 @claims.claim("{paper}.sim.event_vs_gridded.{scenario}", "simulation method", "the event-driven and gridded "
               "simulators agree (trial by trial in law, up to the gridded scheme's exact bias)", "statistical",
-              hypotheses=hyp("grid_asymptotic", "numerics"))
+              hypotheses=hyp("grid_asymptotic", "numerics"),
+              requires=(SCHEME("the gridded scheme's bias, needed to pair the two simulators, was not formed"),))
 def check_event_vs_grid(r: ScenarioResults) -> Verdict:
     """Two simulators, paired trial by trial: d_k = (uᵀe_k)²(event) − (uᵀe_k)²(gridded) + β with β
     the gridded scheme's exact bias (its own mean covariance minus the model's). When both
@@ -200,9 +188,6 @@ def check_event_vs_grid(r: ScenarioResults) -> Verdict:
     so the gridded scheme misses the short-lived large errors the exact law has, and the
     differences are no longer symmetric); the remaining O(h²) change beyond the mean is neglected."""
     b = r.bounds
-    if "scheme_bias_h" not in b:
-        return not_checkable(f"N·n = {r.sys.N * r.sys.n} > {MAX_SCHEME_DIM}: the gridded scheme's bias, needed to pair "
-                             "the two simulators, was not formed")
     ev_vals = r.event["pair_values"]
     gr_vals = r.gridded[r.scenario.main_rate]["pair_values"]
     K = min(len(ev_vals), len(gr_vals))
@@ -354,14 +339,12 @@ claims.claim("{paper}.thm3_1.item2_explicit_tight.{scenario}", "eq. (12), explic
 
 @claims.claim("{paper}.limit.true_covariance.{scenario}", "abstract; derived limit", "the true covariances converge to "
               "S_true ⪯ S (= P_KB for the split Kalman–Bucy gains): the bound's limit is not tight", "inequality",
-              hypotheses=hyp("abar_hurwitz", "rate_sufficient"))
+              hypotheses=hyp("abar_hurwitz", "rate_sufficient"),
+              requires=((lambda r: r.sys.mode == "edge", "the limit S_true (noise averaged over N²) is derived for one "
+                                                         "clock per undirected edge"), JOINT))
 def check_true_limit(r: ScenarioResults) -> Verdict:
     """E[e_ie_iᵀ]^∞(λ) → S_true (noise averaged over N², edge clocks), with S ⪰ S_true; for the
     split Kalman–Bucy gains S_true = P_KB (its Lyapunov equation is then the filter CARE)."""
-    if r.sys.mode != "edge":
-        return not_checkable("the limit S_true (noise averaged over N²) is derived for one clock per undirected edge")
-    if (na := needs_joint(r)) is not None:
-        return na
     s, b = r.sys, r.bounds
     lams = b["sweep"]
     Dj, errj = b["sweep_dev_joint"], b["sweep_dev_joint_err"]

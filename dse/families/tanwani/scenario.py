@@ -20,8 +20,8 @@ from pydantic import Field, model_validator
 
 from dse.errors import ScenarioError, printable
 from dse.estimators.gossip_filter import MODES, GossipSystem, kalman_bucy_split_gains
-from dse.scenario.declare import (Matrix, Real, ScenarioFile, Section, computed_default, covariance, key, matrix,
-                                  name_key, parse)
+from dse.scenario.declare import (Matrix, Real, ScenarioFile, Section, computed_default, covariance, derived_default,
+                                  key, matrix, name_key, parse)
 from dse.scenario.fields import load_toml
 from dse.scenario.graphs import GraphSection, GraphSpec, graph_from_section
 
@@ -44,16 +44,6 @@ MAX_RINGS_PER_STEP = 0.5
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
 
 Rate = Annotated[float, Field(allow_inf_nan=False, gt=0, le=MAX_RATE)]
-
-
-def from_file(rule):
-    """A default that needs keys of other tables (a default factory sees only its own table): the key
-    stays None when not given, and `rule(scenario)` is the value the scenario uses (the cached property
-    that reads the key calls it); the first line of its docstring is what the reference page shows."""
-    def default():
-        return None
-    default.__doc__ = rule.__doc__
-    return default
 
 
 def _alpha(sc: "RandomCommFile") -> float:
@@ -117,7 +107,7 @@ class SensorSection(Section):
                     constraint="symmetric positive definite")
     L: Matrix | None = key(None, doc="filter gain L_i (n x p_i) of (5)", constraint="required with gains.rule = "
                            "'given', only then")
-    P_init: Matrix | None = key(from_file(_P_init), doc="P_i(0): the initial value of the node's per-path bound "
+    P_init: Matrix | None = key(derived_default(_P_init), doc="P_i(0): the initial value of the node's per-path bound "
                                 "(14) and of its mean (9). Prop. III.2 and Thm. III.1 need P_i(0) ⪰ E[e_i(0)e_i(0)ᵀ] = "
                                 "P0 (reported as the hypothesis 'initial'); the simulated errors start from x(0) − m0 "
                                 "whatever P_i(0) is", unit="state²", constraint="n x n, symmetric positive semidefinite")
@@ -128,7 +118,7 @@ class CommunicationSection(Section):
     rings, `edge`) or per ordered pair (only the receiver fuses, `ordered`); a ring moves x̂_i to
     (1 − α)x̂_i + αx̂_j (6), Π = I − α𝓛 (3)."""
 
-    alpha: Real | None = key(from_file(_alpha), doc="fusion weight α of (3) and (6)", gt=0,
+    alpha: Real | None = key(derived_default(_alpha), doc="fusion weight α of (3) and (6)", gt=0,
                              constraint="<= 1/d_max (d_max the largest node degree)")
     mode: Literal[MODES] = key("edge", doc="edge: one clock per undirected edge, both endpoints update with the "  # type: ignore[valid-type]
                                "pre-jump values; ordered: one clock per ordered pair, only the receiver updates")
@@ -168,7 +158,7 @@ class SimulationSection(Section):
     output_step: Real = key(0.1, doc="spacing of the output grid (every transient, Monte Carlo moment and table "
                             "series is on it)", unit="s", gt=0,
                             constraint=f"divides the horizon into at most {MAX_OUTPUTS} steps")
-    grid_step: Real | None = key(from_file(_grid_step), doc="step h of the gridded simulator", unit="s", gt=0,
+    grid_step: Real | None = key(derived_default(_grid_step), doc="step h of the gridded simulator", unit="s", gt=0,
                                  constraint=f"divides output_step; λ·h·d_max <= {MAX_RINGS_PER_STEP:g}; at most "
                                             f"{MAX_GRID_STEPS:,} steps over the horizon")
     trials: int = key(10_000, doc="gridded Monte Carlo trials per rate", ge=100, le=10_000_000)
@@ -222,6 +212,12 @@ class RandomCommFile(ScenarioFile):
             raise ScenarioError("title", f"must not contain control or format characters, got '{printable(self.title)}'")
         for rule in ("plant", "network", "edges", "sensor_matrices", "gains_L", "alpha", "rates", "n_outputs", "grid"):
             getattr(self, rule)
+        # the derived defaults, filled in once the rules hold
+        for s, P in zip(self.sensors, self.sensor_matrices[3]):
+            if s.P_init is None:
+                object.__setattr__(s, "P_init", P.tolist())
+        object.__setattr__(self.communication, "alpha", self.alpha)
+        object.__setattr__(self.simulation, "grid_step", self.grid_step)
         return self
 
     # -- the plant, the network and the sensors ----------------------------------------------------------------
