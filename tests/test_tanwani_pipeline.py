@@ -323,3 +323,13 @@ def test_a_stage_key_changes_with_the_code_it_imports_and_only_with_it(tmp_path,
         finally:
             monkeypatch.setattr(stage_mod, "module_file", real)
             code_hash.cache_clear()
+
+
+def test_listing_the_papers_claims_parses_no_scenario_file(monkeypatch):
+    """`dse list` reads the paper's claims and hypotheses from its declared scenario ids, without the files."""
+    from dse.families.tanwani import family
+
+    monkeypatch.setattr(family, "load_scenario", lambda name: pytest.fail(f"{name}.toml was parsed"))
+    run = registry.paper("tanwani")
+    assert len(run.claims()) == 133 and len(run.hypotheses()) == 45
+    assert run.claims()[-4].id == "tanwani.errata.inverse_transform"

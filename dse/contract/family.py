@@ -134,10 +134,14 @@ class Family(ABC):
         ids = tuple(run.scenario_ids())
         out = [Where(run.paper_id, run.is_paper, ids, run=run)]
         entries = self.claims().claims + self.claims().hypotheses
-        if any(e.per_scenario or e.when is not None for e in entries):
-            out += [Where(run.paper_id, run.is_paper, ids, sc.name, self.roles(sc, run.is_paper), run=run)
-                    for sc in run.scenarios]
-        return out
+        if not any(e.per_scenario or e.when is not None for e in entries):
+            return out
+        if run._scenarios is None and not any(e.when is not None or e.each is not None
+                                              or callable(getattr(e, "hypotheses", ())) for e in entries):
+            # nothing reads a scenario's roles or items: the paper's files are not parsed (`dse list`)
+            return out + [Where(run.paper_id, run.is_paper, ids, name, run=run) for name in ids]
+        return out + [Where(run.paper_id, run.is_paper, ids, sc.name, self.roles(sc, run.is_paper), run=run)
+                      for sc in run.scenarios]
 
     def compute(self, run: "Reproduction", opts: RunOptions, ctx: StageContext) -> "Computed":
         """The design, then the simulation on top of it."""
