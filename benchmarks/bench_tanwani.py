@@ -17,7 +17,7 @@ from scipy.integrate import solve_ivp  # noqa: E402
 import dse.estimators.gossip_covariance as gc  # noqa: E402
 import dse.estimators.gossip_filter as gf  # noqa: E402
 import dse.estimators.kalman_bucy as kb  # noqa: E402
-from dse.families.tanwani import compute  # noqa: E402
+from dse.families.tanwani import monte_carlo  # noqa: E402
 from dse.families.tanwani.scenario import load_scenario  # noqa: E402
 
 from .common import bound_row, estimator_row, spread, timed  # noqa: E402
@@ -32,7 +32,7 @@ def bench_gridded(quick: bool = False, repeats: int = 3) -> list[dict]:
     names = ("s2",) if quick else ("s1a", "s2", "s3")
     for name in names:
         sc = load_scenario(name)
-        s = sc.system
+        s = sc.gossip
         horizon = 2.0 if quick else sc.horizon
         steps = int(round(horizon / sc.grid_step))
         every = int(round(sc.output_step / sc.grid_step))
@@ -56,7 +56,7 @@ def bench_event(quick: bool = False, repeats: int = 3) -> list[dict]:
     """The exact event-driven simulator (per-path Σ and P propagated with every trial's own
     inter-event times): µs per trial-node-output-step, batched vs one trial per call."""
     sc = load_scenario("s2")
-    s = sc.system
+    s = sc.gossip
     times = sc.output_times if not quick else sc.output_times[sc.output_times <= 2.0 + 1e-9]
     trials, loop_trials = (200, 3) if quick else (1_000, 10)
     rng = np.random.default_rng(0)
@@ -93,7 +93,7 @@ def bench_bounds(quick: bool = False, repeats: int = 3) -> list[dict]:
     rows = []
     for name in (("s2",) if quick else ("s2", "s3")):
         sc = load_scenario(name)
-        s = sc.system
+        s = sc.gossip
         T = sc.n_outputs
         lam = sc.main_rate
         exact = gc.bound_transient(s, lam, sc.output_step, T).reshape(T + 1, -1)
@@ -140,7 +140,7 @@ def bench_s2_budget(repeats: int = 2) -> dict:
     sc = load_scenario("s2")
     walls = []
     for rep in range(repeats):
-        walls.append(timed(lambda: compute.simulate_gridded_rate(sc, rep, 10_000, sc.main_rate), 1)[0] / 1e6)
+        walls.append(timed(lambda: monte_carlo.simulate_gridded_rate(sc, rep, 10_000, sc.main_rate), 1)[0] / 1e6)
     w = spread(walls)
     return {"name": "tanwani S2 gridded Monte Carlo, 10,000 trials, t in [0, 10], h = 0.01 (budget 30 s)",
             "wall_s": w[0], "spread": w[1], "within_budget": w[0] < 30.0}
