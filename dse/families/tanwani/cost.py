@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 
-from dse.contract.cost import MIB, Cost
+from dse.contract.cost import MIB, Cost, human_seconds
 from dse.contract.options import INTERPRETER_MIB, RunOptions
 from dse.simulate.units import RNG_UNIT, units_per_chunk
 
@@ -55,13 +55,6 @@ COEF = {
 #: CPU seconds: interpreter start and imports; the paper's topology sweep
 STARTUP_S = 2.5
 TOPOLOGY_S = 3.0
-
-
-def human_seconds(s: float) -> str:
-    for unit, size in (("days", 86400.0), ("hours", 3600.0), ("minutes", 60.0)):
-        if s >= 2 * size:
-            return f"{s / size:.3g} {unit}"
-    return f"{s:.3g} s"
 
 
 class Sizes:
