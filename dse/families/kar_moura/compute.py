@@ -411,14 +411,15 @@ def simulate_gikf_stage(sc: GossipKalmanScenario, bounds: dict, seed: int, runs:
     def chunk(streams):
         first = done[0] == 0
         done[0] += len(streams.sizes)
-        return gk.gikf_units(sys_, protocol, list(zip(streams.generators, streams.sizes)), slots,
-                             record_times=record_times(sc, slots), P_central=bounds["P_central"],
-                             K_central=bounds["K_central"], envelope=bounds["envelope"],
+        acc = gk.standard_accumulators(sys_, slots, record_times=record_times(sc, slots), P_central=bounds["P_central"],
+                             envelope=bounds["envelope"],
                              envelope_log=bounds["envelope_log"], envelope_err=bounds["envelope_err"], j_grid=J_GRID,
                              n_paths=sc.sample_paths, check=first, paths=first,
                              nees_window=(max(1, min(20, slots // 3)), min(60, slots)), stat_stride=STAT_STRIDE,
                              P_floor=bounds["P_floor"], floor_index=bounds["class_of"], floor_err=bounds["P_floor_err"],
                              nees_slots=nees_slots(slots), x0=sc.x0)
+        return gk.gikf_units(sys_, protocol, list(zip(streams.generators, streams.sizes)), slots,
+                             K_central=bounds["K_central"], accumulators=acc)
 
     acc = run_units(chunk, gk.fold_gikf, runs, stream_seed(seed, sc.name, "gikf", which),
                     bytes_per_trial=gikf_bytes_per_run(sc, slots, spec), budget_bytes=budget_bytes)
