@@ -1,7 +1,7 @@
 """Batched GIKF runs with on-line statistics: the filter kernel, and the accumulators beside it.
 
 `gikf_units` simulates independent GIKF runs (eq (12) for the covariances, the error recursion of
-`gossip_filter` for the estimates, and the centralized filter's error on the same noises) for units
+`gikf_maps` for the estimates, and the centralized filter's error on the same noises) for units
 of runs, each unit drawing from its own generator, and hands the state of every slot to its
 accumulators. The kernel computes nothing a check needs: every statistic (features at the record
 times, quantiles over runs, tail counts, Loewner margins with their round-off bounds, NEES, the
@@ -24,7 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .gossip_filter import (EPS, FEATURES, GossipSystem, covariance_features, eigvalsh, error_norm, factor_psd,
+from .gikf_maps import (EPS, FEATURES, GossipSystem, covariance_features, eigvalsh, error_norm, factor_psd,
                             gikf_error_step, propagate_error, riccati_roundoff, riccati_step, swap)
 from .gossip_protocols import matching_at
 

@@ -15,7 +15,7 @@ measure μ^Ā from any initial law (Theorem 8). The samplers below are
   tells how long the burn-in must be.
 
 Chains are batched on a leading axis. The maps are the Joseph-form Riccati of
-:mod:`dse.estimators.gossip_filter`, or with ``sqrt=True`` its square-root (array) form, which carries a
+:mod:`dse.estimators.gikf_maps`, or with ``sqrt=True`` its square-root (array) form, which carries a
 factor S of X = S Sᵀ and stays accurate and finite when ‖X‖ is huge (a start at c·I with c ≫ 1, or a
 direction no sensor of the path sees); features are then computed from the factor.
 """
@@ -26,7 +26,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .gossip_filter import (GossipSystem, covariance_features, error_norm, factor_features, factor_psd,
+from .gikf_maps import (GossipSystem, covariance_features, error_norm, factor_features, factor_psd,
                             propagate_error, riccati_roundoff, riccati_sqrt_step, riccati_step)
 
 __all__ = ["LazyChain", "sample_chain", "sample_protocol_chain", "switched_riccati", "pullback", "coupling_gap", "exact_small_t_law"]

@@ -22,7 +22,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .gossip_filter import GossipSystem, riccati_step
+from .gikf_maps import GossipSystem, riccati_step
 
 __all__ = ["ChainCheck", "check_chain", "singular_ratios", "observability_matrix", "tv_to_uniform", "tv_rows", "pbh_undetectable",
            "unobservable_modes", "walk_gramian",
