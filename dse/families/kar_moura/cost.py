@@ -1,4 +1,4 @@
-"""The cost model of a gossip-kalman run (`dse check`, and the refusal of runs whose
+"""The cost model of a gossip-kalman run (`dse check`, and the driver's refusal of runs whose
 non-streamable part does not fit the memory budget): seconds and peak memory from the
 scenario's sizes, without simulating.
 
@@ -24,13 +24,17 @@ paper quick 1.3 and default 1.17; peak memory 0.8-1.15. The estimate is meant wi
 from __future__ import annotations
 
 import math
-from typing import Any
 
-from dse.errors import ScenarioError
-from dse.engine.driver import RunOptions
+from dse.contract.cost import Cost
+from dse.contract.options import INTERPRETER_MIB, RunOptions
+from dse.estimators.gikf_monte_carlo import decimated_slots
+from dse.estimators.gikf_maps import FEATURES
 from dse.simulate.units import RNG_UNIT
 
-from .scenario import GossipKalmanScenario, ProtocolSpec
+from .assumptions import horizon
+from .gikf import STAT_STRIDE
+from .results import record_times, sizes
+from .scenario import GossipKalmanFile, ProtocolSection
 
 #: fitted seconds (this machine, one process): per GIKF (run · sensor · slot) a + b·M² (Riccati and error steps,
 #: statistics), per Theorem-8 (run · slot) a + b·M², per (draw · edge) of the greedy matching
@@ -44,6 +48,8 @@ AUX_CHAINS = 8
 #: the auxiliary samples (run where C.1 and D.1 hold) cost about AUX_FACTOR Theorem-8 runs, plus pull-backs b·M²
 AUX_FACTOR = 3.1
 PULLBACK_S = 0.03
+#: seconds per slot and M² of the eq74 sequences (2 tokens × 500 paths × up to 7 restarts): E1 0.5 s at 120 slots
+EQ74_S_PER_STEP = 1e-3
 #: the lifted window chain's dense stationary solve, per state³; the centralized filter's solve per slot and (N m)³;
 #: dense products of N x N matrices (the token chain's total variation, Ā's spectrum) per flop
 LIFTED_S = 2e-9
@@ -54,28 +60,13 @@ IMPORT_S = 3.5
 OUTPUT_S = 1.5
 OUTPUT_NODE_S = 0.02
 BASE_MIB = 300.0
-INTERPRETER_MIB = 200.0
 
 
-def _n_edges(sc: GossipKalmanScenario) -> int:
-    return len(sc.graph.edge_array())
+def _n_edges(sc: GossipKalmanFile) -> int:
+    return len(sc.network.edge_array())
 
 
-def _times(sc: GossipKalmanScenario, slots: int) -> int:
-    from .compute import record_times
-
-    return len(record_times(sc, slots))
-
-
-def _stat_slots(sc: GossipKalmanScenario, slots: int) -> int:
-    import dse.estimators.gossip_kalman as gk
-
-    from .compute import STAT_STRIDE, record_times
-
-    return len(gk.decimated_slots(slots, record_times(sc, slots), STAT_STRIDE)[1])
-
-
-def gikf_bytes_per_run(sc: GossipKalmanScenario, slots: int, spec: ProtocolSpec | None = None) -> float:
+def gikf_bytes_per_run(sc: GossipKalmanFile, slots: int, spec: ProtocolSection | None = None) -> float:
     """Bytes of one GIKF run inside a chunk: its covariances, errors and their temporaries, the protocol's
     draws, and its share of what is kept (features, log traces at the statistic slots)."""
     N, M = sc.N, sc.M
@@ -86,33 +77,31 @@ def gikf_bytes_per_run(sc: GossipKalmanScenario, slots: int, spec: ProtocolSpec 
     return live + draws + kept_bytes_per_run(sc, slots)
 
 
-def kept_bytes_per_run(sc: GossipKalmanScenario, slots: int) -> float:
+def kept_bytes_per_run(sc: GossipKalmanFile, slots: int) -> float:
     """What every GIKF run leaves until the end of the stage (the per-run samples the claims test)."""
-    import dse.estimators.gossip_kalman as gk
+    nf = len(FEATURES) + sc.M
+    times = record_times(sc, slots)
+    n_stat = len(decimated_slots(slots, times, STAT_STRIDE)[1])
+    return 8.0 * (len(times) * nf * (sc.N + 1) + n_stat * sc.N + 12)
 
-    nf = len(gk.FEATURES) + sc.M
-    return 8.0 * (_times(sc, slots) * nf * (sc.N + 1) + _stat_slots(sc, slots) * sc.N + 12)
 
-
-def _kept_mib(sc: GossipKalmanScenario, runs: int, ref_runs: int, slots: int) -> tuple[float, float, float]:
+def _kept_mib(sc: GossipKalmanFile, runs: int, ref_runs: int, slots: int) -> tuple[float, float, float]:
     """(GIKF per-run samples, Theorem-8 samples, design arrays) in MiB, at their peak (the per-unit parts and
     their join)."""
-    import dse.estimators.gossip_kalman as gk
-
     N, M = sc.N, sc.M
     m = max([1] + [c.shape[0] for c in sc.C_types])
-    gikf = 2.0 * runs * kept_bytes_per_run(sc, slots) * (2 if sc.comparison is not None else 1)
-    nf = len(gk.FEATURES) + M
-    ref = 8.0 * ref_runs * (_times(sc, slots) * (nf + 1) + 2 * M * M + 4) * 2
+    gikf = 2.0 * runs * kept_bytes_per_run(sc, slots) * (2 if sc.comparison_protocol is not None else 1)
+    nf = len(FEATURES) + M
+    ref = 8.0 * ref_runs * (len(record_times(sc, slots)) * (nf + 1) + 2 * M * M + 4) * 2
     design = 8.0 * (slots + 1) * (M * N * m + 4 * M * M * 2 + 4) + 8.0 * N * N * 6
     if sc.protocol.kind == "greedy-matching" and _n_edges(sc) > 40:     # the Monte Carlo Ā, in 64 MiB chunks
         design += 2**26
     return gikf / 2**20, ref / 2**20, design / 2**20
 
 
-def _lifted_states(sc: GossipKalmanScenario, assume) -> float:
+def _lifted_states(sc: GossipKalmanFile) -> float:
     """Ā-walks of the witness length (the states of the lifted chain), approximated from the mean degree."""
-    w = assume.d1.search.witness
+    w = sc.assumptions.d1.search.witness
     if w is None:
         return 0.0
     degree = 2.0 * _n_edges(sc) / sc.N + 1
@@ -120,38 +109,38 @@ def _lifted_states(sc: GossipKalmanScenario, assume) -> float:
     return states if states <= 5000 else 0.0
 
 
-def scenario_cost(sc: GossipKalmanScenario, opts: RunOptions, assume=None) -> dict[str, float]:
-    """Estimated seconds and MiB of one scenario's stages (`assume`: its `compute.assumptions`, when known)."""
-    from .compute import assumptions, horizon, sizes
-
-    assume = assume if assume is not None else assumptions(sc)
+def scenario_cost(sc: GossipKalmanFile, opts: RunOptions) -> dict[str, float]:
+    """Estimated seconds and MiB of one scenario's stages."""
     runs, ref_runs, slots = sizes(sc, opts)
-    slots = horizon(sc, slots, assume)
+    slots = horizon(sc, slots)
     N, M = sc.N, sc.M
-    budget = opts.chunk_budget_bytes()
     per_run = gikf_bytes_per_run(sc, slots)
-    chunk_runs = min(runs, max(1, int(budget // (per_run * RNG_UNIT))) * RNG_UNIT)
+    chunk_runs = min(runs, max(1, int(opts.chunk_budget_bytes() // (per_run * RNG_UNIT))) * RNG_UNIT)
     chunks = math.ceil(runs / chunk_runs)
     E = _n_edges(sc)
     greedy = GREEDY_S * E if sc.protocol.kind == "greedy-matching" else 0.0
-    protocols = 2 if sc.comparison is not None else 1
+    protocols = 2 if sc.comparison_protocol is not None else 1
     gikf_s = protocols * (runs * slots * (N * (GIKF_S[0] + GIKF_S[1] * M * M) + greedy) + chunks * slots * GIKF_SLOT_S)
     exact = sc.protocol.kind != "greedy-matching" or E <= 40
     step = CHAIN_S[0] + CHAIN_S[1] * M * M + (0.0 if exact else greedy)
     ref_s = ref_runs * slots * step + slots * CHAIN_STEP_S
-    aux_s = (AUX_FACTOR * ref_s + PULLBACK_S * M * M + AUX_CHAINS * slots * CHAIN_STEP_S) if assume.theorem else 0.0
+    aux_s = (AUX_FACTOR * ref_s + PULLBACK_S * M * M + AUX_CHAINS * slots * CHAIN_STEP_S) if sc.assumptions.theorem else 0.0
     m_all = sum(sc.C_types[k].shape[0] for k in sc.types)
-    design_s = (0.1 + (0.0 if exact else 200_000 * greedy) + (LIFTED_S * _lifted_states(sc, assume) ** 3 if exact else 0.0)
+    design_s = (0.1 + (0.0 if exact else 200_000 * greedy) + (LIFTED_S * _lifted_states(sc) ** 3 if exact else 0.0)
                 + slots * m_all ** 3 * CENTRAL_S + 200 * min(N, 64) * N * N * DENSE_S + 3 * N ** 3 * DENSE_S * 5)
-    out_s = OUTPUT_S + OUTPUT_NODE_S * N
     gikf_mib, ref_mib, design_mib = _kept_mib(sc, runs, ref_runs, slots)
-    return {"seconds": design_s + gikf_s + ref_s + aux_s + out_s, "design_s": design_s, "gikf_s": gikf_s,
-            "chain_s": ref_s + aux_s, "ref_s": ref_s, "aux_s": aux_s, "pullback_s": PULLBACK_S * M * M, "chunk_mib": chunk_runs * per_run / 2**20, "kept_mib": gikf_mib + ref_mib + design_mib,
-            "gikf_mib": gikf_mib, "runs": runs, "ref_runs": ref_runs, "slots": slots, "chunks": chunks,
-            "unit_mib": RNG_UNIT * per_run / 2**20}
+    return {"seconds": design_s + gikf_s + ref_s + aux_s + OUTPUT_S + OUTPUT_NODE_S * N, "design_s": design_s,
+            "gikf_s": gikf_s, "chain_s": ref_s + aux_s, "ref_s": ref_s, "aux_s": aux_s, "pullback_s": PULLBACK_S * M * M,
+            "eq74_s": EQ74_S_PER_STEP * min(slots, 120) * M ** 2, "chunk_mib": chunk_runs * per_run / 2**20,
+            "kept_mib": gikf_mib + ref_mib + design_mib, "gikf_mib": gikf_mib, "runs": runs, "ref_runs": ref_runs,
+            "slots": slots, "chunks": chunks, "unit_mib": RNG_UNIT * per_run / 2**20}
 
 
-def estimate(scenarios: list[GossipKalmanScenario], opts: RunOptions) -> dict[str, Any]:
+def estimate(scenarios: list[GossipKalmanFile], opts: RunOptions) -> Cost:
+    """The run's cost, with what the driver's refusal reads: the first scenario whose one unit of runs does not
+    fit beside the interpreter is sized by its graph (or by its greedy protocol's edges), the first whose kept
+    samples and smallest chunk do not fit by its runs (or Theorem-8 runs, when they keep more); else the
+    largest kept part and smallest chunk of any scenario."""
     costs = {sc.name: scenario_cost(sc, opts) for sc in scenarios}
     workers = max(1, min(opts.workers, len(scenarios)))
     seconds = IMPORT_S + sum(c["seconds"] for c in costs.values()) / workers
@@ -160,27 +149,24 @@ def estimate(scenarios: list[GossipKalmanScenario], opts: RunOptions) -> dict[st
              f"in {c['chunks']} chunk(s) of ≤ {c['chunk_mib']:.3g} MiB; {c['ref_runs']:,} Theorem-8 runs and the "
              f"auxiliary samples ≈{c['chain_s']:.3g} s; kept {c['kept_mib']:.3g} MiB"
              for name, c in costs.items()]
-    return {"seconds": seconds, "peak_memory_mib": mib, "detail": "; ".join(parts)}
-
-
-def refuse_beyond_budget(scenarios: list[GossipKalmanScenario], opts: RunOptions) -> dict[str, dict[str, float]]:
-    """What cannot be streamed must fit the memory budget, and so must one RNG unit of runs: else one
-    ScenarioError naming the field and the estimate, before anything runs. Returns every scenario's cost."""
-    budget = opts.memory_budget_mib
-    costs = {}
+    room = opts.memory_budget_mib - INTERPRETER_MIB
+    sized = {}
     for sc in scenarios:
-        costs[sc.name] = c = scenario_cost(sc, opts)
-        if INTERPRETER_MIB + c["unit_mib"] > budget:
-            field = "graph.n" if sc.protocol.kind != "greedy-matching" else "protocol.kind"
-            raise ScenarioError(field, f"one unit of {RNG_UNIT:,} runs of '{sc.name}' needs about {c['unit_mib']:,.0f} MiB "
-                                       f"({sc.N} sensors, {_n_edges(sc):,} edges), more than the memory budget of "
-                                       f"{budget:,.0f} MiB (--max-memory)")
-        need = INTERPRETER_MIB + c["kept_mib"] + min(c["chunk_mib"], c["unit_mib"])
-        if need > budget:
-            field = "simulation.runs" if c["gikf_mib"] >= c["kept_mib"] / 2 else "simulation.reference_runs"
-            raise ScenarioError(field, f"'{sc.name}' needs about {need:,.0f} MiB ({c['kept_mib']:,.0f} MiB that cannot "
-                                       f"be streamed: the per-run samples the law tests use, {c['runs']:,} GIKF and "
-                                       f"{c['ref_runs']:,} Theorem-8 runs, and the design arrays over {c['slots']:,} "
-                                       f"slots), more than the memory budget of {budget:,.0f} MiB (--max-memory); fewer "
-                                       f"runs fit")
-    return costs
+        c = costs[sc.name]
+        if c["unit_mib"] > room:
+            sized = dict(kept_mib=c["kept_mib"], unit_mib=c["unit_mib"],
+                         sized_by="graph.n" if sc.protocol.kind != "greedy-matching" else "protocol.kind",
+                         unit_what=f"unit of {RNG_UNIT:,} runs of '{sc.name}' ({sc.N} sensors, {_n_edges(sc):,} edges)")
+            break
+        if c["kept_mib"] + min(c["chunk_mib"], c["unit_mib"]) > room:
+            sized = dict(kept_mib=c["kept_mib"], unit_mib=min(c["chunk_mib"], c["unit_mib"]),
+                         sized_by="simulation.runs" if c["gikf_mib"] >= c["kept_mib"] / 2 else "simulation.reference_runs",
+                         unit_what=f"chunk of runs of '{sc.name}'")
+            break
+    if not sized:
+        c = max(costs.values(), key=lambda c: c["kept_mib"] + min(c["chunk_mib"], c["unit_mib"]))
+        sized = dict(kept_mib=c["kept_mib"], unit_mib=min(c["chunk_mib"], c["unit_mib"]), sized_by="simulation.runs")
+    return Cost(seconds, mib, "; ".join(parts), chunk_mib=max(c["chunk_mib"] for c in costs.values()),
+                kept_what="per-run samples of the law tests, Theorem-8 samples and design arrays", **sized,
+                stages={"designs": sum(c["design_s"] for c in costs.values()),
+                        "monte_carlo": sum(c["gikf_s"] + c["chain_s"] for c in costs.values())})

@@ -1,27 +1,30 @@
-"""The gossip-Kalman scenario family (GIKF on any graph with a random-matching protocol, or a
-given matching sequence): our examples E1-E9 and any user scenario of the same kind
-(`family = "gossip-kalman"`).
+"""The gossip-Kalman scenario file, declared once: GIKF on any graph with a random-matching protocol
+(or a given matching sequence); our examples E1-E9 and any user scenario (`family = "gossip-kalman"`).
 
-Every key is declared once below (type, default, bounds, unit, meaning); docs/scenarios.md is
-generated from these declarations. Rules that tie keys of different tables together (matrix
-sizes against the state dimension, sensor types against the nodes, matchings against the
-graph's edges) are checked when the file is read, each naming its key. Nodes are 0..N-1.
+Every key is declared here (type, default, bounds, unit, meaning); docs/scenarios.md is generated
+from these declarations. Rules that tie keys of different tables together (matrix sizes against the
+state dimension, sensor types against the nodes, matchings against the graph's edges) are the
+file's validator, each error naming its key. The validated model is the scenario the stages read:
+the matrices, the graph, the sensors and the theorems' hypotheses are its cached properties.
+Nodes are 0..N-1.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 from pydantic import model_validator
 
-from dse.estimators.gossip_kalman import (GossipSystem, GreedyMatchingGossip, MatchingDistribution, MatchingSequence,
-                                      NodeInitiatedGossip, SingleEdgeGossip)
-from dse.scenario.declare import Matrix, Real, Section, computed, covariance, key, matrix, parse
 from dse.errors import ScenarioError
-from dse.scenario.graphs import GraphSection, GraphSpec, graph_from_section
+from dse.estimators.gikf_maps import GossipSystem
+from dse.estimators.gossip_protocols import (GreedyMatchingGossip, MatchingDistribution, MatchingSequence,
+                                             NodeInitiatedGossip, SingleEdgeGossip)
+from dse.scenario.declare import (Matrix, Real, ScenarioFile, Section, computed_default, covariance, key, matrix,
+                                  name_key, parse)
 from dse.scenario.fields import load_toml
+from dse.scenario.graphs import GraphSection, GraphSpec, graph_from_section
 
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
 PAPER_SCENARIOS = ("e1", "e2", "e3", "e5", "e6", "e6b", "e7", "e8", "e9")
@@ -34,7 +37,8 @@ MAX_STATE = 16
 MAX_SLOTS = 20_000
 MAX_RUNS = 1_000_000
 MAX_REFERENCE_RUNS = 2_000_000
-
+#: the record times a scenario gets unless it lists its own (those below the horizon, then the horizon)
+RECORD_TIMES = (1, 2, 3, 5, 10, 20, 50, 100, 200, 300, 600, 1000)
 
 Pairs = list[list[int]]
 
@@ -45,12 +49,23 @@ class ModelSection(Section):
     F: Matrix = key(doc="system matrix F (M x M)", constraint=f"square; M <= {MAX_STATE}")
     Q: Matrix = key(doc="process noise covariance Q (M x M)", unit="state²",
                     constraint="positive definite (S.1: the proofs use Q ≻ 0)")
-    P0: Matrix | None = key(computed("identity"), doc="covariance of x(0), the covariance every sensor starts from",
-                            unit="state²", constraint="positive semidefinite (a singular P0 is allowed; eigenvalues "
-                                                      "within the tolerance below 0 are set to 0)")
-    x0: list[Real] | None = key(computed("zeros"), doc="prior mean of x(0): every sensor's estimate starts there (the "
-                                "errors do not depend on it; the sample runs' states and estimates do)", unit="state",
-                                constraint="M entries")
+
+    @computed_default
+    def _identity(data):
+        """identity"""
+        return np.eye(len(data.get("F") or [])).tolist()
+
+    P0: Matrix = key(_identity, doc="covariance of x(0), the covariance every sensor starts from", unit="state²",
+                     constraint="positive semidefinite (a singular P0 is allowed; eigenvalues within the tolerance "
+                                "below 0 are set to 0)")
+
+    @computed_default
+    def _zeros(data):
+        """zeros"""
+        return [0.0] * len(data.get("F") or [])
+
+    x0: list[Real] = key(_zeros, doc="prior mean of x(0): every sensor's estimate starts there (the errors do not "
+                         "depend on it; the sample runs' states and estimates do)", unit="state", constraint="M entries")
 
 
 class SensorsSection(Section):
@@ -119,6 +134,34 @@ class ProtocolSection(Section):
                 raise ScenarioError("probs", f"must sum to <= 1 (the rest is 'no communication'), got {sum(self.probs):.6g}")
         return self
 
+    @property
+    def random(self) -> bool:
+        """An independent matching per slot (the paper's setting), not a replayed sequence."""
+        return self.kind != "sequence"
+
+    @cached_property
+    def pairs(self) -> tuple[tuple[tuple[int, int], ...], ...]:
+        """The matchings of the law, or the sequence's, as tuples of node pairs (checked against the graph by the file)."""
+        raw = self.sequence if self.kind == "sequence" else (self.matchings or ())
+        return tuple(tuple((int(u), int(v)) for u, v in mt) for mt in raw)
+
+    def build(self, graph: GraphSpec):
+        """The estimator's protocol on `graph` (`dse.estimators.gossip_protocols`)."""
+        n, edges = graph.n, _edges(graph)
+        if self.kind == "single-edge":
+            return SingleEdgeGossip(n, tuple(edges), float(self.edge_prob))
+        if self.kind == "node-initiated":
+            neighbours: list[list[int]] = [[] for _ in range(n)]
+            for u, v in edges:
+                neighbours[u].append(v)
+                neighbours[v].append(u)
+            return NodeInitiatedGossip(tuple(tuple(sorted(nb)) for nb in neighbours))
+        if self.kind == "greedy-matching":
+            return GreedyMatchingGossip(n, tuple(edges), float(self.p_link))
+        if self.kind == "sequence":
+            return MatchingSequence.from_matchings(n, self.pairs)
+        return MatchingDistribution.from_matchings(n, self.pairs, tuple(float(p) for p in self.probs))
+
 
 class SimulationSection(Section):
     """Monte Carlo sizes and horizon. Runs are simulated in units of 1,000 (the numbers do not
@@ -128,17 +171,37 @@ class SimulationSection(Section):
     runs: int = key(4000, doc="independent GIKF runs", ge=100, le=MAX_RUNS)
     reference_runs: int = key(20_000, doc="independent runs of the Theorem-8 process P̃(t) (the reference law μ_t)",
                               ge=100, le=MAX_REFERENCE_RUNS)
-    quick_runs: int | None = key(computed("min(runs, 1000)"), doc="GIKF runs of a quick run", ge=100, le=MAX_RUNS,
-                                 constraint="<= runs")
-    quick_reference_runs: int | None = key(computed("min(reference_runs, 4000)"),
-                                           doc="Theorem-8 runs of a quick run", ge=100, le=MAX_REFERENCE_RUNS,
-                                           constraint="<= reference_runs")
-    quick_slots: int | None = key(computed("min(slots, 150)"), doc="horizon of a quick run", ge=2, le=MAX_SLOTS,
-                                  unit="slot", constraint="<= slots")
-    record_times: list[int] | None = key(computed("1, 2, 3, 5, 10, 20, 50, 100, 200, 300, 600, 1000 below slots, "
-                                                   "and slots"),
-                                         doc="slots at which every run's covariance features are kept (the law tests)",
-                                         unit="slot", constraint="strictly increasing, each in 0..slots; at most 64")
+
+    @computed_default
+    def _quick_runs(data):
+        """min(runs, 1000)"""
+        return min(data["runs"], 1000)
+
+    quick_runs: int = key(_quick_runs, doc="GIKF runs of a quick run", ge=100, le=MAX_RUNS, constraint="<= runs")
+
+    @computed_default
+    def _quick_reference_runs(data):
+        """min(reference_runs, 4000)"""
+        return min(data["reference_runs"], 4000)
+
+    quick_reference_runs: int = key(_quick_reference_runs, doc="Theorem-8 runs of a quick run", ge=100,
+                                    le=MAX_REFERENCE_RUNS, constraint="<= reference_runs")
+
+    @computed_default
+    def _quick_slots(data):
+        """min(slots, 150)"""
+        return min(data["slots"], 150)
+
+    quick_slots: int = key(_quick_slots, doc="horizon of a quick run", ge=2, le=MAX_SLOTS, unit="slot",
+                           constraint="<= slots")
+
+    @computed_default
+    def _record_times(data):
+        """1, 2, 3, 5, 10, 20, 50, 100, 200, 300, 600, 1000 below slots, and slots"""
+        return [t for t in RECORD_TIMES if t < data["slots"]] + [data["slots"]]
+
+    record_times: list[int] = key(_record_times, doc="slots at which every run's covariance features are kept (the law "
+                                  "tests)", unit="slot", constraint="strictly increasing, each in 0..slots; at most 64")
     sample_paths: int = key(3, doc="runs kept whole (traces, errors, matchings, states) for figures and recordings",
                             ge=1, le=20)
 
@@ -146,18 +209,16 @@ class SimulationSection(Section):
     def _sizes(self):
         for name, cap in (("quick_runs", self.runs), ("quick_reference_runs", self.reference_runs),
                           ("quick_slots", self.slots)):
-            v = getattr(self, name)
-            if v is not None and v > cap:
-                raise ScenarioError(name, f"must be <= {cap} ({name.removeprefix('quick_')}), got {v}")
-        if self.record_times is not None:
-            rt = self.record_times
-            if not rt or len(rt) > 64:
-                raise ScenarioError("record_times", f"must have 1 to 64 entries, got {len(rt)}")
-            if list(rt) != sorted(set(rt)):
-                raise ScenarioError("record_times", "must be strictly increasing")
-            for i, t in enumerate(rt):
-                if not 0 <= t <= self.slots:
-                    raise ScenarioError(f"record_times[{i}]", f"must be in 0..{self.slots}, got {t}")
+            if getattr(self, name) > cap:
+                raise ScenarioError(name, f"must be <= {cap} ({name.removeprefix('quick_')}), got {getattr(self, name)}")
+        rt = self.record_times
+        if not rt or len(rt) > 64:
+            raise ScenarioError("record_times", f"must have 1 to 64 entries, got {len(rt)}")
+        if list(rt) != sorted(set(rt)):
+            raise ScenarioError("record_times", "must be strictly increasing")
+        for i, t in enumerate(rt):
+            if not 0 <= t <= self.slots:
+                raise ScenarioError(f"record_times[{i}]", f"must be in 0..{self.slots}, got {t}")
         return self
 
 
@@ -170,11 +231,13 @@ class ExpectSection(Section):
     diverges: bool | None = key(None, doc="some sensor's covariance is expected to diverge (documentation only)")
 
 
-class GossipKalmanFile(Section):
+class GossipKalmanFile(ScenarioFile):
     """A gossip-kalman scenario file."""
 
-    name: str = key("scenario", doc="scenario name: the output directory OUT/run/<name>/",
-                    pattern=r"^[A-Za-z0-9_-]{1,64}$", constraint="1 to 64 letters, digits, '-' or '_'")
+    #: the name seeds the random streams (it is keyed); the description and the expectations change no number
+    unkeyed = {"description": True, "expect": True}
+
+    name: str = name_key()
     description: str = key("", doc="one line on what the scenario shows (reports, recordings)", max_length=500)
     model: ModelSection = key(doc="the signal model")
     sensors: SensorsSection = key(doc="the sensors")
@@ -186,61 +249,133 @@ class GossipKalmanFile(Section):
     simulation: SimulationSection = key(SimulationSection, doc="Monte Carlo sizes and horizon")
     expect: ExpectSection = key(ExpectSection, doc="the author's expectations")
 
+    @model_validator(mode="after")
+    def _across_tables(self):
+        """The rules between tables, in the order a reader checks them: the model's matrices against M, the
+        sensors against M, the graph's size, the sensor types against the nodes, the protocols against the graph."""
+        F = matrix(self.model.F, "model.F")
+        M = F.shape[0]
+        if F.shape != (M, M):
+            raise ScenarioError("model.F", f"must be square, got {F.shape[0]}x{F.shape[1]}")
+        if M > MAX_STATE:
+            raise ScenarioError("model.F", f"state dimension {M}; this family handles at most {MAX_STATE}")
+        covariance(self.model.Q, "model.Q", n=M, definite=True)
+        covariance(self.model.P0, "model.P0", n=M)
+        if len(self.model.x0) != M:
+            raise ScenarioError("model.x0", f"must have {M} entries (state dimension), got {len(self.model.x0)}")
+        self._sensor_types(M)
+        graph = self.network
+        if graph.n > MAX_NODES:
+            raise ScenarioError("graph.rows" if graph.kind == "grid" else "graph.n",
+                                f"{graph.n} nodes; this family handles at most {MAX_NODES} (Ā is a dense N x N matrix "
+                                "whose spectrum, powers and walks the design computes)")
+        self._node_types(graph.n)
+        _check_protocol(self.protocol, "protocol", graph)
+        if self.comparison_protocol is not None:
+            _check_protocol(self.comparison_protocol, "comparison_protocol", graph)
+            if not (self.protocol.random and self.comparison_protocol.random):
+                raise ScenarioError("comparison_protocol.kind", "Remark 9 compares two random protocols; a replayed "
+                                    "sequence has no law to compare")
+        return self
 
-@dataclass(frozen=True)
-class ProtocolSpec:
-    """A validated [protocol] (or [comparison_protocol]) table; `build` gives the estimator's protocol."""
+    def _sensor_types(self, M: int) -> None:
+        for k, (c, r) in enumerate(zip(self.sensors.C, self.sensors.R)):
+            if len(c) == 0:
+                if len(r) != 0:
+                    raise ScenarioError(f"sensors.R[{k}]", "must be [] for a sensor type without observations (C = [])")
+                continue
+            Ck = matrix(c, f"sensors.C[{k}]")
+            if Ck.shape[1] != M:
+                raise ScenarioError(f"sensors.C[{k}]", f"must have {M} columns (state dimension), got {Ck.shape[1]}")
+            if Ck.shape[0] > M:
+                raise ScenarioError(f"sensors.C[{k}]", f"at most {M} rows (state dimension), got {Ck.shape[0]}")
+            if len(r) == 0:
+                raise ScenarioError(f"sensors.R[{k}]", f"must be {Ck.shape[0]}x{Ck.shape[0]} (C[{k}] has "
+                                    f"{Ck.shape[0]} rows)")
+            covariance(r, f"sensors.R[{k}]", n=Ck.shape[0], definite=True)
 
-    kind: str
-    edge_prob: float = 0.0
-    matchings: tuple[tuple[tuple[int, int], ...], ...] = ()
-    probs: tuple[float, ...] = ()
-    p_link: float = 1.0
+    def _node_types(self, n: int) -> None:
+        s, n_types = self.sensors, len(self.sensors.C)
+        if s.pattern is not None:
+            for i, k in enumerate(s.pattern):
+                if not 0 <= k < n_types:
+                    raise ScenarioError(f"sensors.pattern[{i}]", f"must be a type index in 0..{n_types - 1}, got {k}")
+            return
+        for i, k in enumerate(s.types):
+            if k < 0:
+                raise ScenarioError(f"sensors.types[{i}]", f"must be >= 0, got {k}")
+            if k >= n_types:
+                raise ScenarioError(f"sensors.types[{i}]", f"must be <= {n_types - 1} (a type index), got {k}")
+        if len(s.types) != n:
+            raise ScenarioError("sensors.types", f"must have one entry per node ({n}), got {len(s.types)}")
+
+    # -- what the stages read ------------------------------------------------------------------------------
+
+    @cached_property
+    def network(self) -> GraphSpec:
+        """The communication graph (checked: at least 2 nodes; a disconnected graph is accepted)."""
+        return graph_from_section(self.graph, "graph", connected=False, min_nodes=2)
 
     @property
-    def random(self) -> bool:
-        """An independent matching per slot (the paper's setting), not a replayed sequence."""
-        return self.kind != "sequence"
+    def N(self) -> int:
+        return self.network.n
 
-    def build(self, graph: GraphSpec):
-        n = graph.n
-        edges = _edges(graph)
-        if self.kind == "single-edge":
-            return SingleEdgeGossip(n, tuple(edges), self.edge_prob)
-        if self.kind == "node-initiated":
-            neighbours: list[list[int]] = [[] for _ in range(n)]
-            for u, v in edges:
-                neighbours[u].append(v)
-                neighbours[v].append(u)
-            return NodeInitiatedGossip(tuple(tuple(sorted(nb)) for nb in neighbours))
-        if self.kind == "greedy-matching":
-            return GreedyMatchingGossip(n, tuple(edges), self.p_link)
-        if self.kind == "sequence":
-            return MatchingSequence.from_matchings(n, self.matchings)
-        return MatchingDistribution.from_matchings(n, self.matchings, self.probs)
+    @property
+    def M(self) -> int:
+        return len(self.model.F)
 
-    @classmethod
-    def from_section(cls, s: ProtocolSection, field: str, graph: GraphSpec) -> "ProtocolSpec":
-        edges = set(_edges(graph))
-        if not edges:
-            raise ScenarioError(f"{field}.kind", "the graph has no edges: there is nothing to gossip over")
-        if s.kind == "single-edge":
-            if s.edge_prob * len(edges) > 1 + 1e-12:
-                raise ScenarioError(f"{field}.edge_prob", f"edge_prob × number of edges = {s.edge_prob * len(edges):.6g} "
-                                    "must be <= 1")
-            return cls(s.kind, edge_prob=float(s.edge_prob))
-        if s.kind == "node-initiated":
-            lonely = sorted(set(range(graph.n)) - {v for e in edges for v in e})
-            if lonely:
-                raise ScenarioError(field, f"node-initiated gossip needs every node to have a neighbour (node {lonely[0]} "
-                                    "has none)")
-            return cls(s.kind)
-        if s.kind == "greedy-matching":
-            return cls(s.kind, p_link=float(s.p_link))
-        key_ = "sequence" if s.kind == "sequence" else "matchings"
-        raw = s.sequence if s.kind == "sequence" else s.matchings
-        matchings = tuple(_matching(mt, f"{field}.{key_}[{k}]", graph.n, edges) for k, mt in enumerate(raw))
-        return cls(s.kind, matchings=matchings, probs=tuple(float(p) for p in (s.probs or ())))
+    @cached_property
+    def F(self) -> np.ndarray:
+        return matrix(self.model.F, "model.F")
+
+    @cached_property
+    def Q(self) -> np.ndarray:
+        return covariance(self.model.Q, "model.Q", n=self.M, definite=True)
+
+    @cached_property
+    def P0(self) -> np.ndarray:
+        """P0 within the shared tolerance, projected onto the PSD cone (negative eigenvalues set to 0), so that
+        every map sees a true covariance (a −1e-12 eigenvalue of P0 would otherwise show as P̂(1) − Q = −1e-12,
+        a violation of Lemma 16 made by the input)."""
+        P = covariance(self.model.P0, "model.P0", n=self.M)
+        lam, V = np.linalg.eigh(P)
+        if lam.min() >= 0:
+            return P
+        Pp = (V * np.maximum(lam, 0.0)) @ V.T
+        return 0.5 * (Pp + Pp.T)
+
+    @cached_property
+    def x0(self) -> np.ndarray:
+        return np.array(self.model.x0, float)
+
+    @cached_property
+    def C_types(self) -> tuple[np.ndarray, ...]:
+        """C_k of each sensor type ((0, M) for an actuator)."""
+        return tuple(np.zeros((0, self.M)) if len(c) == 0 else matrix(c, f"sensors.C[{k}]")
+                     for k, c in enumerate(self.sensors.C))
+
+    @cached_property
+    def R_types(self) -> tuple[np.ndarray, ...]:
+        return tuple(np.zeros((0, 0)) if len(r) == 0 else covariance(r, f"sensors.R[{k}]", n=len(r), definite=True)
+                     for k, r in enumerate(self.sensors.R))
+
+    @cached_property
+    def types(self) -> tuple[int, ...]:
+        """The sensor type of every node (`types`, or `pattern` repeated over the nodes)."""
+        s = self.sensors
+        return tuple(s.pattern[i % len(s.pattern)] for i in range(self.N)) if s.pattern is not None else tuple(s.types)
+
+    @cached_property
+    def system(self) -> GossipSystem:
+        return GossipSystem.build(self.F, self.Q, [self.C_types[k] for k in self.types],
+                                  [self.R_types[k] for k in self.types], self.P0)
+
+    @cached_property
+    def assumptions(self):
+        """The theorems' hypotheses decided from the support of Ā (`assumptions.Assumptions`)."""
+        from .assumptions import decide
+
+        return decide(self)
 
 
 def _edges(graph: GraphSpec) -> list[tuple[int, int]]:
@@ -248,19 +383,26 @@ def _edges(graph: GraphSpec) -> list[tuple[int, int]]:
     return [(int(u), int(v)) for u, v in graph.edge_array()]
 
 
-def _psd(P: np.ndarray) -> np.ndarray:
-    """A covariance accepted within the shared tolerance (eigenvalues down to −1e-10 relative) projected onto the
-    PSD cone: its negative eigenvalues set to 0, so that every map sees a true covariance (a −1e-12 eigenvalue of P0
-    would otherwise show as P̂(1) − Q = −1e-12, a violation of Lemma 16 made by the input)."""
-    lam, V = np.linalg.eigh(P)
-    if lam.min() >= 0:
-        return P
-    Pp = (V * np.maximum(lam, 0.0)) @ V.T
-    return 0.5 * (Pp + Pp.T)
+def _check_protocol(s: ProtocolSection, field: str, graph: GraphSpec) -> None:
+    edges = set(_edges(graph))
+    if not edges:
+        raise ScenarioError(f"{field}.kind", "the graph has no edges: there is nothing to gossip over")
+    if s.kind == "single-edge" and s.edge_prob * len(edges) > 1 + 1e-12:
+        raise ScenarioError(f"{field}.edge_prob", f"edge_prob × number of edges = {s.edge_prob * len(edges):.6g} "
+                            "must be <= 1")
+    if s.kind == "node-initiated":
+        lonely = sorted(set(range(graph.n)) - {v for e in edges for v in e})
+        if lonely:
+            raise ScenarioError(field, f"node-initiated gossip needs every node to have a neighbour (node {lonely[0]} "
+                                "has none)")
+    if s.kind in ("sequence", "matchings"):
+        raw = s.sequence if s.kind == "sequence" else s.matchings
+        for k, mt in enumerate(raw):
+            _check_matching(mt, f"{field}.{s.kind}[{k}]", graph.n, edges)
 
 
-def _matching(pairs: Pairs, field: str, n: int, edges: set[tuple[int, int]]) -> tuple[tuple[int, int], ...]:
-    out, used = [], set()
+def _check_matching(pairs: Pairs, field: str, n: int, edges: set[tuple[int, int]]) -> None:
+    used: set[int] = set()
     for i, e in enumerate(pairs):
         if len(e) != 2:
             raise ScenarioError(f"{field}[{i}]", "each pair must be [u, v]")
@@ -273,135 +415,15 @@ def _matching(pairs: Pairs, field: str, n: int, edges: set[tuple[int, int]]) -> 
         if u in used or v in used:
             raise ScenarioError(f"{field}[{i}]", f"node {u if u in used else v} is matched twice (not a matching)")
         used |= {u, v}
-        out.append((u, v))
-    return tuple(out)
 
 
-@dataclass(frozen=True)
-class GossipKalmanScenario:
-    name: str
-    description: str
-    F: np.ndarray
-    Q: np.ndarray
-    P0: np.ndarray
-    x0: np.ndarray
-    types: tuple[int, ...]
-    C_types: tuple[np.ndarray, ...]
-    R_types: tuple[np.ndarray, ...]
-    graph: GraphSpec
-    protocol: ProtocolSpec
-    comparison: ProtocolSpec | None
-    slots: int
-    runs: int
-    reference_runs: int
-    quick_runs: int
-    quick_reference_runs: int
-    quick_slots: int
-    record_times: tuple[int, ...]
-    sample_paths: int
-    expect: dict
-
-    @property
-    def N(self) -> int:
-        return self.graph.n
-
-    @property
-    def M(self) -> int:
-        return self.F.shape[0]
-
-    def system(self) -> GossipSystem:
-        return GossipSystem.build(self.F, self.Q, [self.C_types[k] for k in self.types],
-                                  [self.R_types[k] for k in self.types], self.P0)
-
-    def key(self) -> dict[str, Any]:
-        """Everything that determines the numbers (for the stage cache)."""
-        d = {f: getattr(self, f) for f in self.__dataclass_fields__ if f not in ("name", "description", "expect")}
-        for f in ("F", "Q", "P0", "x0"):
-            d[f] = getattr(self, f).tolist()
-        d["C_types"] = [c.tolist() for c in self.C_types]
-        d["R_types"] = [r.tolist() for r in self.R_types]
-        return d
-
-    @classmethod
-    def from_dict(cls, data: Any) -> "GossipKalmanScenario":
-        f = parse(GossipKalmanFile, data)
-        m = f.model
-        F = matrix(m.F, "model.F")
-        M = F.shape[0]
-        if F.shape != (M, M):
-            raise ScenarioError("model.F", f"must be square, got {F.shape[0]}x{F.shape[1]}")
-        if M > MAX_STATE:
-            raise ScenarioError("model.F", f"state dimension {M}; this family handles at most {MAX_STATE}")
-        Q = covariance(m.Q, "model.Q", n=M, definite=True)
-        P0 = _psd(covariance(m.P0, "model.P0", n=M)) if m.P0 is not None else np.eye(M)
-        if m.x0 is not None and len(m.x0) != M:
-            raise ScenarioError("model.x0", f"must have {M} entries (state dimension), got {len(m.x0)}")
-        x0 = np.array(m.x0, float) if m.x0 is not None else np.zeros(M)
-
-        s = f.sensors
-        C_types, R_types = [], []
-        for k, (c, r) in enumerate(zip(s.C, s.R)):
-            if len(c) == 0:
-                if len(r) != 0:
-                    raise ScenarioError(f"sensors.R[{k}]", "must be [] for a sensor type without observations (C = [])")
-                C_types.append(np.zeros((0, M)))
-                R_types.append(np.zeros((0, 0)))
-                continue
-            Ck = matrix(c, f"sensors.C[{k}]")
-            if Ck.shape[1] != M:
-                raise ScenarioError(f"sensors.C[{k}]", f"must have {M} columns (state dimension), got {Ck.shape[1]}")
-            if Ck.shape[0] > M:
-                raise ScenarioError(f"sensors.C[{k}]", f"at most {M} rows (state dimension), got {Ck.shape[0]}")
-            if len(r) == 0:
-                raise ScenarioError(f"sensors.R[{k}]", f"must be {Ck.shape[0]}x{Ck.shape[0]} (C[{k}] has "
-                                    f"{Ck.shape[0]} rows)")
-            C_types.append(Ck)
-            R_types.append(covariance(r, f"sensors.R[{k}]", n=Ck.shape[0], definite=True))
-
-        graph = graph_from_section(f.graph, "graph", connected=False, min_nodes=2)
-        if graph.n > MAX_NODES:
-            raise ScenarioError("graph.rows" if graph.kind == "grid" else "graph.n",
-                                f"{graph.n} nodes; this family handles at most {MAX_NODES} (Ā is a dense N x N matrix "
-                                "whose spectrum, powers and walks the design computes)")
-        n_types = len(C_types)
-        if s.pattern is not None:
-            for i, k in enumerate(s.pattern):
-                if not 0 <= k < n_types:
-                    raise ScenarioError(f"sensors.pattern[{i}]", f"must be a type index in 0..{n_types - 1}, got {k}")
-            types = tuple(s.pattern[i % len(s.pattern)] for i in range(graph.n))
-        else:
-            for i, k in enumerate(s.types):
-                if k < 0:
-                    raise ScenarioError(f"sensors.types[{i}]", f"must be >= 0, got {k}")
-                if k >= n_types:
-                    raise ScenarioError(f"sensors.types[{i}]", f"must be <= {n_types - 1} (a type index), got {k}")
-            types = tuple(s.types)
-            if len(types) != graph.n:
-                raise ScenarioError("sensors.types", f"must have one entry per node ({graph.n}), got {len(types)}")
-        protocol = ProtocolSpec.from_section(f.protocol, "protocol", graph)
-        comparison = (ProtocolSpec.from_section(f.comparison_protocol, "comparison_protocol", graph)
-                      if f.comparison_protocol is not None else None)
-        if comparison is not None and not (protocol.random and comparison.random):
-            raise ScenarioError("comparison_protocol.kind", "Remark 9 compares two random protocols; a replayed "
-                                "sequence has no law to compare")
-
-        sim = f.simulation
-        slots = sim.slots
-        default_times = [t for t in (1, 2, 3, 5, 10, 20, 50, 100, 200, 300, 600, 1000) if t < slots] + [slots]
-        return cls(f.name, f.description, F, Q, P0, x0, types, tuple(C_types), tuple(R_types), graph, protocol,
-                   comparison, slots, sim.runs, sim.reference_runs,
-                   sim.quick_runs if sim.quick_runs is not None else min(sim.runs, 1000),
-                   sim.quick_reference_runs if sim.quick_reference_runs is not None else min(sim.reference_runs, 4000),
-                   sim.quick_slots if sim.quick_slots is not None else min(slots, 150),
-                   tuple(sim.record_times if sim.record_times is not None else default_times), sim.sample_paths,
-                   {k: v for k, v in f.expect.model_dump().items() if v is not None})
+def from_dict(data: Any) -> GossipKalmanFile:
+    """A validated scenario from a parsed file (without `family`); one ScenarioError naming the field."""
+    return parse(GossipKalmanFile, data)
 
 
-def load_scenario(name: str) -> GossipKalmanScenario:
+def load_scenario(name: str) -> GossipKalmanFile:
+    """One of our example scenarios E1-E9 by name."""
     data = load_toml(SCENARIO_DIR / f"{name}.toml")
     data.pop("family", None)
-    return GossipKalmanScenario.from_dict(data)
-
-
-def paper_scenarios() -> list[GossipKalmanScenario]:
-    return [load_scenario(n) for n in PAPER_SCENARIOS]
+    return from_dict(data)

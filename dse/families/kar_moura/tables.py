@@ -24,12 +24,15 @@ import math
 import numpy as np
 import pandas as pd
 
-import dse.estimators.gossip_kalman as gk
+import dse.estimators.walk_detectability as wd
+from dse.estimators.gikf_maps import FEATURES
+from dse.estimators.gikf_monte_carlo import QUANTILES as RUN_QUANTILES
 from dse.outputs.tables import spec
 
-from .compute import J_GRID, Design, Results, ScenarioDesign, ScenarioResults
+from .bounds import J_GRID
+from .results import Design, Results, ScenarioDesign, ScenarioResults
 
-FI = {name: i for i, name in enumerate(gk.FEATURES)}
+FI = {name: i for i, name in enumerate(FEATURES)}
 SC = ("scenario", "", "scenario name")
 NODE = ("node", "1", "sensor n = 0..N-1")
 LAW_PROBS = np.linspace(0.0, 1.0, 101)
@@ -230,14 +233,12 @@ def design_tables(design: Design) -> list:
 
 
 def _design_one(d: ScenarioDesign, out: dict) -> None:
-    import dse.estimators.walk_detectability as wd
-
     b, sc, a = d.bounds, d.scenario, d.assume
     name, N, M = sc.name, sc.N, sc.M
     out["design"] += design_rows(d)
     lam = np.linalg.eigvals(sc.F)
     lam = lam[np.argsort(-np.abs(lam), kind="stable")]
-    hidden_modes = wd.unobservable_modes(sc.F, sc.system().C_all)[1]
+    hidden_modes = wd.unobservable_modes(sc.F, sc.system.C_all)[1]
     hidden = [any(abs(x - u) <= 1e-9 * max(1.0, abs(u)) for u in hidden_modes) for x in lam]
     out["f_eig"].append(pd.DataFrame({"scenario": name, "index": np.arange(M), "real": lam.real, "imag": lam.imag,
                                       "modulus": np.abs(lam), "unobservable": hidden}))
@@ -372,7 +373,7 @@ def _run_one(r: ScenarioResults):
         q = gg["quantiles"]                                          # (S, N, P)
         s_, n_, p_ = np.indices(q.shape)
         yield QUANTILES, pd.DataFrame({"scenario": name, "protocol": label, "t": gg["stat_slots"][s_.ravel()],
-                                       "node": n_.ravel(), "probability": np.asarray(gk.QUANTILES)[p_.ravel()],
+                                       "node": n_.ravel(), "probability": np.asarray(RUN_QUANTILES)[p_.ravel()],
                                        "log_trace": q.ravel()})
     yield LAWS, _laws(r)
     yield KS, _ks(r)

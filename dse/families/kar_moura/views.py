@@ -9,16 +9,16 @@ centralized reference, the Lyapunov envelope and the claims.
 from __future__ import annotations
 
 import functools
-import json
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-import dse.estimators.gossip_kalman as gk
-from dse.outputs.figures import draw_all, new_figure, plain_log_labels, save_figure, sequential_colors, set_margins
+from dse.contract.views import Outputs, View, recording
+from dse.estimators.gikf_monte_carlo import QUANTILES
+from dse.outputs.figures import new_figure, plain_log_labels, save_figure, sequential_colors, set_margins
 
-from .scenario import GossipKalmanScenario
+from .scenario import GossipKalmanFile
 
 LOG10 = np.log(10.0)
 
@@ -28,10 +28,10 @@ VIEW_TABLES = ("design", "sensors", "abar", "reference_series", "tail_bounds", "
                "laws", "ks", "tails")
 
 
-class View:
+class ScenarioTables:
     """One scenario's rows of every table (figures and recordings read only these)."""
 
-    def __init__(self, frames: dict[str, pd.DataFrame], sc: GossipKalmanScenario, runs: int, reference_runs: int,
+    def __init__(self, frames: dict[str, pd.DataFrame], sc: GossipKalmanFile, runs: int, reference_runs: int,
                  slots: int, seed: int):
         self.sc, self.name, self.runs, self.reference_runs, self.slots, self.seed = (sc, sc.name, runs, reference_runs,
                                                                                      slots, seed)
@@ -50,15 +50,16 @@ class View:
         return f if cls is None else f[f["class"] == cls]
 
 
-def views(res, tables) -> list[View]:
-    """A View per scenario of the run, each table split by scenario once (the rows of a scenario in table order)."""
+def split_tables(res, tables) -> list[ScenarioTables]:
+    """The rows of every scenario of the run, each table split by scenario once (the rows of a scenario in table order)."""
     frames: dict[str, dict[str, pd.DataFrame]] = {name: {} for name in res.scenarios}
     for table in VIEW_TABLES:
         if table in tables:
             for name, f in tables[table].groupby("scenario", sort=False):
                 if name in frames:
                     frames[name][table] = f
-    return [View(frames[r.name], r.scenario, r.runs, r.reference_runs, r.slots, r.seed) for r in res.scenarios.values()]
+    return [ScenarioTables(frames[r.name], r.scenario, r.runs, r.reference_runs, r.slots, r.seed)
+            for r in res.scenarios.values()]
 
 
 def _ecdf_from_quantiles(ax, frame: pd.DataFrame, **kw) -> None:
@@ -83,7 +84,7 @@ def _save(fig, path: Path, **margins) -> None:
     save_figure(fig, path, tight=False)
 
 
-def fig_random_sensor(v: View, path: Path) -> None:
+def fig_random_sensor(v: ScenarioTables, path: Path) -> None:
     """Left: the laws of log tr P̂ at a random sensor (solid) and of the Theorem-8 process at the same t
     (dashed). Right: KS distance of the random sensor at t to μ_T (the limit sample) and to μ_t, with
     the 95% noise floor."""
@@ -114,7 +115,7 @@ def fig_random_sensor(v: View, path: Path) -> None:
     _save(fig, path, top=0.6)
 
 
-def fig_per_sensor(v: View, path: Path) -> None:
+def fig_per_sensor(v: ScenarioTables, path: Path) -> None:
     laws = v["laws"]
     T = int(laws["t"].max())
     fig, axes = new_figure()
@@ -134,7 +135,7 @@ def fig_per_sensor(v: View, path: Path) -> None:
     _save(fig, path)
 
 
-def fig_tails(v: View, path: Path) -> None:
+def fig_tails(v: ScenarioTables, path: Path) -> None:
     tails, bounds = v["tails"], v["tail_bounds"]
     fig, axes = new_figure()
     ax = axes[0, 0]
@@ -161,7 +162,7 @@ def fig_tails(v: View, path: Path) -> None:
     _save(fig, path)
 
 
-def fig_sample_paths(v: View, path: Path) -> None:
+def fig_sample_paths(v: ScenarioTables, path: Path) -> None:
     paths = v["sample_paths"]
     run0 = paths[(paths["run"] == 0) & (paths["component"] == 0)]
     N = v.sc.N
@@ -179,7 +180,7 @@ def fig_sample_paths(v: View, path: Path) -> None:
     _save(fig, path)
 
 
-def fig_quantiles(v: View, path: Path) -> None:
+def fig_quantiles(v: ScenarioTables, path: Path) -> None:
     q = v["quantiles"]
     q = q[q["protocol"] == "protocol"]
     N = v.sc.N
@@ -210,13 +211,13 @@ def fig_quantiles(v: View, path: Path) -> None:
     _save(fig, path)
 
 
-def fig_matchings(v: View, path: Path) -> None:
+def fig_matchings(v: ScenarioTables, path: Path) -> None:
     m = v["matchings"]
     m = m[m["run"] == 0]
     N = v.sc.N
     T = min(int(m["t"].max()), 120)
     partners = m[m["t"] < T].sort_values(["t", "node"])["partner"].to_numpy().reshape(T, N)
-    edges = sorted({(min(u, w), max(u, w)) for u, w in v.sc.graph.build().edges()})
+    edges = sorted({(min(u, w), max(u, w)) for u, w in v.sc.network.build().edges()})
     if len(edges) <= 40:
         grid = np.zeros((len(edges), T))
         for k, (u, w) in enumerate(edges):
@@ -237,13 +238,13 @@ def fig_matchings(v: View, path: Path) -> None:
     _save(fig, path, left=0.8)
 
 
-def figure_jobs(v: View, figs: Path) -> list:
-    """One callable per figure of a scenario (see `dse.outputs.figures.draw_all`)."""
-    figures = [(fig_sample_paths, "sample_paths_trace"), (fig_quantiles, "quantiles_over_runs"), (fig_matchings, "matchings"),
-               (fig_random_sensor, "laws_random_sensor_vs_mu")]
+def figures(v: ScenarioTables) -> list[View]:
+    """The figures of a scenario (the laws per sensor and the tails only where no class diverges)."""
+    drawn = [(fig_sample_paths, "sample_paths_trace"), (fig_quantiles, "quantiles_over_runs"), (fig_matchings, "matchings"),
+             (fig_random_sensor, "laws_random_sensor_vs_mu")]
     if not (v["sensors"]["divergence_rate"] > 0).any():
-        figures += [(fig_per_sensor, "laws_per_sensor"), (fig_tails, "tails_vs_bound")]
-    return [functools.partial(fig, v, figs / f"{stem}_{v.name}.png") for fig, stem in figures]
+        drawn += [(fig_per_sensor, "laws_per_sensor"), (fig_tails, "tails_vs_bound")]
+    return [View(f"figures/{stem}_{v.name}.png", functools.partial(fig, v)) for fig, stem in drawn]
 
 
 # -- recordings ----------------------------------------------------------------------------------------
@@ -264,122 +265,132 @@ def _series(frame: pd.DataFrame, index: np.ndarray, value: str) -> np.ndarray:
     return out
 
 
-def write_recording(v: View, path: Path, claims: list[dict], prov: dict, paper_id: str) -> None:
-    # rerun here, not at the top (0.65 s): the process that hands the recordings to forked workers does not need it
-    import rerun as rr
+def _tabs(v: ScenarioTables):
     import rerun.blueprint as rrb
 
-    from dse.outputs import record as rec_
-
-    sc = v.sc
-    N, M = sc.N, sc.M
-    n_show = min(N, 12)
-    blueprint = rrb.Blueprint(
-        rrb.Tabs(
-            rrb.Horizontal(
+    N, n_show = v.sc.N, min(v.sc.N, 12)
+    return [rrb.Horizontal(
                 rrb.Vertical(rrb.GraphView(origin="/graph", name="active matching A(t) (sample run 0)"),
-                             rrb.GraphView(origin="/links", name="allowed links (graph)"),
-                             rrb.TextDocumentView(origin="/report", name="claims"), row_shares=[3, 2, 2]),
+                             rrb.GraphView(origin="/links", name="allowed links (graph)"), row_shares=[3, 2]),
                 rrb.Vertical(rrb.TimeSeriesView(origin="/nodes", name="tr P̂_n(t), sample run 0, every sensor",
-                                                contents=[f"/nodes/{n}/cov_trace/**" for n in range(N)] + ["/central/cov_trace"]),
-                             rrb.TimeSeriesView(origin="/mc", name="log10 tr P̂: median over runs per sensor, μ_t quantiles",
-                                                contents=["/mc/median/**", "/mc/mu/**"]), row_shares=[1, 1]),
+                                                contents=[f"/nodes/{n}/cov_trace/**" for n in range(N)]
+                                                + ["/central/cov_trace"]),
+                             rrb.TimeSeriesView(origin="/mc", name="log10 tr P̂: median over runs per sensor, μ_t "
+                                                                    "quantiles", contents=["/mc/median/**", "/mc/mu/**"]),
+                             row_shares=[1, 1]),
                 column_shares=[2, 3], name="overview"),
             rrb.Grid(*[rrb.TimeSeriesView(origin=f"/mc/quantiles/{n}", name=f"sensor {n}: log10 tr P̂ quantiles over runs",
                                           contents=[f"/mc/quantiles/{n}/**", "/mc/mu/**"]) for n in range(n_show)],
                      name="quantiles over runs"),
             rrb.Grid(*[rrb.TimeSeriesView(origin=f"/nodes/{n}/error", name=f"sensor {n}: estimation error (run 0)",
                                           contents=[f"/nodes/{n}/error/**", "/central/error/**"]) for n in range(n_show)],
-                     name="errors"),
-            rrb.Horizontal(rrb.TextDocumentView(origin="/report", name="claims"),
-                           rrb.TextDocumentView(origin="/claims", name="claim detail"), name="claims"),
-        ),
-        rrb.TimePanel(timeline="k", expanded=False),
-        collapse_panels=True,
-    )
-    props = {"seed": v.seed, "runs": v.runs, "reference_runs": v.reference_runs, "slots": v.slots, "N": N, "M": M,
-             "protocol": sc.protocol.kind, "graph": sc.graph.kind, "versions": json.dumps(prov.get("versions", {})),
-             "git": prov.get("git", "")}
+                     name="errors")]
+
+
+def _log_matchings(rec, v: ScenarioTables) -> None:
+    """The graph, its allowed links, and the active matching of sample run 0 at every slot."""
+    import rerun as rr
+
+    from dse.outputs import record
+
+    sc, N = v.sc, v.sc.N
+    pos = sc.network.positions()
+    edges = sorted({(min(u, w), max(u, w)) for u, w in sc.network.build().edges()})
+    ids = [str(n) for n in range(N)]
+    labels = [f"s{n} (type {sc.types[n]})" for n in range(N)]
+    colors = [record.color(t) for t in sc.types]
+    # nodes static, the active matching per slot (static edges would override the per-slot ones)
+    rec.log("graph", rr.GraphNodes(ids, positions=record.display_positions(pos), labels=labels, colors=colors,
+                                   radii=12.0, show_labels=True), static=True)
+    record.log_graph(rec, "links", pos, edges, labels=labels, colors=colors)
+    m = v["matchings"]
+    m = m[m["run"] == 0].sort_values(["t", "node"])
+    n_match = int(m["t"].max()) + 1
+    partners = m["partner"].to_numpy().reshape(n_match, N)
+    per_step = [[(str(n), str(int(p))) for n, p in enumerate(row) if p > n] for row in partners]
+    flat = [e for es in per_step for e in es]
+    match_idx = record.sequence_index("k", np.arange(n_match))
+    if flat:
+        rec.send_columns("graph", indexes=match_idx,
+                         columns=rr.GraphEdges.columns(edges=flat).partition([len(es) for es in per_step]))
+    record.send_series(rec, "events/matching_size", match_idx, np.array([len(es) for es in per_step], float),
+                       names="edges in A(t), run 0", points=True)
+    record.log_tensor(rec, "graph/Abar", v["abar"].sort_values(["row", "col"])["value"].to_numpy().reshape(N, N))
+
+
+def _log_runs(rec, v: ScenarioTables) -> None:
+    """The sample runs (traces and errors of every sensor and of the centralized filter), the quantiles over runs
+    of every sensor, the Theorem-8 quantiles at the record times and the Lyapunov envelope."""
+    from dse.outputs import record
+
+    N, M = v.sc.N, v.sc.M
     paths = v["sample_paths"]
-    with rec_.recording(path, application_id=f"dse-{paper_id}", recording_id=f"{paper_id}-{sc.name}-seed{v.seed}",
-                        blueprint=blueprint, properties=props) as rec:
-        slots = np.sort(paths["t"].unique())
-        idx = rec_.sequence_index("k", slots)
-        pos = sc.graph.positions()
-        edges = sorted({(min(u, w), max(u, w)) for u, w in sc.graph.build().edges()})
-        ids = [str(n) for n in range(N)]
-        labels = [f"s{n} (type {sc.types[n]})" for n in range(N)]
-        colors = [rec_.color(t) for t in sc.types]
-        # nodes static, the active matching per slot (static edges would override the per-slot ones)
-        rec.log("graph", rr.GraphNodes(ids, positions=rec_.display_positions(pos), labels=labels, colors=colors, radii=12.0,
-                                       show_labels=True), static=True)
-        rec_.log_graph(rec, "links", pos, edges, labels=labels, colors=colors)
-        m = v["matchings"]
-        m = m[m["run"] == 0].sort_values(["t", "node"])
-        n_match = int(m["t"].max()) + 1
-        partners = m["partner"].to_numpy().reshape(n_match, N)
-        per_step = [[(str(n), str(int(p))) for n, p in enumerate(row) if p > n] for row in partners]
-        flat = [e for es in per_step for e in es]
-        match_idx = rec_.sequence_index("k", np.arange(n_match))
-        if flat:
-            rec.send_columns("graph", indexes=match_idx,
-                             columns=rr.GraphEdges.columns(edges=flat).partition([len(es) for es in per_step]))
-        rec_.send_series(rec, "events/matching_size", match_idx, np.array([len(es) for es in per_step], float),
-                         names="edges in A(t), run 0", points=True)
-        runs = sorted(paths["run"].unique())
-        sensor = _groups(paths[paths["node"].notna()], ["node", "run", "component"])
-        for n in range(N):
-            tr = np.column_stack([_series(sensor(n, k, 0), slots, "trace") for k in runs])
-            rec_.send_series(rec, f"nodes/{n}/cov_trace", idx, tr, names=[f"sensor {n} run {k}" for k in runs],
-                             colors=[rec_.color(n)] * len(runs))
-            err = np.column_stack([_series(sensor(n, 0, j), slots, "error") for j in range(M)])
-            rec_.send_series(rec, f"nodes/{n}/error", idx, err, names=[f"sensor {n}: e_{j + 1}" for j in range(M)],
-                             colors=[rec_.color(j) for j in range(M)])
-        q = v["quantiles"]
-        q = q[q["protocol"] == "protocol"]
-        q_slots = np.sort(q["t"].unique())
-        q_idx = rec_.sequence_index("k", q_slots)
-        quantile = _groups(q, ["node", "probability"])
-        for n in range(N):
-            qs = np.column_stack([_series(quantile(n, p), q_slots, "log_trace") / LOG10 for p in gk.QUANTILES])
-            rec_.send_series(rec, f"mc/quantiles/{n}", q_idx, qs, names=[f"q{p:g}" for p in gk.QUANTILES],
-                             colors=[rec_.color(n)] * len(gk.QUANTILES), width=1.0)
-            rec_.send_series(rec, f"mc/median/{n}", q_idx, qs[:, gk.QUANTILES.index(0.5)], names=f"sensor {n} median",
-                             colors=[rec_.color(n)])
-        central = v.reference("central")
-        central = central[central["t"].isin(slots)]
-        rec_.send_series(rec, "central/cov_trace", idx, _series(central, slots, "trace"), names="centralized tr P_c(t)",
-                         colors=[(0, 0, 0)], width=2.5)
-        cen = paths[paths["node"].isna() & (paths["run"] == 0)]
-        rec_.send_series(rec, "central/error", idx,
-                         np.column_stack([_series(cen[cen["component"] == j], slots, "error") for j in range(M)]),
-                         names=[f"centralized e_{j + 1}" for j in range(M)], colors=[(0, 0, 0)] * M, width=2.0)
-        env = v.reference("envelope")
-        env = env[env["t"].isin(slots)]
-        rec_.send_series(rec, "bounds/envelope_log10_trace", idx, _series(env, slots, "log_trace") / LOG10,
-                         names="log10 tr f_0^t(P0) (Lyapunov envelope)", colors=[(120, 120, 120)])
-        laws = v["laws"]
-        mu = laws[laws["law"] == "theorem8"]
-        mu_t = np.sort(mu["t"].unique())
-        ref_q = np.column_stack([_series(mu[np.isclose(mu["probability"], p)], mu_t, "log_trace") / LOG10
-                                 for p in gk.QUANTILES])
-        rec_.send_series(rec, "mc/mu", rec_.sequence_index("k", mu_t), ref_q,
-                         names=[f"μ_t q{p:g} (Theorem 8)" for p in gk.QUANTILES], colors=[(0, 0, 0)] * len(gk.QUANTILES),
-                         points=True)
-        abar = v["abar"].sort_values(["row", "col"])["value"].to_numpy().reshape(N, N)
-        rec_.log_tensor(rec, "graph/Abar", abar)
-        own = [c for c in claims if c["id"].endswith(f".{sc.name}")]
-        counts = {s: sum(c["verdict"] == s for c in own) for s in ("pass", "fail", "erratum", "not-checkable", "error")}
-        summary = (f"# {sc.name}: {counts['pass']} pass, {counts['fail']} fail, {counts['erratum']} erratum, "
-                   f"{counts['not-checkable']} not checkable, {counts['error']} errors\n\n{sc.description}\n\nseed {v.seed}, "
-                   f"{v.runs:,} GIKF runs, {v.reference_runs:,} Theorem-8 runs, {v.slots} slots")
-        rec_.log_claims(rec, own, summary, details=own)
+    slots = np.sort(paths["t"].unique())
+    idx = record.sequence_index("k", slots)
+    runs = sorted(paths["run"].unique())
+    sensor = _groups(paths[paths["node"].notna()], ["node", "run", "component"])
+    for n in range(N):
+        tr = np.column_stack([_series(sensor(n, k, 0), slots, "trace") for k in runs])
+        record.send_series(rec, f"nodes/{n}/cov_trace", idx, tr, names=[f"sensor {n} run {k}" for k in runs],
+                           colors=[record.color(n)] * len(runs))
+        err = np.column_stack([_series(sensor(n, 0, j), slots, "error") for j in range(M)])
+        record.send_series(rec, f"nodes/{n}/error", idx, err, names=[f"sensor {n}: e_{j + 1}" for j in range(M)],
+                           colors=[record.color(j) for j in range(M)])
+    q = v["quantiles"]
+    q = q[q["protocol"] == "protocol"]
+    q_slots = np.sort(q["t"].unique())
+    q_idx = record.sequence_index("k", q_slots)
+    quantile = _groups(q, ["node", "probability"])
+    for n in range(N):
+        qs = np.column_stack([_series(quantile(n, p), q_slots, "log_trace") / LOG10 for p in QUANTILES])
+        record.send_series(rec, f"mc/quantiles/{n}", q_idx, qs, names=[f"q{p:g}" for p in QUANTILES],
+                           colors=[record.color(n)] * len(QUANTILES), width=1.0)
+        record.send_series(rec, f"mc/median/{n}", q_idx, qs[:, QUANTILES.index(0.5)], names=f"sensor {n} median",
+                           colors=[record.color(n)])
+    central = v.reference("central")
+    central = central[central["t"].isin(slots)]
+    record.send_series(rec, "central/cov_trace", idx, _series(central, slots, "trace"), names="centralized tr P_c(t)",
+                       colors=[(0, 0, 0)], width=2.5)
+    cen = paths[paths["node"].isna() & (paths["run"] == 0)]
+    record.send_series(rec, "central/error", idx,
+                       np.column_stack([_series(cen[cen["component"] == j], slots, "error") for j in range(M)]),
+                       names=[f"centralized e_{j + 1}" for j in range(M)], colors=[(0, 0, 0)] * M, width=2.0)
+    env = v.reference("envelope")
+    env = env[env["t"].isin(slots)]
+    record.send_series(rec, "bounds/envelope_log10_trace", idx, _series(env, slots, "log_trace") / LOG10,
+                       names="log10 tr f_0^t(P0) (Lyapunov envelope)", colors=[(120, 120, 120)])
+    mu = v["laws"][v["laws"]["law"] == "theorem8"]
+    mu_t = np.sort(mu["t"].unique())
+    ref_q = np.column_stack([_series(mu[np.isclose(mu["probability"], p)], mu_t, "log_trace") / LOG10
+                             for p in QUANTILES])
+    record.send_series(rec, "mc/mu", record.sequence_index("k", mu_t), ref_q,
+                       names=[f"μ_t q{p:g} (Theorem 8)" for p in QUANTILES], colors=[(0, 0, 0)] * len(QUANTILES),
+                       points=True)
 
 
-def write_outputs(res, tables, out_dir: Path, claims: list[dict], prov: dict, paper_id: str, workers: int = 1) -> None:
-    """Every scenario's recording and figures, drawn in `workers` forked processes from the tables split once."""
-    jobs, figures = [], []
-    for v in views(res, tables):
-        jobs.append(functools.partial(write_recording, v, out_dir / f"{v.name}.rrd", claims, prov, paper_id))
-        figures += figure_jobs(v, out_dir / "figures")
-    draw_all(jobs + figures, workers=workers)
+def write_recording(v: ScenarioTables, path: Path, out: Outputs) -> None:
+    """One scenario's recording on the shared scaffold (its claims: those whose id ends with its name)."""
+    from dse.outputs.report import counts_line, verdict_counts
+
+    sc, run_id = v.sc, out.reproduction.paper_id
+    own = [c for c in out.claims if c["id"].endswith(f".{sc.name}")]
+    summary = (f"# {sc.name}: {counts_line(verdict_counts(own))}\n\n{sc.description}\n\nseed {v.seed}, {v.runs:,} GIKF "
+               f"runs, {v.reference_runs:,} Theorem-8 runs, {v.slots} slots")
+
+    def log(rec):
+        _log_matchings(rec, v)
+        _log_runs(rec, v)
+
+    recording(path, out, recording_id=f"{run_id}-{sc.name}-seed{v.seed}", tabs=lambda: _tabs(v), timeline="k", log=log,
+              properties={"runs": v.runs, "reference_runs": v.reference_runs, "slots": v.slots, "N": sc.N, "M": sc.M,
+                          "protocol": sc.protocol.kind, "graph": sc.network.kind},
+              summary=summary, claims=own, application_id=f"dse-{run_id}")
+
+
+def views(out: Outputs) -> list[View]:
+    """Every scenario's recording and figures, drawn from the tables split by scenario once."""
+    found = []
+    for v in split_tables(out.results, out.tables):
+        found.append(View(f"{v.name}.rrd", functools.partial(write_recording, v, out=out)))
+        found += figures(v)
+    return found
