@@ -22,7 +22,8 @@ import numpy as np
 import dse.estimators.gossip_kalman as gk
 import dse.estimators.kalman as kal
 import dse.estimators.switched_riccati as sr
-from dse.families.kar_moura.compute import J_GRID, STAT_STRIDE
+from dse.families.kar_moura.bounds import J_GRID
+from dse.families.kar_moura.gikf import STAT_STRIDE
 from dse.families.kar_moura.scenario import load_scenario
 
 TARGET_US = 3.0
@@ -30,7 +31,7 @@ TARGET_US = 3.0
 
 def _load(name: str):
     sc = load_scenario(name)
-    return sc, sc.system(), sc.protocol.build(sc.graph)
+    return sc, sc.system, sc.protocol.build(sc.network)
 
 
 def _median(xs: list[float]) -> tuple[float, tuple[float, float]]:

@@ -16,14 +16,17 @@ import pandas as pd
 import pytest
 
 import dse.estimators.gossip_kalman as gk
-import dse.families as reproductions
+import dse.families as families
 from dse.api import check, execute
-from dse.scenario.declare import reference_rows
+from dse.contract.cost import refuse_if_too_large
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
+from dse.engine.cache import MemoryCache
 from dse.errors import ScenarioError
-from dse.engine.driver import RunOptions
-from dse.families.kar_moura import compute
-from dse.families.kar_moura.reproduction import SCENARIO_MODEL
-from dse.families.kar_moura.scenario import SCENARIO_DIR
+from dse.families.kar_moura.cost import gikf_bytes_per_run
+from dse.families.kar_moura.gikf import gikf
+from dse.families.kar_moura.scenario import SCENARIO_DIR, GossipKalmanFile
+from dse.scenario.declare import reference_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -53,7 +56,7 @@ def small(**changes) -> dict:
 # -- declared keys --------------------------------------------------------------------------------------------
 
 def test_every_key_is_declared_with_a_meaning():
-    rows = [(p, r) for p, rs, _ in reference_rows(SCENARIO_MODEL) for r in rs]
+    rows = [(p, r) for p, rs, _ in reference_rows(GossipKalmanFile) for r in rs]
     assert len(rows) > 30
     for path, row in rows:
         assert row["meaning"].strip(), f"{path}.{row['key']} has no meaning"
@@ -88,7 +91,7 @@ def test_shipped_files_comment_every_key():
 ])
 def test_invalid_input_names_its_field(changes, field, words):
     with pytest.raises(ScenarioError) as err:
-        reproductions.family_from_dict(small(**changes))
+        families.from_dict(small(**changes))
     assert err.value.field == field and words in err.value.reason, (err.value.field, err.value.reason)
 
 
@@ -96,11 +99,11 @@ def test_singular_p0_runs_and_a_disconnected_graph_is_a_hypothesis(tmp_path):
     """A P0 that is only positive semidefinite (a zero eigenvalue, or −1e-12 within the shared tolerance) is
     accepted and runs: nothing takes a Cholesky factor of it. Two disconnected rings: C.1 fails as a hypothesis."""
     for P0 in ([[1.0, 1.0], [1.0, 1.0]], [[0.0, 0.0], [0.0, 0.0]], [[1.0, 0.0], [0.0, -1e-12]]):
-        repro = reproductions.family_from_dict(small(model__P0=P0, simulation={"slots": 12, "runs": 100,
+        repro = families.from_dict(small(model__P0=P0, simulation={"slots": 12, "runs": 100,
                                                                                 "reference_runs": 200}))
         run = execute(repro, RunOptions(quick=True, seed=2))
         assert run.counts["fail"] == 0 and run.counts["error"] == 0, run.claims[run.claims.verdict == "fail"]
-    repro = reproductions.family_from_dict(small(graph={"kind": "edges", "n": 4, "edges": [[0, 1], [2, 3]]}))
+    repro = families.from_dict(small(graph={"kind": "edges", "n": 4, "edges": [[0, 1], [2, 3]]}))
     hyp = {h["id"]: h for h in check(repro).hypotheses}
     assert hyp["kar-moura.hyp.c1.small"]["holds"] is False
 
@@ -109,13 +112,13 @@ def test_singular_p0_runs_and_a_disconnected_graph_is_a_hypothesis(tmp_path):
 
 @pytest.fixture(scope="module")
 def small_run():
-    repro = reproductions.family_from_dict(small(model__x0=[3.0, -1.0]))
+    repro = families.from_dict(small(model__x0=[3.0, -1.0]))
     return repro, execute(repro, RunOptions(quick=True, seed=4))
 
 
 def test_design_is_the_runs_design_and_hypotheses_are_decided_on_it(small_run):
     repro, run = small_run
-    d = repro.design(RunOptions(quick=True, seed=4))
+    d = repro.design(RunOptions(quick=True, seed=4), StageContext(MemoryCache()))
     d_run = run.computed.design
     for name, sd in d.scenarios.items():
         rd = d_run.scenarios[name]
@@ -186,10 +189,11 @@ def _lyap(t: int) -> np.ndarray:
 # -- streaming ----------------------------------------------------------------------------------------------
 
 def test_monte_carlo_is_identical_whatever_the_memory_budget():
-    sc = reproductions.family_from_dict(small(simulation={"slots": 30, "runs": 2500, "reference_runs": 200})).scenarios[0]
-    d = compute.scenario_design(sc, RunOptions())
-    tiny = compute.simulate_gikf_stage(sc, d.bounds, 3, 2500, 30, budget_bytes=1.0)        # one unit at a time
-    large = compute.simulate_gikf_stage(sc, d.bounds, 3, 2500, 30, budget_bytes=2.0**32)   # every unit together
+    repro = families.from_dict(small(simulation={"slots": 30, "runs": 2500, "reference_runs": 200}))
+    sc, d = repro.scenario, repro.design(RunOptions(), StageContext(MemoryCache())).scenarios["small"]
+    per_run = gikf_bytes_per_run(sc, 30)
+    tiny = gikf(sc, d.bounds, 3, 2500, 30, "protocol", budget_bytes=1.0, bytes_per_run=per_run)   # one unit at a time
+    large = gikf(sc, d.bounds, 3, 2500, 30, "protocol", budget_bytes=2.0**32, bytes_per_run=per_run)   # all together
     assert tiny.keys() == large.keys()
     for k in tiny:
         np.testing.assert_array_equal(tiny[k], large[k], err_msg=k)
@@ -238,29 +242,33 @@ def _toml(data: dict) -> str:
 
 
 def test_beyond_the_budget_is_refused_before_running():
-    repro = reproductions.family_from_dict(small(graph={"kind": "ring", "n": 300}, protocol={"kind": "node-initiated"},
+    repro = families.from_dict(small(graph={"kind": "ring", "n": 300}, protocol={"kind": "node-initiated"},
                                                  simulation={"slots": 300, "runs": 100000, "reference_runs": 1000}))
+    opts = RunOptions(max_memory_mib=4000)
     with pytest.raises(ScenarioError) as err:
-        repro.compute(RunOptions(max_memory_mib=4000), None)
+        refuse_if_too_large(repro.cost(opts), opts)
     assert err.value.field == "simulation.runs" and "MiB" in err.value.reason
-    greedy = reproductions.family_from_dict(small(graph={"kind": "complete", "n": 400},
+    with pytest.raises(ScenarioError):                               # the driver refuses before computing
+        execute(repro, opts)
+    greedy = families.from_dict(small(graph={"kind": "complete", "n": 400},
                                                   protocol={"kind": "greedy-matching", "p_link": 0.5}))
+    opts = RunOptions(max_memory_mib=2000)
     with pytest.raises(ScenarioError) as err:                       # 79,800 edge priorities per run
-        greedy.compute(RunOptions(max_memory_mib=2000), None)
+        refuse_if_too_large(greedy.cost(opts), opts)
     assert err.value.field == "protocol.kind" and "edges" in err.value.reason
 
 
 def test_estimate_is_within_a_factor_of_three_of_the_measured_run():
     """The cost model against a measured CPU time of the same quick run (factor 3 stated for small runs, where the
     fixed costs dominate; the calibration against larger runs is in the report)."""
-    repro = reproductions.family_from_dict(small(simulation={"slots": 150, "runs": 2000, "reference_runs": 2000}))
+    repro = families.from_dict(small(simulation={"slots": 150, "runs": 2000, "reference_runs": 2000}))
     opts = RunOptions(seed=1, workers=1)       # process_time counts this process only: the run stays in it
     start = time.process_time()
     execute(repro, opts)
     measured = time.process_time() - start
     from dse.families.kar_moura import cost
 
-    predicted = repro.estimate(opts)["seconds"] - cost.IMPORT_S    # measured in this process: imports already done
+    predicted = repro.cost(opts).seconds - cost.IMPORT_S    # measured in this process: imports already done
     assert 1 / 3 < predicted / measured < 3, (predicted, measured)
 
 
@@ -269,7 +277,7 @@ def test_estimate_is_within_a_factor_of_three_of_the_measured_run():
 def test_a_replayed_sequence_checks_the_pathwise_claims_only():
     data = small(protocol={"kind": "sequence", "sequence": [[[0, 1], [2, 3]], [], [[1, 2], [3, 0]]]},
                  simulation={"slots": 30, "runs": 200, "reference_runs": 400})
-    repro = reproductions.family_from_dict(data)
+    repro = families.from_dict(data)
     run = execute(repro, RunOptions(quick=True))
     v = run.claims.set_index("id")["verdict"]
     assert run.counts["fail"] == 0 and run.counts["error"] == 0

@@ -12,10 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dse.outputs import record
+import dse.families
+from dse.api import load
+from dse.contract.options import RunOptions
+from dse.engine.driver import run
 from dse.errors import ScenarioError
-from dse.engine.driver import RunOptions, run
-from dse.families.kar_moura.reproduction import from_dict, paper
+from dse.outputs import record
 
 RERUN = Path(sys.executable).parent / "rerun"
 
@@ -52,18 +54,25 @@ quick_slots = 120
 DRAWN = ("e1", "e5", "e7", "e9")
 
 
+def from_dict(data: dict):
+    return load({"family": "gossip-kalman", **data})
+
+
 @pytest.fixture(scope="module")
 def paper_run(tmp_path_factory):
     from dse.api import execute
-    from dse.families.kar_moura import outputs
-    from dse.families.kar_moura.compute import Results
+    from dse.contract.views import Outputs
+    from dse.families.kar_moura.results import Results
+    from dse.outputs.figures import draw_all
 
     out = tmp_path_factory.mktemp("km")
-    result = execute(paper(), RunOptions(quick=True, workers=2))
+    repro = dse.families.paper("kar-moura")
+    result = execute(repro, RunOptions(quick=True, workers=2))
     d = result.write(out / "kar-moura", figures=False)
     res = result.results
     drawn = Results(res.seed, res.quick, {name: res.scenarios[name] for name in DRAWN})
-    outputs.write_outputs(drawn, result.tables, d, result.evaluation.claims, result.provenance, "kar-moura", workers=2)
+    views = repro.views(Outputs(repro, drawn, result.tables, result.evaluation.claims, result.provenance))
+    draw_all([lambda v=v: v.draw(d / v.file) for v in views], workers=2)
     doc = json.loads((d / "report.json").read_text())
     return d, result.counts, {c["id"]: c for c in doc["claims"]}
 

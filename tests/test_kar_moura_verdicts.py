@@ -12,10 +12,12 @@ import pytest
 import dse.estimators.gossip_kalman as gk
 import dse.estimators.switched_riccati as sr
 import dse.estimators.walk_detectability as wd
-import dse.families as reproductions
+import dse.families as families
+from dse.contract.options import RunOptions
+from dse.contract.stages import StageContext
 from dse.engine.cache import StageCache
-from dse.engine.driver import RunOptions, evaluate_claims
-from dse.families.kar_moura import generators
+from dse.engine.driver import evaluate_claims
+from dse.families.kar_moura import generator
 from dse.families.kar_moura import stats as kst
 
 
@@ -184,11 +186,11 @@ def test_c1_failure_with_an_oblique_unseen_direction_is_not_a_crash(tmp_path):
     """C.1 fails (two components) and one component cannot see an eigenvector that is not an axis: the
     theorem's auxiliary stage is not run, the horizon stays where the Joseph form is accurate, no claim
     is an error or a fail, and the divergence is checked."""
-    repro = reproductions.family_from_dict(_issue_crash_scenario())
-    res = repro.compute(RunOptions(seed=0, quick=True), StageCache(tmp_path / "c"))
-    r = res.get("oblique-c1")
+    repro = families.from_dict(_issue_crash_scenario())
+    computed = repro.compute(RunOptions(seed=0, quick=True), StageContext(StageCache(tmp_path / "c")))
+    r = computed.results.get("oblique-c1")
     assert "init_huge" not in r.aux and r.slots < 256
-    ev = evaluate_claims(repro, res)
+    ev = evaluate_claims(repro, computed)
     bad = [(c["id"], c["verdict"]) for c in ev.claims if c["verdict"] in ("fail", "error")]
     assert not bad, bad
     rows = {c["id"]: c for c in ev.claims}
@@ -225,12 +227,12 @@ def test_snapping_merges_values_within_their_resolution_only():
 # -- generator ----------------------------------------------------------------------------------------------
 
 def test_generator_is_deterministic_valid_and_covers_its_edges():
-    for k, edge in enumerate(generators.EDGES):
-        a, b = generators.generate(k, edge), generators.generate(k, edge)
+    for k, edge in enumerate(generator.EDGES):
+        a, b = generator.generate(k, edge), generator.generate(k, edge)
         assert a == b and a["family"] == "gossip-kalman"
-        repro = reproductions.family_from_dict(json.loads(json.dumps(a)))   # JSON-able, and valid
+        repro = families.from_dict(json.loads(json.dumps(a)))   # JSON-able, and valid
         assert repro.scenarios[0].N >= 2
     with pytest.raises(ValueError):
-        generators.generate(0, "no-such-edge")
-    shared = generators.generate(0, "shared-c-different-r")["sensors"]
+        generator.generate(0, "no-such-edge")
+    shared = generator.generate(0, "shared-c-different-r")["sensors"]
     assert shared["C"][0] == shared["C"][1] and shared["R"][0] != shared["R"][1]

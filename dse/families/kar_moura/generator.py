@@ -94,6 +94,32 @@ def generate(seed: int, edge: str | None = None) -> dict:
     if edge is not None and edge not in EDGES:
         raise ValueError(f"unknown edge case {edge!r} (one of {', '.join(EDGES)})")
     rng = np.random.default_rng([seed, EDGES.index(edge) + 1 if edge else 0, 13])
+    M, N, regime, noise, P0_scale = _sizes(rng, edge)
+    F, V = _dynamics(rng, M, regime)
+    Q = _spd(rng, M, 0.1 * noise)
+    P0 = _spd(rng, M, P0_scale)
+    graph, N = _graph(rng, edge, N)
+    protocol = _protocol(rng, edge, graph, N)
+    C_types, R_types, types = _sensors(rng, edge, F, regime, M, N, noise)
+    data = {"family": FAMILY, "name": f"gen-{edge or 'random'}-{seed}",
+            "description": f"generated scenario (seed {seed}, edge case {edge or 'none'})",
+            "model": {"F": _tolist(F), "Q": _tolist(Q), "P0": _tolist(P0)},
+            "sensors": {"types": types, "C": C_types, "R": R_types},
+            "graph": graph, "protocol": protocol,
+            "simulation": {"slots": 60, "runs": 400, "reference_runs": 1200, "quick_runs": 200,
+                           "quick_reference_runs": 600, "quick_slots": 40,
+                           "record_times": [1, 2, 3, 5, 10, 20, 40, 60], "sample_paths": 2}}
+    if edge == "comparison":
+        _comparison(rng, data, graph, N, len(C_types))
+    extra = np.random.default_rng([seed, 7])
+    data["model"]["x0"] = [float(v) for v in extra.normal(0.0, 10.0, M)]
+    if edge == "sequence":
+        data["protocol"] = _sequence(extra, graph)
+    return data
+
+
+def _sizes(rng: np.random.Generator, edge: str | None) -> tuple[int, int, str, float, float]:
+    """(M, N, regime of F, noise scale, P0 scale)."""
     M = int(rng.integers(1, 4))
     N = int(rng.integers(2, 7))
     regime = str(rng.choice(["stable", "unstable", "mixed", "marginal"]))
@@ -111,11 +137,10 @@ def generate(seed: int, edge: str | None = None) -> dict:
         noise, P0_scale = 1e-6, 1e-6
     elif edge == "large-noise":
         noise, P0_scale = 1e4, 1e6
-    F, V = _dynamics(rng, M, regime)
-    Q = _spd(rng, M, 0.1 * noise)
-    P0 = _spd(rng, M, P0_scale)
+    return M, N, regime, noise, P0_scale
 
-    # graph and protocol ---------------------------------------------------------------------------
+
+def _graph(rng: np.random.Generator, edge: str | None, N: int) -> tuple[dict, int]:
     graph: dict = {"kind": str(rng.choice(["line", "ring", "complete"])) if N >= 3 else "line", "n": N}
     if edge == "c1-fail-oblique":  # two components: [0, k) and [k, N)
         N = max(N, 4)
@@ -128,9 +153,12 @@ def generate(seed: int, edge: str | None = None) -> dict:
     elif edge == "greedy-estimated":
         N = 10
         graph = {"kind": "complete", "n": N}
+    return graph, N
+
+
+def _protocol(rng: np.random.Generator, edge: str | None, graph: dict, N: int) -> dict:
     n_edges = {"line": N - 1, "ring": N, "complete": N * (N - 1) // 2}.get(graph["kind"], len(graph.get("edges", [])))
-    kinds = ["single-edge", "node-initiated", "greedy-matching"]
-    kind = str(rng.choice(kinds))
+    kind = str(rng.choice(["single-edge", "node-initiated", "greedy-matching"]))
     if edge == "node-initiated":
         kind = "node-initiated"
     elif edge in ("greedy-links", "greedy-perfect", "greedy-estimated"):
@@ -149,8 +177,12 @@ def generate(seed: int, edge: str | None = None) -> dict:
             protocol = {"kind": "matchings", "matchings": _ring_matchings(N), "probs": [0.5, 0.5]}
     if kind == "node-initiated" and graph["kind"] == "edges":
         protocol = {"kind": "single-edge", "edge_prob": float(0.8 / n_edges)}
+    return protocol
 
-    # sensors --------------------------------------------------------------------------------------
+
+def _sensors(rng: np.random.Generator, edge: str | None, F: np.ndarray, regime: str, M: int, N: int,
+             noise: float) -> tuple[list, list, list[int]]:
+    """(C of each type, R of each type, the type of each node), with the edge case's blind directions."""
     evals, evecs = np.linalg.eigh(0.5 * (F + F.T)) if regime not in ("marginal",) else (None, None)
     n_types = int(rng.integers(1, min(N, 3) + 1))
     C_types, R_types = [], []
@@ -186,38 +218,31 @@ def generate(seed: int, edge: str | None = None) -> dict:
         R_types.append(_tolist(_spd(rng, min(M, 2), noise)))
         types = [int(rng.integers(0, len(C_types))) for _ in range(N)]
         types[0] = len(C_types) - 2
-    data = {"family": FAMILY, "name": f"gen-{edge or 'random'}-{seed}",
-            "description": f"generated scenario (seed {seed}, edge case {edge or 'none'})",
-            "model": {"F": _tolist(F), "Q": _tolist(Q), "P0": _tolist(P0)},
-            "sensors": {"types": types, "C": C_types, "R": R_types},
-            "graph": graph, "protocol": protocol,
-            "simulation": {"slots": 60, "runs": 400, "reference_runs": 1200, "quick_runs": 200,
-                           "quick_reference_runs": 600, "quick_slots": 40,
-                           "record_times": [1, 2, 3, 5, 10, 20, 40, 60], "sample_paths": 2}}
-    if edge == "comparison" and graph["kind"] == "ring" and N % 2 == 0:
-        gamma = float(rng.uniform(0.2, 1.0) / N)
-        data["protocol"] = {"kind": "single-edge", "edge_prob": gamma}
-        data["comparison_protocol"] = {"kind": "matchings", "matchings": _ring_matchings(N), "probs": [gamma, gamma]}
-    elif edge == "comparison":
-        N2 = 2 * int(rng.integers(2, 4))
-        data["graph"] = {"kind": "ring", "n": N2}
-        data["sensors"]["types"] = [i % len(C_types) for i in range(N2)]
-        gamma = float(rng.uniform(0.2, 1.0) / N2)
-        data["protocol"] = {"kind": "single-edge", "edge_prob": gamma}
-        data["comparison_protocol"] = {"kind": "matchings", "matchings": _ring_matchings(N2), "probs": [gamma, gamma]}
-    extra = np.random.default_rng([seed, 7])
-    data["model"]["x0"] = [float(v) for v in extra.normal(0.0, 10.0, M)]
-    if edge == "sequence":
-        import networkx as nx
+    return C_types, R_types, types
 
-        from dse.scenario.graphs import GraphSection
 
-        G = GraphSection(**graph).spec().build()
-        slots = []
-        for _ in range(int(extra.integers(1, 8))):
-            order = extra.permutation(G.number_of_edges())
-            edges = [sorted(e) for e in G.edges()]
-            slots.append([edges[i] for i in order[: int(extra.integers(0, len(edges) + 1))]])
-        data["protocol"] = {"kind": "sequence", "sequence": [[list(map(int, e)) for e in nx.maximal_matching(
-            nx.Graph([tuple(e) for e in slot]))] for slot in slots]}
-    return data
+def _comparison(rng: np.random.Generator, data: dict, graph: dict, N: int, n_types: int) -> None:
+    """Single edges against ring matchings with the same Ā (on an even ring)."""
+    if graph["kind"] != "ring" or N % 2:
+        N = 2 * int(rng.integers(2, 4))
+        data["graph"] = {"kind": "ring", "n": N}
+        data["sensors"]["types"] = [i % n_types for i in range(N)]
+    gamma = float(rng.uniform(0.2, 1.0) / N)
+    data["protocol"] = {"kind": "single-edge", "edge_prob": gamma}
+    data["comparison_protocol"] = {"kind": "matchings", "matchings": _ring_matchings(N), "probs": [gamma, gamma]}
+
+
+def _sequence(extra: np.random.Generator, graph: dict) -> dict:
+    """A replayed cycle of random maximal matchings of the graph."""
+    import networkx as nx
+
+    from dse.scenario.graphs import GraphSection
+
+    G = GraphSection(**graph).spec().build()
+    slots = []
+    for _ in range(int(extra.integers(1, 8))):
+        order = extra.permutation(G.number_of_edges())
+        edges = [sorted(e) for e in G.edges()]
+        slots.append([edges[i] for i in order[: int(extra.integers(0, len(edges) + 1))]])
+    return {"kind": "sequence", "sequence": [[list(map(int, e)) for e in nx.maximal_matching(
+        nx.Graph([tuple(e) for e in slot]))] for slot in slots]}
