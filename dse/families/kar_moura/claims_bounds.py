@@ -21,7 +21,9 @@ from .results import ScenarioResults
 claims = ClaimSet()
 
 
-@claims.claim('kar-moura.lemma14.bound.{scenario}', 'Lemma 14, eqs (39)-(41)', 'g_w0(X) ⪯ Σ_sub for all X ⪰ 0 (α0 = λ_max of the corrected Σ_sub)', 'inequality', hypotheses=hyp("d1", "witness", "s1"), when=role("full"))
+@claims.claim("kar-moura.lemma14.bound.{scenario}", "Lemma 14, eqs (39)-(41)",
+              "g_w0(X) ⪯ Σ_sub for all X ⪰ 0 (α0 = λ_max of the corrected Σ_sub)", "inequality",
+              hypotheses=hyp("d1", "witness", "s1"), when=role("full"))
 def check_lemma14(r: ScenarioResults) -> Verdict:
     """g_w0(X) ⪯ Σ_sub for all X ⪰ 0 (Lemma 14 with the corrected Σ_sub), and λ_max g_w0(cI) non-decreasing in c."""
     b, sys_ = r.bounds, r.scenario.system
@@ -56,7 +58,9 @@ def sigma_sub_tolerance(r: ScenarioResults) -> tuple[float, str]:
                               condition=float(b["gramian_cond"]))
 
 
-@claims.claim('kar-moura.lemma14.eq120.{scenario}', 'eqs (118)-(120)', "The sub-optimal estimator's covariance bounds g_w0 (printed form vs corrected)", 'inequality', hypotheses=hyp("d1", "witness", "s1"), when=role("full"))
+@claims.claim("kar-moura.lemma14.eq120.{scenario}", "eqs (118)-(120)",
+              "The sub-optimal estimator's covariance bounds g_w0 (printed form vs corrected)", "inequality",
+              hypotheses=hyp("d1", "witness", "s1"), when=role("full"))
 def check_lemma14_printed(r: ScenarioResults) -> Verdict:
     """(118)/(120) as printed drop Σ_s F^{ℓ−s} w_s: the printed covariance F^ℓ G̃⁻¹ F^ℓᵀ is not a bound."""
     b, sys_ = r.bounds, r.scenario.system
@@ -78,7 +82,8 @@ def check_lemma14_printed(r: ScenarioResults) -> Verdict:
                            f"(with allowance {float(scor):.3e}). Also (118) needs C_{{n_t}}ᵀ."))
 
 
-@claims.claim('kar-moura.eq134.lifted-chain.{scenario}', 'eqs (132)-(134)', 'Stationary law of the lifted window chain', 'identity', hypotheses=hyp("witness", "exact-abar"), when=role("full"))
+@claims.claim("kar-moura.eq134.lifted-chain.{scenario}", "eqs (132)-(134)", "Stationary law of the lifted window chain",
+              "identity", hypotheses=hyp("witness", "exact-abar"), when=role("full"))
 def check_lifted_chain(r: ScenarioResults) -> Verdict:
     b = r.bounds
     if "lifted_pi" not in b:
@@ -101,7 +106,9 @@ def check_lifted_chain(r: ScenarioResults) -> Verdict:
                            + f") and corrected (1/N)Π_j Ā[i_j, i_(j+1)] (max error {err_c:.1e})."))
 
 
-@claims.claim('kar-moura.lemma15.tail-bound.{scenario}', 'Lemma 15, eqs (122)-(142)', 'P(‖P̃(t)‖ > J) ≤ β_t(J) → 0 (tightness)', 'statistical', hypotheses=THEOREM + hyp("witness", "exact-abar"))
+@claims.claim("kar-moura.lemma15.tail-bound.{scenario}", "Lemma 15, eqs (122)-(142)",
+              "P(‖P̃(t)‖ > J) ≤ β_t(J) → 0 (tightness)", "statistical",
+              hypotheses=THEOREM + hyp("witness", "exact-abar"))
 def check_lemma15(r: ScenarioResults) -> Verdict:
     """P(‖P̃(T)‖ > J) ≤ β_T(J), with the off-by-one of (125)/(128) fixed: β is the probability that the
     stationary window of min(T, k(J)+ℓ) nodes contains no witness window (exact killed-chain
@@ -131,7 +138,9 @@ def check_lemma15(r: ScenarioResults) -> Verdict:
                            + (f". All-windows bound / empirical tail: median {np.median(ratios):.2f}" if ratios else "")))
 
 
-@claims.claim('kar-moura.rem9.protocol-invariance.{scenario}', 'Remark 9', 'The laws of P̂_q(t) and each P̂_n(t) depend on the protocol only through Ā', 'statistical', hypotheses=hyp("same-abar"), when=role("comparison"))
+@claims.claim("kar-moura.rem9.protocol-invariance.{scenario}", "Remark 9",
+              "The laws of P̂_q(t) and each P̂_n(t) depend on the protocol only through Ā", "statistical",
+              hypotheses=hyp("same-abar"), when=role("comparison"))
 def check_remark9(r: ScenarioResults) -> Verdict:
     """Remark 9 in its exact finite-t form: the law of each P̂_n(t) (and of P̂_q(t)) is a function of Ā
     only (it is the law of a Ā-chain's Riccati products), so two protocols with one Ā agree at every t."""

@@ -24,7 +24,9 @@ from .results import Results, ScenarioResults
 claims = ClaimSet()
 
 
-@claims.claim('kar-moura.e7.periodic-orbit.{scenario}', 'example E7 (ours)', 'Covariances settle on a 2-periodic orbit with traces 1.8841 / 2.1634', 'identity', when=example("e7"), scope='paper-example')
+@claims.claim("kar-moura.e7.periodic-orbit.{scenario}", "example E7 (ours)",
+              "Covariances settle on a 2-periodic orbit with traces 1.8841 / 2.1634", "identity", when=example("e7"),
+              scope="paper-example")
 def check_periodic_orbit(r: ScenarioResults) -> Verdict:
     """E7: with A(t) = swap at every slot, both covariances settle on a 2-periodic orbit (traces 1.8841, 2.1634)."""
     sys_ = r.scenario.system
@@ -40,7 +42,9 @@ def check_periodic_orbit(r: ScenarioResults) -> Verdict:
                            f"two slots: {np.round(tr, 4).tolist()}"))
 
 
-@claims.claim('kar-moura.e7.token-domination-fails.{scenario}', 'Theorem 10[ii]; example E7 (ours)', 'PREDICTED: with periodic Ā the conclusion of (25) fails (P(P_n(t) ∈ S) = 1 > μ(S) every other slot)', 'statistical', when=example("e7"), scope='paper-example')
+@claims.claim("kar-moura.e7.token-domination-fails.{scenario}", "Theorem 10[ii]; example E7 (ours)",
+              "PREDICTED: with periodic Ā the conclusion of (25) fails (P(P_n(t) ∈ S) = 1 > μ(S) every other slot)",
+              "statistical", when=example("e7"), scope="paper-example")
 def check_e7_token_domination_fails(r: ScenarioResults) -> Verdict:
     """E7 (periodic Ā, C.1 fails): Theorem 10[ii]'s conclusion fails, as predicted. The swap happens at
     every slot, so token 0 sits at sensor p_0(t−1) = (t−1) mod 2 and its covariance alternates between
@@ -65,7 +69,9 @@ def check_e7_token_domination_fails(r: ScenarioResults) -> Verdict:
                            + ". The mixture still converges."))
 
 
-@claims.claim('kar-moura.e8.d1-not-necessary.{scenario}', 'Remark 5; example E8 (ours)', 'D.1 fails for singular F yet (F, C_all) is observable and P̂ stays bounded', 'qualitative', when=example("e8"), scope='paper-example')
+@claims.claim("kar-moura.e8.d1-not-necessary.{scenario}", "Remark 5; example E8 (ours)",
+              "D.1 fails for singular F yet (F, C_all) is observable and P̂ stays bounded", "qualitative",
+              when=example("e8"), scope="paper-example")
 def check_d1_not_necessary(r: ScenarioResults) -> Verdict:
     """E8 (singular F): D.1 fails (certified), (F, C_all) is observable, and the covariances stay bounded
     (no drift of the median or q0.95 of log tr P̂_n over the second half): D.1 is sufficient, not necessary."""
@@ -97,7 +103,9 @@ claims.unchecked("kar-moura.thm26.uniqueness", "Theorem 26 / Theorem 12 (uniquen
                                        "support it")
 
 
-@claims.claim('kar-moura.remark3.covering-walk', 'Remark 3', 'F invertible and Σ C_nᵀC_n full rank ⇒ every covering walk satisfies D.1', 'qualitative', scope='paper-example')
+@claims.claim("kar-moura.remark3.covering-walk", "Remark 3",
+              "F invertible and Σ C_nᵀC_n full rank ⇒ every covering walk satisfies D.1", "qualitative",
+              scope="paper-example")
 def check_remark3(_res) -> Verdict:
     """Remark 3: 'F invertible and G = Σ C_nᵀC_n full rank ⇒ any covering walk works' is false."""
     F = np.array([[0.0, -1.0], [1.0, 0.0]])
@@ -116,7 +124,9 @@ def check_remark3(_res) -> Verdict:
                            f"record w0."))
 
 
-@claims.claim('kar-moura.eq11.joseph-form', 'eq (11)', 'The Riccati map is computed accurately for ‖X‖ up to 1e16 (Joseph form)', 'identity', scope='paper-example')
+@claims.claim("kar-moura.eq11.joseph-form", "eq (11)",
+              "The Riccati map is computed accurately for ‖X‖ up to 1e16 (Joseph form)", "identity",
+              scope="paper-example")
 def check_riccati_roundoff(_res) -> Verdict:
     """The textbook form (11) loses accuracy for huge ‖X‖; the Joseph form does not."""
     F, Q = np.diag([1.2, 1.1]), 0.1 * np.eye(2)
@@ -136,7 +146,9 @@ def check_riccati_roundoff(_res) -> Verdict:
                            f"‖X‖); textbook results violating f(X) ⪰ Q: {below_q} of 200. All simulations use the Joseph form."))
 
 
-@claims.claim('kar-moura.r23.tail-exponent.e1', 'derived heuristic (ours)', 'Diagonal μ-entries have power tails with exponents κ_j, (1−ρ)a_j^{2κ_j} = 1', 'statistical', when=example("e1"), scope='paper-example', args=("e1",))
+@claims.claim("kar-moura.r23.tail-exponent.e1", "derived heuristic (ours)",
+              "Diagonal μ-entries have power tails with exponents κ_j, (1−ρ)a_j^{2κ_j} = 1", "statistical",
+              when=example("e1"), scope="paper-example", args=("e1",))
 def check_tail_exponent(res: Results, name: str) -> Verdict:
     """E1 heuristic: P(X_jj > x) ~ x^{−κ_j}, (1 − ρ) a_j^{2κ_j} = 1, ρ = rate of leaving a sensor type."""
     r = res.get(name)
@@ -180,7 +192,9 @@ def quantile_ci(x: np.ndarray, q: float, level: float) -> tuple[float, float]:
     return float(x[max(lo - 1, 0)]), float(x[min(hi, n - 1)])
 
 
-@claims.claim('kar-moura.e1.mu-quantiles', 'reference numbers of an independent prototype (the paper has none)', 'Quantiles of tr X under μ and under the per-type laws μ_n match the independent prototype', 'statistical', when=example("e1"), scope='paper-example', args=("e1",))
+@claims.claim("kar-moura.e1.mu-quantiles", "reference numbers of an independent prototype (the paper has none)",
+              "Quantiles of tr X under μ and under the per-type laws μ_n match the independent prototype",
+              "statistical", when=example("e1"), scope="paper-example", args=("e1",))
 def check_reference_quantiles(res: Results, name: str) -> Verdict:
     """μ and μ_n trace quantiles of E1 against an independent prototype's numbers (order-statistic CIs)."""
     r = res.get(name)
@@ -225,7 +239,9 @@ def kernel_paths(Abar: np.ndarray, length: int) -> tuple[np.ndarray, np.ndarray]
     return paths, w
 
 
-@claims.claim('kar-moura.eq82.tv-step', 'eqs (78)-(84)', 'd_v(P^s_n(t), Q^s(t)) ≤ N d_v(p_n(s), q(s)) (exact total variation over the finite supports)', 'inequality', when=example("e1"), scope='paper-example', args=("e1",))
+@claims.claim("kar-moura.eq82.tv-step", "eqs (78)-(84)",
+              "d_v(P^s_n(t), Q^s(t)) ≤ N d_v(p_n(s), q(s)) (exact total variation over the finite supports)",
+              "inequality", when=example("e1"), scope="paper-example", args=("e1",))
 def check_tv_step(res: Results, name: str) -> Verdict:
     """(78)-(82) computed exactly: the laws of P^s_n(t) and Q^s(t) are finite (one atom per chain
     path (p(s), ..., p(t−1))); d_v = ½ Σ_atoms |P − Q| against N d_v(p_n(s), q(s)) (82)."""

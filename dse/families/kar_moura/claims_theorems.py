@@ -23,7 +23,9 @@ from .results import ScenarioResults
 claims = ClaimSet()
 
 
-@claims.claim('kar-moura.negative-control.divergence.{scenario}', 'derived (hypotheses violated)', "Sensors in an Ā-class that cannot detect a mode |λ| ≥ 1 are bounded below, pathwise, by their class's centralized filter, which diverges", 'inequality', hypotheses=hyp("undetectable-class"))
+@claims.claim("kar-moura.negative-control.divergence.{scenario}", "derived (hypotheses violated)",
+              "Sensors in an Ā-class that cannot detect a mode |λ| ≥ 1 are bounded below, pathwise, by their class's "
+              "centralized filter, which diverges", "inequality", hypotheses=hyp("undetectable-class"))
 def check_divergence(r: ScenarioResults) -> Verdict:
     """Sensors in a class of Ā that cannot see a mode |λ| ≥ 1 are bounded below, pathwise, by their class's
     centralized filter, whose covariance diverges (rate 2 log|λ|; linearly when |λ| = 1)."""
@@ -48,7 +50,9 @@ def check_divergence(r: ScenarioResults) -> Verdict:
     return slack_verdict(slack, raw, detail)
 
 
-@claims.claim('kar-moura.thm26.alternative-a.{scenario}', 'Theorem 26 (a)', 'Under C.1 with a mode |λ| ≥ 1 no sensor sees, the pull-back from 0 dominates the (diverging) centralized filter from 0 along every path', 'inequality', hypotheses=hyp("c1", "undetectable-class"))
+@claims.claim("kar-moura.thm26.alternative-a.{scenario}", "Theorem 26 (a)",
+              "Under C.1 with a mode |λ| ≥ 1 no sensor sees, the pull-back from 0 dominates the (diverging) "
+              "centralized filter from 0 along every path", "inequality", hypotheses=hyp("c1", "undetectable-class"))
 def check_dichotomy_divergent(r: ScenarioResults) -> Verdict:
     """Theorem 26, alternative (a) where a mode |λ| ≥ 1 is unseen: the pull-back from 0 dominates the
     centralized filter from 0 along every backward path (monotone maps, f_all ⪯ f_n) and grows with T;
@@ -81,7 +85,9 @@ def exceed_curve(r: ScenarioResults, t0: int) -> np.ndarray:
     return ex[rows].max(axis=0) / r.runs
 
 
-@claims.claim('kar-moura.thm10-iii.bounded.{scenario}', 'Theorem 10[iii], eqs (26), (27)', 'P(P̂_n(t) ∈ S) ≤ N μ_t(S) for S = {‖X‖ ≥ J} (exact finite-t form of (27)); tightness (26) reported', 'statistical', hypotheses=THEOREM + hyp("random-protocol"))
+@claims.claim("kar-moura.thm10-iii.bounded.{scenario}", "Theorem 10[iii], eqs (26), (27)",
+              "P(P̂_n(t) ∈ S) ≤ N μ_t(S) for S = {‖X‖ ≥ J} (exact finite-t form of (27)); tightness (26) reported",
+              "statistical", hypotheses=THEOREM + hyp("random-protocol"))
 def check_bounded(r: ScenarioResults) -> Verdict:
     """(27) in its exact finite-t form P(P̂_n(t) ∈ S) = N P(P̃(t) ∈ S, p̃(t−1) = n) ≤ N μ_t(S), for
     S = {‖X‖ ≥ J}, at the last record times; (26) (tightness) is reported with the sampled curve."""
@@ -119,7 +125,9 @@ def check_bounded(r: ScenarioResults) -> Verdict:
                            f"finite horizons can be checked and means are not claimed (they may be infinite)."))
 
 
-@claims.claim('kar-moura.thm10-ii.token-domination.{scenario}', 'Theorem 10[ii], eqs (23)-(25), proof (72)-(84)', 'P(P_n(T) ∈ S) ≤ P(Q^s(T) ∈ S) + d_v(p_n(s), U) for upward-closed S (finite-T form of limsup_t P(P_n(t) ∈ S) ≤ μ(S))', 'statistical', hypotheses=THEOREM + hyp("exact-abar", "random-protocol"))
+@claims.claim("kar-moura.thm10-ii.token-domination.{scenario}", "Theorem 10[ii], eqs (23)-(25), proof (72)-(84)",
+              "P(P_n(T) ∈ S) ≤ P(Q^s(T) ∈ S) + d_v(p_n(s), U) for upward-closed S (finite-T form of limsup_t P(P_n(t) "
+              "∈ S) ≤ μ(S))", "statistical", hypotheses=THEOREM + hyp("exact-abar", "random-protocol"))
 def check_token_domination(r: ScenarioResults) -> Verdict:
     """(23)-(25) at the finite horizon T, in the form the proof gives ((72)-(84)): for an upward-closed S
     and any s ≤ T, P(P_n(T) ∈ S) ≤ P(P^s_n(T) ∈ S) ≤ P(Q^s(T) ∈ S) + d_v(p_n(s), U), where Q^s(T) is the
@@ -166,7 +174,9 @@ def check_token_domination(r: ScenarioResults) -> Verdict:
                            + "; ".join(obs) + "."))
 
 
-@claims.claim('kar-moura.eq29.sensor-sum.{scenario}', 'eq (29)', 'Σ_n P(P̂_n(t) ∈ S) = N μ_t(S) (the unproven (29) holds with equality)', 'statistical', hypotheses=THEOREM + hyp("random-protocol"))
+@claims.claim("kar-moura.eq29.sensor-sum.{scenario}", "eq (29)",
+              "Σ_n P(P̂_n(t) ∈ S) = N μ_t(S) (the unproven (29) holds with equality)", "statistical",
+              hypotheses=THEOREM + hyp("random-protocol"))
 def check_eq29(r: ScenarioResults) -> Verdict:
     """(29) with equality at finite t: Σ_n P(P̂_n(t) ∈ S) = N μ_t(S) for S = {‖X‖ ≥ J}; the per-run
     fraction of sensors in S has mean μ_t(S), so Hoeffding's two-sample bound gives exact-level tests."""
@@ -190,7 +200,9 @@ def check_eq29(r: ScenarioResults) -> Verdict:
                                 f"thresholds, Bonferroni: " + ("; ".join(lines) or "every fraction is 0")))
 
 
-@claims.claim('kar-moura.thm8.initial-law.{scenario}', 'Theorem 8 / Theorem 12', 'P̃(t) ⇒ μ from any initial law (δ0, δ_cI, Wishart; finite-T allowance from coupling)', 'statistical', hypotheses=THEOREM)
+@claims.claim("kar-moura.thm8.initial-law.{scenario}", "Theorem 8 / Theorem 12",
+              "P̃(t) ⇒ μ from any initial law (δ0, δ_cI, Wishart; finite-T allowance from coupling)", "statistical",
+              hypotheses=THEOREM)
 def check_initial_law(r: ScenarioResults) -> Verdict:
     """Theorem 8 at the finite horizon T: P̃(T) from ν ∈ {δ_0, δ_cI, Wishart} vs from δ_P0. For a
     Loewner-monotone feature h and 0 ⪯ X0 ⪯ cI, h(φ(T, ω, 0)) ≤ h(φ(T, ω, X0)) ≤ h(φ(T, ω, cI)), so the
@@ -231,7 +243,9 @@ def check_initial_law(r: ScenarioResults) -> Verdict:
                            + "; ".join(lines) + f". Burn-in diagnostic: {cpl_txt}."))
 
 
-@claims.claim('kar-moura.lemma23.pullback.{scenario}', 'Lemma 23, eq (108); Theorem 26(b)', 'Forward and pull-back iterates agree in law; the pull-back from 0 is monotone along every path', 'statistical', hypotheses=THEOREM)
+@claims.claim("kar-moura.lemma23.pullback.{scenario}", "Lemma 23, eq (108); Theorem 26(b)",
+              "Forward and pull-back iterates agree in law; the pull-back from 0 is monotone along every path",
+              "statistical", hypotheses=THEOREM)
 def check_pullback(r: ScenarioResults) -> Verdict:
     """Lemma 23 / (108): forward and pull-back iterates have the same law at every t (exact); Theorem 26(b):
     the pull-back from 0 is non-decreasing in T along every backward path (f monotone, f(0) = Q ⪰ 0)

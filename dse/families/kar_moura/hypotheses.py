@@ -28,21 +28,24 @@ def hyp_c1(r: ScenarioDesign) -> Holds:
                          + ("" if bool(b["Abar_exact"]) else " (Ā estimated; the structure is exact)")))
 
 
-@claims.hypothesis("kar-moura.hyp.s1.{scenario}", "S.1: (F, Q^½) stabilisable, with Q ≻ 0 as the proofs use ({scenario})")
+@claims.hypothesis("kar-moura.hyp.s1.{scenario}",
+                   "S.1: (F, Q^½) stabilisable, with Q ≻ 0 as the proofs use ({scenario})")
 def hyp_s1(r: ScenarioDesign) -> Holds:
     lam = float(np.linalg.eigvalsh(r.scenario.Q)[0])
     return Holds(lam > 0, value=lam, threshold=0.0,
                  detail=f"λ_min(Q) = {lam:.4g}: Q ≻ 0, which the proofs use and which makes (F, Q^½) stabilisable")
 
 
-@claims.hypothesis("kar-moura.hyp.d1.{scenario}", "D.1: some Ā-walk has an invertible observability Gramian ({scenario})")
+@claims.hypothesis("kar-moura.hyp.d1.{scenario}",
+                   "D.1: some Ā-walk has an invertible observability Gramian ({scenario})")
 def hyp_d1(r: ScenarioDesign) -> Holds:
     d = r.assume.d1
     return Holds(d.holds, value=float(d.search.ratio), threshold=wd.CERTAIN_RATIO,
                  detail=f"{d.how}; {d.search.walks_checked} walks of length ≤ {WITNESS_MAX_LEN} searched")
 
 
-@claims.hypothesis("kar-moura.hyp.witness.{scenario}", "a witness walk w0 of D.1 is recorded (search depth 6) ({scenario})")
+@claims.hypothesis("kar-moura.hyp.witness.{scenario}",
+                   "a witness walk w0 of D.1 is recorded (search depth 6) ({scenario})")
 def hyp_witness(r: ScenarioDesign) -> Holds:
     s = r.assume.d1.search
     return Holds(s.witness is not None, value=len(s.witness) if s.witness else None, threshold=WITNESS_MAX_LEN,
@@ -59,7 +62,8 @@ def hyp_exact_abar(r: ScenarioDesign) -> Holds:
                  f"Ā is a Monte Carlo estimate ({int(b['Abar_draws']):,} matchings of the greedy protocol)")
 
 
-@claims.hypothesis("kar-moura.hyp.undetectable-class.{scenario}", "some class of Ā cannot detect a mode |λ| ≥ 1 ({scenario})")
+@claims.hypothesis("kar-moura.hyp.undetectable-class.{scenario}",
+                   "some class of Ā cannot detect a mode |λ| ≥ 1 ({scenario})")
 def hyp_undetectable(r: ScenarioDesign) -> Holds:
     a = r.assume
     rows = [f"class {i}: " + ("undecided" if bl is None else (", ".join(f"|λ| = {abs(x):.4g}" for x in bl) or "sees every |λ| ≥ 1"))
@@ -68,7 +72,8 @@ def hyp_undetectable(r: ScenarioDesign) -> Holds:
                  detail="modes |λ| ≥ 1 on the unobservable subspace of each class of Ā: " + "; ".join(rows))
 
 
-@claims.hypothesis("kar-moura.hyp.random-protocol.{scenario}", "the matchings A(t) are i.i.d. draws of one law (not a replayed sequence) ({scenario})")
+@claims.hypothesis("kar-moura.hyp.random-protocol.{scenario}",
+                   "the matchings A(t) are i.i.d. draws of one law (not a replayed sequence) ({scenario})")
 def hyp_random_protocol(r: ScenarioDesign) -> Holds:
     p = r.scenario.protocol
     return Holds(p.random, value=None, threshold=None,
@@ -79,7 +84,8 @@ def hyp_random_protocol(r: ScenarioDesign) -> Holds:
                          "A(t) over one cycle"))
 
 
-@claims.hypothesis("kar-moura.hyp.same-abar.{scenario}", "the two protocols have the same Ā ({scenario})", when=role("comparison"))
+@claims.hypothesis("kar-moura.hyp.same-abar.{scenario}", "the two protocols have the same Ā ({scenario})",
+                   when=role("comparison"))
 def hyp_same_abar(r: ScenarioDesign) -> Holds:
     sc = r.scenario
     A, B = (exact_mean(p, sc) for p in (sc.protocol, sc.comparison_protocol))
