@@ -29,7 +29,8 @@ import numpy as np
 from .gikf_maps import (GossipSystem, covariance_features, error_norm, factor_features, factor_psd,
                             propagate_error, riccati_roundoff, riccati_sqrt_step, riccati_step)
 
-__all__ = ["LazyChain", "sample_chain", "sample_protocol_chain", "switched_riccati", "pullback", "coupling_gap", "exact_small_t_law"]
+__all__ = ["LazyChain", "sample_chain", "sample_protocol_chain", "switched_riccati", "pullback", "coupling_gap", "exact_small_t_law",
+           "trace_law_atoms", "chain_paths"]
 
 
 class LazyChain:
@@ -226,3 +227,34 @@ def exact_small_t_law(sys: GossipSystem, Abar: np.ndarray, t: int, X0: np.ndarra
     keys = np.array(sorted(atoms))
     probs = np.array([atoms[k] for k in keys])
     return keys, probs / probs.sum()
+
+
+def trace_law_atoms(sys_: GossipSystem, Abar: np.ndarray, t: int, X0: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact law of log tr P̃(t) from X0, enumerating every Ā-path at once (probability (1/N)ΠĀ): the atoms
+    (ascending; values closer than tol merged) and their probabilities."""
+    N = len(Abar)
+    paths = np.array(list(itertools.product(range(N), repeat=t)))
+    prob = np.full(len(paths), 1.0 / N)
+    for k in range(1, t):
+        prob *= Abar[paths[:, k - 1], paths[:, k]]
+    paths, prob = paths[prob > 0], prob[prob > 0]
+    X = np.broadcast_to(X0, (len(paths),) + X0.shape).copy()
+    for k in range(t):
+        X = apply_maps(sys_, X, paths[:, k])
+    v = np.log(np.trace(X, axis1=-2, axis2=-1))
+    order = np.argsort(v)
+    v, prob = v[order], prob[order]
+    group = np.cumsum(np.concatenate([[True], np.diff(v) > tol])) - 1
+    return v[np.flatnonzero(np.concatenate([[True], np.diff(v) > tol]))], np.bincount(group, weights=prob)
+
+
+def chain_paths(Abar: np.ndarray, length: int) -> tuple[np.ndarray, np.ndarray]:
+    """All Ā-paths (i_1, ..., i_L) with positive kernel weight Π_r Ā[i_r, i_(r+1)] (any i_1), and the weights."""
+    N = len(Abar)
+    paths = np.arange(N)[:, None]
+    w = np.ones(N)
+    for _ in range(length - 1):
+        parent, child = np.nonzero(Abar[paths[:, -1]] > 0)
+        w = w[parent] * Abar[paths[parent, -1], child]
+        paths = np.hstack([paths[parent], child[:, None]])
+    return paths, w

@@ -8,7 +8,6 @@ claims use (filterpy's centralized filter, the lifted window chain's stationary 
 """
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -17,8 +16,8 @@ import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily
 import dse.estimators.kalman as kal
 import dse.estimators.walk_detectability as wd
 from dse.contract.stages import stage
-from dse.estimators.gikf_maps import (EPS, GossipSystem, error_norm, lyapunov_roundoff, lyapunov_step,
-                                          propagate_error, riccati_roundoff)
+from dse.estimators.gikf_maps import GossipSystem
+from dse.estimators.gikf_roundoff import centralized_filter, lyapunov_envelope
 
 from .assumptions import accurate_range, mean_adjacency
 from .scenario import GossipKalmanFile
@@ -31,18 +30,6 @@ FILTERPY_STEPS = 300
 #: arrays that may hold NaN (not computed) or inf (beyond float64)
 PARTIAL = ("beta_multi", "beta_single", "lifted_printed", "alpha0_multi", "envelope", "envelope_err", "P_floor",
            "P_floor_err", "P_central", "P_central_err", "P_central_filterpy")
-
-
-def centralized(F, C, Q, R, P0, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Prior covariances, update gains and the first-order round-off bound of a centralized filter
-    (Joseph form, `riccati_roundoff` carried along the recursion)."""
-    cov = kal.kalman_covariances(F, C, Q, R, P0, steps)
-    E = np.zeros_like(cov.P_prior)
-    r_min = float(np.linalg.eigvalsh(R)[0])
-    for t in range(steps - 1):
-        delta, G = riccati_roundoff(cov.P_prior[t], cov.gains[t], C, R, F, Q, r_min=r_min)
-        E[t + 1] = propagate_error(E[t], G, delta)
-    return cov.P_prior, cov.gains, error_norm(E)
 
 
 @stage(allow_nonfinite=PARTIAL)
@@ -93,7 +80,7 @@ def bounds(sc: GossipKalmanFile, slots: int, checks: bool) -> dict[str, np.ndarr
     if search.witness is not None:
         _witness_bounds(out, sys_, search, Abar, Abar_exact, slots, checks)
     # centralized reference (same P0): our recursion with its round-off bound, filterpy, and the DARE
-    P_c, K_c, err_c = centralized(F, sys_.C_all, sc.Q, sys_.R_all, sc.P0, slots + 1)
+    P_c, K_c, err_c = centralized_filter(F, sys_.C_all, sc.Q, sys_.R_all, sc.P0, slots + 1)
     out["P_central"], out["K_central"], out["P_central_err"] = P_c, K_c, err_c
     if checks:
         out["P_central_filterpy"] = _filterpy_prior(sc, sys_, min(slots, FILTERPY_STEPS) + 1)
@@ -107,35 +94,12 @@ def bounds(sc: GossipKalmanFile, slots: int, checks: bool) -> dict[str, np.ndarr
             Pk, ek = P_c, err_c
         else:
             with np.errstate(over="ignore", invalid="ignore"):
-                Pk, _, ek = centralized(F, sys_.C[idx].reshape(-1, sc.M), sc.Q, scipy.linalg.block_diag(*sys_.R[idx]),
+                Pk, _, ek = centralized_filter(F, sys_.C[idx].reshape(-1, sc.M), sc.Q, scipy.linalg.block_diag(*sys_.R[idx]),
                                          sc.P0, slots + 1)
         floor[:, c], floor_err[:, c] = Pk, ek
     out["P_floor"], out["P_floor_err"] = floor, floor_err
     out["envelope_log"], out["envelope"], out["envelope_err"] = lyapunov_envelope(F, sc.Q, sc.P0, slots)
     return {k: np.asarray(v) for k, v in out.items()}
-
-
-def lyapunov_envelope(F: np.ndarray, Q: np.ndarray, P0: np.ndarray, slots: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """f_0^t(P0), t = 0..slots (eq (73)), rescaled: (log s_t, E_t, e_t) with f_0^t(P0) = s_t E_t, ‖E_t‖ = 1
-    (or E_t = 0 when P0 = 0 at t = 0), and e_t a bound of the round-off of E_t (relative to s_t). The scaled
-    recursion E' = (F E Fᵀ + Q/s_t)/‖·‖ stays finite over any horizon, however fast F grows."""
-    M = F.shape[0]
-    logs, units, errs = np.empty(slots + 1), np.empty((slots + 1, M, M)), np.empty(slots + 1)
-    n0 = float(np.linalg.norm(P0, 2))
-    logs[0], units[0] = (math.log(n0), P0 / n0) if n0 > 0 else (0.0, np.zeros((M, M)))
-    # the rescaling rounds too: each division by the norm (eps relative), and exp(log s_t) carries the rounding of
-    # log s_t, eps·|log s_t| relative
-    E_err = EPS * np.eye(M)
-    errs[0] = float(error_norm(E_err)) + M * EPS * (2 + abs(logs[0]))
-    for t in range(slots):
-        Qs = math.exp(-logs[t]) * Q
-        delta, G = lyapunov_roundoff(units[t], F, Qs)
-        Y = lyapunov_step(units[t], F, Qs)
-        norm = float(np.linalg.norm(Y, 2))
-        E_err = propagate_error(E_err, G, delta) / norm + EPS * np.eye(M)
-        logs[t + 1], units[t + 1] = logs[t] + math.log(norm), Y / norm
-        errs[t + 1] = float(error_norm(E_err)) + M * EPS * (2 + abs(logs[t + 1]))
-    return logs, units, errs
 
 
 def envelope_matrix(bounds: dict, t: int) -> np.ndarray:

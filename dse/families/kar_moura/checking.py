@@ -35,6 +35,10 @@ def hyp(*names: str) -> tuple[str, ...]:
 #: what the theorem's conclusions rest on (S.1 always holds: validation requires Q ≻ 0)
 THEOREM = hyp("c1", "d1", "s1")
 
+ROUNDOFF_SENTENCE = ("Round-off allowance: the first-order bound e(t+1) = ‖FA‖²e(t) + 10·(4M+3m+4)·eps·(‖F‖²(‖A‖²‖X‖ + "
+                     "‖K‖²‖R‖) + ‖Q‖) of every Joseph-form step (A = I − KC; Frobenius norms), carried along each computed "
+                     "matrix and added for both sides of the comparison.")
+
 
 def feat(arr: np.ndarray, name: str) -> np.ndarray:
     return arr[FEAT[name]]

@@ -9,13 +9,14 @@ import math
 import numpy as np
 
 from dse.contract.claims import ClaimSet, role
+from dse.estimators.gikf_maps import error_norm
+from dse.estimators.gikf_roundoff import compose_with_error, fro, loewner_slack, spectral_norm
 from dse.verify.rules import EPS, ERRATUM, FAIL, PASS, Verdict, claim_confidence, not_checkable, roundoff_tolerance
 
 from . import stats as kst
 from .assumptions import accurate_range
 from .bounds import J_GRID
-from .checking import THEOREM, alpha, feat, hyp, ks_family, random_psd, slack_verdict
-from .loewner import ROUNDOFF_SENTENCE, compose_with_error, enorm, fro, loewner_slack, spectral_norm
+from .checking import ROUNDOFF_SENTENCE, THEOREM, alpha, feat, hyp, ks_family, random_psd, slack_verdict
 from .results import ScenarioResults
 
 claims = ClaimSet()
@@ -33,7 +34,7 @@ def check_lemma14(r: ScenarioResults) -> Verdict:
     cs = np.array([1e2, 1e4, 1e6, 1e8])
     X = np.concatenate([X, cs[:, None, None] * np.eye(sys_.M)])
     g, e = compose_with_error(sys_, X, w, EPS * fro(X))
-    e = enorm(e)
+    e = error_norm(e)
     S = b["sigma_sub"]
     tol_S, how = sigma_sub_tolerance(r)
     s1, m1 = loewner_slack(g, np.broadcast_to(S, g.shape), e + tol_S)
@@ -67,7 +68,7 @@ def check_lemma14_printed(r: ScenarioResults) -> Verdict:
     w = r.assume.d1.search.witness
     c = min(1e8, accurate_range(r.scenario))
     g, e = compose_with_error(sys_, c * np.eye(sys_.M)[None], w, EPS * c)
-    e = enorm(e)
+    e = error_norm(e)
     tol_S, _ = sigma_sub_tolerance(r)
     sp, mp = loewner_slack(g[0], b["sigma_sub_printed"], e[0] + tol_S)
     scor, mc = loewner_slack(g[0], b["sigma_sub"], e[0] + tol_S)

@@ -11,9 +11,8 @@ import numpy as np
 import dse.estimators.switched_riccati as sr
 import dse.estimators.walk_detectability as wd
 from dse.contract.claims import ClaimSet, example
-from dse.estimators.gikf_maps import GossipSystem, riccati_step, riccati_textbook
+from dse.estimators.gikf_maps import FEATURES, GossipSystem, riccati_step, riccati_textbook
 from dse.estimators.gikf_monte_carlo import QUANTILES
-from dse.estimators.gikf_maps import FEATURES
 from dse.verify.rules import ERRATUM, FAIL, PASS, Verdict, claim_confidence, not_checkable, roundoff_tolerance
 
 from . import stats as kst
@@ -227,18 +226,6 @@ TV_S = (1, 2, 5, 10, 20, 40)  # the proof takes s > 0
 TV_LEN = (1, 2, 3, 4, 6)
 
 
-def kernel_paths(Abar: np.ndarray, length: int) -> tuple[np.ndarray, np.ndarray]:
-    """All Ā-paths (i_1, ..., i_L) with positive kernel weight Π_r Ā[i_r, i_(r+1)] (any i_1), and the weights."""
-    N = len(Abar)
-    paths = np.arange(N)[:, None]
-    w = np.ones(N)
-    for _ in range(length - 1):
-        parent, child = np.nonzero(Abar[paths[:, -1]] > 0)
-        w = w[parent] * Abar[paths[parent, -1], child]
-        paths = np.hstack([paths[parent], child[:, None]])
-    return paths, w
-
-
 @claims.claim("kar-moura.eq82.tv-step", "eqs (78)-(84)",
               "d_v(P^s_n(t), Q^s(t)) ≤ N d_v(p_n(s), q(s)) (exact total variation over the finite supports)",
               "inequality", when=example("e1"), scope="paper-example", args=("e1",))
@@ -257,7 +244,7 @@ def check_tv_step(res: Results, name: str) -> Verdict:
         pi = np.linalg.matrix_power(Abar, s)
         dv = 0.5 * np.abs(pi - 1.0 / N).sum(axis=1)
         for L in TV_LEN:
-            paths, w = kernel_paths(Abar, L)
+            paths, w = sr.chain_paths(Abar, L)
             n_sum = max(n_sum, len(paths))
             X = np.broadcast_to(envelope_matrix(b, s), (len(paths), sc.M, sc.M)).copy()
             for k in range(L):

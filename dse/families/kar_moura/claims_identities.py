@@ -5,20 +5,17 @@ in its exact finite-t form (Theorem 10[i], eqs (60)-(67)) and per sensor, the ce
 """
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 
 import dse.estimators.switched_riccati as sr
 import dse.estimators.walk_detectability as wd
 from dse.contract.claims import ClaimSet
-from dse.estimators.gikf_maps import GossipSystem
+from dse.estimators.gikf_roundoff import fro, loewner_slack, spectral_norm
 from dse.simulate.stats import chi2_two_sided_p
 from dse.verify.rules import EPS, FAIL, PASS, Verdict, inequality, not_checkable, p_value_test, roundoff_tolerance
 
 from . import stats as kst
-from .checking import KS_FEATURES, feat, fsample, hyp, ks_family, slack_verdict, tidx, with_detail
-from .loewner import ROUNDOFF_SENTENCE, fro, loewner_slack, spectral_norm
+from .checking import ROUNDOFF_SENTENCE, KS_FEATURES, feat, fsample, hyp, ks_family, slack_verdict, tidx, with_detail
 from .results import ScenarioResults
 
 claims = ClaimSet()
@@ -76,24 +73,6 @@ def check_d1(r: ScenarioResults) -> Verdict:
     return Verdict(PASS if consistent else FAIL, measured=d.holds, reference=expected, detail=detail)
 
 
-def path_atoms(sys_: GossipSystem, Abar: np.ndarray, t: int, X0: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact law of log tr P̃(t): one value per Ā-path (probability (1/N)ΠĀ), values closer than tol merged."""
-    N = len(Abar)
-    paths = np.array(list(itertools.product(range(N), repeat=t)))
-    prob = np.full(len(paths), 1.0 / N)
-    for k in range(1, t):
-        prob *= Abar[paths[:, k - 1], paths[:, k]]
-    paths, prob = paths[prob > 0], prob[prob > 0]
-    X = np.broadcast_to(X0, (len(paths),) + X0.shape).copy()
-    for k in range(t):
-        X = sr.apply_maps(sys_, X, paths[:, k])
-    v = np.log(np.trace(X, axis1=-2, axis2=-1))
-    order = np.argsort(v)
-    v, prob = v[order], prob[order]
-    group = np.cumsum(np.concatenate([[True], np.diff(v) > tol])) - 1
-    return v[np.flatnonzero(np.concatenate([[True], np.diff(v) > tol]))], np.bincount(group, weights=prob)
-
-
 def small_t_law_tests(r: ScenarioResults) -> tuple[list[tuple[str, float]], list[str]]:
     """Exact binomial tests of the GIKF frequency of every atom of law(P̃(t)) at t = 1, 2 (paths
     enumerated; t = 2 needs the exact Ā, t = 1 is uniform over the sensors whatever Ā is)."""
@@ -104,7 +83,7 @@ def small_t_law_tests(r: ScenarioResults) -> tuple[list[tuple[str, float]], list
     for t in (1, 2):
         if t not in list(g["times"]) or sc.N ** t > 400 or (t > 1 and not bool(r.bounds["Abar_exact"])):
             continue
-        atoms, probs = path_atoms(sys_, r.bounds["Abar"], t, sc.P0, tol)
+        atoms, probs = sr.trace_law_atoms(sys_, r.bounds["Abar"], t, sc.P0, tol)
         obs = kst.finite(feat(g["feat_q"][tidx(r, t)], "log_trace"))
         nearest = np.clip(np.searchsorted(atoms, obs), 1, len(atoms) - 1) if len(atoms) > 1 else np.zeros(len(obs), int)
         if len(atoms) > 1:

@@ -11,13 +11,14 @@ import numpy as np
 
 import dse.estimators.walk_detectability as wd
 from dse.contract.claims import ClaimSet, role
-from dse.estimators.gikf_maps import gikf_covariance_step, lyapunov_roundoff, lyapunov_step
+from dse.estimators.gikf_maps import error_norm, gikf_covariance_step, lyapunov_roundoff, lyapunov_step
+from dse.estimators.gikf_roundoff import compose_with_error, fro, loewner_slack, spectral_norm
 from dse.estimators.gossip_protocols import matching_at
-from dse.verify.rules import EPS, ERRATUM, FAIL, PASS, Verdict, inequality, not_checkable, p_value_test, roundoff_tolerance
+from dse.verify.rules import (EPS, ERRATUM, FAIL, PASS, Verdict, inequality, not_checkable, p_value_test,
+                              roundoff_tolerance)
 
 from . import stats as kst
-from .checking import hyp, random_psd, slack_verdict
-from .loewner import ROUNDOFF_SENTENCE, compose_with_error, enorm, fro, loewner_slack, spectral_norm
+from .checking import ROUNDOFF_SENTENCE, hyp, random_psd, slack_verdict
 from .results import ScenarioResults
 
 claims = ClaimSet()
@@ -49,13 +50,13 @@ def check_lemma11(r: ScenarioResults) -> Verdict:
         XZ = X + Z
         gX, eX = compose_with_error(sys_, X, seq, 0.0)
         gXZ, eXZ = compose_with_error(sys_, XZ, seq, EPS * fro(XZ))
-        add("monotone", *loewner_slack(gX, gXZ, enorm(eX) + enorm(eXZ)))
+        add("monotone", *loewner_slack(gX, gXZ, error_norm(eX) + error_norm(eXZ)))
         Xp = X[50:] + 1e-3 * np.eye(M)
         lam = rng.uniform(0.05, 0.95, len(Xp))[:, None, None]
         g1, e1 = compose_with_error(sys_, Xp, seq, EPS * fro(Xp))
         g2, e2 = compose_with_error(sys_, lam * Xp, seq, 2 * EPS * fro(lam * Xp))
         lower = lam * g1 + (1 - lam) * Q
-        tol = enorm(e2) + lam[:, 0, 0] * enorm(e1) + 4 * EPS * (fro(g2) + fro(lam * g1) + fro(Q))
+        tol = error_norm(e2) + lam[:, 0, 0] * error_norm(e1) + 4 * EPS * (fro(g2) + fro(lam * g1) + fro(Q))
         add("sublinear", *loewner_slack(lower, g2, tol))
     for n in range(N):
         X, Y = random_psd(rng, 300, M), random_psd(rng, 300, M)
@@ -65,11 +66,11 @@ def check_lemma11(r: ScenarioResults) -> Verdict:
         fY, eY = compose_with_error(sys_, Y, [n], 0.0)
         fM, eM = compose_with_error(sys_, mix, [n], 3 * EPS * fro(mix))
         lower = lam * fX + (1 - lam) * fY
-        tol = enorm(eM) + lam[:, 0, 0] * enorm(eX) + (1 - lam[:, 0, 0]) * enorm(eY) + 4 * EPS * (fro(fM) + fro(lower))
+        tol = error_norm(eM) + lam[:, 0, 0] * error_norm(eX) + (1 - lam[:, 0, 0]) * error_norm(eY) + 4 * EPS * (fro(fM) + fro(lower))
         add("concave", *loewner_slack(lower, fM, tol))
         f0 = lyapunov_step(X, sys_.F, Q)
         d0, _ = lyapunov_roundoff(X, sys_.F, Q)
-        add("f_n ⪯ f_0", *loewner_slack(fX, f0, enorm(eX) + d0))
+        add("f_n ⪯ f_0", *loewner_slack(fX, f0, error_norm(eX) + d0))
     v = slack_verdict(np.concatenate(slack), np.concatenate(raw),
                       ("smallest raw relative margins: " + ", ".join(f"{k} {x:.2e}" for k, x in worst.items())
                        + ". Strong sublinearity is checked with its explicit margin φ(λX) − λφ(X) ⪰ (1−λ)Q. " + ROUNDOFF_SENTENCE
@@ -142,7 +143,7 @@ def check_pathwise(r: ScenarioResults) -> Verdict:
             held = sensors[t + 1][rows, node]
             d = spectral_norm(tok - held)
             worst = max(worst, float((d / np.maximum(1, spectral_norm(held))).max()))
-            worst_ratio = max(worst_ratio, float((d / (2 * enorm(err) + EPS * spectral_norm(held))).max()))
+            worst_ratio = max(worst_ratio, float((d / (2 * error_norm(err) + EPS * spectral_norm(held))).max()))
             if variant == "printed":
                 loc = partners[t][rows, loc]          # π_{t+1}(n) = ->(π_t(n), t)
         errs[variant], ratio[variant] = worst, worst_ratio

@@ -11,13 +11,13 @@ import numpy as np
 
 from dse.contract.claims import ClaimSet
 from dse.estimators.gikf_monte_carlo import QUANTILES
+from dse.estimators.gikf_roundoff import spectral_norm
 from dse.verify.rules import FAIL, PASS, Verdict, claim_confidence, not_checkable, p_value_test
 
 from . import stats as kst
 from .bounds import J_GRID
-from .checking import (MONOTONE_FEATURES, THEOREM, alpha, feat, fsample, hyp, ks_family, ks_stat, resolved,
+from .checking import (ROUNDOFF_SENTENCE, MONOTONE_FEATURES, THEOREM, alpha, feat, fsample, hyp, ks_family, ks_stat, resolved,
                        slack_verdict, tidx, with_detail)
-from .loewner import ROUNDOFF_SENTENCE, spectral_norm
 from .results import ScenarioResults
 
 claims = ClaimSet()

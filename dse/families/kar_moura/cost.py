@@ -27,8 +27,8 @@ import math
 
 from dse.contract.cost import Cost
 from dse.contract.options import INTERPRETER_MIB, RunOptions
-from dse.estimators.gikf_monte_carlo import decimated_slots
 from dse.estimators.gikf_maps import FEATURES
+from dse.estimators.gikf_monte_carlo import decimated_slots
 from dse.simulate.units import RNG_UNIT
 
 from .assumptions import horizon

@@ -9,10 +9,11 @@ import math
 import numpy as np
 
 from dse.contract.stages import stage
+from dse.estimators.gikf_maps import error_norm
+from dse.estimators.gikf_roundoff import compose_with_error, loewner_slack, spectral_norm
 
 from .assumptions import accurate_range
 from .bounds import envelope_error, envelope_matrix
-from .loewner import compose_with_error, enorm, loewner_slack, spectral_norm
 from .scenario import GossipKalmanFile
 from .theorem8 import chain_sampler
 
@@ -48,7 +49,7 @@ def eq74(sc: GossipKalmanFile, b: dict, slots: int) -> dict[str, np.ndarray]:
                 E = np.concatenate([E, np.broadcast_to(envelope_error(b, t) * np.eye(M), (1, B, M, M))])
             started = [s_ for s_ in s_list if s_ <= t]
             if started:
-                sl, m = loewner_slack(X[0], X[1:], enorm(E[0]) + enorm(E[1:]))
+                sl, m = loewner_slack(X[0], X[1:], error_norm(E[0]) + error_norm(E[1:]))
                 slack.extend(sl)
                 raw.extend(m)
             if t == T:

@@ -12,11 +12,12 @@ import numpy as np
 import dse.estimators.switched_riccati as sr
 from dse.contract.stages import stage
 from dse.estimators.gikf_maps import covariance_features
+from dse.estimators.gikf_roundoff import centralized_filter
 from dse.simulate.seeding import stream_seed
 from dse.simulate.units import block_generator
 
 from .assumptions import accurate_range
-from .bounds import centralized, envelope_error, envelope_matrix
+from .bounds import envelope_error, envelope_matrix
 from .results import PULLBACK_LAW_T, record_times
 from .scenario import GossipKalmanFile
 
@@ -165,7 +166,7 @@ def pullback_divergent(sc: GossipKalmanFile, bounds: dict, seed: int) -> dict[st
         return out
     lo, err = np.array(lows), np.array(errs)
     _pullback_paths(out, lo, err, kept)
-    Pc, _, ec = centralized(sc.F, sys_.C_all, sc.Q, sys_.R_all, np.zeros((sc.M, sc.M)), max(kept) + 1)
+    Pc, _, ec = centralized_filter(sc.F, sys_.C_all, sc.Q, sys_.R_all, np.zeros((sc.M, sc.M)), max(kept) + 1)
     out["central_from_zero"] = Pc[kept]
     out["central_from_zero_err"] = ec[kept]
     out["pullback_vs_central"] = np.linalg.eigvalsh(lo - Pc[kept][:, None])[..., 0]   # (len(kept), 500)
