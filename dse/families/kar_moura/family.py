@@ -71,7 +71,8 @@ docs/papers/kar-moura.md."""
         return [load_scenario(name) for name in PAPER_SCENARIOS]
 
     def roles(self, scenario, paper):
-        """"full": the structural checks of maps, tokens and constants; "comparison": a second protocol is given."""
+        """The role "full" (the structural checks of maps, tokens and constants) and "comparison" (a second
+        protocol is given)."""
         roles = {"full"} if not paper or scenario.name in FULL_CHECKS else set()
         return frozenset(roles | ({"comparison"} if scenario.comparison_protocol is not None else set()))
 
