@@ -57,7 +57,8 @@ def fsample(arr: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
     return v, 1e3 * M * EPS * kappa
 
 
-def alpha() -> float:
+def error_level() -> float:
+    """The claim's error level (1 − its share of the report's family-wise confidence), split by its cells."""
     return 1.0 - claim_confidence()
 
 

@@ -16,7 +16,7 @@ from dse.verify.rules import EPS, ERRATUM, FAIL, PASS, Verdict, claim_confidence
 from . import stats as kst
 from .assumptions import accurate_range
 from .bounds import J_GRID
-from .checking import ROUNDOFF_SENTENCE, THEOREM, alpha, feat, hyp, ks_family, random_psd, slack_verdict
+from .checking import ROUNDOFF_SENTENCE, THEOREM, error_level, feat, hyp, ks_family, random_psd, slack_verdict
 from .results import ScenarioResults
 
 claims = ClaimSet()
@@ -117,7 +117,7 @@ def check_lemma15(r: ScenarioResults) -> Verdict:
     b, ref = r.bounds, r.reference
     lam = np.exp(kst.finite(feat(ref["features"][-1], "log_lam_max")))
     n = len(lam)
-    level = alpha() / len(J_GRID)
+    level = error_level() / len(J_GRID)
     worst, lines, ratios = math.inf, [], []
     for J, bs, bm in zip(J_GRID, b["beta_single"], b["beta_multi"]):
         k = int((lam > J).sum())

@@ -17,7 +17,7 @@ from dse.verify.rules import ERRATUM, FAIL, PASS, Verdict, claim_confidence, not
 
 from . import stats as kst
 from .bounds import envelope_matrix
-from .checking import FEAT, alpha, feat, random_psd, tidx
+from .checking import FEAT, error_level, feat, random_psd, tidx
 from .results import Results, ScenarioResults
 
 claims = ClaimSet()
@@ -50,7 +50,7 @@ def check_e7_token_domination_fails(r: ScenarioResults) -> Verdict:
     the two orbit points: P(P_0(t) ∈ S) is 1 at every other slot while μ_t(S) = 1/2, S = {tr X ≥ 2}."""
     ref, g = r.reference, r.gikf
     times = [int(t) for t in ref["times"]]
-    level = alpha() / 2
+    level = error_level() / 2
     best, lines = -math.inf, []
     for t in times[-2:]:
         holder = (t - 1) % 2
@@ -206,7 +206,7 @@ def check_reference_quantiles(res: Results, name: str) -> Verdict:
     cells = [("μ", q, v, tr) for q, v in MU_QUANTILES_E1.items()]
     cells += [(f"μ_{n} (last switch at sensor type {n})", q, v, tr[(last % 2) == n]) for n, row in MU_N_E1.items()
               for q, v in row.items()]
-    level = alpha() / len(cells)
+    level = error_level() / len(cells)
     lines, worst, ok = [], math.inf, True
     for label, q, v, x in cells:
         lo, hi = quantile_ci(x, q, level)

@@ -16,8 +16,8 @@ from dse.verify.rules import FAIL, PASS, Verdict, claim_confidence, not_checkabl
 
 from . import stats as kst
 from .bounds import J_GRID
-from .checking import (ROUNDOFF_SENTENCE, MONOTONE_FEATURES, THEOREM, alpha, feat, fsample, hyp, ks_family, ks_stat, resolved,
-                       slack_verdict, tidx, with_detail)
+from .checking import (MONOTONE_FEATURES, ROUNDOFF_SENTENCE, THEOREM, error_level, feat, fsample, hyp, ks_family,
+                       ks_stat, resolved, slack_verdict, tidx, with_detail)
 from .results import ScenarioResults
 
 claims = ClaimSet()
@@ -99,7 +99,7 @@ def check_bounded(r: ScenarioResults) -> Verdict:
     times = [int(t) for t in g["times"] if t >= 1][-2:]
     grid = J_GRID[::4]
     cells = [(t, J, n) for t in times for J in grid for n in range(N)]
-    level = alpha() / len(cells)
+    level = error_level() / len(cells)
     worst, lines = math.inf, []
     for t in times:
         lam_n = np.exp(feat(g["feat_n"][tidx(r, t)], "log_lam_max"))          # (runs, N)
@@ -140,7 +140,7 @@ def check_token_domination(r: ScenarioResults) -> Verdict:
     tokens = sorted({0, min(1, r.scenario.N - 1)})
     mu_T = ref["features"][-1]
     cells = [(n, f, q) for n in tokens for f in MONOTONE_FEATURES for q in (0.5, 0.9, 0.99)]
-    level = alpha() / len(cells)
+    level = error_level() / len(cells)
     worst, lines = math.inf, []
     for i_tok, n in enumerate(tokens):
         tok = aux[f"token{n}"][-1]
@@ -215,7 +215,7 @@ def check_initial_law(r: ScenarioResults) -> Verdict:
     met = cpl <= 1e-9
     ref_T = ref["features"][-1]
     cells = [(label, f) for label in ("zero", "huge", "wishart") for f in MONOTONE_FEATURES + ("log_det",)]
-    level = alpha() / len(cells)
+    level = error_level() / len(cells)
     delta = kst.cp_upper(int((~met).sum()), len(cpl), level / 3)
     outside = float((aux["wishart_lam_max"] > c).mean()) if "wishart_lam_max" in aux else 0.0
     big_P0 = float(np.linalg.norm(r.scenario.P0, 2)) > c

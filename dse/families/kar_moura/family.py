@@ -1,8 +1,10 @@
 """The gossip-kalman family: Kar & Moura's GIKF paper (our scenarios E1-E9) and any user scenario of
-the same kind. Its modules: scenario (the declared file), assumptions (C.1, D.1 and the blind modes),
-the stages bounds, gikf, theorem8 and eq74 (results holds what they give the claims), hypotheses and
-the claims_* modules (gathered in claims), tables, views (figures and recordings), cost, generator,
-and this one, which ties them together.
+the same kind. Its modules: scenario (the declared file), assumptions (C.1, D.1 and the blind modes,
+decided without Monte Carlo), the stages bounds (the design), gikf (the GIKF Monte Carlo), theorem8
+(the Theorem-8 process and the theorem's auxiliary samples) and eq74, results (what they give the
+claims), hypotheses and the claims_* modules with their shared checking and stats (gathered in
+claims), tables, views (figures and recordings), cost, generator, and this one, which ties them
+together.
 """
 from __future__ import annotations
 

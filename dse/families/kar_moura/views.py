@@ -372,7 +372,8 @@ def write_recording(v: ScenarioTables, path: Path, out: Outputs) -> None:
     """One scenario's recording on the shared scaffold (its claims: those whose id ends with its name)."""
     from dse.outputs.report import counts_line, verdict_counts
 
-    sc, run_id = v.sc, out.reproduction.paper_id
+    sc, repro = v.sc, out.reproduction
+    prefix = repro.paper_id if repro.is_paper else repro.family.id
     own = [c for c in out.claims if c["id"].endswith(f".{sc.name}")]
     summary = (f"# {sc.name}: {counts_line(verdict_counts(own))}\n\n{sc.description}\n\nseed {v.seed}, {v.runs:,} GIKF "
                f"runs, {v.reference_runs:,} Theorem-8 runs, {v.slots} slots")
@@ -381,10 +382,9 @@ def write_recording(v: ScenarioTables, path: Path, out: Outputs) -> None:
         _log_matchings(rec, v)
         _log_runs(rec, v)
 
-    recording(path, out, recording_id=f"{run_id}-{sc.name}-seed{v.seed}", tabs=lambda: _tabs(v), timeline="k", log=log,
+    recording(path, out, recording_id=f"{prefix}-{sc.name}-seed{v.seed}", tabs=lambda: _tabs(v), timeline="k", log=log,
               properties={"runs": v.runs, "reference_runs": v.reference_runs, "slots": v.slots, "N": sc.N, "M": sc.M,
-                          "protocol": sc.protocol.kind, "graph": sc.network.kind},
-              summary=summary, claims=own, application_id=f"dse-{run_id}")
+                          "protocol": sc.protocol.kind, "graph": sc.network.kind}, summary=summary, claims=own)
 
 
 def views(out: Outputs) -> list[View]:
