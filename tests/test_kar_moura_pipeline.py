@@ -20,7 +20,7 @@ import dse.families as families
 from dse.api import check, execute
 from dse.contract.cost import refuse_if_too_large
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.engine.cache import MemoryCache
 from dse.errors import ScenarioError
 from dse.families.kar_moura.cost import gikf_bytes_per_run

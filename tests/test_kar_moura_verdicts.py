@@ -14,7 +14,7 @@ import dse.estimators.switched_riccati as sr
 import dse.estimators.walk_detectability as wd
 import dse.families as families
 from dse.contract.options import RunOptions
-from dse.contract.stages import StageContext
+from dse.contract.context import StageContext
 from dse.engine.cache import StageCache
 from dse.engine.driver import evaluate_claims
 from dse.families.kar_moura import generator
