@@ -24,17 +24,18 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from dse.engine.atomic import atomic_write_text
-from dse.engine.cache import StageCache
-from dse.errors import OutputError
-from dse.engine.provenance import provenance
+from dse.contract.context import StageContext
+from dse.contract.cost import refuse_if_too_large
 from dse.contract.family import Reproduction
 from dse.contract.options import RunOptions
-from dse.contract.context import StageContext
+from dse.engine.atomic import atomic_write_text
+from dse.engine.cache import MemoryCache, StageCache
 from dse.engine.driver import evaluate_claims
+from dse.engine.provenance import provenance
+from dse.errors import OutputError
 from dse.outputs.report import verdict_counts, write_report
-from dse.simulate.units import peak_memory_mib
 from dse.outputs.tables import Tables, spec
+from dse.simulate.units import peak_memory_mib
 from dse.verify.rules import Evaluation
 
 
@@ -147,11 +148,6 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
     everything that determines them (the paper or the scenario as given, seed, trials, quick,
     and a fingerprint of the project's code and scenario files): an identical later run reads
     them back instead of re-checking, and loads the stage results only if it needs them."""
-    from dse.contract.cost import refuse_if_too_large
-    from dse.engine.cache import MemoryCache
-    from dse.families.legacy import wrap
-
-    repro = wrap(repro)   # TEMPORARY
     start = time.perf_counter()
     key = run_key(repro, opts, source)
     memo = _load_memo(Path(cache_dir), key) if cache_dir is not None else None
@@ -392,11 +388,7 @@ def check(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed:
           quick: bool = False, workers: int = 1) -> Check:
     """Validate a scenario and compute only its deterministic design stage (no Monte Carlo):
     the hypotheses are evaluated on the design, the design tables built, and the run's cost estimated."""
-    from dse.engine.cache import MemoryCache
-
-    from dse.families.legacy import wrap
-
-    repro = load(source) if isinstance(source, (str, os.PathLike, Mapping)) else wrap(source)
+    repro = load(source) if isinstance(source, (str, os.PathLike, Mapping)) else source
     opts = RunOptions(seed=seed, trials=trials, quick=quick, workers=workers)
     design = repro.design(opts, StageContext(MemoryCache()))
     hyps = [h.evaluate(design) for h in repro.hypotheses()]

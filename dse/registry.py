@@ -75,8 +75,3 @@ def from_dict(data: dict[str, Any]):
     body = {k: v for k, v in data.items() if k != "family"}
     return Reproduction(fam, is_paper=False, _scenarios=(fam.scenario_from_dict(body),))
 
-
-def family_from_dict(data: dict[str, Any]):
-    """TEMPORARY (tests of the families not yet ported): the old reproduction object of a user's scenario."""
-    run = from_dict(data)
-    return getattr(run.scenarios[0], "legacy", run)

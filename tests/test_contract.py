@@ -24,10 +24,6 @@ FAMILIES = registry.families()
 IDS = list(FAMILIES)
 
 
-def _is_legacy(family) -> bool:   # TEMPORARY: families not yet ported
-    return type(family).__module__ == "dse.families.legacy"
-
-
 @pytest.fixture
 def fresh_code_caches():
     """The code hashes are cached per process: clear them around a test that fakes an edit."""
@@ -101,7 +97,7 @@ def _stages(family) -> list[Stage]:
     return found
 
 
-@pytest.mark.parametrize("family_id", [f for f in IDS if not _is_legacy(FAMILIES[f])])
+@pytest.mark.parametrize("family_id", IDS)
 def test_stage_keys_follow_the_code_they_run(family_id, tmp_path, monkeypatch, fresh_code_caches):
     """Every stage's closure holds its own module and no claims module; faking an edit of a module
     deep in the closure changes the stage's code hash, and of a module outside it does not."""
@@ -134,5 +130,5 @@ def test_every_family_of_this_package_is_registered():
 
     root = Path(package.__path__[0])
     here = {d.name for d in root.iterdir() if (d / "family.py").is_file()}
-    registered = {(f.package if _is_legacy(f) else type(f).__module__).split(".")[2] for f in FAMILIES.values()}
+    registered = {type(f).__module__.split(".")[2] for f in FAMILIES.values()}
     assert here == registered

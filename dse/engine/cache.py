@@ -14,7 +14,7 @@ import json
 import shutil
 import sys
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -39,17 +39,6 @@ def _jsonable(x: Any) -> Any:
 
         return asdict(x)
     raise TypeError(f"cannot hash {type(x).__name__}")
-
-
-def code_fingerprint(modules: Iterable[str]) -> str:
-    """Hash of the source files of the given (imported) modules: a code change invalidates entries."""
-    h = hashlib.sha256()
-    for name in sorted(modules):
-        path = getattr(sys.modules[name], "__file__", None)
-        if path:
-            h.update(name.encode())
-            h.update(Path(path).read_bytes())
-    return h.hexdigest()[:16]
 
 
 PROJECT_PACKAGES = ("dse",)

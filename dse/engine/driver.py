@@ -34,9 +34,7 @@ def run(repro, out_root: Path, opts: RunOptions, *, out_dir: Path | None = None,
         source: dict[str, Any] | None = None, figures: bool = True) -> dict[str, Any]:
     """Compute, verify, write tables, figures, recordings and the report; return the summary counts."""
     from dse.api import execute
-    from dse.families.legacy import wrap
 
-    repro = wrap(repro)   # TEMPORARY
     out_dir = out_dir or out_root / repro.paper_id
     check_output_dir(out_root)
     result = execute(repro, opts, cache_dir=cache_for(out_root, repro.paper_id).root, source=source)
@@ -46,13 +44,8 @@ def run(repro, out_root: Path, opts: RunOptions, *, out_dir: Path | None = None,
 
 
 def evaluate_claims(repro, computed: Any, **confidence) -> Evaluation:
-    """The hypotheses (on the design) and claims (on the results) of one computed run (the paper's
-    own example claims only in the paper's reproduction); `confidence`: see `dse.verify.rules.evaluate`."""
-    from dse.contract.family import Computed
-
-    if not isinstance(computed, Computed):   # TEMPORARY: an old family's reproduction and its results
-        design_of = getattr(repro, "design_of", None)
-        computed = Computed(design_of(computed) if design_of is not None else None, computed)
+    """The hypotheses (on the design) and claims (on the results) of one computed run (`Computed`; the
+    paper's own example claims only in the paper's reproduction); `confidence`: see `dse.verify.rules.evaluate`."""
     return evaluate(repro.claims(), repro.hypotheses(), computed.results, paper_run=repro.is_paper,
                     design=computed.design, **confidence)
 
@@ -66,9 +59,7 @@ def reverify(repro, out_root: Path, out_dir: Path) -> tuple[list[dict], list[str
     """Re-check every claim from cached stage results only; list every difference from report.json
     in verdict, measured, reference or margin (numbers within REVERIFY_RTOL)."""
     from dse.contract.context import StageContext
-    from dse.families.legacy import wrap
 
-    repro = wrap(repro)   # TEMPORARY
     opts = RunOptions(**json.loads((out_dir / "run.json").read_text())["options"])
     computed = repro.compute(opts, StageContext(cache_for(out_root, repro.paper_id, read_only=True)))
     rows = evaluate_claims(repro, computed).claims
