@@ -68,7 +68,7 @@ def test_load_toml_errors(tmp_path):
                                   {"kind": "random_geometric", "n": 30, "radius": 0.4, "seed": 3},
                                   {"kind": "edges", "n": 4, "edges": [[0, 1], [1, 2], [2, 3], [3, 0]]}])
 def test_graph_kinds(spec):
-    g = graphs.GraphSpec.from_dict(spec)
+    g = graphs.graph(spec)
     G = g.build()
     assert sorted(G.nodes) == list(range(g.n)) and nx.is_connected(G)
     L = graphs.laplacian(G)
@@ -83,22 +83,13 @@ def test_graph_kinds(spec):
 
 def test_graph_errors():
     with pytest.raises(ScenarioError, match=r"^graph: graph is not connected"):
-        graphs.GraphSpec.from_dict({"kind": "edges", "n": 4, "edges": [[0, 1], [2, 3]]})
+        graphs.graph({"kind": "edges", "n": 4, "edges": [[0, 1], [2, 3]]})
     with pytest.raises(ScenarioError, match=r"^graph\.edges\[1\]: self-loop"):
-        graphs.GraphSpec.from_dict({"kind": "edges", "n": 3, "edges": [[0, 1], [2, 2]]})
+        graphs.graph({"kind": "edges", "n": 3, "edges": [[0, 1], [2, 2]]})
     with pytest.raises(ScenarioError, match=r"^graph\.kind: must be one of"):
-        graphs.GraphSpec.from_dict({"kind": "star", "n": 3})
+        graphs.graph({"kind": "star", "n": 3})
     with pytest.raises(ScenarioError, match=r"^graph\.radius: missing"):
-        graphs.GraphSpec.from_dict({"kind": "random_geometric", "n": 3})
-    G = nx.path_graph(3)
-    with pytest.raises(ScenarioError, match=r"^consensus\.eps: must be < 1/d_max"):
-        graphs.consensus_matrix_from_dict({"weights": "laplacian", "eps": 0.5}, "consensus", G)
-    with pytest.raises(ScenarioError, match=r"^consensus\.matrix: columns must sum to 1"):
-        graphs.consensus_matrix_from_dict({"weights": "matrix", "matrix": [[0.5, 0.5, 0], [0.5, 0.5, 0], [0, 0.5, 0.5]]},
-                                          "consensus", G)
-    with pytest.raises(ScenarioError, match=r"not an edge"):
-        graphs.consensus_matrix_from_dict({"weights": "matrix", "matrix": [[0.5, 0, 0.5], [0, 1, 0], [0.5, 0, 0.5]]},
-                                          "consensus", G)
+        graphs.graph({"kind": "random_geometric", "n": 3})
 
 
 @settings(max_examples=40, deadline=None)

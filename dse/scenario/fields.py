@@ -1,9 +1,7 @@
-"""Typed, validated scenario fields read from TOML.
-
-Every paper family describes its scenario as a frozen dataclass and builds it from a
-plain mapping (a parsed TOML file) with the readers below. Each reader checks one field
-and raises :class:`ScenarioError` naming that field, so a bad file produces exactly one
-clear line, e.g. ``noise.r: must be > 0, got -1.0``.
+"""Reading TOML files, and field readers for what is not a declared scenario (sweep files, an
+estimator's own parameters). A scenario file is validated by its family's declaration
+(`dse.scenario.declare`); each reader here checks one field and raises :class:`ScenarioError`
+naming it, so a bad file produces exactly one clear line, e.g. ``grid.model.r: must be > 0, got -1.0``.
 """
 from __future__ import annotations
 
@@ -124,14 +122,6 @@ def as_list(value: Any, field: str, *, min_len: int = 1) -> list:
     return value
 
 
-def as_float_tuple(value: Any, field: str, **bounds) -> tuple[float, ...]:
-    return tuple(as_float(v, f"{field}[{i}]", **bounds) for i, v in enumerate(as_list(value, field)))
-
-
-def as_int_tuple(value: Any, field: str, **bounds) -> tuple[int, ...]:
-    return tuple(as_int(v, f"{field}[{i}]", **bounds) for i, v in enumerate(as_list(value, field)))
-
-
 def as_matrix(value: Any, field: str, *, shape: tuple[int, int] | None = None,
               symmetric: bool = False, psd: bool = False, tol: float = 1e-9) -> np.ndarray:
     """A real matrix given as a list of equal-length rows of numbers."""
@@ -149,17 +139,3 @@ def as_matrix(value: Any, field: str, *, shape: tuple[int, int] | None = None,
     if psd and np.linalg.eigvalsh(M / 2 + M.T / 2).min() < -tol:
         raise ScenarioError(field, "must be positive semidefinite")
     return M
-
-
-def scenario_root(data: Any, *, allowed: Iterable[str], required: Iterable[str]) -> tuple[Mapping[str, Any], str]:
-    """The top level of a family's scenario: a table with only `allowed` keys, every
-    `required` section present, and a `name` usable as a file name (default "scenario")."""
-    data = section(data, "scenario")
-    reject_unknown(data, allowed)
-    for key in required:
-        if key not in data:
-            raise ScenarioError(key, "missing section")
-    name = as_str(data.get("name", "scenario"), "name")
-    if not name or not all(c.isalnum() or c in "-_" for c in name):
-        raise ScenarioError("name", f"must be a non-empty identifier of letters, digits, '-' and '_', got '{name}'")
-    return data, name

@@ -14,7 +14,7 @@ from pydantic import model_validator
 
 from dse.scenario.declare import Real, Section, key
 from dse.errors import ScenarioError
-from dse.scenario.fields import as_float, as_int, as_list, as_str, join, reject_unknown, section
+from dse.scenario.fields import join
 
 GRAPH_KINDS = ("line", "ring", "grid", "complete", "random_geometric", "edges")
 MAX_NODES = 10_000
@@ -31,41 +31,6 @@ class GraphSpec:
     radius: float = 0.0
     seed: int = 0
     edges: tuple[tuple[int, int], ...] = ()
-
-    @classmethod
-    def from_dict(cls, data: Any, field: str = "graph", *, require_connected: bool = True) -> "GraphSpec":
-        data = section(data, field)
-        kind = as_str(data.get("kind"), join(field, "kind"), GRAPH_KINDS) if "kind" in data else None
-        if kind is None:
-            raise ScenarioError(join(field, "kind"), f"missing (one of {', '.join(GRAPH_KINDS)})")
-        allowed = {"kind"} | {
-            "line": {"n"}, "ring": {"n"}, "complete": {"n"}, "grid": {"rows", "cols"},
-            "random_geometric": {"n", "radius", "seed"}, "edges": {"n", "edges"},
-        }[kind]
-        reject_unknown(data, allowed, field)
-        for key in allowed - {"kind"}:
-            if key not in data and key != "seed":
-                raise ScenarioError(join(field, key), f"missing (needed for kind '{kind}')")
-        kw: dict[str, Any] = {"kind": kind}
-        if kind == "grid":
-            kw["rows"] = as_int(data["rows"], join(field, "rows"), low=1, high=MAX_NODES)
-            kw["cols"] = as_int(data["cols"], join(field, "cols"), low=1, high=MAX_NODES)
-            kw["n"] = kw["rows"] * kw["cols"]
-            if kw["n"] > MAX_NODES:
-                raise ScenarioError(field, f"rows x cols = {kw['n']} nodes, more than the supported {MAX_NODES}")
-        else:
-            kw["n"] = as_int(data["n"], join(field, "n"), low=1, high=MAX_NODES)
-        if kind == "ring" and kw["n"] < 3:
-            raise ScenarioError(join(field, "n"), "a ring needs at least 3 nodes")
-        if kind == "random_geometric":
-            kw["radius"] = as_float(data["radius"], join(field, "radius"), low=0.0, low_open=True)
-            kw["seed"] = as_int(data.get("seed", 0), join(field, "seed"), low=0)
-        if kind == "edges":
-            kw["edges"] = _edge_list(data["edges"], join(field, "edges"), kw["n"])
-        spec = cls(**kw)
-        if require_connected and not spec.is_connected():
-            raise ScenarioError(field, "graph is not connected (the theorems need a connected graph)")
-        return spec
 
     def edge_array(self) -> np.ndarray:
         """The undirected edges (u < v) as an (E, 2) integer array, without building a networkx
@@ -146,18 +111,6 @@ class GraphSpec:
         return np.array([pos[i] for i in range(self.n)], dtype=float)
 
 
-def _edge_list(value: Any, field: str, n: int) -> tuple[tuple[int, int], ...]:
-    edges = []
-    for i, e in enumerate(as_list(value, field)):
-        if not (isinstance(e, list) and len(e) == 2):
-            raise ScenarioError(f"{field}[{i}]", "each edge must be a pair [u, v]")
-        u, v = (as_int(x, f"{field}[{i}]", low=0, high=n - 1) for x in e)
-        if u == v:
-            raise ScenarioError(f"{field}[{i}]", f"self-loop at node {u} is not allowed")
-        edges.append((min(u, v), max(u, v)))
-    return tuple(sorted(set(edges)))
-
-
 def nodes_and_edges(G: "nx.Graph | GraphSpec") -> tuple[int, np.ndarray]:
     """(n, (E, 2) edges) of a networkx graph or of a GraphSpec (whose deterministic kinds need no networkx)."""
     if hasattr(G, "edge_array"):
@@ -215,41 +168,6 @@ def check_consensus_matrix(Q: np.ndarray, field: str, *, tol: float = 1e-10, pri
         if second > 1 - 1e-9:
             raise ScenarioError(field, f"must be primitive (consensus needs |λ| < 1 for every eigenvalue but one; "
                                        f"second largest |λ| = {second:.6g})")
-
-
-def consensus_matrix_from_dict(data: Mapping[str, Any], field: str, G: "nx.Graph") -> np.ndarray:
-    """Build the consensus matrix of a scenario: ``{weights = "laplacian", eps = 0.4}``,
-    ``{weights = "metropolis"}`` or ``{weights = "matrix", matrix = [[...], ...]}``."""
-    from dse.scenario.fields import as_matrix
-
-    data = section(data, field)
-    kind = as_str(data.get("weights", "laplacian"), join(field, "weights"), ("laplacian", "metropolis", "matrix"))
-    n = G.number_of_nodes()
-    if kind == "laplacian":
-        reject_unknown(data, {"weights", "eps"}, field)
-        if "eps" not in data:
-            raise ScenarioError(join(field, "eps"), "missing (Laplacian step size)")
-        eps = as_float(data["eps"], join(field, "eps"), low=0.0, low_open=True)
-        dmax = max_degree(G)
-        if dmax and eps >= 1.0 / dmax:
-            raise ScenarioError(join(field, "eps"), f"must be < 1/d_max = {1.0 / dmax:.6g} so that Q is nonnegative and primitive, got {eps}")
-        Q = laplacian_consensus_weights(G, eps)
-    elif kind == "metropolis":
-        reject_unknown(data, {"weights"}, field)
-        Q = metropolis_weights(G)
-    else:
-        reject_unknown(data, {"weights", "matrix"}, field)
-        if "matrix" not in data:
-            raise ScenarioError(join(field, "matrix"), "missing")
-        Q = as_matrix(data["matrix"], join(field, "matrix"), shape=(n, n))
-        import networkx as nx
-
-        off_graph = (np.abs(Q) > 0) & ~(nx.to_numpy_array(G, nodelist=range(n)) > 0) & ~np.eye(n, dtype=bool)
-        if off_graph.any():
-            i, j = map(int, np.argwhere(off_graph)[0])
-            raise ScenarioError(join(field, "matrix"), f"entry [{i}][{j}] is nonzero but ({i},{j}) is not an edge")
-    check_consensus_matrix(Q, join(field, "matrix") if kind == "matrix" else field)
-    return Q
 
 
 # -- the [graph] and [consensus] tables, declared once for every family ------------------------------------
@@ -321,3 +239,9 @@ def graph_from_section(section: Any, field: str = "graph", *, connected: bool = 
         raise ScenarioError(field, "graph is not connected (the theorems need a connected graph)")
     return spec
 
+
+def graph(data: Mapping[str, Any], field: str = "graph", *, connected: bool = True, min_nodes: int = 1) -> GraphSpec:
+    """The graph of a plain `[graph]` table (a dict), validated by its declaration (`GraphSection`)."""
+    from dse.scenario.declare import parse
+
+    return graph_from_section(parse(GraphSection, data, field), field, connected=connected, min_nodes=min_nodes)

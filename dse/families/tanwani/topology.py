@@ -9,7 +9,7 @@ import numpy as np
 import dse.estimators.gossip_covariance as gc
 from dse.contract.stages import stage
 from dse.estimators.gossip_filter import GossipSystem
-from dse.scenario.graphs import GraphSpec
+from dse.scenario.graphs import GraphSpec, graph
 
 from .scenario import RandomCommFile
 
@@ -32,7 +32,7 @@ def compute_topology(sc: RandomCommFile, quick: bool = False) -> dict[str, np.nd
     lams = np.geomspace(0.3, 1e4, QUICK_TOPOLOGY_POINTS if quick else 20)
     out: dict[str, np.ndarray] = {"lams": lams}
     for name, g in TOPOLOGIES.items():
-        s = with_graph(sc.gossip, GraphSpec.from_dict(g))
+        s = with_graph(sc.gossip, graph(g))
         fied = float(np.sort(np.linalg.eigvalsh(s.laplacian))[1])
         out[f"{name}_alpha_fiedler"] = np.array(s.alpha * fied)
         S = gc.lyapunov_S(s)
