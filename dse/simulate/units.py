@@ -124,11 +124,17 @@ def block_generator(seed: np.random.SeedSequence) -> np.random.Generator:
     return np.random.Generator(np.random.SFC64(seed))
 
 
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+
+
 def _ignore_sigint() -> None:
     """Workers leave Ctrl-C to the parent, which stops them (no traceback per worker), and die
-    at once on SIGTERM (the parent's handler, inherited through fork, would unwind them)."""
+    at once on SIGTERM (the parent's handler, inherited through fork, would unwind them). They are
+    forked with both signals blocked (`parallel_map`), so that a signal that arrives before these
+    handlers are set waits for them instead of reaching the parent's handlers in the child."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
 
 
 def parallel_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, desc: str = "") -> list[R]:
@@ -142,7 +148,13 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, 
         return [fn(x) for x in progress(items, desc=desc)]
     import multiprocessing
 
-    pool = multiprocessing.get_context("fork").Pool(processes=min(workers, len(items)), initializer=_ignore_sigint)
+    # fork with SIGINT and SIGTERM blocked: a worker sets its own handlers before it can receive them (the
+    # parent's are delivered here, once the pool exists)
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+    try:
+        pool = multiprocessing.get_context("fork").Pool(processes=min(workers, len(items)), initializer=_ignore_sigint)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
     try:
         results = list(progress(pool.imap(fn, items), total=len(items), desc=desc))
     except BaseException:
