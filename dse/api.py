@@ -129,15 +129,30 @@ class Run:
     def _draw(self, staging: Path) -> None:
         """The family's views (figures and recordings), in forked workers when there are several."""
         from dse.contract.views import Outputs
+        from dse.outputs.figures import draw_all
 
         views = self.reproduction.views(Outputs(self.reproduction, self.results, self.tables, self.evaluation.claims,
                                                 self.provenance))
-        if len(views) == 1:
-            views[0].draw(staging / views[0].file)
-            return
-        from dse.outputs.figures import draw_all
+        draw_all([lambda g=g: [v.draw(staging / v.file) for v in g] for g in view_jobs(views, self.options.workers)],
+                 workers=self.options.workers)
 
-        draw_all([lambda v=v: v.draw(staging / v.file) for v in views], workers=self.options.workers)
+
+def view_jobs(views: list, workers: int) -> list[list]:
+    """The views in jobs for `workers` forked processes: views of one kind (file suffix: a PNG needs
+    matplotlib, a recording rerun) together, so that a worker imports one drawing library; with many
+    views, each kind in chunks of about a 2·workers-th of them (a worker that is done takes the next)."""
+    kinds: dict[str, list] = {}
+    for v in views:
+        kinds.setdefault(Path(v.file).suffix, []).append(v)
+    if len(views) >= 4 * workers:
+        size = -(-len(views) // (2 * workers))
+        return [g[i:i + size] for g in kinds.values() for i in range(0, len(g), size)]
+    jobs = list(kinds.values())
+    while jobs and len(jobs) < workers and max(len(g) for g in jobs) > 1:
+        largest = max(jobs, key=len)
+        jobs.remove(largest)
+        jobs += [largest[:len(largest) // 2], largest[len(largest) // 2:]]
+    return jobs
 
 
 def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLike | None = None,

@@ -85,16 +85,38 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
 
     def design(self, run, opts, ctx):
         """Every scenario's design stage (the hypotheses are decided on it)."""
-        design, cost = self.module("design"), self.module("cost")
-        out = ctx.run_many([(design.scenario_design, (sc, opts.quick, opts.seed), {}) for sc in run.scenarios],
-                           workers=opts.workers, weights=[cost.scenario_cost(sc, opts)["design_s"] for sc in run.scenarios],
-                           desc="random-comm-filter design")
-        return design.Design({sc.name: design.ScenarioDesign(sc, dict(r)) for sc, r in zip(run.scenarios, out)})
+        calls, weights = self._design_calls(run, opts)
+        return self._design(run, ctx.run_many(calls, workers=opts.workers, weights=weights,
+                                              desc="random-comm-filter design"))
 
     def simulate(self, run, opts, ctx, design):
         """The references and the Monte Carlo of every scenario, and (paper) the topology sweep on the main one;
         the heaviest stages first (by the cost model), in `opts.workers` processes."""
-        mc, refs, cost, results = (self.module(m) for m in ("monte_carlo", "references", "cost", "results"))
+        calls, weights = self._simulate_calls(run, opts)
+        return self._results(run, opts, design, ctx.run_many(calls, workers=opts.workers, weights=weights,
+                                                             desc="random-comm-filter stages"))
+
+    def compute(self, run, opts, ctx):
+        """The design and every other stage in one pool of workers, heaviest first (no stage of the simulation
+        reads the design, so none waits for it)."""
+        from dse.contract.family import Computed
+
+        (dc, dw), (sc, sw) = self._design_calls(run, opts), self._simulate_calls(run, opts)
+        out = ctx.run_many(dc + sc, workers=opts.workers, weights=dw + sw, desc="random-comm-filter stages")
+        design = self._design(run, out[:len(dc)])
+        return Computed(design, self._results(run, opts, design, out[len(dc):]))
+
+    def _design_calls(self, run, opts):
+        design, cost = self.module("design"), self.module("cost")
+        return ([(design.scenario_design, (sc, opts.quick, opts.seed), {}) for sc in run.scenarios],
+                [cost.scenario_cost(sc, opts)["design_s"] for sc in run.scenarios])
+
+    def _design(self, run, out):
+        design = self.module("design")
+        return design.Design({sc.name: design.ScenarioDesign(sc, dict(r)) for sc, r in zip(run.scenarios, out)})
+
+    def _simulate_calls(self, run, opts):
+        mc, refs, cost = (self.module(m) for m in ("monte_carlo", "references", "cost"))
         budget, calls, weights = opts.chunk_budget_bytes(), [], []
         for sc in run.scenarios:
             trials, ev = sc.trial_counts(opts.trials, opts.quick)
@@ -105,17 +127,19 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
                       (mc.simulate_frozen, (sc, opts.seed, ev, budget), {})]
             refs_s, event_s, frozen_s, *grid_s = cost.scenario_cost(sc, opts)["stages"][1:]
             weights += [refs_s, *grid_s, event_s, frozen_s]
-        main = self.main(run)
         if run.is_paper:
-            calls.append((self.module("topology").compute_topology, (main, opts.quick), {}))
+            calls.append((self.module("topology").compute_topology, (self.main(run), opts.quick), {}))
             weights.append(cost.TOPOLOGY_S)
-        out = iter(ctx.run_many(calls, workers=opts.workers, weights=weights, desc="random-comm-filter stages"))
+        return calls, weights
+
+    def _results(self, run, opts, design, out):
+        results, out = self.module("results"), iter(out)
         scenarios = {}
         for sc in run.scenarios:
             reference, gridded = next(out), {rate: next(out) for rate in sc.rates}
             scenarios[sc.name] = results.ScenarioResults(sc, design.scenarios[sc.name], reference, gridded, next(out),
                                                          next(out), *sc.trial_counts(opts.trials, opts.quick))
-        return results.Results(scenarios, main.name, next(out) if run.is_paper else None)
+        return results.Results(scenarios, self.main(run).name, next(out) if run.is_paper else None)
 
     def trials(self, run, opts):
         return max(sc.trial_counts(opts.trials, opts.quick)[0] for sc in run.scenarios)
