@@ -132,3 +132,30 @@ def test_every_family_of_this_package_is_registered():
     here = {d.name for d in root.iterdir() if (d / "family.py").is_file()}
     registered = {type(f).__module__.split(".")[2] for f in FAMILIES.values()}
     assert here == registered
+
+
+class ThirdPartyFamily(FAMILIES["template"].__class__):
+    """A family an installed package would register (here: the template under another id)."""
+
+    id = "third-party"
+
+
+def test_an_installed_package_can_add_a_family_and_a_broken_one_is_skipped(monkeypatch, capsys):
+    from importlib.metadata import EntryPoint
+
+    from dse import registry
+
+    builtin = list(registry.entry_points(group=registry.GROUP))
+    extra = [EntryPoint("third-party", f"{__name__}:ThirdPartyFamily", registry.GROUP),
+             EntryPoint("broken", "no_such_module_here:Family", registry.GROUP)]
+    monkeypatch.setattr(registry, "entry_points", lambda group: builtin + extra)
+    registry.families.cache_clear()
+    try:
+        found = registry.families()
+        assert "third-party" in found and "broken" not in found and set(FAMILIES) < set(found)
+        assert "family broken (no_such_module_here:Family) could not be loaded" in capsys.readouterr().err
+        data = {**load_toml(FAMILIES["template"].example_file()), "family": "third-party"}
+        assert registry.from_dict(data).family is found["third-party"]
+    finally:
+        monkeypatch.undo()
+        registry.families.cache_clear()
