@@ -21,21 +21,39 @@ GROUP = "dse.families"
 
 
 @functools.lru_cache(maxsize=1)
-def families() -> dict[str, Any]:
-    """family id -> Family instance, by id."""
-    out: dict[str, Any] = {}
-    for ep in sorted(entry_points(group=GROUP), key=lambda e: e.name):
-        try:
-            cls = ep.load()
-            if getattr(cls, "id", None) != ep.name:
-                raise ValueError(f"the entry point names family {ep.name}, the class declares {getattr(cls, 'id', None)!r}")
-            out[ep.name] = cls()
-        except Exception as exc:   # one broken plugin does not take the others down
-            print(f"dse: family {ep.name} ({ep.value}) could not be loaded and is skipped: {type(exc).__name__}: {exc}",
-                  file=sys.stderr)
-    if not out:
+def _entry_points() -> dict[str, Any]:
+    """family id -> its entry point, by id (nothing is imported yet)."""
+    found = {ep.name: ep for ep in sorted(entry_points(group=GROUP), key=lambda e: e.name)}
+    if not found:
         raise RuntimeError(f"no scenario family is registered (entry point group {GROUP}): is dse installed?")
-    return out
+    return found
+
+
+@functools.lru_cache(maxsize=None)
+def _load(family_id: str) -> Any:
+    """The Family of one entry point, imported on first use; None (with one line on stderr) when it cannot be
+    loaded: one broken plugin does not take the others down."""
+    ep = _entry_points()[family_id]
+    try:
+        cls = ep.load()
+        if getattr(cls, "id", None) != ep.name:
+            raise ValueError(f"the entry point names family {ep.name}, the class declares {getattr(cls, 'id', None)!r}")
+        return cls()
+    except Exception as exc:
+        print(f"dse: family {ep.name} ({ep.value}) could not be loaded and is skipped: {type(exc).__name__}: {exc}",
+              file=sys.stderr)
+        return None
+
+
+def families() -> dict[str, Any]:
+    """family id -> Family instance, by id (every family is imported)."""
+    return {name: fam for name in _entry_points() if (fam := _load(name)) is not None}
+
+
+def cache_clear() -> None:
+    """Forget what was found (tests that register a family)."""
+    _entry_points.cache_clear()
+    _load.cache_clear()
 
 
 def papers() -> dict[str, Any]:
@@ -44,10 +62,11 @@ def papers() -> dict[str, Any]:
 
 
 def family(family_id: str):
-    try:
-        return families()[family_id]
-    except KeyError:
-        raise ScenarioError("family", f"unknown family {family_id!r} (one of {', '.join(families())})") from None
+    """One family, importing only it."""
+    fam = _load(family_id) if family_id in _entry_points() else None
+    if fam is None:
+        raise ScenarioError("family", f"unknown family {family_id!r} (one of {', '.join(families())})")
+    return fam
 
 
 def paper(paper_id: str):
@@ -65,13 +84,13 @@ def from_dict(data: dict[str, Any]):
     from dse.contract.family import Reproduction
     from dse.scenario.fields import as_str
 
-    known = families()
+    known = _entry_points()
     if "family" not in data:
         if "base" in data or "grid" in data or "random" in data:
             raise ScenarioError("family", "missing: this is a sweep file (it has base, grid or random); run it with "
                                           "`dse sweep`, or check its base scenario")
         raise ScenarioError("family", f"missing (one of {', '.join(known)})")
-    fam = known[as_str(data.get("family"), "family", known)]
+    fam = family(as_str(data.get("family"), "family", known))
     body = {k: v for k, v in data.items() if k != "family"}
     return Reproduction(fam, is_paper=False, _scenarios=(fam.scenario_from_dict(body),))
 

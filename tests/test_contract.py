@@ -149,7 +149,7 @@ def test_an_installed_package_can_add_a_family_and_a_broken_one_is_skipped(monke
     extra = [EntryPoint("third-party", f"{__name__}:ThirdPartyFamily", registry.GROUP),
              EntryPoint("broken", "no_such_module_here:Family", registry.GROUP)]
     monkeypatch.setattr(registry, "entry_points", lambda group: builtin + extra)
-    registry.families.cache_clear()
+    registry.cache_clear()
     try:
         found = registry.families()
         assert "third-party" in found and "broken" not in found and set(FAMILIES) < set(found)
@@ -158,4 +158,4 @@ def test_an_installed_package_can_add_a_family_and_a_broken_one_is_skipped(monke
         assert registry.from_dict(data).family is found["third-party"]
     finally:
         monkeypatch.undo()
-        registry.families.cache_clear()
+        registry.cache_clear()
