@@ -66,9 +66,12 @@ class Family(ABC):
 
     # -- scenarios ---------------------------------------------------------------------------------------
 
-    @abstractmethod
     def scenario_from_dict(self, data: dict[str, Any]) -> Any:
-        """A validated scenario from a parsed file without its `family` key (ScenarioError naming the field)."""
+        """A validated scenario from a parsed file without its `family` key (ScenarioError naming the field):
+        the scenario model's instance, validated by its declaration."""
+        from dse.scenario.declare import parse
+
+        return parse(self.scenario_model, data)
 
     def paper_scenarios(self) -> Sequence[Any]:
         """The paper's own scenarios (families with a paper override this)."""

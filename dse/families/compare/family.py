@@ -9,7 +9,6 @@ from dse.contract.cost import MIB, Cost
 from dse.contract.family import Family
 from dse.contract.options import RunOptions
 from dse.estimators.network import registry
-from dse.scenario.declare import parse
 
 from . import generator
 from .scenario import CompareFile
@@ -52,9 +51,6 @@ its generalisation to this setting and what it sends."""
     example = "scenarios/tracking.toml"
     edges = generator.EDGES
     run_title = "one network, every estimator"
-
-    def scenario_from_dict(self, data):
-        return parse(CompareFile, data)
 
     def generate(self, seed, edge=None):
         return generator.generate(seed, edge)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from dse.contract.family import Family, Paper
 from dse.contract.options import RunOptions
-from dse.scenario.declare import parse
 
 from .generators import EDGES
 from .scenario import NoisyConsensusFile
@@ -40,9 +39,6 @@ family-wise confidence."""
     scenario_model = NoisyConsensusFile
     example = "paper.toml"
     edges = EDGES
-
-    def scenario_from_dict(self, data):
-        return parse(NoisyConsensusFile, data)
 
     def paper_scenarios(self):
         from dse.scenario.fields import load_toml

@@ -10,7 +10,6 @@ when first needed, so that validating a scenario file and reporting its errors s
 from __future__ import annotations
 
 from dse.contract.family import Family, Paper
-from dse.scenario.declare import parse
 
 from . import generator
 from .scenario import RandomCommFile, load_scenario
@@ -61,9 +60,6 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
     edges = generator.EDGES
 
     # -- scenarios -----------------------------------------------------------------------------------------
-
-    def scenario_from_dict(self, data):
-        return parse(RandomCommFile, data)
 
     def paper_scenarios(self):
         return [load_scenario(name) for name in self.paper.scenario_ids]

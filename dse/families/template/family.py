@@ -30,13 +30,6 @@ the geometric approach to the centralized r/N is checked where the graph is conn
     example = "example.toml"
     edges = generator.EDGES
 
-    def scenario_from_dict(self, data):
-        from dse.scenario.declare import parse
-
-        sc = parse(ConsensusFile, data)
-        sc.network                       # validates the graph (one error naming graph.<key>)
-        return sc
-
     def generate(self, seed, edge=None):
         return generator.generate(seed, edge)
 

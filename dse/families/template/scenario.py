@@ -11,6 +11,7 @@ from __future__ import annotations
 from functools import cached_property
 
 import numpy as np
+from pydantic import model_validator
 
 from dse.scenario.declare import Real, ScenarioFile, Section, computed_default, key, name_key
 from dse.scenario.graphs import GraphSection, GraphSpec, graph_from_section, metropolis_weights
@@ -46,6 +47,11 @@ class ConsensusFile(ScenarioFile):
                                   "the hypothesis `connected`)")
     model: ModelSection = key(doc="the measurement and the consensus rounds")
     monte_carlo: MonteCarloSection = key(MonteCarloSection, doc="the Monte Carlo simulation")
+
+    @model_validator(mode="after")
+    def _graph(self):
+        self.network                     # a graph of fewer than two nodes: one error naming graph.<key>
+        return self
 
     @cached_property
     def network(self) -> GraphSpec:

@@ -84,11 +84,6 @@ one-sided t tests for the mean-square bounds, under the report's family-wise con
 
     # -- scenarios -----------------------------------------------------------------------------------------
 
-    def scenario_from_dict(self, data):
-        from dse.scenario.declare import parse
-
-        return parse(CoestimationFile, data)
-
     def paper_scenarios(self):
         from dse.scenario.fields import load_toml
 

@@ -12,7 +12,6 @@ from dataclasses import replace
 from dse.contract.family import Family, Paper
 from dse.contract.options import RunOptions
 
-from dse.scenario.declare import parse
 
 from . import generator
 from .scenario import HybridFile
@@ -60,9 +59,6 @@ condition numbers, stated in the claim's detail. Reconstruction notes: docs/pape
     scenario_model = HybridFile
     example = "generic.toml"
     edges = generator.EDGES
-
-    def scenario_from_dict(self, data):
-        return parse(HybridFile, data)
 
     def paper_scenarios(self):
         return self.module("scenario").paper_scenarios()
