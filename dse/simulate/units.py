@@ -148,18 +148,18 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, 
         return [fn(x) for x in progress(items, desc=desc)]
     import multiprocessing
 
-    # fork with SIGINT and SIGTERM blocked: a worker sets its own handlers before it can receive them (the
-    # parent's are delivered here, once the pool exists)
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+    # fork with SIGINT and SIGTERM blocked: a worker sets its own handlers before it can receive them; the
+    # parent takes a signal that came meanwhile once the pool exists (and then stops the pool like any other)
+    previous, pool = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS), None
     try:
         pool = multiprocessing.get_context("fork").Pool(processes=min(workers, len(items)), initializer=_ignore_sigint)
-    finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-    try:
         results = list(progress(pool.imap(fn, items), total=len(items), desc=desc))
     except BaseException:
-        pool.terminate()
-        pool.join()
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        if pool is not None:
+            pool.terminate()
+            pool.join()
         raise
     pool.close()
     pool.join()
