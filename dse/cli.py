@@ -29,6 +29,7 @@ from dse.errors import CacheMiss, NumericalError, OutputError, ScenarioError  # 
 from dse.contract.options import RunOptions  # noqa: E402
 from dse.engine.driver import REVERIFY_RTOL, reverify, run  # noqa: E402
 from dse.engine.outlock import output_lock  # noqa: E402
+from dse.engine.progress import fresh_line  # noqa: E402
 from dse.outputs.report import counts_line, verdict_counts, write_summary  # noqa: E402
 
 EXIT_CODES = """exit codes:
@@ -354,10 +355,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"dse: error: cannot use the file system ({exc.strerror or exc}){where}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("dse: interrupted", file=sys.stderr)
+        print(f"{fresh_line()}dse: interrupted", file=sys.stderr)
         return 130
     except Terminated:
-        print("dse: terminated", file=sys.stderr)
+        print(f"{fresh_line()}dse: terminated", file=sys.stderr)
         return 143
     finally:
         signal.signal(signal.SIGTERM, previous)

@@ -261,18 +261,36 @@ def test_sigkill_then_resume_gives_the_same_numbers(user_run, tmp_path, delay):
 
 
 def test_ctrl_c_stops_cleanly_with_130(tmp_path):
+    """Ctrl-C in the middle of a simulation: exit 130, one line, no report. The signal is sent once the run shows
+    progress (an event, not a fixed sleep: on a loaded machine the start-up alone can take seconds)."""
+    import os
     import signal
-    import time
+    import threading
 
     (tmp_path / "s.toml").write_text(GOOD.replace("trials = 4000", "trials = 2000000"))
-    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0"}
-    proc = subprocess.Popen([*DSE, "run", "s.toml", "--out", "o"], cwd=tmp_path, env=env, text=True,
+    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "1"}
+    proc = subprocess.Popen([*DSE, "run", "s.toml", "--out", "o"], cwd=tmp_path, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
-    time.sleep(3.0)
-    __import__("os").killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
-    _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130, err
-    assert err.strip().splitlines()[-1] == "dse: interrupted" and "Traceback" not in err
+    err, started = bytearray(), threading.Event()
+
+    def read_stderr():
+        while chunk := os.read(proc.stderr.fileno(), 4096):
+            err.extend(chunk)
+            if b"%" in err:  # a progress bar is drawn: the run is computing
+                started.set()
+        started.set()
+
+    reader = threading.Thread(target=read_stderr, daemon=True)
+    reader.start()
+    assert started.wait(timeout=600), "no progress shown"
+    os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
+    proc.wait(timeout=600)
+    reader.join(timeout=60)
+    proc.stdout.close()
+    proc.stderr.close()
+    text = err.decode(errors="replace")
+    assert proc.returncode == 130, text
+    assert text.strip().splitlines()[-1] == "dse: interrupted" and "Traceback" not in text
     assert not (tmp_path / "o/run/ring5/report.json").exists()
 
 

@@ -53,9 +53,13 @@ def test_a_signal_at_a_random_moment_stops_cleanly(scenario, tmp_path, sig, code
     rng = random.Random(int(sig))
     proc = subprocess.Popen([*DSE, "run", "s.toml", "--out", "o"], cwd=tmp_path, env=ENV, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
-    time.sleep(rng.uniform(1.5, 4.0))
+    lock = tmp_path / "o/.dse.lock"
+    while not (lock.exists() and lock.read_text().startswith("pid")):  # started: past the imports, holding OUT
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    time.sleep(rng.uniform(0.0, 2.5))  # then a moment anywhere in the scenario's loading, design or simulation
     os.killpg(proc.pid, sig)  # the whole process group, as a terminal or a job scheduler does
-    _, err = proc.communicate(timeout=60)
+    _, err = proc.communicate(timeout=600)
     if proc.returncode == 0:  # finished before the signal: nothing to check about interruption
         return
     assert proc.returncode == code, err
@@ -144,7 +148,10 @@ def test_a_second_run_into_the_same_out_waits_for_the_first(tmp_path):
     (tmp_path / "s.toml").write_text(GOOD)
     first = subprocess.Popen([*DSE, "run", "s.toml", "--out", "o", "--quick"], cwd=tmp_path, env=ENV, text=True,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    time.sleep(0.8)
+    lock = tmp_path / "o/.dse.lock"
+    while not (lock.exists() and lock.read_text().startswith("pid")):  # the first run holds the lock
+        assert first.poll() is None, first.communicate()
+        time.sleep(0.05)
     second = dse("run", "s.toml", "--out", "o", "--quick", "--seed", "1", cwd=tmp_path)
     out, err = first.communicate(timeout=300)
     assert first.returncode == 0 and second.returncode == 0, (err, second.stderr)

@@ -26,3 +26,11 @@ def counter(total: int, *, desc: str = "", unit: str = "it") -> tqdm:
     """A progress bar advanced by hand (`bar.update(k)`), with the time left; use as a context manager."""
     return tqdm(total=total, desc=desc, unit=unit, unit_scale=True, disable=not progress_enabled(), leave=False,
                 dynamic_ncols=True, file=sys.stderr)
+
+
+def fresh_line() -> str:
+    """What to write before a last message so that it starts its own line when a bar may be left on screen (an
+    interrupted loop does not close its bar): clear the line on a terminal, end it otherwise."""
+    if not progress_enabled():
+        return ""
+    return "\r\x1b[K" if sys.stderr.isatty() else "\n"
