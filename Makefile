@@ -1,4 +1,5 @@
-# Each target sets up .venv (pinned dependencies) when it is missing or out of date.
+# Each target sets up .venv (pinned dependencies) when it is missing or out of date, and precompiles the sources
+# (start-up then does not depend on PYTHONDONTWRITEBYTECODE or on a writable source tree).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -10,6 +11,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/python -m compileall -q dse benchmarks
 	-$(BIN)/rerun analytics disable >/dev/null 2>&1
 	touch $(STAMP)
 

@@ -31,11 +31,11 @@ def _env() -> dict[str, str]:
             "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "HOME": os.environ.get("HOME", "/tmp")}
 
 
-def timed_command(argv: list[str], cwd: Path = ROOT) -> tuple[float, float, int]:
+def timed_command(argv: list[str], cwd: Path = ROOT, env: dict[str, str] | None = None) -> tuple[float, float, int]:
     """(wall s, CPU s of the process and the children it waited for, exit code)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.run(argv, capture_output=True, cwd=cwd, env=_env())
+    proc = subprocess.run(argv, capture_output=True, cwd=cwd, env=_env() if env is None else env)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), proc.returncode

@@ -6,7 +6,8 @@ Sections (``--only`` takes their keys): ``floor`` (what the machine allows: norm
 bandwidth), ``estimators`` (every estimator, batched vs a per-trial loop, µs per trial-node-step),
 ``bounds`` (the deterministic computations against a naive version), ``scale`` (Monte Carlo
 stages at the papers' scale), ``record`` (rerun write throughput), ``reproduce`` (wall time and
-peak memory of `dse reproduce` per paper, cold and warm cache), ``commands`` (`dse list`, `dse check`
+peak memory of `dse reproduce` per paper, cold and warm cache), ``startup`` (`import dse`, `dse --help`,
+`dse list` on a fresh copy of the sources, precompiled or not, with PYTHONDONTWRITEBYTECODE=1 and without), ``commands`` (`dse list`, `dse check`
 on every shipped scenario, `dse run --quick` per family, a sweep's per-point overhead, the test
 suite), ``sweep`` (a 1,000-point `dse sweep`
 in process and on a local Dask cluster with 1 and 2 workers), ``calibration`` (every statistical
@@ -40,10 +41,11 @@ import numpy as np  # noqa: E402
 
 from .bench_calibration import bench_calibration  # noqa: E402
 from .bench_commands import bench_commands  # noqa: E402
+from .bench_startup import bench_startup  # noqa: E402
 from .bench_sweep import bench_sweep_scaling  # noqa: E402
 from .common import bound_row, estimator_row, spread, timed  # noqa: E402
 
-SECTIONS = ("floor", "estimators", "bounds", "scale", "record", "reproduce", "commands", "sweep", "calibration")
+SECTIONS = ("floor", "estimators", "bounds", "scale", "record", "reproduce", "startup", "commands", "sweep", "calibration")
 TITLES = {
     "floor": "What the machine allows (floors behind the per-step targets)",
     "estimators": "Estimators side by side: batched vs a straightforward per-trial loop",
@@ -51,6 +53,7 @@ TITLES = {
     "scale": "Monte Carlo stages at the papers' scale",
     "record": "Rerun write throughput (project helpers, `dse.outputs.record.send_series`)",
     "reproduce": "`dse reproduce PAPER`: wall time and peak memory, cold and warm cache",
+    "startup": "Start-up: `import dse`, `dse --help`, `dse list`, precompiled or not, with PYTHONDONTWRITEBYTECODE=1 and without",
     "commands": "The commands people wait on: `dse list`, `dse check`, `dse run --quick`, sweep overhead, the tests",
     "sweep": "`dse sweep` scaling: the same 1,000-point sweep in process and on 1 and 2 Dask workers",
     "calibration": "Statistical claims on random valid scenarios (quick sample sizes): false-fail rate at α = 0.05",
@@ -274,11 +277,12 @@ def main(argv: list[str] | None = None) -> int:
                    "scale": lambda: bench_scale(args.quick, repeats),
                    "reproduce": lambda: bench_reproductions(args.quick, repeats, replay_dir),
                    "record": lambda: bench_records(args.quick, repeats, replay_dir),
+                   "startup": lambda: bench_startup(repeats),
                    "commands": lambda: bench_commands(repeats, args.quick),
                    "sweep": lambda: bench_sweep_scaling(points=100 if args.quick else 1000),
                    "calibration": lambda: bench_calibration(seeds=20 if args.quick else 200)}
         # reproduce before record: the recording replay uses the reproductions' recordings
-        order = ("floor", "estimators", "bounds", "scale", "reproduce", "record", "commands", "sweep", "calibration")
+        order = ("floor", "estimators", "bounds", "scale", "reproduce", "record", "startup", "commands", "sweep", "calibration")
         for key in sorted(only, key=order.index):
             print(f"[bench] {key} ...", file=sys.stderr, flush=True)
             t0 = time.perf_counter()
@@ -344,7 +348,7 @@ def _targets(results: dict[str, list[dict]]) -> list[str]:
         elif r.get("mode") == "default":
             lines.append(f"| peak memory, reproduce {r['paper']}: {r['target']} | {_fmt(r['peak_tree_rss_mib'])} MiB "
                          f"(tree), {_fmt(r['max_process_rss_mib'])} MiB (one process) | {_fmt(r['met'])} |")
-    for r in results.get("commands", []):
+    for r in results.get("startup", []) + results.get("commands", []):
         if r.get("target"):
             lines.append(f"| {r['command']}: {r['target']} | {_fmt(r['wall_s'])} s wall"
                          + (f", {_fmt(r['cpu_s'])} s CPU" if "cpu_s" in r else "") + f" | {_fmt(r['met'])} |")
