@@ -27,7 +27,8 @@ from pathlib import Path  # noqa: E402
 
 from dse.errors import CacheMiss, NumericalError, OutputError, ScenarioError  # noqa: E402
 from dse.contract.options import RunOptions  # noqa: E402
-from dse.engine.driver import REVERIFY_RTOL, reverify, run  # noqa: E402
+from dse.engine.driver import REVERIFY_RTOL, run  # noqa: E402
+from dse.engine.reverify import verify_run  # noqa: E402
 from dse.engine.outlock import output_lock  # noqa: E402
 from dse.engine.progress import fresh_line  # noqa: E402
 from dse.outputs.report import counts_line, verdict_counts, write_summary  # noqa: E402
@@ -117,9 +118,10 @@ def cmd_reproduce(args) -> int:
         raise ScenarioError("PAPER", f"unknown paper {', '.join(unknown)} (known: {', '.join(papers)})")
     out_root = Path(args.out)
     rows = []
-    with output_lock(out_root):
+    with output_lock(out_root) as guard:
         for pid in args.papers or list(papers):
-            rows.append(run(reg.paper(pid), out_root, _options(args), figures=not args.no_figures))
+            rows.append(run(reg.paper(pid), out_root, _options(args), figures=not args.no_figures, fresh=args.fresh))
+            guard.wrote_results()   # a later paper's failure leaves this one's outputs
             r = rows[-1]
             print(f"{pid}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_root / pid}")
         print(f"summary: {write_summary(out_root)}")
@@ -135,7 +137,8 @@ def cmd_run(args) -> int:
     out_root = Path(args.out)
     out_dir = out_root / "run" / repro.paper_id
     with output_lock(out_root):
-        r = run(repro, out_root, _options(args), out_dir=out_dir, source=data, figures=not args.no_figures)
+        r = run(repro, out_root, _options(args), out_dir=out_dir, source=data, figures=not args.no_figures,
+                fresh=args.fresh, scenario_file=str(Path(args.file).resolve()))
     print(f"{repro.paper_id}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_dir}")
     return _strict_status(args, [r])
 
@@ -170,8 +173,8 @@ def _verify_run(args, d: Path) -> int:
     reg = _registry()
     try:
         meta = json.loads((d / "run.json").read_text())
-        options, out_root = meta["options"], meta["out_root"]
-        json.loads((d / "report.json").read_text())["claims"]
+        out_root = meta["out_root"]
+        meta["options"], json.loads((d / "report.json").read_text())["claims"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise OutputError(f"{d}: run.json or report.json is damaged ({type(exc).__name__}: {exc}); run the scenario "
                           "again to rewrite them") from None
@@ -181,19 +184,21 @@ def _verify_run(args, d: Path) -> int:
     repro = reg.from_dict(meta["scenario"]) if meta.get("scenario") else reg.paper(meta["paper"])
     root = (d / out_root).resolve()
     try:
-        rows, diffs = reverify(repro, root, d)
-    except CacheMiss:
-        again = (f"dse reproduce {meta['paper']} --out {root}" if not meta.get("scenario") else
-                 f"dse run <the scenario file> --out {root}")
-        seeds = f" --seed {options.get('seed', 0)}" + (" --quick" if options.get("quick") else "")
-        raise CacheMiss(f"{d}: the stage cache under {root / '.cache'} has no results for this run with the current "
-                        f"code (it changed since, or the cache was deleted); run `{again}{seeds}` again, then verify") from None
-    counts = verdict_counts(rows)
-    print(f"{d}: re-checked {len(rows)} claims from the cache (numbers within a relative {REVERIFY_RTOL:g}): "
-          f"{counts_line(counts)}")
-    for line in diffs:
+        v = verify_run(repro, root, d, meta)
+    except CacheMiss as exc:
+        raise CacheMiss(f"{d}: {exc}") from None
+    print(f"{d}:")
+    print(f"  files: {v.files} checked against the SHA-256 checksums in run.json: "
+          f"{len(v.file_diffs) or 'none'} differ" if v.files else
+          "  files: not checked (run.json records no checksums: written by an older dse; run it again to add them)")
+    print(f"  tables: {v.tables} recomputed from the stage cache ({v.cells:,} cells), compared with tables/*.parquet "
+          f"exactly: {len(v.table_diffs) or 'none'} differ")
+    print(f"  claims: {len(v.claims)} re-checked from the stage cache against report.json (numbers within a relative "
+          f"{REVERIFY_RTOL:g}): {counts_line(verdict_counts(v.claims))}; {len(v.claim_diffs) or 'none'} differ")
+    for line in v.diffs:
         print(f"  differs: {line}")
-    return int(bool(diffs)) | _strict_status(args, [counts])
+    print(f"  {'verified: no differences' if not v.diffs else f'NOT verified: {len(v.diffs)} differences'}")
+    return int(bool(v.diffs)) | _strict_status(args, [verdict_counts(v.claims)])
 
 
 def cmd_sweep(args) -> int:
@@ -235,6 +240,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "Monte Carlo streams within it, results do not depend on it")
         p.add_argument("--no-figures", action="store_true",
                        help="write the report and the tables only (no figures, no recordings): for fast iteration")
+        p.add_argument("--fresh", action="store_true",
+                       help="ignore the run memo and the stage cache under OUT/.cache: recompute every stage, "
+                            "overwrite its cache entry, redraw every figure and recording")
         strict_flag(p)
 
     def strict_flag(p):
