@@ -36,7 +36,8 @@ from dse.outputs.report import counts_line, verdict_counts, write_summary  # noq
 EXIT_CODES = """exit codes:
   0    done (with --strict: and no claim is fail or error)
   1    --strict and some claim is fail or error; dse verify found differences; a sweep has failed points
-  2    invalid input or unusable output (one line naming the field or path; nothing written)
+  2    invalid input or unusable output (one line naming the field or path; nothing written:
+       an OUT the command created is removed, and the lock file OUT/.dse.lock always is)
   3    numerical failure of the run (a NaN or inf where a finite number is required)
   130  interrupted (SIGINT, Ctrl-C)
   141  the reader of the output went away (e.g. `dse list | head`)
@@ -267,7 +268,9 @@ def build_parser() -> argparse.ArgumentParser:
     chk.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
     chk.add_argument("--workers", type=_positive_int, default=2, help="worker processes (default 2)")
     chk.set_defaults(func=cmd_check)
-    ver = sub_parser("verify", help="re-check claims from cached results, without simulating")
+    ver = sub_parser("verify", help="check a run's files against the checksums in its run.json, recompute its tables "
+                                    "and re-check its claims from cached results (or re-assemble a sweep's), "
+                                    "without simulating; exit 1 on any difference")
     ver.add_argument("out_dir", metavar="OUT_DIR")
     strict_flag(ver)
     ver.set_defaults(func=cmd_verify)
