@@ -161,13 +161,28 @@ def _full_disk_after(monkeypatch, module, name: str, allowed: int) -> None:
     monkeypatch.setattr(module, name, writer)
 
 
-@pytest.mark.parametrize("where", ["stage cache", "tables"])
+def _full_disk_at_the_probe(monkeypatch) -> None:
+    """The write probe of the output directory is half written, then the disk is full."""
+    real = Path.write_bytes
+
+    def write_bytes(self, data):
+        if self.name != ".dse-write-probe":
+            return real(self, data)
+        real(self, data[: len(data) // 2])
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(Path, "write_bytes", write_bytes)
+
+
+@pytest.mark.parametrize("where", ["probe", "stage cache", "tables"])
 def test_a_full_disk_leaves_a_new_out_absent_and_an_old_one_as_it_was(scenario, capsys, monkeypatch, where):
     from dse.outputs import tables
 
     assert dse(capsys, "run", "s.toml", "--out", "old", *FAST, "--seed", "1")[0] == 0
     before = listing(scenario / "old")
-    if where == "stage cache":
+    if where == "probe":
+        _full_disk_at_the_probe(monkeypatch)
+    elif where == "stage cache":
         _full_disk_after(monkeypatch, cache, "atomic_write_bytes", 3)
     else:
         _full_disk_after(monkeypatch, tables, "_write_parquet", 2)
@@ -176,6 +191,21 @@ def test_a_full_disk_leaves_a_new_out_absent_and_an_old_one_as_it_was(scenario, 
         assert code == 2 and "No space left" in err, err
     assert not (scenario / "new").exists()
     assert listing(scenario / "old") == before
+
+
+def test_a_refused_run_keeps_what_others_put_in_an_existing_out(scenario, capsys, monkeypatch):
+    assert dse(capsys, "run", "s.toml", "--out", "old", *FAST, "--seed", "1")[0] == 0
+    before = listing(scenario / "old")
+    real = cache.atomic_write_bytes
+
+    def disk_full_while_someone_writes(*args, **kwargs):
+        (scenario / "old" / "notes.txt").write_text("mine")      # not dse's: kept
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(cache, "atomic_write_bytes", disk_full_while_someone_writes)
+    assert dse(capsys, "run", "s.toml", "--out", "old", *FAST, "--seed", "7")[0] == 2
+    monkeypatch.setattr(cache, "atomic_write_bytes", real)
+    assert listing(scenario / "old") == {**before, "notes.txt": b"mine"}
 
 
 def test_a_numerical_failure_leaves_a_new_out_absent(scenario, capsys, monkeypatch):

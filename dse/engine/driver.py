@@ -16,12 +16,16 @@ from dse.verify.rules import Evaluation, evaluate
 
 def check_output_dir(path: Path) -> None:
     """Fail before any long computation if `path` cannot take our outputs."""
+    probe = path / ".dse-write-probe"
     try:
         path.mkdir(parents=True, exist_ok=True)
-        probe = path / ".dse-write-probe"
         probe.write_bytes(b"0" * 65536)
         probe.unlink()
     except OSError as exc:
+        try:
+            probe.unlink(missing_ok=True)   # a probe half-written on a full disk is not left behind
+        except OSError:
+            pass
         raise OutputError(f"output directory {path} is not usable: {exc.strerror or exc}") from None
 
 

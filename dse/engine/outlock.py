@@ -9,8 +9,9 @@ command ends, whatever the outcome.
 
 A command that fails with invalid input, an unusable output or a numerical failure (exit 2 or
 3) before it wrote any result leaves OUT as it found it: a directory the command created is
-removed, and in an OUT that existed, whatever the command added there (down to five levels: the
-stage cache entries and memo of the run, an empty ``run/``, a sweep's stored points) is removed again.
+removed, and in an OUT that existed, what the command added under ``.cache/``, ``run/`` and
+``sweep/`` (down to five levels: the stage cache entries and memo of the run, an empty ``run/``, a
+sweep's stored points) is removed again.
 """
 from __future__ import annotations
 
@@ -27,6 +28,9 @@ LEFTOVER_PATTERNS = (".*.staging-*", ".*.old-*", ".*.tmp.*")
 LOCK_NAME = ".dse.lock"
 #: the failures the command line answers with exit 2 or 3 (a broken pipe is 141: results were written)
 REFUSALS = (ScenarioError, OutputError, NumericalError, OSError)
+#: what a command writes under OUT before its results (in an OUT that existed, only what is new there is
+#: undone: a file someone else put beside them meanwhile is not ours to remove)
+OWN_SUBTREES = (".cache", "run", "sweep")
 #: how deep under OUT what a refused command added is looked for (a run memo and a sweep point are 5 deep)
 SNAPSHOT_DEPTH = 5
 
@@ -150,7 +154,8 @@ def _undo(out_root: Path, created: Path | None, before: set[str] | None) -> None
         return
     if before is None:
         return
-    for rel in sorted(snapshot(out_root) - before, key=lambda r: r.count(os.sep)):
+    added = [rel for rel in snapshot(out_root) - before if Path(rel).parts[0] in OWN_SUBTREES]
+    for rel in sorted(added, key=lambda r: r.count(os.sep)):
         remove_path(out_root / rel)   # a new directory goes with everything in it; its entries are then gone
 
 
