@@ -90,14 +90,46 @@ def _cell_diffs(name: str, written, frame) -> list[str]:
     """The cells where two frames of the same shape and columns differ (at most CELLS_LISTED, then a count)."""
     out, more = [], 0
     for col in frame.columns:
+        if _same_column(written[col], frame[col]):
+            continue
         for i, (a, b) in enumerate(zip(written[col].tolist(), frame[col].tolist())):
             if _same_cell(a, b):
                 continue
             if len(out) < CELLS_LISTED:
-                out.append(f"tables/{name}.parquet row {i} column {col}: {a!r} written, {b!r} recomputed")
+                out.append(f"tables/{name}.parquet row {i} column {col}: {a!r} written, {b!r} recomputed{_relative(a, b)}")
             else:
                 more += 1
     return out + ([f"tables/{name}.parquet: {more} more differing cells"] if more else [])
+
+
+def _same_column(a, b) -> bool:
+    """A fast exact comparison of two columns (NaN and missing values equal each other); False means:
+    compare cell by cell (which names the cells)."""
+    import numpy as np
+    import pandas as pd
+
+    x, y = a.to_numpy(), b.to_numpy()
+    if x.shape != y.shape:
+        return False
+    if x.dtype.kind in "fiub" and y.dtype.kind in "fiub":
+        return bool(np.array_equal(x, y, equal_nan=x.dtype.kind == "f" and y.dtype.kind == "f"))
+    try:
+        missing_x, missing_y = pd.isna(x), pd.isna(y)
+        equal = np.asarray(x == y, dtype=object)
+        return bool(np.all(np.where(missing_x | missing_y, missing_x & missing_y, equal == True)))  # noqa: E712
+    except (TypeError, ValueError):
+        return False
+
+
+def _relative(a: Any, b: Any) -> str:
+    """' (relative difference r)' for two finite numbers (whether a difference is round-off or an edit), else ''."""
+    import math
+
+    if isinstance(a, bool) or isinstance(b, bool) or not all(isinstance(x, (int, float)) for x in (a, b)):
+        return ""
+    if not (math.isfinite(a) and math.isfinite(b)) or max(abs(a), abs(b)) == 0:
+        return ""
+    return f" (relative difference {abs(a - b) / max(abs(a), abs(b)):.2g})"
 
 
 def _same_cell(a: Any, b: Any) -> bool:
