@@ -79,6 +79,17 @@ def test_verify_names_damaged_entries_and_the_command_that_recomputes_them(scena
     assert report(scenario / "o")["claims"] == before
 
 
+def test_verify_without_the_cache_says_so_and_notes_a_changed_scenario_file(scenario, capsys):
+    import shutil
+
+    assert dse(capsys, "run", "s.toml", "--out", "o", *FAST)[0] == 0
+    shutil.rmtree(scenario / "o/.cache")
+    (scenario / "s.toml").write_text(GOOD.replace("q = 0.5", "q = 0.6"))
+    code, _, err = dse(capsys, "verify", "o")
+    assert code == 1 and "lacks a stage" in err and "s.toml changed or is gone since the run" in err, err
+    assert len(err.strip().splitlines()) == 1
+
+
 def test_fresh_ignores_the_memo_and_the_stage_cache(scenario, capsys):
     assert dse(capsys, "run", "s.toml", "--out", "o", *FAST)[0] == 0
     first = report(scenario / "o")

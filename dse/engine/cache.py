@@ -67,11 +67,12 @@ class StageCache:
     def __init__(self, root: str | Path, *, read_only: bool = False, fresh: bool = False):
         """`read_only`: never write or delete (what `dse verify` reads; a damaged entry is recorded in
         `corrupt_entries`, not recomputed); `fresh`: never read, every stage is computed and its entry
-        overwritten (`dse run --fresh`)."""
+        overwritten (`dse run --fresh`; an entry stored by this object is read back)."""
         self.root = Path(root)
         self.read_only = read_only
         self.fresh = fresh
         self.corrupt_entries: list[str] = []
+        self._written: set[str] = set()    # entries this object stored (a fresh run reads those back)
 
     def key(self, stage: str, params: dict[str, Any]) -> str:
         return f"{stage}-{hashlib.sha256(canonical_json(params).encode()).hexdigest()[:24]}"
@@ -82,7 +83,7 @@ class StageCache:
     def load(self, stage: str, params: dict[str, Any]) -> dict[str, np.ndarray] | None:
         key = self.key(stage, params)
         data_path, meta_path = self._paths(key)
-        if self.fresh or not meta_path.exists() or not data_path.exists():
+        if (self.fresh and key not in self._written) or not meta_path.exists() or not data_path.exists():
             return None
         try:
             meta = json.loads(meta_path.read_text())
@@ -120,6 +121,7 @@ class StageCache:
         atomic_write_bytes(data_path, raw)
         atomic_write_text(meta_path, json.dumps({"stage": stage, "params": json.loads(canonical_json(params)),
                                                  "sha256": hashlib.sha256(raw).hexdigest()}, indent=1))
+        self._written.add(key)
 
     def get_or_compute(self, stage: str, params: dict[str, Any], compute: Callable[[], dict[str, np.ndarray]], *,
                        scenario: str = "", allow_nonfinite: tuple[str, ...] = ()) -> dict[str, np.ndarray]:

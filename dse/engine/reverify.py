@@ -202,15 +202,15 @@ def verify_run(repro, out_root: Path, out_dir: Path, meta: dict[str, Any] | None
 def cache_advice(cache, meta: dict[str, Any], out_root: Path, miss: str) -> str:
     """One line: which stage entries are damaged (then removed, so that the next run recomputes them)
     or missing, and the exact command that recomputes them."""
-    command = rerun_command(meta, out_root)
+    command, note = rerun_command(meta, out_root), changed_file_note(meta)
     if cache.corrupt_entries:
         damaged = [entry.split(":")[0] for entry in cache.corrupt_entries]
         for key in damaged:
             cache.remove_entry(key)
         return (f"the stage cache under {cache.root} has damaged entries ({'; '.join(cache.corrupt_entries)}); verify "
-                f"does not simulate, so it removed them: run `{command}` to recompute them, then verify again")
+                f"does not simulate, so it removed them: run `{command}` to recompute them{note}, then verify again")
     return (f"the stage cache under {cache.root} lacks a stage of this run ({miss.split(';')[0]}): the code changed "
-            f"since the run, or the cache was deleted; run `{command}` to recompute it, then verify again")
+            f"since the run, or the cache was deleted; run `{command}` to recompute it{note}, then verify again")
 
 
 def rerun_command(meta: dict[str, Any], out_root: Path) -> str:
@@ -221,4 +221,24 @@ def rerun_command(meta: dict[str, Any], out_root: Path) -> str:
     if not meta.get("scenario"):
         return f"dse reproduce {meta['paper']}{flags}"
     file = meta.get("scenario_file")
-    return f"dse run {shlex.quote(file) if file else '<the scenario file (its contents are in run.json)>'}{flags}"
+    if not file:
+        return f"dse run <the scenario file (its contents are in run.json)>{flags}"
+    return f"dse run {shlex.quote(file)}{flags}"
+
+
+def changed_file_note(meta: dict[str, Any]) -> str:
+    """' (note: ...)' when the scenario file a run was read from no longer holds that scenario, else ''."""
+    file = meta.get("scenario_file")
+    if not meta.get("scenario") or not file or _same_scenario(file, meta["scenario"]):
+        return ""
+    return f" (note: {file} changed or is gone since the run; the scenario as run is `scenario` in run.json)"
+
+
+def _same_scenario(file: str, scenario: dict[str, Any]) -> bool:
+    """Whether `file` still holds the scenario a run was made of."""
+    from dse.scenario.fields import load_toml
+
+    try:
+        return load_toml(file) == scenario
+    except Exception:  # gone, unreadable or invalid: not the same
+        return False
