@@ -162,8 +162,8 @@ def cmd_verify(args) -> int:
         from dse.sweeps.run import verify_sweep
 
         diffs, n_points = verify_sweep(d)
-        print(f"{d}: re-assembled {n_points} sweep points from their stored results: "
-              f"{'identical' if not diffs else f'{len(diffs)} differences'}")
+        print(f"{d}: checked its files against the SHA-256 checksums in sweep.json and re-assembled {n_points} sweep "
+              f"points from their stored results: {'identical' if not diffs else f'{len(diffs)} differences'}")
         for line in diffs:
             print(f"  differs: {line}")
         status |= bool(diffs)

@@ -131,6 +131,17 @@ def test_verify_says_what_it_checked(scenario, capsys):
     assert code == 1 and "extra.txt: not written by the run" in out
 
 
+def test_verify_finds_an_edited_sweep_file(scenario, capsys):
+    (scenario / "sw.toml").write_text('name = "sw"\nbase = "s.toml"\nquick = true\n[grid]\n"model.q" = [0.5, 1.0]\n')
+    assert dse(capsys, "sweep", "sw.toml", "--out", "o", "--scheduler", "inline")[0] == 0
+    assert dse(capsys, "verify", "o/sweep/sw")[0] == 0
+    claims = pd.read_parquet(scenario / "o/sweep/sw/claims.parquet")
+    claims.loc[0, "verdict"] = "fail" if claims.loc[0, "verdict"] != "fail" else "pass"
+    claims.to_parquet(scenario / "o/sweep/sw/claims.parquet")
+    code, out, _ = dse(capsys, "verify", "o/sweep/sw")
+    assert code == 1 and "claims.parquet: edited" in out, out
+
+
 # -- 8: a refused command leaves nothing behind ------------------------------------------------------------------
 
 def test_the_lock_file_is_removed_after_a_run(scenario, capsys):

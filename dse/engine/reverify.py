@@ -10,7 +10,7 @@ Three checks, each said in the output with what it covered:
   numbers are computed in the main process, one BLAS thread, from the arrays the cache holds; a
   difference means an edited file or changed code);
 - claims: every claim re-evaluated from the stage cache and compared with report.json: its
-  verdict, and its measured, reference and margin numbers within `REVERIFY_RTOL`.
+  verdict, and its measured, reference and margin numbers within `dse.engine.driver.REVERIFY_RTOL`.
 
 Nothing is simulated: a stage missing from the cache, or damaged there, is named with the exact
 command that recomputes it.
@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from dse.engine.driver import REVERIFY_RTOL, cache_for, evaluate_claims, same_number
+from dse.engine.driver import cache_for, evaluate_claims, same_number
 from dse.engine.memo import manifest
 from dse.errors import CacheMiss
 
@@ -49,15 +49,15 @@ class Verification:
         return self.file_diffs + self.table_diffs + self.claim_diffs
 
 
-def check_files(out_dir: Path, checksums: dict[str, str] | None) -> tuple[int, list[str]]:
-    """Compare every file of `out_dir` (but run.json) with the checksums run.json recorded."""
+def check_files(out_dir: Path, checksums: dict[str, str] | None, skip: str = "run.json") -> tuple[int, list[str]]:
+    """Compare every file of `out_dir` (but `skip`, the file holding the checksums) with `checksums`."""
     if not isinstance(checksums, dict):
         return 0, []
-    now = manifest(out_dir, everything=True)
-    diffs = [f"{rel}: edited since the run wrote it (its SHA-256 differs from run.json)"
+    now = {rel: digest for rel, digest in manifest(out_dir, everything=True).items() if rel != skip}
+    diffs = [f"{rel}: edited since it was written (its SHA-256 differs from {skip})"
              for rel, digest in sorted(checksums.items()) if rel in now and now[rel] != digest]
-    diffs += [f"{rel}: missing (the run wrote it)" for rel in sorted(set(checksums) - set(now))]
-    diffs += [f"{rel}: not written by the run (absent from run.json)" for rel in sorted(set(now) - set(checksums))]
+    diffs += [f"{rel}: missing (it was written)" for rel in sorted(set(checksums) - set(now))]
+    diffs += [f"{rel}: not written by the run (absent from {skip})" for rel in sorted(set(now) - set(checksums))]
     return len(checksums), diffs
 
 
