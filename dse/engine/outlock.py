@@ -8,7 +8,7 @@ and temporary files (``.<stem>.*.tmp.<ext>``) are removed. The lock file is remo
 command ends, whatever the outcome.
 
 A command that fails with invalid input, an unusable output or a numerical failure (exit 2 or
-3) before it wrote any result leaves OUT as it found it: a directory the command created is
+3; or a defect of ours) before it wrote any result leaves OUT as it found it: a directory the command created is
 removed, and in an OUT that existed, what the command added under ``.cache/``, ``run/`` and
 ``sweep/`` (down to five levels: the stage cache entries and memo of the run, an empty ``run/``, a
 sweep's stored points) is removed again.
@@ -22,12 +22,14 @@ import sys
 from pathlib import Path
 from typing import Iterator
 
-from dse.errors import NumericalError, OutputError, ScenarioError
+from dse.errors import CacheMiss, OutputError
 
 LEFTOVER_PATTERNS = (".*.staging-*", ".*.old-*", ".*.tmp.*")
 LOCK_NAME = ".dse.lock"
-#: the failures the command line answers with exit 2 or 3 (a broken pipe is 141: results were written)
-REFUSALS = (ScenarioError, OutputError, NumericalError, OSError)
+#: failures after which what the command wrote is kept: a broken pipe (exit 141) comes after the results, and a
+#: missing cache entry (exit 1) is `dse verify`'s, which writes nothing. Every other error (exit 2 or 3, or a
+#: defect) is undone; an interruption (130, 143) is not an error: it keeps the stage cache to resume from.
+KEPT_AFTER = (BrokenPipeError, CacheMiss)
 #: what a command writes under OUT before its results (in an OUT that existed, only what is new there is
 #: undone: a file someone else put beside them meanwhile is not ours to remove)
 OWN_SUBTREES = (".cache", "run", "sweep")
@@ -57,8 +59,8 @@ def output_lock(out_root: Path) -> Iterator[OutputGuard]:
         before = None if created is not None else snapshot(out_root)
         remove_leftovers(out_root)
         yield guard
-    except REFUSALS as exc:
-        if not guard.results_written and not isinstance(exc, BrokenPipeError):
+    except Exception as exc:
+        if not guard.results_written and not isinstance(exc, KEPT_AFTER):
             _undo(out_root, created, before)
         raise
     finally:
