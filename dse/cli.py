@@ -37,7 +37,7 @@ EXIT_CODES = """exit codes:
   0    done (with --strict: and no claim is fail or error)
   1    --strict and some claim is fail or error; dse verify found differences; a sweep has failed points
   2    invalid input or unusable output (one line naming the field or path; nothing written:
-       an OUT the command created is removed, and the lock file OUT/.dse.lock always is)
+       an OUT the command created is removed; the lock file OUT/.dse.lock is removed after every command)
   3    numerical failure of the run (a NaN or inf where a finite number is required)
   130  interrupted (SIGINT, Ctrl-C)
   141  the reader of the output went away (e.g. `dse list | head`)
