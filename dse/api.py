@@ -17,7 +17,6 @@ import hashlib
 import json
 import os
 import shutil
-import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field
@@ -31,6 +30,7 @@ from dse.contract.options import RunOptions
 from dse.engine.atomic import atomic_write_text
 from dse.engine.cache import MemoryCache, StageCache
 from dse.engine.driver import evaluate_claims
+from dse.engine.memo import load_memo, manifest, save_memo, sha256_file
 from dse.engine.provenance import provenance
 from dse.errors import OutputError
 from dse.outputs.report import verdict_counts, write_report
@@ -72,6 +72,10 @@ class Run:
     provenance: dict[str, Any] = field(repr=False)
     source: dict[str, Any] | None = field(default=None, repr=False)
     run_key: str | None = field(default=None, repr=False)
+    #: whether `write` may reuse the figures and recordings of an identical earlier run (not after `fresh`)
+    reuse_outputs: bool = field(default=True, repr=False)
+    #: the file the scenario was read from, if any (run.json keeps it for `dse verify`'s advice)
+    source_file: str | None = field(default=None, repr=False)
 
     @property
     def computed(self) -> Any:
@@ -107,10 +111,10 @@ class Run:
         try:
             start = time.perf_counter()
             self.tables.write(staging / "tables")
-            outputs = _reuse_outputs(out_dir, staging, self.run_key) if figures else {}
+            outputs = _reuse_outputs(out_dir, staging, self.run_key if self.reuse_outputs else None) if figures else {}
             if outputs is None:
                 self._draw(staging)
-                outputs = _manifest(staging)
+                outputs = manifest(staging)
             write_s = time.perf_counter() - start
             prov = {**self.provenance, "write_s": write_s, "wall_s": self.provenance["compute_s"] + write_s,
                     "peak_memory_mib": peak_memory_mib()}
@@ -120,7 +124,8 @@ class Run:
             atomic_write_text(staging / "run.json", json.dumps({
                 "paper": self.reproduction.paper_id, "options": asdict(self.options),
                 "out_root": os.path.relpath(root, out_dir) if root is not None else None,
-                "scenario": self.source, "run_key": self.run_key, "outputs": outputs}, indent=1))
+                "scenario": self.source, "scenario_file": self.source_file, "run_key": self.run_key, "outputs": outputs,
+                "checksums": manifest(staging, everything=True)}, indent=1))
             _replace_dir(staging, out_dir)
         finally:
             shutil.rmtree(staging, ignore_errors=True)
@@ -156,23 +161,25 @@ def view_jobs(views: list, workers: int) -> list[list]:
 
 
 def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLike | None = None,
-            source: dict[str, Any] | None = None) -> Run:
+            source: dict[str, Any] | None = None, fresh: bool = False) -> Run:
     """Compute (through the stage cache when `cache_dir` is given), verify and tabulate.
 
     With a `cache_dir`, the evaluation and the tables are also kept as a memo keyed by
     everything that determines them (the paper or the scenario as given, seed, trials, quick,
     and a fingerprint of the project's code and scenario files): an identical later run reads
-    them back instead of re-checking, and loads the stage results only if it needs them."""
+    them back instead of re-checking (unless a stage entry it stands on changed since), and
+    loads the stage results only if it needs them. `fresh=True` ignores the memo and the stage
+    cache: every stage is recomputed and its entry overwritten, and `write` redraws every view."""
     start = time.perf_counter()
     key = run_key(repro, opts, source)
-    memo = _load_memo(Path(cache_dir), key) if cache_dir is not None else None
+    memo = load_memo(Path(cache_dir), key) if cache_dir is not None and not fresh else None
     if memo is not None:
         ev, tables, stages = memo
         computed: Any = lambda: repro.compute(opts, StageContext(StageCache(Path(cache_dir))))  # noqa: E731 - when needed
         stages = [{**s, "cached": True} for s in stages]
     else:
         refuse_if_too_large(repro.cost(opts), opts)
-        ctx = StageContext(MemoryCache() if cache_dir is None else StageCache(Path(cache_dir)))
+        ctx = StageContext(MemoryCache() if cache_dir is None else StageCache(Path(cache_dir), fresh=fresh))
         computed = repro.compute(opts, ctx)
         ev = evaluate_claims(repro, computed)
         tables = evaluation_tables(ev)
@@ -180,14 +187,14 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
             tables.add(table_spec, frame)
         stages = ctx.ran
         if cache_dir is not None:
-            _save_memo(Path(cache_dir), key, ev, tables, stages)
+            save_memo(Path(cache_dir), key, ev, tables, stages)
     prov = provenance(seed=opts.seed, trials=repro.trials(opts), quick=opts.quick, workers=opts.workers)
     prov["compute_s"] = time.perf_counter() - start
     prov["wall_s"] = prov["compute_s"]
     prov["peak_memory_mib"] = peak_memory_mib()
     prov["memo"] = memo is not None
     prov["stages"] = stages
-    return Run(repro, opts, computed, ev, tables, prov, source, key)
+    return Run(repro, opts, computed, ev, tables, prov, source, key, reuse_outputs=not fresh)
 
 
 def run_key(repro: Reproduction, opts: RunOptions, source: dict[str, Any] | None) -> str:
@@ -201,64 +208,6 @@ def run_key(repro: Reproduction, opts: RunOptions, source: dict[str, Any] | None
     return f"{ident}-{hashlib.sha256((ident + project_fingerprint()).encode()).hexdigest()[:16]}"
 
 
-def _memo_dir(cache_dir: Path, key: str) -> Path:
-    """runs/<what was run>/<that with this code>: a new memo replaces those of older code."""
-    ident, code = key.split("-")
-    return cache_dir / "runs" / ident / code
-
-
-def _save_memo(cache_dir: Path, key: str, ev: Evaluation, tables: Tables, stages: list[dict[str, Any]]) -> None:
-    from dse.engine.cache import remove_path
-
-    target = _memo_dir(cache_dir, key)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{key}.staging-", dir=target.parent))
-    try:
-        tables.write(staging / "tables")
-        atomic_write_text(staging / "memo.json", json.dumps({"evaluation": asdict(ev), "stages": stages,
-                                                             "files": _manifest(staging, everything=True)}, allow_nan=False))
-        for old in target.parent.iterdir():  # memos of the same run made by older code
-            if old.name != staging.name:
-                remove_path(old)
-        os.replace(staging, target)
-        tables.source = target / "tables"   # the run's own tables/ are copied from here, not encoded again
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-
-
-def _load_memo(cache_dir: Path, key: str) -> tuple[Evaluation, Tables, list[dict[str, Any]]] | None:
-    d = _memo_dir(cache_dir, key)
-    if not d.is_dir():
-        return None
-    try:
-        memo = json.loads((d / "memo.json").read_text())
-        if _manifest(d, everything=True) != memo["files"]:
-            raise ValueError("checksum mismatch")
-        return Evaluation(**memo["evaluation"]), Tables.read(d / "tables"), list(memo["stages"])
-    except Exception as exc:  # a damaged memo is recomputed, like any cache entry
-        from dse.engine.cache import remove_path
-
-        print(f"dse: run memo {key} is damaged ({type(exc).__name__}: {exc}); recomputing", file=sys.stderr)
-        remove_path(d)
-        return None
-
-
-def _manifest(directory: Path, everything: bool = False) -> dict[str, str]:
-    """sha256 of every file under `directory`: of the figures and recordings of a run directory
-    (not its report, run.json or tables), or of everything but memo.json."""
-    skip = {"memo.json"} if everything else {"report.json", "report.md", "run.json", "memo.json"}
-    return {str(p.relative_to(directory)): _sha256(p) for p in sorted(directory.rglob("*"))
-            if p.is_file() and p.name not in skip and (everything or "tables" not in p.relative_to(directory).parts)}
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _reuse_outputs(out_dir: Path, staging: Path, key: str | None) -> dict[str, str] | None:
     """Figures and recordings of the previous run in `out_dir`, hard-linked (or copied) into
     `staging`, when that run had the same run key and its files are intact; else None."""
@@ -269,7 +218,7 @@ def _reuse_outputs(out_dir: Path, staging: Path, key: str | None) -> dict[str, s
         if meta.get("run_key") != key or not isinstance(meta.get("outputs"), dict) or not meta["outputs"]:
             return None
         for rel, digest in meta["outputs"].items():
-            if _sha256(out_dir / rel) != digest:
+            if sha256_file(out_dir / rel) != digest:
                 return None
         for rel in meta["outputs"]:
             target = staging / rel

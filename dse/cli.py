@@ -27,7 +27,8 @@ from pathlib import Path  # noqa: E402
 
 from dse.errors import CacheMiss, NumericalError, OutputError, ScenarioError  # noqa: E402
 from dse.contract.options import RunOptions  # noqa: E402
-from dse.engine.driver import REVERIFY_RTOL, reverify, run  # noqa: E402
+from dse.engine.driver import REVERIFY_RTOL, run  # noqa: E402
+from dse.engine.reverify import verify_run  # noqa: E402
 from dse.engine.outlock import output_lock  # noqa: E402
 from dse.engine.progress import fresh_line  # noqa: E402
 from dse.outputs.report import counts_line, verdict_counts, write_summary  # noqa: E402
@@ -35,7 +36,8 @@ from dse.outputs.report import counts_line, verdict_counts, write_summary  # noq
 EXIT_CODES = """exit codes:
   0    done (with --strict: and no claim is fail or error)
   1    --strict and some claim is fail or error; dse verify found differences; a sweep has failed points
-  2    invalid input or unusable output (one line naming the field or path; nothing written)
+  2    invalid input or unusable output (one line naming the field or path; nothing written:
+       an OUT the command created is removed; the lock file OUT/.dse.lock is removed after every command)
   3    numerical failure of the run (a NaN or inf where a finite number is required)
   130  interrupted (SIGINT, Ctrl-C)
   141  the reader of the output went away (e.g. `dse list | head`)
@@ -117,9 +119,10 @@ def cmd_reproduce(args) -> int:
         raise ScenarioError("PAPER", f"unknown paper {', '.join(unknown)} (known: {', '.join(papers)})")
     out_root = Path(args.out)
     rows = []
-    with output_lock(out_root):
+    with output_lock(out_root) as guard:
         for pid in args.papers or list(papers):
-            rows.append(run(reg.paper(pid), out_root, _options(args), figures=not args.no_figures))
+            rows.append(run(reg.paper(pid), out_root, _options(args), figures=not args.no_figures, fresh=args.fresh))
+            guard.wrote_results()   # a later paper's failure leaves this one's outputs
             r = rows[-1]
             print(f"{pid}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_root / pid}")
         print(f"summary: {write_summary(out_root)}")
@@ -135,7 +138,8 @@ def cmd_run(args) -> int:
     out_root = Path(args.out)
     out_dir = out_root / "run" / repro.paper_id
     with output_lock(out_root):
-        r = run(repro, out_root, _options(args), out_dir=out_dir, source=data, figures=not args.no_figures)
+        r = run(repro, out_root, _options(args), out_dir=out_dir, source=data, figures=not args.no_figures,
+                fresh=args.fresh, scenario_file=str(Path(args.file).resolve()))
     print(f"{repro.paper_id}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_dir}")
     return _strict_status(args, [r])
 
@@ -158,8 +162,8 @@ def cmd_verify(args) -> int:
         from dse.sweeps.run import verify_sweep
 
         diffs, n_points = verify_sweep(d)
-        print(f"{d}: re-assembled {n_points} sweep points from their stored results: "
-              f"{'identical' if not diffs else f'{len(diffs)} differences'}")
+        print(f"{d}: checked its files against the SHA-256 checksums in sweep.json and re-assembled {n_points} sweep "
+              f"points from their stored results: {'identical' if not diffs else f'{len(diffs)} differences'}")
         for line in diffs:
             print(f"  differs: {line}")
         status |= bool(diffs)
@@ -170,8 +174,8 @@ def _verify_run(args, d: Path) -> int:
     reg = _registry()
     try:
         meta = json.loads((d / "run.json").read_text())
-        options, out_root = meta["options"], meta["out_root"]
-        json.loads((d / "report.json").read_text())["claims"]
+        out_root = meta["out_root"]
+        meta["options"], json.loads((d / "report.json").read_text())["claims"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise OutputError(f"{d}: run.json or report.json is damaged ({type(exc).__name__}: {exc}); run the scenario "
                           "again to rewrite them") from None
@@ -181,19 +185,21 @@ def _verify_run(args, d: Path) -> int:
     repro = reg.from_dict(meta["scenario"]) if meta.get("scenario") else reg.paper(meta["paper"])
     root = (d / out_root).resolve()
     try:
-        rows, diffs = reverify(repro, root, d)
-    except CacheMiss:
-        again = (f"dse reproduce {meta['paper']} --out {root}" if not meta.get("scenario") else
-                 f"dse run <the scenario file> --out {root}")
-        seeds = f" --seed {options.get('seed', 0)}" + (" --quick" if options.get("quick") else "")
-        raise CacheMiss(f"{d}: the stage cache under {root / '.cache'} has no results for this run with the current "
-                        f"code (it changed since, or the cache was deleted); run `{again}{seeds}` again, then verify") from None
-    counts = verdict_counts(rows)
-    print(f"{d}: re-checked {len(rows)} claims from the cache (numbers within a relative {REVERIFY_RTOL:g}): "
-          f"{counts_line(counts)}")
-    for line in diffs:
+        v = verify_run(repro, root, d, meta)
+    except CacheMiss as exc:
+        raise CacheMiss(f"{d}: {exc}") from None
+    print(f"{d}:")
+    print(f"  files: {v.files} checked against the SHA-256 checksums in run.json: "
+          f"{len(v.file_diffs) or 'none'} differ" if v.files else
+          "  files: not checked (run.json records no checksums: written by an older dse; run it again to add them)")
+    print(f"  tables: {v.tables} recomputed from the stage cache ({v.cells:,} cells), compared with tables/*.parquet "
+          f"exactly: {len(v.table_diffs) or 'none'} differ")
+    print(f"  claims: {len(v.claims)} re-checked from the stage cache against report.json (numbers within a relative "
+          f"{REVERIFY_RTOL:g}): {counts_line(verdict_counts(v.claims))}; {len(v.claim_diffs) or 'none'} differ")
+    for line in v.diffs:
         print(f"  differs: {line}")
-    return int(bool(diffs)) | _strict_status(args, [counts])
+    print(f"  {'verified: no differences' if not v.diffs else f'NOT verified: {len(v.diffs)} differences'}")
+    return int(bool(v.diffs)) | _strict_status(args, [verdict_counts(v.claims)])
 
 
 def cmd_sweep(args) -> int:
@@ -235,6 +241,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "Monte Carlo streams within it, results do not depend on it")
         p.add_argument("--no-figures", action="store_true",
                        help="write the report and the tables only (no figures, no recordings): for fast iteration")
+        p.add_argument("--fresh", action="store_true",
+                       help="ignore the run memo and the stage cache under OUT/.cache: recompute every stage, "
+                            "overwrite its cache entry, redraw every figure and recording")
         strict_flag(p)
 
     def strict_flag(p):
@@ -259,7 +268,9 @@ def build_parser() -> argparse.ArgumentParser:
     chk.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
     chk.add_argument("--workers", type=_positive_int, default=2, help="worker processes (default 2)")
     chk.set_defaults(func=cmd_check)
-    ver = sub_parser("verify", help="re-check claims from cached results, without simulating")
+    ver = sub_parser("verify", help="check a run's files against the checksums in its run.json, recompute its tables "
+                                    "and re-check its claims from cached results (or re-assemble a sweep's), "
+                                    "without simulating; exit 1 on any difference")
     ver.add_argument("out_dir", metavar="OUT_DIR")
     strict_flag(ver)
     ver.set_defaults(func=cmd_verify)

@@ -3,7 +3,8 @@
 An entry is one ``.npz`` file of named arrays plus a ``.json`` sidecar holding the
 parameters and the SHA-256 of the npz bytes. Both are written atomically, the sidecar
 last, so an entry without a valid sidecar is simply absent; an entry whose checksum does
-not match is reported, deleted and recomputed, never used.
+not match is reported, deleted and recomputed, never used (a read-only cache, the one
+`dse verify` reads, only records it).
 """
 from __future__ import annotations
 
@@ -63,10 +64,15 @@ def project_fingerprint() -> str:
 class StageCache:
     """A directory of cached stage results."""
 
-    def __init__(self, root: str | Path, *, read_only: bool = False):
+    def __init__(self, root: str | Path, *, read_only: bool = False, fresh: bool = False):
+        """`read_only`: never write or delete (what `dse verify` reads; a damaged entry is recorded in
+        `corrupt_entries`, not recomputed); `fresh`: never read, every stage is computed and its entry
+        overwritten (`dse run --fresh`; an entry stored by this object is read back)."""
         self.root = Path(root)
         self.read_only = read_only
+        self.fresh = fresh
         self.corrupt_entries: list[str] = []
+        self._written: set[str] = set()    # entries this object stored (a fresh run reads those back)
 
     def key(self, stage: str, params: dict[str, Any]) -> str:
         return f"{stage}-{hashlib.sha256(canonical_json(params).encode()).hexdigest()[:24]}"
@@ -77,7 +83,7 @@ class StageCache:
     def load(self, stage: str, params: dict[str, Any]) -> dict[str, np.ndarray] | None:
         key = self.key(stage, params)
         data_path, meta_path = self._paths(key)
-        if not meta_path.exists() or not data_path.exists():
+        if (self.fresh and key not in self._written) or not meta_path.exists() or not data_path.exists():
             return None
         try:
             meta = json.loads(meta_path.read_text())
@@ -89,11 +95,17 @@ class StageCache:
         except Exception as exc:  # any damage to an entry (truncated, edited, replaced by a directory) means: recompute
             reason = f"{type(exc).__name__}: {exc}" if not isinstance(exc, ValueError) else str(exc)
             self.corrupt_entries.append(f"{key}: {reason}")
+            if self.read_only:  # the reader says what to do about it (see dse verify)
+                return None
             print(f"dse: cache entry {key} is damaged ({reason}); recomputing", file=sys.stderr)
-            if not self.read_only:
-                for p in (meta_path, data_path):
-                    remove_path(p)
+            for p in (meta_path, data_path):
+                remove_path(p)
             return None
+
+    def remove_entry(self, key: str) -> None:
+        """Delete the files of the entry `key` (a damaged one: nobody can use it)."""
+        for p in self._paths(key):
+            remove_path(p)
 
     def save(self, stage: str, params: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
         if self.read_only:
@@ -109,6 +121,7 @@ class StageCache:
         atomic_write_bytes(data_path, raw)
         atomic_write_text(meta_path, json.dumps({"stage": stage, "params": json.loads(canonical_json(params)),
                                                  "sha256": hashlib.sha256(raw).hexdigest()}, indent=1))
+        self._written.add(key)
 
     def get_or_compute(self, stage: str, params: dict[str, Any], compute: Callable[[], dict[str, np.ndarray]], *,
                        scenario: str = "", allow_nonfinite: tuple[str, ...] = ()) -> dict[str, np.ndarray]:

@@ -4,7 +4,6 @@ only the members the contract declares.
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -17,12 +16,16 @@ from dse.verify.rules import Evaluation, evaluate
 
 def check_output_dir(path: Path) -> None:
     """Fail before any long computation if `path` cannot take our outputs."""
+    probe = path / ".dse-write-probe"
     try:
         path.mkdir(parents=True, exist_ok=True)
-        probe = path / ".dse-write-probe"
         probe.write_bytes(b"0" * 65536)
         probe.unlink()
     except OSError as exc:
+        try:
+            probe.unlink(missing_ok=True)   # a probe half-written on a full disk is not left behind
+        except OSError:
+            pass
         raise OutputError(f"output directory {path} is not usable: {exc.strerror or exc}") from None
 
 
@@ -31,13 +34,18 @@ def cache_for(out_root: Path, paper_id: str, *, read_only: bool = False) -> Stag
 
 
 def run(repro, out_root: Path, opts: RunOptions, *, out_dir: Path | None = None,
-        source: dict[str, Any] | None = None, figures: bool = True) -> dict[str, Any]:
-    """Compute, verify, write tables, figures, recordings and the report; return the summary counts."""
+        source: dict[str, Any] | None = None, figures: bool = True, fresh: bool = False,
+        scenario_file: str | None = None) -> dict[str, Any]:
+    """Compute, verify, write tables, figures, recordings and the report; return the summary counts.
+    `fresh`: ignore the run memo and the stage cache (recompute every stage, overwrite its entry,
+    redraw every view); `scenario_file`: the file the scenario was read from, kept in run.json so
+    that `dse verify` can name the command that recomputes the run."""
     from dse.api import execute
 
     out_dir = out_dir or out_root / repro.paper_id
     check_output_dir(out_root)
-    result = execute(repro, opts, cache_dir=cache_for(out_root, repro.paper_id).root, source=source)
+    result = execute(repro, opts, cache_dir=cache_for(out_root, repro.paper_id).root, source=source, fresh=fresh)
+    result.source_file = scenario_file
     start = time.perf_counter()
     result.write(out_dir, out_root=out_root, figures=figures)
     return {"paper": repro.paper_id, **result.counts, "wall_s": result.provenance["compute_s"] + time.perf_counter() - start}
@@ -56,27 +64,12 @@ REVERIFY_RTOL = 1e-9
 
 
 def reverify(repro, out_root: Path, out_dir: Path) -> tuple[list[dict], list[str]]:
-    """Re-check every claim from cached stage results only; list every difference from report.json
-    in verdict, measured, reference or margin (numbers within REVERIFY_RTOL)."""
-    from dse.contract.context import StageContext
+    """Re-check every claim and recompute every table from cached stage results only; the claim rows
+    and every difference from what `out_dir` holds (see `dse.engine.reverify.verify_run`)."""
+    from dse.engine.reverify import verify_run
 
-    opts = RunOptions(**json.loads((out_dir / "run.json").read_text())["options"])
-    computed = repro.compute(opts, StageContext(cache_for(out_root, repro.paper_id, read_only=True)))
-    rows = evaluate_claims(repro, computed).claims
-    stored = {r["id"]: r for r in json.loads((out_dir / "report.json").read_text())["claims"]}
-    diffs = []
-    for r in rows:
-        old = stored.pop(r["id"], None)
-        if old is None:
-            diffs.append(f"{r['id']}: not in report.json (re-check gives {r['verdict']})")
-            continue
-        if old["verdict"] != r["verdict"]:
-            diffs.append(f"{r['id']}: report says {old['verdict']}, re-check gives {r['verdict']}")
-        for key in ("measured", "reference", "margin"):
-            if not same_number(old.get(key), r.get(key)):
-                diffs.append(f"{r['id']}: {key} {old.get(key)!r} in report.json, {r.get(key)!r} re-checked")
-    diffs += [f"{cid}: in report.json, not re-checked" for cid in stored]
-    return rows, diffs
+    v = verify_run(repro, out_root, out_dir)
+    return v.claims, v.diffs
 
 
 def same_number(a: Any, b: Any, rtol: float = REVERIFY_RTOL) -> bool:

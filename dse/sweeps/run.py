@@ -326,6 +326,7 @@ def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", worke
     into place, so the directory never mixes two runs and an invalid sweep leaves nothing."""
     from dse.api import _replace_dir, _staging_dir
     from dse.engine.driver import check_output_dir
+    from dse.engine.memo import manifest
 
     choose_scheduler(scheduler, 0, workers)  # a bad --scheduler fails before anything runs
     check_output_dir(out_root)
@@ -351,7 +352,8 @@ def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", worke
         meta = {"name": spec.name, "family": spec.family, "sweep": spec.source, "base_scenario": spec.base,
                 "scheduler": mode, "workers": workers,
                 "points": [_point_meta(t, results.get(t.key), failures.get(t.key)) for t in tasks],
-                "failures": failures, "wall_s": time.perf_counter() - start}
+                "failures": failures, "wall_s": time.perf_counter() - start,
+                "checksums": manifest(staging, everything=True)}   # every file but sweep.json: what verify compares
         atomic_write_text(staging / "sweep.json", json.dumps(meta, indent=1, default=str))
         _replace_dir(staging, out_dir)
     finally:
@@ -384,10 +386,18 @@ def write_sweep_outputs(spec: SweepSpec, out_dir: Path, done: list[Task], result
     return {"numerical_errors": int((frame["status"] != "ok").sum()) if len(frame) else 0}
 
 
+def sweep_file_diffs(out_dir: Path, meta: dict[str, Any]) -> list[str]:
+    """Every file of a sweep directory that differs from the SHA-256 sweep.json recorded (none
+    when sweep.json has no checksums: written by an older dse)."""
+    from dse.engine.reverify import check_files
+
+    return check_files(out_dir, meta.get("checksums"), skip="sweep.json")[1]
+
+
 def verify_sweep(out_dir: Path) -> tuple[list[str], int]:
-    """Re-assemble a sweep's results and claims tables from its stored points (checksums
-    verified) and list every difference from the written tables (numbers within the
-    relative tolerance of `dse verify`). Returns (differences, points found)."""
+    """Check a sweep's files against the checksums in sweep.json, re-assemble its results table from
+    its stored points (checksums verified) and list every difference from the written files and
+    tables (numbers within the relative tolerance of `dse verify`). Returns (differences, points found)."""
     import pandas as pd
 
     from dse.sweeps import outputs as so
@@ -404,7 +414,7 @@ def verify_sweep(out_dir: Path) -> tuple[list[str], int]:
         raise OutputError(f"{out_dir}: sweep.json is damaged ({type(exc).__name__}: {exc}); run the sweep again") from None
     store = PointStore(points_dir(out_dir.parent.parent, meta["name"]))
     points = spec.points()
-    diffs, done, results = [], [], []
+    diffs, done, results = sweep_file_diffs(out_dir, meta), [], []
     for p in meta["points"]:
         if "failed" in p:
             continue
