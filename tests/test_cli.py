@@ -165,7 +165,7 @@ def test_unwritable_output_fails_before_computing(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     proc = dse("run", "s.toml", "--out", str(blocker), cwd=tmp_path)
-    assert proc.returncode == 2 and "not usable" in proc.stderr
+    assert proc.returncode == 2 and "is a file, not a directory" in proc.stderr, proc.stderr
 
 
 def test_paper_quick(tmp_path):
