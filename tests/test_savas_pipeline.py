@@ -62,7 +62,7 @@ def test_the_paper_file_comments_every_key():
 
 
 @pytest.mark.parametrize("change, field, words", [
-    ({"graph": {"kind": "line", "n": 1}}, "graph.n", "at least 2"),
+    ({"graph": {"kind": "line", "n": 1}}, "graph.n", "must be >= 2"),
     ({"graph": {"kind": "edges", "n": 4, "edges": [[0, 1], [2, 3]]}}, "graph", "not connected"),
     ({"graph": {"kind": "edges", "n": 3, "edges": [[0, 1], [1, 2], [2, 1]]}}, "graph.edges[2]", "repeats"),
     ({"graph": {"kind": "ring", "n": 1001}}, "graph.n", "at most 1000"),

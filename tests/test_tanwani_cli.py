@@ -192,7 +192,7 @@ BAD = [
     ("mode = \"ordered\"", "mode = \"both\"", "communication.mode: must be one of"),
     ("V = [[0.5]]", "V = [[-0.5]]", "sensors[0].V: must be positive definite"),
     ("H = [[1.0, 0.0]]", "H = [[1.0, 0.0, 3.0]]", "sensors[0].H: must have 2 columns"),
-    ("kind = \"line\"\nn = 3", "kind = \"line\"\nn = 1", "graph.n: a network needs at least 2 nodes"),
+    ("kind = \"line\"\nn = 3", "kind = \"line\"\nn = 1", "graph.n: must be >= 2, got 1"),
     ("P0 = [[2.0, 0.0], [0.0, 1.0]]", "P0 = [[1.0, 1.0], [1.0, 0.9999999995]]", "system.P0: must be positive semidefinite"),
     ("V = [[0.5]]", "V = [[0.5]]\nP_init = [[1.0, 0.0], [0.0, -1e-3]]", "sensors[0].P_init: must be positive semidefinite"),
     ("kind = \"line\"\nn = 3", "kind = \"edges\"\nn = 3\nedges = [[0, 1], [1, 0]]", "graph.edges[1]: repeats edge"),

@@ -90,7 +90,7 @@ def test_the_paper_file_comments_every_key():
 
 
 @pytest.mark.parametrize("change, field, words", [
-    ({"graph": {"kind": "line", "n": 1}}, "graph.n", "at least 2"),
+    ({"graph": {"kind": "line", "n": 1}}, "graph.n", "must be >= 2"),
     ({"graph": {"kind": "edges", "n": 4, "edges": [[0, 1], [1, 1]]}}, "graph.edges[1]", "self-loop"),
     ({"graph": {"kind": "edges", "n": 4, "edges": [[0, 1], [1, 0]]}}, "graph.edges[1]", "repeats"),
     ({"graph": {"kind": "ring", "n": 41}}, "graph.n", "at most 40"),
