@@ -115,11 +115,11 @@ def test_user_scenario_report(user_run):
     verdicts = {c["id"]: c["verdict"] for c in report["claims"]}
     assert report["provenance"]["seed"] == 3 and report["provenance"]["trials"] == 4000
     # paper-only reference tables are not applied to a user's scenario
-    assert "savas.fig1.values" not in verdicts
-    for claim in ("savas.thm1.i", "savas.thm1.ii", "savas.mc.trace", "savas.mc.per_agent", "savas.reference.filterpy",
-                  "savas.reference.kf_lower_bound", "savas.proof.pathwise", "savas.carli.closed_form"):
+    assert "ring5.fig1.values" not in verdicts
+    for claim in ("ring5.thm1.i", "ring5.thm1.ii", "ring5.mc.trace", "ring5.mc.per_agent", "ring5.reference.filterpy",
+                  "ring5.reference.kf_lower_bound", "ring5.proof.pathwise", "ring5.carli.closed_form"):
         assert verdicts[claim] in ("pass", "erratum"), (claim, verdicts[claim])
-    assert verdicts["savas.thm1.ii"] == "erratum"
+    assert verdicts["ring5.thm1.ii"] == "erratum"
 
 
 def test_user_scenario_recordings(user_run):
@@ -157,7 +157,7 @@ def test_same_seed_same_numbers_different_seed_different(user_run, tmp_path):
     again = numbers(tmp_path / "o1" / "run" / "ring5" / "report.json")
     changed = numbers(tmp_path / "o2" / "run" / "ring5" / "report.json")
     assert first == again
-    assert first["savas.mc.trace"] != changed["savas.mc.trace"]
+    assert first["ring5.mc.trace"] != changed["ring5.mc.trace"]
 
 
 def test_unwritable_output_fails_before_computing(tmp_path):
@@ -217,8 +217,8 @@ def test_nonsymmetric_consensus_matrix_runs_with_modal_claims_not_checkable(tmp_
     proc = dse("run", "s.toml", "--out", "out", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     claims = {c["id"]: c for c in json.loads((tmp_path / "out/run/nonsym4/report.json").read_text())["claims"]}
-    assert claims["savas.thm1.ii"]["verdict"] == "not-checkable" and "symmetric" in claims["savas.thm1.ii"]["detail"]
-    for cid in ("savas.thm1.i", "savas.mc.trace", "savas.mc.per_agent", "savas.reference.kf_lower_bound"):
+    assert claims["nonsym4.thm1.ii"]["verdict"] == "not-checkable" and "symmetric" in claims["nonsym4.thm1.ii"]["detail"]
+    for cid in ("nonsym4.thm1.i", "nonsym4.mc.trace", "nonsym4.mc.per_agent", "nonsym4.reference.kf_lower_bound"):
         assert claims[cid]["verdict"] == "pass", cid
     assert not (tmp_path / "out/run/nonsym4/figures/fig2.png").exists()
 

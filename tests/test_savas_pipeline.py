@@ -111,7 +111,7 @@ def test_no_claim_fails_or_errs_and_steps_are_decimated(small_run):
     assert not bad
     res = small_run.results
     assert len(res.design.steps) == 12 and res.design.steps[-1] == 29 and 3 in res.design.steps
-    assert "12 recorded steps" in next(r["detail"] for r in small_run.evaluation.claims if r["id"] == "savas.mc.trace")
+    assert "12 recorded steps" in next(r["detail"] for r in small_run.evaluation.claims if r["id"] == "small.mc.trace")
 
 
 def test_nodes_table_equals_the_independent_computations(small_run):

@@ -120,7 +120,7 @@ def test_disconnected_graph_is_accepted_and_reported():
     repro = reproductions.from_dict(data)
     check = api.check(repro, quick=True)
     hyp = {h["id"]: h for h in check.hypotheses}
-    assert hyp["tran.hyp.graph_connected"]["holds"] is False and hyp["tran.hyp.graph_undirected"]["holds"] is True
+    assert hyp["small.hyp.graph_connected"]["holds"] is False and hyp["small.hyp.graph_undirected"]["holds"] is True
 
 
 # -- the run, the design and the tables ------------------------------------------------------------------

@@ -374,7 +374,8 @@ def write_recording(v: ScenarioTables, path: Path, out: Outputs) -> None:
 
     sc, repro = v.sc, out.reproduction
     prefix = repro.paper_id if repro.is_paper else repro.family.id
-    own = [c for c in out.claims if c["id"].endswith(f".{sc.name}")]
+    several = len(repro.scenarios) > 1   # a one-scenario run's ids do not name the scenario: every claim is its own
+    own = [c for c in out.claims if not several or c["id"].endswith(f".{sc.name}")]
     summary = (f"# {sc.name}: {counts_line(verdict_counts(own))}\n\n{sc.description}\n\nseed {v.seed}, {v.runs:,} GIKF "
                f"runs, {v.reference_runs:,} Theorem-8 runs, {v.slots} slots")
 

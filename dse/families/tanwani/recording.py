@@ -140,7 +140,8 @@ def write(out: Outputs, v: ScenarioTables, path: Path) -> None:
         _log_trials(rec, v, idx)
         _log_covariances(rec, v, idx, t)
 
-    claims = [c for c in out.claims if c["id"].endswith(f".{v.name}") or c["id"].count(".") == 2]
+    several = len(out.reproduction.scenarios) > 1   # a one-scenario run's ids do not name the scenario
+    claims = [c for c in out.claims if not several or c["id"].endswith(f".{v.name}") or c["id"].count(".") == 2]
     recording(path, out, recording_id=f"tanwani-{v.name}-seed{out.seed}", tabs=lambda: _tabs(v.rates, v.N),
               timeline="t", log=log, claims=claims,
               summary=out.summary(v.title, PAPER_NOTE if out.reproduction.is_paper else ""),
