@@ -31,7 +31,7 @@ from dse.engine.driver import REVERIFY_RTOL, run  # noqa: E402
 from dse.engine.reverify import verify_run  # noqa: E402
 from dse.engine.outlock import output_lock  # noqa: E402
 from dse.engine.progress import fresh_line  # noqa: E402
-from dse.outputs.report import counts_line, verdict_counts, write_summary  # noqa: E402
+from dse.outputs.report import counts_line, hypothesis_status, verdict_counts, write_summary  # noqa: E402
 
 EXIT_CODES = """exit codes:
   0    done (with --strict: and no claim is fail or error)
@@ -89,8 +89,8 @@ def cmd_check(args) -> int:
     print(f"{args.file}: valid scenario '{repro.paper_id}' ({repro.title})")
     print("hypotheses:")
     for h in result.hypotheses:
-        mark = "error" if h["error"] else {True: "holds", False: "FAILS", None: "undecided"}[h["holds"]]
-        print(f"  {mark:<9} {h['id']}: {h['statement']}; value {h['value']}, threshold {h['threshold']}. {h['detail']}")
+        mark = "error" if h["error"] else hypothesis_status(h, {True: "holds", False: "does not hold", None: "undecided"})
+        print(f"  {mark:<13} {h['id']}: {h['statement']}; value {h['value']}, threshold {h['threshold']}. {h['detail']}")
     print("design quantities:")
     import pandas as pd
 

@@ -76,7 +76,7 @@ def test_shipped_files_comment_every_key():
     ({"model__Q": [[0.1, 0.0], [0.0, 0.0]]}, "model.Q", "positive definite"),
     ({"model__P0": [[1.0, 0.0], [0.0, -1e-3]]}, "model.P0", "positive semidefinite"),
     ({"model__x0": [1.0]}, "model.x0", "2 entries"),
-    ({"graph__n": 1, "graph__kind": "line"}, "graph.n", "at least 2"),
+    ({"graph__n": 1, "graph__kind": "line"}, "graph.n", "must be >= 2"),
     ({"graph__kind": "edges", "graph__edges": [[0, 1], [1, 0]]}, "graph.edges[1]", "repeats"),
     ({"graph__kind": "edges", "graph__edges": [[0, 0]]}, "graph.edges[0]", "self-loop"),
     ({"graph__kind": "complete", "graph__n": 1001}, "graph.n", "at most 1000"),

@@ -22,7 +22,7 @@ claims = ClaimSet()
 @claims.hypothesis("kar-moura.hyp.c1{.scenario}", "C.1: Ā irreducible and aperiodic (SLEM < 1) ({scenario})")
 def hyp_c1(r: ScenarioDesign) -> Holds:
     b, a = r.bounds, r.assume
-    return Holds(bool(a.c1), value=float(b["slem"]), threshold=1.0,
+    return Holds(bool(a.c1), value=float(b["slem"]), threshold=1.0, expected=r.scenario.expect.c1,
                  detail=(f"support of Ā: {len(a.classes)} communicating class(es), irreducible = {a.irreducible}, aperiodic = "
                          f"{a.aperiodic}; SLEM = {float(b['slem']):.6f}"
                          + ("" if bool(b["Abar_exact"]) else " (Ā estimated; the structure is exact)")))
@@ -40,7 +40,7 @@ def hyp_s1(r: ScenarioDesign) -> Holds:
                    "D.1: some Ā-walk has an invertible observability Gramian ({scenario})")
 def hyp_d1(r: ScenarioDesign) -> Holds:
     d = r.assume.d1
-    return Holds(d.holds, value=float(d.search.ratio), threshold=wd.CERTAIN_RATIO,
+    return Holds(d.holds, value=float(d.search.ratio), threshold=wd.CERTAIN_RATIO, expected=r.scenario.expect.d1,
                  detail=f"{d.how}; {d.search.walks_checked} walks of length ≤ {WITNESS_MAX_LEN} searched")
 
 
@@ -49,6 +49,7 @@ def hyp_d1(r: ScenarioDesign) -> Holds:
 def hyp_witness(r: ScenarioDesign) -> Holds:
     s = r.assume.d1.search
     return Holds(s.witness is not None, value=len(s.witness) if s.witness else None, threshold=WITNESS_MAX_LEN,
+                 expected=False if r.scenario.expect.d1 is False else None,   # no witness without D.1
                  detail=(f"witness walk w0 = {s.witness} recorded (Gramian λ_min/λ_max {s.ratio:.3g})" if s.witness else
                          f"no witness walk of length ≤ {WITNESS_MAX_LEN} (the constants of Lemmas 14-15 need one)"))
 
@@ -69,6 +70,7 @@ def hyp_undetectable(r: ScenarioDesign) -> Holds:
     rows = [f"class {i}: " + ("undecided" if bl is None else (", ".join(f"|λ| = {abs(x):.4g}" for x in bl) or "sees every |λ| ≥ 1"))
             for i, bl in enumerate(a.blind)]
     return Holds(a.undetectable, value=math.exp(a.rate / 2) if a.rate > 0 else None, threshold=1.0,
+                 expected=r.scenario.expect.diverges,
                  detail="modes |λ| ≥ 1 on the unobservable subspace of each class of Ā: " + "; ".join(rows))
 
 
