@@ -21,3 +21,30 @@ def test_hybrid_observer_bounds_figure_of_a_user_scenario(tmp_path, monkeypatch)
     axes = drawn["fig"].axes
     assert len(axes) == 1, "a panel is drawn for a run the scenario does not have"
     assert axes[0].get_title().startswith("mine/sync:"), axes[0].get_title()
+
+
+def test_compare_legend_stays_inside_the_figure(tmp_path, monkeypatch):
+    """Two columns of long labels below the error-against-communication panel once ran off the figure's left
+    edge; the legend now starts at the axes' left edge."""
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from dse.estimators.network import registry
+    from dse.families.compare import views as compare_views
+
+    names = list(registry())
+    estimators = pd.DataFrame({"estimator": names, "network_mse": [1.0 + i for i in range(len(names) - 1)] + [1e9],
+                               "exact": True, "network_mse_mc_se": 0.0, "scalars_per_step": range(len(names))})
+    applicability = pd.DataFrame({"estimator": names, "applies": True, "reason": ""})
+    res = SimpleNamespace(scenario=SimpleNamespace(name="x", simulation=SimpleNamespace(eval_step=3),
+                                                   links=SimpleNamespace(model="reliable", noise_std=1.0)))
+    drawn = {}
+    monkeypatch.setattr(compare_views, "save_figure", lambda fig, path: drawn.setdefault("fig", fig))
+    compare_views.error_vs_communication(res, {"estimators": estimators, "applicability": applicability},
+                                         tmp_path / "f.png")
+    fig = drawn["fig"]
+    fig.tight_layout()
+    fig.canvas.draw()
+    box = fig.axes[0].get_legend().get_window_extent()
+    assert box.x0 >= 0 and box.x1 <= fig.bbox.width, (box, fig.bbox)
