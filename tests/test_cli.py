@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rerun as rr
 
 from dse.outputs import record
 
@@ -134,6 +135,10 @@ def test_user_scenario_recordings(user_run):
     assert len(edges) == 5
     kinds = record.blueprint_view_kinds(d / "ring5.rrd")
     assert "TimeSeries" in kinds and "Graph" in kinds and "TextDocument" in kinds
+    for rrd in ("ring5.rrd", "ring5_figures.rrd"):   # named after the user's family and scenario, not the paper
+        (store,) = rr.chunk.RrdReader(str(d / rrd)).recordings()
+        assert store.application_id == "dse-noisy-consensus-filter", store
+        assert store.recording_id.startswith("noisy-consensus-filter-ring5-"), store
     for fig in ("fig1.png", "fig2.png", "fig3.png"):
         assert (d / "figures" / fig).stat().st_size > 10_000
 

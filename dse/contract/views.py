@@ -37,6 +37,13 @@ class Outputs:
     provenance: dict[str, Any] = field(default_factory=dict)
 
     @property
+    def run_prefix(self) -> str:
+        """What a recording is named after: the paper's id in its reproduction, else the family's id (a user's
+        run is never named after a paper)."""
+        repro = self.reproduction
+        return repro.family.paper.id if repro.is_paper and repro.family.paper else repro.family.id
+
+    @property
     def seed(self) -> int:
         return int(self.provenance.get("seed", 0) or 0)
 
@@ -75,7 +82,8 @@ def recording(path: Path, outputs: Outputs, *, recording_id: str, tabs: Callable
               claims: Sequence[dict] | None = None, application_id: str | None = None) -> None:
     """Write one recording: the family's `tabs()` (rerun blueprint containers) and the claims tab as
     its default layout, opened on `timeline`; `log(rec)` logs the family's data; then the claims
-    (`claims`, default every claim of the run) under `/report` and `/claims/<id>`."""
+    (`claims`, default every claim of the run) under `/report` and `/claims/<id>`. Its application id
+    (the name the viewer shows) is `dse-<run_prefix>` unless given."""
     import rerun.blueprint as rrb
 
     from dse.outputs import record
@@ -83,7 +91,7 @@ def recording(path: Path, outputs: Outputs, *, recording_id: str, tabs: Callable
     repro = outputs.reproduction
     blueprint = rrb.Blueprint(rrb.Tabs(*tabs(), claims_tab()), rrb.TimePanel(timeline=timeline, expanded=False),
                               collapse_panels=True)
-    app = application_id or f"dse-{repro.family.paper.id if repro.is_paper and repro.family.paper else repro.family.id}"
+    app = application_id or f"dse-{outputs.run_prefix}"
     with record.recording(path, application_id=app, recording_id=recording_id, blueprint=blueprint,
                           properties=outputs.properties(**(properties or {}))) as rec:
         log(rec)

@@ -369,11 +369,11 @@ def _log_runs(rec, v: ScenarioTables) -> None:
 
 
 def write_recording(v: ScenarioTables, path: Path, out: Outputs) -> None:
-    """One scenario's recording on the shared scaffold (its claims: those whose id ends with its name)."""
+    """One scenario's recording on the shared scaffold (its claims: those whose id ends with its name, or every
+    claim of a one-scenario run)."""
     from dse.outputs.report import counts_line, verdict_counts
 
     sc, repro = v.sc, out.reproduction
-    prefix = repro.paper_id if repro.is_paper else repro.family.id
     several = len(repro.scenarios) > 1   # a one-scenario run's ids do not name the scenario: every claim is its own
     own = [c for c in out.claims if not several or c["id"].endswith(f".{sc.name}")]
     summary = (f"# {sc.name}: {counts_line(verdict_counts(own))}\n\n{sc.description}\n\nseed {v.seed}, {v.runs:,} GIKF "
@@ -383,7 +383,7 @@ def write_recording(v: ScenarioTables, path: Path, out: Outputs) -> None:
         _log_matchings(rec, v)
         _log_runs(rec, v)
 
-    recording(path, out, recording_id=f"{prefix}-{sc.name}-seed{v.seed}", tabs=lambda: _tabs(v), timeline="k", log=log,
+    recording(path, out, recording_id=f"{out.run_prefix}-{sc.name}-seed{v.seed}", tabs=lambda: _tabs(v), timeline="k", log=log,
               properties={"runs": v.runs, "reference_runs": v.reference_runs, "slots": v.slots, "N": sc.N, "M": sc.M,
                           "protocol": sc.protocol.kind, "graph": sc.network.kind}, summary=summary, claims=own)
 

@@ -142,7 +142,7 @@ def write(out: Outputs, v: ScenarioTables, path: Path) -> None:
 
     several = len(out.reproduction.scenarios) > 1   # a one-scenario run's ids do not name the scenario
     claims = [c for c in out.claims if not several or c["id"].endswith(f".{v.name}") or c["id"].count(".") == 2]
-    recording(path, out, recording_id=f"tanwani-{v.name}-seed{out.seed}", tabs=lambda: _tabs(v.rates, v.N),
+    recording(path, out, recording_id=f"{out.run_prefix}-{v.name}-seed{out.seed}", tabs=lambda: _tabs(v.rates, v.N),
               timeline="t", log=log, claims=claims,
               summary=out.summary(v.title, PAPER_NOTE if out.reproduction.is_paper else ""),
               properties={"event_trials": int(mc.loc[mc["simulator"] == "event", "trials"].iloc[0]),
