@@ -44,3 +44,24 @@ def test_every_recording_gets_the_placement(tmp_path):
             if key.endswith("PlotLegend:visible"):
                 visible += [bool(x[0]) for x in values if x]
     assert sorted(visible) == [False, False, True]
+
+
+def test_the_claims_tab_is_one_view_of_one_document(tmp_path):
+    """The claims tab had a second view over one document per claim, which rerun cannot show ("one text document
+    at a time; was given 29"): one view of /report holds the table and every claim in full."""
+    family = SimpleNamespace(id="template", paper=None)
+    claims = [{"id": f"mine.c{i}", "verdict": "pass", "source": "eq. (1)", "statement": f"claim {i}", "measured": i,
+               "reference": 0, "margin": 1, "detail": f"detail {i}"} for i in range(3)]
+    out = Outputs(reproduction=SimpleNamespace(family=family, is_paper=False, paper_id="mine"), results=None,
+                  tables=None, claims=claims)
+    recording(tmp_path / "r.rrd", out, recording_id="t", tabs=lambda: [], timeline="k", log=lambda rec: None)
+    from dse.outputs import record
+
+    kinds = record.blueprint_view_kinds(tmp_path / "r.rrd")
+    assert kinds.count("TextDocument") == 1
+    reader = rr.chunk.RrdReader(str(tmp_path / "r.rrd"))
+    documents = {c.entity_path for c in reader.stream().filter(is_static=True)
+                 if any(k.endswith("TextDocument:text") for k in c.to_record_batch().to_pydict())}
+    assert documents == {"/report"}
+    text = record.read_static(tmp_path / "r.rrd", "/report")["TextDocument:text"][0]
+    assert "| `mine.c2` | **pass**" in text and "detail 2" in text

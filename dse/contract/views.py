@@ -5,7 +5,7 @@ the function that writes it. The driver draws them in forked worker processes (e
 only what it draws with: matplotlib or rerun), after the tables and the report's claims exist.
 
 `recording(...)` is the one recording scaffold every family fills: a default layout made of the
-family's tabs and a last tab with the claims (the verdict table and each claim in full), the
+family's tabs and a last tab with the claims (one document: the verdict table, then each claim in full), the
 timeline the viewer opens on, the run's properties (seed, trials, versions, git and the family's
 own), and the report's verdict counts as the `/report` header.
 
@@ -78,11 +78,11 @@ class Outputs:
 
 
 def claims_tab():
-    """The last tab of every recording's layout: the verdict table and the claim in full."""
+    """The last tab of every recording's layout: one view of `/report`, the verdict table and then every claim
+    in full (a second view of one document per claim showed only rerun's "one text document at a time" error)."""
     import rerun.blueprint as rrb
 
-    return rrb.Horizontal(rrb.TextDocumentView(origin="/report", name="claims"),
-                          rrb.TextDocumentView(origin="/claims", name="claim detail"), name="claims")
+    return rrb.TextDocumentView(origin="/report", name="claims")
 
 
 def recording(path: Path, outputs: Outputs, *, recording_id: str, tabs: Callable[[], Sequence[Any]], timeline: str,
@@ -90,7 +90,7 @@ def recording(path: Path, outputs: Outputs, *, recording_id: str, tabs: Callable
               claims: Sequence[dict] | None = None, application_id: str | None = None) -> None:
     """Write one recording: the family's `tabs()` (rerun blueprint containers) and the claims tab as
     its default layout, opened on `timeline`; `log(rec)` logs the family's data; then the claims
-    (`claims`, default every claim of the run) under `/report` and `/claims/<id>`. Its application id
+    (`claims`, default every claim of the run) under `/report`. Its application id
     (the name the viewer shows) is `dse-<run_prefix>` unless given."""
     import rerun.blueprint as rrb
 

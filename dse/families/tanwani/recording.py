@@ -5,7 +5,7 @@ Entities: /graph (sensor nodes, communication edges), /events/edge_<i>_<j> (one 
 of that edge's clock on a sample path), /truth/x and /nodes/<i>/estimate, /nodes/<i>/error
 (sample trials), /nodes/<i>/cov_trace/lam<λ> (tr 𝒫_i, exact tr E[e_ie_iᵀ], Monte Carlo mean
 and 95% band, tr P_KB) for every simulated λ, /paths/<p>/node<i> (one clock path: tr P_i(t; τ)
-and tr E[e_ie_iᵀ | τ]), /central/kalman_bucy, /bounds/S, and the scaffold's /claims/<id>, /report.
+and tr E[e_ie_iᵀ | τ]), /central/kalman_bucy, /bounds/S, and the scaffold's /report (the claims).
 """
 from __future__ import annotations
 
