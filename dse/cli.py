@@ -310,7 +310,8 @@ def build_parser() -> argparse.ArgumentParser:
     strict_flag(ver)
     ver.set_defaults(func=cmd_verify)
     swp = sub_parser("sweep", help="run a scenario family over a grid or random sample of fields, on Dask")
-    swp.add_argument("file", metavar="SWEEP.toml")
+    swp.add_argument("file", metavar="SWEEP.toml", help="a sweep file (TOML): a base scenario and the fields to vary "
+                                                       "(README, 'Sweeps'; examples in dse/families/sweeps/)")
     swp.add_argument("--out", default="out", help="output root directory; results go to OUT/sweep/NAME/ (default out/)")
     swp.add_argument("--scheduler", default="auto",
                      help="auto (default: in process for a tiny sweep, else a local Dask cluster), inline, local, "
