@@ -240,6 +240,18 @@ def _papers_epilog() -> str:
     return "papers (PAPER):\n" + "\n".join(f"  {pid:<{width}}  {fam.paper.title}" for pid, fam in papers.items())
 
 
+class VersionAction(argparse.Action):
+    """`dse --version`: the installed version, looked up only when asked (it reads the package metadata)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0,
+                         help=help or "print the installed version and exit")
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(_version())
+        parser.exit()
+
+
 def _version() -> str:
     from importlib.metadata import PackageNotFoundError, version
 
@@ -258,7 +270,7 @@ FILE_HELP = "a scenario file (TOML) of a supported family: `family = \"...\"` an
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="dse", description="Reproductions of distributed state estimation papers.",
                                      epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--version", action="version", version=_version())
+    parser.add_argument("--version", action=VersionAction)
     sub = parser.add_subparsers(dest="command", required=True)
     lst = sub.add_parser("list", help="papers, scenarios, hypotheses and claims")
     lst.add_argument("which", nargs="*", metavar="PAPER|FAMILY", help="only these papers or scenario families")
