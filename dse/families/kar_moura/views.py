@@ -265,18 +265,26 @@ def _series(frame: pd.DataFrame, index: np.ndarray, value: str) -> np.ndarray:
     return out
 
 
+#: the overview's legends are shown up to this many sensors (each has a curve per sample run)
+MAX_LEGEND_SENSORS = 3
+
+
 def _tabs(v: ScenarioTables):
     import rerun.blueprint as rrb
 
     N, n_show = v.sc.N, min(v.sc.N, 12)
+    # one curve per sensor and sample run (and per quantile): with more than a few sensors the legend would
+    # cover the plot; the colours are the sensors', and hovering a curve names it
+    legend = rrb.PlotLegend(rrb.Corner2D.RightTop, visible=N <= MAX_LEGEND_SENSORS)
     return [rrb.Horizontal(
                 rrb.Vertical(rrb.GraphView(origin="/graph", name="active matching A(t) (sample run 0)"),
                              rrb.GraphView(origin="/links", name="allowed links (graph)"), row_shares=[3, 2]),
                 rrb.Vertical(rrb.TimeSeriesView(origin="/nodes", name="tr P̂_n(t), sample run 0, every sensor",
                                                 contents=[f"/nodes/{n}/cov_trace/**" for n in range(N)]
-                                                + ["/central/cov_trace"]),
+                                                + ["/central/cov_trace"], plot_legend=legend),
                              rrb.TimeSeriesView(origin="/mc", name="log10 tr P̂: median over runs per sensor, μ_t "
-                                                                    "quantiles", contents=["/mc/median/**", "/mc/mu/**"]),
+                                                                    "quantiles", contents=["/mc/median/**", "/mc/mu/**"],
+                                                plot_legend=legend),
                              row_shares=[1, 1]),
                 column_shares=[2, 3], name="overview"),
             rrb.Grid(*[rrb.TimeSeriesView(origin=f"/mc/quantiles/{n}", name=f"sensor {n}: log10 tr P̂ quantiles over runs",
