@@ -43,5 +43,7 @@ check-viewer: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run --out out
 
+# What the targets above write: the outputs (out/, the stage cache out/.cache/ inside it) and the test
+# runs' caches; .venv/ is kept (`rm -rf .venv` rebuilds it on the next target).
 clean:
-	rm -rf out .dse-cache
+	rm -rf out .pytest_cache .hypothesis

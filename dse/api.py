@@ -255,7 +255,9 @@ HYPOTHESES = spec("hypotheses", "hypothesis a claim of this run rests on", [
     ("holds", "", "true / false; empty when it could not be decided"),
     ("value", "as stated", "the number that decides it (JSON when not a single number)"),
     ("threshold", "as stated", "what the value is compared with (JSON when not a single number)"),
-    ("detail", "", "how it was decided"), ("error", "", "non-empty when the check raised (a defect of ours)")])
+    ("detail", "", "how it was decided"), ("error", "", "non-empty when the check raised (a defect of ours)"),
+    ("expected", "", "true / false as the scenario declares it (false: a negative control built to break it); "
+                     "empty when it declares nothing")])
 
 CLAIMS = spec("claims", "claim of the paper checked on this run", [
     ("id", "", "claim id"), ("source", "", "where the paper states it"), ("statement", "", "the claim"),
@@ -299,7 +301,8 @@ def evaluation_tables(ev: Evaluation) -> Tables:
         "value": _scalar(h["value"]) if not isinstance(h["value"], (list, dict)) else float("nan"),
         "threshold": _scalar(h["threshold"]) if not isinstance(h["threshold"], (list, dict)) else float("nan"),
         "detail": h["detail"] + (f" value = {_json(h['value'])}" if isinstance(h["value"], (list, dict)) else ""),
-        "error": h["error"]} for h in ev.hypotheses], columns=HYPOTHESES.column_names).astype({"holds": "boolean"}))
+        "error": h["error"], "expected": h.get("expected")} for h in ev.hypotheses],
+        columns=HYPOTHESES.column_names).astype({"holds": "boolean", "expected": "boolean"}))
     t.add(CLAIMS, pd.DataFrame([{
         "id": r["id"], "source": r["source"], "statement": r["statement"], "kind": r["kind"], "scope": r["scope"],
         "hypotheses": ",".join(r["hypotheses"]), "verdict": r["verdict"],

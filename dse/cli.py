@@ -31,7 +31,7 @@ from dse.engine.driver import REVERIFY_RTOL, run  # noqa: E402
 from dse.engine.reverify import verify_run  # noqa: E402
 from dse.engine.outlock import output_lock  # noqa: E402
 from dse.engine.progress import fresh_line  # noqa: E402
-from dse.outputs.report import counts_line, verdict_counts, write_summary  # noqa: E402
+from dse.outputs.report import counts_line, hypothesis_status, verdict_counts, write_summary  # noqa: E402
 
 EXIT_CODES = """exit codes:
   0    done (with --strict: and no claim is fail or error)
@@ -89,8 +89,8 @@ def cmd_check(args) -> int:
     print(f"{args.file}: valid scenario '{repro.paper_id}' ({repro.title})")
     print("hypotheses:")
     for h in result.hypotheses:
-        mark = "error" if h["error"] else {True: "holds", False: "FAILS", None: "undecided"}[h["holds"]]
-        print(f"  {mark:<9} {h['id']}: {h['statement']}; value {h['value']}, threshold {h['threshold']}. {h['detail']}")
+        mark = "error" if h["error"] else hypothesis_status(h, {True: "holds", False: "does not hold", None: "undecided"})
+        print(f"  {mark:<13} {h['id']}: {h['statement']}; value {h['value']}, threshold {h['threshold']}. {h['detail']}")
     print("design quantities:")
     import pandas as pd
 
@@ -204,34 +204,80 @@ def _verify_run(args, d: Path) -> int:
 
 def cmd_sweep(args) -> int:
     from dse.sweeps.run import run_sweep
-    from dse.sweeps.spec import load_sweep
+    from dse.sweeps.spec import load_sweep, with_options
 
-    spec = load_sweep(args.file)
+    spec = with_options(load_sweep(args.file), seed=args.seed, trials=args.trials, quick=args.quick)
     with output_lock(Path(args.out)):
         r = run_sweep(spec, Path(args.out), scheduler=args.scheduler, workers=args.workers, retries=args.retries,
                       fresh=args.fresh)
     print(f"sweep {r['name']}: {r['points']} points ({r['ran']} run, {r['reused']} reused, {r['failed']} failed, "
           f"{r['numerical_errors']} numerical failures) in {r['wall_s']:.1f} s -> {r['out_dir']}")
-    return 1 if r["failed"] else 0
+    if args.strict and r["claims_failed"]:
+        print(f"sweep {r['name']}: {r['claims_failed']} (point, claim) verdicts are fail or error (--strict)")
+    return 1 if r["failed"] or (args.strict and r["claims_failed"]) else 0
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """Usage errors in one line (the full usage is one `--help` away), exit code 2."""
+    """Usage errors in one line (the full usage is one `--help` away), exit code 2. A parser whose
+    `epilog_head` is set prepends what that function returns to its epilog when help is shown (so that
+    the list of papers is read from the registry only for `--help`)."""
+
+    epilog_head = None
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+    def format_help(self) -> str:
+        if self.epilog_head is not None:
+            self.epilog = f"{self.epilog_head()}\n\n{EXIT_CODES}"
+        return super().format_help()
+
+
+def _papers_epilog() -> str:
+    """The papers `dse reproduce` knows, by id and title, from the registry."""
+    papers = _registry().papers()
+    width = max((len(pid) for pid in papers), default=0)
+    return "papers (PAPER):\n" + "\n".join(f"  {pid:<{width}}  {fam.paper.title}" for pid, fam in papers.items())
+
+
+class VersionAction(argparse.Action):
+    """`dse --version`: the installed version, looked up only when asked (it reads the package metadata)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0,
+                         help=help or "print the installed version and exit")
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(_version())
+        parser.exit()
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return f"dse {version('dse')}"
+    except PackageNotFoundError:
+        return "dse (not installed: version unknown)"
+
+
+QUICK_HELP = ("a smaller, faster run: each family's quick_* keys (fewer Monte Carlo trials, shorter horizons, "
+              "coarser grids; see docs/scenarios.md); tolerances are unchanged, so statistical claims have less "
+              "power and some may be not-checkable")
+FILE_HELP = "a scenario file (TOML) of a supported family: `family = \"...\"` and its keys (docs/scenarios.md)"
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="dse", description="Reproductions of distributed state estimation papers.",
                                      epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action=VersionAction)
     sub = parser.add_subparsers(dest="command", required=True)
     lst = sub.add_parser("list", help="papers, scenarios, hypotheses and claims")
     lst.add_argument("which", nargs="*", metavar="PAPER|FAMILY", help="only these papers or scenario families")
     lst.set_defaults(func=cmd_list)
 
     def run_flags(p):
-        p.add_argument("--quick", action="store_true", help="fewer trials and coarser grids (for tests)")
+        p.add_argument("--quick", action="store_true", help=QUICK_HELP)
         p.add_argument("--trials", type=_positive_int, default=None, help="Monte Carlo trials per cell")
         p.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
         p.add_argument("--out", default="out", help="output root directory (default out/)")
@@ -253,16 +299,17 @@ def build_parser() -> argparse.ArgumentParser:
         return sub.add_parser(name, epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter, **kw)
 
     rep = sub_parser("reproduce", help="regenerate papers' claims, figures and recordings")
-    rep.add_argument("papers", nargs="*", metavar="PAPER")
+    rep.add_argument("papers", nargs="*", metavar="PAPER", help="the papers to reproduce (default: all; listed below)")
+    rep.epilog_head = _papers_epilog
     run_flags(rep)
     rep.set_defaults(func=cmd_reproduce)
     user = sub_parser("run", help="run a scenario file of a supported family")
-    user.add_argument("file", metavar="FILE.toml")
+    user.add_argument("file", metavar="FILE.toml", help=FILE_HELP)
     run_flags(user)
     user.set_defaults(func=cmd_run)
     chk = sub_parser("check", help="validate a scenario; print its hypotheses, design quantities and the run's "
                                    "estimated time and memory, without simulating")
-    chk.add_argument("file", metavar="FILE.toml")
+    chk.add_argument("file", metavar="FILE.toml", help=FILE_HELP)
     chk.add_argument("--quick", action="store_true", help="estimate for a --quick run")
     chk.add_argument("--trials", type=_positive_int, default=None, help="estimate for this many trials per cell")
     chk.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
@@ -275,7 +322,8 @@ def build_parser() -> argparse.ArgumentParser:
     strict_flag(ver)
     ver.set_defaults(func=cmd_verify)
     swp = sub_parser("sweep", help="run a scenario family over a grid or random sample of fields, on Dask")
-    swp.add_argument("file", metavar="SWEEP.toml")
+    swp.add_argument("file", metavar="SWEEP.toml", help="a sweep file (TOML): a base scenario and the fields to vary "
+                                                       "(README, 'Sweeps'; examples in dse/families/sweeps/)")
     swp.add_argument("--out", default="out", help="output root directory; results go to OUT/sweep/NAME/ (default out/)")
     swp.add_argument("--scheduler", default="auto",
                      help="auto (default: in process for a tiny sweep, else a local Dask cluster), inline, local, "
@@ -284,6 +332,13 @@ def build_parser() -> argparse.ArgumentParser:
                      help="worker processes of the local cluster (default: one per core)")
     swp.add_argument("--retries", type=_nonnegative_int, default=2, help="retries of a failed task (default 2)")
     swp.add_argument("--fresh", action="store_true", help="recompute every point, ignoring points already done")
+    swp.add_argument("--seed", type=_nonnegative_int, default=None,
+                     help="root seed of the sweep (each point's seed is derived from it); default: the file's seed")
+    swp.add_argument("--trials", type=_positive_int, default=None,
+                     help="Monte Carlo trials per cell of every point; default: the file's trials, else each scenario's")
+    swp.add_argument("--quick", action="store_true", help="every point as a --quick run (as the file's quick = true)")
+    swp.add_argument("--strict", action="store_true",
+                     help="exit 1 when any claim of any point is fail or error (for CI)")
     swp.set_defaults(func=cmd_sweep)
     return parser
 

@@ -86,7 +86,7 @@ def from_dict(data: dict[str, Any]):
 
     known = _entry_points()
     if "family" not in data:
-        if "base" in data or "grid" in data or "random" in data:
+        if {"base", "scenario", "grid", "random"} & set(data):
             raise ScenarioError("family", "missing: this is a sweep file (it has base, grid or random); run it with "
                                           "`dse sweep`, or check its base scenario")
         raise ScenarioError("family", f"missing (one of {', '.join(known)})")

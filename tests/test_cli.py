@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rerun as rr
 
 from dse.outputs import record
 
@@ -115,11 +116,11 @@ def test_user_scenario_report(user_run):
     verdicts = {c["id"]: c["verdict"] for c in report["claims"]}
     assert report["provenance"]["seed"] == 3 and report["provenance"]["trials"] == 4000
     # paper-only reference tables are not applied to a user's scenario
-    assert "savas.fig1.values" not in verdicts
-    for claim in ("savas.thm1.i", "savas.thm1.ii", "savas.mc.trace", "savas.mc.per_agent", "savas.reference.filterpy",
-                  "savas.reference.kf_lower_bound", "savas.proof.pathwise", "savas.carli.closed_form"):
+    assert "ring5.fig1.values" not in verdicts
+    for claim in ("ring5.thm1.i", "ring5.thm1.ii", "ring5.mc.trace", "ring5.mc.per_agent", "ring5.reference.filterpy",
+                  "ring5.reference.kf_lower_bound", "ring5.proof.pathwise", "ring5.carli.closed_form"):
         assert verdicts[claim] in ("pass", "erratum"), (claim, verdicts[claim])
-    assert verdicts["savas.thm1.ii"] == "erratum"
+    assert verdicts["ring5.thm1.ii"] == "erratum"
 
 
 def test_user_scenario_recordings(user_run):
@@ -134,6 +135,10 @@ def test_user_scenario_recordings(user_run):
     assert len(edges) == 5
     kinds = record.blueprint_view_kinds(d / "ring5.rrd")
     assert "TimeSeries" in kinds and "Graph" in kinds and "TextDocument" in kinds
+    for rrd in ("ring5.rrd", "ring5_figures.rrd"):   # named after the user's family and scenario, not the paper
+        (store,) = rr.chunk.RrdReader(str(d / rrd)).recordings()
+        assert store.application_id == "dse-noisy-consensus-filter", store
+        assert store.recording_id.startswith("noisy-consensus-filter-ring5-"), store
     for fig in ("fig1.png", "fig2.png", "fig3.png"):
         assert (d / "figures" / fig).stat().st_size > 10_000
 
@@ -157,7 +162,7 @@ def test_same_seed_same_numbers_different_seed_different(user_run, tmp_path):
     again = numbers(tmp_path / "o1" / "run" / "ring5" / "report.json")
     changed = numbers(tmp_path / "o2" / "run" / "ring5" / "report.json")
     assert first == again
-    assert first["savas.mc.trace"] != changed["savas.mc.trace"]
+    assert first["ring5.mc.trace"] != changed["ring5.mc.trace"]
 
 
 def test_unwritable_output_fails_before_computing(tmp_path):
@@ -165,7 +170,7 @@ def test_unwritable_output_fails_before_computing(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     proc = dse("run", "s.toml", "--out", str(blocker), cwd=tmp_path)
-    assert proc.returncode == 2 and "not usable" in proc.stderr
+    assert proc.returncode == 2 and "is a file, not a directory" in proc.stderr, proc.stderr
 
 
 def test_paper_quick(tmp_path):
@@ -217,8 +222,8 @@ def test_nonsymmetric_consensus_matrix_runs_with_modal_claims_not_checkable(tmp_
     proc = dse("run", "s.toml", "--out", "out", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     claims = {c["id"]: c for c in json.loads((tmp_path / "out/run/nonsym4/report.json").read_text())["claims"]}
-    assert claims["savas.thm1.ii"]["verdict"] == "not-checkable" and "symmetric" in claims["savas.thm1.ii"]["detail"]
-    for cid in ("savas.thm1.i", "savas.mc.trace", "savas.mc.per_agent", "savas.reference.kf_lower_bound"):
+    assert claims["nonsym4.thm1.ii"]["verdict"] == "not-checkable" and "symmetric" in claims["nonsym4.thm1.ii"]["detail"]
+    for cid in ("nonsym4.thm1.i", "nonsym4.mc.trace", "nonsym4.mc.per_agent", "nonsym4.reference.kf_lower_bound"):
         assert claims[cid]["verdict"] == "pass", cid
     assert not (tmp_path / "out/run/nonsym4/figures/fig2.png").exists()
 

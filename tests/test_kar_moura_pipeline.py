@@ -76,7 +76,7 @@ def test_shipped_files_comment_every_key():
     ({"model__Q": [[0.1, 0.0], [0.0, 0.0]]}, "model.Q", "positive definite"),
     ({"model__P0": [[1.0, 0.0], [0.0, -1e-3]]}, "model.P0", "positive semidefinite"),
     ({"model__x0": [1.0]}, "model.x0", "2 entries"),
-    ({"graph__n": 1, "graph__kind": "line"}, "graph.n", "at least 2"),
+    ({"graph__n": 1, "graph__kind": "line"}, "graph.n", "must be >= 2"),
     ({"graph__kind": "edges", "graph__edges": [[0, 1], [1, 0]]}, "graph.edges[1]", "repeats"),
     ({"graph__kind": "edges", "graph__edges": [[0, 0]]}, "graph.edges[0]", "self-loop"),
     ({"graph__kind": "complete", "graph__n": 1001}, "graph.n", "at most 1000"),
@@ -105,7 +105,7 @@ def test_singular_p0_runs_and_a_disconnected_graph_is_a_hypothesis(tmp_path):
         assert run.counts["fail"] == 0 and run.counts["error"] == 0, run.claims[run.claims.verdict == "fail"]
     repro = families.from_dict(small(graph={"kind": "edges", "n": 4, "edges": [[0, 1], [2, 3]]}))
     hyp = {h["id"]: h for h in check(repro).hypotheses}
-    assert hyp["kar-moura.hyp.c1.small"]["holds"] is False
+    assert hyp["small.hyp.c1"]["holds"] is False
 
 
 # -- design ---------------------------------------------------------------------------------------------------
@@ -282,11 +282,11 @@ def test_a_replayed_sequence_checks_the_pathwise_claims_only():
     v = run.claims.set_index("id")["verdict"]
     assert run.counts["fail"] == 0 and run.counts["error"] == 0
     for cid in ("centralized.domination", "lemma16.support", "prop7-ii.pathwise", "nees.consistency"):
-        assert v[f"kar-moura.{cid}.small"] in ("pass", "erratum"), cid
+        assert v[f"small.{cid}"] in ("pass", "erratum"), cid
     for cid in ("thm10-i.weak-consensus", "thm10-iii.bounded", "prop6.token-chain"):
-        assert v[f"kar-moura.{cid}.small"] == "not-checkable", cid
+        assert v[f"small.{cid}"] == "not-checkable", cid
     hyp = run.hypotheses.set_index("id")["holds"]
-    assert hyp["kar-moura.hyp.random-protocol.small"] == False  # noqa: E712
+    assert hyp["small.hyp.random-protocol"] == False  # noqa: E712
     m = run.tables["matchings"]
     m = m[(m.run == 0) & (m.node == 0)].sort_values("t")["partner"].to_numpy()
     assert list(m[:7]) == [0, 1, 0, 3, 1, 0, 3]                        # A(0) = I, then the cycle of three slots

@@ -88,7 +88,7 @@ def test_zero_or_one_round_with_default_rounds_max_raises_nothing(rounds, tmp_pa
     ev = evaluate_claims(repro, repro.compute(RunOptions(seed=1, quick=True), StageContext(StageCache(tmp_path))))
     bad = [(r["id"], r["verdict"], r["detail"][:200]) for r in ev.claims if r["verdict"] in ("fail", "error")]
     assert not bad
-    assert all(not h["error"] and h["holds"] for h in ev.hypotheses if h["id"] != "savas.hyp.network")
+    assert all(not h["error"] and h["holds"] for h in ev.hypotheses if h["id"] != "edge.hyp.network")
     assert not [r for r in ev.claims if r["scope"] == "paper-example"]
 
 
@@ -99,8 +99,8 @@ def test_non_normal_Q_makes_the_trace_formula_not_checkable_by_its_hypothesis(tm
     repro = dse.registry.from_dict(data)
     ev = evaluate_claims(repro, repro.compute(RunOptions(seed=2, quick=True), StageContext(StageCache(tmp_path))))
     hyp = {h["id"]: h for h in ev.hypotheses}
-    assert hyp["savas.hyp.Q_normal"]["holds"] is False and hyp["savas.hyp.Q_normal"]["value"] > 0.1
+    assert hyp["edge.hyp.Q_normal"]["holds"] is False and hyp["edge.hyp.Q_normal"]["value"] > 0.1
     claims = {r["id"]: r for r in ev.claims}
-    assert claims["savas.thm1.ii"]["verdict"] == "not-checkable" and "savas.hyp.Q_normal" in claims["savas.thm1.ii"]["detail"]
-    for cid in ("savas.thm1.i", "savas.mc.trace", "savas.mc.per_agent", "savas.thm1.stabilizing"):
+    assert claims["edge.thm1.ii"]["verdict"] == "not-checkable" and "edge.hyp.Q_normal" in claims["edge.thm1.ii"]["detail"]
+    for cid in ("edge.thm1.i", "edge.mc.trace", "edge.mc.per_agent", "edge.thm1.stabilizing"):
         assert claims[cid]["verdict"] == "pass", cid

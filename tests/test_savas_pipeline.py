@@ -62,7 +62,7 @@ def test_the_paper_file_comments_every_key():
 
 
 @pytest.mark.parametrize("change, field, words", [
-    ({"graph": {"kind": "line", "n": 1}}, "graph.n", "at least 2"),
+    ({"graph": {"kind": "line", "n": 1}}, "graph.n", "must be >= 2"),
     ({"graph": {"kind": "edges", "n": 4, "edges": [[0, 1], [2, 3]]}}, "graph", "not connected"),
     ({"graph": {"kind": "edges", "n": 3, "edges": [[0, 1], [1, 2], [2, 1]]}}, "graph.edges[2]", "repeats"),
     ({"graph": {"kind": "ring", "n": 1001}}, "graph.n", "at most 1000"),
@@ -111,7 +111,7 @@ def test_no_claim_fails_or_errs_and_steps_are_decimated(small_run):
     assert not bad
     res = small_run.results
     assert len(res.design.steps) == 12 and res.design.steps[-1] == 29 and 3 in res.design.steps
-    assert "12 recorded steps" in next(r["detail"] for r in small_run.evaluation.claims if r["id"] == "savas.mc.trace")
+    assert "12 recorded steps" in next(r["detail"] for r in small_run.evaluation.claims if r["id"] == "small.mc.trace")
 
 
 def test_nodes_table_equals_the_independent_computations(small_run):

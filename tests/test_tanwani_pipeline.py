@@ -76,7 +76,7 @@ def test_every_shipped_file_comments_every_key():
 
 
 @pytest.mark.parametrize("change, field, words", [
-    ({"graph": {"kind": "line", "n": 1}}, "graph.n", "at least 2"),
+    ({"graph": {"kind": "line", "n": 1}}, "graph.n", "must be >= 2"),
     ({"graph": {"kind": "edges", "n": 3, "edges": [[0, 1], [1, 1]]}}, "graph.edges[1]", "self-loop"),
     ({"graph": {"kind": "edges", "n": 3, "edges": [[0, 1], [1, 2], [2, 1]]}}, "graph.edges[2]", "repeats"),
     ({"system__P0": [[1.0, 1.0], [1.0, 0.9999999995]]}, "system.P0", "positive semidefinite"),   # eigenvalue −2.5e-10

@@ -112,12 +112,12 @@ def test_user_scenario_runs_and_is_consistent(tmp_path):
     out = tmp_path / "run" / "ring5"
     doc = json.loads((out / "report.json").read_text())
     v = {c["id"]: c for c in doc["claims"]}
-    for cid in ("tran.eq9.error_dynamics", "tran.thm21.identity54", "tran.thm31.vdot", "tran.thm31.bounded",
-                "tran.cor31.ultimate_bound", "tran.thm31.vertices", "tran.lemma31.vertex_lmis", "tran.prop41.exact_moments"):
+    for cid in ("ring5.eq9.error_dynamics", "ring5.thm21.identity54", "ring5.thm31.vdot", "ring5.thm31.bounded",
+                "ring5.cor31.ultimate_bound", "ring5.thm31.vertices", "ring5.lemma31.vertex_lmis", "ring5.prop41.exact_moments"):
         assert v[cid]["verdict"] == "pass", v[cid]
     assert all(c["scope"] == "family" for c in doc["claims"])
-    assert "tran.ref.regression_values" not in v and "tran.rem43.necessary_condition" not in v
-    assert {h["id"]: h["holds"] for h in doc["hypotheses"]}["tran.hyp.vertex_lmi"] is True
+    assert "ring5.ref.regression_values" not in v and "ring5.rem43.necessary_condition" not in v
+    assert {h["id"]: h["holds"] for h in doc["hypotheses"]}["ring5.hyp.vertex_lmi"] is True
     assert summary["fail"] == 0 and summary["pass"] > 15
     text = (out / "report.md").read_text() + (out / "report.json").read_text()
     assert not [w for w in PAPER_TEXT if w in text], [w for w in PAPER_TEXT if w in text]
@@ -134,13 +134,13 @@ def test_user_scenario_with_infeasible_lmi_is_not_checkable():
     data["node_type"]["vel"]["L"] = [[-6.0], [-6.0]]
     data["coupling"]["P"] = "lmi"
     result = api.run(from_dict(data), quick=True)      # the report's contents, without figures and recordings
-    hyp = next(h for h in result.evaluation.hypotheses if h["id"] == "tran.hyp.vertex_lmi")
+    hyp = next(h for h in result.evaluation.hypotheses if h["id"] == "ring5.hyp.vertex_lmi")
     assert hyp["holds"] is False
     assert "infeasible" in hyp["detail"] or "solver_error" in hyp["detail"]
     assert "unstable at some g" in hyp["detail"]
     v = {c["id"]: c for c in result.evaluation.claims}
-    for cid in ("tran.thm31.vertices", "tran.cor31.ultimate_bound", "tran.lemma31.vertex_lmis", "tran.rem22.small_sigmaK"):
-        assert v[cid]["verdict"] == "not-checkable" and "tran.hyp.vertex_lmi" in v[cid]["detail"], v[cid]
+    for cid in ("ring5.thm31.vertices", "ring5.cor31.ultimate_bound", "ring5.lemma31.vertex_lmis", "ring5.rem22.small_sigmaK"):
+        assert v[cid]["verdict"] == "not-checkable" and "ring5.hyp.vertex_lmi" in v[cid]["detail"], v[cid]
     assert result.counts["fail"] == 0 and result.counts["error"] == 0
 
 
@@ -156,10 +156,10 @@ def test_lyapunov_P_leaves_thm31_not_checkable(tmp_path):
     ev = evaluate_claims(repro, res)
     hyps = {h["id"]: h["holds"] for h in ev.hypotheses}
     v = {c["id"]: c["verdict"] for c in ev.claims}
-    assert hyps["tran.hyp.fixed_local"] is True
-    if hyps["tran.hyp.vertex_lmi"] is not True:
-        assert v["tran.thm31.vertices"] == "not-checkable"
-    assert v["tran.thm21.identity54"] == "pass" and v["tran.cor21.ultimate_bound"] == "pass"
+    assert hyps["ring5.hyp.fixed_local"] is True
+    if hyps["ring5.hyp.vertex_lmi"] is not True:
+        assert v["ring5.thm31.vertices"] == "not-checkable"
+    assert v["ring5.thm21.identity54"] == "pass" and v["ring5.cor21.ultimate_bound"] == "pass"
     assert "fail" not in v.values() and "error" not in v.values()
 
 
@@ -272,9 +272,9 @@ def test_cli_run_user_scenario(tmp_path, monkeypatch):
     assert cli.main(["run", str(tmp_path / "s.toml"), "--quick", "--out", str(tmp_path / "out"), "--workers", "1"]) == 0
     doc = json.loads((tmp_path / "out" / "run" / "line4" / "report.json").read_text())
     v = {c["id"]: c["verdict"] for c in doc["claims"]}
-    assert v["tran.thm21.identity54"] == "pass" and v["tran.cor21.ultimate_bound"] == "pass"
-    assert v["tran.prop41.bound_fixed"] == "pass"
-    assert v["tran.thm31.vertices"] in ("pass", "not-checkable")
+    assert v["line4.thm21.identity54"] == "pass" and v["line4.cor21.ultimate_bound"] == "pass"
+    assert v["line4.prop41.bound_fixed"] == "pass"
+    assert v["line4.thm31.vertices"] in ("pass", "not-checkable")
     (tmp_path / "bad.toml").write_text(USER_TOML.replace("alpha = 4.0", "alpha = -4.0"))
     assert cli.main(["run", str(tmp_path / "bad.toml"), "--out", str(tmp_path / "out2")]) == 2
     assert not (tmp_path / "out2").exists()

@@ -150,7 +150,7 @@ def test_check_design_tables_against_independent_values():
     assert runs.loc["sync", "d"] == k["d"] and runs.loc["sync", "q"] == 2 * math.ceil(r) + 1
     # the hypotheses on the design alone are the ones a run reports
     hyps = {h["id"]: h for h in chk.hypotheses}
-    assert hyps["wang-liu-morse.hyp.q_eq22"]["holds"] is True and hyps["wang-liu-morse.hyp.offsets.eq10"]["holds"]
+    assert hyps["two.hyp.q_eq22"]["holds"] is True and hyps["two.hyp.offsets.eq10"]["holds"]
     est = chk.estimate
     assert est["seconds"] > 0 and est["peak_memory_mib"] > 200 and "samples" in est["detail"]
 
@@ -236,10 +236,10 @@ def test_tables_equal_the_quantities_of_every_trial(two_run):
     # the claims are decided on these numbers
     claims = two_run.claims.set_index("id")
     worst = min(float(res.runs[name]["w_eq51_slack"]) for name in ("sync", "ideal"))     # the claim's two cells
-    assert claims.loc["wang-liu-morse.thm1.event_bound", "margin"] == worst
-    assert claims.loc["wang-liu-morse.eq41.error_recursion", "measured"] == max(
+    assert claims.loc["two.thm1.event_bound", "margin"] == worst
+    assert claims.loc["two.eq41.error_recursion", "measured"] == max(
         float(res.runs[name]["max_res_minus"]) for name in ("sync", "ideal"))
-    assert claims.loc["wang-liu-morse.thm1.rate", "measured"] == max(
+    assert claims.loc["two.thm1.rate", "measured"] == max(
         float(res.runs[name]["max_restart"]) for name in ("sync", "ideal"))
 
 
@@ -392,17 +392,17 @@ def test_a_graph_that_is_not_strongly_connected_is_reported_per_run():
     data["runs"] = [{"name": "good", "switching": "fixed", "graph": 1, "intervals": 4},
                     {"name": "bad", "switching": "fixed", "graph": 2, "intervals": 4}]
     chk = api.check(data)
-    hyps = {h["id"].removeprefix("wang-liu-morse.hyp."): h for h in chk.hypotheses}
+    hyps = {h["id"].removeprefix("two.hyp."): h for h in chk.hypotheses}
     assert hyps["strong_connectivity"]["holds"] is False and "one way" in hyps["strong_connectivity"]["detail"]
     assert hyps["good.strong_connectivity"]["holds"] is True and hyps["bad.strong_connectivity"]["holds"] is False
     props = chk.tables["graph_properties"].set_index("name")
     assert not props.loc["one way", "strongly_connected"] and props.loc["both ways", "strongly_connected"]
     run = api.run(data, seed=1)
     claims = run.claims.set_index("id")
-    row = claims.loc["wang-liu-morse.thm1.event_bound"]
+    row = claims.loc["two.thm1.event_bound"]
     assert row["verdict"] == "pass" and "[scenario/good]" in row["detail"]
     assert "bad.strong_connectivity does not hold" in row["detail"]
-    assert "wang-liu-morse.hyp.strong_connectivity" not in row["hypotheses"]
+    assert "two.hyp.strong_connectivity" not in row["hypotheses"]
 
 
 # -- stage keys ------------------------------------------------------------------------------------------------

@@ -161,11 +161,11 @@ def test_user_scenario_against_independent_design(tmp_path):
     v = _verdicts(d)
     for claim in ("eq41.error_recursion", "thm1.event_bound", "thm2.async_equals_sync", "lemma4.eq44", "thm1.rate",
                   "eq17.rho", "lemma3.source_sets"):
-        assert v["wang-liu-morse." + claim]["verdict"] == "pass", claim
-    assert not any(k.startswith("wang-liu-morse.sec6") for k in v)            # the paper's example claims are absent
+        assert v["two_agents." + claim]["verdict"] == "pass", claim
+    assert not any(k.startswith("two_agents.sec6") for k in v)            # the paper's example claims are absent
     hyps = {h["id"]: h for h in json.loads((d / "report.json").read_text())["hypotheses"]}
-    assert hyps["wang-liu-morse.hyp.q_eq22"]["holds"] is True and hyps["wang-liu-morse.hyp.async.eq10"]["holds"] is True
-    assert "wang-liu-morse.hyp.q_eq22" in v["wang-liu-morse.thm1.event_bound"]["hypotheses"]
+    assert hyps["two_agents.hyp.q_eq22"]["holds"] is True and hyps["two_agents.hyp.async.eq10"]["holds"] is True
+    assert "two_agents.hyp.q_eq22" in v["two_agents.thm1.event_bound"]["hypotheses"]
     report = (d / "report.md").read_text()
     for text in ("q = 50", "Fig. ", "graph 2a", "Section 6"):
         assert text not in report, text
@@ -257,11 +257,11 @@ def test_q_below_the_bound_makes_the_theorems_not_checkable(tmp_path):
     ev = evaluate_claims(repro, repro.compute(RunOptions(seed=1, quick=True), StageContext(StageCache(tmp_path))))
     v = {r["id"]: r for r in ev.claims}
     hyps = {h["id"]: h for h in ev.hypotheses}
-    assert hyps["wang-liu-morse.hyp.q_eq22"]["holds"] is False
-    assert hyps["wang-liu-morse.hyp.enough.q_eq22"]["holds"] is True
+    assert hyps["two_agents.hyp.q_eq22"]["holds"] is False
+    assert hyps["two_agents.hyp.enough.q_eq22"]["holds"] is True
     assert not any(r["verdict"] in ("fail", "error") for r in ev.claims)
     # the design q governs every run but one: the claim gates the cells itself and checks 'enough'
-    ev_bound = v["wang-liu-morse.thm1.event_bound"]
+    ev_bound = v["two_agents.thm1.event_bound"]
     assert ev_bound["verdict"] == "pass" and "[scenario/enough]" in ev_bound["detail"]
-    assert "wang-liu-morse.hyp.q_eq22 does not hold" in ev_bound["detail"]
-    assert v["wang-liu-morse.eq41.error_recursion"]["verdict"] == "pass"
+    assert "two_agents.hyp.q_eq22 does not hold" in ev_bound["detail"]
+    assert v["two_agents.eq41.error_recursion"]["verdict"] == "pass"

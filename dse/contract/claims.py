@@ -18,14 +18,16 @@ The ids are templates (claim and hypothesis ids never change: they are what repo
 refer to):
 
 - ``{paper}`` is the run's id (the paper id in the paper's reproduction, the scenario name in a
-  user's run);
+  user's run); an id that starts with the family's paper id written literally (``savas.mc.trace``)
+  reads it as ``{paper}``, so that a user's claim ids never carry a paper's prefix;
 - ``{scenario}`` makes the entry *per scenario*: one claim (or hypothesis) per scenario of the
   run, its check called with the scenario's name (or, when the set declares `select`, with
   `select(results, name)` instead of the results and the name). Consecutive per-scenario
   entries are expanded scenario by scenario (all of the first scenario's, then the next's).
   A run-level claim that rests on a per-scenario hypothesis rests on every scenario's.
-  ``{scenario.}`` and ``{scenario: }`` name the scenario (followed by ``.`` or ``: ``) only when
-  the run has several: the ids of a one-scenario run do not repeat its name.
+  ``{scenario.}``, ``{.scenario}`` and ``{scenario: }`` name the scenario (followed or preceded by
+  ``.``, or followed by ``: ``) only when the run has several: the ids of a one-scenario run (a
+  user's, whose run id is already the scenario's name) do not repeat its name.
 - ``{item}``: with `each=` (a function of the `Where` returning (label, item) pairs), the entry
   is expanded once per item of the scenario (a run of it, say), its check called with the item
   after the scenario's selection and `when` seeing it as `where.item`; consecutive entries with
@@ -95,16 +97,27 @@ def paper_only(where: Where) -> bool:
     return where.paper
 
 
+def _fill_id(template: str, where: Where, scenario: str | None = None) -> str:
+    """An id from its template. A family may write its paper's id literally at the start of an id
+    (`savas.mc.trace`); in a user's run that prefix is the run's id like `{paper}` (`ring8.mc.trace`), so
+    that a user's claim ids never carry a paper's prefix."""
+    paper = getattr(getattr(getattr(where.run, "family", None), "paper", None), "id", None)
+    if not where.paper and paper and template.startswith(f"{paper}."):
+        template = "{paper}" + template[len(paper):]
+    return _fill(template, where, scenario)
+
+
 def _fill(template: str, where: Where, scenario: str | None = None) -> str:
     name = scenario or where.scenario or ""
     several = len(where.scenarios) > 1
     return (template.replace("{paper}", where.run_id).replace("{scenario.}", f"{name}." if several else "")
+            .replace("{.scenario}", f".{name}" if several else "")
             .replace("{scenario: }", f"{name}: " if several else "").replace("{scenario}", name)
             .replace("{item}", where.item_label))
 
 
 def _per_scenario(template: str) -> bool:
-    return "{scenario" in template
+    return "{scenario" in template or "{.scenario}" in template
 
 
 @dataclass(frozen=True)
@@ -208,7 +221,7 @@ class ClaimSet:
         then one `Where` per scenario)."""
         out = []
         for entry, where, name in self._expand(self.hypotheses, wheres):
-            out.append(Hypothesis(_fill(entry.id, where), _fill(entry.statement, where),
+            out.append(Hypothesis(_fill_id(entry.id, where), _fill(entry.statement, where),
                                   self._bind(entry.check, name, self._args(entry, where), self.select_design)))
         return out
 
@@ -220,10 +233,10 @@ class ClaimSet:
             hyps = []
             for ref in refs:
                 if _per_scenario(ref) and name is None:           # a run-level claim: every scenario's
-                    hyps += [_fill(ref, where, s) for s in where.scenarios]
+                    hyps += [_fill_id(ref, where, s) for s in where.scenarios]
                 else:
-                    hyps.append(_fill(ref, where))
-            out.append(Claim(_fill(entry.id, where), entry.source, _fill(entry.statement, where), entry.kind,
+                    hyps.append(_fill_id(ref, where))
+            out.append(Claim(_fill_id(entry.id, where), entry.source, _fill(entry.statement, where), entry.kind,
                              self._bind(entry.gated_check(), name, self._args(entry, where), self.select),
                              tuple(dict.fromkeys(hyps)),
                              entry.scope))

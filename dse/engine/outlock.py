@@ -78,7 +78,7 @@ def _acquire(out_root: Path):
             out_root.mkdir(parents=True, exist_ok=True)
             fh = open(out_root / LOCK_NAME, "a+")
         except OSError as exc:
-            raise OutputError(f"output directory {out_root} is not usable: {exc.strerror or exc}") from None
+            raise OutputError(unusable_output(out_root, exc)) from None
         try:
             fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -159,6 +159,16 @@ def _undo(out_root: Path, created: Path | None, before: set[str] | None) -> None
     added = [rel for rel in snapshot(out_root) - before if Path(rel).parts[0] in OWN_SUBTREES]
     for rel in sorted(added, key=lambda r: r.count(os.sep)):
         remove_path(out_root / rel)   # a new directory goes with everything in it; its entries are then gone
+
+
+def unusable_output(out_root: Path, exc: OSError) -> str:
+    """The one line for an output root that cannot be created or written: a file in the way is named as such."""
+    blocking = next((p for p in (out_root, *out_root.parents) if p.exists() and not p.is_dir()), None)
+    if blocking == out_root:
+        return f"--out {out_root} is a file, not a directory: give a directory (it is created if missing)"
+    if blocking is not None:
+        return f"--out {out_root} cannot be created: {blocking} is a file, not a directory"
+    return f"output directory {out_root} is not usable: {exc.strerror or exc}"
 
 
 def remove_leftovers(out_root: Path) -> list[Path]:

@@ -137,16 +137,18 @@ def _short(value, width: int) -> str:
 
 def log_claims(rec: rr.RecordingStream, claims: Sequence[dict], header: str, *,
                details: Sequence[dict] | None = None, width: int = 40) -> None:
-    """`/report`: `header` and a table of `claims` (verdict, measured, reference, margin);
-    `/claims/<id>`: each claim of `details` (default: `claims`) in full."""
+    """`/report`, one document: `header`, a table of `claims` (verdict, measured, reference, margin), then each
+    claim of `details` (default: `claims`) in full. (One document per claim under `/claims/<id>` could not be
+    shown: rerun's text view shows one document at a time.)"""
     rows = [header, "", "| claim | verdict | measured | reference | margin |", "|---|---|---|---|---|"]
     rows += [f"| `{c['id']}` | **{c['verdict']}** | {_short(c.get('measured'), width)} | "
              f"{_short(c.get('reference'), width)} | {_short(c.get('margin'), 16)} |" for c in claims]
+    full = [f"### `{c['id']}`: {c['verdict']}\n\n*{c['source']}*: {c['statement']}\n\n"
+            f"- measured: {c.get('measured')}\n- reference: {c.get('reference')}\n- margin: {c.get('margin')}"
+            f"\n\n{c.get('detail', '')}" for c in (claims if details is None else details)]
+    if full:
+        rows += ["", "## Each claim in full", "", *full]
     log_markdown(rec, "report", "\n".join(rows))
-    for c in claims if details is None else details:
-        log_markdown(rec, f"claims/{c['id']}", f"## `{c['id']}`: {c['verdict']}\n\n*{c['source']}*: {c['statement']}\n\n"
-                     f"- measured: {c.get('measured')}\n- reference: {c.get('reference')}\n- margin: {c.get('margin')}"
-                     f"\n\n{c.get('detail', '')}")
 
 
 def log_tensor(rec: rr.RecordingStream, entity: str, matrix: np.ndarray, dim_names=("row", "col")) -> None:

@@ -61,7 +61,7 @@ def report_markdown(doc: dict[str, Any], notes: str = "") -> str:
     if hyps:
         lines += ["## Hypotheses", "", "| hypothesis | statement | holds | value | threshold |", "|---|---|---|---|---|"]
         for h in hyps:
-            holds = "error" if h.get("error") else {True: "yes", False: "**no**", None: "undecided"}[h["holds"]]
+            holds = "error" if h.get("error") else hypothesis_status(h, {True: "yes", False: "**no**", None: "undecided"})
             lines.append(f"| `{h['id']}` | {h['statement']} | {holds} | {_fmt(h.get('value'))} | {_fmt(h.get('threshold'))} |")
         lines += [""] + [f"- `{h['id']}`: {h['detail']}" for h in hyps if h.get("detail")] + [""]
     lines += ["## Claims", "", "| claim | source | kind | verdict | measured | reference | margin |",
@@ -98,3 +98,11 @@ def write_summary(out_root: Path) -> Path:
     target = out_root / "summary.md"
     atomic_write_text(target, "\n".join(rows) + "\n")
     return target
+
+
+def hypothesis_status(h: dict, words: dict) -> str:
+    """How a hypothesis is shown: `words[holds]`, except where the scenario declares it should not hold (a
+    negative control): "does not hold (expected)", or "holds (expected not to)"."""
+    if h.get("expected") is False and h.get("holds") is not None:
+        return "holds (expected not to)" if h["holds"] else "does not hold (expected)"
+    return words[h.get("holds")]

@@ -210,7 +210,8 @@ def _scenario_error(err: dict, prefix: str, model: type[Section], errors: list[d
         "dict_type": f"must be a table, got {_type(value)}",
         "model_attributes_type": f"must be a table, got {_type(value)}",
         "literal_error": f"must be one of {ctx.get('expected', '')}; got {got}",
-        "too_short": f"must have at least {ctx.get('min_length')} element(s), got {ctx.get('actual_length')}",
+        "too_short": f"must have at least {ctx.get('min_length')} "
+                     f"{'element' if ctx.get('min_length') == 1 else 'elements'}, got {ctx.get('actual_length')}",
         "too_long": f"must have at most {ctx.get('max_length')} element(s), got {ctx.get('actual_length')}",
         "string_too_short": f"must have at least {ctx.get('min_length')} character(s)",
         "string_too_long": f"must have at most {ctx.get('max_length')} characters",
@@ -273,7 +274,12 @@ def _type_name(annotation: Any) -> str:
     if origin is dict:
         return f"tables of {_type_name(get_args(annotation)[1])}" if get_args(annotation) else "table"
     if origin in (typing.Union, types.UnionType):
-        names = [_type_name(a) for a in get_args(annotation) if a is not type(None)]
+        members = [a for a in get_args(annotation) if a is not type(None)]
+        if len(members) == 1:  # an optional key: its type is its one member's
+            return _type_name(members[0])
+        # a literal beside other types is written as its values: `number or "optimal"`, not `string or number`
+        names = [" or ".join(f'"{v}"' for v in get_args(a)) if get_origin(a) is Literal else _type_name(a)
+                 for a in members]
         return " or ".join(dict.fromkeys(names))
     if annotation is float:
         return "number"
@@ -291,8 +297,9 @@ def _type_name(annotation: Any) -> str:
 def _constraint(info: FieldInfo) -> str:
     parts = []
     annotation = info.annotation
+    unit = "character" if _type_name(annotation) == "string" else "element"
     literal = _literal_args(annotation)
-    if literal:
+    if literal and _type_name(annotation) == "string":  # a pure choice; in a union the type column lists them
         parts.append("one of " + ", ".join(f"`{a}`" for a in literal))
     for m in info.metadata:
         if isinstance(m, Gt):
@@ -304,9 +311,9 @@ def _constraint(info: FieldInfo) -> str:
         elif isinstance(m, Le) and m.le != MAX_MAGNITUDE:
             parts.append(f"<= {_num(m.le)}")
         elif isinstance(m, MinLen):
-            parts.append(f"at least {m.min_length} element(s)")
+            parts.append(f"at least {m.min_length} {unit}{'s' if m.min_length != 1 else ''}")
         elif isinstance(m, MaxLen):
-            parts.append(f"at most {m.max_length} elements")
+            parts.append(f"at most {m.max_length} {unit}{'s' if m.max_length != 1 else ''}")
     extra = (info.json_schema_extra or {}).get("constraint", "") if isinstance(info.json_schema_extra, dict) else ""
     if extra:
         parts.append(extra)
@@ -347,13 +354,26 @@ def reference_rows(model: type[Section], prefix: str = "") -> list[tuple[str, li
         if sub is not None and kind in ("table", "list of table", "tables of table"):
             # a list of tables is [[path]] in the file; named tables ([path.<name>]) are documented once
             label = {"table": path, "list of table": f"{path}[]", "tables of table": f"{path}.<name>"}[kind]
-            nested += [(p, rows, d or info.description or "") for p, rows, d in reference_rows(sub, label)]
+            found = reference_rows(sub, label)
+            if found and found[0][0] == label:  # the table's own heading says whether the file must have it
+                p, rows, d = found[0]
+                found[0] = (p, rows, f"{_presence(info, sub)} {d or info.description or ''}".strip())
+            nested += [(p, rows, d or info.description or "") for p, rows, d in found]
             continue
         extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
         here.append({"key": name, "type": _type_name(info.annotation), "default": _default(info),
                      "constraint": _constraint(info), "unit": extra.get("unit", ""), "meaning": info.description or ""})
     doc = " ".join((model.__doc__ or "").strip().split("\n\n")[0].split())
     return ([(prefix, here, doc)] if here else []) + nested
+
+
+def _presence(info: FieldInfo, sub: type[Section]) -> str:
+    """Whether a scenario file must have a table: "Required table." or why it may be left out."""
+    if info.is_required():
+        return "**Required table.**"
+    if all(not f.is_required() for f in sub.model_fields.values()):
+        return "*Optional table*: every key has a default."
+    return "*Optional table*."
 
 
 def reference_markdown(title: str, model: type[Section], intro: str = "") -> str:

@@ -17,6 +17,8 @@ POLICY = """## Rules common to every family
 
 - A scenario file is TOML with `family = "<family>"` and an optional `name` (letters, digits,
   `-` and `_`, at most 64 characters; it names the output directory `OUT/run/<name>/`).
+- Each table of a family's reference below says whether a file must have it (**Required table**)
+  or may leave it out (*Optional table*: its keys then take their defaults).
 - Unknown keys are errors (a typo never falls back to a default). Numbers must be finite and of
   magnitude at most 1e100; where an integer is required a float is rejected (write 3, not 3.0);
   strings are never converted to numbers.

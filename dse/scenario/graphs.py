@@ -179,11 +179,11 @@ class GraphSection(Section):
 
     kind: Literal[GRAPH_KINDS] = key(doc="line (path), ring, grid (rows x cols lattice), complete, "  # type: ignore[valid-type]
                                          "random_geometric (unit square, seeded) or edges (an explicit list)")
-    n: int | None = key(None, doc="number of nodes (every kind but grid)", ge=1, le=MAX_NODES,
+    n: int | None = key(None, doc="number of nodes (every kind but grid)", ge=2, le=MAX_NODES,
                         constraint="required unless kind = grid; a ring needs n >= 3")
     rows: int | None = key(None, doc="lattice rows (kind = grid)", ge=1, le=MAX_NODES)
     cols: int | None = key(None, doc="lattice columns (kind = grid)", ge=1, le=MAX_NODES,
-                           constraint=f"rows x cols <= {MAX_NODES}")
+                           constraint=f"2 <= rows x cols <= {MAX_NODES}")
     radius: Real | None = key(None, doc="connection radius in the unit square (kind = random_geometric)", gt=0,
                               unit="unit-square lengths")
     seed: int | None = key(None, doc="seed of the random node positions (kind = random_geometric; default 0)", ge=0)
@@ -204,6 +204,8 @@ class GraphSection(Section):
             raise ScenarioError("n", "a ring needs at least 3 nodes")
         if self.kind == "grid" and self.rows * self.cols > MAX_NODES:
             raise ScenarioError("rows", f"rows x cols = {self.rows * self.cols} nodes, more than the supported {MAX_NODES}")
+        if self.kind == "grid" and self.rows * self.cols < 2:
+            raise ScenarioError("cols", "rows x cols = 1 node; a network has at least 2 nodes")
         if self.kind == "edges":
             seen: dict[tuple[int, int], int] = {}
             for i, e in enumerate(self.edges):
@@ -240,7 +242,7 @@ def graph_from_section(section: Any, field: str = "graph", *, connected: bool = 
     return spec
 
 
-def graph(data: Mapping[str, Any], field: str = "graph", *, connected: bool = True, min_nodes: int = 1) -> GraphSpec:
+def graph(data: Mapping[str, Any], field: str = "graph", *, connected: bool = True, min_nodes: int = 2) -> GraphSpec:
     """The graph of a plain `[graph]` table (a dict), validated by its declaration (`GraphSection`)."""
     from dse.scenario.declare import parse
 

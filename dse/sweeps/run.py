@@ -360,6 +360,7 @@ def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", worke
         shutil.rmtree(staging, ignore_errors=True)
     return {"name": spec.name, "points": len(tasks), "ran": len(pending) - len(failures),
             "reused": len(tasks) - len(pending), "failed": len(failures), "numerical_errors": wall["numerical_errors"],
+            "claims_failed": wall["claims_failed"],
             "wall_s": meta["wall_s"], "out_dir": out_dir, "scheduler": mode}
 
 
@@ -383,7 +384,8 @@ def write_sweep_outputs(spec: SweepSpec, out_dir: Path, done: list[Task], result
         so.write_figure(spec, frame, plan, out_dir / "sweep.png")
         so.write_recording(spec, frame, plan, summary_md, out_dir / "sweep.rrd")
     atomic_write_text(out_dir / "summary.md", summary_md + "\n")
-    return {"numerical_errors": int((frame["status"] != "ok").sum()) if len(frame) else 0}
+    return {"numerical_errors": int((frame["status"] != "ok").sum()) if len(frame) else 0,
+            "claims_failed": int(claims["verdict"].isin(["fail", "error"]).sum()) if len(claims) else 0}
 
 
 def sweep_file_diffs(out_dir: Path, meta: dict[str, Any]) -> list[str]:

@@ -31,10 +31,12 @@ A field is a dotted path into the scenario (``sensors.0.V`` indexes a list). Its
 exist in the base scenario; the leaf may be new (an optional field left at its default).
 Every point's seed is derived from the sweep's seed, the point's values and its replicate,
 so a point has the same seed whatever else the sweep contains and wherever it runs.
+`dse sweep --seed/--trials/--quick` replace the file's `seed`, `trials` and `quick` (`with_options`).
 """
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import itertools
 import math
@@ -126,6 +128,15 @@ class SweepSpec:
         return data
 
 
+def with_options(spec: SweepSpec, *, seed: int | None = None, trials: int | None = None,
+                 quick: bool = False) -> SweepSpec:
+    """The sweep with the command line's options applied to every point: `seed` replaces the sweep's root
+    seed, `trials` its trials, `quick=True` its quick; the source is updated too, so that sweep.json (and
+    `dse verify`) describe the sweep that ran."""
+    changes = {k: v for k, v in (("seed", seed), ("trials", trials), ("quick", quick or None)) if v is not None}
+    return dataclasses.replace(spec, **changes, source={**spec.source, **changes}) if changes else spec
+
+
 def point_seed(sweep_seed: int, values: Mapping[str, Any], replicate: int) -> int:
     """A 63-bit seed that depends only on the sweep seed, the point's values and the replicate."""
     digest = hashlib.sha256(canonical_json({"seed": sweep_seed, "values": dict(values), "replicate": replicate}).encode())
@@ -192,7 +203,11 @@ def _flatten(table: Mapping[str, Any], prefix: str, is_leaf) -> dict[str, Any]:
 
 def load_sweep(path: str | Path) -> SweepSpec:
     path = Path(path)
-    return parse_sweep(load_toml(path), base_dir=path.parent)
+    data = load_toml(path)
+    if "family" in data and not {"base", "scenario", "grid", "random"} & set(data):
+        raise ScenarioError(str(path), f"is a scenario file (family = {data['family']!r}), not a sweep file: run it "
+                                       f"with `dse run {path}`, or name it as `base` of a sweep file")
+    return parse_sweep(data, base_dir=path.parent)
 
 
 def parse_sweep(data: Mapping[str, Any], *, base_dir: Path) -> SweepSpec:
@@ -242,7 +257,12 @@ def _base(data: Mapping[str, Any], base_dir: Path) -> dict[str, Any]:
         base = dict(section(data["scenario"], "scenario"))
     else:
         base_path = Path(as_str(data["base"], "base"))
-        base = load_toml(base_path if base_path.is_absolute() else base_dir / base_path)
+        resolved = base_path if base_path.is_absolute() else base_dir / base_path
+        try:
+            base = load_toml(resolved)
+        except ScenarioError as exc:
+            raise ScenarioError("base", f"{str(base_path)!r} (resolved against the sweep file's folder: "
+                                        f"{resolved.resolve()}): {exc.reason}") from None
     if "family" not in base:
         raise ScenarioError("base.family", "the base scenario names no family")
     return base

@@ -90,6 +90,10 @@ class Holds:
     value: Any = None
     threshold: Any = None
     detail: str = ""
+    #: what the scenario declares it expects (a negative control built to break the hypothesis declares
+    #: False); None when it declares nothing. A hypothesis that does not hold as declared is reported as
+    #: "does not hold (expected)", not as a failure.
+    expected: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -109,7 +113,7 @@ class Hypothesis:
         except Exception as exc:  # a broken hypothesis check is a defect, reported as such
             h, error = Holds(None), f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}"
         return {"id": self.id, "statement": self.statement, "holds": h.holds, "value": _plain(h.value),
-                "threshold": _plain(h.threshold), "detail": h.detail, "error": error}
+                "threshold": _plain(h.threshold), "detail": h.detail, "error": error, "expected": h.expected}
 
 
 @dataclass(frozen=True)

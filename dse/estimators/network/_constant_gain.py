@@ -89,8 +89,13 @@ def search_grid(net) -> tuple[int, int]:
 
 
 def finish(est, rule: str, scale: float, zeta: float = 1.0) -> None:
-    """Design `est` as the filter `rule` with gains scale·G: not applicable when no scale is stable, else its
-    exact steady state (tuned), its gains, and whether its exact moments are computed."""
+    """Design `est` as the filter `rule` with gains scale·G: its exact steady state, its gains, and whether its
+    exact moments are computed. The one applicability rule of the constant-gain filters: the mean-square error
+    recursion with the gains it runs with (given, or tuned) must be stable, i.e. have a steady state, computed
+    on the links the steady states are computed on (`steady_state`: ρ < 1 exactly on reliable links, a
+    certified positive solution on random ones, where the estimate of ρ can read 1 + 1e-16); otherwise (or when
+    no scale was found) it is not applicable, with ρ in the reason (the `applicability` table keeps ρ, the
+    scale and ζ)."""
     from dse.estimators.constant_gain_fusion import steady_state
 
     net = est.network
@@ -98,13 +103,18 @@ def finish(est, rule: str, scale: float, zeta: float = 1.0) -> None:
         est.reason = "no gain scale makes its mean-square error recursion stable"
         return
     f = fusion_filter(net, rule, scale, zeta)
-    est.config, est.gains = f, f.gains
     steady, rho = f"{est.name}_steady", f"{est.name}_rho"
     if steady not in net.tuned:
         ss = steady_state(fusion_filter(net, rule, scale, zeta, tuning=True))
         net.tuned[steady], net.tuned[rho] = ss["network"], ss["rho"]
     est.tuning = {"scale": float(scale), "zeta": float(zeta), "rho": float(net.tuned[rho]),
                   "steady_mse": float(net.tuned[steady]), "surrogate": net.links.kind == "matchings"}
+    if not np.isfinite(net.tuned[steady]):
+        est.reason = (f"its mean-square error recursion is unstable with the gains it would run with (ℓ = {scale:.4g}"
+                      + (f", ζ = {zeta:.4g}" if rule == "reinjection" else "")
+                      + f"): no steady state, spectral radius {net.tuned[rho]:.4g}")
+        return
+    est.config, est.gains = f, f.gains
     est.exact_reason = _exact_reason(f, net)
 
 

@@ -67,7 +67,9 @@ def carli_noise(d) -> Holds:
 
 @claims.hypothesis(STABLE, "Carli's and the re-injection filter's mean-square error recursions are stable (ρ < 1)")
 def stable(d) -> Holds:
-    rows = {e: g["rho"] for e, g in d.gains.items() if e in ("carli", "reinjection")}
+    # designed gains, running or not: a filter whose recursion is unstable is not applicable, and this says why
+    rows = {e: d.estimators[e].tuning["rho"] for e in ("carli", "reinjection")
+            if e in d.estimators and d.estimators[e].tuning}
     if len(rows) < 2:
         return Holds(None, detail="Carli's or the re-injection filter does not run on this scenario")
     if d.links.kind == "matchings":

@@ -35,7 +35,9 @@ communication (the floor), the GIKF (Kar & Moura), Carli et al.'s two-stage cons
 re-injection filter in vector form, Tanwani's constant-gain filters with pairwise averaging in discrete time, the
 Kalman-consensus filter (Olfati-Saber), the diffusion Kalman filter in adapt-then-combine form (Cattivelli & Sayed)
 and the consensus-on-information filter (Battistelli & Chisci). An estimator that does not apply to the link model
-is reported as not applicable, with the reason. Exact second-moment recursions where they exist (linear filters
+is reported as not applicable, with the reason; so is a constant-gain filter (Carli's, re-injection, pairwise)
+whose mean-square error recursion has no steady state with the gains it would run with (computed; one rule
+for the three, tuned or given gains alike). Exact second-moment recursions where they exist (linear filters
 with gains that do not depend on the data; the mean over link patterns where it is exact), Monte Carlo with
 confidence intervals otherwise. Tables: `applicability`, `gains`, `edge_weights`, `detectability` (design; also
 from `dse check`), `estimators` (error against communication), `nodes`, `series`, `token_law` and `metrics`.

@@ -123,9 +123,10 @@ class GainsSection(Section):
     given: list[Matrix] | None = key(None, doc="base gain of every sensor type (n x m each; base = given)",
                                      constraint="one per sensor type, required with base = given, only then")
     carli_scale: Scale = key("optimal", doc="ℓ of Carli's filter: a number, or optimal (minimises the exact "
-                             "steady-state mean-square error, as Carli et al. tune their gain)")
+                             "steady-state mean-square error, as Carli et al. tune their gain)",
+                             constraint="a number must be > 0")
     reinjection_scale: Scale = key("optimal", doc="ℓ of the re-injection filter: a number, or optimal (jointly "
-                                   "with ζ, Savas et al. §V-B)")
+                                   "with ζ, Savas et al. §V-B)", constraint="a number must be > 0")
     reinjection_zeta: Scale = key("optimal", doc="ζ of the re-injection filter (13): a number in [0, 1], or optimal",
                                   constraint="a number must be in [0, 1]")
     pairwise_scale: Real = key(1.0, doc="ℓ of the pairwise-averaging filter (1: Tanwani's split gains)", gt=0)

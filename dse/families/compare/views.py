@@ -77,7 +77,8 @@ def error_vs_communication(res, tables, path: Path) -> None:
     if len(skipped):
         ax.text(0.01, 0.01, "not applicable: " + ", ".join(skipped["estimator"]), transform=ax.transAxes, fontsize=7,
                 va="bottom")
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), fontsize=7, ncol=2, borderaxespad=0)
+    # below the axes from their left edge (centred, two columns of long labels ran off the figure's left side)
+    ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.16), fontsize=7, ncol=2, borderaxespad=0)
     ranked = rows.sort_values("network_mse")
     ratio = ranked["network_mse"].to_numpy() / floor if np.isfinite(floor) else ranked["network_mse"].to_numpy()
     ypos = np.arange(len(ranked))[::-1]

@@ -29,7 +29,7 @@ MONOTONE_FEATURES = ("log_trace", "log_lam_max", "log_lam_min")  # upward-closed
 
 def hyp(*names: str) -> tuple[str, ...]:
     """The ids (templates) of the scenario's hypotheses `names` (see `hypotheses`)."""
-    return tuple(f"{PAPER}.hyp.{name}.{{scenario}}" for name in names)
+    return tuple(f"{PAPER}.hyp.{name}{{.scenario}}" for name in names)
 
 
 #: what the theorem's conclusions rest on (S.1 always holds: validation requires Q ≻ 0)

@@ -22,7 +22,7 @@ from .results import ScenarioResults
 claims = ClaimSet()
 
 
-@claims.claim("kar-moura.lemma14.bound.{scenario}", "Lemma 14, eqs (39)-(41)",
+@claims.claim("kar-moura.lemma14.bound{.scenario}", "Lemma 14, eqs (39)-(41)",
               "g_w0(X) ⪯ Σ_sub for all X ⪰ 0 (α0 = λ_max of the corrected Σ_sub)", "inequality",
               hypotheses=hyp("d1", "witness", "s1"), when=role("full"))
 def check_lemma14(r: ScenarioResults) -> Verdict:
@@ -59,7 +59,7 @@ def sigma_sub_tolerance(r: ScenarioResults) -> tuple[float, str]:
                               condition=float(b["gramian_cond"]))
 
 
-@claims.claim("kar-moura.lemma14.eq120.{scenario}", "eqs (118)-(120)",
+@claims.claim("kar-moura.lemma14.eq120{.scenario}", "eqs (118)-(120)",
               "The sub-optimal estimator's covariance bounds g_w0 (printed form vs corrected)", "inequality",
               hypotheses=hyp("d1", "witness", "s1"), when=role("full"))
 def check_lemma14_printed(r: ScenarioResults) -> Verdict:
@@ -83,7 +83,7 @@ def check_lemma14_printed(r: ScenarioResults) -> Verdict:
                            f"(with allowance {float(scor):.3e}). Also (118) needs C_{{n_t}}ᵀ."))
 
 
-@claims.claim("kar-moura.eq134.lifted-chain.{scenario}", "eqs (132)-(134)", "Stationary law of the lifted window chain",
+@claims.claim("kar-moura.eq134.lifted-chain{.scenario}", "eqs (132)-(134)", "Stationary law of the lifted window chain",
               "identity", hypotheses=hyp("witness", "exact-abar"), when=role("full"))
 def check_lifted_chain(r: ScenarioResults) -> Verdict:
     b = r.bounds
@@ -107,7 +107,7 @@ def check_lifted_chain(r: ScenarioResults) -> Verdict:
                            + f") and corrected (1/N)Π_j Ā[i_j, i_(j+1)] (max error {err_c:.1e})."))
 
 
-@claims.claim("kar-moura.lemma15.tail-bound.{scenario}", "Lemma 15, eqs (122)-(142)",
+@claims.claim("kar-moura.lemma15.tail-bound{.scenario}", "Lemma 15, eqs (122)-(142)",
               "P(‖P̃(t)‖ > J) ≤ β_t(J) → 0 (tightness)", "statistical",
               hypotheses=THEOREM + hyp("witness", "exact-abar"))
 def check_lemma15(r: ScenarioResults) -> Verdict:
@@ -139,7 +139,7 @@ def check_lemma15(r: ScenarioResults) -> Verdict:
                            + (f". All-windows bound / empirical tail: median {np.median(ratios):.2f}" if ratios else "")))
 
 
-@claims.claim("kar-moura.rem9.protocol-invariance.{scenario}", "Remark 9",
+@claims.claim("kar-moura.rem9.protocol-invariance{.scenario}", "Remark 9",
               "The laws of P̂_q(t) and each P̂_n(t) depend on the protocol only through Ā", "statistical",
               hypotheses=hyp("same-abar"), when=role("comparison"))
 def check_remark9(r: ScenarioResults) -> Verdict:

@@ -23,7 +23,7 @@ from .results import Results, ScenarioResults
 claims = ClaimSet()
 
 
-@claims.claim("kar-moura.e7.periodic-orbit.{scenario}", "example E7 (ours)",
+@claims.claim("kar-moura.e7.periodic-orbit{.scenario}", "example E7 (ours)",
               "Covariances settle on a 2-periodic orbit with traces 1.8841 / 2.1634", "identity", when=example("e7"),
               scope="paper-example")
 def check_periodic_orbit(r: ScenarioResults) -> Verdict:
@@ -41,7 +41,7 @@ def check_periodic_orbit(r: ScenarioResults) -> Verdict:
                            f"two slots: {np.round(tr, 4).tolist()}"))
 
 
-@claims.claim("kar-moura.e7.token-domination-fails.{scenario}", "Theorem 10[ii]; example E7 (ours)",
+@claims.claim("kar-moura.e7.token-domination-fails{.scenario}", "Theorem 10[ii]; example E7 (ours)",
               "PREDICTED: with periodic Ā the conclusion of (25) fails (P(P_n(t) ∈ S) = 1 > μ(S) every other slot)",
               "statistical", when=example("e7"), scope="paper-example")
 def check_e7_token_domination_fails(r: ScenarioResults) -> Verdict:
@@ -68,7 +68,7 @@ def check_e7_token_domination_fails(r: ScenarioResults) -> Verdict:
                            + ". The mixture still converges."))
 
 
-@claims.claim("kar-moura.e8.d1-not-necessary.{scenario}", "Remark 5; example E8 (ours)",
+@claims.claim("kar-moura.e8.d1-not-necessary{.scenario}", "Remark 5; example E8 (ours)",
               "D.1 fails for singular F yet (F, C_all) is observable and P̂ stays bounded", "qualitative",
               when=example("e8"), scope="paper-example")
 def check_d1_not_necessary(r: ScenarioResults) -> Verdict:

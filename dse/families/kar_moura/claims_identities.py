@@ -21,7 +21,7 @@ from .results import ScenarioResults
 claims = ClaimSet()
 
 
-@claims.claim("kar-moura.assumption.c1.{scenario}", "§II-A, C.1, eq (6)",
+@claims.claim("kar-moura.assumption.c1{.scenario}", "§II-A, C.1, eq (6)",
               "Ā = E[A(t)] is symmetric and doubly stochastic; C.1 as the scenario expects", "qualitative")
 def check_c1(r: ScenarioResults) -> Verdict:
     b = r.bounds
@@ -43,7 +43,7 @@ def check_c1(r: ScenarioResults) -> Verdict:
                    detail=detail + (f" The scenario expects C.1 = {expected}." if expected is not None else ""))
 
 
-@claims.claim("kar-moura.assumption.s1.{scenario}", "§II-A, S.1", "(F, Q^½) stabilisable (Q ≻ 0)", "qualitative")
+@claims.claim("kar-moura.assumption.s1{.scenario}", "§II-A, S.1", "(F, Q^½) stabilisable (Q ≻ 0)", "qualitative")
 def check_s1(r: ScenarioResults) -> Verdict:
     lam = float(np.linalg.eigvalsh(r.scenario.Q)[0])
     lone = [n for n in range(r.scenario.N) if r.bounds["sensor_detectable"][n]]
@@ -52,7 +52,7 @@ def check_s1(r: ScenarioResults) -> Verdict:
                            f"{lone or 'none'}; (F, C_all) detectable: {bool(r.bounds['central_detectable'])}."))
 
 
-@claims.claim("kar-moura.assumption.d1.{scenario}", "§II-A, D.1, Remark 2, footnote 6",
+@claims.claim("kar-moura.assumption.d1{.scenario}", "§II-A, D.1, Remark 2, footnote 6",
               "D.1 decided (a witness walk searched and recorded, or a certificate of failure), consistent with "
               "observability and as the scenario expects", "qualitative")
 def check_d1(r: ScenarioResults) -> Verdict:
@@ -100,7 +100,7 @@ def small_t_law_tests(r: ScenarioResults) -> tuple[list[tuple[str, float]], list
     return cells, lines
 
 
-@claims.claim("kar-moura.thm10-i.weak-consensus.{scenario}", "Theorem 10[i], eq (22); exact form eqs (60)-(67)",
+@claims.claim("kar-moura.thm10-i.weak-consensus{.scenario}", "Theorem 10[i], eq (22); exact form eqs (60)-(67)",
               "A uniformly random sensor's P̂_q(t) has the law of the Theorem-8 process P̃(t), exactly at every t",
               "statistical", hypotheses=hyp("random-protocol"))
 def check_weak_consensus(r: ScenarioResults) -> Verdict:
@@ -118,7 +118,7 @@ def check_weak_consensus(r: ScenarioResults) -> Verdict:
                    "eqs (60)-(67)).")
 
 
-@claims.claim("kar-moura.thm10-i.per-sensor-laws.{scenario}", "derived from eqs (60)-(67)",
+@claims.claim("kar-moura.thm10-i.per-sensor-laws{.scenario}", "derived from eqs (60)-(67)",
               "Sensor n's P̂_n(t) has the law of P̃(t) conditioned on the last switch p̃(t−1) = n", "statistical",
               hypotheses=hyp("random-protocol"))
 def check_per_sensor(r: ScenarioResults) -> Verdict:
@@ -147,7 +147,7 @@ def check_per_sensor(r: ScenarioResults) -> Verdict:
                      "the mixture; the per-sensor laws differ where the sensors' own maps do).") if obs else "")
 
 
-@claims.claim("kar-moura.centralized.filterpy.{scenario}", "reference computation",
+@claims.claim("kar-moura.centralized.filterpy{.scenario}", "reference computation",
               "Centralized P_c(t): our batched recursion = filterpy's KalmanFilter", "identity")
 def check_filterpy(r: ScenarioResults) -> Verdict:
     b = r.bounds
@@ -168,7 +168,7 @@ def check_filterpy(r: ScenarioResults) -> Verdict:
     return v
 
 
-@claims.claim("kar-moura.centralized.domination.{scenario}", "derived (monotone Riccati maps)",
+@claims.claim("kar-moura.centralized.domination{.scenario}", "derived (monotone Riccati maps)",
               "P̂_n(t) ⪰ P_c(t) pathwise, P_c the centralized filter of n's class of Ā (of all sensors under C.1)",
               "inequality")
 def check_domination(r: ScenarioResults) -> Verdict:
@@ -190,7 +190,7 @@ def check_domination(r: ScenarioResults) -> Verdict:
                                                             f"{classes} classes") + "). " + ROUNDOFF_SENTENCE))
 
 
-@claims.claim("kar-moura.lemma16.support.{scenario}", "Lemma 16, eqs (43), (45), (73)",
+@claims.claim("kar-moura.lemma16.support{.scenario}", "Lemma 16, eqs (43), (45), (73)",
               "P̂_n(t) ⪰ Q (t ≥ 1) and P̂_n(t) ⪯ f_0^t(P0); μ(X ⪰ Q) = 1", "inequality")
 def check_support(r: ScenarioResults) -> Verdict:
     """Lemma 16 / eq (43): every P̂_n(t) (t ≥ 1) and every Theorem-8 sample is ⪰ Q; envelope (73) P̂ ⪯ f_0^t(P0)."""
@@ -204,7 +204,7 @@ def check_support(r: ScenarioResults) -> Verdict:
                                       f"samples) {m_ref.min():.3e} (raw relative margins). " + ROUNDOFF_SENTENCE))
 
 
-@claims.claim("kar-moura.nees.consistency.{scenario}", "derived (Gaussian errors given the gossip path)",
+@claims.claim("kar-moura.nees.consistency{.scenario}", "derived (Gaussian errors given the gossip path)",
               "Errors are N(0, P̂_n): NEES ~ χ²_M at a random sensor and for the centralized filter", "statistical")
 def check_nees(r: ScenarioResults) -> Verdict:
     """Given the gossip path the error of sensor q is exactly N(0, P̂_q), and the centralized error is

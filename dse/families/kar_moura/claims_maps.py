@@ -24,7 +24,7 @@ from .results import ScenarioResults
 claims = ClaimSet()
 
 
-@claims.claim("kar-moura.lemma11.riccati-maps.{scenario}", "Lemma 11[ii], [iii]; (71)",
+@claims.claim("kar-moura.lemma11.riccati-maps{.scenario}", "Lemma 11[ii], [iii]; (71)",
               "Compositions of f_n are order preserving, strongly sublinear; f_n concave, f_n ⪯ f_0", "inequality",
               hypotheses=hyp("s1"), when=role("full"))
 def check_lemma11(r: ScenarioResults) -> Verdict:
@@ -78,7 +78,7 @@ def check_lemma11(r: ScenarioResults) -> Verdict:
     return v
 
 
-@claims.claim("kar-moura.prop6.token-chain.{scenario}", "Proposition 6[i], [ii]",
+@claims.claim("kar-moura.prop6.token-chain{.scenario}", "Proposition 6[i], [ii]",
               "Token locations form a Ā-Markov chain (law e_nᵀĀᵗ → uniform)", "statistical",
               hypotheses=hyp("exact-abar", "random-protocol"), when=role("full"))
 def check_token_chain(r: ScenarioResults) -> Verdict:
@@ -112,7 +112,7 @@ def check_token_chain(r: ScenarioResults) -> Verdict:
                                   "permutation), and token 0 only for the laws."))
 
 
-@claims.claim("kar-moura.prop7-ii.pathwise.{scenario}", "Proposition 7[ii], eq (19), with (13)/(17)",
+@claims.claim("kar-moura.prop7-ii.pathwise{.scenario}", "Proposition 7[ii], eq (19), with (13)/(17)",
               "Token recursion equals the sensors' covariances pathwise", "identity", when=role("full"))
 def check_pathwise(r: ScenarioResults) -> Verdict:
     """Prop 7[ii], (19): with a common matching sequence, the token recursion reproduces the sensors'
@@ -162,7 +162,7 @@ def check_pathwise(r: ScenarioResults) -> Verdict:
                            f"corrected, {ratio['printed']:.3g} printed). Laws are unaffected (A(t) i.i.d.). " + ROUNDOFF_SENTENCE))
 
 
-@claims.claim("kar-moura.eq74.comparison.{scenario}", "eqs (71)-(74)",
+@claims.claim("kar-moura.eq74.comparison{.scenario}", "eqs (71)-(74)",
               "P_n(t) ⪯ P^s_n(t) for t ≥ s: the token's covariance is dominated by the same switching restarted at s "
               "from f_0^s(P0)", "inequality", when=role("full"))
 def check_eq74(r: ScenarioResults) -> Verdict:
@@ -182,7 +182,7 @@ def check_eq74(r: ScenarioResults) -> Verdict:
                           + ". " + ROUNDOFF_SENTENCE))
 
 
-@claims.claim("kar-moura.eq83.tv-decay.{scenario}", "eq (83), Proposition 6[ii]", "d_v(p_n(s), U) ≤ (√N/2) SLEM^s",
+@claims.claim("kar-moura.eq83.tv-decay{.scenario}", "eq (83), Proposition 6[ii]", "d_v(p_n(s), U) ≤ (√N/2) SLEM^s",
               "inequality", hypotheses=hyp("exact-abar"), when=role("full"))
 def check_tv_decay(r: ScenarioResults) -> Verdict:
     b = r.bounds

@@ -23,7 +23,7 @@ from .results import ScenarioResults
 claims = ClaimSet()
 
 
-@claims.claim("kar-moura.negative-control.divergence.{scenario}", "derived (hypotheses violated)",
+@claims.claim("kar-moura.negative-control.divergence{.scenario}", "derived (hypotheses violated)",
               "Sensors in an Ā-class that cannot detect a mode |λ| ≥ 1 are bounded below, pathwise, by their class's "
               "centralized filter, which diverges", "inequality", hypotheses=hyp("undetectable-class"))
 def check_divergence(r: ScenarioResults) -> Verdict:
@@ -50,7 +50,7 @@ def check_divergence(r: ScenarioResults) -> Verdict:
     return slack_verdict(slack, raw, detail)
 
 
-@claims.claim("kar-moura.thm26.alternative-a.{scenario}", "Theorem 26 (a)",
+@claims.claim("kar-moura.thm26.alternative-a{.scenario}", "Theorem 26 (a)",
               "Under C.1 with a mode |λ| ≥ 1 no sensor sees, the pull-back from 0 dominates the (diverging) "
               "centralized filter from 0 along every path", "inequality", hypotheses=hyp("c1", "undetectable-class"))
 def check_dichotomy_divergent(r: ScenarioResults) -> Verdict:
@@ -85,7 +85,7 @@ def exceed_curve(r: ScenarioResults, t0: int) -> np.ndarray:
     return ex[rows].max(axis=0) / r.runs
 
 
-@claims.claim("kar-moura.thm10-iii.bounded.{scenario}", "Theorem 10[iii], eqs (26), (27)",
+@claims.claim("kar-moura.thm10-iii.bounded{.scenario}", "Theorem 10[iii], eqs (26), (27)",
               "P(P̂_n(t) ∈ S) ≤ N μ_t(S) for S = {‖X‖ ≥ J} (exact finite-t form of (27)); tightness (26) reported",
               "statistical", hypotheses=THEOREM + hyp("random-protocol"))
 def check_bounded(r: ScenarioResults) -> Verdict:
@@ -125,7 +125,7 @@ def check_bounded(r: ScenarioResults) -> Verdict:
                            f"finite horizons can be checked and means are not claimed (they may be infinite)."))
 
 
-@claims.claim("kar-moura.thm10-ii.token-domination.{scenario}", "Theorem 10[ii], eqs (23)-(25), proof (72)-(84)",
+@claims.claim("kar-moura.thm10-ii.token-domination{.scenario}", "Theorem 10[ii], eqs (23)-(25), proof (72)-(84)",
               "P(P_n(T) ∈ S) ≤ P(Q^s(T) ∈ S) + d_v(p_n(s), U) for upward-closed S (finite-T form of limsup_t P(P_n(t) "
               "∈ S) ≤ μ(S))", "statistical", hypotheses=THEOREM + hyp("exact-abar", "random-protocol"))
 def check_token_domination(r: ScenarioResults) -> Verdict:
@@ -174,7 +174,7 @@ def check_token_domination(r: ScenarioResults) -> Verdict:
                            + "; ".join(obs) + "."))
 
 
-@claims.claim("kar-moura.eq29.sensor-sum.{scenario}", "eq (29)",
+@claims.claim("kar-moura.eq29.sensor-sum{.scenario}", "eq (29)",
               "Σ_n P(P̂_n(t) ∈ S) = N μ_t(S) (the unproven (29) holds with equality)", "statistical",
               hypotheses=THEOREM + hyp("random-protocol"))
 def check_eq29(r: ScenarioResults) -> Verdict:
@@ -200,7 +200,7 @@ def check_eq29(r: ScenarioResults) -> Verdict:
                                 f"thresholds, Bonferroni: " + ("; ".join(lines) or "every fraction is 0")))
 
 
-@claims.claim("kar-moura.thm8.initial-law.{scenario}", "Theorem 8 / Theorem 12",
+@claims.claim("kar-moura.thm8.initial-law{.scenario}", "Theorem 8 / Theorem 12",
               "P̃(t) ⇒ μ from any initial law (δ0, δ_cI, Wishart; finite-T allowance from coupling)", "statistical",
               hypotheses=THEOREM)
 def check_initial_law(r: ScenarioResults) -> Verdict:
@@ -243,7 +243,7 @@ def check_initial_law(r: ScenarioResults) -> Verdict:
                            + "; ".join(lines) + f". Burn-in diagnostic: {cpl_txt}."))
 
 
-@claims.claim("kar-moura.lemma23.pullback.{scenario}", "Lemma 23, eq (108); Theorem 26(b)",
+@claims.claim("kar-moura.lemma23.pullback{.scenario}", "Lemma 23, eq (108); Theorem 26(b)",
               "Forward and pull-back iterates agree in law; the pull-back from 0 is monotone along every path",
               "statistical", hypotheses=THEOREM)
 def check_pullback(r: ScenarioResults) -> Verdict:

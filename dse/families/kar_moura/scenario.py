@@ -224,11 +224,13 @@ class SimulationSection(Section):
 
 class ExpectSection(Section):
     """What the scenario's author expects; a wrong expectation makes the assumption checks not
-    checkable (the expectation, not the paper, is wrong)."""
+    checkable (the expectation, not the paper, is wrong). A hypothesis declared false here (a negative
+    control) is reported as "does not hold (expected)"."""
 
     c1: bool | None = key(None, doc="C.1 (Ā irreducible and aperiodic) is expected to hold")
     d1: bool | None = key(None, doc="D.1 (a walk of Ā with an invertible Gramian) is expected to hold")
-    diverges: bool | None = key(None, doc="some sensor's covariance is expected to diverge (documentation only)")
+    diverges: bool | None = key(None, doc="some sensor's covariance is expected to diverge: a class of Ā blind to a "
+                                "mode |λ| ≥ 1 (the hypothesis undetectable-class) is expected")
 
 
 class GossipKalmanFile(ScenarioFile):

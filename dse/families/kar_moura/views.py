@@ -265,18 +265,26 @@ def _series(frame: pd.DataFrame, index: np.ndarray, value: str) -> np.ndarray:
     return out
 
 
+#: the overview's legends are shown up to this many sensors (each has a curve per sample run)
+MAX_LEGEND_SENSORS = 3
+
+
 def _tabs(v: ScenarioTables):
     import rerun.blueprint as rrb
 
     N, n_show = v.sc.N, min(v.sc.N, 12)
+    # one curve per sensor and sample run (and per quantile): with more than a few sensors the legend would
+    # cover the plot; the colours are the sensors', and hovering a curve names it
+    legend = rrb.PlotLegend(rrb.Corner2D.RightTop, visible=N <= MAX_LEGEND_SENSORS)
     return [rrb.Horizontal(
                 rrb.Vertical(rrb.GraphView(origin="/graph", name="active matching A(t) (sample run 0)"),
                              rrb.GraphView(origin="/links", name="allowed links (graph)"), row_shares=[3, 2]),
                 rrb.Vertical(rrb.TimeSeriesView(origin="/nodes", name="tr P̂_n(t), sample run 0, every sensor",
                                                 contents=[f"/nodes/{n}/cov_trace/**" for n in range(N)]
-                                                + ["/central/cov_trace"]),
+                                                + ["/central/cov_trace"], plot_legend=legend),
                              rrb.TimeSeriesView(origin="/mc", name="log10 tr P̂: median over runs per sensor, μ_t "
-                                                                    "quantiles", contents=["/mc/median/**", "/mc/mu/**"]),
+                                                                    "quantiles", contents=["/mc/median/**", "/mc/mu/**"],
+                                                plot_legend=legend),
                              row_shares=[1, 1]),
                 column_shares=[2, 3], name="overview"),
             rrb.Grid(*[rrb.TimeSeriesView(origin=f"/mc/quantiles/{n}", name=f"sensor {n}: log10 tr P̂ quantiles over runs",
@@ -369,12 +377,13 @@ def _log_runs(rec, v: ScenarioTables) -> None:
 
 
 def write_recording(v: ScenarioTables, path: Path, out: Outputs) -> None:
-    """One scenario's recording on the shared scaffold (its claims: those whose id ends with its name)."""
+    """One scenario's recording on the shared scaffold (its claims: those whose id ends with its name, or every
+    claim of a one-scenario run)."""
     from dse.outputs.report import counts_line, verdict_counts
 
     sc, repro = v.sc, out.reproduction
-    prefix = repro.paper_id if repro.is_paper else repro.family.id
-    own = [c for c in out.claims if c["id"].endswith(f".{sc.name}")]
+    several = len(repro.scenarios) > 1   # a one-scenario run's ids do not name the scenario: every claim is its own
+    own = [c for c in out.claims if not several or c["id"].endswith(f".{sc.name}")]
     summary = (f"# {sc.name}: {counts_line(verdict_counts(own))}\n\n{sc.description}\n\nseed {v.seed}, {v.runs:,} GIKF "
                f"runs, {v.reference_runs:,} Theorem-8 runs, {v.slots} slots")
 
@@ -382,7 +391,7 @@ def write_recording(v: ScenarioTables, path: Path, out: Outputs) -> None:
         _log_matchings(rec, v)
         _log_runs(rec, v)
 
-    recording(path, out, recording_id=f"{prefix}-{sc.name}-seed{v.seed}", tabs=lambda: _tabs(v), timeline="k", log=log,
+    recording(path, out, recording_id=f"{out.run_prefix}-{sc.name}-seed{v.seed}", tabs=lambda: _tabs(v), timeline="k", log=log,
               properties={"runs": v.runs, "reference_runs": v.reference_runs, "slots": v.slots, "N": sc.N, "M": sc.M,
                           "protocol": sc.protocol.kind, "graph": sc.network.kind}, summary=summary, claims=own)
 

@@ -107,8 +107,8 @@ def _trials_recording(out: Outputs, path) -> None:
             if "sample_paths" in tables:
                 _log_sample_paths(rec, tables, sc, alg, m, s_c, a == 0)
 
-    recording(path, out, recording_id=f"savas-{sc.name}-seed{out.results.seed}", tabs=lambda: _trials_tabs(sc.n),
-              timeline="k", log=log, properties=_properties(sc), application_id="dse-savas",
+    recording(path, out, recording_id=f"{out.run_prefix}-{sc.name}-seed{out.results.seed}",
+              tabs=lambda: _trials_tabs(sc.n), timeline="k", log=log, properties=_properties(sc),
               summary=out.summary(sc.name, f"{out.results.trials:,} trials per cell"))
 
 
@@ -156,9 +156,9 @@ def _figures_recording(out: Outputs, path) -> None:
                 record.send_series(rec, f"fig2/{key}/printed", midx, gain_table(tables, sc, "printed", key).T,
                                    names=[f"{n} printed (16)" for n in names], colors=cols, points=True)
 
-    recording(path, out, recording_id=f"savas-{sc.name}-figures-seed{out.results.seed}",
+    recording(path, out, recording_id=f"{out.run_prefix}-{sc.name}-figures-seed{out.results.seed}",
               tabs=lambda: _figures_tabs(sc, out.reproduction.is_paper, has_gains), timeline="m", log=log,
-              properties=_properties(sc), application_id="dse-savas",
+              properties=_properties(sc),
               summary=out.summary(sc.name, f"{out.results.trials:,} trials per cell"))
 
 

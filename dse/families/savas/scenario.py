@@ -192,7 +192,7 @@ class NoisyConsensusFile(ScenarioFile):
     graph: GraphSection = key(doc="the communication graph")
     consensus: ConsensusSection = key(ConsensusSection, doc="the consensus weights")
     model: ModelSection = key(doc="the process and the measurements")
-    sweep: SweepSection = key(doc="the cells and the horizon")
+    sweep: SweepSection = key(SweepSection, doc="the cells and the horizon")
     carli: CarliSection = key(CarliSection, doc="Carli et al.'s filter")
     reinjection: ReinjectionSection = key(ReinjectionSection, doc="the re-injection filter")
     gains: GainsSection = key(GainsSection, doc="the optimal-gain tables")

@@ -1,6 +1,7 @@
 """The claims and hypotheses of the random-communication filtering paper, in report order.
 
-Claim ids: `<paper-id>.<where>.<what>.<scenario>`; hypothesis ids `<paper-id>.hyp.<scenario>.<name>`.
+Claim ids: `<paper-id>.<where>.<what>.<scenario>`; hypothesis ids `<paper-id>.hyp.<scenario>.<name>`
+(the scenario named only in a run of several: `<name>.hyp.alpha` in a user's run).
 Every claim names the hypotheses its conclusion rests on; a claim whose hypotheses fail is
 not checkable (the driver says which). Exact computations are compared with round-off
 allowances derived from the sizes, operation counts and condition numbers of the computation;

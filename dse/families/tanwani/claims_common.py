@@ -23,9 +23,14 @@ MIN_TRIALS = 2          # exact-law tests keep their level at any sample size
 SECOND_MOMENT_TRUST = 1e-6    # largest relative change of the second-moment solution under a doubled step
 
 
+#: the id template of a scenario's hypotheses: `<paper>.hyp.<scenario>.<name>`, the scenario named only when the
+#: run has several (a user's run `rcf_disc` has `rcf_disc.hyp.alpha`, not `rcf_disc.hyp.rcf_disc.alpha`)
+HYP = "{paper}.hyp.{scenario.}"
+
+
 def hyp(*names: str) -> tuple[str, ...]:
     """The ids of the scenario's hypotheses `names` (see `hypotheses`)."""
-    return tuple(f"{{paper}}.hyp.{{scenario}}.{n}" for n in names)
+    return tuple(HYP + n for n in names)
 
 
 def sps():

@@ -46,7 +46,7 @@ def check_jensen(_res) -> Verdict:
                           f"{tol_rel:.2g} = 10·(2m + 2n) operations·eps (sums of m outer products and the eigenvalue solve)")
 
 
-@claims.claim("{paper}.model.fusion_weights.{scenario}", "eq. (3), (6)", "Π = I − α𝓛 is symmetric, doubly stochastic "
+@claims.claim("{paper}.model.fusion_weights{.scenario}", "eq. (3), (6)", "Π = I − α𝓛 is symmetric, doubly stochastic "
               "and nonnegative for 0 < α ≤ 1/d_max, and the mean jump of the edge clocks is λ(Π − I)", "identity",
               hypotheses=hyp("alpha"))
 def check_fusion(r: ScenarioResults) -> Verdict:
@@ -66,7 +66,7 @@ def _two_sided_discrete(cdf_k, sf_k) -> np.ndarray:
     return np.minimum(1.0, 2 * np.minimum(cdf_k, sf_k))
 
 
-@claims.claim("{paper}.model.poisson_clocks.{scenario}", "§II, (P1)-(P2)", "node counters are Poisson of rate d_iλ; "
+@claims.claim("{paper}.model.poisson_clocks{.scenario}", "§II, (P1)-(P2)", "node counters are Poisson of rate d_iλ; "
               "rings are never simultaneous, so every activation set is a singleton", "statistical")
 def check_poisson(r: ScenarioResults) -> Verdict:
     """Node counters against their exact laws: the total count over n paths is Poisson(n·d_iλT)
@@ -96,7 +96,7 @@ def worst_direction(X: np.ndarray) -> np.ndarray:
     return np.linalg.eigh((X + np.swapaxes(X, -1, -2)) / 2)[1][..., 0]
 
 
-@claims.claim("{paper}.prop3_2.per_path.{scenario}", "Prop. III.2, eq. (15)", "for a fixed clock path, "
+@claims.claim("{paper}.prop3_2.per_path{.scenario}", "Prop. III.2, eq. (15)", "for a fixed clock path, "
               "E[e_ie_iᵀ | τ](t) ≤ P_i(t) (eq. 14) for all t (exact per-path computation, many random paths)",
               "inequality", hypotheses=hyp("alpha", "initial", "numerics"))
 def check_prop32_path(r: ScenarioResults) -> Verdict:
@@ -124,7 +124,7 @@ def _path_references(r: ScenarioResults) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(measured), np.concatenate(reference)
 
 
-@claims.claim("{paper}.prop3_2.reference_path.{scenario}", "Prop. III.2, eq. (14)", "the batched per-path P_i(t; τ) "
+@claims.claim("{paper}.prop3_2.reference_path{.scenario}", "Prop. III.2, eq. (14)", "the batched per-path P_i(t; τ) "
               "and Σ(t; τ) equal an independent per-interval Van Loan computation", "identity",
               hypotheses=hyp("numerics"))
 def check_prop32_reference(r: ScenarioResults) -> Verdict:
@@ -151,7 +151,7 @@ def _first_event_times(r: ScenarioResults) -> np.ndarray:
     return out
 
 
-@claims.claim("{paper}.prop3_2.flow_equality.{scenario}", "proof of Prop. III.2, eq. (13a) corrected", "between "
+@claims.claim("{paper}.prop3_2.flow_equality{.scenario}", "proof of Prop. III.2, eq. (13a) corrected", "between "
               "events E[e_ie_iᵀ | τ] follows the Lyapunov flow of (14a) exactly (equality until node i's first event)",
               "identity", hypotheses=hyp("numerics"))
 def check_prop32_flow(r: ScenarioResults) -> Verdict:
@@ -191,7 +191,7 @@ def whitening_directions(Sigma: np.ndarray, pairs) -> tuple[np.ndarray, np.ndarr
     return W, use
 
 
-@claims.claim("{paper}.prop3_2.frozen_path_mc.{scenario}", "Prop. III.2", "Monte Carlo over (x0, ω, v) on one frozen "
+@claims.claim("{paper}.prop3_2.frozen_path_mc{.scenario}", "Prop. III.2", "Monte Carlo over (x0, ω, v) on one frozen "
               "clock path reproduces the exact per-path covariance", "statistical", hypotheses=hyp("numerics"),
               args=("equal",))
 def check_prop32_frozen(r: ScenarioResults, which: str) -> Verdict:
@@ -226,12 +226,12 @@ def check_prop32_frozen(r: ScenarioResults, which: str) -> Verdict:
                                "and t > 0 (measured: the ratio of the mean square to uᵀP_iu, at most 1 expected)")
 
 
-claims.claim("{paper}.prop3_2.frozen_path_bound.{scenario}", "Prop. III.2, eq. (15)", "Monte Carlo on one frozen clock "
+claims.claim("{paper}.prop3_2.frozen_path_bound{.scenario}", "Prop. III.2, eq. (15)", "Monte Carlo on one frozen clock "
              "path: E[e_ie_iᵀ | τ] ≤ P_i(t) (one-sided, matrix order)", "statistical",
              hypotheses=hyp("alpha", "initial", "numerics"), args=("bound",))(check_prop32_frozen)
 
 
-@claims.claim("{paper}.prop3_4.mean_of_P.{scenario}", "Prop. III.4", "the mean over Poisson clock paths of P_i(t) "
+@claims.claim("{paper}.prop3_4.mean_of_P{.scenario}", "Prop. III.4", "the mean over Poisson clock paths of P_i(t) "
               "solves the linear ODE (9)", "statistical", hypotheses=hyp("numerics"), requires=SECOND)
 def check_prop34(r: ScenarioResults) -> Verdict:
     ev, b = r.event, r.bounds

@@ -31,7 +31,7 @@ def _care_residual(A, B, S, X) -> np.ndarray:
     return A @ X + X @ A.T + B @ B.T - X @ S @ X
 
 
-@claims.claim("{paper}.reference.kalman_bucy.{scenario}", "reference", "the Kalman–Bucy Riccati solution agrees with "
+@claims.claim("{paper}.reference.kalman_bucy{.scenario}", "reference", "the Kalman–Bucy Riccati solution agrees with "
               "scipy, python-control and a stiff ODE integrator", "identity", hypotheses=hyp("kalman_bucy"))
 def check_kb_reference(r: ScenarioResults) -> Verdict:
     """Three computations of the Kalman–Bucy covariance agree within what their own errors allow:
@@ -84,7 +84,7 @@ def check_kb_reference(r: ScenarioResults) -> Verdict:
                           f"{np.trace(P):.6f}, tr P_KB(T) = {np.trace(b['P_kb_t'][-1]):.6f}")
 
 
-@claims.claim("{paper}.reference.filterpy.{scenario}", "reference", "filterpy's discrete filter on the sampled model "
+@claims.claim("{paper}.reference.filterpy{.scenario}", "reference", "filterpy's discrete filter on the sampled model "
               "(R = V/h) converges to the Kalman–Bucy covariance at rate h", "identity", hypotheses=hyp("kalman_bucy"))
 def check_filterpy(r: ScenarioResults) -> Verdict:
     """filterpy's discrete filter on the sampled model (R = V/h): its steady covariance equals
@@ -179,7 +179,7 @@ def _printed_values(add, r: ScenarioResults, rv: dict, same_clock: bool) -> None
             add(eb.threshold, rv["lam_thr"][variant], 5e-3), add(eb.value(1e5), rv["B12_1e5"][variant], 5e-3)
 
 
-@claims.claim("{paper}.reference_values.{scenario}", "this reproduction's scenarios", "independently computed reference "
+@claims.claim("{paper}.reference_values{.scenario}", "this reproduction's scenarios", "independently computed reference "
               "numbers of the scenarios S1-S3 (the paper has no numerical example)", "identity", scope="paper-example")
 def check_reference_values(r: ScenarioResults) -> Verdict:
     name = r.scenario.name

@@ -23,7 +23,7 @@ from .references import directions, test_times
 from .results import ScenarioResults
 
 
-@claims.claim("{paper}.thm3_1.item1_exact.{scenario}", "Thm. III.1 item 1, (8)-(9)", "E[e_ie_iᵀ](t) ≤ 𝒫_i(t) in the "
+@claims.claim("{paper}.thm3_1.item1_exact{.scenario}", "Thm. III.1 item 1, (8)-(9)", "E[e_ie_iᵀ](t) ≤ 𝒫_i(t) in the "
               "matrix order, for all t and λ (exact mean joint covariance ODE vs (9))", "inequality",
               hypotheses=hyp("alpha", "initial"), requires=(JOINT,))
 def check_item1_exact(r: ScenarioResults) -> Verdict:
@@ -60,7 +60,7 @@ def _solve_condition(r: ScenarioResults, k: int) -> float:
     return float(r.bounds["sweep_cond"][k])
 
 
-@claims.claim("{paper}.thm3_1.item1_lower_kb.{scenario}", "Thm. III.1 item 1 (derived lower bound)", "P_KB(t) ≤ "
+@claims.claim("{paper}.thm3_1.item1_lower_kb{.scenario}", "Thm. III.1 item 1 (derived lower bound)", "P_KB(t) ≤ "
               "E[e_ie_iᵀ](t): the centralized Kalman–Bucy filter is a lower bound", "inequality",
               hypotheses=hyp("kalman_bucy"), requires=(JOINT,))
 def check_item1_kb(r: ScenarioResults) -> Verdict:
@@ -80,7 +80,7 @@ def check_item1_kb(r: ScenarioResults) -> Verdict:
         "cannot beat it"))
 
 
-@claims.claim("{paper}.thm3_1.item1_mc.{scenario}", "Thm. III.1 item 1", "Monte Carlo: P_KB ≤ Ê[e_ie_iᵀ] ≤ 𝒫_i "
+@claims.claim("{paper}.thm3_1.item1_mc{.scenario}", "Thm. III.1 item 1", "Monte Carlo: P_KB ≤ Ê[e_ie_iᵀ] ≤ 𝒫_i "
               "(one-sided tests along fixed directions)", "statistical",
               hypotheses=hyp("alpha", "initial", "numerics", "kalman_bucy"), requires=SECOND)
 def check_item1_mc(r: ScenarioResults) -> Verdict:
@@ -109,7 +109,7 @@ def check_item1_mc(r: ScenarioResults) -> Verdict:
                             f"clocks). Smallest slack of the upper bound {gap_up:.4g}, of the lower {gap_lo:.4g}")
 
 
-@claims.claim("{paper}.sim.gridded_bias.{scenario}", "simulation method", "the gridded simulator's discretisation bias "
+@claims.claim("{paper}.sim.gridded_bias{.scenario}", "simulation method", "the gridded simulator's discretisation bias "
               "is (at least) second order in the step h", "inequality", hypotheses=hyp("grid_asymptotic"),
               requires=(SCHEME("the gridded scheme's own mean covariance was not formed"),))
 def check_grid_bias(r: ScenarioResults) -> Verdict:
@@ -133,7 +133,7 @@ def check_grid_bias(r: ScenarioResults) -> Verdict:
                           "smaller leading coefficient, not a defect)")
 
 
-@claims.claim("{paper}.sim.event_vs_exact.{scenario}", "simulation method, exact mean covariance", "the exact "
+@claims.claim("{paper}.sim.event_vs_exact{.scenario}", "simulation method, exact mean covariance", "the exact "
               "event-driven simulator (mean of its per-path exact covariances) reproduces the exact mean error "
               "covariance", "statistical", hypotheses=hyp("numerics", "kalman_bucy"), requires=(JOINT, *SECOND))
 def check_event_vs_exact(r: ScenarioResults) -> Verdict:
@@ -154,7 +154,7 @@ def check_event_vs_exact(r: ScenarioResults) -> Verdict:
                             "P_KB ⪯ Σ_ii(τ) ⪯ P_i(τ) and the exact second moments of P")
 
 
-@claims.claim("{paper}.sim.event_exact_given_clocks.{scenario}", "simulation method", "the event-driven simulator "
+@claims.claim("{paper}.sim.event_exact_given_clocks{.scenario}", "simulation method", "the event-driven simulator "
               "samples the errors from their exact conditional law given the clock path", "statistical",
               hypotheses=hyp("numerics"))
 def check_event_given_clocks(r: ScenarioResults) -> Verdict:
@@ -174,7 +174,7 @@ def check_event_given_clocks(r: ScenarioResults) -> Verdict:
                                "1 expected). Exact whatever the law of the clock paths")
 
 
-@claims.claim("{paper}.sim.event_vs_gridded.{scenario}", "simulation method", "the event-driven and gridded "
+@claims.claim("{paper}.sim.event_vs_gridded{.scenario}", "simulation method", "the event-driven and gridded "
               "simulators agree (trial by trial in law, up to the gridded scheme's exact bias)", "statistical",
               hypotheses=hyp("grid_asymptotic", "numerics"),
               requires=(SCHEME("the gridded scheme's bias, needed to pair the two simulators, was not formed"),))
@@ -232,7 +232,7 @@ def _lyap_condition(A: np.ndarray) -> float:
     return float(np.linalg.cond(gc.lyapunov_generator(A), 1))
 
 
-@claims.claim("{paper}.thm3_1.item2_lyapunov.{scenario}", "Thm. III.1 item 2, (10)-(11)", "Ā Hurwitz; R ≻ 0 with "
+@claims.claim("{paper}.thm3_1.item2_lyapunov{.scenario}", "Thm. III.1 item 2, (10)-(11)", "Ā Hurwitz; R ≻ 0 with "
               "RĀ + ĀᵀR ≤ −I; S ⪰ 0 solves (11)", "identity", hypotheses=hyp("abar_hurwitz"))
 def check_lyapunov(r: ScenarioResults) -> Verdict:
     """(10) and (11) solved by scipy, checked by their residuals (backward error, no condition
@@ -263,7 +263,7 @@ def check_lyapunov(r: ScenarioResults) -> Verdict:
                           f"python-control lyap agrees to {diff:.1e} ({how_fwd}, κ of the Lyapunov operator)")
 
 
-@claims.claim("{paper}.thm3_1.item2_convergence.{scenario}", "Thm. III.1 item 2, eq. (12)", "limsup ‖𝒫_i(t) − S‖_F "
+@claims.claim("{paper}.thm3_1.item2_convergence{.scenario}", "Thm. III.1 item 2, eq. (12)", "limsup ‖𝒫_i(t) − S‖_F "
               "→ 0 as λ → ∞, at least as fast as λ^(-1/2)", "inequality", hypotheses=ITEM2)
 def check_item2_convergence(r: ScenarioResults) -> Verdict:
     lams, _, d, err, fin = _deviations(r)
@@ -283,7 +283,7 @@ def check_item2_convergence(r: ScenarioResults) -> Verdict:
         f"the top decade ({int(resolved.sum())} rates above λ_thr) {slope:.4f} ≤ −1/2 as (12) requires"))
 
 
-@claims.claim("{paper}.thm3_1.item2_rate.{scenario}", "Thm. III.1 item 2 (derived rate)", "the actual rate is 1/λ: "
+@claims.claim("{paper}.thm3_1.item2_rate{.scenario}", "Thm. III.1 item 2 (derived rate)", "the actual rate is 1/λ: "
               "λ(𝒫_i^∞ − S) → C_i from the singular perturbation of (9), sharper than (12)", "identity",
               hypotheses=ITEM2)
 def check_item2_rate(r: ScenarioResults) -> Verdict:
@@ -310,7 +310,7 @@ def check_item2_rate(r: ScenarioResults) -> Verdict:
                           "the O(λ^(-1/2)) of (12)")
 
 
-@claims.claim("{paper}.thm3_1.item2_explicit_faithful.{scenario}", "eq. (12), explicit constants (derived)",
+@claims.claim("{paper}.thm3_1.item2_explicit_faithful{.scenario}", "eq. (12), explicit constants (derived)",
               "explicit B_12(λ) bounds limsup ‖𝒫_i − S‖_F beyond λ_thr (constants as in the paper's proof)",
               "inequality", hypotheses=hyp("alpha", "connected", "abar_hurwitz"), args=("faithful",))
 def check_item2_explicit(r: ScenarioResults, variant: str) -> Verdict:
@@ -332,12 +332,12 @@ def check_item2_explicit(r: ScenarioResults, variant: str) -> Verdict:
     return v
 
 
-claims.claim("{paper}.thm3_1.item2_explicit_tight.{scenario}", "eq. (12), explicit constants (derived)", "explicit "
+claims.claim("{paper}.thm3_1.item2_explicit_tight{.scenario}", "eq. (12), explicit constants (derived)", "explicit "
              "B_12(λ) bounds limsup ‖𝒫_i − S‖_F beyond λ_thr (tight constants)", "inequality",
              hypotheses=hyp("alpha", "connected", "abar_hurwitz"), args=("tight",))(check_item2_explicit)
 
 
-@claims.claim("{paper}.limit.true_covariance.{scenario}", "abstract; derived limit", "the true covariances converge to "
+@claims.claim("{paper}.limit.true_covariance{.scenario}", "abstract; derived limit", "the true covariances converge to "
               "S_true ⪯ S (= P_KB for the split Kalman–Bucy gains): the bound's limit is not tight", "inequality",
               hypotheses=hyp("abar_hurwitz", "rate_sufficient"),
               requires=((lambda r: r.sys.mode == "edge", "the limit S_true (noise averaged over N²) is derived for one "
@@ -384,7 +384,7 @@ def check_true_limit(r: ScenarioResults) -> Verdict:
                    detail="; ".join(parts))
 
 
-@claims.claim("{paper}.critical_rate.{scenario}", "§III (λ 'sufficiently large'); derived critical rates", "(9) becomes "
+@claims.claim("{paper}.critical_rate{.scenario}", "§III (λ 'sufficiently large'); derived critical rates", "(9) becomes "
               "stable at λ_crit (a sign change of the abscissa of its generator); λ_crit of the true covariance ≤ "
               "λ_crit of (9); with Ā Hurwitz (9) is stable beyond λ_thr", "inequality")
 def check_critical(r: ScenarioResults) -> Verdict:

@@ -55,7 +55,7 @@ def fig1(v: ScenarioTables, path: Path, note: str = "") -> None:
         ax.plot(pos[[i, j], 0], pos[[i, j], 1], "k--", lw=1.2)
     ax.scatter(pos[:, 0], pos[:, 1], s=500, c="tab:blue", zorder=3)
     for i in range(N):
-        ax.text(pos[i, 0], pos[i, 1], f"{i + 1}", color="w", ha="center", va="center", zorder=4)
+        ax.text(pos[i, 0], pos[i, 1], f"{i}", color="w", ha="center", va="center", zorder=4)
     ax.scatter([plant[0]], [plant[1]], s=900, marker="s", c="tab:gray", zorder=3)
     ax.text(plant[0], plant[1], "plant", color="w", ha="center", va="center", zorder=4, fontsize=8)
     ax.set_axis_off()
@@ -65,7 +65,7 @@ def fig1(v: ScenarioTables, path: Path, note: str = "") -> None:
     ev = ev[ev["path"] == 0]
     for k, (i, j) in enumerate(edges[["i", "j"]].to_numpy()):
         ax.vlines(ev.loc[ev["clock"] == k, "t"].to_numpy(), k - 0.4, k + 0.4, color=f"C{k % 10}", lw=1)
-    ax.set_yticks(range(len(edges)), [f"{i + 1}–{j + 1}" for i, j in edges[["i", "j"]].to_numpy()])
+    ax.set_yticks(range(len(edges)), [f"{i}–{j}" for i, j in edges[["i", "j"]].to_numpy()])
     ax.set_xlabel("t")
     ax.set_ylabel("edge clock")
     ax.set_title(f"Poisson rings of every edge, one path, λ = {v.main_rate:g}", fontsize=9)
@@ -99,7 +99,7 @@ def fig2(v: ScenarioTables, path: Path, note: str = "") -> None:
         if np.isfinite(trS):
             ax.axhline(trS, color="C3", ls="--", lw=0.9, label="tr S (11)")
             ax.axhline(trSt, color="k", ls=":", lw=0.9, label="tr S_true")
-        ax.set_title(f"node {i + 1}", fontsize=9)
+        ax.set_title(f"node {i}", fontsize=9)
         ax.set_xlabel("t")
     for ax in axes[N:]:
         ax.set_axis_off()
@@ -123,7 +123,7 @@ def fig3(v: ScenarioTables, path: Path, note: str = "") -> None:
         ax.plot(t, mean[:, i], "C3--", lw=0.9, label="tr P̄_i(t), eq. (9)")
         mine = v.node_events(0, i)
         ax.vlines(mine, 0, 0.05 * np.nanmax(P[:, i]), color="C0", lw=0.6)
-        ax.set_title(f"node {i + 1} ({len(mine)} events)", fontsize=9)
+        ax.set_title(f"node {i} ({len(mine)} events)", fontsize=9)
         ax.set_xlabel("t")
     for ax in axes[N:]:
         ax.set_axis_off()
@@ -145,7 +145,7 @@ def fig4(v: ScenarioTables, path: Path, note: str = "") -> None:
             continue
         t = np.unique(at["t"].to_numpy())
         for i in range(N):
-            ax.plot(t, g[:, i], lw=1, label=f"λ = {lam:g}, node {i + 1}")
+            ax.plot(t, g[:, i], lw=1, label=f"λ = {lam:g}, node {i}")
     ax.axhline(0, color="k", lw=0.6)
     ax.set_title("min eig(P̄_i(t) − E[e_ie_iᵀ](t)) ≥ 0 (Thm III.1.1)", fontsize=9)
     ax.set_xlabel("t")
@@ -158,7 +158,7 @@ def fig4(v: ScenarioTables, path: Path, note: str = "") -> None:
         g = v.by_node(at, "gap_path")
         t = np.unique(at["t"].to_numpy())
         for i in range(N):
-            ax.plot(t, g[:, i], lw=0.8, color=f"C{i}", alpha=0.8, label=f"node {i + 1}" if p == 0 else None)
+            ax.plot(t, g[:, i], lw=0.8, color=f"C{i}", alpha=0.8, label=f"node {i}" if p == 0 else None)
     ax.axhline(0, color="k", lw=0.6)
     ax.set_title(f"min eig(P_i(t; τ) − E[e_ie_iᵀ | τ](t)) ≥ 0 (Prop III.2), {len(paths)} paths", fontsize=9)
     ax.set_xlabel("t")
@@ -178,7 +178,7 @@ def fig5(v: ScenarioTables, path: Path, note: str = "") -> None:
     lams = sw["rate"].to_numpy()
     d = v.by_node(nodes, "dev_bound", index="rate")
     for i in range(v.N):
-        ax.loglog(lams, d[:, i], lw=1.2, label=f"‖P̄_{i + 1}^∞ − S‖_F")
+        ax.loglog(lams, d[:, i], lw=1.2, label=f"‖P̄_{i}^∞ − S‖_F")
     ax.loglog(lams, sw["dev_exact"].to_numpy(), "k", lw=1.2, label="max_i ‖E[e_ie_iᵀ]^∞ − S_true‖_F")
     for variant, st in (("faithful", "C3:"), ("tight", "C3-.")):
         ax.loglog(lams, sw[f"B12_{variant}"].to_numpy(), st, lw=1.2, label=f"explicit B_12(λ), {variant} constants")
@@ -208,8 +208,8 @@ def fig6(v: ScenarioTables, path: Path, note: str = "") -> None:
     lams = np.unique(nodes["rate"].to_numpy())
     P, J = v.by_node(nodes, "trP_bound", index="rate"), v.by_node(nodes, "trP_exact", index="rate")
     for i in range(v.N):
-        ax.semilogx(lams, P[:, i], f"C{i}", lw=1.2, label=f"tr P̄_{i + 1}^∞")
-        ax.semilogx(lams, J[:, i], f"C{i}--", lw=1.0, label=f"tr E[e_{i + 1}e_{i + 1}ᵀ]^∞")
+        ax.semilogx(lams, P[:, i], f"C{i}", lw=1.2, label=f"tr P̄_{i}^∞")
+        ax.semilogx(lams, J[:, i], f"C{i}--", lw=1.0, label=f"tr E[e_{i}e_{i}ᵀ]^∞")
     if np.isfinite(v.design("trS")):
         ax.axhline(v.design("trS"), color="C3", ls=":", label="tr S")
         ax.axhline(v.design("trS_true"), color="k", ls=":", label="tr S_true")

@@ -1,5 +1,5 @@
 """The hypotheses of the random-comm-filter family, one set per scenario
-(`<paper>.hyp.<scenario>.<name>`), decided on the design stage alone (`dse check`): each check
+(`<paper>.hyp.<scenario>.<name>`, the scenario named only in a run of several), decided on the design stage alone (`dse check`): each check
 receives the scenario's `ScenarioDesign`."""
 from __future__ import annotations
 
@@ -8,12 +8,11 @@ import numpy as np
 import dse.estimators.gossip_covariance as gc
 from dse.verify.rules import EPS, Holds
 
-from .claims_common import claims, fmt, min_eig
+from .claims_common import HYP as H, claims, fmt, min_eig
 from .design import CARE_COND_MAX, ScenarioDesign
 from .scenario import GRID_ASYMPTOTIC, MAX_SWEEP_RATE
 
 NUMERICS_RTOL = 1e-6     # two independent computations of the per-path covariances must agree to this
-H = "{paper}.hyp.{scenario}."
 
 
 @claims.hypothesis(H + "alpha", "0 < α ≤ 1/d_max (eq. 3): the fusion weights Π = I − α𝓛 are nonnegative and doubly "

@@ -5,7 +5,7 @@ Entities: /graph (sensor nodes, communication edges), /events/edge_<i>_<j> (one 
 of that edge's clock on a sample path), /truth/x and /nodes/<i>/estimate, /nodes/<i>/error
 (sample trials), /nodes/<i>/cov_trace/lam<λ> (tr 𝒫_i, exact tr E[e_ie_iᵀ], Monte Carlo mean
 and 95% band, tr P_KB) for every simulated λ, /paths/<p>/node<i> (one clock path: tr P_i(t; τ)
-and tr E[e_ie_iᵀ | τ]), /central/kalman_bucy, /bounds/S, and the scaffold's /claims/<id>, /report.
+and tr E[e_ie_iᵀ | τ]), /central/kalman_bucy, /bounds/S, and the scaffold's /report (the claims).
 """
 from __future__ import annotations
 
@@ -35,19 +35,19 @@ def _tabs(lams: list[float], N: int) -> list:
     shown = range(min(N, 6))
     grid = lambda views, name: rrb.Grid(*views, name=name)  # noqa: E731
     return [grid([rrb.TimeSeriesView(origin=f"/nodes/{i}/cov_trace/{_lam_tag(lams[0])}",
-                                     name=f"node {i + 1}: tr covariance, λ = {lams[0]:g}") for i in shown],
+                                     name=f"node {i}: tr covariance, λ = {lams[0]:g}") for i in shown],
                  "mean-square error vs bounds"),
             rrb.Horizontal(rrb.GraphView(origin="/graph", name="sensor network"),
                            rrb.GraphView(origin="/events/graph", name="edge that rang last (one path)"),
                            rrb.TimeSeriesView(origin="/events", name="edge clock rings (one path)"),
                            name="network and events"),
             grid([rrb.TimeSeriesView(origin=f"/nodes/{i}", contents=[f"/nodes/{i}/estimate/**", "/truth/**"],
-                                     name=f"node {i + 1}: estimate vs truth") for i in shown], "sample trial"),
-            grid([rrb.TimeSeriesView(origin=f"/nodes/{i}/error", name=f"node {i + 1}: error (sample trials)")
+                                     name=f"node {i}: estimate vs truth") for i in shown], "sample trial"),
+            grid([rrb.TimeSeriesView(origin=f"/nodes/{i}/error", name=f"node {i}: error (sample trials)")
                   for i in shown], "errors"),
-            grid([rrb.TimeSeriesView(origin=f"/paths/0/node{i}", name=f"node {i + 1}: one clock path") for i in shown],
+            grid([rrb.TimeSeriesView(origin=f"/paths/0/node{i}", name=f"node {i}: one clock path") for i in shown],
                  "per-path bound (14)"),
-            *[grid([rrb.TimeSeriesView(origin=f"/nodes/{i}/cov_trace/{_lam_tag(lam)}", name=f"node {i + 1}, λ = {lam:g}")
+            *[grid([rrb.TimeSeriesView(origin=f"/nodes/{i}/cov_trace/{_lam_tag(lam)}", name=f"node {i}, λ = {lam:g}")
                     for i in shown], f"λ = {lam:g}") for lam in lams[1:]]]
 
 
@@ -58,18 +58,18 @@ def _log_network(rec, v: ScenarioTables) -> None:
     pos = v["graph_nodes"][["x", "y"]].to_numpy()
     clocks = v["graph_edges"][["i", "j"]].to_numpy()
     undirected = sorted({tuple(sorted(map(int, e))) for e in clocks})
-    rec_.log_graph(rec, "graph", pos, undirected, labels=[f"sensor {i + 1}" for i in range(N)])
+    rec_.log_graph(rec, "graph", pos, undirected, labels=[f"sensor {i}" for i in range(N)])
     ev = v["path_events"]
     ev = ev[ev["path"] == 0]
     for k, (i, j) in enumerate(clocks):
         tk = ev.loc[ev["clock"] == k, "t"].to_numpy()
         if tk.size:
-            rec_.send_series(rec, f"events/edge_{i + 1}_{j + 1}", rec_.duration_index("t", _ns(tk)),
-                             np.full(tk.size, float(k + 1)), names=f"edge {i + 1}–{j + 1}", colors=[rec_.color(k)],
+            rec_.send_series(rec, f"events/edge_{i}_{j}", rec_.duration_index("t", _ns(tk)),
+                             np.full(tk.size, float(k + 1)), names=f"edge {i}–{j}", colors=[rec_.color(k)],
                              points=True)
     if len(ev):
         rec.log("events/graph", rr.GraphNodes([str(i) for i in range(N)], positions=pos * 100.0,
-                                              labels=[f"sensor {i + 1}" for i in range(N)], show_labels=True,
+                                              labels=[f"sensor {i}" for i in range(N)], show_labels=True,
                                               radii=12.0), static=True)
         pairs = [(str(i), str(j)) for i, j in ev[["i", "j"]].to_numpy()]
         rec.send_columns("events/graph", indexes=rec_.duration_index("t", _ns(ev["t"].to_numpy())),
@@ -89,11 +89,11 @@ def _log_trials(rec, v: ScenarioTables, idx) -> None:
     for i in range(v.N):
         at = sp[sp["node"] == i]
         xh = at[at["trial"] == trials[0]].pivot(index="t", columns="component", values="xhat").to_numpy()
-        rec_.send_series(rec, f"nodes/{i}/estimate", idx, xh, names=[f"x̂_{i + 1}[{a + 1}]" for a in range(n)])
+        rec_.send_series(rec, f"nodes/{i}/estimate", idx, xh, names=[f"x̂_{i}[{a + 1}]" for a in range(n)])
         for p in trials:
             e = at[at["trial"] == p].pivot(index="t", columns="component", values="error").to_numpy()
             rec_.send_series(rec, f"nodes/{i}/error/trial{p}", idx, e,
-                             names=[f"trial {p}: e_{i + 1}[{a + 1}]" for a in range(n)])
+                             names=[f"trial {p}: e_{i}[{a + 1}]" for a in range(n)])
 
 
 def _log_covariances(rec, v: ScenarioTables, idx, t: np.ndarray) -> None:
@@ -140,8 +140,9 @@ def write(out: Outputs, v: ScenarioTables, path: Path) -> None:
         _log_trials(rec, v, idx)
         _log_covariances(rec, v, idx, t)
 
-    claims = [c for c in out.claims if c["id"].endswith(f".{v.name}") or c["id"].count(".") == 2]
-    recording(path, out, recording_id=f"tanwani-{v.name}-seed{out.seed}", tabs=lambda: _tabs(v.rates, v.N),
+    several = len(out.reproduction.scenarios) > 1   # a one-scenario run's ids do not name the scenario
+    claims = [c for c in out.claims if not several or c["id"].endswith(f".{v.name}") or c["id"].count(".") == 2]
+    recording(path, out, recording_id=f"{out.run_prefix}-{v.name}-seed{out.seed}", tabs=lambda: _tabs(v.rates, v.N),
               timeline="t", log=log, claims=claims,
               summary=out.summary(v.title, PAPER_NOTE if out.reproduction.is_paper else ""),
               properties={"event_trials": int(mc.loc[mc["simulator"] == "event", "trials"].iloc[0]),

@@ -78,7 +78,8 @@ class SystemSection(Section):
     """The plant (1), dx = A x dt + B dω (ω a standard Wiener process), and its initial state
     x(0) ~ N(m0, P0); every node's estimate starts at x̂_i(0) = m0."""
 
-    A: Matrix = key(doc="state matrix A (n x n)", constraint=f"square, n <= {MAX_STATE}")
+    A: Matrix = key(doc="state matrix A (n x n)", constraint=f"square, n <= {MAX_STATE}; N·n <= {MAX_JOINT} for N "
+                    "nodes (the exact joint error covariance is a dense (Nn)² system)")
     B: Matrix = key(doc="noise input matrix B (n x m): the process noise intensity is BBᵀ", constraint="n rows")
 
     @computed_default

@@ -445,7 +445,7 @@ def views(out: Outputs) -> list[View]:
             _log_estimates(rec, dr)
             _log_bounds(rec, dr)
         roles = {"beta": sc.roles.beta, "radius": sc.roles.radius} if sc.roles.mode == "proximity" else {}
-        recording(path, out, recording_id=f"tran-{sc.name}-seed{out.seed}", application_id="dse-tran", timeline="t",
+        recording(path, out, recording_id=f"{out.run_prefix}-{sc.name}-seed{out.seed}", timeline="t",
                   tabs=lambda: _tabs(dr), log=log,
                   properties={"alpha": sc.coupling.alpha, **roles, "N": sc.N, "P_mode": sc.coupling.P})
 

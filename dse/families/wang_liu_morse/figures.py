@@ -163,7 +163,9 @@ def _bounds_figure(res, tables, scenario: str, path: Path) -> None:
     """Theorem 1 on a run inside its hypotheses: |e(s)| over trials vs (51); the continuous bound
     as printed and corrected on the idealised run (trial 0)."""
     r = res[scenario]
-    fig, axes = new_figure(ncols=2, width=5.6)
+    shown = r.scenario.name                 # the scenario's own name (a user's run labels its part 'scenario')
+    ideal = next((s for s in r.scenario.runs if s.ideal and is_theorem_run(s)), None)
+    fig, axes = new_figure(ncols=2 if ideal is not None else 1, width=5.6)   # no empty panel without an ideal run
     sync = next((s for s in r.scenario.runs if s.timing == "sync" and in_theorem1(r, s) and not s.ideal), None)
     if sync is None:
         sync = next((s for s in r.scenario.runs if s.timing == "sync" and is_theorem_run(s)), None)
@@ -178,12 +180,11 @@ def _bounds_figure(res, tables, scenario: str, path: Path) -> None:
         ax.semilogy(ts, ev["bound51_max"], "k--", label="bound (51), largest over trials")
         ax.semilogy(ts, np.exp(-r.scenario.lam * ts) * float(ev["error_max"].iloc[0]), "k:", lw=1,
                     label=f"e^(-λt), λ = {r.scenario.lam}")
-        ax.set_title(f"{scenario}/{sync.name}: event-sampled error vs (51), q = {sync.q}", fontsize=9)
+        ax.set_title(f"{shown}/{sync.name}: event-sampled error vs (51), q = {sync.q}", fontsize=9)
         ax.legend()
     ax.set_xlabel("t = sT")
-    ideal = next((s for s in r.scenario.runs if s.ideal and is_theorem_run(s)), None)
-    ax = axes[0, 1]
     if ideal is not None:
+        ax = axes[0, 1]
         net = tables.rows("network_series", scenario, ideal.name)
         T = r.scenario.T
         sel = net["t"].to_numpy() <= 3 * T
@@ -199,7 +200,7 @@ def _bounds_figure(res, tables, scenario: str, path: Path) -> None:
         printed_at = np.interp(pts, net["t"], net["bound_printed_trial0"])
         ax.plot(pts, pre.to_numpy() / printed_at, "v", color="tab:red", ms=6, label="left limits e(sT⁻) / printed")
         ax.axhline(1.0, color="0.4", ls="--", lw=1)
-        ax.set_title(f"{scenario}/{ideal.name} (ē(0) = 0): continuous-time bound ratio, trial 0", fontsize=9)
+        ax.set_title(f"{shown}/{ideal.name} (ē(0) = 0): continuous-time bound ratio, trial 0", fontsize=9)
         ax.set_xlabel("t")
         ax.legend(fontsize=7)
     _save(fig, path)
@@ -216,12 +217,13 @@ def _decay_figure(res, tables, path: Path) -> None:
         t, e, fl = ev["t"].to_numpy(), ev["error_trial0"].to_numpy(), ev["floor_trial0"].to_numpy()
         rate, first, stop = fit_rate(t, e, fl)
         c = _mpl(idx)
-        ax.semilogy(t, np.maximum(e, TINY), "o", ms=3, color=c, label=f"{name}/{sync.name}: max_i||e_i(t_is)||")
-        ax.semilogy(t, fl, ":", color=c, lw=1, label=f"{name}: round-off allowance")
+        ax.semilogy(t, np.maximum(e, TINY), "o", ms=3, color=c,
+                    label=f"{r.scenario.name}/{sync.name}: max_i||e_i(t_is)||")
+        ax.semilogy(t, fl, ":", color=c, lw=1, label=f"{r.scenario.name}: round-off allowance")
         if not math.isnan(rate):
             tt = t[first:stop]
             c0 = np.exp(np.polyfit(tt, np.log(e[first:stop]), 1)[1])
-            ax.semilogy(tt, c0 * np.exp(-rate * tt), "-", color=c, lw=1.5, label=f"{name}: fit, rate {rate:.3f} "
+            ax.semilogy(tt, c0 * np.exp(-rate * tt), "-", color=c, lw=1.5, label=f"{r.scenario.name}: fit, rate {rate:.3f} "
                                                                                f"(λ = {r.scenario.lam})")
     ax.set_xlabel("t")
     ax.set_title("decay rate fits stop where round-off starts", fontsize=9)

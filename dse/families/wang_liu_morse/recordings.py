@@ -180,8 +180,8 @@ def run_recording(out: Outputs, tables, scenario: str, run_name: str, path) -> N
         _log_graph(rec, tables, scenario, run_name, spec, sc.m)
 
     ev = tables.rows("events", scenario, run_name)
-    recording(path, out, recording_id=f"wlm-{sc.name}-{run_name}-seed{r.seed}", tabs=lambda: _tabs(sc.m),
-              timeline="t", log=log, application_id="dse-wang-liu-morse",
+    recording(path, out, recording_id=f"{out.run_prefix}-{sc.name}-{run_name}-seed{r.seed}", tabs=lambda: _tabs(sc.m),
+              timeline="t", log=log,
               properties={"system": sc.name, "run": run_name, "run_trials": int(ev["trials"].iloc[0]),
                           "q": float(spec.q), "T": sc.T, "timing": spec.timing, "switching": spec.switching,
                           "rule": spec.rule})

@@ -200,7 +200,8 @@ class LeaveSection(Section):
 class RunSection(Section):
     """One simulated run (the claims check every run of the kind they are about)."""
 
-    name: str = key(derived_default(default_run_name), doc="run name (unique)", pattern=r"^[A-Za-z0-9_-]{1,64}$")
+    name: str = key(derived_default(default_run_name), doc="run name (unique)", pattern=r"^[A-Za-z0-9_-]{1,64}$",
+                    constraint="1 to 64 letters, digits, '-' or '_'; unique among the runs")
     timing: Literal[TIMINGS] = key("sync", doc="sync: iterations at t_i(s-1) + kΔ; async: jittered by δ_is(k) "  # type: ignore[valid-type]
                                    "∈ [-ε_i, ε_i] (Theorem 2); offset: event times t_is = t_i0 + sT (Section 4)")
     switching: Literal[SWITCHINGS] | None = key(

@@ -30,8 +30,10 @@ claims = ClaimSet(select_design=lambda design, name: design.named(name))
 HYP = PID + ".hyp.{scenario.}"
 
 
-def hyp_id(label: str, name: str, several: bool) -> str:
-    return f"{PID}.hyp.{label}.{name}" if several else f"{PID}.hyp.{name}"
+def hyp_id(label: str, name: str, several: bool, run_id: str = PID) -> str:
+    """A hypothesis id as the claims name it: `run_id` is the paper's id, or a user's scenario name (the ids of
+    a user's run start with it; `dse.contract.claims` does the same for the declared templates)."""
+    return f"{run_id}.hyp.{label}.{name}" if several else f"{run_id}.hyp.{name}"
 
 
 def rests_on(*names: str):
@@ -266,9 +268,10 @@ def cell_failures(res, label: str, run: RunSection, needs: tuple[str, ...]) -> l
     """The hypotheses among `needs` that do not hold (or cannot be decided) for one (scenario, run)
     cell, with their ids."""
     several = len(res.parts) > 1
+    run_id = res[label].scenario.name if label == "scenario" else PID   # 'scenario' labels a user's run
     out = []
     for need in needs:
         name, h = _cell_hypothesis(res[label], run, need)
         if h is not None and h.holds is not True:
-            out.append((hyp_id(label, name, several), h))
+            out.append((hyp_id(label, name, several, run_id), h))
     return out
