@@ -28,6 +28,7 @@ the geometric approach to the centralized r/N is checked where the graph is conn
     notes = "Statistical verdicts use the exact χ² law of the errors, valid at any number of trials."
     scenario_model = ConsensusFile
     example = "example.toml"
+    trials_key = "monte_carlo.trials"
     edges = generator.EDGES
 
     def generate(self, seed, edge=None):
