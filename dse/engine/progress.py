@@ -45,11 +45,11 @@ class note_if_slow:
 
         self._timer = threading.Timer(delay, self._note, args=(message,))
         self._timer.daemon = True
-        self.shown = False
+        self.noted = threading.Event()      # set once the message is printed
 
     def _note(self, message: str) -> None:
-        self.shown = True
         print(message, file=sys.stderr, flush=True)
+        self.noted.set()
 
     def __enter__(self) -> "note_if_slow":
         self._timer.start()
