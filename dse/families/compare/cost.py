@@ -11,9 +11,11 @@ and generated scenario):
 * the design (`stages.tune`): the gain searches of Carli's and the re-injection filter. Each searched gain
   costs one steady state of the mean recursion per candidate (`tuning_solves`). On reliable synchronous links
   a steady state is a Stein doubling and an eigenvalue problem on N n x N n; on random links it is the sum
-  of about TERMS_PER_SOLVE terms of the mean step, each a round of edge patterns (N² x E by E x n²) and a
-  node mix (`SOLVE_TERM_S`). Fitted on random geometric graphs of 10 to 50 nodes (2 states, failures and
-  reliable links, 1 and 2 rounds, quick and not), measured by CPU time of the design stage alone;
+  of about TERMS_PER_SOLVE terms of the mean step, each node mixes (N x N by N x N n², which dominate) and
+  edge patterns (N² x E by E x n²) (`SOLVE_TERM_S`; with more rounds a term costs more and fewer terms are
+  needed: 1.5x and 0.67x at two rounds, the same in all). Fitted on random geometric graphs of 10 to 50
+  nodes (2 states, failures and reliable links, 1 and 2 rounds, quick and not), measured by the CPU time
+  of the design stage alone and the number of terms it summed (105-117 per steady state at one round);
 * the Monte Carlo: per step a fixed overhead per estimator and a term per trial and node that grows with
   its work per node (n² for the filters that keep a covariance per trial, n for the others); Poisson
   exchanges add a term per exchange (calibrated with benchmarks/bench_compare.py: 50 nodes, 4 states,
@@ -21,8 +23,6 @@ and generated scenario):
 * the exact recursions, (N n)³ per step.
 """
 from __future__ import annotations
-
-import math
 
 from dse.contract.cost import MIB, Cost
 from dse.contract.options import RunOptions
@@ -45,12 +45,11 @@ PER_EVENT_S = 2e-5
 PER_FLOP_S = 1.5e-9
 BASE_MIB = 200
 #: the design: a fixed part; per steady state on reliable links, per (N n)³; on random links, terms of the
-#: mean step per steady state (at one round; fewer with more rounds, about 1/√rounds) and the CPU seconds of one
-#: term per round: a + b·N + c·N²·E·n² (the edge patterns)
+#: mean step per steady state and the CPU seconds of one term: a + b·N³·n² (node mixes) + c·N²·E·n² (edge patterns)
 DESIGN_BASE_S = 0.15
 RELIABLE_SOLVE_S = 4e-9
-TERMS_PER_SOLVE = 105
-SOLVE_TERM_S = (4e-5, 3.2e-6, 3.4e-10)
+TERMS_PER_SOLVE = 110
+SOLVE_TERM_S = (4e-5, 3.2e-9, 2e-11)
 #: steady states computed beside the searches: each constant-gain filter's own (with its radius), Carli's
 #: gains without fusion
 FINISH_SOLVES = 4
@@ -91,9 +90,18 @@ def design_seconds(sc: CompareFile, quick: bool) -> float:
         per_solve = RELIABLE_SOLVE_S * (N * n) ** 3
     else:
         a, b, c = SOLVE_TERM_S
-        rounds = sc.links.rounds if links.synchronous else 1
-        per_solve = TERMS_PER_SOLVE * math.sqrt(rounds) * (a + b * N + c * N * N * E * n * n)
+        per_solve = TERMS_PER_SOLVE * (a + b * N ** 3 * n * n + c * N * N * E * n * n)
     return DESIGN_BASE_S + solves * per_solve
+
+
+def design_mib(sc: CompareFile) -> float:
+    """MiB the design holds on random links: the edge patterns (N² x E) and the blocks they act on, with
+    their temporaries (`joint_moments.apply_edge_pattern`)."""
+    links = sc.link_model
+    if not links.random:
+        return 0.0
+    N, n, E = sc.N, sc.n, links.topology.E
+    return 8.0 * (N * N * E + 6 * E * n * n + 8 * (N * n) ** 2) / MIB
 
 
 def estimate(sc: CompareFile, opts: RunOptions, trials: int) -> Cost:
@@ -121,7 +129,8 @@ def estimate(sc: CompareFile, opts: RunOptions, trials: int) -> Cost:
     units, recorded = -(-B // RNG_UNIT), min(K, 101)
     sums_mib = 8 * units * recorded * N * (len(STATS) + len(PER_TRIAL_SUMS)) * len(specs) / MIB
     seconds = STARTUP_S + design + mc + exact + OUTPUTS_S
-    return Cost(seconds, BASE_MIB + B * per_trial / MIB + exact_mib,
+    peak = BASE_MIB + max(B * per_trial / MIB + exact_mib, design_mib(sc))
+    return Cost(seconds, peak,
                 f"start-up and outputs ≈{STARTUP_S + OUTPUTS_S:.2g} s, design (gain searches) ≈{design:.3g} s, "
                 f"Monte Carlo ≈{mc:.3g} s ({B:,} trials × {K} steps × {len(specs)} estimators, {cov_trialwise} with "
                 f"per-trial covariances), exact recursions ≈{exact:.3g} s",
