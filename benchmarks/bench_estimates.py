@@ -38,6 +38,20 @@ def _generated(seeds: int) -> list[tuple[str, dict]]:
     return out
 
 
+def _larger() -> list[tuple[str, dict]]:
+    """Users' scenarios larger than the generators draw (the sizes issue 21 measured): a hybrid observer of 64
+    agents, a compare random geometric graph of 30 nodes with link failures and communication noise."""
+    from .bench_wang_liu_morse import agents_scenario
+
+    rgg = {"family": "compare", "name": "rgg30",
+           "plant": {"F": [[1.0, 0.1], [0.0, 0.98]], "Q": [[0.01, 0.0], [0.0, 0.05]], "P0": [[1.0, 0.0], [0.0, 1.0]]},
+           "sensors": {"types": [{"H": [[1.0, 0.0]], "R": [[0.5]]}, {"H": [[0.0, 1.0]], "R": [[0.5]]}]},
+           "graph": {"kind": "random_geometric", "n": 30, "radius": 0.4, "seed": 1},
+           "links": {"model": "failures", "p_fail": 0.3, "noise_std": 0.1}}
+    return [("hybrid-observer, 64 agents", agents_scenario(64, intervals=15, trials=64)),
+            ("compare, 30-node random geometric graph", rgg)]
+
+
 def _toml(data: dict) -> str:
     """A generated scenario dict as TOML: every top-level key on one line, tables inline."""
     def value(v):
@@ -82,7 +96,7 @@ def bench_estimates(repeats: int = 1, quick: bool = False, workers: int = 1, see
     files = [(str(f.relative_to(REPRO)), f) for f in shipped_scenarios()]
     rows = []
     with tempfile.TemporaryDirectory(prefix="dse-gen-") as tmp:
-        for label, data in _generated(1 if quick else seeds):
+        for label, data in _generated(1 if quick else seeds) + ([] if quick else _larger()):
             f = Path(tmp) / f"{label.replace(' ', '_')}.toml"
             f.write_text(_toml(data))
             files.append((label, f))
