@@ -87,7 +87,7 @@ def estimate_row(label: str, path: Path, workers: int, repeats: int) -> dict:
     ratio = est.seconds / cpu if workers == 1 else est.seconds / wall      # one worker: CPU time is what is modelled
     return {"scenario": label, "family": repro.family.id, "estimate_s": float(est.seconds), "wall_s": wall, "cpu_s": cpu,
             "est/cpu": float(est.seconds / cpu), "est/wall": float(est.seconds / wall), "ok": ok,
-            "target": f"within {TARGET_FACTOR:g}x", "met": ok and 1 / TARGET_FACTOR <= ratio <= TARGET_FACTOR,
+            "target": f"within {TARGET_FACTOR:g}x", "met": bool(ok and 1 / TARGET_FACTOR <= ratio <= TARGET_FACTOR),
             "stages": ", ".join(f"{k} {v:.3g}" for k, v in est.stages.items())}
 
 
