@@ -243,8 +243,11 @@ def _reuse_outputs(out_dir: Path, staging: Path, key: str | None) -> dict[str, s
 
 
 def run(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,
-        quick: bool = False, workers: int = 1, cache_dir: str | os.PathLike | None = None) -> Run:
-    """Load (unless given a reproduction), compute, verify and tabulate one scenario."""
+        quick: bool = False, workers: int = 1, cache_dir: str | os.PathLike | None = None,
+        max_time_s: float | None = None) -> Run:
+    """Load (unless given a reproduction), compute, verify and tabulate one scenario. A run estimated to
+    take longer than `max_time_s` seconds (default a day; `math.inf`: no limit) is refused before it
+    starts (ScenarioError), like `--max-time`."""
     if isinstance(source, (str, os.PathLike, Mapping)):
         data = dict(source) if isinstance(source, Mapping) else None
         repro = load(source)
@@ -254,8 +257,8 @@ def run(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: i
             data = load_toml(source)
     else:
         repro, data = source, None
-    return execute(repro, RunOptions(seed=seed, trials=trials, quick=quick, workers=workers), cache_dir=cache_dir,
-                   source=data)
+    return execute(repro, RunOptions(seed=seed, trials=trials, quick=quick, workers=workers, max_time_s=max_time_s),
+                   cache_dir=cache_dir, source=data)
 
 
 # -- the tables every run has ---------------------------------------------------------------------------

@@ -198,3 +198,9 @@ def test_compare_estimate_includes_start_up_and_outputs():
 
     est = api.check(ROOT / "dse" / "families" / "compare" / "scenarios" / "noisy_ring.toml", quick=True).estimate
     assert est["seconds"] >= STARTUP_S + OUTPUTS_S >= 2.0
+
+
+def test_api_run_takes_the_time_limit():
+    with cpu_limit(20.0), pytest.raises(ScenarioError) as e:
+        api.run(SAVAS, trials=100_000_000, max_time_s=60.0)
+    assert e.value.field == "--trials" and "more than the 60 s --max-time allows" in e.value.reason
