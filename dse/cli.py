@@ -283,7 +283,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     def run_flags(p):
         p.add_argument("--quick", action="store_true", help=QUICK_HELP)
-        p.add_argument("--trials", type=_positive_int, default=None, help="Monte Carlo trials per cell")
+        p.add_argument("--trials", type=_positive_int, default=None,
+                       help="Monte Carlo trials per cell, within the bounds of the scenario file's trials key")
         p.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
         p.add_argument("--out", default="out", help="output root directory (default out/)")
         budget_flags(p)
@@ -323,7 +324,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "estimated time and memory, without simulating")
     chk.add_argument("file", metavar="FILE.toml", help=FILE_HELP)
     chk.add_argument("--quick", action="store_true", help="estimate for a --quick run")
-    chk.add_argument("--trials", type=_positive_int, default=None, help="estimate for this many trials per cell")
+    chk.add_argument("--trials", type=_positive_int, default=None,
+                     help="estimate for this many trials per cell (within the bounds of the file's trials key)")
     chk.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
     budget_flags(chk)
     chk.add_argument("--max-design-time", type=_duration, default=CHECK_DESIGN_BUDGET_S, metavar="DURATION",
