@@ -11,7 +11,6 @@ family's trials key declares, `--workers` within the machine's CPUs, `--max-memo
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass, field
 
 from dse.contract.options import (DEFAULT_WORKERS, INTERPRETER_MIB, RunOptions, declared_bounds, machine_cpus,
@@ -104,8 +103,9 @@ def refuse_if_too_long(cost: Cost, opts: RunOptions, sized_by: str = "scenario")
     limit = opts.time_limit_s
     if cost.seconds > limit:
         raise ScenarioError(sized_by, f"the run is estimated at about {human_seconds(cost.seconds)}, more than the "
-                                      f"{human_seconds(limit)} --max-time allows ({cost.detail}); make it smaller, "
-                                      f"or allow it with --max-time {allowing(cost.seconds)} (Python API: max_time_s)")
+                                      f"{human_seconds(limit)} --max-time allows (`dse check` shows the estimate's "
+                                      f"parts); make it smaller, or allow it with --max-time {allowing(cost.seconds)} "
+                                      f"(Python API: max_time_s)")
 
 
 def allowing(seconds: float) -> str:
