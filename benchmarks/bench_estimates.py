@@ -5,13 +5,16 @@ estimate / measured within 2x both ways).
 Each run is a fresh `python -m dse.cli run --quick FILE --workers W` (imports, figures and recordings
 included, as a user waits for it), measured by its wall time and by its CPU time (the process and its
 workers, RUSAGE_CHILDREN). With `--workers 1` the CPU time is what the cost models predict whatever the
-machine's load; the wall time is also reported (on a loaded machine it includes the waiting).
+machine's load (though not wholly: under a load average of 10 on 2 cores the same runs took up to 1.5x the
+CPU time of a quiet machine; `load` is the 1-minute load average after the row); the wall time is also
+reported (on a loaded machine it includes the waiting).
 The estimate is computed in this process (`Reproduction.cost`), as `dse check` computes it.
 """
 from __future__ import annotations
 
 import json
 import math
+import os
 import statistics
 import sys
 import tempfile
@@ -88,6 +91,7 @@ def estimate_row(label: str, path: Path, workers: int, repeats: int) -> dict:
     return {"scenario": label, "family": repro.family.id, "estimate_s": float(est.seconds), "wall_s": wall, "cpu_s": cpu,
             "est/cpu": float(est.seconds / cpu), "est/wall": float(est.seconds / wall), "ok": ok,
             "target": f"within {TARGET_FACTOR:g}x", "met": bool(ok and 1 / TARGET_FACTOR <= ratio <= TARGET_FACTOR),
+            "load": os.getloadavg()[0],       # CPU time also grows on a loaded machine (shared caches, SMT)
             "stages": ", ".join(f"{k} {v:.3g}" for k, v in est.stages.items())}
 
 
