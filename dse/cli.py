@@ -287,23 +287,13 @@ def build_parser() -> argparse.ArgumentParser:
                        help="Monte Carlo trials per cell, within the bounds of the scenario file's trials key")
         p.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
         p.add_argument("--out", default="out", help="output root directory (default out/)")
-        budget_flags(p)
+        _budget_flags(p)
         p.add_argument("--no-figures", action="store_true",
                        help="write the report and the tables only (no figures, no recordings): for fast iteration")
         p.add_argument("--fresh", action="store_true",
                        help="ignore the run memo and the stage cache under OUT/.cache: recompute every stage, "
                             "overwrite its cache entry, redraw every figure and recording")
         strict_flag(p)
-
-    def budget_flags(p):
-        p.add_argument("--workers", type=_positive_int, default=DEFAULT_WORKERS,
-                       help=f"worker processes (default {DEFAULT_WORKERS}; at most this machine's CPUs)")
-        p.add_argument("--max-memory", type=_memory_mib, default=None, metavar="SIZE",
-                       help="memory budget of the run, e.g. 4G or 800M (default: half of this machine's memory; at "
-                            "most all of it); Monte Carlo streams within it, results do not depend on it")
-        p.add_argument("--max-time", type=_duration, default=None, metavar="DURATION",
-                       help="refuse a run estimated (`dse check`) to take longer, e.g. 90m, 36h, 3d or inf (default "
-                            f"{DEFAULT_MAX_TIME_S / 3600:g}h); results do not depend on it")
 
     def strict_flag(p):
         p.add_argument("--strict", action="store_true", help="exit 1 when any claim is fail or error (for CI)")
@@ -327,7 +317,7 @@ def build_parser() -> argparse.ArgumentParser:
     chk.add_argument("--trials", type=_positive_int, default=None,
                      help="estimate for this many trials per cell (within the bounds of the file's trials key)")
     chk.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
-    budget_flags(chk)
+    _budget_flags(chk)
     chk.add_argument("--max-design-time", type=_duration, default=CHECK_DESIGN_BUDGET_S, metavar="DURATION",
                      help="the most design work check computes: a design estimated longer is refused before it "
                           f"starts (default {CHECK_DESIGN_BUDGET_S:g}s; `dse run` computes it as its first stage)")
@@ -358,6 +348,18 @@ def build_parser() -> argparse.ArgumentParser:
                      help="exit 1 when any claim of any point is fail or error (for CI)")
     swp.set_defaults(func=cmd_sweep)
     return parser
+
+
+def _budget_flags(p: argparse.ArgumentParser) -> None:
+    """The resources of a run (dse run, reproduce and check): workers, memory budget, time limit."""
+    p.add_argument("--workers", type=_positive_int, default=DEFAULT_WORKERS,
+                   help=f"worker processes (default {DEFAULT_WORKERS}; at most this machine's CPUs)")
+    p.add_argument("--max-memory", type=_memory_mib, default=None, metavar="SIZE",
+                   help="memory budget of the run, e.g. 4G or 800M (default: half of this machine's memory; at "
+                        "most all of it); Monte Carlo streams within it, results do not depend on it")
+    p.add_argument("--max-time", type=_duration, default=None, metavar="DURATION",
+                   help="refuse a run estimated (`dse check`) to take longer, e.g. 90m, 36h, 3d or inf (default "
+                        f"{DEFAULT_MAX_TIME_S / 3600:g}h); results do not depend on it")
 
 
 MAX_COUNT = 10**12
