@@ -9,7 +9,8 @@ stages at the papers' scale), ``record`` (rerun write throughput), ``reproduce``
 peak memory of `dse reproduce` per paper, cold and warm cache), ``startup`` (`import dse`, `dse --help`,
 `dse list` on a fresh copy of the sources, precompiled or not, with PYTHONDONTWRITEBYTECODE=1 and without), ``commands`` (`dse list`, `dse check`
 on every shipped scenario, `dse run --quick` per family, a sweep's per-point overhead, the test
-suite), ``sweep`` (a 1,000-point `dse sweep`
+suite), ``estimates`` (`dse check`'s estimated time of `dse run --quick` against the measured one, for
+every shipped scenario and scenarios of every family's generator: target within 2x), ``sweep`` (a 1,000-point `dse sweep`
 in process and on a local Dask cluster with 1 and 2 workers), ``calibration`` (every statistical
 claim on 200 random valid scenarios per family: observed false-fail rate at α = 0.05 with its
 exact interval, and fails at the report's own confidence). ``--quick``: fewer repeats and
@@ -27,6 +28,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # a
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import math  # noqa: E402
 import platform  # noqa: E402
 import re  # noqa: E402
 import shutil  # noqa: E402
@@ -41,11 +43,13 @@ import numpy as np  # noqa: E402
 
 from .bench_calibration import bench_calibration  # noqa: E402
 from .bench_commands import bench_commands  # noqa: E402
+from .bench_estimates import TARGET_FACTOR, bench_estimates  # noqa: E402
 from .bench_startup import bench_startup  # noqa: E402
 from .bench_sweep import bench_sweep_scaling  # noqa: E402
 from .common import bound_row, estimator_row, spread, timed  # noqa: E402
 
-SECTIONS = ("floor", "estimators", "bounds", "scale", "record", "reproduce", "startup", "commands", "sweep", "calibration")
+SECTIONS = ("floor", "estimators", "bounds", "scale", "record", "reproduce", "startup", "commands", "estimates",
+            "sweep", "calibration")
 TITLES = {
     "floor": "What the machine allows (floors behind the per-step targets)",
     "estimators": "Estimators side by side: batched vs a straightforward per-trial loop",
@@ -55,6 +59,8 @@ TITLES = {
     "reproduce": "`dse reproduce PAPER`: wall time and peak memory, cold and warm cache",
     "startup": "Start-up: `import dse`, `dse --help`, `dse list`, precompiled or not, with PYTHONDONTWRITEBYTECODE=1 and without",
     "commands": "The commands people wait on: `dse list`, `dse check`, `dse run --quick`, sweep overhead, the tests",
+    "estimates": "`dse check`'s estimate against the measured `dse run --quick` (one worker; CPU and wall time), "
+                 "every shipped scenario and generated ones",
     "sweep": "`dse sweep` scaling: the same 1,000-point sweep in process and on 1 and 2 Dask workers",
     "calibration": "Statistical claims on random valid scenarios (quick sample sizes): false-fail rate at α = 0.05",
 }
@@ -279,10 +285,12 @@ def main(argv: list[str] | None = None) -> int:
                    "record": lambda: bench_records(args.quick, repeats, replay_dir),
                    "startup": lambda: bench_startup(repeats),
                    "commands": lambda: bench_commands(repeats, args.quick),
+                   "estimates": lambda: bench_estimates(repeats=1, quick=args.quick),
                    "sweep": lambda: bench_sweep_scaling(points=100 if args.quick else 1000),
                    "calibration": lambda: bench_calibration(seeds=20 if args.quick else 200)}
         # reproduce before record: the recording replay uses the reproductions' recordings
-        order = ("floor", "estimators", "bounds", "scale", "reproduce", "record", "startup", "commands", "sweep", "calibration")
+        order = ("floor", "estimators", "bounds", "scale", "reproduce", "record", "startup", "commands", "estimates",
+                 "sweep", "calibration")
         for key in sorted(only, key=order.index):
             print(f"[bench] {key} ...", file=sys.stderr, flush=True)
             t0 = time.perf_counter()
@@ -352,6 +360,14 @@ def _targets(results: dict[str, list[dict]]) -> list[str]:
         if r.get("target"):
             lines.append(f"| {r['command']}: {r['target']} | {_fmt(r['wall_s'])} s wall"
                          + (f", {_fmt(r['cpu_s'])} s CPU" if "cpu_s" in r else "") + f" | {_fmt(r['met'])} |")
+    estimates = [r for r in results.get("estimates", []) if "est/cpu" in r]
+    if estimates:
+        missed = [r for r in estimates if not r["met"]]
+        worst = max(estimates, key=lambda r: abs(math.log(r["est/cpu"])))
+        lines.append(f"| dse check's time estimate within {TARGET_FACTOR:g}x of the measured `dse run --quick` (CPU, one "
+                     f"worker; {len(estimates)} scenarios) | worst {worst['scenario']}: {_fmt(worst['est/cpu'])} | "
+                     + ("yes" if not missed else f"**no** ({len(missed)}: " + ", ".join(r["scenario"] for r in missed[:5])
+                        + ")") + " |")
     for r in results.get("sweep", []):
         if "speedup_vs_1_worker" in r:
             lines.append(f"| dse sweep, {r['points']} points: 2 workers >= 1.9x one | "

@@ -24,13 +24,15 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from dse.contract.context import StageContext
-from dse.contract.cost import refuse_if_too_large
+from dse.contract.cost import (CHECK_DESIGN_BUDGET_S, CHECK_NOTE_AFTER_S, human_seconds, refuse_if_too_large,
+                               refuse_if_too_long, refuse_long_design, refuse_options, run_refusal)
 from dse.contract.family import Reproduction
 from dse.contract.options import RunOptions
 from dse.engine.atomic import atomic_write_text
 from dse.engine.cache import MemoryCache, StageCache
 from dse.engine.driver import evaluate_claims
 from dse.engine.memo import load_memo, manifest, save_memo, sha256_file
+from dse.engine.progress import note_if_slow
 from dse.engine.provenance import provenance
 from dse.errors import OutputError
 from dse.outputs.report import verdict_counts, write_report
@@ -171,6 +173,7 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
     loads the stage results only if it needs them. `fresh=True` ignores the memo and the stage
     cache: every stage is recomputed and its entry overwritten, and `write` redraws every view."""
     start = time.perf_counter()
+    refuse_options(repro, opts)
     key = run_key(repro, opts, source)
     memo = load_memo(Path(cache_dir), key) if cache_dir is not None and not fresh else None
     if memo is not None:
@@ -178,7 +181,9 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
         computed: Any = lambda: repro.compute(opts, StageContext(StageCache(Path(cache_dir))))  # noqa: E731 - when needed
         stages = [{**s, "cached": True} for s in stages]
     else:
-        refuse_if_too_large(repro.cost(opts), opts)
+        estimate = repro.cost(opts)
+        refuse_if_too_large(estimate, opts)
+        refuse_if_too_long(estimate, opts, trials_field(repro, opts))
         ctx = StageContext(MemoryCache() if cache_dir is None else StageCache(Path(cache_dir), fresh=fresh))
         computed = repro.compute(opts, ctx)
         ev = evaluate_claims(repro, computed)
@@ -195,6 +200,11 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
     prov["memo"] = memo is not None
     prov["stages"] = stages
     return Run(repro, opts, computed, ev, tables, prov, source, key, reuse_outputs=not fresh)
+
+
+def trials_field(repro: Reproduction, opts: RunOptions) -> str:
+    """What sets the run's trials (named when the run is refused as too long): the option, or the scenario key."""
+    return "--trials" if opts.trials is not None else (repro.family.trials_key or "scenario")
 
 
 def run_key(repro: Reproduction, opts: RunOptions, source: dict[str, Any] | None) -> str:
@@ -233,8 +243,11 @@ def _reuse_outputs(out_dir: Path, staging: Path, key: str | None) -> dict[str, s
 
 
 def run(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,
-        quick: bool = False, workers: int = 1, cache_dir: str | os.PathLike | None = None) -> Run:
-    """Load (unless given a reproduction), compute, verify and tabulate one scenario."""
+        quick: bool = False, workers: int = 1, cache_dir: str | os.PathLike | None = None,
+        max_time_s: float | None = None) -> Run:
+    """Load (unless given a reproduction), compute, verify and tabulate one scenario. A run estimated to
+    take longer than `max_time_s` seconds (default a day; `math.inf`: no limit) is refused before it
+    starts (ScenarioError), like `--max-time`."""
     if isinstance(source, (str, os.PathLike, Mapping)):
         data = dict(source) if isinstance(source, Mapping) else None
         repro = load(source)
@@ -244,8 +257,8 @@ def run(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: i
             data = load_toml(source)
     else:
         repro, data = source, None
-    return execute(repro, RunOptions(seed=seed, trials=trials, quick=quick, workers=workers), cache_dir=cache_dir,
-                   source=data)
+    return execute(repro, RunOptions(seed=seed, trials=trials, quick=quick, workers=workers, max_time_s=max_time_s),
+                   cache_dir=cache_dir, source=data)
 
 
 # -- the tables every run has ---------------------------------------------------------------------------
@@ -341,25 +354,40 @@ def _replace_dir(staging: Path, out_dir: Path) -> None:
 
 @dataclass
 class Check:
-    """What `check` found: the hypotheses (rows as in report.json), the design tables, and the
-    estimated wall time (s) and peak memory (MiB) of the run with these options."""
+    """What `check` found: the hypotheses (rows as in report.json), the design tables, the
+    estimated wall time (s) and peak memory (MiB) of the run with these options, and `refusal`: the
+    one line `dse run` would refuse that run with ("" when it would start)."""
 
     reproduction: Reproduction
     options: RunOptions
     hypotheses: list[dict[str, Any]]
     tables: Tables
     estimate: dict[str, Any]
+    refusal: str = ""
 
 
 def check(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,
-          quick: bool = False, workers: int = 1) -> Check:
+          quick: bool = False, workers: int = 1, max_memory_mib: float | None = None, max_time_s: float | None = None,
+          max_design_s: float = CHECK_DESIGN_BUDGET_S) -> Check:
     """Validate a scenario and compute only its deterministic design stage (no Monte Carlo):
-    the hypotheses are evaluated on the design, the design tables built, and the run's cost estimated."""
+    the hypotheses are evaluated on the design, the design tables built, and the run's cost estimated.
+    Options as in `run` (`max_memory_mib`, `max_time_s`: the budgets the run would be held to; the
+    result's `refusal` says whether it would be refused). A design estimated above `max_design_s`
+    seconds is refused (ScenarioError naming the key that sizes it) before it is computed; one that
+    takes longer than a second is announced on stderr."""
     repro = load(source) if isinstance(source, (str, os.PathLike, Mapping)) else source
-    opts = RunOptions(seed=seed, trials=trials, quick=quick, workers=workers)
-    design = repro.design(opts, StageContext(MemoryCache()))
+    opts = RunOptions(seed=seed, trials=trials, quick=quick, workers=workers, max_memory_mib=max_memory_mib,
+                      max_time_s=max_time_s)
+    refuse_options(repro, opts)
+    estimate = repro.cost(opts)
+    refuse_long_design(estimate, max_design_s)
+    design_s = estimate.design_s if estimate.design_s is not None else estimate.stages.get("design")
+    guess = f" (estimated about {human_seconds(design_s)})" if design_s is not None else ""
+    with note_if_slow(CHECK_NOTE_AFTER_S, f"dse check: computing the design of '{repro.paper_id}'{guess} ..."):
+        design = repro.design(opts, StageContext(MemoryCache()))
     hyps = [h.evaluate(design) for h in repro.hypotheses()]
     tables = Tables()
     for table_spec, frame in repro.design_tables(design):
         tables.add(table_spec, frame)
-    return Check(repro, opts, hyps, tables, repro.cost(opts).as_dict())
+    return Check(repro, opts, hyps, tables, estimate.as_dict(),
+                 run_refusal(estimate, opts, trials_field(repro, opts)))

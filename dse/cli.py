@@ -26,7 +26,8 @@ import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from dse.errors import CacheMiss, NumericalError, OutputError, ScenarioError  # noqa: E402
-from dse.contract.options import RunOptions  # noqa: E402
+from dse.contract.cost import CHECK_DESIGN_BUDGET_S, parse_duration  # noqa: E402
+from dse.contract.options import DEFAULT_MAX_TIME_S, DEFAULT_WORKERS, RunOptions  # noqa: E402
 from dse.engine.driver import REVERIFY_RTOL, run  # noqa: E402
 from dse.engine.reverify import verify_run  # noqa: E402
 from dse.engine.outlock import output_lock  # noqa: E402
@@ -84,7 +85,8 @@ def cmd_list(args) -> int:
 def cmd_check(args) -> int:
     from dse import api
 
-    result = api.check(args.file, seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers)
+    result = api.check(args.file, seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers,
+                       max_memory_mib=args.max_memory, max_time_s=args.max_time, max_design_s=args.max_design_time)
     repro = result.reproduction
     print(f"{args.file}: valid scenario '{repro.paper_id}' ({repro.title})")
     print("hypotheses:")
@@ -103,12 +105,15 @@ def cmd_check(args) -> int:
     est = result.estimate
     print(f"estimate: about {est['seconds']:.3g} s and {est['peak_memory_mib']:.0f} MiB peak memory "
           f"({est.get('detail', '')})")
+    if result.refusal:
+        print(f"dse: error: `dse run` would refuse this run: {result.refusal}", file=sys.stderr)
+        return 2
     return 0
 
 
 def _options(args) -> RunOptions:
     return RunOptions(seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers,
-                      max_memory_mib=getattr(args, "max_memory", None))
+                      max_memory_mib=getattr(args, "max_memory", None), max_time_s=getattr(args, "max_time", None))
 
 
 def cmd_reproduce(args) -> int:
@@ -278,13 +283,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     def run_flags(p):
         p.add_argument("--quick", action="store_true", help=QUICK_HELP)
-        p.add_argument("--trials", type=_positive_int, default=None, help="Monte Carlo trials per cell")
+        p.add_argument("--trials", type=_positive_int, default=None,
+                       help="Monte Carlo trials per cell, within the bounds of the scenario file's trials key")
         p.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
         p.add_argument("--out", default="out", help="output root directory (default out/)")
-        p.add_argument("--workers", type=_positive_int, default=2, help="worker processes (default 2)")
-        p.add_argument("--max-memory", type=_memory_mib, default=None, metavar="SIZE",
-                       help="memory budget of the run, e.g. 4G or 800M (default: half of this machine's memory); "
-                            "Monte Carlo streams within it, results do not depend on it")
+        _budget_flags(p)
         p.add_argument("--no-figures", action="store_true",
                        help="write the report and the tables only (no figures, no recordings): for fast iteration")
         p.add_argument("--fresh", action="store_true",
@@ -311,9 +314,13 @@ def build_parser() -> argparse.ArgumentParser:
                                    "estimated time and memory, without simulating")
     chk.add_argument("file", metavar="FILE.toml", help=FILE_HELP)
     chk.add_argument("--quick", action="store_true", help="estimate for a --quick run")
-    chk.add_argument("--trials", type=_positive_int, default=None, help="estimate for this many trials per cell")
+    chk.add_argument("--trials", type=_positive_int, default=None,
+                     help="estimate for this many trials per cell (within the bounds of the file's trials key)")
     chk.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
-    chk.add_argument("--workers", type=_positive_int, default=2, help="worker processes (default 2)")
+    _budget_flags(chk)
+    chk.add_argument("--max-design-time", type=_duration, default=CHECK_DESIGN_BUDGET_S, metavar="DURATION",
+                     help="the most design work check computes: a design estimated longer is refused before it "
+                          f"starts (default {CHECK_DESIGN_BUDGET_S:g}s; `dse run` computes it as its first stage)")
     chk.set_defaults(func=cmd_check)
     ver = sub_parser("verify", help="check a run's files against the checksums in its run.json, recompute its tables "
                                     "and re-check its claims from cached results (or re-assemble a sweep's), "
@@ -341,6 +348,18 @@ def build_parser() -> argparse.ArgumentParser:
                      help="exit 1 when any claim of any point is fail or error (for CI)")
     swp.set_defaults(func=cmd_sweep)
     return parser
+
+
+def _budget_flags(p: argparse.ArgumentParser) -> None:
+    """The resources of a run (dse run, reproduce and check): workers, memory budget, time limit."""
+    p.add_argument("--workers", type=_positive_int, default=DEFAULT_WORKERS,
+                   help=f"worker processes (default {DEFAULT_WORKERS}; at most this machine's CPUs)")
+    p.add_argument("--max-memory", type=_memory_mib, default=None, metavar="SIZE",
+                   help="memory budget of the run, e.g. 4G or 800M (default: half of this machine's memory; at "
+                        "most all of it); Monte Carlo streams within it, results do not depend on it")
+    p.add_argument("--max-time", type=_duration, default=None, metavar="DURATION",
+                   help="refuse a run estimated (`dse check`) to take longer, e.g. 90m, 36h, 3d or inf (default "
+                        f"{DEFAULT_MAX_TIME_S / 3600:g}h); results do not depend on it")
 
 
 MAX_COUNT = 10**12
@@ -384,6 +403,15 @@ def _memory_mib(text: str) -> float:
     if not value >= 256:
         raise argparse.ArgumentTypeError(f"must be at least 256M, got {text}")
     return value
+
+
+def _duration(text: str) -> float:
+    """A duration: 90 (seconds), 30m, 12h, 2d, or inf."""
+    try:
+        return parse_duration(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive duration such as 90, 30m, 12h, 2d or inf, "
+                                         f"got {text!r}") from None
 
 
 _positive_int.__name__ = "positive integer"  # argparse names the type in its messages

@@ -42,3 +42,14 @@ def test_reproduce_runner_reports_a_failed_run(tmp_path):
     res = run_once("no-such-paper", tmp_path / "out", quick=True)
     assert res["ok"] is False
     assert res["wall_s"] > 0 and res["max_rss_mib"] > 0
+
+
+def test_estimates_section_measures_a_run_against_its_estimate():
+    """`make bench`'s `estimates` row: the estimate and the measured run exist (no timing is asserted)."""
+    from benchmarks.bench_estimates import estimate_row
+    from pathlib import Path
+
+    example = Path(run.__file__).resolve().parents[1] / "dse" / "families" / "template" / "example.toml"
+    row = estimate_row("template", example, workers=1, repeats=1)
+    assert row["ok"] and row["estimate_s"] > 0 and row["cpu_s"] > 0 and row["wall_s"] > 0
+    assert math.isclose(row["est/cpu"], row["estimate_s"] / row["cpu_s"]) and isinstance(row["met"], bool)

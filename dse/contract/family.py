@@ -63,6 +63,8 @@ class Family(ABC):
     edges: ClassVar[tuple[str, ...]] = ()
     #: the title of a user's run: "<family> scenario '<name>'" and this
     run_title: ClassVar[str] = ""
+    #: the dotted scenario key that `--trials` (RunOptions.trials) stands for: the option gets its declared bounds
+    trials_key: ClassVar[str] = ""
 
     # -- scenarios ---------------------------------------------------------------------------------------
 

@@ -34,3 +34,26 @@ def fresh_line() -> str:
     if not progress_enabled():
         return ""
     return "\r\x1b[K" if sys.stderr.isatty() else "\n"
+
+
+class note_if_slow:
+    """Print `message` on stderr once if the block it wraps is still running after `delay` seconds (a
+    command that would otherwise be silent says what it is doing); use as a context manager."""
+
+    def __init__(self, delay: float, message: str):
+        import threading
+
+        self._timer = threading.Timer(delay, self._note, args=(message,))
+        self._timer.daemon = True
+        self.noted = threading.Event()      # set once the message is printed
+
+    def _note(self, message: str) -> None:
+        print(message, file=sys.stderr, flush=True)
+        self.noted.set()
+
+    def __enter__(self) -> "note_if_slow":
+        self._timer.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._timer.cancel()

@@ -55,8 +55,10 @@ EQ74_S_PER_STEP = 1e-3
 LIFTED_S = 2e-9
 CENTRAL_S = 2e-11
 DENSE_S = 2e-10
-#: fixed: interpreter and imports; claims, tables, figures and the recording, per scenario and per sensor
-IMPORT_S = 3.5
+#: fixed: interpreter and imports; claims, tables, figures and the recording, per scenario and per sensor (the
+#: small runs of `make bench`, section `estimates`: `dse run --quick` of e5-e8 and generated scenarios, 2.8-4.6 s of
+#: CPU, were estimated 1.3-1.85x with 3.5 s of imports)
+IMPORT_S = 2.5
 OUTPUT_S = 1.5
 OUTPUT_NODE_S = 0.02
 BASE_MIB = 300.0

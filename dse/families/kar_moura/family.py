@@ -58,6 +58,7 @@ budget); per-slot statistics are kept at a bounded set of slots, so horizons up 
 docs/papers/kar-moura.md."""
     scenario_model = GossipKalmanFile
     example = "scenarios/e1.toml"
+    trials_key = "simulation.runs"
     edges = generator.EDGES
 
     # -- scenarios ---------------------------------------------------------------------------------------

@@ -38,6 +38,7 @@ normal for sums, conservative Chernoff bounds for the trace), valid at any numbe
 family-wise confidence."""
     scenario_model = NoisyConsensusFile
     example = "paper.toml"
+    trials_key = "monte_carlo.trials"
     edges = EDGES
 
     def paper_scenarios(self):

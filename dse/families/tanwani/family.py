@@ -57,6 +57,7 @@ numbers cannot show (no claim): (13a) reads '(A − L_iH_i) de_i' (the corrected
 covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: docs/papers/tanwani.md."""
     scenario_model = RandomCommFile
     example = "example.toml"
+    trials_key = "simulation.trials"
     edges = generator.EDGES
 
     # -- scenarios -----------------------------------------------------------------------------------------

@@ -15,7 +15,9 @@ from .scenario import ConsensusFile
 
 #: CPU seconds per trial, round and node² (the product e W ᵀ), measured with `dse run --quick`
 TRIAL_ROUND_S = 1.5e-9
-STARTUP_S = 1.0
+#: CPU seconds of everything else: interpreter start, imports, the figure, the recording and the tables (`dse run
+#: --quick example.toml` takes 1.9-2.6 s of CPU, `make bench` section `estimates`)
+STARTUP_S = 2.0
 
 
 class Template(Family):
@@ -28,6 +30,7 @@ the geometric approach to the centralized r/N is checked where the graph is conn
     notes = "Statistical verdicts use the exact χ² law of the errors, valid at any number of trials."
     scenario_model = ConsensusFile
     example = "example.toml"
+    trials_key = "monte_carlo.trials"
     edges = generator.EDGES
 
     def generate(self, seed, edge=None):

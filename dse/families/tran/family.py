@@ -80,6 +80,7 @@ checkable. Statistical verdicts: exact normal and χ² tests against the Gaussia
 one-sided t tests for the mean-square bounds, under the report's family-wise confidence. See docs/papers/tran.md."""
     scenario_model = CoestimationFile
     example = "paper.toml"
+    trials_key = "stochastic.trials"
     edges = generator.EDGES
 
     # -- scenarios -----------------------------------------------------------------------------------------

@@ -58,6 +58,7 @@ numbers do not depend on the memory budget. Every tolerance is a round-off allow
 condition numbers, stated in the claim's detail. Reconstruction notes: docs/papers/wang-liu-morse.md."""
     scenario_model = HybridFile
     example = "generic.toml"
+    trials_key = "monte_carlo.trials"
     edges = generator.EDGES
 
     def paper_scenarios(self):
