@@ -394,34 +394,56 @@ def readable_int(q: int) -> str:
     return f"{digits[0]}.{digits[1:4]}e{len(digits) - 1}"
 
 
+def exact_decimal(value: float) -> Decimal:
+    """The exact value of a float as a Decimal (its binary expansion, not the shortest decimal that
+    rounds to it: repr(0.1) is '0.1', the float is 0.1000000000000000055511151231257827...)."""
+    return Decimal(float(value))
+
+
+def _ratio_and_rounding(num: tuple[float, float, float], u: Decimal, digits: int) -> tuple[Decimal, int, int]:
+    """r = (λ + ||A||)T / (-ln(1 - u)) with the floats' exact values, and ceil(r), floor(r), carrying
+    `digits` + 60 significant digits (`digits` about those of r's integer part); where r falls within
+    10^-40 of an integer the rounding could depend on the last digits, so 100 more are carried."""
+    lam, norm_A, T = (exact_decimal(v) for v in num)
+    prec = digits + 60
+    while True:
+        with localcontext() as ctx:
+            ctx.prec = prec
+            r = (lam + norm_A) * T / _ln1p_neg(+u)
+            ceil, floor = int(r.to_integral_value(rounding="ROUND_CEILING")), int(r.to_integral_value(rounding="ROUND_FLOOR"))
+            if min(r - floor, ceil - r) > Decimal(10) ** -40 or ceil == floor:
+                return r, ceil, floor
+        prec += 100
+
+
 def sufficient_q(rho: float, m: int, norm_A: float, lam: float, T: float, *, prec: int | None = None) -> SufficientQ:
     """α = 1 - (m-1)(1-ρ)/m^{(m-1)²} (Lemma 5) and as printed in (18), 1 - (m-1)(1-ρ)/(m(m-1)²);
-    r = (λ + ||A||)T / ln(1/α) and the three q variants, all in exact decimal arithmetic so that
-    nothing overflows or rounds 1 - α to zero (1 - α ≈ m^{-(m-1)²})."""
+    r = (λ + ||A||)T / ln(1/α) and the three q variants, in decimal arithmetic on the inputs' exact
+    binary values with enough digits that ceil(r) and floor(r), hence the q's, are exact integers
+    (nothing overflows or rounds 1 - α to zero: 1 - α ≈ m^{-(m-1)²}). `prec` adds digits."""
     if m < 2:
         raise ValueError("m >= 2 (for m = 1, P_1 = 0 and q = 1 suffices)")
     N = (m - 1) ** 2 + 1
-    def exact(value: float) -> Decimal:
-        return Decimal(repr(float(value)))
-
-    num_f = (exact(lam) + exact(norm_A)) * exact(T)
+    extra = prec or 0
     with localcontext() as ctx:
-        # the printed α is not close to 1: r has few digits, 60 more make ceil/floor exact
-        ctx.prec = prec or int(math.log10(m * (m - 1) ** 2 + 1)) + 60
-        up = Decimal(m - 1) * (Decimal(1) - exact(rho)) / (Decimal(m) * Decimal(m - 1) ** 2)
-        rp = num_f / _ln1p_neg(up)
-        cp, fp = int(rp.to_integral_value(rounding="ROUND_CEILING")), int(rp.to_integral_value(rounding="ROUND_FLOOR"))
-        alpha_p = Decimal(1) - up
+        ctx.prec = 1200                                        # a float's expansion has at most 1,075 digits: exact
+        one_minus_rho = Decimal(1) - exact_decimal(rho)
+        up = Decimal(m - 1) * one_minus_rho / (Decimal(m) * Decimal(m - 1) ** 2)
+    # the printed α is not close to 1: r has few digits
+    rp, cp, fp = _ratio_and_rounding((lam, norm_A, T), up, int(math.log10(m * (m - 1) ** 2 + 1)) + extra)
+    alpha_p = Decimal(1) - up
+    digits = int((m - 1) ** 2 * math.log10(m)) + extra          # r of Lemma 5 has about (m-1)² log10(m) digits
     with localcontext() as ctx:
-        # r of Lemma 5 has about (m-1)² log10(m) integer digits: carry 60 more so that ceil/floor are exact
-        ctx.prec = prec or int((m - 1) ** 2 * math.log10(m)) + 60
-        u5 = Decimal(m - 1) * (Decimal(1) - exact(rho)) / Decimal(m) ** ((m - 1) ** 2)
-        r5 = (exact(lam) + exact(norm_A)) * exact(T) / _ln1p_neg(u5)    # ln by its series: 1 - α is tiny for m >= 4
-        c5, f5 = int(r5.to_integral_value(rounding="ROUND_CEILING")), int(r5.to_integral_value(rounding="ROUND_FLOOR"))
-        # log10(1 - α) from the decimal exponent and the leading digits (Decimal.log10 at thousands of digits is slow)
-        log10_u5 = math.log10(float(u5.scaleb(-u5.adjusted()))) + u5.adjusted() if u5 > 0 else -math.inf
-        return SufficientQ(Decimal(1) - u5, alpha_p, log10_u5, r5, rp, N * c5 + 1, N * (c5 + 1), N * (f5 + 1),
-                           N * cp + 1, N * (fp + 1), N * (cp + 1))
+        ctx.prec = digits + 1200
+        u5 = Decimal(m - 1) * one_minus_rho / Decimal(m) ** ((m - 1) ** 2)
+    r5, c5, f5 = _ratio_and_rounding((lam, norm_A, T), u5, digits)    # ln by its series: 1 - α is tiny for m >= 4
+    # log10(1 - α) from the decimal exponent and the leading digits (Decimal.log10 at thousands of digits is slow)
+    log10_u5 = math.log10(float(u5.scaleb(-u5.adjusted()))) + u5.adjusted() if u5 > 0 else -math.inf
+    with localcontext() as ctx:
+        ctx.prec = digits + 1200
+        alpha5 = Decimal(1) - u5
+    return SufficientQ(alpha5, alpha_p, log10_u5, r5, rp, N * c5 + 1, N * (c5 + 1), N * (f5 + 1),
+                       N * cp + 1, N * (fp + 1), N * (cp + 1))
 
 
 #: memory of one batch of the matrices P (M_G ⊗ I) whose norms give σ
@@ -456,9 +478,23 @@ def _r_symmetric(sigma: float, norm_A: float, lam: float, T: float) -> float:
     return 0.0 if sigma == 0.0 else (lam + norm_A) * T / -math.log(sigma)
 
 
+def _symmetric_rounding(sigma: float, norm_A: float, lam: float, T: float) -> tuple[int, int]:
+    """ceil and floor of r = (λ + ||A||)T / ln(1/σ), exactly (decimal arithmetic on the floats' values)."""
+    _r_symmetric(sigma, norm_A, lam, T)                          # the range check
+    if sigma == 0.0:
+        return 0, 0
+    with localcontext() as ctx:
+        ctx.prec = 1200
+        u = Decimal(1) - exact_decimal(sigma)
+    digits = max(0, int(math.log10(max(_r_symmetric(sigma, norm_A, lam, T), 1.0)))) + 2
+    _, ceil, floor = _ratio_and_rounding((lam, norm_A, T), u, digits)
+    return ceil, floor
+
+
 def q_symmetric(sigma: float, norm_A: float, lam: float, T: float) -> int:
-    """Smallest integer q with q > ceil((λ + ||A||)T / ln(1/σ))  (27); σ = 0 (every P_i = 0) gives 1."""
-    return int(math.ceil(_r_symmetric(sigma, norm_A, lam, T))) + 1
+    """Smallest integer q with q > ceil((λ + ||A||)T / ln(1/σ))  (27); σ = 0 (every P_i = 0) gives 1.
+    Exact (the rounding is decided in decimal arithmetic, not on the float r)."""
+    return _symmetric_rounding(sigma, norm_A, lam, T)[0] + 1
 
 
 def r_symmetric(sigma: float, norm_A: float, lam: float, T: float) -> float:
@@ -467,5 +503,5 @@ def r_symmetric(sigma: float, norm_A: float, lam: float, T: float) -> float:
 
 
 def q_symmetric_minimal(sigma: float, norm_A: float, lam: float, T: float) -> int:
-    """Smallest q with e^{||A||T} σ^q < e^{-λT} (the need stated before (27))."""
-    return int(math.floor(_r_symmetric(sigma, norm_A, lam, T))) + 1
+    """Smallest q with e^{||A||T} σ^q < e^{-λT} (the need stated before (27)), exact."""
+    return _symmetric_rounding(sigma, norm_A, lam, T)[1] + 1
