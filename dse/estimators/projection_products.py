@@ -25,7 +25,7 @@ The reductions, all exact:
   products keep norm 1 on F however long, and only the missing letters can reduce it.
 
 Prefixes are expanded in batches, deepest and largest bound first, so a good complete word is found
-early. Past `max_states` prefixes (or the frontier's memory) the search stops with a proven
+early. Past its budget of prefixes (or the frontier's memory) the search stops with a proven
 bracket: `rho` is then the best complete word found, `upper` the largest bound of a prefix still
 open.
 """
@@ -63,8 +63,10 @@ class RhoResult:
 MERGE_TOL = 1e-10
 #: a singular value of [I - P_t; ...] below this spans the space the letters t leave fixed
 FIXED_TOL = 1e-8
-#: prefixes the search may examine before it stops with a bracket
-RHO_MAX_PREFIXES = 2_000_000
+#: work the search may do before it stops with a bracket, in units of a small prefix: a prefix of an
+#: n-state system costs 1 + n³/40 units (its products and norms), so about 2,000,000 prefixes of a
+#: 3-state system, 300,000 of a 6-state one, 2,400 of a 32-state one (about a second each)
+RHO_WORK_UNITS = 2_000_000
 #: memory the search's frontier may hold (prefix products of n_a x n each and their words)
 RHO_FRONTIER_BYTES = 256 * 2**20
 #: the tail bounds B(T) are formed for every subset T of the letters up to this many letters
@@ -107,18 +109,23 @@ def projection_classes(P: np.ndarray, tol: float = MERGE_TOL) -> tuple[list[int]
 def rho_exact(P_blocks: np.ndarray, *, max_states: int | None = None, merge_tol: float = MERGE_TOL) -> RhoResult:
     """ρ = max ||P_{i1} ··· P_{iN}|| over products of N = (m-1)² + 1 factors containing every
     P_i (17), by the exhaustive search of this module (see the module docstring); `max_states`
-    prefixes at most (default RHO_MAX_PREFIXES), then a proven bracket."""
+    prefixes at most (default `prefix_budget`), then a proven bracket."""
     P = np.asarray(P_blocks, float)
     m = len(P)
     reps, cls, deviation = projection_classes(P, merge_tol)
     k = len(reps)
     members = [[i for i in range(m) if cls[i] == c] for c in range(k)]
-    res = _search(P[reps], (m - 1) ** 2 + 1 - (m - k), RHO_MAX_PREFIXES if max_states is None else max_states)
+    res = _search(P[reps], (m - 1) ** 2 + 1 - (m - k), prefix_budget(P.shape[1]) if max_states is None else max_states)
     word, seen = [], set()
     for c in res.worst_word:                         # expand each class's first occurrence into its agents
         word += members[c] if c not in seen else [members[c][0]]
         seen.add(c)
     return RhoResult(res.rho, res.exact, res.words, tuple(word), res.upper, res.prefixes, res.roundoff, k, deviation)
+
+
+def prefix_budget(n: int) -> int:
+    """Prefixes the search examines at most for an n-state system (RHO_WORK_UNITS)."""
+    return int(RHO_WORK_UNITS / (1 + n ** 3 / 40))
 
 
 def fixed_spaces(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -6,10 +6,11 @@ that the agents' unobservable spaces are oblique and ρ of (17) is strictly betw
 agent sees a random nonempty set of J's blocks (rarely all of them), their union every block
 (joint observability). Graphs are strongly connected digraphs (a directed ring through a random
 order plus random arcs) or connected undirected graphs. The edge cases: five agents with ρ > 0
-(the q of (22) beyond simulation), six agents (ρ only bracketed), switching directed graphs,
+(the q of (22) beyond simulation), six agents sharing outputs (repeated projections), switching directed graphs,
 marginal A (an integrator chain too) and unstable A, q at the bound of (22) and (27) and one
 below, two agents, a scalar and a larger state, one iteration per interval, offsets with a
-leaving agent, and an input.
+leaving agent, and an input. `generate_many_agents` draws issue 26's class apart from these: 6 to
+8 agents of an oscillatory system in an orthonormal modal basis (ρ = 0 up to round-off).
 """
 from __future__ import annotations
 
