@@ -226,7 +226,8 @@ def _search(P: np.ndarray, N: int, max_states: int) -> RhoResult:
     L = _letters(P, N)
     full = (1 << k) - 1
     entry_bytes = 8 * L.Ut.shape[1] * n + 2 * N + 16
-    batch = int(max(1, min(4096, 64 * 2**20 // (entry_bytes * k))))
+    # prefixes expanded at once: their children fit 64 MiB, and k levels of them (a first complete word) the frontier
+    batch = int(max(1, min(4096, 64 * 2**20 // (entry_bytes * k), RHO_FRONTIER_BYTES // (2 * entry_bytes * k * k))))
     roots = np.arange(k)
     X0 = L.Ut[roots]
     stack = [(X0, roots[:, None].astype(np.int16), 1 << roots.astype(np.int64), L.bound(X0, 1 << roots, -1.0))]

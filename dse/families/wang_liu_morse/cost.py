@@ -23,7 +23,7 @@ from dse.contract.cost import MIB, Cost
 from dse.contract.options import RunOptions
 
 from . import simulation
-from .scenario import SIGMA_MAX_AGENTS, HybridFile
+from .scenario import HybridFile
 
 #: fitted CPU seconds (this machine, one BLAS thread): per time instant and chunk, per trial·D² of the
 #: propagation, per iteration and chunk, per trial·(mn)² of an iteration, per event index and chunk, per
@@ -63,14 +63,14 @@ def _flop_s(mn: int) -> float:
 
 
 def design_seconds(sc: HybridFile, extras: bool) -> float:
-    import dse.estimators.jointly_observable_design as jd
+    from .design import connected_graph_count, sigma_skip_reason
 
     m, n = sc.m, sc.n
     mn = m * n
     N = (m - 1) ** 2 + 1
     seconds = DESIGN_S + rho_seconds(m, n, N) * (1 + extras * m)
-    if m <= SIGMA_MAX_AGENTS:
-        seconds += len(jd.connected_undirected_graphs(m)) * mn ** 3 * _flop_s(mn)
+    if sigma_skip_reason(m, n) is None:                  # σ is enumerated (design.sigma_skip_reason)
+        seconds += connected_graph_count(m) * mn ** 3 * _flop_s(mn)
     return seconds + sample_seconds(sc) + (0.25 if extras else 0.0)
 
 
