@@ -15,7 +15,8 @@ The reductions, all exact:
   first letter a occurs once and which becomes complete only at its last letter b (which then
   occurs once too). The search starts from each first letter a, never uses a again, evaluates
   ||U_a' M U_b|| (U_i an orthonormal basis of the range of P_i) when a prefix a M misses one letter
-  b, and does not extend a complete word.
+  b, and does not extend a complete word. A word and its reverse have the same norm (every P_i is
+  symmetric), so only words whose first letter is below their last are formed.
 - A prefix X = U_a' M bounds every word that extends it: ||X R U_b|| <= ||X||, and, with Π the
   orthogonal projection on the space F that every letter used so far leaves fixed,
   ||X R U_b|| <= ||X Π|| B(T) + ||X - X Π||, where B(T) bounds ||Π R U_b|| over the
@@ -202,7 +203,9 @@ def _letters(P: np.ndarray, N: int) -> _Letters:
     Ut = np.zeros((k, max(u.shape[1] for u in U), n))
     for i, u in enumerate(U):
         Ut[i, :u.shape[1]] = u.T
-    tau = 8 * N * n * float(np.finfo(float).eps)
+    # round-off of N products, and of reading a word backwards (||W|| = ||W'|| for symmetric P_i)
+    asym = max(float(np.linalg.norm(p - p.T, 2)) for p in P)
+    tau = max(8 * N * n * float(np.finfo(float).eps), 2 * N * asym)
     if k > TAIL_MAX_LETTERS:
         return _Letters(P, Ut, None, None, tau)
     Pi, eps = fixed_spaces(P)
@@ -247,12 +250,15 @@ def _search(P: np.ndarray, N: int, max_states: int) -> RhoResult:
         if prefixes >= max_states or held * entry_bytes > RHO_FRONTIER_BYTES:
             stack.append((X, W, M, bnd))             # cut: every open prefix bounds the words it leads to
             upper = max(float(max(s[3].max(initial=0.0) for s in stack)), best, slack)
-            return RhoResult(max(best, 0.0), False, words, worst, max(upper, best), prefixes, L.tau)
+            # every product of projections has norm <= 1: a bound above 1 is round-off
+            return RhoResult(max(best, 0.0), False, words, worst, max(min(upper, 1.0), best), prefixes, L.tau)
         prefixes += len(X)
         cand = np.broadcast_to(roots, (len(X), k))
         allowed = (cand != W[:, -1:]) & (cand != W[:, :1])          # no letter twice in a row, a only first
         grown = M[:, None] | (1 << cand.astype(np.int64))
-        complete = allowed & (grown == full)
+        # a word and its reverse have the same norm: only words whose first letter is below their last
+        above = (full & ~grown) >> (W[:, :1].astype(np.int64) + 1) != 0         # a missing letter above the first
+        complete = allowed & (grown == full) & (cand > W[:, :1])
         if complete.any():
             pi, ci = np.nonzero(complete)
             vals = L.bound(X[pi] @ np.swapaxes(L.Ut[ci], 1, 2), None, best)     # ||·||_2 where it can exceed best
@@ -261,7 +267,7 @@ def _search(P: np.ndarray, N: int, max_states: int) -> RhoResult:
             if vals[j] > best:
                 best, worst = float(vals[j]), tuple(int(x) for x in W[pi[j]]) + (int(ci[j]),)
         missing = np.bitwise_count(full & ~grown)
-        extend = allowed & ~complete & (W.shape[1] + 1 + missing <= N)  # room left for the missing letters
+        extend = allowed & (grown != full) & above & (W.shape[1] + 1 + missing <= N)   # room left for the missing
         if not extend.any():
             continue
         pi, ci = np.nonzero(extend)
