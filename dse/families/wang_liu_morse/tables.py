@@ -279,10 +279,10 @@ def _rho_method_rows(add, dz: dict, N: int) -> None:
     words, prefixes = int(dz["rho_words"]), int(dz["rho_prefixes"])
     k, dev = int(dz["rho_distinct"]), float(dz["rho_merge_deviation"])
     if bool(dz["rho_exact"]):
-        how = (f"exhaustive search: {words} complete words and {prefixes} prefixes over {k} distinct projections; "
+        how = (f"exhaustive search: {words} complete word(s) and {prefixes} prefix(es) over {k} distinct projections; "
                f"every other word extends a prefix whose proven bound is at most the best word + rho_roundoff")
     else:
-        how = (f"bracket: the search stopped after {prefixes} prefixes ({words} complete words, {k} distinct "
+        how = (f"bracket: the search stopped after {prefixes} prefix(es) ({words} complete word(s), {k} distinct "
                f"projections); every word not evaluated extends an open prefix bounded by rho_upper")
     add("rho_method", words + prefixes, "how ρ was proven; the value is the number of products examined "
                                         "(complete words and prefixes)", exact=how)
