@@ -1,5 +1,5 @@
 """The hybrid observer: batched trials vs one trial at a time, the q-step estimator per
-iteration, ρ by branch and bound, the cost model (`dse check`'s estimate) against measured
+iteration, ρ by its exhaustive search, the cost model (`dse check`'s estimate) against measured
 runs of small and large scenarios (and a long streamed run under a 300 MiB budget), and the
 commands people wait on (`dse list`, `dse check`, `dse run --quick`, `dse reproduce`) with
 wall and CPU time. Measurements, not tests.
@@ -58,7 +58,7 @@ def bench_hybrid(trials: int = 256, repeats: int = 3) -> list[dict]:
     P = paper_scenarios()[0].observer.P
     t0 = time.perf_counter()
     res = jd.rho_exact(P)
-    rows.append({"name": "ρ by exact branch and bound, m = 4", "words": res.words,
+    rows.append({"name": "ρ by exhaustive search, m = 4", "words": res.words,
                  "wall_ms": 1e3 * (time.perf_counter() - t0)})
     return rows
 
@@ -114,7 +114,7 @@ def bench_rho(repeats: int = 3) -> dict:
     P = random_projections(np.random.default_rng(11), 5, 4)
     res = jd.rho_exact(P)
     t = timed(lambda: jd.rho_exact(P), repeats, per=1e3)
-    return bound_row(f"wang-liu-morse ρ by exact branch and bound, m = 5, n = 4 ({res.words:,} products evaluated, "
+    return bound_row(f"wang-liu-morse ρ by exhaustive search, m = 5, n = 4 ({res.words:,} products evaluated, "
                      f"exact: {res.exact})", fast=t, fast_what="batched prefix products, pruned by their norms")
 
 

@@ -234,7 +234,7 @@ def test_rho_branch_and_bound_m4_against_all_words(seed):
     """m = 4: every repeat-free word of length <= 10 (118,096 words) against the branch and bound."""
     P = random_projections(np.random.default_rng(seed), 4, 3)
     res = jd.rho_exact(P)
-    assert res.exact and res.upper == res.rho
+    assert res.exact and res.rho <= res.upper <= res.rho + res.roundoff
     assert res.rho == pytest.approx(repeat_free_rho(P), rel=1e-12, abs=1e-15)
     w = res.worst_word
     assert len(set(w)) == 4 and len(w) <= 10 and all(a != b for a, b in zip(w, w[1:]))
@@ -247,9 +247,9 @@ def test_rho_five_agents_exact_and_fast():
 
     rng = np.random.default_rng(11)
     P = random_projections(rng, 5, 4)
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     res = jd.rho_exact(P)
-    assert res.exact and time.perf_counter() - t0 < 5.0
+    assert res.exact and time.process_time() - t0 < 5.0          # CPU time: not the machine's load
     for _ in range(300):
         L = int(rng.integers(5, 18))
         w = [int(rng.integers(5))]
@@ -277,7 +277,7 @@ def test_rho_bracket_when_the_search_is_cut():
     """With a tiny state budget the search stops with a proven bracket around the exact value."""
     P = random_projections(np.random.default_rng(7), 5, 4, dims=[2] * 5)
     exact = jd.rho_exact(P)
-    cut = jd.rho_exact(P, max_states=50)
+    cut = jd.rho_exact(P, max_states=400)
     assert exact.exact and not cut.exact
     assert cut.rho <= exact.rho * (1 + 1e-12) and cut.upper >= exact.rho * (1 - 1e-12)
     w = cut.worst_word

@@ -20,6 +20,10 @@ from decimal import Decimal, getcontext, localcontext
 import numpy as np
 import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
+# ρ of (17) lives in its own module; its names are part of this module's interface
+from .projection_products import (RHO_FRONTIER_BYTES, RhoResult, count_complete_repeat_free_words,  # noqa: F401
+                                  range_bases, rho_exact, spectral_norm)
+
 
 # -- per-agent quantities ---------------------------------------------------------------------
 
@@ -327,13 +331,6 @@ def connected_undirected_graphs(m: int) -> np.ndarray:
 
 # -- norms --------------------------------------------------------------------------------------
 
-def spectral_norm(M: np.ndarray) -> np.ndarray:
-    """||M||_2 batched over leading axes (largest eigenvalue of MᵀM or MMᵀ, the smaller one)."""
-    M = np.asarray(M, float)
-    G = np.swapaxes(M, -1, -2) @ M if M.shape[-1] <= M.shape[-2] else M @ np.swapaxes(M, -1, -2)
-    return np.sqrt(np.maximum(np.linalg.eigvalsh(G)[..., -1], 0.0))
-
-
 def mixed_norm(M: np.ndarray, row_sizes, col_sizes) -> float | np.ndarray:
     """|M| = max row sum of the matrix of blockwise spectral norms (Sec. 3). Batched over
     leading axes."""
@@ -343,154 +340,6 @@ def mixed_norm(M: np.ndarray, row_sizes, col_sizes) -> float | np.ndarray:
     blocks = np.stack([np.stack([spectral_norm(M[..., r[a]:r[a + 1], c[b]:c[b + 1]])
                                  for b in range(len(col_sizes))], axis=-1) for a in range(len(row_sizes))], axis=-2)
     return blocks.sum(axis=-1).max(axis=-1)
-
-
-# -- ρ (17) -------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class RhoResult:
-    """ρ of (17). `rho` is the largest norm found (ρ itself when `exact`); `upper` a proven
-    upper bound (= rho when exact): every product not evaluated extends a prefix whose norm
-    is at most `upper`. `words`: products evaluated; `worst_word`: the word attaining `rho`."""
-
-    rho: float
-    exact: bool
-    words: int
-    worst_word: tuple[int, ...]
-    upper: float = float("nan")
-
-
-def range_bases(P_blocks: np.ndarray) -> list[np.ndarray]:
-    """Orthonormal bases U_i of the ranges of orthogonal projections P_i (eigenvalues ~ 1)."""
-    out = []
-    for P in np.asarray(P_blocks, float):
-        w, V = np.linalg.eigh((P + P.T) / 2)
-        out.append(V[:, w > 0.5])
-    return out
-
-
-#: memory the branch and bound of ρ may hold in its frontier (prefix products of n_i x n each)
-RHO_FRONTIER_BYTES = 256 * 2**20
-
-
-def rho_exact(P_blocks: np.ndarray, *, max_states: int | None = None) -> RhoResult:
-    """ρ = max ||P_{i1} ··· P_{iN}|| over products of N = (m-1)² + 1 factors containing every
-    P_i (17), by an exact branch and bound (`_rho_search`).
-
-    Agents with identical projections (sensors sharing C_i) are merged first: with k distinct
-    projections, the products are those of words over the k classes of length <= N - (m - k)
-    containing every class (each class occurrence can be expanded into its agents' letters in
-    a row, which leaves the product unchanged since P² = P, and that costs m - k letters).
-    """
-    P = np.asarray(P_blocks, float)
-    m = len(P)
-    if max_states is None:                           # 2,000,000 prefixes up to n = 4, fewer for larger states
-        max_states = int(min(2_000_000, max(10_000, RHO_FRONTIER_BYTES // (8 * P.shape[1] ** 2))))
-    reps: list[int] = []                             # one agent per distinct projection
-    cls: list[int] = []                              # the class of every agent
-    for i in range(m):
-        same = [c for c, r in enumerate(reps) if np.array_equal(P[r], P[i])]
-        cls.append(same[0] if same else len(reps))
-        if not same:
-            reps.append(i)
-    k = len(reps)
-    res = _rho_search(P[reps], (m - 1) ** 2 + 1 - (m - k), max_states)
-    members = [[i for i in range(m) if cls[i] == c] for c in range(k)]
-    word, seen = [], set()
-    for c in res.worst_word:                         # expand each class's first occurrence into its agents
-        word += members[c] if c not in seen else [members[c][0]]
-        seen.add(c)
-    return RhoResult(res.rho, res.exact, res.words, tuple(word), res.upper)
-
-
-def _rho_search(P: np.ndarray, N: int, max_states: int) -> RhoResult:
-    """ρ over repeat-free words of length <= N over the m letters of P containing every letter.
-
-    Reductions (all exact): P_i² = P_i, so the products are those of repeat-free words of
-    length <= N containing every letter; dropping a first or last factor never decreases the
-    norm (||P_a W|| <= ||W||, ||W P_b|| <= ||W||), so the maximum is attained on a word whose
-    first letter a and last letter b occur once: a, then a complete repeat-free word over the
-    other m - 2 letters (length <= N - 2), then b. With U_i an orthonormal basis of the range
-    of P_i, ||P_a M P_b|| = ||U_a' M U_b||. The middle words are grown letter by letter from
-    X = U_a' (prefix); ||X|| bounds every extension, so a prefix with ||X|| <= the best value
-    found is dropped. If more than `max_states` prefixes would be kept, the search stops:
-    `rho` is then the best value found (a lower bound) and `upper` the largest norm of a
-    prefix still open (an upper bound), exact=False.
-    """
-    m = len(P)
-    if m == 1:
-        return RhoResult(float(np.linalg.norm(P[0], 2)), True, 1, (0,), float(np.linalg.norm(P[0], 2)))
-    U = range_bases(P)
-    if any(u.shape[1] == 0 for u in U):                  # some P_i = 0: every product is 0
-        z = next(i for i, u in enumerate(U) if u.shape[1] == 0)
-        word = (z,) + tuple(i for i in range(m) if i != z)
-        return RhoResult(0.0, True, 0, word, 0.0)
-    best, worst, evaluated, open_bound, states = -1.0, (), 0, 0.0, 0
-    for a in range(m):
-        for b in range(m):
-            if a == b:
-                continue
-            mid = [c for c in range(m) if c not in (a, b)]
-            if not mid:                                  # m = 2: the word a b
-                v = float(np.linalg.norm(U[a].T @ U[b], 2))
-                evaluated += 1
-                if v > best:
-                    best, worst = v, (a, b)
-                continue
-            full = (1 << len(mid)) - 1
-            # frontier: X (K, k_a, n), last letter index into mid, mask, and (parent, letter) per level
-            X = np.einsum("ij,cjk->cik", U[a].T, P[mid])
-            last = np.arange(len(mid))
-            mask = 1 << last
-            history = [(np.full(len(mid), -1), last.copy())]
-            for length in range(1, N - 1):
-                done = mask == full
-                if done.any():
-                    vals = spectral_norm(X[done] @ U[b])
-                    evaluated += int(done.sum())
-                    k = int(np.argmax(vals))
-                    if vals[k] > best:
-                        best = float(vals[k])
-                        worst = (a,) + _trace_word(history, int(np.nonzero(done)[0][k]), mid) + (b,)
-                if length == N - 2:
-                    break
-                alive = spectral_norm(X) > best
-                idx = np.nonzero(alive)[0]
-                if idx.size == 0:
-                    break
-                cand = np.broadcast_to(np.arange(len(mid)), (idx.size, len(mid)))
-                step = cand != last[idx][:, None]
-                parents, nxt = np.repeat(idx, len(mid))[step.ravel()], cand[step]
-                states += parents.size
-                if states > max_states:
-                    open_bound = max(open_bound, float(spectral_norm(X[idx]).max()))
-                    break
-                X = X[parents] @ P[np.array(mid)[nxt]]
-                last, mask = nxt, mask[parents] | (1 << nxt)
-                history.append((parents, nxt))
-    exact = open_bound <= best
-    return RhoResult(max(best, 0.0), exact, evaluated, worst, max(best, open_bound, 0.0))
-
-
-def _trace_word(history: list, index: int, letters: list[int]) -> tuple[int, ...]:
-    """The middle word of frontier entry `index` at the last level of `history`."""
-    out = []
-    for parents, letter in reversed(history):
-        out.append(letters[int(letter[index])])
-        index = int(parents[index])
-    return tuple(reversed(out))
-
-
-def count_complete_repeat_free_words(m: int, max_len: int) -> int:
-    """Number of repeat-free words over m letters of length <= max_len containing every letter
-    (inclusion-exclusion; the regression value for m = 4, max_len = 10 is 105,936)."""
-    total = 0
-    for L in range(1, max_len + 1):
-        for k in range(m + 1):
-            # words over a fixed k-letter subset, repeat-free, length L: k (k-1)^(L-1)
-            words = k * (k - 1) ** (L - 1) if k > 0 else 0
-            total += (-1) ** (m - k) * math.comb(m, k) * words
-    return total
 
 
 # -- α (18 / Lemma 5), q (22), σ (26), q (27) ----------------------------------------------------
@@ -545,34 +394,56 @@ def readable_int(q: int) -> str:
     return f"{digits[0]}.{digits[1:4]}e{len(digits) - 1}"
 
 
+def exact_decimal(value: float) -> Decimal:
+    """The exact value of a float as a Decimal (its binary expansion, not the shortest decimal that
+    rounds to it: repr(0.1) is '0.1', the float is 0.1000000000000000055511151231257827...)."""
+    return Decimal(float(value))
+
+
+def _ratio_and_rounding(num: tuple[float, float, float], u: Decimal, digits: int) -> tuple[Decimal, int, int]:
+    """r = (λ + ||A||)T / (-ln(1 - u)) with the floats' exact values, and ceil(r), floor(r), carrying
+    `digits` + 60 significant digits (`digits` about those of r's integer part); where r falls within
+    10^-40 of an integer the rounding could depend on the last digits, so 100 more are carried."""
+    lam, norm_A, T = (exact_decimal(v) for v in num)
+    prec = digits + 60
+    while True:
+        with localcontext() as ctx:
+            ctx.prec = prec
+            r = (lam + norm_A) * T / _ln1p_neg(+u)
+            ceil, floor = int(r.to_integral_value(rounding="ROUND_CEILING")), int(r.to_integral_value(rounding="ROUND_FLOOR"))
+            if min(r - floor, ceil - r) > Decimal(10) ** -40 or ceil == floor:
+                return r, ceil, floor
+        prec += 100
+
+
 def sufficient_q(rho: float, m: int, norm_A: float, lam: float, T: float, *, prec: int | None = None) -> SufficientQ:
     """α = 1 - (m-1)(1-ρ)/m^{(m-1)²} (Lemma 5) and as printed in (18), 1 - (m-1)(1-ρ)/(m(m-1)²);
-    r = (λ + ||A||)T / ln(1/α) and the three q variants, all in exact decimal arithmetic so that
-    nothing overflows or rounds 1 - α to zero (1 - α ≈ m^{-(m-1)²})."""
+    r = (λ + ||A||)T / ln(1/α) and the three q variants, in decimal arithmetic on the inputs' exact
+    binary values with enough digits that ceil(r) and floor(r), hence the q's, are exact integers
+    (nothing overflows or rounds 1 - α to zero: 1 - α ≈ m^{-(m-1)²}). `prec` adds digits."""
     if m < 2:
         raise ValueError("m >= 2 (for m = 1, P_1 = 0 and q = 1 suffices)")
     N = (m - 1) ** 2 + 1
-    def exact(value: float) -> Decimal:
-        return Decimal(repr(float(value)))
-
-    num_f = (exact(lam) + exact(norm_A)) * exact(T)
+    extra = prec or 0
     with localcontext() as ctx:
-        # the printed α is not close to 1: r has few digits, 60 more make ceil/floor exact
-        ctx.prec = prec or int(math.log10(m * (m - 1) ** 2 + 1)) + 60
-        up = Decimal(m - 1) * (Decimal(1) - exact(rho)) / (Decimal(m) * Decimal(m - 1) ** 2)
-        rp = num_f / _ln1p_neg(up)
-        cp, fp = int(rp.to_integral_value(rounding="ROUND_CEILING")), int(rp.to_integral_value(rounding="ROUND_FLOOR"))
-        alpha_p = Decimal(1) - up
+        ctx.prec = 1200                                        # a float's expansion has at most 1,075 digits: exact
+        one_minus_rho = Decimal(1) - exact_decimal(rho)
+        up = Decimal(m - 1) * one_minus_rho / (Decimal(m) * Decimal(m - 1) ** 2)
+    # the printed α is not close to 1: r has few digits
+    rp, cp, fp = _ratio_and_rounding((lam, norm_A, T), up, int(math.log10(m * (m - 1) ** 2 + 1)) + extra)
+    alpha_p = Decimal(1) - up
+    digits = int((m - 1) ** 2 * math.log10(m)) + extra          # r of Lemma 5 has about (m-1)² log10(m) digits
     with localcontext() as ctx:
-        # r of Lemma 5 has about (m-1)² log10(m) integer digits: carry 60 more so that ceil/floor are exact
-        ctx.prec = prec or int((m - 1) ** 2 * math.log10(m)) + 60
-        u5 = Decimal(m - 1) * (Decimal(1) - exact(rho)) / Decimal(m) ** ((m - 1) ** 2)
-        r5 = (exact(lam) + exact(norm_A)) * exact(T) / _ln1p_neg(u5)    # ln by its series: 1 - α is tiny for m >= 4
-        c5, f5 = int(r5.to_integral_value(rounding="ROUND_CEILING")), int(r5.to_integral_value(rounding="ROUND_FLOOR"))
-        # log10(1 - α) from the decimal exponent and the leading digits (Decimal.log10 at thousands of digits is slow)
-        log10_u5 = math.log10(float(u5.scaleb(-u5.adjusted()))) + u5.adjusted() if u5 > 0 else -math.inf
-        return SufficientQ(Decimal(1) - u5, alpha_p, log10_u5, r5, rp, N * c5 + 1, N * (c5 + 1), N * (f5 + 1),
-                           N * cp + 1, N * (fp + 1), N * (cp + 1))
+        ctx.prec = digits + 1200
+        u5 = Decimal(m - 1) * one_minus_rho / Decimal(m) ** ((m - 1) ** 2)
+    r5, c5, f5 = _ratio_and_rounding((lam, norm_A, T), u5, digits)    # ln by its series: 1 - α is tiny for m >= 4
+    # log10(1 - α) from the decimal exponent and the leading digits (Decimal.log10 at thousands of digits is slow)
+    log10_u5 = math.log10(float(u5.scaleb(-u5.adjusted()))) + u5.adjusted() if u5 > 0 else -math.inf
+    with localcontext() as ctx:
+        ctx.prec = digits + 1200
+        alpha5 = Decimal(1) - u5
+    return SufficientQ(alpha5, alpha_p, log10_u5, r5, rp, N * c5 + 1, N * (c5 + 1), N * (f5 + 1),
+                       N * cp + 1, N * (fp + 1), N * (cp + 1))
 
 
 #: memory of one batch of the matrices P (M_G ⊗ I) whose norms give σ
@@ -607,9 +478,23 @@ def _r_symmetric(sigma: float, norm_A: float, lam: float, T: float) -> float:
     return 0.0 if sigma == 0.0 else (lam + norm_A) * T / -math.log(sigma)
 
 
+def _symmetric_rounding(sigma: float, norm_A: float, lam: float, T: float) -> tuple[int, int]:
+    """ceil and floor of r = (λ + ||A||)T / ln(1/σ), exactly (decimal arithmetic on the floats' values)."""
+    _r_symmetric(sigma, norm_A, lam, T)                          # the range check
+    if sigma == 0.0:
+        return 0, 0
+    with localcontext() as ctx:
+        ctx.prec = 1200
+        u = Decimal(1) - exact_decimal(sigma)
+    digits = max(0, int(math.log10(max(_r_symmetric(sigma, norm_A, lam, T), 1.0)))) + 2
+    _, ceil, floor = _ratio_and_rounding((lam, norm_A, T), u, digits)
+    return ceil, floor
+
+
 def q_symmetric(sigma: float, norm_A: float, lam: float, T: float) -> int:
-    """Smallest integer q with q > ceil((λ + ||A||)T / ln(1/σ))  (27); σ = 0 (every P_i = 0) gives 1."""
-    return int(math.ceil(_r_symmetric(sigma, norm_A, lam, T))) + 1
+    """Smallest integer q with q > ceil((λ + ||A||)T / ln(1/σ))  (27); σ = 0 (every P_i = 0) gives 1.
+    Exact (the rounding is decided in decimal arithmetic, not on the float r)."""
+    return _symmetric_rounding(sigma, norm_A, lam, T)[0] + 1
 
 
 def r_symmetric(sigma: float, norm_A: float, lam: float, T: float) -> float:
@@ -618,5 +503,5 @@ def r_symmetric(sigma: float, norm_A: float, lam: float, T: float) -> float:
 
 
 def q_symmetric_minimal(sigma: float, norm_A: float, lam: float, T: float) -> int:
-    """Smallest q with e^{||A||T} σ^q < e^{-λT} (the need stated before (27))."""
-    return int(math.floor(_r_symmetric(sigma, norm_A, lam, T))) + 1
+    """Smallest q with e^{||A||T} σ^q < e^{-λT} (the need stated before (27)), exact."""
+    return _symmetric_rounding(sigma, norm_A, lam, T)[1] + 1

@@ -2,7 +2,7 @@
 non-streamable part does not fit the memory budget): seconds and peak memory from the
 scenario's sizes, without simulating.
 
-Time: the design (ρ's branch and bound, σ's enumeration), the sampled Lemma 5/6 checks, and
+Time: the design (ρ's search within its budget, σ's enumeration), the sampled Lemma 5/6 checks, and
 per run the interval plan (A(s), B(s), G(s) once per distinct weight sequence) and the trials:
 every time instant (sample or event) costs a fixed overhead per chunk of trials and B D² for
 the propagation of the B trials' states, every estimator iteration a fixed overhead and
@@ -23,7 +23,7 @@ from dse.contract.cost import MIB, Cost
 from dse.contract.options import RunOptions
 
 from . import simulation
-from .scenario import SIGMA_MAX_AGENTS, HybridFile
+from .scenario import HybridFile
 
 #: fitted CPU seconds (this machine, one BLAS thread): per time instant and chunk, per trial·D² of the
 #: propagation, per iteration and chunk, per trial·(mn)² of an iteration, per event index and chunk, per
@@ -35,12 +35,14 @@ ITERATION_FLOP_S = 5e-11
 EVENT_S = 3.8e-4
 EVENT_FLOP_S = 9.1e-11
 SAMPLE_CHECK_S = 4.2e-8
-#: design: fixed, per prefix of ρ's branch and bound, per flop of σ and of the Lemma 5/6 samples
+#: design: fixed; ρ's search: per prefix examined (times 1 + n³/40, its products and norms), per subset of
+#: letters and letter of the tail bounds (times 1 + n³/8,000); then per flop of σ and of the Lemma 5/6 samples
 DESIGN_S = 0.1
 RHO_PREFIX_S = 6e-7
 #: per multiply-add of the integer matrix products that test the strong connectivity of the sampled graphs
 #: (numpy's integer matmul, no BLAS): 4,059 graphs of 64 agents take 4.1 s (`design.lemma_samples`)
 SCC_OP_S = 5.5e-10
+RHO_TAIL_S = 2.5e-5
 #: Section 4's model-mismatch demonstration (two filterpy Kalman filters over 2,000 steps; the paper's extras)
 MISMATCH_S = 0.4
 #: outputs: per figure, per recording, per table row (build and write)
@@ -61,16 +63,35 @@ def _flop_s(mn: int) -> float:
 
 
 def design_seconds(sc: HybridFile, extras: bool) -> float:
-    import dse.estimators.jointly_observable_design as jd
+    from .design import connected_graph_count, sigma_skip_reason
 
     m, n = sc.m, sc.n
     mn = m * n
     N = (m - 1) ** 2 + 1
-    prefixes = min(jd.count_complete_repeat_free_words(min(m, 6), min(N, 26)), 2_000_000) if m > 4 else 1e4
-    seconds = DESIGN_S + prefixes * RHO_PREFIX_S * (1 + extras * m)
-    if m <= SIGMA_MAX_AGENTS:
-        seconds += len(jd.connected_undirected_graphs(m)) * mn ** 3 * _flop_s(mn)
+    seconds = DESIGN_S + rho_seconds(m, n, N) * (1 + extras * m)
+    if sigma_skip_reason(m, n) is None:                  # σ is enumerated (design.sigma_skip_reason)
+        seconds += connected_graph_count(m) * mn ** 3 * _flop_s(mn)
     return seconds + sample_seconds(sc) + (0.25 if extras else 0.0)
+
+
+def rho_seconds(m: int, n: int, N: int) -> float:
+    """An upper estimate of ρ's search (dse/estimators/projection_products.py): the prefixes it may
+    examine (its budget, or every repeat-free word when fewer) and the tail bounds over the subsets
+    of at most TAIL_MAX_LETTERS letters (m distinct letters at most)."""
+    import dse.estimators.projection_products as pp
+
+    # up to 4 agents the search examines about a hundred prefixes (96 at most over 160 random cases): 10^4 bounds it
+    prefixes = min(jd_words(m, N), pp.prefix_budget(n)) if m > 4 else 10 ** 4
+    tails = (2 ** m * m if m <= pp.TAIL_MAX_LETTERS else 0) * RHO_TAIL_S * (1 + n ** 3 / 8000)
+    return prefixes * RHO_PREFIX_S * (1 + n ** 3 / 40) + tails
+
+
+def jd_words(m: int, N: int) -> int:
+    """Complete repeat-free words of length <= N over m letters (a bound of the search's prefixes; capped
+    at 10^9 beyond m = 6)."""
+    import dse.estimators.projection_products as pp
+
+    return pp.count_complete_repeat_free_words(m, N) if m <= 6 else 10 ** 9
 
 
 def sample_seconds(sc: HybridFile) -> float:

@@ -73,6 +73,8 @@ def design_quantities(sc: HybridFile, seed: int, extras: bool = False) -> dict[s
     out["rho"], out["rho_exact"], out["rho_words"] = np.array(rho.rho), np.array(rho.exact), np.array(rho.words)
     out["rho_upper"] = np.array(rho.upper)
     out["rho_worst_word"] = np.array(rho.worst_word)
+    out["rho_prefixes"], out["rho_roundoff"] = np.array(rho.prefixes), np.array(rho.roundoff)
+    out["rho_distinct"], out["rho_merge_deviation"] = np.array(rho.distinct), np.array(rho.merge_deviation)
     if rho.upper < 1:           # (22) from the proven upper bound on ρ: a q that is sufficient for sure
         sq = jd.sufficient_q(rho.upper, m, nA, sc.lam, sc.T)
         out["alpha_lemma5_upper"] = np.array(float(sq.alpha_lemma5))
@@ -88,8 +90,11 @@ def design_quantities(sc: HybridFile, seed: int, extras: bool = False) -> dict[s
         out[f"r_printed_exact{label}"] = np.array(str(sq.r_printed))
         for k in Q_KEYS:
             out[f"{k}{label}"] = np.array(jd.exact_text(getattr(sq, k)))
-    graphs = jd.connected_undirected_graphs(m) if m <= SIGMA_MAX_AGENTS else None
-    if graphs is not None and len(graphs) * (m * n) ** 3 <= SIGMA_FLOPS:
+    skipped = sigma_skip_reason(m, n)
+    graphs = jd.connected_undirected_graphs(m) if skipped is None else None
+    if skipped is not None:
+        out["sigma_skipped_graphs"], out["sigma_skipped_reason"] = np.array(skipped[0]), np.array(skipped[1])
+    if graphs is not None:
         sig, worst, vals = jd.sigma_symmetric(d.P, graphs)
         out["sigma"], out["sigma_worst"], out["sigma_graphs"] = np.array(sig), np.array(worst), np.array(len(vals))
         out["sigma_worst_mask"] = graphs[worst]
@@ -105,6 +110,29 @@ def design_quantities(sc: HybridFile, seed: int, extras: bool = False) -> dict[s
     if extras:
         out.update(section5_design(sc, d, nA))
     return out
+
+
+def connected_graph_count(m: int) -> int:
+    """Connected labelled graphs on m vertices: all 2^C(m,2) graphs minus those whose vertex 1 lies in
+    a component of k < m vertices (1, 1, 4, 38, 728, 26,704, 1,866,256, 251,548,592, ...)."""
+    c = [0, 1]
+    for v in range(2, m + 1):
+        c.append(2 ** math.comb(v, 2) - sum(math.comb(v - 1, k - 1) * c[k] * 2 ** math.comb(v - k, 2)
+                                            for k in range(1, v)))
+    return c[m]
+
+
+def sigma_skip_reason(m: int, n: int) -> tuple[int, str] | None:
+    """Why σ of (26) is not enumerated (the number of connected graphs and a sentence), or None when it is."""
+    count = connected_graph_count(m)
+    if m > SIGMA_MAX_AGENTS:
+        return count, (f"σ of (26) is a maximum over every connected graph on m = {m} vertices: {count:,} graphs "
+                       f"(of 2^{math.comb(m, 2)} labelled graphs), beyond the enumeration limit m <= {SIGMA_MAX_AGENTS}; "
+                       f"(27) is not evaluated")
+    if count * (m * n) ** 3 > SIGMA_FLOPS:
+        return count, (f"σ of (26) needs {count:,} norms of {m * n} x {m * n} matrices, about "
+                       f"{count * (m * n) ** 3:.2g} flops > {SIGMA_FLOPS:.0e}; (27) is not evaluated")
+    return None
 
 
 def constants(design: dict, sc: HybridFile, run: RunSection) -> dict[str, float]:
@@ -131,6 +159,19 @@ def alpha_used(design: dict) -> tuple[float | None, str]:
         return float(design["alpha_lemma5_upper"]), (f"α = {float(design['alpha_lemma5_upper']):.12g} from the upper "
                                                     f"bound ρ <= {float(design['rho_upper']):.6g}")
     return None, "ρ is not bounded below 1 by the search"
+
+
+def alpha_power(design: dict, p: int) -> float:
+    """α^p of Lemma 5 for a run's comparison (20), p = floor(q/N): exactly 1 for p = 0 (whatever ρ);
+    else from the upper end of ρ's bracket, the safe one: α = 1 - (m-1)(1-ρ)/m^((m-1)²) grows with ρ,
+    so the α of an upper bound of ρ gives a bound α^p that holds for every ρ in the bracket (a larger,
+    weaker one). Without an upper bound below 1, α = 1: every step has |P(S⊗I)| <= 1, so 1 bounds
+    every product."""
+    if p == 0:
+        return 1.0
+    if "alpha_lemma5_upper" in design:
+        return float(design["alpha_lemma5_upper"]) ** p
+    return float(design["alpha_lemma5"]) ** p if bool(design["rho_exact"]) else 1.0
 
 
 # -- the sampled checks of Lemmas 5 and 6 ----------------------------------------------------------

@@ -6,10 +6,11 @@ that the agents' unobservable spaces are oblique and ρ of (17) is strictly betw
 agent sees a random nonempty set of J's blocks (rarely all of them), their union every block
 (joint observability). Graphs are strongly connected digraphs (a directed ring through a random
 order plus random arcs) or connected undirected graphs. The edge cases: five agents with ρ > 0
-(the q of (22) beyond simulation), six agents (ρ only bracketed), switching directed graphs,
+(the q of (22) beyond simulation), six agents sharing outputs (repeated projections), switching directed graphs,
 marginal A (an integrator chain too) and unstable A, q at the bound of (22) and (27) and one
 below, two agents, a scalar and a larger state, one iteration per interval, offsets with a
-leaving agent, and an input.
+leaving agent, and an input. `generate_many_agents` draws issue 26's class apart from these: 6 to
+8 agents of an oscillatory system in an orthonormal modal basis (ρ = 0 up to round-off).
 """
 from __future__ import annotations
 
@@ -205,3 +206,45 @@ def _runs(rng, e: str, m: int, n: int, T: float, q: int, q22, q27, intervals: in
         runs.append({"name": "input", "timing": "sync", "switching": switching, "noise": True,
                      "intervals": min(intervals, 10)})
     return runs
+
+
+def generate_many_agents(seed: int, m: int | None = None, blocks: int | None = None) -> dict[str, Any]:
+    """Issue 26's class: 6 to 8 agents of an oscillatory system (rotation blocks, damped or marginal)
+    in an orthonormal modal basis, each agent observing a random proper subset of the blocks (every
+    block observed by someone), so that ρ of (17) is 0 up to round-off and several agents share a
+    projection; directed strongly connected graphs; q far below the N = (m-1)²+1 of (19) (p = 0).
+    `m` and `blocks` fix the agents and the rotation blocks (σ of (26) over 26,704 graphs for 6 agents, and
+    Lemma 5's sampled products of N = 50 steps for 8 agents with 6 states, take seconds)."""
+    rng = np.random.default_rng([seed, 26])
+    m = int(rng.integers(6, 9)) if m is None else m
+    blocks = int(rng.integers(2, 4)) if blocks is None else blocks
+    n = 2 * blocks
+    V, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    J = np.zeros((n, n))
+    for b in range(blocks):
+        re, om = -round(float(rng.uniform(0.0, 0.3)), 3), round(0.4 + b + float(rng.uniform(0.0, 0.5)), 3)
+        J[2 * b:2 * b + 2, 2 * b:2 * b + 2] = [[re, om], [-om, re]]
+    sees = [{int(b)} for b in rng.permutation(m) % blocks]           # every block, at least twice over 6+ agents
+    for s in sees:
+        s.update(b for b in range(blocks) if rng.random() < 0.3)
+        if len(s) == blocks:
+            s.discard(int(rng.choice(sorted(s))))
+    C = [(rng.standard_normal((1, 2 * len(s))) @ np.vstack([V.T[2 * b:2 * b + 2] for b in sorted(s)])).tolist()
+         for s in sees]
+    T = int(rng.integers(20, 61)) / 100
+    lam = round(float(rng.uniform(0.2, 0.8)), 3)
+    q = int(rng.integers(2, 12))
+    graphs = [_graph(rng, m, float(rng.uniform(0.0, 0.3)), False) for _ in range(int(rng.integers(1, 3)))]
+    switching = "alternate_interval" if len(graphs) > 1 else "fixed"
+    Delta = T / (q + 1)
+    common = {"switching": switching, "Delta": Delta, "beta": Delta / 4}
+    return {"family": "hybrid-observer", "name": f"gen_many_agents_{seed}",
+            "system": {"A": (V @ J @ V.T).tolist(), "C": C},
+            "design": {"T": T, "q": q, "lambda": lam, "lambda_bar": round(lam * 1.5, 3)},
+            "graphs": {"neighbors": graphs},
+            "initial": {"x0": rng.standard_normal(n).tolist(), "xhat0": rng.standard_normal((m, n)).tolist()},
+            "monte_carlo": {"trials": 4, "quick_trials": 4, "scale": 2.0},
+            "runs": [{"name": "sync", "timing": "sync", **common, "intervals": 5, "monte_carlo": True},
+                     {"name": "ideal", "timing": "sync", **common, "ideal": True, "intervals": 4},
+                     {"name": "async", "timing": "async", **common, "intervals": 5, "reference_run": "sync",
+                      "epsilon": [round(float(rng.uniform(0, Delta / 10)), 15) for _ in range(m)]}]}

@@ -23,7 +23,7 @@ from dse.simulate.seeding import stream_seed
 from dse.simulate.units import block_generator, run_units
 from dse.verify.rules import roundoff_tolerance
 
-from .design import alpha_used, constants
+from .design import alpha_power, constants
 from .monitor import ChunkMonitor, RunAccumulator
 from .scenario import HybridFile, RunSection
 
@@ -220,7 +220,6 @@ def simulate_run(sc: HybridFile, design: dict, run: RunSection, trials: int, see
     B_total = trials if run.monte_carlo else 1
     tol, _ = simulation_tolerance(sc, design, run, plan)
     k = constants(design, sc, run)
-    alpha, _ = alpha_used(design)
     N = (m - 1) ** 2 + 1
     ev = plan["event_ns"]
     eAT = scipy.linalg.expm(sc.A * (ho.to_ns(sc.T) / ho.NS))
@@ -242,8 +241,8 @@ def simulate_run(sc: HybridFile, design: dict, run: RunSection, trials: int, see
            "b": k["b"], "b_sym": k["b_sym"], "d": k["d"], "d_sym": k["d_sym"], "g": k["g"], "eps": run_epsilon(run),
            "noise": run.noise, "theorem": theorem, "restart": theorem and run.timing == "sync",
            "continuous": theorem and run.timing == "sync", "fit": theorem and run.timing == "sync",
-           "ideal": run.ideal and run.rule == "mean" and run.leave is None and not run.noise and alpha is not None,
-           "alpha_p": (alpha ** (run.q // N)) if alpha is not None else float("nan"),
+           "ideal": run.ideal and run.rule == "mean" and run.leave is None and not run.noise,
+           "alpha_p": alpha_power(design, run.q // N),
            "qQ": run.q * float(design["Q_mixed"]), "B_mixed": plan["B_mixed"],
            "symmetric": run.rule == "symmetric" and run.leave is None and not run.noise,
            "eq63": run.timing == "offset" and theorem,

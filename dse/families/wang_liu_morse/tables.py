@@ -23,7 +23,7 @@ from dse.outputs.tables import matrix_rows, spec
 
 from . import simulation
 from .monitor import COUNTS, MAXIMA, WORST
-from .design import Q_KEYS, alpha_used, constants, lambda_variants
+from .design import Q_KEYS, alpha_power, constants, lambda_variants
 from .stages import Parts
 
 SC = ("scenario", "", "scenario name (the paper's reproduction has 'paper' and 'generic')")
@@ -57,8 +57,8 @@ DESIGN = spec("design", "scalar design quantity (and λ for the ones that depend
     ("value", "as stated", "the value as a float (q values beyond 2^53 are rounded here: see exact)"),
     ("exact", "", "the exact value when it is an integer, a decimal or a word (empty otherwise)"),
     ("unit", "", "unit of the value"), ("definition", "", "what it is")],
-    "q and r are computed in exact decimal arithmetic (1 - α can be 10^-1000); ρ by exact branch and bound "
-    "(bracketed in [rho, rho_upper] when the search is cut).")
+    "q and r are computed in exact decimal arithmetic (1 - α can be 10^-1000); ρ by an exhaustive search "
+    "(bracketed in [rho, rho_upper] when the search is cut; rho_method says which and how many products).")
 GRAPHS = spec("graphs", "arc j -> i of a neighbour graph (j ∈ N_i, self-arcs not listed)", [
     SC, ("graph", "1", "graph index (1-based, as in runs.graph)"), ("name", "", "graph name"),
     ("receiver", "1", "agent i"), ("sender", "1", "agent j")])
@@ -83,7 +83,8 @@ RUNS = spec("runs", "simulated run", [
     ("d_sym", "1", "d with b_sym: the 2-norm constant of the symmetric case"),
     ("g", "1", "2mq||A||e^(||A||(T+β)) of (62)-(63)"), ("decay", "1", "e^(-λT), the bound of (44) and (54)"),
     ("p", "1", "floor(q/N), N = (m-1)²+1: the blocks of (20)"),
-    ("alpha_p", "1", "α^p with the Lemma-5 α (of ρ's upper bound when ρ is bracketed)")])
+    ("alpha_p", "1", "α^p with the Lemma-5 α of ρ's upper end (the safe one: α grows with ρ); 1 for p = 0, and 1 "
+                     "when no upper bound of ρ below 1 is known (every step has |P(S⊗I)| <= 1)")])
 EVENT_TIMES = spec("event_times", "event time t_is of an agent in a run", [
     SC, RUN, AGENT, ("s", "1", "event index (0: the start t_i0)"), ("t", "time", "t_is = t_i0 + sT"),
     ("t_ns", "ns", "the same in integer nanoseconds, as simulated")])
@@ -228,9 +229,10 @@ def _design_rows(name: str, dz: dict, sc) -> list[dict]:
     add("Q_mixed", dz["Q_mixed"], "|Q| (mixed norm of diag(Q_i))"), add("Q_2", dz["Q_2"], "||Q||_2")
     add("c", float(np.max(dz["c_i"])), "max_i c_i of (15)")
     add("rho", dz["rho"], "ρ of (17) (the largest product norm found: exact when rho_exact = 1)")
-    add("rho_upper", dz["rho_upper"], "a proven upper bound of ρ")
-    add("rho_exact", bool(dz["rho_exact"]), "1 when the branch and bound finished (ρ exact)")
-    add("rho_words", dz["rho_words"], "products evaluated by the branch and bound")
+    add("rho_upper", dz["rho_upper"], "a proven upper bound of ρ (at most rho + rho_roundoff when rho_exact = 1)")
+    add("rho_exact", bool(dz["rho_exact"]), "1 when the exhaustive search finished (ρ exact)")
+    add("rho_words", dz["rho_words"], "complete products evaluated by the search")
+    _rho_method_rows(add, dz, N)
     word = " ".join(str(int(x) + 1) for x in np.atleast_1d(dz["rho_worst_word"]))
     add("rho_witness_length", len(np.atleast_1d(dz["rho_worst_word"])),
         "the word P_i1 ··· P_ik attaining ρ (exact: the agents, in order)", exact=word)
@@ -254,6 +256,9 @@ def _design_rows(name: str, dz: dict, sc) -> list[dict]:
         for k in Q_KEYS:
             q = str(dz[f"{k}{label}"])
             add(k, as_float(q), defs[k], lam=lam, exact=q)
+    if "sigma_skipped_reason" in dz:
+        add("sigma_not_enumerated", dz["sigma_skipped_graphs"], "σ of (26) and q of (27) are not computed: the value "
+            "is the number of connected graphs on m vertices, exact gives the reason", exact=str(dz["sigma_skipped_reason"]))
     if "sigma" in dz:
         add("sigma", dz["sigma"], "σ of (26): max over connected graphs G of ||P(M_G ⊗ I)||_2")
         add("sigma_graphs", dz["sigma_graphs"], "connected graphs on m vertices enumerated")
@@ -267,6 +272,26 @@ def _design_rows(name: str, dz: dict, sc) -> list[dict]:
                 add("q27_minimal", dz[f"q27_minimal{label}"], "the smallest q with e^(||A||T)σ^q < e^(-λT)", lam=lam,
                     exact=str(int(dz[f"q27_minimal{label}"])))
     return rows
+
+
+def _rho_method_rows(add, dz: dict, N: int) -> None:
+    """How ρ was obtained: the search's size, the letters it ran over and its round-off allowance."""
+    words, prefixes = int(dz["rho_words"]), int(dz["rho_prefixes"])
+    k, dev = int(dz["rho_distinct"]), float(dz["rho_merge_deviation"])
+    if bool(dz["rho_exact"]):
+        how = (f"exhaustive search: {words} complete word(s) and {prefixes} prefix(es) over {k} distinct projections; "
+               f"every other word extends a prefix whose proven bound is at most the best word + rho_roundoff")
+    else:
+        how = (f"bracket: the search stopped after {prefixes} prefix(es) ({words} complete word(s), {k} distinct "
+               f"projections); every word not evaluated extends an open prefix bounded by rho_upper")
+    add("rho_method", words + prefixes, "how ρ was proven; the value is the number of products examined "
+                                        "(complete words and prefixes)", exact=how)
+    add("rho_prefixes", prefixes, "partial products (prefixes) examined by the search")
+    add("rho_distinct", k, "distinct projections the words run over (agents whose P_i agree within 1e-10 are one)")
+    add("rho_merge_deviation", dev, f"largest ||P_i - P_r|| of an agent merged into agent r's class: ρ of the "
+                                    f"computed P_i is within N·{dev:.3g} = {N * dev:.3g} of rho")
+    add("rho_roundoff", dz["rho_roundoff"], "τ: a prefix whose bound is within τ of the best word is not extended "
+                                            "(round-off of N products and of the projections' common fixed spaces)")
 
 
 def _graph_tables(name: str, sc, dz: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -284,7 +309,6 @@ def _graph_tables(name: str, sc, dz: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
 
 
 def _runs(name: str, sc, dz: dict) -> pd.DataFrame:
-    alpha, _ = alpha_used(dz)
     N = (sc.m - 1) ** 2 + 1
     rows = []
     for run in sc.runs:
@@ -298,7 +322,7 @@ def _runs(name: str, sc, dz: dict) -> pd.DataFrame:
                      "rejoin_at": lv.rejoin if lv else math.nan, "leave_policy": lv.policy if lv else "",
                      "reference_run": run.reference_run, "b": k["b"], "c": k["c"], "d": k["d"], "b_sym": k["b_sym"],
                      "d_sym": k["d_sym"], "g": k["g"], "decay": math.exp(-sc.lam * sc.T), "p": run.q // N,
-                     "alpha_p": alpha ** (run.q // N) if alpha is not None else math.nan})
+                     "alpha_p": alpha_power(dz, run.q // N)})
     return pd.DataFrame(rows, columns=RUNS.column_names).astype({"leave_agent": "Int64"})
 
 

@@ -10,6 +10,7 @@ import numpy as np
 
 from dse.verify.rules import ERRATUM, FAIL, PASS, Verdict, identity, inequality, not_checkable, roundoff_tolerance
 
+from ..design import alpha_power
 from ..scenario import RunSection
 from ..simulation import is_theorem_run, run_epsilon
 from ..stages import Part, Parts
@@ -93,16 +94,18 @@ def check_c3(res: Parts) -> Verdict:
     out = []
     for label, r, run in cs.items:
         alpha, atext = alpha_used(r)
-        if alpha is None:
-            out.append((label, not_checkable(atext)))
-            continue
-        a = r.runs[run.name]
         N = (r.scenario.m - 1) ** 2 + 1
         p = run.q // N
+        if alpha is None and p > 0:
+            out.append((label, not_checkable(atext)))
+            continue
+        if alpha is None:
+            atext = "α^0 = 1 whatever ρ"
+        a = r.runs[run.name]
         _, text = simulation_tolerance(r, run)
         first = float(a["max_c3_piq1"]) / float(a["max_c3_pi01"])
         out.append((label, worst_verdict(a, "c3", detail=f"ē(0) = 0, p = floor(q/N) = {p}, {atext}, α^p = "
-                                                         f"{alpha ** p:.6g}; measured max_i||π(q)|| / max_i||π(0)|| in the "
+                                                         f"{alpha_power(r.design, p):.6g}; measured max_i||π(q)|| / max_i||π(0)|| in the "
                                                          f"first interval = {first:.3g}; the simulated ē is not exactly 0 "
                                                          f"(round-off, largest |ē(s)| = {float(a['max_eb_max']):.3g}), so "
                                                          f"its terms are added through (37)-(43): q|Q||ē(s-1)| for π(q), "

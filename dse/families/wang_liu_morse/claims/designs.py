@@ -150,8 +150,9 @@ def check_rho(res: Parts) -> Verdict:
         N = (m - 1) ** 2 + 1
         rho, up, exact = float(dz["rho"]), float(dz["rho_upper"]), bool(dz["rho_exact"])
         tol, text = roundoff_tolerance(scale=1.0, operations=N * n)
-        detail = (f"ρ {'= ' + format(rho, '.10g') if exact else f'in [{rho:.10g}, {up:.10g}]'} by branch and bound over "
-                  f"words whose first and last letters occur once ({int(dz['rho_words']):,} products evaluated), worst "
+        detail = (f"ρ {'= ' + format(rho, '.10g') if exact else f'in [{rho:.10g}, {up:.10g}]'} by an exhaustive search "
+                  f"over words whose first and last letters occur once ({int(dz['rho_words']):,} complete products and "
+                  f"{int(dz['rho_prefixes']):,} prefixes examined), worst "
                   f"word {[int(x) + 1 for x in dz['rho_worst_word']]}; {text}")
         if m <= 3:
             brute = brute_force_rho(r.design["P"])
@@ -220,7 +221,8 @@ def check_sigma(res: Parts) -> Verdict:
     for name, r in res.parts.items():
         dz = r.design
         if "sigma" not in dz:
-            out.append((name, not_checkable("m > 6: σ by enumeration of all connected graphs is not attempted")))
+            out.append((name, not_checkable(str(dz["sigma_skipped_reason"]) if "sigma_skipped_reason" in dz
+                                            else "σ of (26) is not computed")))
             continue
         sig = float(dz["sigma"])
         tol, text = roundoff_tolerance(scale=1.0, operations=r.scenario.m * r.scenario.n)

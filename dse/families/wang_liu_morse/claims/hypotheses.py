@@ -154,7 +154,8 @@ def q_eq27(r: Part, q: int) -> Holds:
     """q satisfies (27) for σ of (26) (all connected graphs on m vertices, m <= 6)."""
     dz, sc = r.design, r.scenario
     if "sigma" not in dz:
-        return Holds(None, q, None, f"σ of (26) is not computed for m = {sc.m} > 6 (enumeration of connected graphs)")
+        return Holds(None, q, None, str(dz["sigma_skipped_reason"]) if "sigma_skipped_reason" in dz
+                     else f"σ of (26) is not computed for m = {sc.m}")
     if "q27" not in dz:
         return Holds(None, q, None, f"σ = {float(dz['sigma']):.10g} is not below 1: (27) gives no q")
     need = int(dz["q27"])
