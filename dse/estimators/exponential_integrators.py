@@ -13,7 +13,7 @@ Al-Mohy & Higham 2011 for the block trick). Schemes built on them:
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import expm
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 
 def phi_functions(M: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -24,5 +24,5 @@ def phi_functions(M: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.n
     big[:d, :d] = h * M
     big[:d, d:2 * d] = np.eye(d)
     big[d:2 * d, 2 * d:] = np.eye(d)
-    X = expm(big)
+    X = scipy.linalg.expm(big)
     return X[:d, :d], X[:d, d:2 * d], X[:d, 2 * d:]

@@ -7,7 +7,7 @@ Q̄_ε = diag(ε_i I) + 2α (L ⊗ I) (time-varying roles), φ̄ from (15)-(16),
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import expm
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 from .input_state_coestimation import block_diag, error_matrix
 
@@ -123,7 +123,7 @@ def discrete_noise(S: np.ndarray, Qc: np.ndarray, dt: float) -> tuple[np.ndarray
     big[:d, :d] = -S
     big[:d, d:] = Qc
     big[d:, d:] = S.T
-    X = expm(big * delta)
+    X = scipy.linalg.expm(big * delta)
     Phi = X[d:, d:].T
     Qd = Phi @ X[:d, d:]
     Qd = (Qd + Qd.T) / 2
@@ -146,9 +146,9 @@ def discrete_noise_columns(S: np.ndarray, B: np.ndarray, dt: float, nodes: int =
     k = max(0, int(np.ceil(np.log2(norm / 0.5)))) if norm > 0.5 else 0
     delta = dt / 2 ** k
     x, w = np.polynomial.legendre.leggauss(nodes)
-    Y = np.stack([expm(S * (delta * (xj + 1) / 2)) @ B for xj in x])          # (nodes, d, C)
+    Y = np.stack([scipy.linalg.expm(S * (delta * (xj + 1) / 2)) @ B for xj in x])          # (nodes, d, C)
     Q = np.einsum("j,jdc,jec->cde", w * delta / 2, Y, Y)
-    Phi = expm(S * delta)
+    Phi = scipy.linalg.expm(S * delta)
     for _ in range(k):
         Q = np.matmul(np.matmul(Phi, Q), Phi.T) + Q
         Phi = Phi @ Phi

@@ -19,7 +19,7 @@ least this large.
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import expm
+import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily): `dse list` skips it
 
 from dse.contract.stages import stage
 from dse.estimators.kalman_bucy import kalman_bucy_riccati, kalman_bucy_steady
@@ -38,7 +38,7 @@ def van_loan(F: np.ndarray, Qc: np.ndarray, dt: float) -> tuple[np.ndarray, np.n
     d = F.shape[0]
     M = np.zeros((2 * d, 2 * d))
     M[:d, :d], M[:d, d:], M[d:, d:] = -F, Qc, F.T
-    X = expm(M * dt)
+    X = scipy.linalg.expm(M * dt)
     Phi = X[d:, d:].T
     Qd = Phi @ X[:d, d:]
     return Phi, (Qd + Qd.T) / 2
