@@ -199,7 +199,7 @@ class Accumulator:
             a["nees"][:, i] = per_unit(own)
             a["nees2"][:, i] = per_unit(own * own)
         if name in self.setup.exact_cov:
-            inv = np.linalg.inv(self.setup.exact_cov[name][k])
+            inv = _inverse_or_nan(self.setup.exact_cov[name][k])
             a["xnees"][:, i] = per_unit(np.einsum("inb,inm,imb->ib", err, inv, err))
 
 
@@ -446,6 +446,23 @@ def ks_test(x, y):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         return ks_2samp(x, y, method="exact" if max(len(x), len(y)) <= 2000 else "asymp")
+
+
+def _inverse_or_nan(covs: np.ndarray) -> np.ndarray:
+    """The inverses of a stack of covariances; NaN for one that is not finite or singular (a diverging
+    filter's exact covariance overflows): its NEES is then not finite, which the claims report."""
+    if np.isfinite(covs).all():
+        try:
+            return np.linalg.inv(covs)
+        except np.linalg.LinAlgError:
+            pass
+    out = np.full_like(covs, np.nan)
+    for i in np.flatnonzero(np.isfinite(covs).all(axis=(-2, -1))):
+        try:
+            out[i] = np.linalg.inv(covs[i])
+        except np.linalg.LinAlgError:
+            pass
+    return out
 
 
 def _start_at_error(run, x0: np.ndarray, x0_draw: np.ndarray) -> None:
