@@ -122,7 +122,8 @@ def _draw_the_rest(rng, data: dict[str, Any], e: str) -> None:
         data["sensors"]["assign"] = [int(t) for t in rng.integers(0, len(data["sensors"]["types"]), N)]
     weights, gains = data.setdefault("weights", {}), data.setdefault("gains", {})
     if rng.random() < 0.3:
-        weights["alpha"] = float(np.round(rng.uniform(0.2, 1.0) / max_degree(graph(data["graph"], min_nodes=2)), 4))
+        dmax = max_degree(graph(data["graph"], min_nodes=2))
+        weights["alpha"] = float(np.round(rng.uniform(0.2, 1.0) * min(0.5, 1.0 / dmax), 4))      # α <= 1/2, 1/d_max
     if rng.random() < 0.3:
         weights["kcf_epsilon"] = float(np.round(rng.uniform(0.02, 2.0), 3))
     if rng.random() < 0.3:
