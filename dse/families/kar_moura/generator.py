@@ -130,7 +130,7 @@ def _draw_the_rest(rng: np.random.Generator, data: dict, edge: str | None) -> No
     from dse.scenario.graphs import graph as graph_spec, random_graph_table
 
     N = len(data["sensors"]["types"])
-    if edge is None and rng.random() < 0.3:
+    if edge is None and rng.random() < 0.5:
         data["graph"] = random_graph_table(rng, N, N, kinds=("random_geometric",)) if N > 2 and rng.random() < 0.6 \
             else {"kind": "grid", "rows": 2 if N % 2 == 0 and N > 2 else 1, "cols": N // 2 if N % 2 == 0 and N > 2 else N}
         E = len(graph_spec(data["graph"], min_nodes=2).edge_array())

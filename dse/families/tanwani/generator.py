@@ -207,7 +207,7 @@ def _draw_the_rest(rng: np.random.Generator, data: dict, edge: str | None) -> No
     system["m0"] = [float(v) for v in np.round(rng.normal(0.0, 2.0, n) + np.sign(rng.normal(size=n)), 3)]
     if "P0" not in system and rng.random() < 0.5:
         system["P0"] = _m(_spd(rng, n, 10 ** rng.uniform(-1, 1)))
-    if edge is None and rng.random() < 0.3:
+    if edge is None and rng.random() < 0.5:
         data["graph"] = (random_graph_table(rng, N, N, kinds=("random_geometric",)) if N > 2 and rng.random() < 0.6
                          else {"kind": "grid", "rows": 2 if N % 2 == 0 and N > 2 else 1, "cols": N // 2 if N % 2 == 0
                                and N > 2 else N})

@@ -220,7 +220,7 @@ def _draw_the_rest(rng: np.random.Generator, data: dict[str, Any], edge: str | N
     from dse.scenario.graphs import random_graph_table
 
     N = len(data["nodes"]["type"])
-    if edge is None and rng.random() < 0.3:
+    if edge is None and rng.random() < 0.5:
         data["graph"] = random_graph_table(rng, N, N, kinds=("random_geometric",)) if N > 2 and rng.random() < 0.6 \
             else {"kind": "grid", "rows": 2 if N % 2 == 0 and N > 2 else 1, "cols": N // 2 if N % 2 == 0 and N > 2 else N}
     if rng.random() < 0.3:
