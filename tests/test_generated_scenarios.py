@@ -99,3 +99,23 @@ def test_every_generator_varies_every_declared_key(family):
     fixed = [k for k in _declared_keys(fam.scenario_model) if k not in KEPT_FIXED.get(family, set())
              and len({v for d in scenarios for v in _values(d, k.split("."))}) < 2]
     assert not fixed, f"{family}: the generator never varies {fixed}"
+
+
+def test_random_graph_tables_are_valid_connected_and_of_every_kind():
+    """`dse.scenario.graphs.random_graph_table`, which every generator draws graphs with."""
+    import math
+
+    import numpy as np
+
+    from dse.scenario.graphs import GRAPH_KINDS, graph, random_graph_table
+
+    rng, kinds = np.random.default_rng(5), set()
+    for lo, hi in ((2, 2), (2, 7), (3, 12), (5, 5)):
+        for _ in range(150):
+            table = random_graph_table(rng, lo, hi)
+            spec = graph(table, min_nodes=2)                   # valid and connected, or this raises
+            kinds.add(table["kind"])
+            # a ring has at least 3 nodes; a grid rounds n_min up to whole rows (at most rows − 1 beyond n_max)
+            top = {"ring": max(hi, 3), "grid": hi + math.isqrt(hi) - 1}.get(table["kind"], hi)
+            assert lo <= spec.n <= top, table
+    assert kinds == set(GRAPH_KINDS)
