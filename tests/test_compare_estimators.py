@@ -410,3 +410,38 @@ def test_every_filter_is_equivariant_so_error_coordinates_are_exact(link_kind):
             assert np.allclose(a - x[None], b, rtol=0, atol=1e-10 * (1 + np.abs(x).max())), type(plain).__name__
             if k + 1 < len(xs):
                 err.shift(-(xs[k + 1] - model.F @ x))                 # −w(k)
+
+
+def test_local_filters_exact_disagreement_matches_the_augmented_state_recursion():
+    """The local filters' exact disagreement (`network.local.joint_disagreement`, through the stacked errors)
+    against an independent computation: the uncentred second moment of (x, x̄_0, …, x̄_{N−1}) (state and
+    every node's prediction, with the prior mean x0 ≠ 0) propagated through the filters' affine steps, and
+    the disagreement read from the estimates' block through the centring projector I − 11ᵀ/N."""
+    from dse.estimators.network.local import joint_disagreement
+
+    model = small_model(4, seed=2, m=2)
+    N, n, K = model.N, model.n, 7
+    covs = model.local_covariances(K)
+    D = (N + 1) * n
+    z0 = np.concatenate([model.x0] * (N + 1))
+    M = np.outer(z0, z0)
+    M[:n, :n] += model.P0                                       # only x(0) is random; every x̄_i(0) = x0
+    center = np.eye(N) - np.ones((N, N)) / N
+    expected = []
+    for k in range(K):
+        A = np.zeros((D, D))                                    # (x, x̄_i) -> (x, x̂_i), plus Σ_i K_i v_i
+        A[:n, :n] = np.eye(n)
+        noise = np.zeros((D, D))
+        for i in range(N):
+            G, H, r = covs[i].gains[k], model.H[i], slice((i + 1) * n, (i + 2) * n)
+            A[r, :n] = G @ H
+            A[r, r] = np.eye(n) - G @ H
+            noise[r, r] = G @ model.R[i] @ G.T
+        M = A @ M @ A.T + noise
+        est = M[n:, n:].reshape(N, n, N, n)
+        expected.append(np.einsum("ij,iaja->", center, est) / N)
+        P = np.kron(np.eye(N + 1), model.F)                     # x ← F x + w, x̄_i ← F x̂_i
+        M = P @ M @ P.T
+        M[:n, :n] += model.Q
+    got = joint_disagreement(model, covs, K)
+    assert np.allclose(got, expected, rtol=1e-10, atol=1e-12 * np.max(np.abs(M)))

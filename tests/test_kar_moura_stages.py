@@ -78,3 +78,41 @@ def test_no_stage_imports_a_claims_module(st):
               ("claims", "hypotheses", "checking", "stats", "tables", "views", "cost", "family")
               or m.startswith(f"{PACKAGE}.claims_")}
     assert not claims, claims
+
+
+@pytest.mark.parametrize("edge", ["stable-f", "c1-fail-oblique", "actuators"])
+def test_centralized_reference_and_class_floors_start_from_the_declared_prior(edge):
+    """The centralized filter's prior covariances P_c(t) and each class floor, on a generated scenario with a prior
+    mean x0 ≠ 0 and a non-identity P0, against filterpy's KalmanFilter started from the declared P0 (an
+    independent implementation; the prior mean does not enter a covariance)."""
+    import numpy as np
+    import scipy.linalg
+    from filterpy.kalman import KalmanFilter
+
+    from dse import registry
+    from dse.families.kar_moura.generator import generate
+
+    data = generate(3, edge)
+    P0 = np.array(data["model"]["P0"])
+    assert np.any(np.array(data["model"]["x0"]) != 0) and not np.allclose(P0, np.eye(len(P0)))
+    sc = registry.from_dict(data).scenarios[0]
+    T = 12
+    b = bounds.__wrapped__(sc, T, False)
+    sys_ = sc.system
+
+    def filterpy_priors(C, R):
+        kf = KalmanFilter(dim_x=sc.M, dim_z=C.shape[0])
+        kf.F, kf.Q, kf.H, kf.R, kf.P = sc.F, sc.Q, C, R, P0.copy()
+        out = []
+        for _ in range(T + 1):
+            out.append(kf.P.copy())
+            kf.update(np.zeros(C.shape[0]))
+            kf.predict()
+        return np.array(out)
+
+    ref = filterpy_priors(sys_.C_all, sys_.R_all)
+    assert np.allclose(b["P_central"], ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    for c, cls in enumerate(sc.assumptions.classes):
+        idx = list(cls)
+        floor = filterpy_priors(sys_.C[idx].reshape(-1, sc.M), scipy.linalg.block_diag(*sys_.R[idx]))
+        assert np.allclose(b["P_floor"][:, c], floor, rtol=0, atol=1e-12 * np.abs(floor).max())

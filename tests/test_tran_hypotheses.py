@@ -40,6 +40,20 @@ def test_sup_over_the_whole_period(o, a, f, ph, period):
         assert short < 0.95 * bw.upper
 
 
+@pytest.mark.parametrize("o, a, f, ph, w_sup, wdot_sup", [
+    # w = sin t + ½ sin 2t: ẇ = cos t + cos 2t vanishes at cos t = ½, where w = 3√3/4; ẇ is largest at t = 0
+    ([0.0], [[1.0, 0.5]], [[1.0, 2.0]], [[0.0, 0.0]], 3 * np.sqrt(3) / 4, 2.0),
+    # w = (2 sin t, cos t): ‖w‖² = 1 + 3 sin² t, largest at sin t = ±1; ‖ẇ‖² = 1 + 3 cos² t
+    ([0.0, 0.0], [[2.0], [1.0]], [[1.0], [1.0]], [[0.0], [np.pi / 2]], 2.0, 2.0),
+])
+def test_sup_value_is_the_supremum_to_round_off(o, a, f, ph, w_sup, wdot_sup):
+    """The search stops when its bracket is 1e-8 wide; the supremum it reports (`value`) is then found by
+    local ascent to round-off, inside the certified bracket (closed forms)."""
+    for b, exact in zip(input_sup_bounds(*map(np.array, (o, a, f, ph))), (w_sup, wdot_sup)):
+        assert abs(b.value - exact) <= 4 * np.finfo(float).eps * exact, b.value - exact
+        assert b.lower <= b.value <= b.upper and exact <= b.upper <= exact * (1 + 1e-7)
+
+
 def test_sup_incommensurate_is_an_upper_bound():
     o, a = np.array([0.2]), np.array([[1.0, 0.5, 0.25]])
     f, ph = np.array([[1.0, np.sqrt(2), np.pi]]), np.array([[0.0, 1.0, 2.0]])

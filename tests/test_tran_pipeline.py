@@ -430,3 +430,17 @@ def test_a_nearly_singular_sensor_noise_leaves_the_kalman_bucy_reference_out_ins
     assert run.counts["error"] == 0 and run.counts["fail"] == 0
     nodes = run.tables["nodes"]
     assert nodes["kb_steady_trace"].isna().all()
+
+
+def test_input_suprema_are_written_to_round_off_and_the_bounds_use_their_certified_upper_ends(small_run):
+    """SMALL's input is w = 0.5 + sin(0.8 t): sup|w| = 1.5 and sup|ẇ| = 0.8 exactly. The table's value is the
+    supremum to round-off (it used to be the certified upper end, ≈1e-8 above); `upper` is that certified end and
+    w̄ is built from it."""
+    run, _ = small_run
+    b = run.tables["bounds"].set_index(["quantity", "variant"])
+    eps = np.finfo(float).eps
+    for q, exact in (("w_sup", 1.5), ("wdot_sup", 0.8)):
+        row = b.loc[(q, "")]
+        assert abs(row["value"] - exact) <= 4 * eps * exact, (q, row["value"] - exact)
+        assert row["lower"] <= row["value"] <= row["upper"] and exact <= row["upper"] <= exact * (1 + 1e-7)
+    assert b.loc[("wbar", ""), "value"] == max(b.loc[("w_sup", ""), "upper"], b.loc[("wdot_sup", ""), "upper"])

@@ -199,7 +199,7 @@ class Accumulator:
             a["nees"][:, i] = per_unit(own)
             a["nees2"][:, i] = per_unit(own * own)
         if name in self.setup.exact_cov:
-            inv = np.linalg.inv(self.setup.exact_cov[name][k])
+            inv = _inverse_or_nan(self.setup.exact_cov[name][k])
             a["xnees"][:, i] = per_unit(np.einsum("inb,inm,imb->ib", err, inv, err))
 
 
@@ -235,10 +235,10 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
     seconds = dict.fromkeys(runs, 0.0)
     # error coordinates (`protocol`): x ≡ 0, y = v, first prediction x0 − x(0), predictions shifted by −w;
     # the true state is kept for the sample trials only (recordings)
-    x0_draw = _factor(m.P0) @ plant.standard_normal((n,)).T
+    x0_draw = _factor(m.P0) @ plant.standard_normal((n,)).T             # x(0) − x0
     for parts in runs.values():
         for r, c in zip(parts, cuts):
-            r.shift(-x0_draw[:, c])
+            _start_at_error(r, m.x0, x0_draw[:, c])
     x_true = m.x0[:, None] + x0_draw[:, :setup.n_paths]
     Lq = _factor(m.Q)
     sigma = lm.noise_std
@@ -446,6 +446,32 @@ def ks_test(x, y):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         return ks_2samp(x, y, method="exact" if max(len(x), len(y)) <= 2000 else "asymp")
+
+
+def _inverse_or_nan(covs: np.ndarray) -> np.ndarray:
+    """The inverses of a stack of covariances; NaN for one that is not finite or singular (a diverging
+    filter's exact covariance overflows): its NEES is then not finite, which the claims report."""
+    if np.isfinite(covs).all():
+        try:
+            return np.linalg.inv(covs)
+        except np.linalg.LinAlgError:
+            pass
+    out = np.full_like(covs, np.nan)
+    for i in np.flatnonzero(np.isfinite(covs).all(axis=(-2, -1))):
+        try:
+            out[i] = np.linalg.inv(covs[i])
+        except np.linalg.LinAlgError:
+            pass
+    return out
+
+
+def _start_at_error(run, x0: np.ndarray, x0_draw: np.ndarray) -> None:
+    """Move a filter that starts at its prior mean x0 to the first prediction of error coordinates,
+    x0 − x(0) = −x0_draw: first by −x0 (x0 − x0 is exactly 0), then by −x0_draw, so that the error carries no
+    rounding of x0 + x0_draw."""
+    if np.any(x0 != 0):
+        run.shift(np.broadcast_to(-x0[:, None], x0_draw.shape))
+    run.shift(-x0_draw)
 
 
 def _factor(Q: np.ndarray) -> np.ndarray:

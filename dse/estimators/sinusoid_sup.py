@@ -23,7 +23,9 @@ with ‖R‖ ≤ ½ Σ_d A_d (Σ_j |K_dj| h_j)², A_d = ‖[c_d s_d]‖₂ (each
 has norm ≤ A_d); ‖F_c + J_c δ‖ is convex in δ, so its maximum over the box is at a vertex.
 This second-order bound makes the boxes that survive near a smooth maximum few. The search
 stops when upper − lower ≤ 1e-8 of the scale (or at a work budget): `upper` is always a
-rigorous bound, `lower` a value attained, and their difference is reported as the slack.
+rigorous bound, `lower` a value attained, and their difference is reported as the slack. The
+supremum itself (`value`) is then found to round-off by local ascent from the best boxes left:
+the maximum lies in one of them, and near a smooth maximum the ascent converges quadratically.
 """
 from __future__ import annotations
 
@@ -48,12 +50,19 @@ class SupBound:
     """sup_t ‖·‖₂ bracketed: lower ≤ sup ≤ upper. `method`: "constant", "period" (exact
     period 2π/ν₀ searched), "torus" (independent phases; an upper bound of the supremum
     over t) or "triangle" (more than MAX_TORUS_DIM incommensurate frequencies: the sum of the
-    amplitudes per component); `period`: the period of the signal in t (inf otherwise)."""
+    amplitudes per component); `period`: the period of the signal in t (inf otherwise).
+    `value`: the supremum to round-off (of the torus for "torus"): the maximum the final ascent
+    reached, attained and so also the lower end; for "triangle", where the supremum is not
+    computed, the upper bound."""
 
     upper: float
     lower: float
     method: str
     period: float
+
+    @property
+    def value(self) -> float:
+        return self.upper if self.method == "triangle" else self.lower
 
     @property
     def slack(self) -> float:
@@ -105,16 +114,18 @@ def _evaluate(o, c, s, K, x):
     return F, np.swapaxes(dtheta, 1, 2) @ K
 
 
-def _polish(o, c, s, K, starts) -> float:
-    """The largest ‖F‖ found by local ascent (BFGS) from the given points: a lower bound that lets the
-    branch and bound discard boxes early."""
+def _polish(o, c, s, K, starts, gtol: float = 1e-5) -> float:
+    """The largest ‖F‖ found by local ascent (BFGS, stopped at gradient norm `gtol`) from the given points:
+    a value attained. With the default, a lower bound that lets the branch and bound discard boxes early; with
+    a small `gtol` near a smooth maximum, the maximum to round-off (the error in ‖F‖ is of the order of
+    gtol² over the curvature)."""
     from scipy.optimize import minimize
 
     def neg(x):
         F, J = _evaluate(o, c, s, K, x[None])
         nf = float(np.linalg.norm(F[0]))
         return -nf, -(F[0] @ J[0]) / max(nf, 1e-300)
-    return max(-minimize(neg, x0, jac=True, method="BFGS").fun for x0 in starts)
+    return max(-minimize(neg, x0, jac=True, method="BFGS", options={"gtol": gtol}).fun for x0 in starts)
 
 
 def _branch_and_bound(o, c, s, K, width: float, grid: np.ndarray) -> tuple[float, float]:
@@ -147,7 +158,10 @@ def _branch_and_bound(o, c, s, K, width: float, grid: np.ndarray) -> tuple[float
             discarded = max(discarded, float(ub[~alive].max()))
         n_next = int(alive.sum()) * len(signs)
         if n_next == 0 or evaluated + n_next > MAX_BOXES:
-            return max(discarded, float(ub.max()), lower), lower
+            upper = max(discarded, float(ub.max()), lower)
+            # the maximum is in a box left (or within tol of `lower`): ascend from the best of them to round-off
+            best = centres[np.argsort(np.where(alive, vals, -np.inf))[-8:]]
+            return upper, min(max(lower, _polish(o, c, s, K, best, gtol=1e-10)), upper)
         centres = centres[alive]
         half = half / 2.0
         centres = (centres[:, None, :] + signs[None] * half).reshape(-1, Pdim)

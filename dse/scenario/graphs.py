@@ -6,6 +6,7 @@ Nodes are always the integers 0..n-1. Graph kinds: ``line`` (path), ``ring``, ``
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Literal, Mapping
 
@@ -247,3 +248,33 @@ def graph(data: Mapping[str, Any], field: str = "graph", *, connected: bool = Tr
     from dse.scenario.declare import parse
 
     return graph_from_section(parse(GraphSection, data, field), field, connected=connected, min_nodes=min_nodes)
+
+
+def random_graph_table(rng: np.random.Generator, n_min: int, n_max: int,
+                       kinds: tuple[str, ...] = GRAPH_KINDS) -> dict[str, Any]:
+    """A `[graph]` table of a connected graph of a kind drawn from `kinds`, with n_min..n_max nodes (n_min >= 2;
+    a ring gets at least 3, a grid as many as rows x cols allows): what the scenario generators draw so that
+    every kind and its keys (grid rows and cols, a random geometric graph's radius and seed, an explicit edge
+    list) are exercised. A random geometric radius grows until the graph is connected; an edge list is a
+    random spanning tree plus a few random chords."""
+    kind = str(kinds[int(rng.integers(0, len(kinds)))])
+    n = int(rng.integers(n_min, n_max + 1))
+    if kind == "ring":
+        return {"kind": kind, "n": max(n, 3)}
+    if kind in ("line", "complete"):
+        return {"kind": kind, "n": n}
+    if kind == "grid":
+        rows = int(rng.integers(1, math.isqrt(n_max) + 1))
+        lo = max(-(-n_min // rows), 2 if rows == 1 else 1)
+        return {"kind": kind, "rows": rows, "cols": int(rng.integers(lo, max(lo, n_max // rows) + 1))}
+    if kind == "random_geometric":
+        seed, radius = int(rng.integers(0, 10_000)), float(np.round(rng.uniform(0.3, 0.7), 3))
+        while not GraphSpec(kind, n, radius=radius, seed=seed).is_connected():
+            radius = float(np.round(radius * 1.25, 3))
+        return {"kind": kind, "n": n, "radius": radius, "seed": seed}
+    order = rng.permutation(n)
+    edges = {tuple(sorted((int(order[i]), int(order[rng.integers(0, i)])))) for i in range(1, n)}
+    for _ in range(int(rng.integers(0, n))):
+        u, v = (int(x) for x in rng.choice(n, 2, replace=False))
+        edges.add((min(u, v), max(u, v)))
+    return {"kind": "edges", "n": n, "edges": [list(e) for e in sorted(edges)]}

@@ -38,9 +38,36 @@ class LocalKalman(NetworkFilter):
         return np.einsum("inb,inm,imb->ib", err, self.P_inv[self.k], err)
 
 
+def joint_disagreement(model, covs, K: int) -> np.ndarray:
+    """(K,) the exact disagreement E (1/N) Σ_i ‖x̂_i − mean_j x̂_j‖² of the local filters.
+
+    The nodes' errors are correlated through x(0) and w, which they all filter: the joint second moment of
+    the stacked errors (`joint_moments`) starts at 1 1ᵀ ⊗ P0, each correction maps e_i to (I − K_i H_i) e_i
+    plus the node's own K_i v_i (independent across nodes), and the prediction is common to every node."""
+    from dse.estimators import joint_moments as jm
+
+    eye = np.eye(model.n)
+    S = jm.common_start(model.N, model.P0)
+    out = np.empty(K)
+    for k in range(K):
+        gains = np.stack([c.gains[k] for c in covs])                                  # (N, n, m)
+        S = jm.add_block_diagonal(jm.node_wise(eye - gains @ model.H, S),
+                                  gains @ model.R @ np.swapaxes(gains, 1, 2))
+        out[k] = jm.disagreement(S)
+        S = jm.state_wise(model.F, S, model.Q)
+    return out
+
+
 def exact(est, K: int) -> dict[str, np.ndarray]:
-    blocks = np.stack([c.P_post for c in est.network.model.local_covariances(K)], axis=1)
-    return {"blocks": blocks, "mse": np.einsum("kiaa->ki", blocks)}
+    """The nodes' own Riccati covariances (``blocks``, ``mse``) and, within the size of the joint recursion
+    (`Network.joint_size_reason`), the ``disagreement``."""
+    model = est.network.model
+    covs = model.local_covariances(K)
+    blocks = np.stack([c.P_post for c in covs], axis=1)
+    out = {"blocks": blocks, "mse": np.einsum("kiaa->ki", blocks)}
+    if not est.network.joint_size_reason():
+        out["disagreement"] = joint_disagreement(model, covs, K)
+    return out
 
 
 ESTIMATOR = NetworkEstimator(

@@ -5,7 +5,9 @@ a quick run of a couple of seconds, deterministic in (seed, edge). The edge case
 communication noise strong enough that it dominates Carli's filter; nodes that cannot detect the
 state alone (weak detectability); an unstable plant; two nodes; sensors with two rows; gains given
 by hand; Laplacian weights; exact recursions switched off by size; a restricted set of the registered
-estimators.
+estimators. Every scenario also draws what the edge cases leave at their defaults (`_draw_the_rest`): a prior
+mean x0 ≠ 0 and a prior covariance P0 ≠ I, a graph of any kind, and, each in some draws, the sensors' assignment,
+the pairwise weight α, the Kalman-consensus ε, the gain scales, the evaluation step and the sample paths.
 """
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from dse.estimators.network import registry
+from dse.scenario.graphs import graph, max_degree, random_graph_table
 
 EDGES: tuple[str, ...] = ("reliable_noisy_scalar", "failures", "matchings", "poisson", "poisson_noisy",
                           "weak_detectability", "unstable_plant", "two_nodes", "two_row_sensors", "given_gains",
@@ -67,6 +70,7 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
         "graph": {"kind": kind, "n": N},
         "simulation": {"steps": int(rng.integers(12, 25)), "trials": 600, "quick_trials": 600},
     }
+    _draw_the_rest(np.random.default_rng([seed, zlib.crc32((edge or "random").encode()), 1]), data, e)
     model = {"failures": "failures", "matchings": "matchings", "poisson": "poisson", "poisson_noisy": "poisson",
              "weak_detectability": "matchings"}.get(e) or ["reliable", "failures", "matchings", "poisson"][
         int(rng.integers(0, 4)) if not e else 0]
@@ -80,7 +84,7 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
     if e == "reliable_noisy_scalar":           # noise that dominates Carli's filter (Savas et al.'s Fig. 1 regime)
         links["rounds"] = 6
         links["noise_std"] = float(np.round(rng.uniform(2.5, 4.0), 3))
-        data["plant"] = {"F": [[1.0]], "Q": [[1.0]]}
+        data["plant"].update(F=[[1.0]], Q=[[1.0]])
         data["sensors"] = {"types": [{"H": [[1.0]], "R": [[25.0]]}]}
     data["links"] = links
     if e == "given_gains":
@@ -95,3 +99,39 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
         chosen = sorted(rng.choice(len(names), size=min(3, len(names)), replace=False))
         data["estimators"] = {"include": [names[i] for i in chosen]}
     return data
+
+
+def _spd(rng, n: int) -> list:
+    """A random prior covariance, neither the identity nor diagonal."""
+    A = rng.standard_normal((n, n))
+    return _matrix(np.round(rng.uniform(0.2, 4.0) * (A @ A.T / n + 0.3 * np.eye(n)), 4))
+
+
+def _draw_the_rest(rng, data: dict[str, Any], e: str) -> None:
+    """The keys the edge cases do not set, from their own stream (so that the draws above do not move): the
+    prior (x0 ≠ 0, P0 ≠ I) always; the graph's kind on unbiased draws (the edge cases keep their small
+    line or ring); the sensors' assignment, α, the Kalman-consensus ε, numeric gain scales, the evaluation
+    step and the sample paths in some draws each."""
+    n, plant, sim = len(data["plant"]["F"]), data["plant"], data["simulation"]
+    plant["x0"] = [float(v) for v in np.round(rng.normal(0.0, 3.0, n) + np.sign(rng.normal(size=n)), 3)]
+    plant["P0"] = _spd(rng, n)
+    if not e:
+        data["graph"] = random_graph_table(rng, 3, 7)
+    N = graph(data["graph"], min_nodes=2).n
+    if rng.random() < 0.3:
+        data["sensors"]["assign"] = [int(t) for t in rng.integers(0, len(data["sensors"]["types"]), N)]
+    weights, gains = data.setdefault("weights", {}), data.setdefault("gains", {})
+    if rng.random() < 0.3:
+        dmax = max_degree(graph(data["graph"], min_nodes=2))
+        weights["alpha"] = float(np.round(rng.uniform(0.2, 1.0) * min(0.5, 1.0 / dmax), 4))      # α <= 1/2, 1/d_max
+    if rng.random() < 0.3:
+        weights["kcf_epsilon"] = float(np.round(rng.uniform(0.02, 2.0), 3))
+    if rng.random() < 0.3:
+        gains["pairwise_scale"] = float(np.round(rng.uniform(0.3, 1.5), 3))
+    if "carli_scale" not in gains and rng.random() < 0.25:
+        gains.update(carli_scale=float(np.round(rng.uniform(0.2, 1.0), 3)),
+                     reinjection_scale=float(np.round(rng.uniform(0.2, 1.0), 3)),
+                     reinjection_zeta=float(np.round(rng.uniform(0.0, 1.0), 3)))
+    if rng.random() < 0.3:
+        sim["eval_step"] = int(rng.integers(1, sim["steps"]))
+    sim["paths"] = int(rng.integers(0, 3))

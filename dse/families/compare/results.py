@@ -11,7 +11,7 @@ from dse.estimators.network_comparison import Stats, stats
 
 from .design import Design
 from .scenario import CompareFile
-from .stages import exact_moments, filterpy_reference, monte_carlo, rebuilt, token_chain, tune
+from .stages import EARLY_STEPS, exact_moments, filterpy_reference, monte_carlo, rebuilt, token_chain, tune
 
 
 def design(sc: CompareFile, quick: bool, ctx: StageContext, estimators: tuple) -> Design:
@@ -51,9 +51,10 @@ class Results:
         return int(np.searchsorted(self.steps, self.scenario.simulation.eval_step))
 
     def check_indices(self) -> list[int]:
-        """Recorded steps at which the claims compare: the middle of the horizon and the evaluation step."""
+        """Recorded steps at which the claims compare: the first two (where a wrong start or a wrong first
+        prediction shows most), the middle of the horizon and the evaluation step."""
         s = self.scenario.simulation
-        return sorted(int(np.searchsorted(self.steps, k)) for k in {s.eval_step, s.steps // 2}
+        return sorted(int(np.searchsorted(self.steps, k)) for k in set(EARLY_STEPS) | {s.eval_step, s.steps // 2}
                       if k in set(self.steps.tolist()))
 
 

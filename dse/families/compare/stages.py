@@ -29,9 +29,13 @@ def token_times(sc: CompareFile) -> tuple[int, ...]:
     return tuple(sorted({max(1, K // 4), max(1, K // 2), K - 1}))
 
 
+#: the first steps, recorded and checked by the claims that compare the simulation with exact laws
+EARLY_STEPS = (0, 1)
+
+
 def recorded(sc: CompareFile) -> tuple[int, ...]:
     s = sc.simulation
-    return record_steps(s.steps, extra=(s.eval_step, s.steps // 2) + token_times(sc))
+    return record_steps(s.steps, extra=EARLY_STEPS + (s.eval_step, s.steps // 2) + token_times(sc))
 
 
 def rebuilt(sc: CompareFile, quick: bool, tuned: StageResult, estimators) -> Design:

@@ -79,7 +79,8 @@ SERIES = spec("series", "estimator and recorded step", [
     ("excess_mc", "state²", "node average of the mean ‖x̂_i − x̂_c‖²"),
     ("nees_mc", "1", "node average of the mean NEES with the estimator's own covariance"),
     ("disagreement_mc", "state²", "mean of (1/N) Σ_i ‖x̂_i − mean_j x̂_j‖²"),
-    ("disagreement_exact", "state²", "its exact value (empty without exact moments)")])
+    ("disagreement_exact", "state²", "its exact value from the joint recursion of the nodes' errors "
+     "(empty without exact moments, or when N n > simulation.exact_max_dimension)")])
 
 TOKEN = spec("token_law", "step of the GIKF token-law comparison", [
     _S, ("step", "", "time step k"), ("trials", "", "trials in each sample"),

@@ -22,7 +22,9 @@ counterexample:
 * ``sequence``: a replayed cycle of random matchings (nothing random: the law claims are not checkable,
   the pathwise ones are).
 
-Every scenario has a random prior mean x0 (drawn from its own stream, so the other draws do not move).
+Every scenario has a random prior mean x0 (drawn from its own stream, so the other draws do not move), and
+some have a random geometric or grid graph, a sensor `pattern`, other comparison protocols or expectations
+(`_draw_the_rest`).
 
 Scenarios are small (N ≤ 6, M ≤ 3, ≤ 60 slots, a few hundred runs) so that a quick run takes
 a few seconds.
@@ -115,7 +117,36 @@ def generate(seed: int, edge: str | None = None) -> dict:
     data["model"]["x0"] = [float(v) for v in extra.normal(0.0, 10.0, M)]
     if edge == "sequence":
         data["protocol"] = _sequence(extra, graph)
+    _draw_the_rest(np.random.default_rng([seed, 8]), data, edge)
     return data
+
+
+def _draw_the_rest(rng: np.random.Generator, data: dict, edge: str | None) -> None:
+    """The keys the draws above leave at their defaults, from a stream of their own (so that the draws above do
+    not move), each in some draws: a random geometric or grid graph of the same N (unbiased draws; a single-edge
+    protocol's edge_prob redrawn for its edges), the sensor types as a repeated `pattern`, the comparison's two
+    protocols swapped or a greedy-matching comparison (whose Ā differs: the hypothesis says so), and the
+    author's expectations (a wrong one makes the assumption checks not checkable, by design)."""
+    from dse.scenario.graphs import graph as graph_spec, random_graph_table
+
+    N = len(data["sensors"]["types"])
+    if edge is None and rng.random() < 0.5:
+        data["graph"] = random_graph_table(rng, N, N, kinds=("random_geometric",)) if N > 2 and rng.random() < 0.6 \
+            else {"kind": "grid", "rows": 2 if N % 2 == 0 and N > 2 else 1, "cols": N // 2 if N % 2 == 0 and N > 2 else N}
+        E = len(graph_spec(data["graph"], min_nodes=2).edge_array())
+        if data["protocol"]["kind"] == "single-edge":
+            data["protocol"]["edge_prob"] = float(rng.uniform(0.3, 1.0) / E)
+    if edge is None and rng.random() < 0.3:
+        types = data["sensors"].pop("types")
+        data["sensors"]["pattern"] = types[:int(rng.integers(1, len(types) + 1))]
+    if edge == "comparison" and rng.random() < 0.6:
+        if rng.random() < 0.5:
+            data["protocol"], data["comparison_protocol"] = data["comparison_protocol"], data["protocol"]
+        else:
+            data["comparison_protocol"] = {"kind": "greedy-matching", "p_link": float(rng.uniform(0.2, 0.9))}
+    if rng.random() < 0.2:
+        data["expect"] = {"c1": bool(rng.random() < 0.5), "d1": bool(rng.random() < 0.5),
+                          "diverges": bool(rng.random() < 0.5)}
 
 
 def _sizes(rng: np.random.Generator, edge: str | None) -> tuple[int, int, str, float, float]:

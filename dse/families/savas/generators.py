@@ -7,7 +7,7 @@ default `gains.rounds_max`, no communication noise, consensus matrices that are 
 stochastic but not normal (or normal but not symmetric), eigenvalues near −1, extreme noise
 intensities and ratios q/r, two agents, larger networks (where scipy's Lyapunov solver
 switches method), ℓ = 1, σ0 = 0, the evaluation step k = 0, and a horizon longer than the
-recorded steps (statistics kept at a subset of the steps).
+recorded steps (statistics kept at a subset of the steps). Every scenario has a prior mean x0_mean ≠ 0.
 """
 from __future__ import annotations
 
@@ -170,7 +170,23 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
     extra = d["extra"]
     sweep = {"rounds": d["rounds"], "sigma_c": d["sigma_c"], "n_steps": d["n_steps"], "eval_step": d["eval_step"],
              **extra.pop("sweep_extra", {})}
-    return {"family": FAMILY, "name": f"gen-{edge or 'random'}-{seed}", "graph": graph, "consensus": consensus,
+    data = {"family": FAMILY, "name": f"gen-{edge or 'random'}-{seed}", "graph": graph, "consensus": consensus,
             "model": {"q": d["q"], "r": d["r"], "sigma0": d["sigma0"]}, "sweep": sweep, "carli": {"ell": d["carli_ell"]},
             "reinjection": d["gains"], "monte_carlo": {"trials": int(rng.integers(200, 3001)),
                                                       "sample_paths": int(rng.integers(0, 3))}, **extra}
+    _draw_the_rest(np.random.default_rng([seed, EDGES.index(edge) + 1 if edge else 0, 1]), data)
+    return data
+
+
+def _draw_the_rest(rng: np.random.Generator, data: dict[str, Any]) -> None:
+    """The keys the draws above leave at their defaults, from a stream of their own (so that the draws above do
+    not move): the prior mean x0_mean ≠ 0 always; in some draws the gain grid, how long the sample trials are kept
+    and the quick runs' trials (equal to the trials, which stay below the default's cap)."""
+    data["model"]["x0_mean"] = float(np.round(rng.normal(0.0, 5.0) + np.sign(rng.normal()), 3))
+    if rng.random() < 0.3:
+        data.setdefault("gains", {})["grid"] = [int(rng.integers(41, 401)), int(rng.integers(41, 401))]
+    mc = data["monte_carlo"]
+    if rng.random() < 0.3:
+        mc["sample_steps"] = int(rng.integers(2, 101))
+    if rng.random() < 0.3:
+        mc["quick_trials"] = mc["trials"]

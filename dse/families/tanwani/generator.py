@@ -25,7 +25,8 @@ can mistake round-off, a heavy tail or an unmet hypothesis for a counterexample:
 * ``fast-rate``: a rate of a few hundred (stiff jump terms, singular perturbation).
 
 Graphs are drawn among lines, rings, stars, complete graphs and random trees with extra
-edges. Scenarios are small (n ≤ 3, N ≤ 5, horizon 2–3, a few hundred event-driven paths and a
+edges (and, in some unbiased draws, random geometric graphs and grids). Every scenario has a prior
+mean m0 ≠ 0; some have a full prior covariance P0, per-node P_i(0) ⪰ P0, a given α, λ sweep and title. Scenarios are small (n ≤ 3, N ≤ 5, horizon 2–3, a few hundred event-driven paths and a
 thousand gridded trials in quick runs) so that a quick run takes a few seconds.
 """
 from __future__ import annotations
@@ -186,7 +187,42 @@ def _draw(rng: np.random.Generator, edge: str | None) -> dict:
         data["system"]["P0"] = _m(np.diag(10 ** rng.uniform(-1, 1, n)))
     if gains == "given":
         _given_gains(rng, data, A)
+    _draw_the_rest(np.random.default_rng(rng.integers(2 ** 32)), data, edge)
     return {**data, "_rate": (fixed_rate, rate_factor), "_horizon": horizon}
+
+
+def _spd(rng: np.random.Generator, n: int, scale: float) -> np.ndarray:
+    Z = rng.normal(0, 1, (n, n + 1))
+    return scale * (Z @ Z.T / (n + 1) + 0.2 * np.eye(n))
+
+
+def _draw_the_rest(rng: np.random.Generator, data: dict, edge: str | None) -> None:
+    """The keys the draws above leave at their defaults, from a stream of their own (drawn last, so that the
+    draws above do not move): the prior mean m0 ≠ 0 always; in some draws a full prior covariance P0, every
+    node's P_i(0) ⪰ P0, α, the λ sweep, a title, and (unbiased draws) a random geometric or grid graph."""
+    from dse.scenario.graphs import graph as graph_spec, max_degree, random_graph_table
+
+    system, sensors, N = data["system"], data["sensors"], len(data["sensors"])
+    n = len(system["A"])
+    system["m0"] = [float(v) for v in np.round(rng.normal(0.0, 2.0, n) + np.sign(rng.normal(size=n)), 3)]
+    if "P0" not in system and rng.random() < 0.5:
+        system["P0"] = _m(_spd(rng, n, 10 ** rng.uniform(-1, 1)))
+    if edge is None and rng.random() < 0.5:
+        data["graph"] = (random_graph_table(rng, N, N, kinds=("random_geometric",)) if N > 2 and rng.random() < 0.6
+                         else {"kind": "grid", "rows": 2 if N % 2 == 0 and N > 2 else 1, "cols": N // 2 if N % 2 == 0
+                               and N > 2 else N})
+    if edge != "homogeneous" and rng.random() < 0.3:
+        P0 = np.asarray(system.get("P0", np.eye(n)), float)
+        for s in sensors:
+            s["P_init"] = _m(P0 + _spd(rng, n, 10 ** rng.uniform(-2, 0)))
+    if rng.random() < 0.3:
+        dmax = max_degree(graph_spec(data["graph"], min_nodes=2))
+        data["communication"]["alpha"] = round(float(rng.uniform(0.2, 1.0)) / dmax, 6)
+    if rng.random() < 0.3:
+        data["communication"]["sweep"] = [round(float(10 ** rng.uniform(-2, 0)), 4),
+                                          round(float(10 ** rng.uniform(3, 4)), 1), int(rng.integers(5, 16))]
+    if rng.random() < 0.3:
+        data["title"] = f"generated: {n} states, {N} nodes"
 
 
 def _given_gains(rng: np.random.Generator, data: dict, A: np.ndarray) -> None:

@@ -36,10 +36,11 @@ def directions(n: int) -> np.ndarray:
 
 
 def test_times(sc: RandomCommFile) -> np.ndarray:
-    """Indices (≥ 1) of at most MAX_TEST_TIMES output times spread evenly over (0, T]."""
+    """Indices (≥ 1) of at most MAX_TEST_TIMES output times spread evenly over (0, T], and the first output
+    time (where a wrong start, such as errors not starting at x(0) − m0, shows most)."""
     T = sc.n_outputs
     k = min(T, MAX_TEST_TIMES)
-    return np.unique(np.round(np.linspace(T / k, T, k)).astype(int))
+    return np.unique(np.r_[1, np.round(np.linspace(T / k, T, k)).astype(int)])
 
 
 def quadratic_forms(U: np.ndarray, X: np.ndarray) -> np.ndarray:

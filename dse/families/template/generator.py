@@ -6,6 +6,8 @@ from typing import Any
 
 import numpy as np
 
+from dse.scenario.graphs import random_graph_table
+
 EDGES = ("disconnected", "two_nodes", "one_round", "complete", "tiny_noise")
 
 
@@ -24,5 +26,11 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
         graph = {"kind": "complete", "n": n}
     elif edge == "tiny_noise":
         r = 1e-12
+    mc: dict[str, Any] = {"trials": 2000}
+    extra = np.random.default_rng([seed, EDGES.index(edge) + 1 if edge else 0, 1])   # draws that move no other
+    if edge is None and extra.random() < 0.5:
+        graph = random_graph_table(extra, 3, 8)        # every kind: grid, random geometric, an edge list too
+    if extra.random() < 0.3:
+        mc["quick_trials"] = int(extra.integers(500, 2001))
     return {"family": "template", "name": f"template-{edge or 'random'}-{seed}", "graph": graph,
-            "model": {"r": r, "rounds": rounds}, "monte_carlo": {"trials": 2000}}
+            "model": {"r": r, "rounds": rounds}, "monte_carlo": mc}

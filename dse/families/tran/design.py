@@ -259,12 +259,14 @@ def _bounds(sc: CoestimationFile, P: np.ndarray, cert: np.ndarray, eps_nodes: np
     """The input bounds over all t ≥ 0 (certified, with their slack), φ̄, λ(P), the Q̄_ε variants and (18)."""
     G, lap, q, N = gains(sc), sc.lap, sc.q, sc.N
     bw, bd = input_signal(sc).sup_bounds()
-    w_sup, wdot_sup = bw.upper, bd.upper
-    wbar = max(w_sup, wdot_sup)
+    # the bounds use the certified upper ends; the suprema themselves are reported to round-off
+    w_upper, wdot_upper = bw.upper, bd.upper
+    wbar = max(w_upper, wdot_upper)
     phi_i, phibar = lb.forcing_bound(G["sigma"], G["K"], wbar, wbar)
-    _, phibar_tight = lb.forcing_bound(G["sigma"], G["K"], w_sup, wdot_sup)
-    out = dict(w_sup=w_sup, w_sup_lower=bw.lower, wdot_sup=wdot_sup, wdot_sup_lower=bd.lower, w_method=np.array(bw.method),
-               w_period=bw.period, wbar=wbar, phibar_i=phi_i, phibar=phibar, phibar_tight=phibar_tight)
+    _, phibar_tight = lb.forcing_bound(G["sigma"], G["K"], w_upper, wdot_upper)
+    out = dict(w_sup=bw.value, w_sup_lower=bw.lower, w_sup_upper=w_upper, wdot_sup=bd.value, wdot_sup_lower=bd.lower,
+               wdot_sup_upper=wdot_upper, w_method=np.array(bw.method), w_period=bw.period, wbar=wbar, phibar_i=phi_i,
+               phibar=phibar, phibar_tight=phibar_tight)
     lamP = np.concatenate([np.linalg.eigvalsh(Pi) for Pi in P])
     alpha = sc.coupling.alpha
     ev_single = np.linalg.eigvalsh(lb.qbar_eps(np.full(N, eps_nodes.min()), lap, alpha, q))

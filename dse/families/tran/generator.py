@@ -9,7 +9,8 @@ infeasible (J_i far too large, or an unstable Ā_i(1)); inputs with several freq
 repeats long after t_end (beats, incommensurate frequencies); fixed and time-varying roles; 2 to 6
 nodes; P from the LMI, from (10) (with a random Q_i) or given; no noise (the stochastic runs are
 deterministic), very small and very large noise; a disconnected graph. Some scenarios start the nodes'
-estimates away from zero.
+estimates away from zero, and some draw the graph's kind, the comparison architecture, the steps and the
+reference's settings (`_draw_the_rest`).
 """
 from __future__ import annotations
 
@@ -110,9 +111,9 @@ def _graph(rng, N: int, edge: str | None) -> dict[str, Any]:
         return {"kind": "edges", "n": N, "edges": edges}
     kind = str(rng.choice(["line", "ring", "complete", "edges"])) if N >= 3 else "line"
     if kind == "edges":
-        edges = [[i, i + 1] for i in range(N - 1)] + [[int(a), int(b)] for a, b in
-                                                       rng.choice(N, size=(2, 2)) if a < b - 1]
-        return {"kind": "edges", "n": N, "edges": edges}
+        chords = [[int(a), int(b)] for a, b in rng.choice(N, size=(2, 2)) if a < b - 1]
+        edges = [[i, i + 1] for i in range(N - 1)] + [c for k, c in enumerate(chords) if c not in chords[:k]]
+        return {"kind": "edges", "n": N, "edges": edges}      # a chord drawn twice is listed once
     return {"kind": kind, "n": N}
 
 
@@ -206,7 +207,37 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
     if P_mode == "lyapunov":   # (10) is solved at the roles of the run
         data["fixed_roles"] = {"active": active}
     _initial_estimates_and_Q(data, seed, edge, types, N, n, p, P_mode)
+    _draw_the_rest(np.random.default_rng([seed, zlib.crc32((edge or "random").encode()), 2]), data, edge)
     return data
+
+
+def _draw_the_rest(rng: np.random.Generator, data: dict[str, Any], edge: str | None) -> None:
+    """The keys the draws above leave at their defaults, from a stream of their own (so that the draws above do
+    not move), each in some draws: a random geometric or grid graph of the same N (unbiased draws), the
+    comparison architecture's γ, α and P_lower, the integration steps (deterministic 0.005 or 0.01 s, stochastic
+    the same or twice it) and the recording interval (a multiple of both, dividing every horizon drawn), the
+    stored runs, and the centralized reference's step, random-walk intensity and fictitious noise."""
+    from dse.scenario.graphs import random_graph_table
+
+    N = len(data["nodes"]["type"])
+    if edge is None and rng.random() < 0.5:
+        data["graph"] = random_graph_table(rng, N, N, kinds=("random_geometric",)) if N > 2 and rng.random() < 0.6 \
+            else {"kind": "grid", "rows": 2 if N % 2 == 0 and N > 2 else 1, "cols": N // 2 if N % 2 == 0 and N > 2 else N}
+    if rng.random() < 0.3:
+        data["comparison"] = {"gamma": float(np.round(rng.uniform(0.02, 0.5), 3)),
+                              "alpha": float(np.round(rng.uniform(0.5, 30.0), 3)),
+                              "P_lower": float(np.round(10 ** rng.uniform(-4, -2), 6))}
+    sim, st = data["simulation"], data["stochastic"]
+    if rng.random() < 0.3:
+        sim["step"] = float(rng.choice([0.005, 0.01]))
+        st["step"] = float(sim["step"] * rng.choice([1, 2]))
+        sim["record_dt"] = 0.02                               # divides t_end ∈ {2, 3, 4} and quick_t_end = t_end / 2
+    if rng.random() < 0.3:
+        st["runs"] = int(rng.integers(1, min(st["quick_trials"], st["trials"], 4) + 1))
+    if rng.random() < 0.3:
+        data["reference"] = {"dt": float(sim.get("record_dt", 0.01) * rng.choice([1, 2])),
+                             "q_w": float(np.round(10 ** rng.uniform(-1, 1), 4)),
+                             "r_deterministic": float(np.round(10 ** rng.uniform(-6, -3), 9))}
 
 
 def _initial_estimates_and_Q(data: dict, seed: int, edge: str | None, types: dict, N: int, n: int, p: int,

@@ -91,7 +91,7 @@ def input_bound(d) -> Holds:
                     "of the supremum over t)",
            "constant": "the input is constant",
            "triangle": "by the sum of the amplitudes per component (many incommensurate frequencies)"}[method]
-    w, wl, wd, wdl = (float(d[k]) for k in ("w_sup", "w_sup_lower", "wdot_sup", "wdot_sup_lower"))
+    w, wl, wd, wdl = (float(d[k]) for k in ("w_sup_upper", "w_sup_lower", "wdot_sup_upper", "wdot_sup_lower"))
     ok = bool(np.isfinite(w) and np.isfinite(wd))
     return Holds(ok, value=float(d["wbar"]), threshold=max(wl, wdl),
                  detail=f"w̄ = max(sup‖w‖, sup‖ẇ‖) = {float(d['wbar']):.10g}: sup‖w‖ ∈ [{wl:.10g}, {w:.10g}], sup‖ẇ‖ ∈ "

@@ -63,8 +63,10 @@ NODE_DESIGN = spec("node_design", "node", [
     ("phibar_i", "input/s", "φ̄_i = σ_i‖K_i‖w̄ + w̄ (15)")])
 BOUNDS = spec("bounds", "design quantity (and its variant)", [
     SC, ("quantity", "", "name (see definition)"), ("variant", "", "which variant of it (empty: the only one)"),
-    ("value", "as defined", "value (an upper end for certified suprema)"),
-    ("lower", "as defined", "certified lower end for suprema (NaN otherwise)"), ("definition", "", "what it is")])
+    ("value", "as defined", "value (for a supremum: the supremum to round-off)"),
+    ("lower", "as defined", "a supremum's certified lower end, a value attained (NaN otherwise)"),
+    ("upper", "as defined", "a supremum's certified upper end, what the bounds use (NaN otherwise)"),
+    ("definition", "", "what it is")])
 MATRICES = spec("matrices", "matrix entry", [
     SC, ("matrix", "", "name: P (per node, the P_i used), P_lmi (per type, max-margin solution of (28)-(29)), P_given "
          "(per type), P_comparison (per type, n x n, of (38)-(39)), Q_lyapunov (per type, the Q_i of (10)), Q_fixed "
@@ -221,19 +223,27 @@ def design_tables(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
     return out
 
 
+#: what the value of a supremum is, per method of `sinusoid_sup`
+SUP_VALUE = {"constant": "exact", "period": "to round-off, by local ascent in the last boxes of the search",
+             "torus": "of the torus of independent phases, to round-off",
+             "triangle": "not computed: the value is the upper end"}
+
+
 def bounds_frame(d: Design) -> pd.DataFrame:
     a, sc, law = d.arrays, d.scenario, d.law
     rows = []
 
-    def add(quantity, value, definition, variant="", lower=np.nan):
+    def add(quantity, value, definition, variant="", lower=np.nan, upper=np.nan):
         rows.append({"scenario": sc.name, "quantity": quantity, "variant": variant, "value": float(value),
-                     "lower": float(lower), "definition": definition})
+                     "lower": float(lower), "upper": float(upper), "definition": definition})
 
     method = str(a["w_method"])
-    add("w_sup", a["w_sup"], f"sup over t ≥ 0 of ‖w(t)‖, certified ({method}); lower: a value attained",
-        lower=a["w_sup_lower"])
-    add("wdot_sup", a["wdot_sup"], f"sup over t ≥ 0 of ‖ẇ(t)‖, certified ({method})", lower=a["wdot_sup_lower"])
-    add("wbar", a["wbar"], "w̄ = max(sup‖w‖, sup‖ẇ‖), the one bound of (15) for both (upper ends)")
+    how = SUP_VALUE[method] if method in SUP_VALUE else ""
+    add("w_sup", a["w_sup"], f"sup over t ≥ 0 of ‖w(t)‖ ({how}); bracketed in [lower, upper], certified ({method})",
+        lower=a["w_sup_lower"], upper=a["w_sup_upper"])
+    add("wdot_sup", a["wdot_sup"], f"sup over t ≥ 0 of ‖ẇ(t)‖ ({how}); bracketed in [lower, upper], certified ({method})",
+        lower=a["wdot_sup_lower"], upper=a["wdot_sup_upper"])
+    add("wbar", a["wbar"], "w̄ = max(sup‖w‖, sup‖ẇ‖), the one bound of (15) for both (their certified upper ends)")
     add("w_period", a["w_period"], "period of ‖w(t)‖ searched (inf when the frequencies are incommensurate)")
     add("phibar", a["phibar"], "φ̄ = (Σ φ̄_i²)^{1/2} of (16) with w̄ for ‖w‖ and ‖ẇ‖", "paper")
     add("phibar", a["phibar_tight"], "φ̄ with the separate bounds sup‖w‖ and sup‖ẇ‖", "tight")

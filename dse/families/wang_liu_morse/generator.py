@@ -9,8 +9,9 @@ order plus random arcs) or connected undirected graphs. The edge cases: five age
 (the q of (22) beyond simulation), six agents sharing outputs (repeated projections), switching directed graphs,
 marginal A (an integrator chain too) and unstable A, q at the bound of (22) and (27) and one
 below, two agents, a scalar and a larger state, one iteration per interval, offsets with a
-leaving agent, and an input. `generate_many_agents` draws issue 26's class apart from these: 6 to
-8 agents of an oscillatory system in an orthonormal modal basis (ρ = 0 up to round-off).
+leaving agent, and an input. `generate_many_agents` draws a class apart from these: 6 to
+8 agents of an oscillatory system in an orthonormal modal basis (ρ = 0 up to round-off). Every draw may also give its gains (or poles), the local observer states, the
+centralized poles, graph names, the rank tolerance, the sampling and the Monte Carlo scale (`_draw_the_rest`).
 """
 from __future__ import annotations
 
@@ -163,6 +164,7 @@ def generate(seed: int, edge: str | None = None) -> dict[str, Any]:
     data["initial"] = {"x0": rng.standard_normal(n).tolist(), "xhat0": rng.standard_normal((m, n)).tolist()}
     data["monte_carlo"] = {"trials": 8, "quick_trials": 4, "scale": 2.0}
     data["runs"] = runs
+    _draw_the_rest(np.random.default_rng([seed, EDGES.index(edge) + 1 if edge else 0, 1]), data)
     return data
 
 
@@ -248,3 +250,40 @@ def generate_many_agents(seed: int, m: int | None = None, blocks: int | None = N
                      {"name": "ideal", "timing": "sync", **common, "ideal": True, "intervals": 4},
                      {"name": "async", "timing": "async", **common, "intervals": 5, "reference_run": "sync",
                       "epsilon": [round(float(rng.uniform(0, Delta / 10)), 15) for _ in range(m)]}]}
+
+
+def _distinct_poles(rng: np.random.Generator, lam_bar: float, k: int) -> list[float]:
+    """k distinct real poles beyond −λ̄ (between −1.1λ̄ and −3λ̄, at least 0.05λ̄ apart)."""
+    base = np.sort(rng.uniform(1.1, 2.9 - 0.05 * k, k)) + 0.05 * np.arange(k)
+    return [round(-lam_bar * float(b), 6) for b in base]
+
+
+def _draw_the_rest(rng: np.random.Generator, data: dict[str, Any]) -> None:
+    """The keys the draws above leave at their defaults, from a stream of their own (so that the draws above do
+    not move), each in some draws: given gains (the placed L_i and K_i written out) with local observer states
+    w0, or placed poles of one's own; the centralized observer's poles; graph names; the rank tolerance; the
+    sampling step and the stored samples; the Monte Carlo scale. The agents' observable dimensions n_i come from
+    the scenario itself."""
+    from .scenario import HybridFile
+
+    sc = HybridFile.model_validate({k: v for k, v in data.items() if k != "family"})
+    design, lam_bar, T = data["design"], float(data["design"]["lambda_bar"]), float(data["design"]["T"])
+    dims = [loc.L.shape[0] for loc in sc.locs]
+    u = rng.random()
+    if u < 0.25:
+        design.update(gains="given", L=[loc.L.tolist() for loc in sc.locs], K=[K.tolist() for K in sc.observer.K])
+    elif u < 0.5:
+        design["poles"] = [_distinct_poles(rng, lam_bar, k) for k in dims]
+    if u < 0.25 or (u < 0.5 and rng.random() < 0.5):
+        design["L"] = [loc.L.tolist() for loc in sc.locs]
+        data["initial"]["w0"] = [rng.standard_normal(k).round(6).tolist() for k in dims]
+    if rng.random() < 0.3:
+        design["central_poles"] = _distinct_poles(rng, lam_bar, len(data["system"]["A"]))
+    if rng.random() < 0.3:
+        data["graphs"]["names"] = [f"N{k}" for k in range(len(data["graphs"]["neighbors"]))]
+    if rng.random() < 0.3:
+        data["system"]["rank_tol"] = float(10 ** rng.uniform(-11, -8))
+    if rng.random() < 0.3:
+        data["sampling"] = {"step": round(T / int(rng.integers(10, 101)), 12), "stored": int(rng.integers(200, 20_002))}
+    if rng.random() < 0.3:
+        data["monte_carlo"]["scale"] = round(float(rng.uniform(0.5, 4.0)), 3)
