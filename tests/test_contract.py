@@ -8,6 +8,8 @@ from __future__ import annotations
 import importlib
 import inspect
 import pkgutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -22,6 +24,8 @@ from dse.scenario.fields import load_toml
 
 FAMILIES = registry.families()
 IDS = list(FAMILIES)
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture
@@ -159,3 +163,24 @@ def test_an_installed_package_can_add_a_family_and_a_broken_one_is_skipped(monke
     finally:
         monkeypatch.undo()
         registry.cache_clear()
+
+
+def test_the_report_order_does_not_depend_on_which_check_module_is_imported_first():
+    """Every module of every family package imported in reverse order before `dse list`: the same listing (a
+    ClaimSet filled by several modules orders their entries by its declared `modules`, not by import order)."""
+    code = """
+import contextlib, importlib, io, pkgutil, sys
+import dse.families
+names = sorted(m.name for m in pkgutil.walk_packages(dse.families.__path__, "dse.families."))
+for name in reversed(names):
+    importlib.import_module(name)
+from dse.cli import main
+main(["list"])
+"""
+    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "OPENBLAS_NUM_THREADS": "1"}
+    normal = subprocess.run([sys.executable, "-m", "dse.cli", "list"], capture_output=True, text=True, env=env,
+                            cwd=ROOT, timeout=600)
+    reversed_ = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT,
+                               timeout=600)
+    assert normal.returncode == 0 and reversed_.returncode == 0, reversed_.stderr[-2000:]
+    assert reversed_.stdout == normal.stdout

@@ -45,6 +45,8 @@ the claim is `not-checkable` with that reason (a function of the arguments, or a
 """
 from __future__ import annotations
 
+import importlib
+import sys
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Iterable, Sequence
 
@@ -133,6 +135,7 @@ class ClaimEntry:
     args: tuple = ()
     requires: tuple[tuple[Callable[..., bool], str | Callable[..., str]], ...] = ()
     each: Callable[[Where], Iterable[tuple[str, Any]]] | None = None
+    module: str = ""          # the module that registered it
 
     @property
     def per_scenario(self) -> bool:
@@ -160,6 +163,7 @@ class HypothesisEntry:
     when: Gate | None = None
     args: tuple = ()
     each: Callable[[Where], Iterable[tuple[str, Any]]] | None = None
+    module: str = ""          # the module that registered it
 
     @property
     def per_scenario(self) -> bool:
@@ -172,29 +176,52 @@ class ClaimSet:
 
     `select(results, scenario_name)`, when given, is what a per-scenario check receives instead
     of the results and the scenario's name (and likewise a per-scenario hypothesis, with the
-    design)."""
+    design).
+
+    `modules`, when a set is filled by several modules, names them (dotted) in the order of the report:
+    `complete()` imports them, and the report lists their entries module by module, so that the order does
+    not depend on which module was imported first (a test or a user importing one check module before the
+    others would otherwise reorder a report)."""
 
     select: Callable[[Any, str], Any] | None = None
     select_design: Callable[[Any, str], Any] | None = None
     claims: list[ClaimEntry] = field(default_factory=list)
     hypotheses: list[HypothesisEntry] = field(default_factory=list)
+    modules: tuple[str, ...] = ()
+
+    def complete(self) -> "ClaimSet":
+        """Import every module of `modules` (each registers its checks here); returns the set."""
+        for name in self.modules:
+            importlib.import_module(name)
+        return self
+
+    def _ordered(self, entries: list) -> list:
+        """`entries` module by module in the order of `modules` (registration order within a module)."""
+        if not self.modules:
+            return entries
+        stray = sorted({e.module for e in entries} - set(self.modules))
+        if stray:
+            raise ValueError(f"checks registered from modules the ClaimSet does not list: {', '.join(stray)}")
+        return sorted(entries, key=lambda e: self.modules.index(e.module))
 
     # -- registration ----------------------------------------------------------------------------------
 
     def claim(self, id: str, source: str, statement: str, kind: str, *, hypotheses: Sequence[str] |
               Callable[[Where], tuple[str, ...]] = (), scope: str = "family", when: Gate | None = None,
               args: tuple = (), requires: Sequence[tuple[Callable[..., bool], str | Callable[..., str]]] = (),
-              each: Callable[[Where], Iterable[tuple[str, Any]]] | None = None):
+              each: Callable[[Where], Iterable[tuple[str, Any]]] | None = None, _module: str = ""):
         """Register the decorated function as the check of a claim (see the module docstring)."""
         if kind not in KINDS:
             raise ValueError(f"claim {id}: unknown kind {kind!r}")
         if scope not in SCOPES:
             raise ValueError(f"claim {id}: unknown scope {scope!r}")
 
+        module = _module or sys._getframe(1).f_globals.get("__name__", "")
+
         def register(fn: Callable[..., Verdict]):
             hyps = hypotheses if callable(hypotheses) else tuple(hypotheses)
             self.claims.append(ClaimEntry(id, source, statement, kind, fn, hyps, scope, when, tuple(args),
-                                          tuple(requires), each))
+                                          tuple(requires), each, module))
             return fn
 
         return register
@@ -203,13 +230,16 @@ class ClaimSet:
                   when: Gate | None = None) -> None:
         """A claim that no computation can check (an interpretation, an open question): always
         `not-checkable`, with `reason`."""
-        self.claim(id, source, statement, kind, scope=scope, when=when)(lambda *_a: not_checkable(reason))
+        self.claim(id, source, statement, kind, scope=scope, when=when,
+                   _module=sys._getframe(1).f_globals.get("__name__", ""))(lambda *_a: not_checkable(reason))
 
     def hypothesis(self, id: str, statement: str, *, when: Gate | None = None, args: tuple = (),
                    each: Callable[[Where], Iterable[tuple[str, Any]]] | None = None):
         """Register the decorated function (design -> Holds) as a hypothesis check."""
+        module = sys._getframe(1).f_globals.get("__name__", "")
+
         def register(fn):
-            self.hypotheses.append(HypothesisEntry(id, statement, fn, when, tuple(args), each))
+            self.hypotheses.append(HypothesisEntry(id, statement, fn, when, tuple(args), each, module))
             return fn
 
         return register
@@ -220,7 +250,7 @@ class ClaimSet:
         """Every hypothesis of a run, per-scenario ones expanded (`wheres[0]` is the run itself,
         then one `Where` per scenario)."""
         out = []
-        for entry, where, name in self._expand(self.hypotheses, wheres):
+        for entry, where, name in self._expand(self._ordered(self.hypotheses), wheres):
             out.append(Hypothesis(_fill_id(entry.id, where), _fill(entry.statement, where),
                                   self._bind(entry.check, name, self._args(entry, where), self.select_design)))
         return out
@@ -228,7 +258,7 @@ class ClaimSet:
     def claim_list(self, wheres: Sequence[Where]) -> list[Claim]:
         """Every claim of a run, in the order of registration (per-scenario blocks scenario by scenario)."""
         out = []
-        for entry, where, name in self._expand(self.claims, wheres):
+        for entry, where, name in self._expand(self._ordered(self.claims), wheres):
             refs = entry.hypotheses(where) if callable(entry.hypotheses) else entry.hypotheses
             hyps = []
             for ref in refs:

@@ -16,7 +16,9 @@ from dse.verify.rules import EPS, Verdict, p_value_test, roundoff_tolerance
 from .references import MAX_SCHEME_DIM
 from .results import ScenarioResults
 
-claims = ClaimSet(select=lambda res, name: res.scenarios[name], select_design=lambda design, name: design.scenarios[name])
+claims = ClaimSet(select=lambda res, name: res.scenarios[name], select_design=lambda design, name: design.scenarios[name],
+                  modules=tuple(f"{__package__}.{m}" for m in ("hypotheses", "claims_propositions", "claims_theorem",
+                                                                "claims_references")))  # report order
 
 MIN_PATHS = 50          # below: a Monte Carlo mean over clock paths is not tested
 MIN_TRIALS = 2          # exact-law tests keep their level at any sample size

@@ -22,7 +22,8 @@ from dse.verify.rules import EPS, roundoff_tolerance
 from ..cells import Cell
 from ..results import Results
 
-claims = ClaimSet()
+claims = ClaimSet(modules=tuple(f"{__package__}.{m}" for m in ("hypotheses", "model", "theorem1", "monte_carlo", "gains",
+                                                              "large_m", "carli", "figures")))  # report order
 
 DS = DOUBLY_STOCHASTIC = "savas.hyp.Q_doubly_stochastic"
 PRIM = PRIMITIVE = "savas.hyp.Q_primitive"

@@ -26,7 +26,8 @@ EPS = float(np.finfo(float).eps)
 #: hypotheses the scenario validation already enforces (they hold on every valid scenario)
 VALIDATED = ("joint_observability", "local_observers")
 
-claims = ClaimSet(select_design=lambda design, name: design.named(name))
+claims = ClaimSet(select_design=lambda design, name: design.named(name),
+                  modules=tuple(f"{__package__}.{m}" for m in ("hypotheses", "designs", "iterations", "bounds", "figures")))
 HYP = PID + ".hyp.{scenario.}"
 
 
