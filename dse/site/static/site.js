@@ -1,0 +1,40 @@
+// The claim filter (by verdict, by paper or run, by text) of the index, run and sweep pages.
+// Its state is kept in the address (?verdict=fail&paper=savas&text=riccati) so a filtered view can be linked.
+(function () {
+  "use strict";
+
+  function apply(form) {
+    var verdict = form.elements.verdict ? form.elements.verdict.value : "";
+    var paper = form.elements.paper ? form.elements.paper.value : "";
+    var text = form.elements.text ? form.elements.text.value.trim().toLowerCase() : "";
+    var rows = document.querySelectorAll("[data-claim]");
+    var shown = 0;
+    rows.forEach(function (row) {
+      var ok = (!verdict || row.dataset.verdict.split(" ").indexOf(verdict) >= 0) &&
+        (!paper || row.dataset.paper === paper) &&
+        (!text || row.dataset.text.indexOf(text) >= 0);
+      row.hidden = !ok;
+      if (ok) { shown += 1; }
+    });
+    var out = form.querySelector(".shown");
+    if (out) { out.textContent = shown + " of " + rows.length + " claims"; }
+    var params = new URLSearchParams();
+    if (verdict) { params.set("verdict", verdict); }
+    if (paper) { params.set("paper", paper); }
+    if (text) { params.set("text", text); }
+    var query = params.toString();
+    history.replaceState(null, "", location.pathname + (query ? "?" + query : "") + location.hash);
+  }
+
+  function setUp(form) {
+    var params = new URLSearchParams(location.search);
+    ["verdict", "paper", "text"].forEach(function (name) {
+      if (form.elements[name] && params.get(name)) { form.elements[name].value = params.get(name); }
+    });
+    form.addEventListener("input", function () { apply(form); });
+    form.addEventListener("change", function () { apply(form); });
+    if (params.toString()) { apply(form); }
+  }
+
+  document.querySelectorAll("form.claim-filter").forEach(setUp);
+})();
