@@ -18,10 +18,10 @@
     });
     var out = form.querySelector(".shown");
     if (out) { out.textContent = shown + " of " + rows.length + " claims"; }
-    var params = new URLSearchParams();
-    if (verdict) { params.set("verdict", verdict); }
-    if (paper) { params.set("paper", paper); }
-    if (text) { params.set("text", text); }
+    var params = new URLSearchParams(location.search);
+    [["verdict", verdict], ["paper", paper], ["text", text]].forEach(function (kv) {
+      if (kv[1]) { params.set(kv[0], kv[1]); } else { params.delete(kv[0]); }
+    });
     var query = params.toString();
     history.replaceState(null, "", location.pathname + (query ? "?" + query : "") + location.hash);
   }
@@ -33,7 +33,7 @@
     });
     form.addEventListener("input", function () { apply(form); });
     form.addEventListener("change", function () { apply(form); });
-    if (params.toString()) { apply(form); }
+    if (params.get("verdict") || params.get("paper") || params.get("text")) { apply(form); }
   }
 
   document.querySelectorAll("form.claim-filter").forEach(setUp);

@@ -4,6 +4,17 @@
 import viewer from "./viewer/widget.js";
 
 const container = document.getElementById("viewer");
+
+// The site works offline and asks nothing of any other host: the viewer's check for a newer rerun release
+// (a request to api.github.com at start-up) is answered here with "not found", which it treats as no news.
+const siteFetch = window.fetch.bind(window);
+window.fetch = (resource, init) => {
+  const url = new URL(resource instanceof Request ? resource.url : String(resource), document.baseURI);
+  if (url.protocol.startsWith("http") && url.origin !== location.origin) {
+    return Promise.resolve(new Response(null, { status: 404, statusText: "not requested: an offline site" }));
+  }
+  return siteFetch(resource, init);
+};
 let stop = null;
 
 function model(url) {
