@@ -96,11 +96,17 @@ def read_sweep(directory: Path) -> SweepSource:
                        tables=sorted((directory / "tables").glob("*.parquet")))
 
 
-def collect(out_root: Path) -> tuple[list[RunSource], list[SweepSource]]:
-    """Every run and sweep of `out_root`: papers first (by id), then user runs, then sweeps."""
+def require_root(out_root: Path) -> Path:
+    """`out_root`, or a one-line error when it is not a directory."""
     if not out_root.is_dir():
         raise OutputError(f"{out_root} is not a directory: give the output root of `dse reproduce`, `dse run` "
                           "or `dse sweep` (e.g. out)")
+    return out_root
+
+
+def collect(out_root: Path) -> tuple[list[RunSource], list[SweepSource]]:
+    """Every run and sweep of `out_root`: papers first (by id), then user runs, then sweeps."""
+    require_root(out_root)
     families = _paper_families()
     papers = [read_run(d, d.name, "paper", families) for d in sorted(out_root.iterdir())
               if d.is_dir() and d.name not in NOT_RUNS and (d / "report.json").exists()]
@@ -109,5 +115,5 @@ def collect(out_root: Path) -> tuple[list[RunSource], list[SweepSource]]:
     sweeps = [read_sweep(d) for d in sorted((out_root / "sweep").glob("*")) if (d / "sweep.json").exists()]
     if not papers and not runs and not sweeps:
         raise OutputError(f"{out_root} holds no run or sweep (no */report.json, run/*/report.json or "
-                          "sweep/*/sweep.json): run `dse reproduce --out {out_root}` first")
+                          f"sweep/*/sweep.json): run `dse reproduce --out {out_root}` first")
     return papers + runs, sweeps
