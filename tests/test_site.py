@@ -17,6 +17,7 @@ from dse.site import build as site_build
 from dse.site import pages, tables as site_tables
 from dse.site.build import build
 from dse.site.staging import MANIFEST
+from dse.site.viewer import viewer_assets
 
 ROOT = Path(__file__).resolve().parents[1]
 PNG = bytes.fromhex("89504e470d0a1a0a0000000d4948445200000001000000010806000000"
@@ -75,7 +76,9 @@ def write_sweep(directory: Path) -> None:
 
 
 @pytest.fixture()
-def out(tmp_path):
+def out(tmp_path, monkeypatch):
+    """A small output root; its sites are built without the web viewer's 67 MB (test_viewer_... adds it)."""
+    monkeypatch.setattr(site_build, "viewer_assets", lambda: ({}, ""))
     root = tmp_path / "out"
     write_run(root / "paper-a", "paper-a", [claim("a.ok", "pass"), claim("a.tails.e1", "fail", margin=-0.25),
                                              claim("a.fig", "erratum", source="Fig. 2", printed=3.0, corrected=2.0)])
@@ -183,7 +186,8 @@ def test_a_removed_run_leaves_the_site(out):
 
 
 def test_viewer_files_come_from_the_rerun_notebook_of_the_pinned_version(out, monkeypatch):
-    files, note = site_build.viewer_assets()
+    monkeypatch.setattr(site_build, "viewer_assets", viewer_assets)
+    files, note = viewer_assets()
     if files:
         site = build(out).site
         assert {p.name for p in (site / "static/viewer").iterdir()} == {"widget.js", "widget.css", "re_viewer_bg.wasm"}
@@ -192,7 +196,7 @@ def test_viewer_files_come_from_the_rerun_notebook_of_the_pinned_version(out, mo
 
     real = md.version
     monkeypatch.setattr(md, "version", lambda name: "0.1.0" if name == "rerun-notebook" else real(name))
-    files, note = site_build.viewer_assets()
+    files, note = viewer_assets()
     assert not files and "does not match rerun-sdk" in note
 
 

@@ -74,7 +74,7 @@ def _leaderboard(run: RunSource, views: list[TableView]) -> TableView | None:
 
 def run_page(run: RunSource, views: list[TableView], viewer: bool) -> str:
     claims = claim_rows(run, views)
-    return render("run.html", root="../", run=run, report=run.report, claims=claims,
+    return render("run.html", root="../", family=run.family, run=run, report=run.report, claims=claims,
                   failures=[c for c in claims if c["verdict"] in ("fail", "error")],
                   errata=[c for c in claims if c["verdict"] == "erratum"], tables=views,
                   leaderboard=_leaderboard(run, views), viewer=viewer, papers=[run.slug],
@@ -109,7 +109,7 @@ def _sweep_matrix(sweep: SweepSource) -> tuple[list[dict], list[dict]]:
 def sweep_page(sweep: SweepSource, viewer: bool) -> str:
     points, matrix = _sweep_matrix(sweep)
     files = {p.name for p in sweep.inputs}
-    return render("sweep.html", root="../", sweep=sweep, meta=sweep.meta, spec=sweep.meta.get("sweep") or {},
+    return render("sweep.html", root="../", family=sweep.meta.get("family", ""), sweep=sweep, meta=sweep.meta, spec=sweep.meta.get("sweep") or {},
                   points=points, matrix=matrix, viewer=viewer, papers=[sweep.slug],
                   tables=[p.stem for p in sweep.tables], has=files)
 
