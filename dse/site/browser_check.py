@@ -106,22 +106,24 @@ def blank(png: bytes) -> bool:
 
 
 def check_viewer(page, shot: Path | None) -> str:
-    """Open the page's first recording in the web viewer; '' when it renders within VIEWER_TIMEOUT_S."""
+    """Open the page's first recording in the web viewer; '' when the viewer reports the recording open (its
+    `recording_open` event, sent once the file is loaded) and then draws it (a screenshot that is not blank)."""
     page.click("#recordings button.open-recording")
+    try:
+        page.wait_for_function("() => (window.dseViewerEvents || []).some(e => e.includes('\"recording_open\"'))",
+                               timeout=VIEWER_TIMEOUT_S * 1000)
+    except Exception as exc:        # playwright's TimeoutError
+        return f"the web viewer did not open the recording within {VIEWER_TIMEOUT_S:.0f} s ({type(exc).__name__})"
     viewer = page.locator("#viewer")
     deadline = time.monotonic() + VIEWER_TIMEOUT_S
-    png = b""
     while time.monotonic() < deadline:
-        page.wait_for_function("() => { const v = document.getElementById('viewer');"
-                               " return v.querySelector('canvas') && !v.textContent.includes('Loading Rerun'); }",
-                               timeout=VIEWER_TIMEOUT_S * 1000)
+        page.evaluate("() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
         png = viewer.screenshot()
         if not blank(png):
             if shot:
                 shot.write_bytes(png)
             return ""
-        page.wait_for_timeout(1000)     # a frame of the viewer, then look again
-    return f"the web viewer stayed blank for {VIEWER_TIMEOUT_S:.0f} s"
+    return f"the web viewer opened the recording but drew nothing for {VIEWER_TIMEOUT_S:.0f} s"
 
 
 def site_pages(site: Path) -> list[str]:

@@ -16,10 +16,13 @@ window.fetch = (resource, init) => {
   return siteFetch(resource, init);
 };
 let stop = null;
+window.dseViewerEvents = [];
 
 function model(url) {
   const values = { _url: url, _width: "auto", _height: 640, _panel_states: null, _fallback_token: null, _theme: null };
-  return { get: (key) => values[key], on: () => {}, send: () => {} };
+  // The viewer's events (ready, and its raw events as JSON) are kept for whoever inspects the page.
+  const send = (event) => { window.dseViewerEvents.push(typeof event === "string" ? event : JSON.stringify(event)); };
+  return { get: (key) => values[key], on: () => {}, send };
 }
 
 function open(rrd) {
