@@ -59,7 +59,7 @@ check-site: $(STAMP)
 	$(BIN)/dse run --quick dse/families/compare/scenarios/noisy_ring.toml --out out/site-check
 	$(BIN)/dse sweep dse/families/sweeps/compare_links_noise_size.toml --out out/site-check
 	$(BIN)/dse site out/site-check
-	$(BIN)/python -m dse.site.browser_check out/site-check/site --screenshots docs/images/site
+	$(BIN)/python -m dse.site.browser_check out/site-check/site --screenshots out/site-check/screenshots
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run --out out
