@@ -7,6 +7,7 @@ Serves SITE over HTTP (as `python -m http.server` would) and loads every page in
 - every image of every page loaded;
 - every table page builds its table, and on one table page per run a click on a column header sorts it;
 - the claim filter filters, on the index and on every run and sweep page (by verdict, and by text);
+- the index, a run page and a table page also work opened from file:// (no error, images and rows there);
 - on one page per scenario family, the Rerun web viewer opens the page's first recording and renders it (a
   screenshot of the viewer that is not blank: many colours, no single colour covering almost all of it).
 
@@ -157,6 +158,18 @@ def check_page(page, base: str, rel: str, state: dict, shots: Path | None) -> li
     return found
 
 
+def check_file_pages(page, site: Path) -> list[str]:
+    """The index, a run page and a table page opened from file:// (no server): no errors, images and rows there."""
+    pages = ["index.html"] + [p for p in site_pages(site) if p != "index.html"][:2]
+    found = []
+    for rel in pages:
+        page.goto((site / rel).resolve().as_uri(), wait_until="load")
+        found += [f"file://{rel}: image not loaded: {src}" for src in broken_images(page)]
+        if "/table-" in rel and page.evaluate("document.querySelectorAll('.tabulator-row').length") == 0:
+            found.append(f"file://{rel}: the table has no rows")
+    return found
+
+
 def _screenshots(page, base: str, site: Path, shots: Path) -> None:
     page.goto(base + "index.html", wait_until="load")
     page.screenshot(path=str(shots / "site-index.png"))
@@ -182,6 +195,7 @@ def run_checks(site: Path, shots: Path | None) -> tuple[list[str], dict]:
             for rel in site_pages(site):
                 problems += check_page(page, base, rel, state, shots)
                 state["pages"] += 1
+            problems += check_file_pages(page, site)
             if shots:
                 _screenshots(page, base, site, shots)
             browser.close()

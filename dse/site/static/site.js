@@ -38,3 +38,20 @@
 
   document.querySelectorAll("form.claim-filter").forEach(setUp);
 })();
+
+// The web viewer (static/viewer.js, an ES module) is loaded on pages served over HTTP; a page opened from a
+// file says how to serve the site instead (browsers load neither modules nor WebAssembly from file://).
+(function () {
+  "use strict";
+  var viewer = document.getElementById("viewer");
+  if (!viewer) { return; }
+  if (location.protocol === "file:") {
+    document.querySelectorAll("button.open-recording").forEach(function (b) { b.disabled = true; });
+    document.querySelectorAll(".note.file-only").forEach(function (n) { n.hidden = false; });
+    return;
+  }
+  var script = document.createElement("script");
+  script.type = "module";
+  script.src = viewer.dataset.module;
+  document.body.appendChild(script);
+})();
