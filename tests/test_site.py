@@ -175,6 +175,19 @@ def test_a_failed_build_leaves_the_previous_site_whole(out, monkeypatch):
     assert sorted(p.name for p in out.iterdir()) == ["paper-a", "run", "site", "sweep"]   # no staging left
 
 
+def test_a_killed_build_leaves_nothing_behind_the_next_one(out):
+    import subprocess
+    import sys
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    pid = int(gone.stdout)                       # a process that has exited: its staging directory is stale
+    stale = out / f"site.staging-{pid}"
+    (stale / "paper-a").mkdir(parents=True)
+    (stale / "paper-a" / "index.html").write_text("half written")
+    build(out)
+    assert not stale.exists() and sorted(p.name for p in out.iterdir()) == ["paper-a", "run", "site", "sweep"]
+
+
 def test_a_removed_run_leaves_the_site(out):
     import shutil
 
@@ -200,12 +213,37 @@ def test_viewer_files_come_from_the_rerun_notebook_of_the_pinned_version(out, mo
     assert not files and "does not match rerun-sdk" in note
 
 
-def test_pins_of_the_viewer_agree_with_rerun_sdk():
+def test_pins_of_the_viewer_agree_with_rerun_sdk_and_the_makefile():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     sdk = next(d for d in project["dependencies"] if d.startswith("rerun-sdk=="))
     version = sdk.split("==")[1]
+    makefile = (ROOT / "Makefile").read_text()
     assert f"rerun-notebook=={version}" in project["optional-dependencies"]["site"]
-    assert f"rerun-notebook=={version}" in (ROOT / "Makefile").read_text()
+    assert f"rerun-notebook=={version}" in makefile
+    assert all(pin in makefile for pin in project["optional-dependencies"]["browser"])
+
+
+def test_the_browser_check_tells_a_blank_viewer_from_a_drawn_one_and_lists_every_page(out):
+    import io
+
+    from PIL import Image, ImageDraw
+
+    from dse.site import browser_check
+
+    def png(draw: bool) -> bytes:
+        image = Image.new("RGB", (400, 300), (28, 28, 28))
+        if draw:
+            pen = ImageDraw.Draw(image)
+            for i in range(40):
+                pen.line([(0, 7 * i), (400, 300 - 5 * i)], fill=(6 * i, 255 - 6 * i, 120), width=3)
+        buffer = io.BytesIO()
+        image.save(buffer, format="PNG")
+        return buffer.getvalue()
+
+    assert browser_check.blank(png(False)) and not browser_check.blank(png(True))
+    site = build(out).site
+    listed = browser_check.site_pages(site)
+    assert listed[0] == "index.html" and set(listed) == {p.relative_to(site).as_posix() for p in site.rglob("*.html")}
 
 
 def test_cli_builds_the_site_and_refuses_a_missing_root(out, tmp_path, capsys):

@@ -48,6 +48,24 @@ def _link_or_copy(source: Path, target: Path) -> None:
         shutil.copy2(source, target)
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:         # another user's process
+        return True
+    return True
+
+
+def remove_leftovers(site: Path) -> None:
+    """Remove the staging and old directories of builds that were killed (their process is gone)."""
+    for path in site.parent.glob(f"{site.name}.*-*"):
+        kind, _, pid = path.name[len(site.name) + 1:].partition("-")
+        if kind in ("staging", "old") and pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+            shutil.rmtree(path, ignore_errors=True)
+
+
 class Staging:
     """A site being built: `page(...)` and `copy(...)` write into it, `commit()` swaps it into place."""
 
@@ -55,6 +73,7 @@ class Staging:
         self.site = site
         self.code_key = code_key
         self.root = site.parent / f"{site.name}.staging-{os.getpid()}"
+        remove_leftovers(site)
         shutil.rmtree(self.root, ignore_errors=True)
         self.root.mkdir(parents=True)
         if site.is_dir():
