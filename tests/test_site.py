@@ -251,6 +251,12 @@ def test_cli_builds_the_site_and_refuses_a_missing_root(out, tmp_path, capsys):
     assert "pages written" in capsys.readouterr().out and (tmp_path / "web/index.html").exists()
     assert cli.main(["site", str(tmp_path / "nowhere")]) == 2
     assert "is not a directory" in capsys.readouterr().err and not (tmp_path / "nowhere").exists()
+    assert cli.main(["site", str(out), "--to", str(out)]) == 2 and "would replace the output root" in capsys.readouterr().err
+    other = tmp_path / "notes"
+    other.mkdir()
+    (other / "mine.txt").write_text("keep me")
+    assert cli.main(["site", str(out), "--to", str(other)]) == 2 and "is not a site" in capsys.readouterr().err
+    assert [p.name for p in other.iterdir()] == ["mine.txt"] and (out / "paper-a" / "report.json").exists()
     empty = tmp_path / "empty"
     empty.mkdir()
     assert cli.main(["site", str(empty)]) == 2 and "holds no run or sweep" in capsys.readouterr().err

@@ -11,9 +11,11 @@ import hashlib
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+from dse.errors import OutputError
 from dse.site import pages
 from dse.site.collect import RunSource, SweepSource, collect
-from dse.site.staging import Staging, file_key
+from dse.site.staging import MANIFEST, Staging, file_key
 from dse.site.tables import TableView, read_view
 from dse.site.viewer import viewer_assets
 
@@ -75,7 +77,7 @@ def _table_pages(stage: Staging, slug: str, tables: list[tuple[str, Path, str]],
         if stage.needs(rel, file_key([p, *csv], root, folder)):
             views[page] = read_view(p)
             views[page].folder = folder
-            write_page(stage, rel, pages.table_page(views[page], back))
+            stage.write(rel, pages.table_page(views[page], back))
     return views
 
 
@@ -88,7 +90,7 @@ def _run(stage: Staging, run: RunSource, root: Path, viewer: bool) -> None:
         for p in run.tables:
             if p.stem not in views:
                 views[p.stem] = read_view(p)
-        write_page(stage, rel, pages.run_page(run, [views[p.stem] for p in run.tables], viewer))
+        stage.write(rel, pages.run_page(run, [views[p.stem] for p in run.tables], viewer))
 
 
 def _sweep(stage: Staging, sweep: SweepSource, root: Path, viewer: bool) -> None:
@@ -98,15 +100,21 @@ def _sweep(stage: Staging, sweep: SweepSource, root: Path, viewer: bool) -> None
     back = {"href": "index.html", "title": sweep.meta.get("name", sweep.slug)}
     tables = [(n, sweep.directory / f"{n}.parquet", "") for n in ("results", "claims")
               if (sweep.directory / f"{n}.parquet").exists()]
-    _table_pages(stage, sweep.slug, tables + [(f"stacked-{p.stem}", p, "tables/") for p in sweep.tables],
-                         root, back)
+    stacked = [(f"stacked-{p.stem}", p, "tables/") for p in sweep.tables]
+    _table_pages(stage, sweep.slug, tables + stacked, root, back)
     rel = f"{sweep.slug}/index.html"
     if stage.needs(rel, file_key(sweep.inputs, root, str(viewer))):
-        write_page(stage, rel, pages.sweep_page(sweep, viewer))
+        stage.write(rel, pages.sweep_page(sweep, viewer))
 
 
-def write_page(stage: Staging, rel: str, text: str) -> None:
-    stage.write(rel, text)
+def _refuse_a_directory_that_is_not_a_site(site: Path, out_root: Path) -> None:
+    """The site directory is replaced as a whole: never one that holds something else (the output root, say)."""
+    if out_root.resolve().is_relative_to(site.resolve()):
+        raise OutputError(f"--to {site} would replace the output root {out_root}: give a directory of its own "
+                          f"(default {out_root / 'site'})")
+    if site.is_dir() and any(site.iterdir()) and not (site / MANIFEST).exists():
+        raise OutputError(f"{site} is not empty and is not a site `dse site` built (no {MANIFEST}): the site "
+                          "replaces its directory as a whole, so give a new or empty directory")
 
 
 def build(out_root: Path, site: Path | None = None) -> BuildResult:
@@ -114,6 +122,7 @@ def build(out_root: Path, site: Path | None = None) -> BuildResult:
     start = time.perf_counter()
     out_root = Path(out_root)
     site = Path(site) if site else out_root / "site"
+    _refuse_a_directory_that_is_not_a_site(site, out_root)
     runs, sweeps = collect(out_root)
     viewer, note = viewer_assets()
     stage = Staging(site, code_key())
