@@ -133,7 +133,9 @@ def test_a_large_table_shows_its_first_rows_and_offers_no_csv_it_does_not_have(o
     write_run(out / "big", "big", [claim("big.ok", "pass")], nodes_rows=big)
     monkeypatch.setattr(site_tables, "BROWSE_ROWS", 100)
     html = page(build(out).site, "big/table-nodes.html")
-    assert f"{big} rows: the first 100 are shown" in html
+    assert f"{big} rows: 100 are shown here (the first ones of each of its 2 scenarios)" in html
+    rows = json.loads(re.search(r'id="table-data">(.*?)</script>', html, re.S)[1])["rows"]
+    assert [r[0] for r in rows] == ["e1", "e2"] * 50                 # both scenarios' first rows, in table order
     assert "tables/nodes.csv" not in html and "CSV of the rows shown" in html
 
 

@@ -2,7 +2,8 @@
 definition, read from the Parquet metadata) and its first rows for the browser.
 
 A table's page holds at most `BROWSE_ROWS` rows (a browser sorts and filters a few thousand rows
-at once; the largest tables have millions). Every table is downloadable in full as Parquet, and as
+at once; the largest tables have millions): the first ones, or of a table of several scenarios the
+first ones of each. Every table is downloadable in full as Parquet, and as
 CSV when the run wrote its CSV twin (tables of at most 20,000 cells, docs/output.md); the page's
 "CSV of these rows" button saves the rows it holds.
 """
@@ -31,6 +32,7 @@ class TableView:
     scenarios: list[str] = field(default_factory=list)   # the values of its `scenario` column
     csv: str | None = None                  # file name of the CSV twin, when there is one
     folder: str = "tables/"                 # where the page finds the Parquet and CSV files
+    per_scenario: bool = False              # the rows shown are the first ones of each scenario
 
     @property
     def complete(self) -> bool:
@@ -78,22 +80,44 @@ def _meta(metadata, key: bytes) -> str:
     return (metadata or {}).get(key, b"").decode()
 
 
-def read_view(path: Path) -> TableView:
-    """The declaration and the first `BROWSE_ROWS` rows of the Parquet table at `path`."""
+def _head(handle):
+    """The table's first `BROWSE_ROWS` rows."""
     import pyarrow as pa
+
+    first = next(handle.iter_batches(batch_size=BROWSE_ROWS), None)
+    return pa.Table.from_batches([first], schema=first.schema) if first is not None else handle.schema_arrow.empty_table()
+
+
+def _head_per_scenario(path: Path, scenarios: list[str]):
+    """The first rows of every scenario (`BROWSE_ROWS` in all, shared equally), in the table's order: a claim's
+    link to its scenario's rows finds some whatever the scenario's place in a large table."""
+    import numpy as np
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path)
+    column = table.column("scenario")
+    per = max(1, BROWSE_ROWS // len(scenarios))
+    picks = [pc.indices_nonzero(pc.equal(column, s)).to_numpy()[:per] for s in scenarios]
+    return table.take(np.sort(np.concatenate(picks)))
+
+
+def read_view(path: Path) -> TableView:
+    """The declaration of the Parquet table at `path` and at most `BROWSE_ROWS` of its rows: all of them, or the
+    first ones, or for a table of several scenarios the first ones of each scenario."""
     import pyarrow.parquet as pq
 
     handle = pq.ParquetFile(path)
     schema = handle.schema_arrow
     columns = [{"name": f.name, "unit": _meta(f.metadata, b"unit"), "definition": _meta(f.metadata, b"definition"),
                 "type": "number" if _is_number(f.type) else "string"} for f in schema]
-    batches = handle.iter_batches(batch_size=BROWSE_ROWS)
-    first = next(batches, None)
-    head = pa.Table.from_batches([first], schema=first.schema) if first is not None else schema.empty_table()
-    rows = [list(row) for row in zip(*(_column_values(c) for c in head.columns))]
     scenarios = _scenarios(path) if "scenario" in schema.names else []
+    num_rows = handle.metadata.num_rows
+    per_scenario = num_rows > BROWSE_ROWS and len(scenarios) > 1
+    shown = _head_per_scenario(path, scenarios) if per_scenario else _head(handle)
+    rows = [list(row) for row in zip(*(_column_values(c) for c in shown.columns))]
     csv = path.with_suffix(".csv")
     return TableView(name=path.stem, row=_meta(schema.metadata, b"dse.row"),
                      description=_meta(schema.metadata, b"dse.description"), columns=columns,
-                     num_rows=handle.metadata.num_rows, rows=rows, scenarios=scenarios,
-                     csv=csv.name if csv.exists() else None)
+                     num_rows=num_rows, rows=rows, scenarios=scenarios, csv=csv.name if csv.exists() else None,
+                     per_scenario=per_scenario)

@@ -55,3 +55,18 @@
   script.src = viewer.dataset.module;
   document.body.appendChild(script);
 })();
+
+// A link to a claim (#claim-<id>) opens its detail and evidence, and shows it even when the filter hid it.
+(function () {
+  "use strict";
+  function openTarget() {
+    var id = decodeURIComponent(location.hash.slice(1));
+    var row = id && document.getElementById(id);
+    if (!row || !row.hasAttribute("data-claim")) { return; }
+    row.hidden = false;
+    var details = row.querySelector("details");
+    if (details) { details.open = true; }
+  }
+  window.addEventListener("hashchange", openTarget);
+  openTarget();
+})();

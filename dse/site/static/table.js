@@ -40,15 +40,24 @@
     var name = hash.slice(0, eq), value = hash.slice(eq + 1);
     var index = data.columns.findIndex(function (c) { return c.name === name; });
     if (index >= 0) {
+      var column = data.columns[index];
       table.clearHeaderFilter();
-      table.setHeaderFilterValue("c" + index, value);
+      table.setFilter("c" + index, "=", column.type === "number" ? Number(value) : value);
+      shown.textContent = "Rows where " + name + " = " + value + ". ";
     }
   }
+  var shown = document.createElement("span");
+  shown.id = "hash-filter";
+  element.parentNode.insertBefore(shown, element);
   table.on("tableBuilt", fromHash);
   window.addEventListener("hashchange", fromHash);
   document.getElementById("download-csv").addEventListener("click", function () {
     table.download("csv", element.dataset.name + ".csv", {}, "active");
   });
-  document.getElementById("clear-filters").addEventListener("click", function () { table.clearHeaderFilter(); });
+  document.getElementById("clear-filters").addEventListener("click", function () {
+    table.clearHeaderFilter();
+    table.clearFilter();
+    shown.textContent = "";
+  });
   window.dseTable = table;
 })();
