@@ -37,7 +37,9 @@ def write_run(directory: Path, paper: str, claims: list[dict], nodes_rows: int =
     counts = {v: sum(c["verdict"] == v for c in claims) for v in ("pass", "fail", "erratum", "not-checkable", "error")}
     report = {"paper": paper, "title": f"{paper} title", "counts": counts,
               "hypotheses": [{"id": f"{paper}.hyp", "statement": "a hypothesis", "holds": True, "value": 0.0,
-                              "threshold": 1e-10, "detail": "held", "error": ""}],
+                              "threshold": 1e-10, "detail": "held", "error": ""},
+                             {"id": f"{paper}.control", "statement": "broken on purpose", "holds": False, "value": 1.0,
+                              "threshold": 1e-10, "detail": "a negative control", "error": "", "expected": False}],
               "statistics": {}, "omitted_paper_example_claims": [], "claims": claims,
               "provenance": {"seed": 0, "trials": 10, "quick": True, "workers": 1, "versions": {"dse": "0.1.0"},
                              "git": "abc", "compute_s": 0.5, "write_s": 0.1, "wall_s": 0.7, "stages": []}}
@@ -112,6 +114,7 @@ def test_run_page_shows_a_fail_first_with_its_evidence_one_click_away(out):
     rows = re.findall(r'<tr class="claim (\S+)" id="claim-', html)
     assert rows == ["fail", "erratum", "pass"]                      # worst verdict first
     assert "as printed: 3; corrected: 2" in html                    # an erratum's two numbers
+    assert "does not hold (expected)" in html and ">holds<" in html  # a negative control is not a failure
     assert 'href="#fig-fig2.png"' in html                           # "Fig. 2" in the source links the figure
     assert 'id="fig-tails_e1.png"' in html and (out / "paper-a/figures/tails_e1.png").exists()
 
