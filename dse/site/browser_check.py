@@ -6,7 +6,8 @@ Serves SITE over HTTP (as `python -m http.server` would) and loads every page in
 - no page logs a console error or an uncaught exception, and no request fails (nor answers 4xx/5xx);
 - every image of every page loaded;
 - every table page builds its table, and on one table page per run a click on a column header sorts it;
-- the claim filter filters, on the index and on every run and sweep page (by verdict, and by text);
+- the claim filter filters, on the index and on every run and sweep page (by verdict, by paper on the index,
+  and by text);
 - the index, a run page and a table page also work opened from file:// (no error, images and rows there);
 - on one page per scenario family, the Rerun web viewer opens the page's first recording and renders it (a
   screenshot of the viewer that is not blank: many colours, no single colour covering almost all of it).
@@ -75,26 +76,40 @@ def check_sort(page) -> str:
     return "" if all(a <= b for a, b in zip(values, values[1:])) else f"clicking column {fields[0]} did not sort it"
 
 
+_ROWS = "Array.from(document.querySelectorAll('[data-claim]'))"
+
+
+def _filtered(page, field: str, value: str, matches) -> str:
+    """Set one filter field; '' when exactly the rows `matches(row data)` accepts are shown, then clear it."""
+    rows = page.evaluate(f"{_ROWS}.map(r => r.dataset)")
+    if field == "text":
+        page.fill("form.claim-filter input[name=text]", value)
+    else:
+        page.select_option(f"form.claim-filter select[name={field}]", value)
+    shown = page.evaluate(f"{_ROWS}.map(r => !r.hidden)")
+    expected = [bool(matches(r)) for r in rows]
+    if field == "text":
+        page.fill("form.claim-filter input[name=text]", "")
+    else:
+        page.select_option(f"form.claim-filter select[name={field}]", "")
+    wrong = sum(a != b for a, b in zip(shown, expected))
+    return "" if wrong == 0 and any(shown) else f"the {field} filter ({value}) shows {sum(shown)} rows, {wrong} wrongly"
+
+
 def check_filter(page) -> str:
-    """Filter the page's claims by a verdict present, then by a claim's id; '' when the shown rows are right."""
-    verdicts = page.evaluate("Array.from(document.querySelectorAll('[data-claim]')).map(r => r.dataset.verdict)")
-    if not verdicts or not page.query_selector("form.claim-filter"):
+    """Filter the page's claims by the worst verdict present, by the first paper (on the index), and by a claim's
+    id; '' when each shows exactly the rows it should."""
+    if not page.query_selector("form.claim-filter") or not page.query_selector("[data-claim]"):
         return ""
-    verdict = min({w for v in verdicts for w in v.split()}, key=lambda w: ("fail", "error", "erratum").index(w)
-                  if w in ("fail", "error", "erratum") else 9)
-    page.select_option("form.claim-filter select[name=verdict]", verdict)
-    shown = page.evaluate("Array.from(document.querySelectorAll('[data-claim]')).filter(r => !r.hidden)"
-                          ".map(r => r.dataset.verdict)")
-    if not shown or any(verdict not in v.split() for v in shown) or len(shown) != sum(verdict in v.split() for v in verdicts):
-        return f"the verdict filter ({verdict}) shows {len(shown)} rows of {len(verdicts)}"
-    page.select_option("form.claim-filter select[name=verdict]", "")
+    verdicts = {w for v in page.evaluate(f"{_ROWS}.map(r => r.dataset.verdict)") for w in v.split()}
+    verdict = min(verdicts, key=lambda w: ("fail", "error", "erratum").index(w) if w in ("fail", "error", "erratum") else 9)
+    problems = [_filtered(page, "verdict", verdict, lambda r: verdict in r["verdict"].split())]
+    if page.query_selector("form.claim-filter select[name=paper]"):
+        paper = page.evaluate("document.querySelector('[data-claim]').dataset.paper")
+        problems.append(_filtered(page, "paper", paper, lambda r: r["paper"] == paper))
     text = page.evaluate("document.querySelector('[data-claim]').dataset.text.split(' ')[0]")
-    page.fill("form.claim-filter input[name=text]", text)
-    hidden = page.evaluate("document.querySelectorAll('[data-claim][hidden]').length")
-    expected = sum(1 for t in page.evaluate("Array.from(document.querySelectorAll('[data-claim]'))"
-                                            ".map(r => r.dataset.text)") if text not in t)
-    page.fill("form.claim-filter input[name=text]", "")
-    return "" if hidden == expected else f"the text filter ({text}) hides {hidden} rows, expected {expected}"
+    problems.append(_filtered(page, "text", text, lambda r: text in r["text"]))
+    return "; ".join(p for p in problems if p)
 
 
 def blank(png: bytes) -> bool:
