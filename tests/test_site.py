@@ -101,6 +101,9 @@ def test_index_lists_every_run_and_sweep_with_counts_and_the_failures_first(out)
     assert html.index("Failed claims") < html.index("Papers and runs")
     assert 'href="paper-a/index.html#claim-a.tails.e1"' in html
     assert html.count("data-claim ") == 4                       # every claim of every run, for the filter
+    assert 'href="paper-a/index.html#fig-tails_e1.png"' in html    # and its evidence, from the index too
+    assert 'href="paper-a/table-nodes.html#scenario=e1"' in html
+    assert 'href="paper-a/index.html?recording=e1.rrd#rec-e1.rrd"' in html
 
 
 def test_run_page_shows_a_fail_first_with_its_evidence_one_click_away(out):
@@ -162,6 +165,10 @@ def test_a_page_whose_inputs_did_not_change_is_not_rewritten(out):
     report.write_text(report.read_text().replace("statement of mine.ok", "a new statement"))
     changed = build(out)
     assert sorted(changed.written) == ["index.html", "run-mine/index.html"]
+    assert "index.html" in build(out).skipped
+    (out / "paper-a/figures/tails_e1.png").unlink()               # evidence gone: the run page and the index change
+    assert sorted(build(out).written) == ["index.html", "paper-a/index.html"]
+    assert "#fig-tails_e1.png" not in page(site, "index.html")
     assert "a new statement" in page(site, "run-mine/index.html")
 
 

@@ -8,6 +8,7 @@ and recordings are placed beside its pages (hard links). See docs/site.md.
 from __future__ import annotations
 
 import hashlib
+import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +21,8 @@ from dse.site.tables import TableView, read_view
 from dse.site.viewer import viewer_assets
 
 HERE = Path(__file__).parent
+#: each run's claim evidence, written with its page and read by the index (which is built after the runs)
+EVIDENCE = "evidence.json"
 STATIC = HERE / "static"
 
 
@@ -86,11 +89,15 @@ def _run(stage: Staging, run: RunSource, root: Path, viewer: bool) -> None:
     back = {"href": "index.html", "title": run.report.get("paper", run.slug)}
     views = _table_pages(stage, run.slug, [(p.stem, p, "tables/") for p in run.tables], root, back)
     rel = f"{run.slug}/index.html"
+    stage.kept.add(f"{run.slug}/{EVIDENCE}")
     if stage.needs(rel, file_key(run.inputs, root, str(viewer))):
         for p in run.tables:
             if p.stem not in views:
                 views[p.stem] = read_view(p)
-        stage.write(rel, pages.run_page(run, [views[p.stem] for p in run.tables], viewer))
+        ordered = [views[p.stem] for p in run.tables]
+        claims = pages.claim_rows(run, ordered)
+        stage.write(f"{run.slug}/{EVIDENCE}", pages.evidence_json(claims))
+        stage.write(rel, pages.run_page(run, claims, ordered, viewer))
 
 
 def _sweep(stage: Staging, sweep: SweepSource, root: Path, viewer: bool) -> None:
@@ -105,6 +112,14 @@ def _sweep(stage: Staging, sweep: SweepSource, root: Path, viewer: bool) -> None
     rel = f"{sweep.slug}/index.html"
     if stage.needs(rel, file_key(sweep.inputs, root, str(viewer))):
         stage.write(rel, pages.sweep_page(sweep, viewer))
+
+
+def _evidence(stage: Staging, runs: list[RunSource]) -> dict[str, dict]:
+    out = {}
+    for run in runs:
+        path = stage.root / run.slug / EVIDENCE
+        out[run.slug] = json.loads(path.read_text()) if path.exists() else {}
+    return out
 
 
 def _refuse_a_directory_that_is_not_a_site(site: Path, out_root: Path) -> None:
@@ -132,8 +147,8 @@ def build(out_root: Path, site: Path | None = None) -> BuildResult:
             _run(stage, run, out_root, bool(viewer))
         for sweep in sweeps:
             _sweep(stage, sweep, out_root, bool(viewer))
-        inputs = [p for r in runs for p in r.inputs[:1]] + [s.directory / "sweep.json" for s in sweeps]
-        stage.page("index.html", file_key(inputs, out_root), lambda: pages.index_page(runs, sweeps))
+        inputs = [p for r in runs for p in r.inputs] + [s.directory / "sweep.json" for s in sweeps]
+        stage.page("index.html", file_key(inputs, out_root), lambda: pages.index_page(runs, sweeps, _evidence(stage, runs)))
         stage.commit()
     except BaseException:
         stage.abandon()

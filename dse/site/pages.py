@@ -1,6 +1,7 @@
 """The site's pages: the context of each template, rendered with Jinja2 (templates in dse/site/templates)."""
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import math
@@ -8,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from dse.site.collect import VERDICTS, RunSource, SweepSource
-from dse.site.links import evidence
+from dse.site.links import Evidence, evidence
 from dse.site.tables import TableView
 
 HERE = Path(__file__).parent
@@ -72,8 +73,7 @@ def _leaderboard(run: RunSource, views: list[TableView]) -> TableView | None:
     return TableView(table.name, table.row, table.description, table.columns, table.num_rows, ranked)
 
 
-def run_page(run: RunSource, views: list[TableView], viewer: bool) -> str:
-    claims = claim_rows(run, views)
+def run_page(run: RunSource, claims: list[dict[str, Any]], views: list[TableView], viewer: bool) -> str:
     return render("run.html", root="../", family=run.family, run=run, report=run.report, claims=claims,
                   failures=[c for c in claims if c["verdict"] in ("fail", "error")],
                   errata=[c for c in claims if c["verdict"] == "erratum"], tables=views,
@@ -114,8 +114,16 @@ def sweep_page(sweep: SweepSource, viewer: bool) -> str:
                   tables=[p.stem for p in sweep.tables], has=files)
 
 
-def index_page(runs: list[RunSource], sweeps: list[SweepSource]) -> str:
-    claims = [{**c, "paper": r.slug, "page": f"{r.slug}/index.html"} for r in runs for c in _order(r.report.get("claims", []))]
+def evidence_json(claims: list[dict[str, Any]]) -> str:
+    """The evidence of each claim of a run (by claim id), kept beside its page for the index."""
+    return json.dumps({c["id"]: dataclasses.asdict(c["evidence"]) for c in claims})
+
+
+def index_page(runs: list[RunSource], sweeps: list[SweepSource], evidence: dict[str, dict[str, dict]]) -> str:
+    """The index; `evidence` is each run's `evidence_json` (by run slug), read back."""
+    claims = [{**c, "paper": r.slug, "page": f"{r.slug}/index.html",
+               "evidence": Evidence(**evidence[r.slug][c["id"]]) if c["id"] in evidence.get(r.slug, {}) else None}
+              for r in runs for c in _order(r.report.get("claims", []))]
     return render("index.html", root="", runs=runs, sweeps=sweeps, claims=claims,
                   papers=[r.slug for r in runs], failing=[r for r in runs if r.report.get("counts", {}).get("fail")
                                                           or r.report.get("counts", {}).get("error")])
