@@ -10,7 +10,6 @@ CSV when the run wrote its CSV twin (tables of at most 20,000 cells, docs/output
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
