@@ -357,12 +357,15 @@ def build_parser() -> argparse.ArgumentParser:
     swp.add_argument("--strict", action="store_true",
                      help="exit 1 when any claim of any point is fail or error (for CI)")
     swp.set_defaults(func=cmd_sweep)
-    site = sub_parser("site", help="build (or bring up to date) the static report site of an output root: every "
-                                   "paper, run and sweep, browsable offline (docs/site.md)")
-    site.add_argument("out", nargs="?", default="out", metavar="OUT", help="output root (default out/)")
-    site.add_argument("--to", default=None, metavar="DIR", help="where the site goes (default OUT/site/)")
-    site.set_defaults(func=cmd_site)
+    _site_parser(sub_parser("site", help="build (or bring up to date) the static report site of an output root: "
+                                         "every paper, run and sweep, browsable offline (docs/site.md)"))
     return parser
+
+
+def _site_parser(p: argparse.ArgumentParser) -> None:
+    p.add_argument("out", nargs="?", default="out", metavar="OUT", help="output root (default out/)")
+    p.add_argument("--to", default=None, metavar="DIR", help="where the site goes (default OUT/site/)")
+    p.set_defaults(func=cmd_site)
 
 
 def _budget_flags(p: argparse.ArgumentParser) -> None:
