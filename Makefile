@@ -5,12 +5,13 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: reproduce sweeps test bench check-viewer clean
+.PHONY: reproduce sweeps site test bench check-viewer check-site clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet --no-deps 'rerun-notebook==0.41.0'   # the [site] extra: the web viewer's files only
 	$(BIN)/python -m compileall -q dse benchmarks
 	-$(BIN)/rerun analytics disable >/dev/null 2>&1
 	touch $(STAMP)
@@ -18,6 +19,12 @@ $(STAMP): pyproject.toml
 reproduce: $(STAMP)
 	$(BIN)/dse reproduce --out out
 	$(MAKE) --no-print-directory sweeps
+	$(MAKE) --no-print-directory site
+
+# The report site of out/ (out/site/index.html; docs/site.md): browse it with
+#   python -m http.server -d out/site
+site: $(STAMP)
+	$(BIN)/dse site out
 
 # The shipped example sweeps (dse/families/sweeps/*.toml), each on a local Dask cluster.
 sweeps: $(STAMP)
@@ -39,6 +46,20 @@ check-viewer: $(STAMP)
 	$(BIN)/dse run --quick dse/families/compare/scenarios/noisy_ring.toml --out out/viewer-check
 	$(BIN)/dse sweep dse/families/sweeps/compare_links_noise_size.toml --out out/viewer-check
 	$(BIN)/python -m dse.outputs.viewer_check out/viewer-check --screenshots out/viewer-check/screenshots
+
+# Loads every page of a quick reproduction's site in headless Chromium (Debian's chromium package, driven by
+# Playwright with that executable: no browser download): no console error, no failed request, every image
+# loaded, a table sorts, the claim filter filters, and a recording of every family renders in the web viewer.
+# The screenshots it takes are the README's.
+check-site: $(STAMP)
+	@command -v chromium >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq chromium; }
+	$(BIN)/pip install --quiet 'playwright==1.65.2'
+	rm -rf out/site-check
+	$(BIN)/dse reproduce --quick --out out/site-check
+	$(BIN)/dse run --quick dse/families/compare/scenarios/noisy_ring.toml --out out/site-check
+	$(BIN)/dse sweep dse/families/sweeps/compare_links_noise_size.toml --out out/site-check
+	$(BIN)/dse site out/site-check
+	$(BIN)/python -m dse.site.browser_check out/site-check/site --screenshots out/site-check/screenshots
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run --out out

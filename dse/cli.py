@@ -1,4 +1,4 @@
-"""The `dse` command line: list, reproduce, run, verify, sweep.
+"""The `dse` command line: list, reproduce, run, check, verify, sweep, site.
 
 Exit codes (also in `dse --help` and the README):
 
@@ -222,6 +222,16 @@ def cmd_sweep(args) -> int:
     return 1 if r["failed"] or (args.strict and r["claims_failed"]) else 0
 
 
+def cmd_site(args) -> int:
+    from dse.site.build import build
+    from dse.site.collect import require_root
+
+    out_root = require_root(Path(args.out))
+    with output_lock(out_root):
+        print(build(out_root, Path(args.to) if args.to else None).line())
+    return 0
+
+
 class OneLineParser(argparse.ArgumentParser):
     """Usage errors in one line (the full usage is one `--help` away), exit code 2. A parser whose
     `epilog_head` is set prepends what that function returns to its epilog when help is shown (so that
@@ -347,7 +357,15 @@ def build_parser() -> argparse.ArgumentParser:
     swp.add_argument("--strict", action="store_true",
                      help="exit 1 when any claim of any point is fail or error (for CI)")
     swp.set_defaults(func=cmd_sweep)
+    _site_parser(sub_parser("site", help="build (or bring up to date) the static report site of an output root: "
+                                         "every paper, run and sweep, browsable offline (docs/site.md)"))
     return parser
+
+
+def _site_parser(p: argparse.ArgumentParser) -> None:
+    p.add_argument("out", nargs="?", default="out", metavar="OUT", help="output root (default out/)")
+    p.add_argument("--to", default=None, metavar="DIR", help="where the site goes (default OUT/site/)")
+    p.set_defaults(func=cmd_site)
 
 
 def _budget_flags(p: argparse.ArgumentParser) -> None:
