@@ -91,9 +91,10 @@ def users_small_scenarios() -> dict[str, str]:
     """Small scenarios a user might write first (file name -> TOML): a 4-node coestimation ring and a
     4-agent hybrid observer."""
     from .bench_tran import SMALL_TOML
-    from .bench_wang_liu_morse import _toml, agents_scenario
+    from .bench_wang_liu_morse import agents_scenario
+    from .common import toml_text
 
-    return {"ring4.toml": SMALL_TOML, "agents4.toml": _toml(agents_scenario(4, intervals=15, trials=64, name="agents4"))}
+    return {"ring4.toml": SMALL_TOML, "agents4.toml": toml_text(agents_scenario(4, intervals=15, trials=64, name="agents4"))}
 
 
 def bench_sweep_overhead(points: int) -> list[dict]:

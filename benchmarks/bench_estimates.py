@@ -12,8 +12,6 @@ The estimate is computed in this process (`Reproduction.cost`), as `dse check` c
 """
 from __future__ import annotations
 
-import json
-import math
 import os
 import statistics
 import sys
@@ -21,6 +19,7 @@ import tempfile
 from pathlib import Path
 
 from .bench_commands import REPRO, _dse, shipped_scenarios, timed_command
+from .common import toml_text
 
 #: the target of the ratio estimate / measured, both ways
 TARGET_FACTOR = 2.0
@@ -55,24 +54,6 @@ def _larger() -> list[tuple[str, dict]]:
             ("compare, 30-node random geometric graph", rgg)]
 
 
-def _toml(data: dict) -> str:
-    """A generated scenario dict as TOML: every top-level key on one line, tables inline."""
-    def value(v):
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, str):
-            return json.dumps(v)
-        if isinstance(v, float) and not math.isfinite(v):
-            return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")
-        if isinstance(v, (list, tuple)):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        if isinstance(v, dict):
-            return "{" + ", ".join(f"{json.dumps(str(k))} = {value(x)}" for k, x in v.items()) + "}"
-        return repr(v.item() if hasattr(v, "item") else v)
-
-    return "\n".join(f"{json.dumps(str(k))} = {value(v)}" for k, v in data.items()) + "\n"
-
-
 def estimate_row(label: str, path: Path, workers: int, repeats: int) -> dict:
     """One scenario: the estimate, the measured wall and CPU seconds (medians), their ratios."""
     from dse import api
@@ -102,7 +83,7 @@ def bench_estimates(repeats: int = 1, quick: bool = False, workers: int = 1, see
     with tempfile.TemporaryDirectory(prefix="dse-gen-") as tmp:
         for label, data in _generated(1 if quick else seeds) + ([] if quick else _larger()):
             f = Path(tmp) / f"{label.replace(' ', '_')}.toml"
-            f.write_text(_toml(data))
+            f.write_text(toml_text(data))
             files.append((label, f))
         for label, f in files:
             try:

@@ -209,30 +209,6 @@ def bench_estimate(cases: dict | None = None) -> list[dict]:
 
 # -- the commands people wait on ---------------------------------------------------------------------------
 
-def _toml(data: dict) -> str:
-    """A scenario dict as TOML (the few value types the scenarios above use)."""
-    def value(v):
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, str):
-            return json.dumps(v)
-        if isinstance(v, (list, tuple)):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        if isinstance(v, dict):
-            return "{" + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + "}"
-        return repr(v)
-
-    lines = [f"{k} = {value(v)}" for k, v in data.items() if not isinstance(v, (dict, list))]
-    for k, v in data.items():
-        if isinstance(v, dict):
-            lines += [f"[{k}]"] + [f"{a} = {value(b)}" for a, b in v.items()]
-    for k, v in data.items():
-        if isinstance(v, list):
-            for item in v:
-                lines += [f"[[{k}]]"] + [f"{a} = {value(b)}" for a, b in item.items()]
-    return "\n".join(lines) + "\n"
-
-
 if __name__ == "__main__":
     if "--estimate" in sys.argv:
         for row in bench_estimate():
