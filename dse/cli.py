@@ -6,7 +6,8 @@ Exit codes (also in `dse --help` and the README):
   1    --strict and some claim is `fail` or `error`; `dse verify` found differences;
        a sweep has points that failed
   2    invalid input or unusable output: one line naming the field or the path, nothing written
-  3    numerical failure of the run (a NaN or inf where a finite number is required)
+  3    numerical failure of the run (a NaN or inf where a finite number is required, or a valid
+       scenario that asks for a number float64 cannot hold): one line
   130  interrupted (Ctrl-C, SIGINT)
   141  the reader of the output went away (`dse list | head`)
   143  terminated (SIGTERM)
@@ -39,7 +40,8 @@ EXIT_CODES = """exit codes:
   1    --strict and some claim is fail or error; dse verify found differences; a sweep has failed points
   2    invalid input or unusable output (one line naming the field or path; nothing written:
        an OUT the command created is removed; the lock file OUT/.dse.lock is removed after every command)
-  3    numerical failure of the run (a NaN or inf where a finite number is required)
+  3    numerical failure of the run (a NaN or inf where a finite number is required, or a number
+       beyond float64, such as a gain below the rounding unit of 1): one line
   130  interrupted (SIGINT, Ctrl-C)
   141  the reader of the output went away (e.g. `dse list | head`)
   143  terminated (SIGTERM)"""
