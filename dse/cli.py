@@ -69,19 +69,35 @@ def cmd_list(args) -> int:
         raise ScenarioError("PAPER", f"unknown paper or family {', '.join(sorted(wanted - set(papers) - set(families)))} "
                                      f"(papers: {', '.join(papers)}; families: {', '.join(families)})")
     for pid, family in papers.items():
-        if wanted and not wanted & {pid, family.id}:
-            continue
-        repro = reg.paper(pid)
-        print(f"{pid} (family {family.id}): {repro.title}")
-        print(f"  scenarios: {', '.join(repro.scenario_ids())}")
-        for h in repro.hypotheses():
-            print(f"  hypothesis {h.id}: {h.statement}")
-        for claim in repro.claims():
-            scope = " [paper example]" if claim.scope == "paper-example" else ""
-            print(f"  {claim.id:<40} {claim.kind:<12} {claim.source}{scope}")
+        if not wanted or wanted & {pid, family.id}:
+            repro = reg.paper(pid)
+            _print_claims(f"{pid} (family {family.id}): {repro.title}", repro)
+    for fid, family in families.items():
+        if family.paper is None and (not wanted or fid in wanted):
+            _print_claims(f"{fid} (a family without a paper; claims as on its example {family.example})",
+                          _example_run(family))
     if not wanted:
         print("\nscenario families for `dse run FILE.toml` (family = ...):", ", ".join(families))
     return 0
+
+
+def _example_run(family):
+    """A user's run of the family's shipped example scenario (what `dse list` shows for a family
+    that reproduces no paper: the claims any scenario of it gets)."""
+    from dse.scenario.fields import load_toml
+
+    return _registry().from_dict(load_toml(family.example_file()))
+
+
+def _print_claims(header: str, repro) -> None:
+    """A run's scenarios, hypotheses and claims, one per line."""
+    print(header)
+    print(f"  scenarios: {', '.join(repro.scenario_ids())}")
+    for h in repro.hypotheses():
+        print(f"  hypothesis {h.id}: {h.statement}")
+    for claim in repro.claims():
+        scope = " [paper example]" if claim.scope == "paper-example" else ""
+        print(f"  {claim.id:<40} {claim.kind:<12} {claim.source}{scope}")
 
 
 def cmd_check(args) -> int:
@@ -289,7 +305,8 @@ def build_parser() -> argparse.ArgumentParser:
                                      epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action=VersionAction)
     sub = parser.add_subparsers(dest="command", required=True)
-    lst = sub.add_parser("list", help="papers, scenarios, hypotheses and claims")
+    lst = sub.add_parser("list", help="papers, scenarios, hypotheses and claims (a family without a paper: as on "
+                                      "its example scenario)")
     lst.add_argument("which", nargs="*", metavar="PAPER|FAMILY", help="only these papers or scenario families")
     lst.set_defaults(func=cmd_list)
 
