@@ -15,7 +15,9 @@ from __future__ import annotations
 import importlib
 
 _EXPORTS = {"Check": "dse.api", "Run": "dse.api", "check": "dse.api", "execute": "dse.api", "load": "dse.api",
-            "paper": "dse.api", "run": "dse.api", "ScenarioError": "dse.errors", "RunOptions": "dse.engine.driver"}
+            "paper": "dse.api", "run": "dse.api", "ScenarioError": "dse.errors", "UsageError": "dse.errors",
+            "OutputError": "dse.errors", "NumericalError": "dse.errors", "NumericalLimit": "dse.errors",
+            "RunOptions": "dse.engine.driver"}
 
 __all__ = sorted(_EXPORTS)
 

@@ -104,7 +104,7 @@ def cmd_check(args) -> int:
     from dse import api
 
     result = api.check(args.file, seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers,
-                       max_memory_mib=args.max_memory, max_time_s=args.max_time, max_design_s=args.max_design_time)
+                       max_memory=args.max_memory, max_time_s=args.max_time, max_design_s=args.max_design_time)
     repro = result.reproduction
     print(f"{args.file}: valid scenario '{repro.paper_id}' ({repro.title})")
     print("hypotheses:")

@@ -57,3 +57,12 @@ class NumericalLimit(NumericalError):
 
     def __reduce__(self):  # raised in a worker process, it must survive pickling
         return (NumericalLimit, (self.where,))
+
+
+class UsageError(ScenarioError):
+    """An invalid argument of a function of the Python API (`dse.run(..., trials=-3)`,
+    `dse.check(123)`): the Python side of the command line's usage errors. `field` is the
+    parameter's name; the message is the one line the command line would print."""
+
+    def __reduce__(self):
+        return (UsageError, (self.field, self.reason))
