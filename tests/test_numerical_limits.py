@@ -55,3 +55,41 @@ def test_gain_below_the_rounding_unit_is_a_numerical_limit_not_a_value_error():
 def test_numerical_limit_is_a_numerical_error_that_survives_pickling():
     exc = pickle.loads(pickle.dumps(NumericalLimit("the gain rounds away")))
     assert isinstance(exc, NumericalError) and str(exc) == "beyond float64: the gain rounds away"
+
+
+COMPARE_HUGE_F = """family = "compare"
+name = "huge-f"
+[plant]
+F = [[1e10, 0.0], [0.0, 1.01]]
+Q = [[0.05, 0.0], [0.0, 0.05]]
+[sensors]
+types = [{ H = [[1.0, 0.0]], R = [[1.0]] }, { H = [[0.0, 1.0]], R = [[1.0]] }]
+[graph]
+kind = "line"
+n = 4
+[links]
+model = "matchings"
+[simulation]
+steps = 20
+trials = 200
+quick_trials = 100
+"""
+
+
+def test_a_matrix_singular_at_working_precision_is_a_one_line_exit_3(tmp_path, capsys):
+    # F = 1e10 is inside the documented magnitudes; the centralized filter's innovation covariance
+    # HPHᵀ + R (P ~ 1e20) is singular in float64: numpy's LinAlgError traceback, exit 1, before
+    path = tmp_path / "huge.toml"
+    path.write_text(COMPARE_HUGE_F)
+    assert main(["run", str(path), "--quick", "--no-figures", "--out", str(tmp_path / "out")]) == 3
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "stage 'exact_moments', scenario 'huge-f': Singular matrix in kalman_covariances" in err
+
+
+def test_only_numerical_linear_algebra_errors_become_numerical_limits():
+    from dse.contract.context import beyond_float64
+
+    singular = np.linalg.LinAlgError("Singular matrix")
+    assert isinstance(beyond_float64(singular, "design", "s"), NumericalLimit)
+    shape = np.linalg.LinAlgError("Last 2 dimensions of the array must be square")
+    assert beyond_float64(shape, "design", "s") is shape          # a defect of ours stays a traceback
