@@ -46,6 +46,47 @@ def test_coestimation_run_whose_plant_leaves_float32_draws_without_warnings(tmp_
     assert run.counts["error"] == 0 and list(out.glob("*.rrd"))
 
 
+GOSSIP_OVERFLOW = """family = "gossip-kalman"
+name = "km-overflow"
+[model]
+F = [[1e3, 0.0], [0.0, 1.1]]
+Q = [[0.1, 0.0], [0.0, 0.1]]
+P0 = [[1.0, 0.0], [0.0, 1.0]]
+[sensors]
+types = [0, 1, 0, 1]
+C = [[[1.0, 0.0]], [[0.0, 1.0]]]
+R = [[[1.0]], [[1.0]]]
+[graph]
+kind = "ring"
+n = 4
+[protocol]
+kind = "single-edge"
+edge_prob = 0.2
+[simulation]
+slots = 40
+runs = 100
+reference_runs = 100
+quick_runs = 100
+quick_reference_runs = 100
+quick_slots = 40
+record_times = [1, 2, 5, 10, 20, 40]
+"""
+
+
+def test_gossip_kalman_on_a_fast_unstable_plant_prints_no_numpy_warning(tmp_path, capfd):
+    # a sensor's covariance grows by 1e6 per slot between gossip exchanges: the GIKF maps overflowed
+    # and numpy printed "RuntimeWarning: overflow encountered in multiply" (gikf_maps.py) three times
+    from dse.cli import main
+
+    path = tmp_path / "km.toml"
+    path.write_text(GOSSIP_OVERFLOW)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        code = main(["run", str(path), "--quick", "--workers", "1", "--no-figures", "--out", str(tmp_path / "out")])
+    err = capfd.readouterr().err
+    assert code == 0 and "Warning" not in err, err
+
+
 def test_recording_rerun_cannot_write_is_one_oserror_without_rust_log_lines(tmp_path):
     script = textwrap.dedent("""
         import resource, signal, sys

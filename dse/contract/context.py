@@ -21,14 +21,15 @@ NUMERICAL_LINALG = ("singular", "not positive definite", "did not converge")
 
 def beyond_float64(exc: Exception, stage: str, scenario: str) -> Exception:
     """A LinAlgError of a valid scenario's stage as a NumericalLimit naming the stage, the scenario and
-    the function of ours that failed (a matrix singular to working precision: numbers too far apart,
-    such as a plant that multiplies by 1e10 each step); any other exception unchanged."""
+    the function of ours that failed (a matrix singular to working precision, an SVD of overflowed
+    entries: numbers too far apart, such as a plant that multiplies by 1e10 each step); any other
+    exception unchanged."""
     if not any(word in str(exc).lower() for word in NUMERICAL_LINALG):
         return exc
     ours = [f for f in traceback.extract_tb(exc.__traceback__) if "/dse/" in f.filename.replace("\\", "/")]
     where = f" in {ours[-1].name} ({ours[-1].filename.rsplit('/dse/', 1)[-1]}:{ours[-1].lineno})" if ours else ""
-    return NumericalLimit(f"stage '{stage}', scenario '{scenario}': {exc}{where}: a matrix is singular to working "
-                          "precision (the scenario's numbers are too far apart to compute with)")
+    return NumericalLimit(f"stage '{stage}', scenario '{scenario}': {exc}{where}: the linear algebra fails at "
+                          "working precision (the scenario's numbers are too far apart to compute with)")
 
 
 @dataclass
@@ -50,7 +51,10 @@ class StageContext:
         def compute():
             computed.append(True)
             try:
-                return st.fn(**arguments)
+                # an overflow or a NaN inside a stage is not printed: the stage's arrays are checked
+                # finite when stored (NumericalError naming the array) unless it declares them allowed
+                with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                    return st.fn(**arguments)
             except np.linalg.LinAlgError as exc:
                 raise beyond_float64(exc, st.name, scenario) from exc
 
