@@ -402,8 +402,8 @@ def _unknown_metrics(spec: SweepSpec, frame, plan, log: Callable[[str], None]) -
     points_have = f"the points' metrics are {', '.join(have)}" if have else "the points have no network-wide metric"
     kept = [m.removeprefix("metric:") for m in plan.metrics if m.startswith("metric:")]
     if not kept:
-        raise ScenarioError("plot.metrics", f"{missing}: not a metric of these points ({points_have}); no figure "
-                                            "drawn, the points are kept: fix plot.metrics and run the sweep again")
+        raise ScenarioError("plot.metrics", f"{missing}: not a metric of these points ({points_have}); nothing "
+                                            "drawn or written: fix plot.metrics and run the sweep again")
     log(f"sweep {spec.name}: plot.metrics: {missing}: not a metric of these points ({points_have}); "
         f"plotting {', '.join(kept)} only")
 
