@@ -122,3 +122,23 @@ def test_complete_recording_passes_and_a_truncated_one_is_refused(tmp_path):
     (tmp_path / "cut.rrd").write_bytes(path.read_bytes()[:-20])
     with pytest.raises(OSError, match="the recording is incomplete: no footer"):
         record.check_complete(tmp_path / "cut.rrd")
+
+
+def test_family_tables_with_an_overflowing_column_hold_inf_without_warnings(monkeypatch):
+    # a derived column that overflows or divides by zero (seen in gossip-kalman's and coestimation's
+    # tables) printed numpy RuntimeWarnings; it now holds inf or NaN
+    import pandas as pd
+
+    repro = dse.load(ROOT / "dse" / "families" / "template" / "example.toml")
+
+    def tables(run, results):
+        mean = np.array([1e200, 1.0])
+        yield "t", pd.DataFrame({"var": mean**2 - mean**2, "ratio": np.array([1.0, 0.0]) / np.array([0.0, 0.0])})
+
+    monkeypatch.setattr(repro.family, "tables", tables)
+    monkeypatch.setattr(repro.family, "design_tables", tables)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        (name, frame), = repro.tables(None)
+        repro.design_tables(None)
+    assert np.isnan(frame["var"][0]) and np.isinf(frame["ratio"][0]) and np.isnan(frame["ratio"][1])
