@@ -13,9 +13,18 @@ pipeline.
 from __future__ import annotations
 
 import importlib
+import os
+
+#: Rerun's Rust side logs write failures (a full disk) as coloured lines on stderr, and reads
+#: RUST_LOG once, when `rerun` is first imported: off unless the user set it. A recording that
+#: could not be written is an error of ours instead (dse.outputs.record.recording), one line.
+RUST_LOG_SET_HERE = "RUST_LOG" not in os.environ
+os.environ.setdefault("RUST_LOG", "off")
 
 _EXPORTS = {"Check": "dse.api", "Run": "dse.api", "check": "dse.api", "execute": "dse.api", "load": "dse.api",
-            "paper": "dse.api", "run": "dse.api", "ScenarioError": "dse.errors", "RunOptions": "dse.engine.driver"}
+            "paper": "dse.api", "run": "dse.api", "ScenarioError": "dse.errors", "UsageError": "dse.errors",
+            "OutputError": "dse.errors", "NumericalError": "dse.errors", "NumericalLimit": "dse.errors",
+            "RunOptions": "dse.engine.driver"}
 
 __all__ = sorted(_EXPORTS)
 

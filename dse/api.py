@@ -9,7 +9,11 @@
     run.write("out/run/ring8")                   # report, tables, figures, recordings (only when asked)
 
 Nothing is written unless `write` is called or a `cache_dir` is given (the stage cache
-that lets a later run resume). The `dse` command line is a thin layer over these functions.
+that lets a later run resume). The `dse` command line is a thin layer over these functions,
+and they fail as it does, in one line: `dse.errors.UsageError` for a bad argument
+(`dse.run("ring8.toml", trials=-3)`: "trials: must be >= 1, got -3"), `ScenarioError` for a
+bad scenario (naming the field), `OutputError` for an unusable directory, `NumericalError`
+(and `NumericalLimit`) for a run whose numbers are not finite or beyond float64.
 """
 from __future__ import annotations
 
@@ -27,14 +31,14 @@ from dse.contract.context import StageContext
 from dse.contract.cost import (CHECK_DESIGN_BUDGET_S, CHECK_NOTE_AFTER_S, human_seconds, refuse_if_too_large,
                                refuse_if_too_long, refuse_long_design, refuse_options, run_refusal)
 from dse.contract.family import Reproduction
-from dse.contract.options import RunOptions
+from dse.contract.options import DEFAULT_WORKERS, RunOptions
 from dse.engine.atomic import atomic_write_text
 from dse.engine.cache import MemoryCache, StageCache
 from dse.engine.driver import evaluate_claims
 from dse.engine.memo import load_memo, manifest, save_memo, sha256_file
 from dse.engine.progress import note_if_slow
 from dse.engine.provenance import provenance
-from dse.errors import OutputError
+from dse.errors import OutputError, UsageError
 from dse.outputs.report import verdict_counts, write_report
 from dse.outputs.tables import Tables, spec
 from dse.simulate.units import peak_memory_mib
@@ -42,21 +46,33 @@ from dse.verify.rules import Evaluation
 
 
 def load(source: str | os.PathLike | Mapping[str, Any]) -> Reproduction:
-    """A validated scenario of a supported family, from a TOML file or a dict with `family`.
+    """A validated scenario of a supported family.
 
-    Raises `ScenarioError` (one line naming the field) on invalid input."""
+    Args:
+        source: the path of a TOML scenario file, or a dict of its contents (with its `family` key).
+
+    Raises `ScenarioError` (one line naming the field) on invalid input, `UsageError` when
+    `source` is neither a path nor a dict."""
     from dse import registry
 
     from dse.scenario.fields import load_toml
 
+    _check_source(source, reproduction=False)
     data = dict(source) if isinstance(source, Mapping) else load_toml(source)
     return registry.from_dict(data)
 
 
 def paper(paper_id: str) -> Reproduction:
-    """A paper's own reproduction (`dse list` shows the ids)."""
+    """A paper's own reproduction.
+
+    Args:
+        paper_id: the paper's id, as `dse list` shows it (e.g. "savas").
+
+    Raises `ScenarioError` for an unknown id, `UsageError` for one that is not a string."""
     from dse import registry
 
+    if not isinstance(paper_id, str):
+        raise UsageError("paper_id", f"must be a paper id such as 'savas' (a string), got {type(paper_id).__name__}")
     return registry.paper(paper_id)
 
 
@@ -107,7 +123,17 @@ class Run:
               figures: bool = True) -> Path:
         """Write report.json/md, tables/, figures and recordings into `out_dir`, replacing what a
         previous run left there in one step (a fresh directory renamed into place).
-        `figures=False` writes the report and the tables only (no figures, no recordings)."""
+
+        Args:
+            out_dir: the run's directory (created; a previous run there is replaced).
+            out_root: the output root whose `.cache/` holds this run's stage cache (what `dse verify`
+                re-checks from), or None.
+            figures: False writes the report and the tables only (no figures, no recordings).
+
+        Raises `UsageError` for an argument that is not a path, `OutputError` for a directory that
+        cannot be used."""
+        _check_dir(out_dir, "out_dir", optional=False)
+        _check_dir(out_root, "out_root")
         out_dir = Path(out_dir)
         staging = _staging_dir(out_dir)
         try:
@@ -171,7 +197,19 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
     and a fingerprint of the project's code and scenario files): an identical later run reads
     them back instead of re-checking (unless a stage entry it stands on changed since), and
     loads the stage results only if it needs them. `fresh=True` ignores the memo and the stage
-    cache: every stage is recomputed and its entry overwritten, and `write` redraws every view."""
+    cache: every stage is recomputed and its entry overwritten, and `write` redraws every view.
+
+    Args:
+        repro: the reproduction to run (`load`, `paper`).
+        opts: the run's options (`run_options` checks them as `run` does).
+        cache_dir: the stage cache's directory, or None (in memory).
+        source: the scenario as given (a parsed file), kept in run.json; None for a paper.
+        fresh: recompute every stage and ignore the memo (like `--fresh`)."""
+    if not isinstance(repro, Reproduction) or not isinstance(opts, RunOptions):
+        raise UsageError("repro" if not isinstance(repro, Reproduction) else "opts",
+                         "must be a Reproduction (dse.load, dse.paper) and a RunOptions (dse.api.run_options)")
+    _check_dir(cache_dir, "cache_dir")
+
     start = time.perf_counter()
     refuse_options(repro, opts)
     key = run_key(repro, opts, source)
@@ -243,11 +281,30 @@ def _reuse_outputs(out_dir: Path, staging: Path, key: str | None) -> dict[str, s
 
 
 def run(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,
-        quick: bool = False, workers: int = 1, cache_dir: str | os.PathLike | None = None,
-        max_time_s: float | None = None) -> Run:
-    """Load (unless given a reproduction), compute, verify and tabulate one scenario. A run estimated to
-    take longer than `max_time_s` seconds (default a day; `math.inf`: no limit) is refused before it
-    starts (ScenarioError), like `--max-time`."""
+        quick: bool = False, workers: int = DEFAULT_WORKERS, max_memory: int | float | str | None = None,
+        cache_dir: str | os.PathLike | None = None, max_time_s: float | None = None) -> Run:
+    """Load (unless given a reproduction), compute, verify and tabulate one scenario; nothing is written.
+
+    Args:
+        source: a scenario file's path, a dict of its contents, or a reproduction (`paper(...)`, `load(...)`).
+        seed: root random seed (an integer >= 0), like `--seed`.
+        trials: Monte Carlo trials per cell (an integer >= 1), like `--trials`; None keeps the scenario's.
+        quick: fewer trials and coarser grids, like `--quick`.
+        workers: worker processes (an integer >= 1; the command line's default). Results do not depend on it.
+        max_memory: the memory budget, in MiB (a number) or as on the command line ("4G", "800M"); None is
+            half of this machine's memory. Results do not depend on it.
+        cache_dir: a directory for the stage cache (a later identical run resumes from it); None keeps
+            everything in memory.
+        max_time_s: a run estimated to take longer than this many seconds is refused before it starts,
+            like `--max-time` (None: a day; `math.inf`: no limit).
+
+    Raises `UsageError` for an invalid argument and `ScenarioError` for an invalid scenario or a refused
+    run (both one line, as the command line prints them), `NumericalError` (and its `NumericalLimit`)
+    for a run whose numbers are not finite or beyond float64."""
+    opts = run_options(seed=seed, trials=trials, quick=quick, workers=workers, max_memory=max_memory,
+                       max_time_s=max_time_s)
+    _check_source(source)
+    _check_dir(cache_dir, "cache_dir")
     if isinstance(source, (str, os.PathLike, Mapping)):
         data = dict(source) if isinstance(source, Mapping) else None
         repro = load(source)
@@ -257,8 +314,76 @@ def run(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: i
             data = load_toml(source)
     else:
         repro, data = source, None
-    return execute(repro, RunOptions(seed=seed, trials=trials, quick=quick, workers=workers, max_time_s=max_time_s),
-                   cache_dir=cache_dir, source=data)
+    return execute(repro, opts, cache_dir=cache_dir, source=data)
+
+
+# -- the arguments of the public functions, checked as the command line checks its options ----------------
+
+#: the largest seed and trial count accepted (as on the command line)
+MAX_COUNT = 10**12
+
+
+def run_options(*, seed: Any = 0, trials: Any = None, quick: Any = False, workers: Any = DEFAULT_WORKERS,
+                max_memory: Any = None, max_time_s: Any = None) -> RunOptions:
+    """`RunOptions` from the arguments of `run` and `check` (see `run`); `UsageError` naming the first bad one."""
+    if not isinstance(quick, bool):
+        raise UsageError("quick", f"must be True or False, got {quick!r}")
+    return RunOptions(seed=_count(seed, "seed", 0), trials=None if trials is None else _count(trials, "trials", 1),
+                      quick=quick, workers=_count(workers, "workers", 1), max_memory_mib=_memory_mib(max_memory),
+                      max_time_s=_seconds(max_time_s, "max_time_s"))
+
+
+def _seconds(value: Any, name: str) -> float | None:
+    """None, or a positive number of seconds (`math.inf`: no limit)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+        raise UsageError(name, f"must be a positive number of seconds (math.inf: no limit), got {value!r}")
+    return float(value)
+
+
+def _count(value: Any, name: str, low: int) -> int:
+    import numbers
+
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise UsageError(name, f"must be a whole number, got {value!r}")
+    if not low <= value <= MAX_COUNT:
+        raise UsageError(name, f"must be >= {low}, got {value}" if value < low else
+                         f"must be at most {MAX_COUNT:.0e}, got {value}")
+    return int(value)
+
+
+def _memory_mib(value: Any) -> float | None:
+    """A memory budget in MiB: None, a number of MiB, or a size such as "800M", "4G", "4GiB"."""
+    if value is None:
+        return None
+    mib = float("nan")
+    if isinstance(value, str):
+        text = value.strip().upper().removesuffix("IB").removesuffix("B")
+        scale = {"K": 1 / 1024, "M": 1.0, "G": 1024.0, "T": 1024.0**2}.get(text[-1:])
+        try:
+            mib = float(text[:-1] if scale else text) * (scale or 1.0)
+        except ValueError:
+            pass
+    elif isinstance(value, (int, float)) and not isinstance(value, bool):
+        mib = float(value)
+    if not 256 <= mib < float("inf"):
+        raise UsageError("max_memory", f"must be a size of at least 256 MiB (a number of MiB, or e.g. '800M', "
+                                       f"'4G'), got {value!r}")
+    return mib
+
+
+def _check_source(source: Any, reproduction: bool = True) -> None:
+    if isinstance(source, (str, os.PathLike, Mapping)) or (reproduction and isinstance(source, Reproduction)):
+        return
+    what = "a scenario file's path or a dict of its contents" + (", or dse.paper(...)" if reproduction else "")
+    raise UsageError("source", f"must be {what}; got {type(source).__name__}")
+
+
+def _check_dir(value: Any, name: str, optional: bool = True) -> None:
+    if (value is None and optional) or isinstance(value, (str, os.PathLike)):
+        return
+    raise UsageError(name, f"must be a directory path (str or pathlib.Path), got {type(value).__name__}")
 
 
 # -- the tables every run has ---------------------------------------------------------------------------
@@ -367,17 +492,22 @@ class Check:
 
 
 def check(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,
-          quick: bool = False, workers: int = 1, max_memory_mib: float | None = None, max_time_s: float | None = None,
-          max_design_s: float = CHECK_DESIGN_BUDGET_S) -> Check:
+          quick: bool = False, workers: int = DEFAULT_WORKERS, max_memory: int | float | str | None = None,
+          max_time_s: float | None = None, max_design_s: float = CHECK_DESIGN_BUDGET_S) -> Check:
     """Validate a scenario and compute only its deterministic design stage (no Monte Carlo):
     the hypotheses are evaluated on the design, the design tables built, and the run's cost estimated.
-    Options as in `run` (`max_memory_mib`, `max_time_s`: the budgets the run would be held to; the
-    result's `refusal` says whether it would be refused). A design estimated above `max_design_s`
-    seconds is refused (ScenarioError naming the key that sizes it) before it is computed; one that
-    takes longer than a second is announced on stderr."""
+    The arguments and the errors raised are those of `run` (`max_memory`, `max_time_s`: the budgets
+    the run would be held to; the result's `refusal` says whether it would be refused), and:
+
+    Args:
+        max_design_s: a design estimated above this many seconds is refused (ScenarioError naming the
+            key that sizes it) before it is computed; one that takes longer than a second is announced
+            on stderr."""
+    opts = run_options(seed=seed, trials=trials, quick=quick, workers=workers, max_memory=max_memory,
+                       max_time_s=max_time_s)
+    max_design_s = _seconds(max_design_s, "max_design_s")
+    _check_source(source)
     repro = load(source) if isinstance(source, (str, os.PathLike, Mapping)) else source
-    opts = RunOptions(seed=seed, trials=trials, quick=quick, workers=workers, max_memory_mib=max_memory_mib,
-                      max_time_s=max_time_s)
     refuse_options(repro, opts)
     estimate = repro.cost(opts)
     refuse_long_design(estimate, max_design_s)

@@ -6,7 +6,8 @@ Exit codes (also in `dse --help` and the README):
   1    --strict and some claim is `fail` or `error`; `dse verify` found differences;
        a sweep has points that failed
   2    invalid input or unusable output: one line naming the field or the path, nothing written
-  3    numerical failure of the run (a NaN or inf where a finite number is required)
+  3    numerical failure of the run (a NaN or inf where a finite number is required, or a valid
+       scenario that asks for a number float64 cannot hold): one line
   130  interrupted (Ctrl-C, SIGINT)
   141  the reader of the output went away (`dse list | head`)
   143  terminated (SIGTERM)
@@ -39,7 +40,8 @@ EXIT_CODES = """exit codes:
   1    --strict and some claim is fail or error; dse verify found differences; a sweep has failed points
   2    invalid input or unusable output (one line naming the field or path; nothing written:
        an OUT the command created is removed; the lock file OUT/.dse.lock is removed after every command)
-  3    numerical failure of the run (a NaN or inf where a finite number is required)
+  3    numerical failure of the run (a NaN or inf where a finite number is required, or a number
+       beyond float64, such as a gain below the rounding unit of 1): one line
   130  interrupted (SIGINT, Ctrl-C)
   141  the reader of the output went away (e.g. `dse list | head`)
   143  terminated (SIGTERM)"""
@@ -67,26 +69,42 @@ def cmd_list(args) -> int:
         raise ScenarioError("PAPER", f"unknown paper or family {', '.join(sorted(wanted - set(papers) - set(families)))} "
                                      f"(papers: {', '.join(papers)}; families: {', '.join(families)})")
     for pid, family in papers.items():
-        if wanted and not wanted & {pid, family.id}:
-            continue
-        repro = reg.paper(pid)
-        print(f"{pid} (family {family.id}): {repro.title}")
-        print(f"  scenarios: {', '.join(repro.scenario_ids())}")
-        for h in repro.hypotheses():
-            print(f"  hypothesis {h.id}: {h.statement}")
-        for claim in repro.claims():
-            scope = " [paper example]" if claim.scope == "paper-example" else ""
-            print(f"  {claim.id:<40} {claim.kind:<12} {claim.source}{scope}")
+        if not wanted or wanted & {pid, family.id}:
+            repro = reg.paper(pid)
+            _print_claims(f"{pid} (family {family.id}): {repro.title}", repro)
+    for fid, family in families.items():
+        if family.paper is None and (not wanted or fid in wanted):
+            _print_claims(f"{fid} (a family without a paper; claims as on its example {family.example})",
+                          _example_run(family))
     if not wanted:
         print("\nscenario families for `dse run FILE.toml` (family = ...):", ", ".join(families))
     return 0
+
+
+def _example_run(family):
+    """A user's run of the family's shipped example scenario (what `dse list` shows for a family
+    that reproduces no paper: the claims any scenario of it gets)."""
+    from dse.scenario.fields import load_toml
+
+    return _registry().from_dict(load_toml(family.example_file()))
+
+
+def _print_claims(header: str, repro) -> None:
+    """A run's scenarios, hypotheses and claims, one per line."""
+    print(header)
+    print(f"  scenarios: {', '.join(repro.scenario_ids())}")
+    for h in repro.hypotheses():
+        print(f"  hypothesis {h.id}: {h.statement}")
+    for claim in repro.claims():
+        scope = " [paper example]" if claim.scope == "paper-example" else ""
+        print(f"  {claim.id:<40} {claim.kind:<12} {claim.source}{scope}")
 
 
 def cmd_check(args) -> int:
     from dse import api
 
     result = api.check(args.file, seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers,
-                       max_memory_mib=args.max_memory, max_time_s=args.max_time, max_design_s=args.max_design_time)
+                       max_memory=args.max_memory, max_time_s=args.max_time, max_design_s=args.max_design_time)
     repro = result.reproduction
     print(f"{args.file}: valid scenario '{repro.paper_id}' ({repro.title})")
     print("hypotheses:")
@@ -287,7 +305,8 @@ def build_parser() -> argparse.ArgumentParser:
                                      epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action=VersionAction)
     sub = parser.add_subparsers(dest="command", required=True)
-    lst = sub.add_parser("list", help="papers, scenarios, hypotheses and claims")
+    lst = sub.add_parser("list", help="papers, scenarios, hypotheses and claims (a family without a paper: as on "
+                                      "its example scenario)")
     lst.add_argument("which", nargs="*", metavar="PAPER|FAMILY", help="only these papers or scenario families")
     lst.set_defaults(func=cmd_list)
 

@@ -42,3 +42,27 @@ class NumericalError(ArithmeticError):
 
     def __reduce__(self):  # raised in a worker process, it must survive pickling
         return (NumericalError, (self.stage, self.scenario, self.where))
+
+
+class NumericalLimit(NumericalError):
+    """A valid scenario asks for a number that float64 cannot give: a gain below the rounding unit
+    of 1 (so that ``1 - gain`` rounds to 1 and a stable recursion looks marginally stable), a
+    steady state that exists in exact arithmetic but not at this precision. Like any NumericalError
+    it is a one-line exit 3 on the command line and a `numerical-error` point in a sweep; `what`
+    says which quantity and why."""
+
+    def __init__(self, what: str):
+        self.stage, self.scenario, self.where = "", "", what
+        ArithmeticError.__init__(self, f"beyond float64: {what}")
+
+    def __reduce__(self):  # raised in a worker process, it must survive pickling
+        return (NumericalLimit, (self.where,))
+
+
+class UsageError(ScenarioError):
+    """An invalid argument of a function of the Python API (`dse.run(..., trials=-3)`,
+    `dse.check(123)`): the Python side of the command line's usage errors. `field` is the
+    parameter's name; the message is the one line the command line would print."""
+
+    def __reduce__(self):
+        return (UsageError, (self.field, self.reason))

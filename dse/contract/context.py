@@ -5,10 +5,31 @@ Kept apart from `dse.contract.stages` (the declaration of a stage and its key): 
 """
 from __future__ import annotations
 
+import traceback
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
+import numpy as np
+
 from dse.contract.stages import Stage, StageResult
+from dse.errors import NumericalLimit
+
+#: what LAPACK says when a matrix is singular, indefinite or ill-conditioned at working precision
+#: (other LinAlgErrors, such as a non-square argument, are defects and propagate as they are)
+NUMERICAL_LINALG = ("singular", "not positive definite", "did not converge")
+
+
+def beyond_float64(exc: Exception, stage: str, scenario: str) -> Exception:
+    """A LinAlgError of a valid scenario's stage as a NumericalLimit naming the stage, the scenario and
+    the function of ours that failed (a matrix singular to working precision, an SVD of overflowed
+    entries: numbers too far apart, such as a plant that multiplies by 1e10 each step); any other
+    exception unchanged."""
+    if not any(word in str(exc).lower() for word in NUMERICAL_LINALG):
+        return exc
+    ours = [f for f in traceback.extract_tb(exc.__traceback__) if "/dse/" in f.filename.replace("\\", "/")]
+    where = f" in {ours[-1].name} ({ours[-1].filename.rsplit('/dse/', 1)[-1]}:{ours[-1].lineno})" if ours else ""
+    return NumericalLimit(f"stage '{stage}', scenario '{scenario}': {exc}{where}: the linear algebra fails at "
+                          "working precision (the scenario's numbers are too far apart to compute with)")
 
 
 @dataclass
@@ -29,7 +50,13 @@ class StageContext:
 
         def compute():
             computed.append(True)
-            return st.fn(**arguments)
+            try:
+                # an overflow or a NaN inside a stage is not printed: the stage's arrays are checked
+                # finite when stored (NumericalError naming the array) unless it declares them allowed
+                with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                    return st.fn(**arguments)
+            except np.linalg.LinAlgError as exc:
+                raise beyond_float64(exc, st.name, scenario) from exc
 
         arrays = self.cache.get_or_compute(st.name, params, compute, scenario=scenario,
                                            allow_nonfinite=st.nonfinite_allowed(arguments))

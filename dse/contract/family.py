@@ -248,11 +248,23 @@ class Reproduction:
     def cost(self, opts: RunOptions) -> Cost:
         return self.family.cost(self, opts)
 
-    def design_tables(self, design: Any):
-        return self.family.design_tables(self, design)
+    def design_tables(self, design: Any) -> list:
+        """The family's design tables, built without numpy warnings (see `tables`)."""
+        with _quiet_floats():
+            return list(self.family.design_tables(self, design))
 
-    def tables(self, results: Any):
-        return self.family.tables(self, results)
+    def tables(self, results: Any) -> list:
+        """The family's tables, built with numpy's floating-point warnings off: they are numbers derived
+        from stage results that were checked finite (or declared non-finite results), and a column that
+        overflows (the square of a diverging error, say) holds inf or NaN, a result, not a warning."""
+        with _quiet_floats():
+            return list(self.family.tables(self, results))
 
     def views(self, outputs: Any) -> list:
         return self.family.views(outputs)
+
+
+def _quiet_floats():
+    import numpy as np
+
+    return np.errstate(over="ignore", invalid="ignore", divide="ignore")

@@ -351,7 +351,7 @@ def asymptotic_covariance_summary(
     if modes is not None:
         V, ones, b, alpha, _ = modes
         if alpha.max() >= 1.0:
-            raise ValueError(f"no steady state: spectral radius of (1-ell) A is {np.sqrt(alpha.max()):.6g} >= 1")
+            raise _no_steady_state(np.sqrt(alpha.max()), ell)
         p = b / (1.0 - alpha)
         shifted = p - reference * ones**2
         P = (V * p) @ V.T if with_matrix else None
@@ -389,7 +389,10 @@ def predictive_covariance_at_steps(
             log_alpha = np.log(np.where(alpha > 0, alpha, 1.0))
             decay = np.where(alpha > 0, np.exp(kk * log_alpha), (kk == 0).astype(float))
             rise = np.where(alpha > 0, -np.expm1(kk * log_alpha), (kk > 0).astype(float))
-        p = decay * (sigma0 * ones**2) + rise * (b / (1.0 - alpha))
+            # sum_{j<k} alpha^j = (1 - alpha^k)/(1 - alpha), and k where alpha rounds to 1 (a gain below
+            # the rounding unit of 1): the same limit, without 0 * inf
+            accumulated = np.where(alpha < 1.0, rise / np.where(alpha < 1.0, 1.0 - alpha, 1.0), kk)
+        p = decay * (sigma0 * ones**2) + accumulated * b
         out = CovarianceAtSteps(k, p @ (V * V).T, p.sum(axis=1), np.sort(p, axis=1))
         if k[0] == 0:   # P(0|-1) = sigma0 1 1^T exactly
             out.diag[0], out.trace[0], out.eigenvalues[0] = sigma0, n * sigma0, 0.0
@@ -441,13 +444,26 @@ def centralized_prior_variances(q, r, n_agents, sigma0, n_steps) -> np.ndarray:
 # --------------------------------------------------------------------------------------
 
 
+def _no_steady_state(rho: float, ell) -> Exception:
+    """The error for a steady state that does not exist at working precision. With 0 < ell <= 1 and
+    a stochastic A it exists in exact arithmetic; when ell is below the rounding unit of 1, 1 - ell
+    rounds to 1 and the recursion is marginally stable in float64 (a NumericalLimit, not an input
+    error). Any other case is a caller's error (ValueError)."""
+    from dse.errors import NumericalLimit
+
+    ell_min = float(np.min(ell))
+    if 0.0 < ell_min and 1.0 - ell_min == 1.0:
+        return NumericalLimit(f"no steady-state covariance: the gain ell = {ell_min:.3g} is below the rounding unit "
+                              f"of 1, so 1 - ell rounds to 1 and the spectral radius of (1-ell) A to {rho:.6g} "
+                              "(the measurement noise is too large against the process noise to compute with)")
+    return ValueError(f"no steady state: spectral radius of (1-ell) A is {rho:.6g} >= 1 "
+                      "(Q must be nonnegative so that rho(Qdag) = 1)")
+
+
 def _check_stable(A: np.ndarray, ell: float) -> None:
     rho = float(np.max(np.abs(np.linalg.eigvals((1.0 - ell) * A))))
-    if rho >= 1.0:
-        raise ValueError(
-            f"no steady state: spectral radius of (1-ell) A is {rho:.6g} >= 1 "
-            "(Q must be nonnegative so that rho(Qdag) = 1)"
-        )
+    if rho >= 1.0 or 1.0 - float(np.min(ell)) == 1.0:   # a stochastic A has radius 1 (eigvals may say 1 - 1e-16)
+        raise _no_steady_state(rho, ell)
 
 
 def asymptotic_covariance_lyapunov(

@@ -195,7 +195,7 @@ def optimal_gain_no_communication(q, r, n_agents) -> tuple[float, float]:
 
 def _no_communication_cost(ell, n, q, r):
     ell = np.asarray(ell, dtype=np.float64)
-    return n * (ell**2 * r + q) / (1.0 - (1.0 - ell) ** 2)
+    return n * (ell**2 * r + q) / (ell * (2.0 - ell))    # 1 - (1-ell)^2 without cancellation
 
 
 # --------------------------------------------------------------------------------------
@@ -258,7 +258,10 @@ def _cost_and_gradient(cells: _Cells, ell, zeta, gradient: bool = True):
 
 
 def _cost(cells: _Cells, ell, zeta):
-    return _cost_and_gradient(cells, ell, zeta, gradient=False)[0]
+    """``J`` at points (P,) of cells (P,): +inf where ``1 - (1-ell)^2`` rounds to 0 (a gain below the
+    rounding unit of 1 has no steady state in float64; the design then raises NumericalLimit)."""
+    with np.errstate(divide="ignore"):
+        return _cost_and_gradient(cells, ell, zeta, gradient=False)[0]
 
 
 #: points per block of `_at`: a block's per-mode arrays stay near 2 MB whatever the number of modes

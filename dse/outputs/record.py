@@ -54,8 +54,77 @@ def recording(path: str | os.PathLike, *, application_id: str, recording_id: str
         try:
             yield rec
         finally:
-            rec.flush()
-            rec.disconnect()
+            flushed = _flush(rec)
+            if flushed:         # after a failed write, rerun's disconnect can block for ever: left undone
+                rec.disconnect()
+        if not flushed:
+            _abandon(rec)
+            raise _not_written(tmp, "rerun's file writer failed")
+        check_complete(tmp)
+
+
+#: how long the recording's last messages may take to reach the file (a healthy writer needs well
+#: under a second for the largest recording here); after a failed write, flush may wait this long
+FLUSH_TIMEOUT_S = 300.0
+
+
+def _flush(rec: rr.RecordingStream) -> bool:
+    """Whether every message reached the file (False when rerun's writer failed or timed out)."""
+    try:
+        rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        return True
+    except RuntimeError:
+        return False
+
+
+class _AbandonedStream(rr.RecordingStream):
+    """A stream whose file writer failed. rerun-sdk 0.41 waits for ever on such a stream when it is
+    disconnected, garbage-collected or flushed at exit: it is left as it is, for the process's exit."""
+
+    def __del__(self):
+        pass
+
+
+def _abandon(rec: rr.RecordingStream) -> None:
+    rec.__class__ = _AbandonedStream
+    rr.unregister_shutdown()    # its exit handler would flush every stream again; ours are closed here
+
+
+def _not_written(path: Path, why: str) -> OSError:
+    import errno
+
+    stat = os.statvfs(path.parent)
+    full = stat.f_bavail * stat.f_frsize < 2**20
+    code = errno.ENOSPC if full else errno.EIO
+    return OSError(code, f"{os.strerror(code)}; the recording is incomplete: {why}", str(path))
+
+
+#: the last bytes of a complete .rrd file of the pinned rerun-sdk: the footer's magic and its version
+RRD_END = b"RRF2FOOT"
+
+
+def check_complete(path: Path) -> None:
+    """OSError naming `path` unless the recording there ends with its footer: rerun's file sink
+    fails in a background thread (a full disk, a file size limit) without raising, and its own
+    log lines are off (dse/__init__.py)."""
+    with open(path, "rb") as fh:
+        fh.seek(0, os.SEEK_END)
+        fh.seek(max(fh.tell() - len(RRD_END) - 4, 0))
+        tail = fh.read()
+    if not tail.startswith(RRD_END):
+        raise _not_written(Path(path), "no footer")
+
+
+#: the largest magnitude of rerun's float32 components (positions in the plane and in graphs)
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def as_float32(values) -> np.ndarray:
+    """`values` for a float32 component of rerun: an entry beyond float32's range (a diverging
+    estimate, say) becomes NaN, not drawn, instead of an overflow in rerun's cast; the number
+    itself is in the run's tables."""
+    v = np.asarray(values, dtype=np.float64)
+    return np.where(np.abs(v) <= FLOAT32_MAX, v, np.nan).astype(np.float32)
 
 
 def _property(v: Any) -> Any:
@@ -116,13 +185,15 @@ def log_graph(rec: rr.RecordingStream, entity: str, positions: np.ndarray, edges
 
 
 def display_positions(positions: np.ndarray, spacing: float = 160.0) -> np.ndarray:
-    """Positions scaled so that the closest pair of nodes is `spacing` pixels apart."""
+    """Positions scaled so that the closest pair of nodes is `spacing` pixels apart (float32, as
+    rerun stores them; beyond its range NaN, see `as_float32`)."""
     pos = np.asarray(positions, float)
     if len(pos) < 2:
-        return pos
-    d = np.sqrt(((pos[:, None, :] - pos[None, :, :]) ** 2).sum(-1))
-    closest = d[~np.eye(len(pos), dtype=bool)].min()
-    return pos * (spacing / closest) if closest > 0 else pos
+        return as_float32(pos)
+    with np.errstate(over="ignore", invalid="ignore"):    # positions up to 1e100 apart: inf is handled below
+        d = np.sqrt(((pos[:, None, :] - pos[None, :, :]) ** 2).sum(-1))
+        closest = d[~np.eye(len(pos), dtype=bool)].min()
+        return as_float32(pos * (spacing / closest) if 0 < closest < np.inf else pos)
 
 
 def log_markdown(rec: rr.RecordingStream, entity: str, text: str) -> None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import socket
+import os
 import subprocess
 import sys
 import time
@@ -82,6 +83,14 @@ def embedded_font_coverage() -> set[int]:
     raise RuntimeError(f"no Inter font found in {VIEWER}")
 
 
+def _viewer_env() -> dict[str, str]:
+    """The viewer's environment: its own log lines back on (what it prints when it fails is read here)
+    unless the user set RUST_LOG (dse turns rerun's Rust logging off otherwise)."""
+    import dse
+
+    return {k: v for k, v in os.environ.items() if not (k == "RUST_LOG" and dse.RUST_LOG_SET_HERE)}
+
+
 def check_recording(rrd: Path, screenshot: Path | None, *, timeout: float = 60.0, settle: float = 4.0) -> list[str]:
     """Problems found with one recording (empty list when it renders cleanly)."""
     glyphs = undrawable_text(rrd)
@@ -90,7 +99,7 @@ def check_recording(rrd: Path, screenshot: Path | None, *, timeout: float = 60.0
     port = _free_port()
     proc = subprocess.Popen([str(VIEWER), "--headless", "--bind", "127.0.0.1", "--port", str(port),
                              "--window-size", "1600x1000", "--hide-welcome-screen", str(rrd)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=_viewer_env())
     expected = [k for k in blueprint_view_kinds(rrd) if k]
     try:
         deadline, state, client = time.monotonic() + timeout, None, None

@@ -11,14 +11,20 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from dse.scenario.fields import MAX_FILE_BYTES
+from dse.scenario.toml_depth import MAX_KEY_PARTS, MAX_NESTING
+
 PAGE = Path(__file__).resolve().parents[2] / "docs" / "scenarios.md"
 
-POLICY = """## Rules common to every family
+POLICY = f"""## Rules common to every family
 
 - A scenario file is TOML with `family = "<family>"` and an optional `name` (letters, digits,
   `-` and `_`, at most 64 characters; it names the output directory `OUT/run/<name>/`).
 - Each table of a family's reference below says whether a file must have it (**Required table**)
   or may leave it out (*Optional table*: its keys then take their defaults).
+- A scenario or sweep file is a regular UTF-8 file of at most {MAX_FILE_BYTES:,} bytes; a dotted key or
+  table header has at most {MAX_KEY_PARTS} parts, and tables, keys and arrays nest at most {MAX_NESTING} levels
+  deep (`[grid]` then `"x" = [[1.0]]` is 4). Both are checked on the text before it is parsed.
 - Unknown keys are errors (a typo never falls back to a default). Numbers must be finite and of
   magnitude at most 1e100; where an integer is required a float is rejected (write 3, not 3.0);
   strings are never converted to numbers.

@@ -13,6 +13,7 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from dse.errors import ScenarioError
+from dse.scenario.toml_depth import check_depth
 
 #: No scenario number is larger than this in magnitude: beyond it squares and sums of
 #: squares overflow float64, and no physical or statistical quantity here needs it.
@@ -27,7 +28,8 @@ def load_toml(path: str | Path) -> dict[str, Any]:
     """Parse a TOML scenario file; any read or syntax problem is a ScenarioError.
 
     Only a regular file of at most MAX_FILE_BYTES is read (a device such as /dev/zero, a
-    FIFO or a directory is refused before reading, so nothing can hang or fill memory)."""
+    FIFO or a directory is refused before reading, so nothing can hang or fill memory), and
+    only a text whose keys and nesting are within `dse.scenario.toml_depth`'s limits is parsed."""
     import os
     import stat
 
@@ -50,6 +52,7 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
         raise ScenarioError(str(path), "not a UTF-8 text file") from None
+    check_depth(text, str(path))
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -378,9 +378,7 @@ def write_sweep_outputs(spec: SweepSpec, out_dir: Path, done: list[Task], result
     if len(frame):
         plan = so.plot_plan(spec, frame)
         if plan.unknown_metrics:
-            log(f"sweep {spec.name}: plot.metrics names {', '.join(plan.unknown_metrics)}, not metrics of this family "
-                f"(it has: {', '.join(c.removeprefix('metric:') for c in frame.columns if c.startswith('metric:'))}); "
-                "plotting the others")
+            _unknown_metrics(spec, frame, plan, log)
         so.write_figure(spec, frame, plan, out_dir / "sweep.png")
         so.write_recording(spec, frame, plan, summary_md, out_dir / "sweep.rrd")
     atomic_write_text(out_dir / "summary.md", summary_md + "\n")
@@ -394,6 +392,20 @@ def sweep_file_diffs(out_dir: Path, meta: dict[str, Any]) -> list[str]:
     from dse.engine.reverify import check_files
 
     return check_files(out_dir, meta.get("checksums"), skip="sweep.json")[1]
+
+
+def _unknown_metrics(spec: SweepSpec, frame, plan, log: Callable[[str], None]) -> None:
+    """`plot.metrics` names metrics the points do not have: refused in one line when none of them is
+    left (a figure of the pass fraction alone is not what was asked for), else said and left out."""
+    have = [c.removeprefix("metric:") for c in frame.columns if c.startswith("metric:")]
+    missing = ", ".join(plan.unknown_metrics)
+    points_have = f"the points' metrics are {', '.join(have)}" if have else "the points have no network-wide metric"
+    kept = [m.removeprefix("metric:") for m in plan.metrics if m.startswith("metric:")]
+    if not kept:
+        raise ScenarioError("plot.metrics", f"{missing}: not a metric of these points ({points_have}); nothing "
+                                            "drawn or written: fix plot.metrics and run the sweep again")
+    log(f"sweep {spec.name}: plot.metrics: {missing}: not a metric of these points ({points_have}); "
+        f"plotting {', '.join(kept)} only")
 
 
 def verify_sweep(out_dir: Path) -> tuple[list[str], int]:

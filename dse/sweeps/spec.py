@@ -25,7 +25,7 @@ A sweep file (TOML) names a base scenario of any family and the scenario fields 
     [plot]
     x = "graph.n"                      # default: the first numeric grid field
     log_x = false
-    metrics = ["tr_P"]                 # default: every metric of the family
+    metrics = ["tr_P"]                 # default: every metric of the family (a name no point has is refused)
 
 A field is a dotted path into the scenario (``sensors.0.V`` indexes a list). Its parent must
 exist in the base scenario; the leaf may be new (an optional field left at its default).

@@ -335,12 +335,12 @@ def _log_network(rec, dr: Drawing) -> None:
     rec.log("graph", rr.GraphEdges([(str(u), str(v)) for u, v in sc.network.build().edges()],
                                    graph_type=rr.GraphType.Undirected), static=True)
     rec.log("graph", rr.GraphNodes.from_fields(show_labels=True), static=True)
-    rec.log("plane/target_path", rr.LineStrips2D([co["x"][:, [a, b]]], colors=[(0, 0, 0)], radii=0.02), static=True)
+    rec.log("plane/target_path", rr.LineStrips2D([record.as_float32(co["x"][:, [a, b]])], colors=[(0, 0, 0)],
+                                                 radii=0.02), static=True)
     if sc.roles.mode == "proximity":
         circ = np.linspace(0, 2 * np.pi, 60)
-        rec.log("plane/sensing_discs", rr.LineStrips2D([pos[i] + sc.roles.radius * np.c_[np.cos(circ), np.sin(circ)]
-                                                         for i in range(N)], colors=[(200, 200, 200)], radii=0.01),
-                static=True)
+        discs = [record.as_float32(pos[i] + sc.roles.radius * np.c_[np.cos(circ), np.sin(circ)]) for i in range(N)]
+        rec.log("plane/sensing_discs", rr.LineStrips2D(discs, colors=[(200, 200, 200)], radii=0.01), static=True)
     # one column send per entity for all frames (N nodes per frame)
     F, g = len(frames), co["g"][frames]
     node_cols = np.stack([60 + 195 * g, 120 * (1 - g), 200 * (1 - g)], axis=-1).astype(np.uint8).reshape(F * N, 3)
@@ -351,12 +351,12 @@ def _log_network(rec, dr: Drawing) -> None:
         colors=node_cols, radii=(8 + 14 * g).ravel(),
         labels=np.char.add(np.tile(names, F), np.where(g > 0.5, "·A", "").ravel())).partition(per_frame))
     rec.send_columns("plane/nodes", indexes=fidx, columns=rr.Points2D.columns(
-        positions=np.tile(pos, (F, 1)), colors=node_cols, radii=(0.08 + 0.17 * g).ravel(),
+        positions=record.as_float32(np.tile(pos, (F, 1))), colors=node_cols, radii=(0.08 + 0.17 * g).ravel(),
         labels=np.tile(names, F)).partition(per_frame))
     rec.send_columns("plane/target", indexes=fidx, columns=rr.Points2D.columns(
-        positions=co["x"][frames][:, [a, b]], colors=np.zeros((F, 3), np.uint8), radii=np.full(F, 0.12)))
+        positions=record.as_float32(co["x"][frames][:, [a, b]]), colors=np.zeros((F, 3), np.uint8), radii=np.full(F, 0.12)))
     rec.send_columns("plane/estimates", indexes=fidx, columns=rr.Points2D.columns(
-        positions=co["e"][frames][:, :, [a, b]].reshape(F * N, 2), colors=np.tile(np.array(cols, np.uint8), (F, 1)),
+        positions=record.as_float32(co["e"][frames][:, :, [a, b]].reshape(F * N, 2)), colors=np.tile(np.array(cols, np.uint8), (F, 1)),
         radii=np.full(F * N, 0.07)).partition(per_frame))
     idx = record.duration_index("t", _ns(co["t"]))
     record.send_series(rec, "roles", idx, co["g"], names=[f"g_{i + 1}" for i in range(N)], colors=cols)
