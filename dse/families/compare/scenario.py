@@ -286,7 +286,7 @@ class CompareFile(ScenarioFile):
 
     @cached_property
     def max_degree(self) -> int:
-        return max_degree(self.network.build())
+        return max_degree(self.network)          # from the edge list (networkx only for random graphs)
 
     @cached_property
     def alpha(self) -> float:
