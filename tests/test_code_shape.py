@@ -5,6 +5,7 @@ hand-written module list in a cache key, and a driver that calls only what the c
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -37,10 +38,42 @@ def test_no_function_over_80_lines_outside_the_kernels():
     assert not long, long
 
 
+def _names_a_module(name: str) -> bool:
+    """`name` is a dotted module name of a file of the project ("dse.estimators.kalman", or "estimators.kalman"
+    relative to dse/)."""
+    if not re.fullmatch(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)+", name):
+        return False
+    rel = Path(*name.split("."))
+    return any((b / rel).with_suffix(".py").is_file() or (b / rel / "__init__.py").is_file() for b in (ROOT, ROOT / "dse"))
+
+
+def _module_name_lists(tree: ast.Module) -> list[int]:
+    """Lines of module-level constants that list the project's modules by name: the shape of a cache key's
+    hand-kept list of the code it depends on."""
+    def names_modules(value) -> bool:
+        return (isinstance(value, (ast.Tuple, ast.List, ast.Set)) and bool(value.elts)
+                and all(isinstance(e, ast.Constant) and isinstance(e.value, str) for e in value.elts)
+                and any(_names_a_module(e.value) for e in value.elts))
+
+    return [node.lineno for node in tree.body if isinstance(node, (ast.Assign, ast.AnnAssign))
+            and node.value is not None and names_modules(node.value)]
+
+
 def test_no_hand_written_module_list_in_a_cache_key():
-    found = [_rel(p) for p in SOURCES if p.is_relative_to(ROOT / "dse")
-             and ("CODE_MODULES" in (text := p.read_text()) or "code_fingerprint(" in text)]
+    """Stage keys hash the sources of the import closure (dse.contract.stages.code_closure): no module keeps a
+    list of the modules its computations depend on."""
+    found = [f"{_rel(p)}:{line}" for p in SOURCES if p.is_relative_to(ROOT / "dse")
+             for line in _module_name_lists(ast.parse(p.read_text()))]
     assert not found, found
+
+
+def test_a_hand_written_module_list_is_found():
+    """The lists the stage keys once kept (names relative to the package root, or absolute) are found; a list of
+    file patterns, paths or directory names is not."""
+    text = ('KEY_CODE = ("estimators.network_comparison", "estimators.kalman")\n'
+            'OTHER = ("a.toml", ".*.tmp.*", "savas/paper.toml")\n'
+            'MORE = ["dse.simulate.seeding"]\nDIRS = (".cache", "run")\n')
+    assert _module_name_lists(ast.parse(text)) == [1, 3]
 
 
 def test_the_driver_does_not_probe_a_reproduction():

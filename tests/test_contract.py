@@ -184,3 +184,12 @@ main(["list"])
                                timeout=600)
     assert normal.returncode == 0 and reversed_.returncode == 0, reversed_.stderr[-2000:]
     assert reversed_.stdout == normal.stdout
+
+
+def test_a_family_that_declares_a_paper_must_give_its_scenarios():
+    from dse.contract.family import Paper
+    from dse.families.template.family import Template
+
+    with pytest.raises(TypeError, match="paper_scenarios"):
+        type("WithPaper", (Template,), {"paper": Paper("p", "A paper", ("s",))})
+    assert Template().paper_scenarios() == ()       # no paper: no paper scenarios

@@ -75,9 +75,15 @@ class Family(ABC):
 
         return parse(self.scenario_model, data)
 
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if cls.paper is not None and cls.paper_scenarios is Family.paper_scenarios:
+            raise TypeError(f"{cls.__name__} declares the paper {cls.paper.id!r} but not its paper_scenarios()")
+
     def paper_scenarios(self) -> Sequence[Any]:
-        """The paper's own scenarios (families with a paper override this)."""
-        raise NotImplementedError(f"family {self.id} has no paper")
+        """The paper's own scenarios, in the order of `paper.scenario_ids`: a family that declares a paper
+        defines them (checked when its class is defined); a family without a paper has none."""
+        return ()
 
     def roles(self, scenario: Any, paper: bool) -> frozenset[str]:
         """Roles of a scenario in a run, read by the claims' `role(...)` gates (none by default)."""
