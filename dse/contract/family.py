@@ -118,17 +118,20 @@ class Family(ABC):
 
     # -- outputs -----------------------------------------------------------------------------------------
 
-    @abstractmethod
     def design_tables(self, run: "Reproduction", design: Any) -> Iterable[tuple[Any, Any]]:
-        """(TableSpec, DataFrame) of every design quantity (also written by `dse check`)."""
+        """(TableSpec, DataFrame) of every design quantity (also written by `dse check`): by default the
+        family's `tables.design_tables(design)`."""
+        return self.module("tables").design_tables(design)
 
-    @abstractmethod
     def tables(self, run: "Reproduction", results: Any) -> Iterable[tuple[Any, Any]]:
-        """(TableSpec, DataFrame) of every number the run computed (design tables included)."""
+        """(TableSpec, DataFrame) of every number the run computed (design tables included): by default the
+        family's `tables.run_tables(results)`."""
+        return self.module("tables").run_tables(results)
 
-    @abstractmethod
     def views(self, outputs: Any) -> list[Any]:
-        """The run's figures and recordings (`dse.contract.views.View`), drawn from `outputs`."""
+        """The run's figures and recordings (`dse.contract.views.View`), drawn from `outputs`: by default the
+        family's `views.views(outputs)`."""
+        return self.module("views").views(outputs)
 
     # -- what the driver reads (defined here once) -------------------------------------------------------
 

@@ -64,13 +64,3 @@ its generalisation to this setting and what it sends."""
 
     def cost(self, run, opts):
         return estimate(run.scenario, opts, self.trials(run, opts))
-
-    def design_tables(self, run, design):
-        return self.module("tables").design_tables(design)
-
-    def tables(self, run, results):
-        return self.module("tables").run_tables(results)
-
-    def views(self, outputs):
-        return self.module("views").views(outputs)
-

@@ -173,14 +173,3 @@ docs/papers/kar-moura.md."""
         from .cost import estimate
 
         return estimate(list(run.scenarios), opts)
-
-    # -- outputs -----------------------------------------------------------------------------------------
-
-    def design_tables(self, run, design):
-        return self.module("tables").design_tables(design)
-
-    def tables(self, run, results):
-        return self.module("tables").run_tables(results)
-
-    def views(self, outputs):
-        return self.module("views").views(outputs)

@@ -69,11 +69,5 @@ family-wise confidence."""
     def cost(self, run, opts):
         return self.module("cost").estimate(run.scenario, opts, self.trials(run, opts))
 
-    def design_tables(self, run, design):
-        return self.module("tables").design_tables(design)
-
-    def tables(self, run, results):
-        return self.module("tables").run_tables(results)
-
     def views(self, outputs):
         return self.module("figures").views(outputs) + self.module("recordings").views(outputs)

@@ -143,14 +143,3 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
 
     def cost(self, run, opts):
         return self.module("cost").estimate(run.scenarios, opts, paper=run.is_paper)
-
-    # -- outputs --------------------------------------------------------------------------------------------
-
-    def design_tables(self, run, design):
-        return self.module("tables").design_tables(design)
-
-    def tables(self, run, results):
-        return self.module("tables").run_tables(results)
-
-    def views(self, outputs):
-        return self.module("views").views(outputs)

@@ -172,14 +172,3 @@ one-sided t tests for the mean-square bounds, under the report's family-wise con
         results.runs["exact_fixed"] = runs.fixed_means(sc, d, results.runs)
         results.runs["central"] = {**central[0], **central[1]}
         return d, results
-
-    # -- outputs --------------------------------------------------------------------------------------------
-
-    def design_tables(self, run, design):
-        return self.module("tables").design_tables(design)
-
-    def tables(self, run, results):
-        return self.module("tables").run_tables(results)
-
-    def views(self, outputs):
-        return self.module("views").views(outputs)

@@ -125,11 +125,5 @@ condition numbers, stated in the claim's detail. Reconstruction notes: docs/pape
     def cost(self, run, opts: RunOptions):
         return self.module("cost").estimate(run.scenarios, opts, extras=run.is_paper)
 
-    def design_tables(self, run, design):
-        return self.module("tables").design_tables(design)
-
-    def tables(self, run, results):
-        return self.module("tables").run_tables(results)
-
     def views(self, outputs):
         return self.module("recordings").views(outputs)
