@@ -112,6 +112,14 @@ class Run:
         return verdict_counts(self.evaluation.claims)
 
     @property
+    def faults(self) -> list[str]:
+        """One line per plug-in component that broke its protocol (a family's `faults` table): it was left out
+        and every other number is unchanged."""
+        if "faults" not in self.tables:
+            return []
+        return [f"{row.what}" for row in self.tables["faults"].itertuples()]
+
+    @property
     def claims(self):
         return self.tables["claims"]
 

@@ -164,7 +164,14 @@ def cmd_run(args) -> int:
         r = run(repro, out_root, _options(args), out_dir=out_dir, source=data, figures=not args.no_figures,
                 fresh=args.fresh, scenario_file=str(Path(args.file).resolve()))
     print(f"{repro.paper_id}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_dir}")
-    return _strict_status(args, [r])
+    return _fault_status(r["faults"]) or _strict_status(args, [r])
+
+
+def _fault_status(faults: list[str]) -> int:
+    """One line per plug-in filter that failed (left out of the results, the others unchanged): exit 4."""
+    for line in faults:
+        print(f"dse: {line}; left out, the other estimators' results are unchanged", file=sys.stderr)
+    return 4 if faults else 0
 
 
 def cmd_verify(args) -> int:

@@ -14,12 +14,12 @@ from dse.engine.cache import MemoryCache
 from dse.engine.driver import evaluate_claims
 from dse.errors import ScenarioError
 from dse.estimators import network
-from dse.estimators.protocol import NetworkEstimator, NetworkFilter
+from dse.estimators.protocol import NetworkEstimator, BatchedFilter
 
 from test_compare_family import tiny
 
 
-class OpenLoopPredictor(NetworkFilter):
+class OpenLoopPredictor(BatchedFilter):
     """Every node ignores its measurements and sends nothing: x̂_i(k|k) = x̄_i(k), x̄_i(k+1) = F x̂_i(k|k)
     from x̄_i(0) = x0. Its error x(k) − F^k x0 is N(0, Σ_k), Σ_0 = P0, Σ_{k+1} = F Σ_k Fᵀ + Q."""
 
@@ -104,10 +104,10 @@ def test_an_estimator_name_is_registered_once(with_predictor):
 MODULE = '''"""A test's estimator: every node predicts with the plant alone (no measurement, nothing sent)."""
 import numpy as np
 
-from dse.estimators.protocol import NetworkEstimator, NetworkFilter
+from dse.estimators.protocol import NetworkEstimator, BatchedFilter
 
 
-class Predict(NetworkFilter):
+class Predict(BatchedFilter):
     def __init__(self, model, B):
         self.F, self.x = model.F, np.broadcast_to(model.x0[None, :, None], (model.N, model.n, B)).copy()
 

@@ -69,9 +69,11 @@ def test_hybrid_observer_many_agents_rho_near_zero(seed, m, blocks, tmp_path):
 
 
 #: keys a generator keeps at one value on purpose: trial counts and horizons chosen for the time of `make test`,
-#: values only the paper's reproduction reads, and values a rule excludes (a comparison protocol must be random)
+#: values only the paper's reproduction reads, and values a rule excludes (a comparison protocol must be random);
+#: compare's plug-in tables name code outside the package (tests/test_plugin_*.py add them to generated scenarios)
 KEPT_FIXED = {
-    "compare": {"simulation.trials", "simulation.quick_trials"},
+    "compare": {"simulation.trials", "simulation.quick_trials", "estimators.<name>.factory",
+                "estimators.<name>.time_limit"},
     "gossip-kalman": {"simulation.slots", "simulation.runs", "simulation.reference_runs", "simulation.quick_runs",
                       "simulation.quick_reference_runs", "simulation.quick_slots", "simulation.record_times",
                       "simulation.sample_paths", "comparison_protocol.sequence"},

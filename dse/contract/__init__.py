@@ -11,7 +11,7 @@
 - `View`, `Outputs`, `recording` (views.py): figures and recordings, and the recording scaffold.
 - `RunOptions` (options.py): seed, trials, quick, workers, memory budget.
 
-Estimators for the compare arena implement `dse.estimators.protocol.NetworkFilter`.
+Estimators for the compare arena implement `dse.estimators.protocol.BatchedFilter`.
 """
 import importlib
 

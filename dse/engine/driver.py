@@ -48,7 +48,8 @@ def run(repro, out_root: Path, opts: RunOptions, *, out_dir: Path | None = None,
     result.source_file = scenario_file
     start = time.perf_counter()
     result.write(out_dir, out_root=out_root, figures=figures)
-    return {"paper": repro.paper_id, **result.counts, "wall_s": result.provenance["compute_s"] + time.perf_counter() - start}
+    return {"paper": repro.paper_id, **result.counts, "faults": result.faults,
+            "wall_s": result.provenance["compute_s"] + time.perf_counter() - start}
 
 
 def evaluate_claims(repro, computed: Any, **confidence) -> Evaluation:

@@ -50,7 +50,7 @@ from . import joint_moments as jm
 from .link_models import LinkModel
 from .network_mixing import Mixer, heard
 from .network_step import StepContext, apply_gain, innovation, predict
-from .protocol import NetworkFilter
+from .protocol import BatchedFilter
 from .sensor_network import SensorNetworkModel
 
 __all__ = ["RULES", "FusionFilter", "FusionRun", "exact_moments", "steady_state", "mean_square_radius",
@@ -100,7 +100,7 @@ class FusionFilter:
         return True, ""
 
 
-class FusionRun(NetworkFilter):
+class FusionRun(BatchedFilter):
     """One batch of trials of a `FusionFilter` (state x̄ (N, n, B))."""
 
     def __init__(self, f: FusionFilter, B: int):

@@ -28,7 +28,7 @@ import numpy as np
 from . import small_matrix as sm
 from .link_models import LinkModel, StepLinks, step_permutation
 from .network_step import StepContext, predict
-from .protocol import NetworkFilter
+from .protocol import BatchedFilter
 from .sensor_network import SensorNetworkModel
 
 __all__ = ["GossipSwapRun", "kalman_update", "TokenSampler", "token_chain_traces", "weak_consensus_conditions"]
@@ -64,7 +64,7 @@ def kalman_update(P: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarr
     return K, post
 
 
-class GossipSwapRun(NetworkFilter):
+class GossipSwapRun(BatchedFilter):
     """A batch of B trials of the GIKF; `estimate` (N, n, B) and `cov` (n, n, N, B) hold x̂(k|k)
     and P(k|k) after each step, `xbar`, `Pbar` the predictions for the next."""
 

@@ -52,7 +52,7 @@ from . import small_matrix as sm
 from .link_models import LinkModel
 from .network_mixing import Mixer
 from .network_step import StepContext, predict
-from .protocol import NetworkFilter
+from .protocol import BatchedFilter
 from .sensor_network import SensorNetworkModel
 
 __all__ = ["KINDS", "InformationFilter", "InformationRun", "exact_moments"]
@@ -96,7 +96,7 @@ class InformationFilter:
         return (self.adjacency @ V.reshape(N, -1)).reshape(V.shape)
 
 
-class InformationRun(NetworkFilter):
+class InformationRun(BatchedFilter):
     """B trials of an `InformationFilter`: `estimate` (N, n, B) after each step; `cov` the filter's
     own covariance of it ((n, n, N, 1) when it does not depend on the trial) or, for CI, `info`."""
 

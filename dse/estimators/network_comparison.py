@@ -8,7 +8,7 @@ the workers.
 `simulate_units` runs B trials (a few RNG units of trials, trials on the last axis) of the plant and of
 every estimator it is given (`protocol.DesignedEstimator`s: whatever the registry holds) in lock step: at
 each step k the sensors measure x(k), and every filter steps on the same measurements, the same link draws
-and the same communication noise (`protocol.NetworkFilter`). The random numbers come from separate streams
+and the same communication noise (`protocol.BatchedFilter`). The random numbers come from separate streams
 (plant, links, noise, gossip), so adding or removing an estimator does not change what the others see.
 The filters run in error coordinates (`protocol`): their estimates are their errors.
 
@@ -16,12 +16,16 @@ An `Accumulator` beside the filters' steps keeps what the claims and tables read
 trials, each (U, S, W) at the S recorded steps unless stated (W = the filter's number of estimates):
 ``sq`` Σ‖e_i‖², ``sq2`` Σ‖e_i‖⁴, ``dist`` Σ‖x̂_i − x̂_c‖² and ``dist2`` (x̂_c the reference estimator's),
 ``cross`` Σ (x − x̂_c)ᵀ(x̂_c − x̂_i) and ``cross2`` (the orthogonality of the reference error to every other
-estimate), ``nees`` Σ e_iᵀP_i⁻¹e_i with the filter's own covariance and ``nees2``, ``xnees`` the same with a
+estimate), ``gap`` Σ (‖e_i‖² − ‖e_c‖²) and ``gap2`` (the paired excess over the reference), ``nees`` Σ e_iᵀP_i⁻¹e_i with the filter's own covariance and ``nees2``, ``xnees`` the same with a
 given exact covariance, ``dis`` and ``dis2`` (U, S) the per-trial disagreement (1/N) Σ_i ‖x̂_i − mean_j x̂_j‖²,
 ``dis_node`` (U, S, W) its terms ‖x̂_i − mean_j x̂_j‖² per node, ``net`` and ``net2`` (U, S) the per-trial
 node average of ‖e_i‖², ``msgs`` and ``scalars`` (U, N) messages and real numbers sent over the whole run
 (every step, counted from the links and the filter's `Communication`); ``token`` (times, B): tr P̄_q at a
 uniformly random node q of the filters that swap states; ``paths``: sample trials kept whole.
+
+A plug-in filter (`dse.plugin`) that does something the protocol forbids raises a `PluginFault`: it is
+dropped from the simulation at once (and from every later chunk), its sums are discarded, and ``faults``
+says what it did; the other filters' numbers are the same bits as without it.
 """
 from __future__ import annotations
 
@@ -46,7 +50,7 @@ from .sensor_network import SensorNetworkModel
 __all__ = ["Setup", "simulate", "simulate_units", "unit_chunks", "worker_groups", "Stats", "stats", "nees_band",
            "ks_test", "effective_sample_size", "STATS", "PER_TRIAL_SUMS", "record_steps"]
 
-STATS = ("sq", "sq2", "dist", "dist2", "cross", "cross2", "nees", "nees2", "xnees")
+STATS = ("sq", "sq2", "dist", "dist2", "cross", "cross2", "gap", "gap2", "nees", "nees2", "xnees")
 #: the per-trial sums beside `STATS` (a diverging filter may make any of them infinite: a result, not a failure)
 PER_TRIAL_SUMS = ("dis", "dis2", "dis_node", "net", "net2", "msgs", "scalars")
 
@@ -143,6 +147,12 @@ class Accumulator:
         self.token[name][self.setup.token_times.index(k)] = np.concatenate(
             [sm.trace(r.prior_covariance())[q_node[c], np.arange(c.stop - c.start)] for r, c in zip(parts, self.cuts)])
 
+    def drop(self, name: str) -> None:
+        """Forget a filter that failed (its sums and sample paths)."""
+        self.sums.pop(name, None)
+        self.paths.pop(name, None)
+        self.token.pop(name, None)
+
     def _allocate(self, name: str, width: int) -> dict[str, np.ndarray]:
         U, S, N = len(self.sizes), len(self.steps), self.setup.model.N
         a = {s: np.zeros((U, S, width)) for s in STATS}
@@ -156,7 +166,10 @@ class Accumulator:
         """The statistics of filter `name` after step k: its estimates `est` (W, n, B) are its errors."""
         a = self.sums.get(name) or self._allocate(name, est.shape[0])
         comm = self.comm[name]
-        if comm.pattern != "none":
+        if comm.pattern == "sent":                          # counted by the harness from what it sent
+            a["msgs"] += self.per_unit(np.concatenate([r.sent_messages for r in parts], axis=-1)).reshape(a["msgs"].shape)
+            a["scalars"] += self.per_unit(np.concatenate([r.sent_scalars for r in parts], axis=-1)).reshape(a["msgs"].shape)
+        elif comm.pattern != "none":
             c = (self.per_unit(np.concatenate([(r.hops > 0) for r in parts], axis=-1).astype(float))
                  if (comm.pattern == "swap" and self.setup.links.synchronous)
                  else contacts["rounds" if comm.pattern in ("rounds", "swap") else "step"]) * comm.messages_per_contact
@@ -186,6 +199,9 @@ class Accumulator:
             cr = np.einsum("inb,nb->ib", d, e_c[0])               # (x − x̂_c)ᵀ (x̂_c − x̂_i)
             a["cross"][:, i] = per_unit(cr)
             a["cross2"][:, i] = per_unit(cr * cr)
+            gap = sq - np.einsum("nb,nb->b", e_c[0], e_c[0])       # ‖e_i‖² − ‖e_c‖², paired by trial
+            a["gap"][:, i] = per_unit(gap)
+            a["gap2"][:, i] = per_unit(gap * gap)
         if err.shape[0] > 1:
             dev = err - err.mean(axis=0, keepdims=True)
             dn = np.einsum("inb,inb->ib", dev, dev)                 # ‖x̂_i − mean_j x̂_j‖² per node
@@ -215,31 +231,53 @@ def _deliveries(ctx: StepContext, lm: LinkModel, B: int) -> None:
         ctx.step_heard = ctx.step_count > 0
 
 
+def _build(setup: Setup, cuts: list[slice], faults: dict[str, str]) -> dict[str, list]:
+    """Every filter for every sub-batch, each built knowing the filters built before it (shares_with); a
+    plug-in filter that fails when built is left out (`faults`)."""
+    from dse.plugin.harness import PluginFault
+
+    runs: dict[str, list] = {}
+    for name, est in setup.estimators.items():
+        try:
+            runs[name] = [est.build(c.stop - c.start, {p: parts[j] for p, parts in runs.items()})
+                          for j, c in enumerate(cuts)]
+        except PluginFault as fault:
+            faults[name] = str(fault)
+    return runs
+
+
 def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossip: Draws) -> dict[str, Any]:
     """Simulate the trials of a few RNG units (`plant.sizes`) and return per-unit sums (module doc).
 
     Statistics are kept at `setup.record_steps` (all steps when empty); message counts at every step."""
+    from dse.plugin.harness import PluginFault
+
     m, lm, K = setup.model, setup.links, setup.n_steps
     sizes = np.array(plant.sizes)
     B = int(sizes.sum())
     N, n = m.N, m.n
     topo = lm.topology
     cuts = [slice(a, min(a + setup.sub_batch, B)) for a in range(0, B, setup.sub_batch)]
-    runs: dict[str, list] = {}
-    for name, est in setup.estimators.items():     # each built knowing the filters built before it (shares_with)
-        runs[name] = [est.build(c.stop - c.start, {p: parts[j] for p, parts in runs.items()})
-                      for j, c in enumerate(cuts)]
+    faults: dict[str, str] = {}
+    runs = _build(setup, cuts, faults)
     swaps = any(est.spec.swaps for est in setup.estimators.values())
+    tracked = [name for name in runs if setup.estimators[name].spec.true_coordinates]
     acc = Accumulator(setup, sizes, cuts)
     q_node = gossip.integers(0, N) if swaps else None
     seconds = dict.fromkeys(runs, 0.0)
     # error coordinates (`protocol`): x ≡ 0, y = v, first prediction x0 − x(0), predictions shifted by −w;
-    # the true state is kept for the sample trials only (recordings)
+    # the true state is kept for the sample trials (recordings), and for every trial when a filter runs on
+    # the true measurements
     x0_draw = _factor(m.P0) @ plant.standard_normal((n,)).T             # x(0) − x0
-    for parts in runs.values():
-        for r, c in zip(parts, cuts):
-            _start_at_error(r, m.x0, x0_draw[:, c])
-    x_true = m.x0[:, None] + x0_draw[:, :setup.n_paths]
+    for name, parts in list(runs.items()):
+        try:
+            for r, c in zip(parts, cuts):
+                _start_at_error(r, m.x0, x0_draw[:, c])
+        except PluginFault as fault:
+            faults[name] = str(fault)
+            del runs[name]
+    kept = B if tracked else setup.n_paths
+    x_true = m.x0[:, None] + x0_draw[:, :kept]
     Lq = _factor(m.Q)
     sigma = lm.noise_std
     for k in range(K):
@@ -259,22 +297,37 @@ def simulate_units(setup: Setup, plant: Draws, links: Draws, noise: Draws, gossi
             ctx.gossip_priority = gossip.random((topo.E,)).T
         if swaps:
             ctx.swap = step_permutation(lm, step_links, B, ctx.gossip_priority)
-        acc.begin(k, x_true)
+        acc.begin(k, x_true[:, :setup.n_paths])
         ctxs = [slice_context(ctx, c) for c in cuts] if len(cuts) > 1 else [ctx]
-        for name, parts in runs.items():
+        for name in list(runs):
+            parts = runs[name]
+            if name in tracked:
+                for r, c in zip(parts, cuts):
+                    r.track(x_true[:, c])
             if name in acc.token and k in setup.token_times:
                 acc.record_token(name, parts, q_node, k)
             t0 = time.process_time()
-            est = np.concatenate([r.step(cx) for r, cx in zip(parts, ctxs)], axis=-1)
-            seconds[name] += time.process_time() - t0
-            acc.add(name, parts, est, k, contacts)
+            try:
+                est = np.concatenate([r.step(cx) for r, cx in zip(parts, ctxs)], axis=-1)
+                seconds[name] += time.process_time() - t0
+                acc.add(name, parts, est, k, contacts)
+            except PluginFault as fault:
+                faults[name] = str(fault)
+                del runs[name]
+                acc.drop(name)
         w = Lq @ plant.standard_normal((n,)).T
-        for parts in runs.values():
+        for name, parts in runs.items():
             for r, c in zip(parts, cuts):
-                r.shift(-w[:, c])
-        x_true = m.F @ x_true + w[:, :acc.P]
+                try:
+                    r.shift(-w[:, c])
+                except PluginFault as fault:
+                    faults[name] = str(fault)
+        for name in faults:
+            runs.pop(name, None)
+            acc.drop(name)
+        x_true = m.F @ x_true + w[:, :kept]
     return {"sums": acc.sums, "token": acc.token, "paths": acc.paths, "sizes": sizes, "steps": np.array(acc.steps),
-            "seconds": seconds}
+            "seconds": {e: t for e, t in seconds.items() if e not in faults}, "faults": faults}
 
 
 STREAMS = ("plant", "links", "noise", "gossip")
@@ -307,8 +360,11 @@ def simulate_group(setup: Setup, seed: int, trials: int, budget_bytes: float, la
     sums: dict[str, dict[str, list]] = {}
     token: dict[str, list] = {}
     paths, seconds, cpu0 = None, {}, time.process_time()
+    faults: dict[str, str] = {}
     for streams in unit_chunks(seed, label, STREAMS, trials, bytes_per_trial(setup), budget_bytes):
-        out = simulate_units(setup, *streams)
+        alive = dataclasses.replace(setup, estimators={e: d for e, d in setup.estimators.items() if e not in faults})
+        out = simulate_units(alive, *streams)
+        faults.update(out["faults"])
         for est, acc in out["sums"].items():
             for name, arr in acc.items():
                 sums.setdefault(est, {}).setdefault(name, []).append(arr)
@@ -318,9 +374,11 @@ def simulate_group(setup: Setup, seed: int, trials: int, budget_bytes: float, la
             seconds[est] = seconds.get(est, 0.0) + t
         paths = out["paths"] if paths is None else paths
     return {"mc": {est: {name: np.concatenate(parts).sum(axis=0) for name, parts in acc.items()}
-                   for est, acc in sums.items()},
-            "token": {e: np.concatenate(v, axis=1) for e, v in token.items()}, "paths": paths, "steps": out["steps"],
-            "seconds": seconds, "cpu_s": time.process_time() - cpu0}
+                   for est, acc in sums.items() if est not in faults},
+            "token": {e: np.concatenate(v, axis=1) for e, v in token.items() if e not in faults},
+            "paths": {e: v for e, v in paths.items() if e not in faults}, "steps": out["steps"],
+            "seconds": {e: t for e, t in seconds.items() if e not in faults}, "faults": faults,
+            "cpu_s": time.process_time() - cpu0}
 
 
 def worker_groups(estimators: dict[str, DesignedEstimator], workers: int) -> list[list[str]]:
@@ -352,17 +410,18 @@ def worker_groups(estimators: dict[str, DesignedEstimator], workers: int) -> lis
 def simulate(setup: Setup, seed: int, trials: int, budget_bytes: float, workers: int = 1,
              label: str = "compare") -> dict[str, Any]:
     """Every estimator on `trials` trials (module doc): ``mc`` the folded sums per estimator, ``token``,
-    ``paths``, the recorded ``steps``, CPU ``seconds`` per estimator and ``group_cpu_s`` per worker. The
+    ``paths``, the recorded ``steps``, CPU ``seconds`` per estimator, ``faults`` (name -> what a plug-in
+    filter did wrong) and ``group_cpu_s`` per worker. The
     workers are forked: the estimators' declarations are inherited, not pickled."""
     groups = worker_groups(setup.estimators, workers)
     jobs = [(sum(setup.estimators[e].spec.cost_weight for e in g), functools.partial(
         simulate_group, dataclasses.replace(setup, estimators={e: setup.estimators[e] for e in g}), seed, trials,
         budget_bytes, label)) for g in groups]
     parts = run_jobs(jobs, workers=len(groups))
-    out = {"mc": {}, "token": {}, "paths": {}, "seconds": {}, "steps": parts[0]["steps"],
+    out = {"mc": {}, "token": {}, "paths": {}, "seconds": {}, "faults": {}, "steps": parts[0]["steps"],
            "group_cpu_s": [p["cpu_s"] for p in parts]}
     for p in parts:
-        for what in ("mc", "token", "paths", "seconds"):
+        for what in ("mc", "token", "paths", "seconds", "faults"):
             out[what].update({e: v for e, v in p[what].items() if e not in out[what]})
     out["mc"] = {e: out["mc"][e] for e in setup.estimators if e in out["mc"]}
     return out

@@ -1,4 +1,4 @@
-"""The contract of an estimator of the compare arena: a `NetworkFilter` batched over Monte Carlo trials,
+"""The contract of an estimator of the compare arena: a `BatchedFilter` batched over Monte Carlo trials,
 and its declaration, a `NetworkEstimator`, which says once everything the harness, the design, the cost
 model, the claims and the tables need to know about it.
 
@@ -50,8 +50,9 @@ if TYPE_CHECKING:
     from .sensor_network import SensorNetworkModel
 
 #: the contacts a filter's messages use: none; every synchronous round or every Poisson exchange; the
-#: links of the step (once per step); the links over which states were swapped
-PATTERNS = ("none", "rounds", "step", "swap")
+#: links of the step (once per step); the links over which states were swapped; or counted by the harness
+#: from what the filter sent (`sent_messages`, `sent_scalars` (N, B) of the last step: plug-in filters)
+PATTERNS = ("none", "rounds", "step", "swap", "sent")
 
 
 @dataclass(frozen=True)
@@ -70,7 +71,7 @@ class Communication:
 SILENT = Communication("none")
 
 
-class NetworkFilter(Protocol):
+class BatchedFilter(Protocol):
     """B trials of one network filter (module doc): `step`, `shift`, and optionally `nees`,
     `prior_covariance` and `hops`. Subclasses inherit the defaults of the optional members."""
 
@@ -147,7 +148,7 @@ class DesignedEstimator:
         """Its exact mean second moments are computed."""
         return self.applies and self.spec.exact is not None and not self.exact_reason
 
-    def build(self, trials: int, peers: Mapping[str, NetworkFilter]) -> NetworkFilter:
+    def build(self, trials: int, peers: Mapping[str, BatchedFilter]) -> BatchedFilter:
         """The filter for `trials` trials; `peers`: the filters already built for the same trials."""
         return self.spec.build(self, trials, peers)
 
@@ -184,7 +185,7 @@ class NetworkEstimator:
     """The one declaration of an estimator.
 
     - `name` (its id in scenario files and tables), `title`, `rank` (its place in tables and figures);
-    - `build(designed, trials, peers)`: its `NetworkFilter` for a batch of trials;
+    - `build(designed, trials, peers)`: its `BatchedFilter` for a batch of trials;
     - `applies(links)`: "" when it applies to the link model, else why not;
     - `design(designed)`: fills in the `DesignedEstimator` (config, gain tuning, applicability found by
       the design, why there are no exact moments);
@@ -199,12 +200,18 @@ class NetworkEstimator:
     - `swaps`: it exchanges whole filter states along the step's random matching (the harness draws that
       matching once for every such filter); `shares_with`: the estimator whose recursion it reuses when
       both run (kept in the same worker, built after it); `reference`: the estimator every other is
-      compared with (distances, orthogonality); it always runs."""
+      compared with (distances, orthogonality); it always runs;
+    - `covariance_law`: what its own covariance is, for the NEES claims: "conditional" (its error's covariance
+      given the link draws, so the NEES sum is χ²), "bound" (an upper bound), None (no such claim);
+    - `plugin`: a researcher's filter run through `dse.plugin` (its faults are its own, `PluginFault`);
+      `true_coordinates`: it runs on the true measurements, not in error coordinates (the harness then calls
+      its filter's `track(x)` with the true state (n, B) before each step); `code`: its code's hash for the
+      stage keys (a plug-in's module and the harness), instead of `source_module`'s."""
 
     name: str
     title: str
     rank: float
-    build: Callable[[DesignedEstimator, int, Mapping[str, NetworkFilter]], NetworkFilter]
+    build: Callable[[DesignedEstimator, int, Mapping[str, BatchedFilter]], BatchedFilter]
     applies: Callable[["LinkModel"], str] = _everywhere
     design: Callable[[DesignedEstimator], None] = _no_search
     exact: Callable[[DesignedEstimator, int], dict[str, np.ndarray]] | None = None
@@ -216,7 +223,11 @@ class NetworkEstimator:
     swaps: bool = False
     shares_with: str | None = None
     reference: bool = False
+    covariance_law: str | None = None
+    plugin: bool = False
+    true_coordinates: bool = False
     module: str = ""
+    code: str = ""
 
     @property
     def source_module(self) -> str:
@@ -226,7 +237,7 @@ class NetworkEstimator:
     def key(self) -> dict[str, str]:
         """What it contributes to a stage's cache key: its name and the source of its module and of every
         project module that one imports."""
-        return {"estimator": self.name, "code": source_hash(self.source_module)}
+        return {"estimator": self.name, "code": self.code or source_hash(self.source_module)}
 
 
 def source_hash(module: str) -> str:

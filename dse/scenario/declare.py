@@ -99,12 +99,14 @@ def derived_default(fn):
     return unset
 
 
-def key(default: Any = PydanticUndefined, *, doc: str, unit: str = "", constraint: str = "", **constraints) -> Any:
+def key(default: Any = PydanticUndefined, *, doc: str, unit: str = "", constraint: str = "", inline: bool = False,
+        **constraints) -> Any:
     """Declare one key: `doc` (its meaning, required), `unit`, and `constraint` for rules
-    the type and bounds (`gt`, `ge`, `lt`, `le`, `min_length`, ...) do not say."""
+    the type and bounds (`gt`, `ge`, `lt`, `le`, `min_length`, ...) do not say; `inline`: named tables
+    written directly in the enclosing table (`[estimators.<name>]`, not `[estimators.plugins.<name>]`)."""
     if not doc.strip():
         raise ValueError("every scenario key needs a meaning (doc=...)")
-    extra = {"unit": unit, "constraint": constraint}
+    extra = {"unit": unit, "constraint": constraint, "inline": inline}
     if callable(default) and not isinstance(default, (int, float, str, bool, list, tuple)):
         return Field(default_factory=default, description=doc, json_schema_extra=extra, **constraints)
     return Field(default, description=doc, json_schema_extra=extra, **constraints)
@@ -353,7 +355,9 @@ def reference_rows(model: type[Section], prefix: str = "") -> list[tuple[str, li
         kind = _type_name(info.annotation)
         if sub is not None and kind in ("table", "list of table", "tables of table"):
             # a list of tables is [[path]] in the file; named tables ([path.<name>]) are documented once
-            label = {"table": path, "list of table": f"{path}[]", "tables of table": f"{path}.<name>"}[kind]
+            inline = isinstance(info.json_schema_extra, dict) and info.json_schema_extra.get("inline")
+            label = {"table": path, "list of table": f"{path}[]",
+                     "tables of table": f"{prefix if inline else path}.<name>"}[kind]
             found = reference_rows(sub, label)
             if found and found[0][0] == label:  # the table's own heading says whether the file must have it
                 p, rows, d = found[0]

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from dse.estimators.protocol import NetworkEstimator, NetworkFilter
+from dse.estimators.protocol import NetworkEstimator, BatchedFilter
 
 
-class CentralizedKalman(NetworkFilter):
+class CentralizedKalman(BatchedFilter):
     """B trials; one estimate (W = 1), covariances shared by the trials."""
 
     def __init__(self, model, K: int, B: int):
@@ -86,4 +86,5 @@ def exact(est, K: int) -> dict[str, np.ndarray]:
 
 ESTIMATOR = NetworkEstimator(
     name="central", title="centralized KF", rank=0, reference=True, exact=exact, cost_weight=0.5,
+    covariance_law="conditional",
     build=lambda est, B, peers: CentralizedKalman(est.network.model, est.network.steps, B))

@@ -25,5 +25,6 @@ def design(est) -> None:
 
 ESTIMATOR = NetworkEstimator(
     name="gikf", title="GIKF (Kar & Moura)", rank=20, build=build, design=design, cost_weight=18, swaps=True,
+    covariance_law="conditional",
     communication=lambda links, n: Communication("swap", 1, n + n * (n + 1) // 2),
     trialwise_covariance=lambda links: True, per_exchange=True)

@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 
 from dse.estimators.network_step import apply_gain, innovation, predict
-from dse.estimators.protocol import NetworkEstimator, NetworkFilter
+from dse.estimators.protocol import NetworkEstimator, BatchedFilter
 
 
-class LocalKalman(NetworkFilter):
+class LocalKalman(BatchedFilter):
     """B trials of N independent Kalman filters; covariances shared by the trials."""
 
     def __init__(self, model, K: int, B: int):
@@ -72,4 +72,5 @@ def exact(est, K: int) -> dict[str, np.ndarray]:
 
 ESTIMATOR = NetworkEstimator(
     name="local", title="local KF (no communication)", rank=10, exact=exact, cost_weight=1,
+    covariance_law="conditional",
     build=lambda est, B, peers: LocalKalman(est.network.model, est.network.steps, B))

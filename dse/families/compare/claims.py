@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from dse.contract.claims import ClaimSet
-from dse.estimators.network_comparison import effective_sample_size, ks_test
+from dse.estimators.network_comparison import effective_sample_size, ks_test, mean_and_se
 from dse.simulate.stats import chi2_two_sided_p, normal_two_sided_p
 from dse.verify.rules import Holds, Verdict, inequality, not_checkable, p_value_test, roundoff_tolerance
 
@@ -155,59 +155,80 @@ def _resolved_by_float64(res, est: str, idx: list[int]) -> np.ndarray:
         return np.isfinite(cond) & (delta * B * m.n <= 0.1 * np.sqrt(2.0 * B * m.n))
 
 
+def _exact_pvalues(res, est: str) -> tuple[np.ndarray | None, str, str, tuple]:
+    """(p-values, law, why cells were left out, (Monte Carlo, exact) of the worst cell) of one estimator's
+    exact moments against the simulation (None: not compared, with the reason in the third entry)."""
+    B, n = res.trials, res.design.model.n
+    idx = res.check_indices()
+    s = res.mc[est]
+    ex = res.exact[est]["mse"][res.steps[idx]]                   # (C, N)
+    skipped = ""
+    if not (res.design.links.random or not res.design.links.synchronous):
+        p = chi2_two_sided_p(np.asarray(s["xnees"][idx], float), B * n)
+        law = "χ²"
+        resolved = _resolved_by_float64(res, est, idx)
+        if not resolved.all():
+            skipped = (f"{est} at {int((~resolved).sum())} of {resolved.size} cells, whose exact covariance float64 "
+                       "does not resolve")
+            if not resolved.any():
+                return None, law, skipped, ()
+            p = np.where(resolved, p, 1.0)          # left out: a p-value of 1 rejects nothing
+    else:
+        st = res.stats(est)
+        mse, se = st.mse[idx], st.mse_se[idx]
+        ess = effective_sample_size(s["sq"][idx], s["sq2"][idx])
+        if B < MIN_TRIALS_Z or np.min(ess) < MIN_ESS:
+            return None, "normal", f"{est} (effective sample size {np.min(ess):.0f})", ()
+        p = normal_two_sided_p((mse - ex) / np.maximum(se, 1e-300))
+        law = "normal"
+    if not _finite(p):
+        return None, law, f"{est} (not finite)", ()
+    k = int(np.argmin(p))
+    return np.ravel(p), law, skipped, (float(np.ravel(s["sq"][idx] / B)[k]), float(np.ravel(ex)[k]))
+
+
+EXACT_LAW = ("With every link working the error is Gaussian with the exact covariance, so the sum over trials of "
+             "e_iᵀ Σ_ii⁻¹ e_i is χ²(trials·n) exactly (cells whose Σ_ii float64 does not resolve are left out: a "
+             "round-off of 10·operations·eps·cond(Σ_ii) relative must move the sum by less than a tenth of its "
+             "standard deviation); with random links the mean squared error of independent trials is compared with "
+             f"the exact mean over link patterns (normal, effective sample size ≥ {MIN_ESS}).")
+
+
+def _exact_claim(res, names: list[str]) -> Verdict:
+    """The exact moments of `names` against the simulation, every cell under one confidence."""
+    ps, cells, skipped = [], [], []
+    worst = (None, None)
+    for est in names:
+        p, law, why, cell = _exact_pvalues(res, est)
+        if why:
+            skipped.append(why)
+        if p is None:
+            continue
+        ps.append(p)
+        cells.append(f"{est} ({law}, {np.size(p)} cells)")
+        if worst[0] is None or p.min() < worst[0]:
+            worst = (p.min(), cell)
+    if not ps:
+        return not_checkable("no estimator with exact moments runs on this scenario" +
+                             (f" (left out: {', '.join(skipped)})" if skipped else ""))
+    idx = res.check_indices()
+    detail = ("Monte Carlo against the exact moments at steps " + ", ".join(str(int(res.steps[i])) for i in idx) +
+              ": " + "; ".join(cells) + ". " + EXACT_LAW + (f" Left out: {', '.join(skipped)}." if skipped else ""))
+    return p_value_test(np.concatenate(ps), trials=res.trials, measured=worst[1][0], reference=worst[1][1],
+                        detail=detail)
+
+
+def _builtins(res, names) -> list[str]:
+    """The built-in estimators among `names` (a plug-in filter has claims of its own)."""
+    return [e for e in names if not res.design.estimators[e].spec.plugin]
+
+
 @claims.claim("compare.exact.monte_carlo", "exact moment recursions", "the exact second moments of the linear "
               "network filters (Carli, re-injection, pairwise averaging; Kalman-consensus, diffusion and CI on "
               "reliable links) agree with the simulation", "statistical")
 def exact_vs_monte_carlo(res) -> Verdict:
-    B, n = res.trials, res.design.model.n
-    idx = res.check_indices()
-    ps, cells, skipped = [], [], []
-    worst = (None, None)
-    random_links = res.design.links.random or not res.design.links.synchronous
-    for est, designed in res.design.estimators.items():
-        if not designed.spec.joint_moments or est not in res.exact or est not in res.mc:
-            continue
-        s = res.mc[est]
-        ex = res.exact[est]["mse"][res.steps[idx]]                   # (C, N)
-        if not random_links:
-            p = chi2_two_sided_p(np.asarray(s["xnees"][idx], float), B * n)
-            law = "χ²"
-            resolved = _resolved_by_float64(res, est, idx)
-            if not resolved.all():
-                skipped.append(f"{est} at {int((~resolved).sum())} of {resolved.size} cells, whose exact covariance "
-                               "float64 does not resolve")
-                if not resolved.any():
-                    continue
-                p = np.where(resolved, p, 1.0)          # left out: a p-value of 1 rejects nothing
-        else:
-            st = res.stats(est)
-            mse, se = st.mse[idx], st.mse_se[idx]
-            ess = effective_sample_size(s["sq"][idx], s["sq2"][idx])
-            if B < MIN_TRIALS_Z or np.min(ess) < MIN_ESS:
-                skipped.append(f"{est} (effective sample size {np.min(ess):.0f})")
-                continue
-            p = normal_two_sided_p((mse - ex) / np.maximum(se, 1e-300))
-            law = "normal"
-        if not _finite(p):
-            skipped.append(f"{est} (not finite)")
-            continue
-        ps.append(np.ravel(p))
-        cells.append(f"{est} ({law}, {np.size(p)} cells)")
-        k = int(np.argmin(p))
-        mse_mc = s["sq"][idx] / B
-        if worst[0] is None or np.ravel(p)[k] < worst[0]:
-            worst = (np.ravel(p)[k], (float(np.ravel(mse_mc)[k]), float(np.ravel(ex)[k])))
-    if not ps:
-        return not_checkable("no estimator with exact moments runs on this scenario" +
-                             (f" (left out: {', '.join(skipped)})" if skipped else ""))
-    detail = ("Monte Carlo against the exact moments at steps " + ", ".join(str(int(res.steps[i])) for i in idx) +
-              ": " + "; ".join(cells) + ". With every link working the error is Gaussian with the exact covariance, "
-              "so the sum over trials of e_iᵀ Σ_ii⁻¹ e_i is χ²(trials·n) exactly (cells whose Σ_ii float64 does not "
-              "resolve are left out: a round-off of 10·operations·eps·cond(Σ_ii) relative must move the sum by less "
-              "than a tenth of its standard deviation); with random links the mean squared "
-              "error of independent trials is compared with the exact mean over link patterns (normal, effective "
-              f"sample size ≥ {MIN_ESS})." + (f" Left out: {', '.join(skipped)}." if skipped else ""))
-    return p_value_test(np.concatenate(ps), trials=B, measured=worst[1][0], reference=worst[1][1], detail=detail)
+    return _exact_claim(res, [e for e in _builtins(res, res.design.estimators) if res.design.estimators[e].spec.joint_moments
+                              and e in res.exact and e in res.mc])
 
 
 @claims.claim("compare.central.orthogonality", "orthogonality principle", "the centralized filter's error is "
@@ -217,6 +238,22 @@ def exact_vs_monte_carlo(res) -> Verdict:
                         (lambda res: res.trials >= MIN_TRIALS_Z,
                          lambda res: f"needs ≥ {MIN_TRIALS_Z} trials for the normal z-test; ran {res.trials}")])
 def orthogonality(res) -> Verdict:
+    """E[(x − x̂_c)ᵀ(x̂_c − x̂_i)] = 0 for every built-in estimator (`_orthogonality`)."""
+    return _orthogonality(res, [e for e in _builtins(res, res.mc) if e != "central"])
+
+
+def _roundoff_allowance(res, idx: list[int]) -> np.ndarray:
+    """(C, 1) the round-off allowance of a mean of (x − x̂_c)ᵀ(x̂_c − x̂_i) (`_orthogonality`)."""
+    m = res.design.model
+    steps = np.asarray(res.steps)[idx]
+    err_rms = np.sqrt(np.maximum(res.stats("central").mse[idx], 0.0)).reshape(len(idx), -1)[:, :1]
+    ops = (steps + 1.0) * (res.scenario.links.rounds + 1) * (m.n + m.N * m.m)
+    state_rms = m.state_rms(res.scenario.simulation.steps)[steps]
+    return np.array([roundoff_tolerance(scale=float(e * x), operations=float(o))[0]
+                     for e, x, o in zip(err_rms[:, 0], state_rms, ops)])[:, None]
+
+
+def _orthogonality(res, names: list[str]) -> Verdict:
     """E[(x − x̂_c)ᵀ(x̂_c − x̂_i)] = 0, tested cell by cell (node, step) by a normal z-test of the mean over
     trials, beyond a round-off allowance: an estimator that equals the centralized filter up to rounding
     (the Kalman-consensus and diffusion filters with enough rounds on a small network) has a difference
@@ -226,17 +263,10 @@ def orthogonality(res) -> Verdict:
     The z statistic is (|mean| − allowance)⁺ / standard error."""
     B = res.trials
     idx = res.check_indices()
-    m = res.design.model
     steps = np.asarray(res.steps)[idx]
-    err_rms = np.sqrt(np.maximum(res.stats("central").mse[idx], 0.0)).reshape(len(idx), -1)[:, :1]
-    ops = (steps + 1.0) * (res.scenario.links.rounds + 1) * (m.n + m.N * m.m)
-    state_rms = m.state_rms(res.scenario.simulation.steps)[steps]
-    allowance = np.array([roundoff_tolerance(scale=float(e * x), operations=float(o))[0]
-                          for e, x, o in zip(err_rms[:, 0], state_rms, ops)])[:, None]
-    ps, names, skipped = [], [], []
-    for est in res.mc:
-        if est == "central":
-            continue
+    allowance = _roundoff_allowance(res, idx)
+    ps, names_in, skipped, worst = [], [], [], (None, 0.0)
+    for est in names:
         st = res.stats(est)
         excess = np.maximum(np.abs(st.cross[idx]) - allowance, 0.0)
         z = excess / np.maximum(st.cross_se[idx], 1e-300)
@@ -244,18 +274,21 @@ def orthogonality(res) -> Verdict:
             skipped.append(est)
             continue
         ps.append(np.ravel(normal_two_sided_p(z)))
-        names.append(est)
+        names_in.append(est)
+        k = int(np.argmax(np.abs(st.cross[idx])))
+        if worst[0] is None or np.ravel(np.abs(st.cross[idx]))[k] > abs(worst[1]):
+            worst = (est, float(np.ravel(st.cross[idx])[k]))
     if not ps:
         return not_checkable("no estimator with finite errors besides the centralized filter")
-    return p_value_test(np.concatenate(ps), trials=B, detail=(
-        "E[(x − x̂_c)ᵀ(x̂_c − x̂_i)] = 0 for every node i of " + ", ".join(names) + " at steps " +
+    return p_value_test(np.concatenate(ps), trials=B, measured=worst[1], reference=0.0, detail=(
+        "E[(x − x̂_c)ᵀ(x̂_c − x̂_i)] = 0 for every node i of " + ", ".join(names_in) + " at steps " +
         ", ".join(str(int(k)) for k in steps) + " (normal z-test of the mean over independent trials, beyond a "
         "round-off allowance of " + ", ".join(f"{a:.2g}" for a in allowance[:, 0]) + " = 10·operations·eps·RMS(x − "
         "x̂_c)·RMS(x): estimators equal to the centralized filter up to rounding differ from it by rounding errors "
         "only). The centralized estimate is E[x | all measurements] and every other estimate is a function of the "
         "measurements and of independent link and noise draws, so its error is orthogonal to them: MSE_i = MSE_c + "
-        "E‖x̂_i − x̂_c‖², the excess over the centralized filter is exactly the mean-square distance to it." +
-        (f" Left out (errors not finite): {', '.join(skipped)}." if skipped else "")))
+        "E‖x̂_i − x̂_c‖², the excess over the centralized filter is exactly the mean-square distance to it. Largest "
+        f"mean: {worst[1]:.4g} ({worst[0]})." + (f" Left out (errors not finite): {', '.join(skipped)}." if skipped else "")))
 
 
 @claims.claim("compare.central.lower_bound", "optimality of the centralized filter", "no estimator has a smaller "
@@ -265,7 +298,7 @@ def lower_bound(res) -> Verdict:
     central = res.exact["central"]["mse"][:, 0]
     lows, ups, names = [], [], []
     for est, ex in res.exact.items():
-        if est == "central" or not _finite(ex["mse"]):
+        if est == "central" or not _finite(ex["mse"]) or res.design.estimators[est].spec.plugin:
             continue
         lows.append(np.broadcast_to(central[:, None], ex["mse"].shape).ravel())
         ups.append(ex["mse"].ravel())
@@ -288,8 +321,8 @@ def conditional_covariances(res) -> Verdict:
     B, n = res.trials, res.design.model.n
     idx = res.check_indices()
     ps, names = [], []
-    for est in ("central", "local", "gikf"):
-        if est not in res.mc:
+    for est in _builtins(res, res.mc):
+        if res.design.estimators[est].spec.covariance_law != "conditional":
             continue
         total = res.mc[est]["nees"][idx]
         if not _finite(total):
@@ -396,3 +429,89 @@ def random_sensor_law(res) -> Verdict:
         "(conservative where the laws have atoms): " + "; ".join(parts) + "."))
 
 
+
+
+# -- a plug-in filter's claims (dse.plugin): the built-ins' checks, one claim each, for every plug-in ------------
+
+def plugins_of(where) -> list[tuple[str, str]]:
+    """(label, name) of the plug-in filters of the run's scenario."""
+    return [(name, name) for sc in where.run.scenarios for name in sc.plugin_names]
+
+
+def _ran(res, name: str) -> bool:
+    return name in res.mc
+
+
+def _failed(res, name: str) -> str:
+    return f"it failed: {res.faults[name]}" if name in res.faults else "it does not apply to this scenario"
+
+
+_RAN = (lambda res, name: _ran(res, name), _failed)
+_CENTRAL = (lambda res, name: "central" in res.mc, "the centralized filter does not run")
+_Z_TRIALS = (lambda res, name: res.trials >= MIN_TRIALS_Z,
+             lambda res, name: f"needs ≥ {MIN_TRIALS_Z} trials for the normal z-test; ran {res.trials}")
+
+
+@claims.claim("compare.plugin.{item}.orthogonality", "orthogonality principle", "the centralized filter's error is "
+              "orthogonal to the plug-in filter {item}'s distance from it (its estimates use only the measurements and "
+              "the links), so its excess mean-square error over the centralized filter is its mean-square distance to "
+              "it", "statistical", each=plugins_of, requires=[_RAN, _CENTRAL, _Z_TRIALS])
+def plugin_orthogonality(res, name: str) -> Verdict:
+    return _orthogonality(res, [name])
+
+
+@claims.claim("compare.plugin.{item}.lower_bound", "optimality of the centralized filter", "the plug-in filter "
+              "{item} has no smaller mean-square error than the centralized Kalman filter, at any node and step",
+              "statistical", each=plugins_of, requires=[_RAN, _CENTRAL, _Z_TRIALS])
+def plugin_lower_bound(res, name: str) -> Verdict:
+    """One-sided z-test, cell by cell, of the mean over trials of the paired gap ‖x − x̂_i‖² − ‖x − x̂_c‖² (≥ 0
+    by the optimality of the centralized filter), beyond twice the orthogonality's round-off allowance (the
+    gap is ‖x̂_i − x̂_c‖² + 2 (x − x̂_c)ᵀ(x̂_c − x̂_i))."""
+    from scipy.stats import norm
+
+    idx = res.check_indices()
+    mean, se = mean_and_se(res.mc[name]["gap"][idx], res.mc[name]["gap2"][idx], res.trials)
+    allowance = 2 * _roundoff_allowance(res, idx)
+    z = np.minimum(mean + allowance, 0.0) / np.maximum(se, 1e-300)
+    if not _finite(z):
+        return not_checkable("its errors are not finite")
+    k = int(np.argmin(np.ravel(mean)))
+    central = res.stats("central").mse[idx]
+    return p_value_test(np.ravel(norm.cdf(z)), trials=res.trials, measured=float(np.ravel(mean)[k]), reference=0.0,
+                        detail=f"mean over trials of ‖x − x̂_i‖² − ‖x − x̂_c‖² at every node, steps "
+                               f"{', '.join(str(int(res.steps[i])) for i in idx)} (one-sided normal z-test of the "
+                               f"mean of independent paired trials, beyond a round-off allowance of twice the "
+                               f"orthogonality's); smallest mean gap {np.ravel(mean)[k]:.4g} against a centralized "
+                               f"MSE of {float(np.ravel(np.broadcast_to(central, mean.shape))[k]):.4g}.")
+
+
+@claims.claim("compare.plugin.{item}.nees", "consistency of the filter's covariance", "the covariance the plug-in "
+              "filter {item} reports is what it declares: its error's covariance given the link draws (two-sided χ² "
+              "test of the NEES), or an upper bound of it (one-sided)", "statistical", each=plugins_of,
+              requires=[_RAN, (lambda res, name: res.design.estimators[name].spec.covariance_law is not None,
+                               "it declares no covariance (covariance_law = None)")])
+def plugin_nees(res, name: str) -> Verdict:
+    from scipy.stats import chi2
+
+    B, n = res.trials, res.design.model.n
+    idx = res.check_indices()
+    total = np.asarray(res.mc[name]["nees"][idx], float)
+    if not _finite(total):
+        return not_checkable("its NEES is not finite")
+    law = res.design.estimators[name].spec.covariance_law
+    p = chi2_two_sided_p(total, B * n) if law == "conditional" else chi2.sf(total, B * n)
+    return p_value_test(np.ravel(p), trials=B, measured=float(np.max(total) / B if law == "bound" else
+                                                              total.mean() / B), reference=float(n), detail=(
+        f"declared covariance_law = {law!r}: the sum over independent trials of e_iᵀ P_i⁻¹ e_i is χ²(trials·n) "
+        "when P_i is the error's conditional covariance (two-sided test) and stochastically smaller when it bounds "
+        "it (one-sided); every node, steps " + ", ".join(str(int(res.steps[i])) for i in idx) + "."))
+
+
+@claims.claim("compare.plugin.{item}.exact_moments", "exact moment recursion", "the exact second moments of the "
+              "plug-in filter {item}, from the matrices it declares (linear filters, reliable links), agree with the "
+              "simulation", "statistical", each=plugins_of,
+              requires=[_RAN, (lambda res, name: name in res.exact,
+                               lambda res, name: res.faults.get(name) or res.design.estimators[name].exact_reason
+                               or "no exact moments")])
+def plugin_exact(res, name: str) -> Verdict:
+    return _exact_claim(res, [name])

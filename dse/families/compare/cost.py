@@ -26,7 +26,6 @@ from __future__ import annotations
 
 from dse.contract.cost import MIB, Cost
 from dse.contract.options import RunOptions
-from dse.estimators.network import registry
 
 from .scenario import CompareFile
 
@@ -83,7 +82,7 @@ def tuning_solves(sc: CompareFile, quick: bool, running: set[str]) -> int:
 def design_seconds(sc: CompareFile, quick: bool) -> float:
     """CPU seconds of the design stage (what `dse check` computes)."""
     links = sc.link_model
-    running = {name for name in sc.estimator_names if not registry()[name].applies(links)}
+    running = {name for name in sc.estimator_names if not sc.estimator_specs[name].applies(links)}
     solves = tuning_solves(sc, quick, running)
     N, n, E = sc.N, sc.n, links.topology.E
     if not links.random and links.synchronous:
@@ -104,6 +103,31 @@ def design_mib(sc: CompareFile) -> float:
     return 8.0 * (N * N * E + 6 * E * n * n + 8 * (N * n) ** 2) / MIB
 
 
+#: CPU seconds per step, trial, node and unit of a plug-in filter's declared `cost_weight` (a local Kalman filter
+#: on every node, weight 1, measured with benchmarks/bench_plugin.py)
+PLUGIN_UNIT_S = 1.5e-7
+
+
+def plugin_step_seconds(sc: CompareFile, trials: int, spec) -> float:
+    """CPU seconds of one step of a plug-in filter beside the built-ins' terms: its declared weight (relative
+    to a local Kalman filter on every node), and delivering its messages (N · max degree · n numbers per
+    exchange and trial, up to two messages of n numbers per exchange)."""
+    links = sc.link_model
+    rounds = sc.links.rounds if links.synchronous else max(1, int(sc.links.rate * links.topology.E))
+    D = int(links.topology.degrees.max(initial=1))
+    return trials * sc.N * (spec.cost_weight * PLUGIN_UNIT_S + 2 * rounds * D * sc.n * PER_STATE_S)
+
+
+def time_limits(sc: CompareFile, trials: int) -> dict[str, float]:
+    """name -> the CPU seconds a plug-in filter may take by default (`dse.plugin.declare.LIMIT_FACTOR` times
+    its share of the estimate, at least `MIN_LIMIT_S`)."""
+    from dse.plugin.declare import LIMIT_FACTOR, MIN_LIMIT_S
+
+    K = sc.simulation.steps
+    return {name: max(MIN_LIMIT_S, LIMIT_FACTOR * K * (OVERHEAD_S + plugin_step_seconds(sc, trials, spec)))
+            for name, spec in sc.estimator_specs.items() if spec.plugin}
+
+
 def estimate(sc: CompareFile, opts: RunOptions, trials: int) -> Cost:
     """The cost model (module doc); `design_s` is the design stage alone, sized by `graph.n`."""
     from dse.estimators.network_comparison import PER_TRIAL_SUMS, STATS
@@ -111,12 +135,13 @@ def estimate(sc: CompareFile, opts: RunOptions, trials: int) -> Cost:
 
     B, N, n, K = trials, sc.N, sc.n, sc.simulation.steps
     links = sc.link_model
-    specs = [registry()[name] for name in sc.estimator_names]
+    specs = [sc.estimator_specs[name] for name in sc.estimator_names]
     cov_trialwise = sum(1 for e in specs if e.trialwise_covariance(links))
     plain = len(specs) - cov_trialwise
     rounds = sc.links.rounds if links.synchronous else 1
     per_step = len(specs) * OVERHEAD_S + B * N * (plain * n * PER_STATE_S * rounds + cov_trialwise * n * n * PER_COV_S
                                                   + PER_TRIAL_NODE_S)
+    per_step += sum(plugin_step_seconds(sc, B, e) for e in specs if e.plugin)
     if not links.synchronous:
         per_step += sc.links.rate * links.topology.E * PER_EVENT_S * sum(1 for e in specs if e.per_exchange)
     mc = K * per_step / max(1, min(opts.workers, 3 if cov_trialwise else 1))

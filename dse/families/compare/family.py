@@ -7,7 +7,6 @@ from __future__ import annotations
 
 from dse.contract.family import Family
 from dse.contract.options import RunOptions
-from dse.estimators.network import registry
 
 from . import generator
 from .cost import estimate
@@ -52,7 +51,7 @@ its generalisation to this setting and what it sends."""
         return self.module("claims").claims
 
     def design(self, run, opts, ctx):
-        return self.module("results").design(run.scenario, opts.quick, ctx, tuple(registry().values()))
+        return self.module("results").design(run.scenario, opts.quick, ctx, tuple(run.scenario.estimator_specs.values()))
 
     def simulate(self, run, opts, ctx, design):
         return self.module("results").simulate(run.scenario, design, opts.seed, self.trials(run, opts), opts.quick,

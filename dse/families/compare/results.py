@@ -33,6 +33,7 @@ class Results:
     token: dict[str, np.ndarray] = field(default_factory=dict)
     paths: dict[str, np.ndarray] = field(default_factory=dict)
     reference: dict[str, np.ndarray] = field(default_factory=dict)
+    faults: dict[str, str] = field(default_factory=dict)          # plug-in filter -> what it did wrong
 
     def stats(self, est: str) -> Stats:
         """Means and standard errors of an estimator's Monte Carlo sums."""
@@ -74,9 +75,11 @@ def simulate(sc: CompareFile, d: Design, seed: int, trials: int, quick: bool, wo
     keyed = (sc, quick, d.tuning_stage)
     exact = ctx.run(exact_moments, *keyed, d.specs)
     mc = ctx.run(monte_carlo, *keyed, exact, seed, trials, d.specs, workers, budget_bytes)
-    sums = _nested(mc)
-    res = Results(sc, d, seed, trials, mc["steps"], _nested(exact), token=sums.pop("token", {}),
-                  paths=sums.pop("path", {}), mc=sums)
+    sums, moments = _nested(mc), _nested(exact)
+    faults = {**{e: str(v) for e, v in moments.pop("fault", {}).items()},
+              **{e: str(v) for e, v in sums.pop("fault", {}).items()}}
+    res = Results(sc, d, seed, trials, mc["steps"], moments, token=sums.pop("token", {}),
+                  paths=sums.pop("path", {}), mc=sums, faults=faults)
     if "central" in d.running:
         res.reference = dict(ctx.run(filterpy_reference, sc))
     if res.token:                       # a filter that swaps states ran: the law of its random node's covariance

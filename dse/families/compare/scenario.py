@@ -9,6 +9,7 @@ the link model and the consensus weights are its cached properties.
 """
 from __future__ import annotations
 
+import re
 from functools import cached_property
 from typing import Literal
 
@@ -17,6 +18,7 @@ from pydantic import model_validator
 
 from dse.errors import ScenarioError
 from dse.estimators.network import EstimatorName, registry
+from dse.plugin.declare import PluginTable
 from dse.scenario.declare import (Matrix, Real, ScenarioFile, Section, computed_default, covariance, key, matrix,
                                   name_key, only_with)
 from dse.scenario.graphs import GraphSection, GraphSpec, graph_from_section, max_degree
@@ -24,6 +26,7 @@ from dse.scenario.graphs import GraphSection, GraphSpec, graph_from_section, max
 MAX_NODES = 500
 MAX_STATE = 10
 MAX_ROWS = 4
+PLUGIN_NAME = r"[A-Za-z0-9_-]{1,40}"
 
 
 class PlantSection(Section):
@@ -146,17 +149,42 @@ class GainsSection(Section):
 
 class EstimatorsSection(Section):
     """Which estimators run (each one that does not apply to the link model is reported as not applicable,
-    with the reason)."""
+    with the reason): the built-in ones in `include`, and every plug-in filter with a table
+    `[estimators.<name>]` (docs/plugins.md)."""
 
     @computed_default
     def _every(data):
-        """every registered estimator"""
+        """every built-in estimator"""
         return list(registry())
 
-    include: list[EstimatorName] = key(_every, doc="ids of the estimators to run, among the registered ones (one "
-                                       "module each in dse/estimators/network/; the `applicability` table lists "
-                                       "them)", min_length=1, constraint="registered estimator ids; the centralized "
-                                       "filter always runs (it is the reference)")
+    include: list[EstimatorName] = key(_every, doc="ids of the built-in estimators to run (one module each in "
+                                       "dse/estimators/network/; the `applicability` table lists them)", min_length=1,
+                                       constraint="registered estimator ids; the centralized filter always runs (it "
+                                       "is the reference)")
+    plugins: dict[str, PluginTable] = key(dict, doc="plug-in filters, one table each", inline=True,
+                                          constraint="names of 1 to 40 letters, digits, '-' or '_', not a built-in's")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _plugin_tables(cls, data):
+        """`[estimators.<name>]` tables are the plug-ins (declared as `plugins`, written inline)."""
+        if not isinstance(data, dict):
+            return data
+        data = dict(data)
+        tables = {k: data.pop(k) for k in list(data) if k not in cls.model_fields and isinstance(data[k], dict)}
+        if tables:
+            data["plugins"] = {**data.get("plugins", {}), **tables}
+        return data
+
+    @model_validator(mode="after")
+    def _plugin_names(self):
+        for name in self.plugins:
+            if name in registry():
+                raise ScenarioError(f"estimators.{name}", f"{name!r} is a built-in estimator's id; give the plug-in "
+                                                          "another name")
+            if not re.fullmatch(PLUGIN_NAME, name):
+                raise ScenarioError(f"estimators.{name}", "a plug-in's name has 1 to 40 letters, digits, '-' or '_'")
+        return self
 
 
 class SimulationSection(Section):
@@ -221,6 +249,7 @@ class CompareFile(ScenarioFile):
         if self.alpha > 1.0 / dmax + 1e-15:
             raise ScenarioError("weights.alpha", f"must be <= 1/d_max = {1.0 / dmax:.6g}, got {self.alpha:g}")
         self.given_gains
+        self.estimator_specs                     # a plug-in that cannot be loaded names its table
         return self
 
     # -- the scenario the stages read ----------------------------------------------------------------------
@@ -306,9 +335,24 @@ class CompareFile(ScenarioFile):
                      for t, K in enumerate(g.given))
 
     @cached_property
+    def estimator_specs(self) -> dict:
+        """name -> declaration of every built-in estimator (the registry's order) and every plug-in filter of
+        the file (in its order), whether it runs or not."""
+        from dse.plugin.declare import from_table
+
+        plugins = {name: from_table(name, table, i) for i, (name, table) in enumerate(self.estimators.plugins.items())}
+        return {**registry(), **plugins}
+
+    @property
+    def plugin_names(self) -> tuple[str, ...]:
+        """The plug-in filters of the file (`[estimators.<name>]`), in its order."""
+        return tuple(self.estimators.plugins)
+
+    @cached_property
     def estimator_names(self) -> tuple[str, ...]:
-        """The estimators that run, in the registry's order (the reference always)."""
-        return tuple(name for name, est in registry().items() if name in self.estimators.include or est.reference)
+        """The estimators that run, in the registry's order (the reference always), then the plug-ins."""
+        return tuple(name for name, est in self.estimator_specs.items()
+                     if name in self.estimators.include or est.reference or est.plugin)
 
     @cached_property
     def model(self):

@@ -53,12 +53,18 @@ def tune(sc: CompareFile, quick: bool, estimators: tuple) -> dict[str, np.ndarra
 @stage(allow_nonfinite=lambda estimators, **_: tuple(f"{e.name}__{k}" for e in estimators for k in MOMENTS))
 def exact_moments(sc: CompareFile, quick: bool, tuned: StageResult, estimators: tuple) -> dict[str, np.ndarray]:
     """'<estimator>__<moment>' of every running estimator whose exact moments are computed."""
+    from dse.plugin.harness import PluginFault
+
     d = rebuilt(sc, quick, tuned, estimators)
     out = {}
     with np.errstate(over="ignore", invalid="ignore"):     # a mean-square unstable filter's moments may overflow
         for name, est in d.running.items():
             if est.exact:
-                ex = est.exact_moments()
+                try:
+                    ex = est.exact_moments()
+                except PluginFault as fault:               # a plug-in's matrices: its fault, reported, not ours
+                    out[f"fault__{name}"] = np.array(str(fault))
+                    continue
                 out.update({f"{name}__{k}": ex[k] for k in MOMENTS if k in ex})
     return out
 
@@ -84,9 +90,12 @@ def monte_carlo(sc: CompareFile, quick: bool, tuned: StageResult, exact: StageRe
                 estimators: tuple, workers: int, budget_bytes: float) -> dict[str, np.ndarray]:
     """Every running estimator on `trials` trials (`network_comparison.simulate`, the estimators split over
     `workers` processes): '<estimator>__<sum>', the token law 'token__<estimator>', the sample paths
-    'path__<estimator>' and the recorded 'steps'. The joint-moment filters' exact covariances give the
+    'path__<estimator>', what a failed plug-in did 'fault__<estimator>' and the recorded 'steps'. The joint-moment filters' exact covariances give the
     NEES of their exact law."""
+    from .cost import time_limits
+
     d = rebuilt(sc, quick, tuned, estimators)
+    d.network.shared.update(trials=trials, time_limits=time_limits(sc, trials))     # for the plug-ins' pace
     exact_cov = {name: exact[f"{name}__blocks"] for name, est in d.running.items()
                  if est.spec.joint_moments and f"{name}__blocks" in exact}
     setup = Setup(d.model, d.links, sc.simulation.steps, d.running, exact_cov=exact_cov, token_times=token_times(sc),
@@ -96,6 +105,7 @@ def monte_carlo(sc: CompareFile, quick: bool, tuned: StageResult, exact: StageRe
     arrays = {f"{e}__{k}": v for e, sums in out["mc"].items() for k, v in sums.items()}
     arrays.update({f"token__{e}": v for e, v in out["token"].items()})
     arrays.update({f"path__{e}": v for e, v in out["paths"].items()})
+    arrays.update({f"fault__{e}": np.array(what) for e, what in out["faults"].items()})
     arrays["steps"] = out["steps"]
     return arrays
 

@@ -13,7 +13,7 @@ from .design import Design
 from .stages import token_times
 
 _S = ("scenario", "", "scenario name")
-_E = ("estimator", "", "estimator id: " + ", ".join(registry()))
+_E = ("estimator", "", "estimator id: " + ", ".join(registry()) + ", or a plug-in filter's name")
 
 APPLICABILITY = spec("applicability", "estimator", [
     _S, _E, ("label", "", "what the estimator is"), ("applies", "", "true when it runs on this scenario"),
@@ -92,6 +92,13 @@ METRICS = spec("metrics", "metric of an estimator (network-wide when node is emp
     _S, ("metric", "", "<estimator>.<quantity>: network_mse, excess, nees, disagreement, messages_per_step, "
                        "scalars_per_step, steady_mse"),
     ("node", "", "node (empty: network-wide)"), _E, ("value", "as the quantity", "the value at the evaluation step")])
+
+
+FAULTS = spec("faults", "plug-in filter that failed", [
+    _S, _E, ("what", "", "what it did (one line); its results are left out, the other estimators' numbers are the "
+                         "same as without it")],
+    "Plug-in filters (dse.plugin) that broke the protocol: raised, returned NaN or a wrong shape, wrote into their "
+    "inputs, sent more than they declared, were too slow, or declared matrices that are not theirs.")
 
 
 def applicability_rows(d: Design) -> list[dict]:
@@ -195,4 +202,6 @@ def run_tables(res) -> list:
     if "gikf" in res.token and "chain" in res.token:
         out.append((TOKEN, pd.DataFrame(_token_rows(res), columns=TOKEN.column_names)))
     out.append((METRICS, pd.DataFrame(metric_rows, columns=METRICS.column_names).astype({"node": "Int64"})))
+    out.append((FAULTS, pd.DataFrame([{"scenario": res.scenario.name, "estimator": e, "what": what}
+                                      for e, what in res.faults.items()], columns=FAULTS.column_names)))
     return out

@@ -3,7 +3,7 @@
 as the floor), `figures/mse_vs_time.png` (Monte Carlo with its band, exact recursions dashed), `figures/nees.png`
 (with the χ² band of a consistent filter) and `<name>.rrd` (every estimator's curves on timeline `k`, the NEES,
 the disagreement, the graph and the comparison table, on the recording scaffold with its claims tab). Colours,
-markers and labels follow the registry's order (`dse.estimators.network`).
+markers and labels follow the registry's order (`dse.estimators.network`), then the plug-ins'.
 """
 from __future__ import annotations
 
@@ -12,7 +12,6 @@ from pathlib import Path
 import numpy as np
 
 from dse.contract.views import Outputs, View, recording
-from dse.estimators.network import registry
 from dse.outputs import record as rec_
 from dse.outputs.figures import new_figure, save_figure
 from dse.simulate.stats import z_for_confidence
@@ -20,9 +19,10 @@ from dse.simulate.stats import z_for_confidence
 BAND = 0.95
 
 
-def _styles() -> tuple[dict, dict, dict]:
-    """(colour, marker, label) of every registered estimator; the reference in black."""
-    reg = registry()
+def _styles(res) -> tuple[dict, dict, dict]:
+    """(colour, marker, label) of every estimator of the run (built-ins in the registry's order, then the
+    plug-ins); the reference in black."""
+    reg = res.scenario.estimator_specs
     colors = {e: (0, 0, 0) if est.reference else rec_.color(i) for i, (e, est) in enumerate(reg.items())}
     markers = {e: "*ovs^D<>p"[i % 9] for i, e in enumerate(reg)}
     return colors, markers, {e: est.title for e, est in reg.items()}
@@ -37,7 +37,7 @@ def error_vs_communication(res, tables, path: Path) -> None:
     as the floor and the frontier of the lowest error for a budget; estimators far off the scale
     (a diverging filter) are drawn on the top edge with their value. Right: the same estimators
     ranked by their MSE relative to the centralized filter, each bar labelled with its budget."""
-    colors, markers, labels = _styles()
+    colors, markers, labels = _styles(res)
     t = tables["estimators"]
     app = tables["applicability"]
     fig, axes = new_figure(ncols=2, width=7.0, height=5.6)
@@ -116,9 +116,9 @@ def _pareto(t) -> np.ndarray:
     return np.array(front)
 
 
-def _per_estimator(tables, height: float):
+def _per_estimator(res, tables, height: float):
     """A figure for one curve per estimator of the `series` table: (figure, axes, colours, labels, rows)."""
-    colors, _, labels = _styles()
+    colors, _, labels = _styles(res)
     s = tables["series"]
     fig, axes = new_figure(ncols=1, width=10.0, height=height)
     return fig, axes[0, 0], colors, labels, [(est, s[s["estimator"] == est]) for est in labels]
@@ -134,7 +134,7 @@ def _finish(fig, ax, path: Path, ylabel: str, title: str) -> None:
 
 
 def mse_vs_time(res, tables, path: Path) -> None:
-    fig, ax, colors, labels, rows = _per_estimator(tables, 5.0)
+    fig, ax, colors, labels, rows = _per_estimator(res, tables, 5.0)
     z = z_for_confidence(BAND)
     for est, r in rows:
         if not len(r):
@@ -153,7 +153,7 @@ def mse_vs_time(res, tables, path: Path) -> None:
 
 
 def nees_figure(res, tables, path: Path) -> None:
-    fig, ax, colors, labels, rows = _per_estimator(tables, 4.5)
+    fig, ax, colors, labels, rows = _per_estimator(res, tables, 4.5)
     nodes = tables["nodes"]
     lo, hi = float(nodes["nees_lo"].iloc[0]), float(nodes["nees_hi"].iloc[0])
     for est, r in rows:
@@ -220,7 +220,7 @@ def _log_series(rec, s, colors: dict, labels: dict) -> None:
             rec_.send_series(rec, f"nees/{est}", idx, r["nees_mc"].to_numpy(), names=labels[est], colors=[col])
         rec_.send_series(rec, f"disagreement/{est}", idx, r["disagreement_mc"].to_numpy(), names=labels[est],
                          colors=[col])
-        if not registry()[est].reference:
+        if est != "central":
             rec_.send_series(rec, f"excess/{est}", idx, r["excess_mc"].to_numpy(), names=labels[est], colors=[col])
 
 
@@ -239,7 +239,7 @@ def _log_trial(rec, paths: dict, colors: dict, labels: dict) -> None:
 def _recording(out: Outputs, path: Path) -> None:
     res, tables = out.results, out.tables
     sc = res.scenario
-    colors, _, labels = _styles()
+    colors, _, labels = _styles(res)
 
     def log(rec):
         edges = res.design.links.topology.edges.tolist()
