@@ -51,6 +51,8 @@ class Declared:
         return dict(self._properties)
 
     def __getattr__(self, key: str) -> Any:
+        if key.startswith("_"):          # not a scenario property (copy, pickle and hasattr probe these)
+            raise AttributeError(key)
         try:
             return self._properties[key]
         except KeyError:
@@ -204,7 +206,7 @@ class Family(ABC):
             return out
         if run._scenarios is None and not any(e.when is not None or e.each is not None
                                               or callable(getattr(e, "hypotheses", ())) for e in entries):
-            # nothing reads a scenario's roles or items: the paper's files are not parsed (`dse list`)
+            # nothing reads a scenario's roles or items: the paper's files are not parsed for the ids
             return out + [Where(run.paper_id, run.is_paper, ids, name, run=run) for name in ids]
         return out + [Where(run.paper_id, run.is_paper, ids, sc.name, self.roles_of(sc, run.is_paper), run=run)
                       for sc in run.scenarios]
