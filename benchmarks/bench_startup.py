@@ -3,6 +3,9 @@ interpreter, on a copy of the source tree precompiled as the install step does (
 `compileall`) and on the same copy with no bytecode at all, each with `PYTHONDONTWRITEBYTECODE=1` (as
 some shells, containers and CI set it: then nothing is ever cached) and without.
 
+`dse list` imports every family's claims modules and reads no scenario file: what it prints is declared
+(`Family.listing`; tests/test_list_declared.py traps file reads and scenario construction).
+
 Targets: `import dse` <= 0.3 s, `dse --help` <= 0.3 s, `dse list` <= 0.5 s (precompiled; either setting)."""
 from __future__ import annotations
 

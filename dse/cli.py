@@ -62,6 +62,8 @@ def _registry():
 
 
 def cmd_list(args) -> int:
+    """Every paper's (or family's) scenarios, hypotheses and claims, expanded on the declared scenarios
+    (`Family.listing`): no scenario file is read and no scenario is built."""
     reg = _registry()
     families, papers = reg.families(), reg.papers()
     wanted = set(args.which)
@@ -70,23 +72,15 @@ def cmd_list(args) -> int:
                                      f"(papers: {', '.join(papers)}; families: {', '.join(families)})")
     for pid, family in papers.items():
         if not wanted or wanted & {pid, family.id}:
-            repro = reg.paper(pid)
+            repro = family.listing()
             _print_claims(f"{pid} (family {family.id}): {repro.title}", repro)
     for fid, family in families.items():
         if family.paper is None and (not wanted or fid in wanted):
             _print_claims(f"{fid} (a family without a paper; claims as on its example {family.example})",
-                          _example_run(family))
+                          family.listing())
     if not wanted:
         print("\nscenario families for `dse run FILE.toml` (family = ...):", ", ".join(families))
     return 0
-
-
-def _example_run(family):
-    """A user's run of the family's shipped example scenario (what `dse list` shows for a family
-    that reproduces no paper: the claims any scenario of it gets)."""
-    from dse.scenario.fields import load_toml
-
-    return _registry().from_dict(load_toml(family.example_file()))
 
 
 def _print_claims(header: str, repro) -> None:

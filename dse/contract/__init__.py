@@ -1,7 +1,7 @@
 """The one contract between the pipeline, the scenario families and their stages.
 
 - `Family` (family.py): what a family declares (id, paper, intro, notes, scenario model,
-  example, edge cases) and implements (scenario_from_dict, paper_scenarios, generate, claims,
+  example, edge cases, and the shipped scenarios `dse list` expands on as `Declared`) and implements (scenario_from_dict, paper_scenarios, generate, claims,
   design, simulate, trials, cost, design_tables, tables, views). A run is a `Reproduction`.
 - `stage` (stages.py): a cached computation whose key is derived from its arguments and the
   source of every module it imports; run through a `StageContext`.
@@ -18,7 +18,7 @@ import importlib
 # names loaded on first use: a stage module that imports `dse.contract.stages` does not load (nor
 # depend on, for its cache key) the claims, views or family modules
 _EXPORTS = {"ClaimSet": "claims", "Where": "claims", "example": "claims", "paper_only": "claims", "role": "claims",
-            "Cost": "cost", "Computed": "family", "Family": "family", "Paper": "family", "Reproduction": "family",
+            "Cost": "cost", "Computed": "family", "Declared": "family", "Family": "family", "Paper": "family", "Reproduction": "family",
             "RunOptions": "options", "Stage": "stages", "StageContext": "context", "StageResult": "stages", "stage": "stages",
             "Outputs": "views", "View": "views", "recording": "views"}
 

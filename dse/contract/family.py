@@ -31,16 +31,64 @@ from dse.contract.options import RunOptions
 from dse.contract.context import StageContext
 
 
+class Declared:
+    """A shipped scenario as the expansion of its run's claims reads it, declared so that listing them
+    (`dse list`) reads no file and builds no scenario: its name, its roles in the run (what `Family.roles`
+    gives the parsed file) and the properties the claims' gates read (`when`, `each`, hypotheses chosen per
+    scenario), under the scenario model's own attribute names; a nested part (a run of the scenario, say) is
+    a `Declared` too. Reading a property that is not declared raises, naming it; tests compare every
+    declaration, and the listing made from it, with the parsed file."""
+
+    __slots__ = ("name", "roles", "_properties")
+
+    def __init__(self, name: str, *, roles: Iterable[str] = (), **properties: Any):
+        self.name = name
+        self.roles = frozenset(roles)
+        self._properties = properties
+
+    def properties(self) -> dict[str, Any]:
+        """The declared properties, by attribute name."""
+        return dict(self._properties)
+
+    def __getattr__(self, key: str) -> Any:
+        if key.startswith("_"):          # not a scenario property (copy, pickle and hasattr probe these)
+            raise AttributeError(key)
+        try:
+            return self._properties[key]
+        except KeyError:
+            raise AttributeError(f"the declared scenario {self.name!r} has no property {key!r}: a claim's gate "
+                                 "reads it, so its declaration (Paper.declared or Family.example_declared) must "
+                                 "give it") from None
+
+    def __repr__(self) -> str:
+        parts = [repr(self.name)] + ([f"roles={sorted(self.roles)}"] if self.roles else []) + \
+            [f"{k}={v!r}" for k, v in self._properties.items()]
+        return f"Declared({', '.join(parts)})"
+
+
 @dataclass(frozen=True)
 class Paper:
     """The paper a family reproduces: its id (`dse reproduce ID`), title, the ids of its own
-    scenarios (listed without reading their files) and the notes of its reproduction (the values
-    the paper leaves out and what we chose)."""
+    scenarios (listed without reading their files), the notes of its reproduction (the values
+    the paper leaves out and what we chose) and, for the scenarios whose roles or properties its
+    claims' gates read, their declarations (`Declared`; the others are their names alone)."""
 
     id: str
     title: str
     scenario_ids: tuple[str, ...]
     notes: str = ""
+    declared: tuple[Declared, ...] = ()
+
+    def __post_init__(self):
+        unknown = [d.name for d in self.declared if d.name not in self.scenario_ids]
+        if unknown:
+            raise ValueError(f"paper {self.id}: declared scenarios {', '.join(unknown)} are not among its "
+                             f"scenario ids {', '.join(self.scenario_ids)}")
+
+    def declared_scenarios(self) -> tuple[Declared, ...]:
+        """One declaration per scenario id, in order (a scenario not declared: its name alone)."""
+        given = {d.name: d for d in self.declared}
+        return tuple(given.get(name, Declared(name)) for name in self.scenario_ids)
 
 
 class Family(ABC):
@@ -65,6 +113,9 @@ class Family(ABC):
     run_title: ClassVar[str] = ""
     #: the dotted scenario key that `--trials` (RunOptions.trials) stands for: the option gets its declared bounds
     trials_key: ClassVar[str] = ""
+    #: a family without a paper: its example as a user's run of it reads it (`Declared`: the file's name, and
+    #: what the claims' gates read), so that `dse list` shows its claims without reading the file
+    example_declared: ClassVar[Declared | None] = None
 
     # -- scenarios ---------------------------------------------------------------------------------------
 
@@ -79,6 +130,9 @@ class Family(ABC):
         super().__init_subclass__(**kwargs)
         if cls.paper is not None and cls.paper_scenarios is Family.paper_scenarios:
             raise TypeError(f"{cls.__name__} declares the paper {cls.paper.id!r} but not its paper_scenarios()")
+        if cls.paper is None and hasattr(cls, "example") and cls.example_declared is None:
+            raise TypeError(f"{cls.__name__} declares no paper and its example {cls.example!r} but not "
+                            "example_declared (what `dse list` shows)")
 
     def paper_scenarios(self) -> Sequence[Any]:
         """The paper's own scenarios, in the order of `paper.scenario_ids`: a family that declares a paper
@@ -152,10 +206,23 @@ class Family(ABC):
             return out
         if run._scenarios is None and not any(e.when is not None or e.each is not None
                                               or callable(getattr(e, "hypotheses", ())) for e in entries):
-            # nothing reads a scenario's roles or items: the paper's files are not parsed (`dse list`)
+            # nothing reads a scenario's roles or items: the paper's files are not parsed for the ids
             return out + [Where(run.paper_id, run.is_paper, ids, name, run=run) for name in ids]
-        return out + [Where(run.paper_id, run.is_paper, ids, sc.name, self.roles(sc, run.is_paper), run=run)
+        return out + [Where(run.paper_id, run.is_paper, ids, sc.name, self.roles_of(sc, run.is_paper), run=run)
                       for sc in run.scenarios]
+
+    def roles_of(self, scenario: Any, paper: bool) -> frozenset[str]:
+        """The roles of a scenario in a run: declared (`Declared`), or given by `roles`."""
+        return scenario.roles if isinstance(scenario, Declared) else self.roles(scenario, paper)
+
+    def listing(self) -> "Reproduction":
+        """What `dse list` shows: the paper's reproduction, or a user's run of the example, on the declared
+        scenarios (`Paper.declared`, `example_declared`), so that its hypotheses and claims are expanded
+        without reading a file or building a scenario. For listing only: an `each=` item is a declaration
+        there, not the scenario's part, so its checks are not for running."""
+        if self.paper is not None:
+            return Reproduction(self, True, self.paper.declared_scenarios())
+        return Reproduction(self, False, (self.example_declared,))
 
     def compute(self, run: "Reproduction", opts: RunOptions, ctx: StageContext) -> "Computed":
         """The design, then the simulation on top of it."""

@@ -5,7 +5,7 @@ cost (the cost model) and this one.
 """
 from __future__ import annotations
 
-from dse.contract.family import Family
+from dse.contract.family import Declared, Family
 from dse.contract.options import RunOptions
 
 from . import generator
@@ -40,6 +40,7 @@ tuned on the exact steady state of their mean recursion. See docs/papers/compare
 its generalisation to this setting and what it sends."""
     scenario_model = CompareFile
     example = "scenarios/tracking.toml"
+    example_declared = Declared("tracking")
     trials_key = "simulation.trials"
     edges = generator.EDGES
     run_title = "one network, every estimator"

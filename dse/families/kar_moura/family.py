@@ -8,7 +8,7 @@ together.
 """
 from __future__ import annotations
 
-from dse.contract.family import Computed, Family, Paper
+from dse.contract.family import Computed, Declared, Family, Paper
 
 from . import generator
 from .scenario import PAPER_SCENARIOS, GossipKalmanFile
@@ -41,7 +41,10 @@ Reconstruction notes: docs/papers/kar-moura.md."""
 
 class GossipKalman(Family):
     id = "gossip-kalman"
-    paper = Paper("kar-moura", TITLE, PAPER_SCENARIOS, NOTES)
+    #: the roles the claims' gates read (`roles` on the files: the structural checks, and E3's second protocol)
+    paper = Paper("kar-moura", TITLE, PAPER_SCENARIOS, NOTES,
+                  declared=(Declared("e1", roles={"full"}), Declared("e2", roles={"full"}),
+                            Declared("e3", roles={"comparison"})))
     intro = """N sensors observe a linear Gaussian signal x(t+1) = F x(t) + w(t) through their own y_n = C_n x + v_n (none
 need see the whole state; C_n = [] is a node that observes nothing). At every slot a random matching of the graph
 decides which pairs swap their (estimate, covariance) pairs; each sensor then updates what it received with its own

@@ -6,7 +6,7 @@ recording), generator (random valid scenarios) and this one, which ties them tog
 from __future__ import annotations
 
 from dse.contract.cost import MIB, Cost
-from dse.contract.family import Family
+from dse.contract.family import Declared, Family
 from dse.contract.options import RunOptions
 from dse.simulate.units import RNG_UNIT
 
@@ -30,6 +30,7 @@ the geometric approach to the centralized r/N is checked where the graph is conn
     notes = "Statistical verdicts use the exact χ² law of the errors, valid at any number of trials."
     scenario_model = ConsensusFile
     example = "example.toml"
+    example_declared = Declared("ring8")   # the example's name: its claims' gates read nothing else
     trials_key = "monte_carlo.trials"
     edges = generator.EDGES
 

@@ -9,9 +9,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from dse.contract.family import Family, Paper
+from dse.contract.family import Declared, Family, Paper
 from dse.contract.options import RunOptions
-
 
 from . import generator
 from .scenario import HybridFile
@@ -33,9 +32,30 @@ m = 3, n = 4, unstable, ρ = 0.85), whose q of (22) (786 iterations per interval
 convergence with q = 50 is reported as an empirical finding (sec6.eq44_q50, sec6.rate)."""
 
 
+def _run(name: str, timing: str, q: int, rule: str = "mean") -> Declared:
+    """A run of a paper scenario as the per-run hypotheses' gates read it (`claims.hypotheses`)."""
+    return Declared(name, timing=timing, rule=rule, q=q)
+
+
+#: the paper's two scenarios as their claims' expansion reads them (one hypothesis row per run that needs it:
+#: its timing, rule and validated q against the design q; strong connectivity), so that `dse list` reads neither
+#: file; tests compare every value with the parsed files
+DECLARED = (
+    Declared("paper", roles={"example"}, q_design=50, all_strongly_connected=True, runs=(
+        _run("sync", "sync", 50), _run("ideal", "sync", 50), _run("async", "async", 50),
+        _run("sync_fast_switching", "sync", 50), _run("async_fast_switching", "async", 50),
+        _run("fig3_noise", "sync", 50), _run("fig4_offset", "offset", 50), _run("offset_small", "offset", 50),
+        _run("fixed_2a", "sync", 50), _run("fig5_leave_join", "sync", 50),
+        _run("symmetric", "sync", 55, rule="symmetric"))),
+    Declared("generic", q_design=786, all_strongly_connected=True, runs=(
+        _run("sync", "sync", 786), _run("ideal", "sync", 786), _run("async", "async", 786),
+        _run("offset_small", "offset", 786), _run("symmetric", "sync", 34, rule="symmetric"))),
+)
+
+
 class HybridObserver(Family):
     id = "hybrid-observer"
-    paper = Paper("wang-liu-morse", TITLE, ("paper", "generic"), PAPER_NOTES)
+    paper = Paper("wang-liu-morse", TITLE, ("paper", "generic"), PAPER_NOTES, declared=DECLARED)
     intro = """A linear plant x' = A x observed by m agents, agent i through y_i = C_i x, no single one of which
 need see the whole state (the stacked (C, A) must be observable). Each agent runs a local observer of what it sees
 and, once per event interval of length T, q iterations of a distributed estimator exchanging n-vectors with its
