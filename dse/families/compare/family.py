@@ -40,7 +40,7 @@ tuned on the exact steady state of their mean recursion. See docs/papers/compare
 its generalisation to this setting and what it sends."""
     scenario_model = CompareFile
     example = "scenarios/tracking.toml"
-    example_declared = Declared("tracking")
+    example_declared = Declared("tracking", plugin_names=())   # the example has no plug-in filter
     trials_key = "simulation.trials"
     edges = generator.EDGES
     run_title = "one network, every estimator"
