@@ -42,6 +42,8 @@ EXIT_CODES = """exit codes:
        an OUT the command created is removed; the lock file OUT/.dse.lock is removed after every command)
   3    numerical failure of the run (a NaN or inf where a finite number is required, or a number
        beyond float64, such as a gain below the rounding unit of 1): one line
+  4    a plug-in filter broke its protocol (dse run, dse arena): one line each; it was left out and
+       every other result was written, unchanged
   130  interrupted (SIGINT, Ctrl-C)
   141  the reader of the output went away (e.g. `dse list | head`)
   143  terminated (SIGTERM)"""
@@ -377,6 +379,9 @@ def build_parser() -> argparse.ArgumentParser:
     swp.add_argument("--strict", action="store_true",
                      help="exit 1 when any claim of any point is fail or error (for CI)")
     swp.set_defaults(func=cmd_sweep)
+    from dse.arena.command import add_parser as arena_parser
+
+    arena_parser(sub_parser, _positive_int, _nonnegative_int)
     _site_parser(sub_parser("site", help="build (or bring up to date) the static report site of an output root: "
                                          "every paper, run and sweep, browsable offline (docs/site.md)"))
     return parser

@@ -5,6 +5,7 @@ naming it, so a bad file produces exactly one clear line, e.g. ``grid.model.r: m
 """
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from pathlib import Path
@@ -142,3 +143,22 @@ def as_matrix(value: Any, field: str, *, shape: tuple[int, int] | None = None,
     if psd and np.linalg.eigvalsh(M / 2 + M.T / 2).min() < -tol:
         raise ScenarioError(field, "must be positive semidefinite")
     return M
+
+
+def toml_text(data: dict) -> str:
+    """A scenario dict (a generated one, say) as TOML that `load_toml` reads back to the same dict: every
+    top-level key on one line, tables inline."""
+    def value(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, float) and not math.isfinite(v):
+            return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        if isinstance(v, dict):
+            return "{" + ", ".join(f"{json.dumps(str(k))} = {value(x)}" for k, x in v.items()) + "}"
+        return repr(v.item() if hasattr(v, "item") else v)
+
+    return "\n".join(f"{json.dumps(str(k))} = {value(v)}" for k, v in data.items()) + "\n"
