@@ -360,31 +360,34 @@ def build_parser() -> argparse.ArgumentParser:
     ver.add_argument("out_dir", metavar="OUT_DIR")
     strict_flag(ver)
     ver.set_defaults(func=cmd_verify)
-    swp = sub_parser("sweep", help="run a scenario family over a grid or random sample of fields, on Dask")
-    swp.add_argument("file", metavar="SWEEP.toml", help="a sweep file (TOML): a base scenario and the fields to vary "
-                                                       "(README, 'Sweeps'; examples in dse/families/sweeps/)")
-    swp.add_argument("--out", default="out", help="output root directory; results go to OUT/sweep/NAME/ (default out/)")
-    swp.add_argument("--scheduler", default="auto",
-                     help="auto (default: in process for a tiny sweep, else a local Dask cluster), inline, local, "
-                          "or the address of a running Dask scheduler, e.g. tcp://HOST:8786")
-    swp.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1,
-                     help="worker processes of the local cluster (default: one per core)")
-    swp.add_argument("--retries", type=_nonnegative_int, default=2, help="retries of a failed task (default 2)")
-    swp.add_argument("--fresh", action="store_true", help="recompute every point, ignoring points already done")
-    swp.add_argument("--seed", type=_nonnegative_int, default=None,
-                     help="root seed of the sweep (each point's seed is derived from it); default: the file's seed")
-    swp.add_argument("--trials", type=_positive_int, default=None,
-                     help="Monte Carlo trials per cell of every point; default: the file's trials, else each scenario's")
-    swp.add_argument("--quick", action="store_true", help="every point as a --quick run (as the file's quick = true)")
-    swp.add_argument("--strict", action="store_true",
-                     help="exit 1 when any claim of any point is fail or error (for CI)")
-    swp.set_defaults(func=cmd_sweep)
+    _sweep_parser(sub_parser("sweep", help="run a scenario family over a grid or random sample of fields, on Dask"))
     from dse.arena.command import add_parser as arena_parser
 
     arena_parser(sub_parser, _positive_int, _nonnegative_int)
     _site_parser(sub_parser("site", help="build (or bring up to date) the static report site of an output root: "
                                          "every paper, run and sweep, browsable offline (docs/site.md)"))
     return parser
+
+
+def _sweep_parser(p: argparse.ArgumentParser) -> None:
+    p.add_argument("file", metavar="SWEEP.toml", help="a sweep file (TOML): a base scenario and the fields to vary "
+                                                     "(README, 'Sweeps'; examples in dse/families/sweeps/)")
+    p.add_argument("--out", default="out", help="output root directory; results go to OUT/sweep/NAME/ (default out/)")
+    p.add_argument("--scheduler", default="auto",
+                   help="auto (default: in process for a tiny sweep, else a local Dask cluster), inline, local, "
+                        "or the address of a running Dask scheduler, e.g. tcp://HOST:8786")
+    p.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1,
+                   help="worker processes of the local cluster (default: one per core)")
+    p.add_argument("--retries", type=_nonnegative_int, default=2, help="retries of a failed task (default 2)")
+    p.add_argument("--fresh", action="store_true", help="recompute every point, ignoring points already done")
+    p.add_argument("--seed", type=_nonnegative_int, default=None,
+                   help="root seed of the sweep (each point's seed is derived from it); default: the file's seed")
+    p.add_argument("--trials", type=_positive_int, default=None,
+                   help="Monte Carlo trials per cell of every point; default: the file's trials, else each scenario's")
+    p.add_argument("--quick", action="store_true", help="every point as a --quick run (as the file's quick = true)")
+    p.add_argument("--strict", action="store_true",
+                   help="exit 1 when any claim of any point is fail or error (for CI)")
+    p.set_defaults(func=cmd_sweep)
 
 
 def _site_parser(p: argparse.ArgumentParser) -> None:
