@@ -259,7 +259,7 @@ def run_key(repro: Reproduction, opts: RunOptions, source: dict[str, Any] | None
     from dse.engine.cache import canonical_json, project_fingerprint
 
     what = {"paper": repro.paper_id, "is_paper": repro.is_paper, "source": source, "seed": opts.seed,
-            "trials": opts.trials, "quick": opts.quick}
+            "trials": opts.trials, "quick": opts.quick, "external_code": repro.external_code()}
     ident = hashlib.sha256(canonical_json(what).encode()).hexdigest()[:16]
     return f"{ident}-{hashlib.sha256((ident + project_fingerprint()).encode()).hexdigest()[:16]}"
 

@@ -37,9 +37,9 @@ def tasks_of(name: str, table: dict[str, Any], quick: bool, seed: int) -> list:
     out = []
     for i, entry in enumerate(suite.entries(quick)):
         scenario = suite.with_filter(entry.scenario, name, table)
-        registry.from_dict(scenario)                  # ScenarioError naming the key
+        external = registry.from_dict(scenario).external_code()     # a bad filter: a ScenarioError naming the key
         payload = {"scenario": scenario, "seed": seed, "quick": quick, "trials": None, "tables": TABLES}
-        key = hashlib.sha256((canonical_json(payload) + fingerprint).encode()).hexdigest()[:24]
+        key = hashlib.sha256((canonical_json(payload) + fingerprint + external).encode()).hexdigest()[:24]
         out.append(Task(Point(i, {"scenario": entry.name}, 0, seed), scenario, quick, None, key, TABLES))
     return out
 

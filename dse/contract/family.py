@@ -148,6 +148,11 @@ class Family(ABC):
         """A random valid scenario file (as a dict with `family`), small enough for a quick run;
         `edge` one of `edges`. Deterministic in (seed, edge)."""
 
+    def external_code(self, scenario: Any) -> str:
+        """A hash of code outside the project that the scenario runs (a plug-in filter's), "" when none: run
+        memos, sweep points and arena scenarios are keyed by it beside the project's own code."""
+        return ""
+
     # -- stages ------------------------------------------------------------------------------------------
 
     @abstractmethod
@@ -280,6 +285,10 @@ class Reproduction:
     def scenario(self) -> Any:
         """The scenario of a one-scenario run."""
         return self.scenarios[0]
+
+    def external_code(self) -> str:
+        """The hash of code outside the project that the run's scenarios run (`Family.external_code`)."""
+        return "".join(self.family.external_code(sc) for sc in self.scenarios) if not self.is_paper else ""
 
     def scenario_ids(self) -> list[str]:
         if self.is_paper and self._scenarios is None:

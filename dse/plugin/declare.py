@@ -145,10 +145,22 @@ def problem_of(model, links, weights: np.ndarray, steps: int) -> Problem:
 
 
 def code_of(cls: type) -> str:
-    """What the filter's code contributes to the stage keys: its module's source and the harness's."""
+    """What the filter's code contributes to the stage keys and run memos: every Python file of the package
+    its class is defined in (a filter's helpers change its numbers too; a module outside any package: its own
+    file), and the harness's code."""
+    import sys
+    from pathlib import Path
+
     from dse.estimators.protocol import source_hash
 
-    return hashlib.sha256((source_hash(cls.__module__) + source_hash(__name__)).encode()).hexdigest()[:16]
+    module = sys.modules[cls.__module__]
+    h = hashlib.sha256(source_hash(__name__).encode())
+    path = Path(inspect.getfile(module))
+    files = sorted(path.parent.rglob("*.py")) if "." in cls.__module__ else [path]
+    for f in files:
+        h.update(str(f.relative_to(path.parent)).encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
 
 
 @dataclass(eq=False)

@@ -78,13 +78,13 @@ def build_tasks(spec: SweepSpec, log: Callable[[str], None] | None = None) -> li
             last = now
         scenario = spec.scenario(point)
         try:
-            reg.from_dict(scenario)
+            external = reg.from_dict(scenario).external_code()
         except ScenarioError as exc:
             where = ", ".join(f"{k} = {json.dumps(v)}" for k, v in point.values.items()) or "the base scenario"
             raise ScenarioError(exc.field, f"{exc.reason} (at the point {where})") from None
         payload = {"scenario": scenario, "seed": point.seed, "quick": spec.quick, "trials": spec.trials,
                    "tables": spec.tables}
-        key = hashlib.sha256((canonical_json(payload) + fingerprint).encode()).hexdigest()[:24]
+        key = hashlib.sha256((canonical_json(payload) + fingerprint + external).encode()).hexdigest()[:24]
         tasks.append(Task(point, scenario, spec.quick, spec.trials, key, spec.tables))
     return tasks
 

@@ -58,6 +58,10 @@ its generalisation to this setting and what it sends."""
         return self.module("results").simulate(run.scenario, design, opts.seed, self.trials(run, opts), opts.quick,
                                               opts.workers, opts.chunk_budget_bytes(), ctx)
 
+    def external_code(self, scenario) -> str:
+        """The plug-in filters' code (`dse.plugin.declare.code_of`)."""
+        return "".join(spec.code for spec in scenario.estimator_specs.values() if spec.plugin)
+
     def trials(self, run, opts: RunOptions) -> int:
         s = run.scenario.simulation
         return opts.trials if opts.trials is not None else (s.quick_trials if opts.quick else s.trials)
