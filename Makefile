@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: reproduce sweeps site test bench check-viewer check-site clean
+.PHONY: reproduce sweeps site test bench check-outputs check-viewer check-site clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -36,30 +36,33 @@ sweeps: $(STAMP)
 test: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -n $$(( 2 * $$(nproc) )) --dist loadfile
 
-# Opens every recording of a quick reproduction, of a compare run and of one example sweep in Rerun's own viewer
-# (headless, software Vulkan from Debian's mesa-vulkan-drivers, three viewers at a time) and checks the views render
-# without errors; the screenshots it takes are the README's.
-check-viewer: $(STAMP)
-	@dpkg -s mesa-vulkan-drivers >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq mesa-vulkan-drivers; }
-	rm -rf out/viewer-check
-	$(BIN)/dse reproduce --quick --out out/viewer-check
-	$(BIN)/dse run --quick dse/families/compare/scenarios/noisy_ring.toml --out out/viewer-check
-	$(BIN)/dse sweep dse/families/sweeps/compare_links_noise_size.toml --out out/viewer-check
-	$(BIN)/python -m dse.outputs.viewer_check out/viewer-check --screenshots out/viewer-check/screenshots
+# The outputs both checks below look at, computed once into out/checks (the second target finds them done: the run
+# memos, stored sweep points and reused figures make its commands take seconds): a quick reproduction, a compare run
+# and one example sweep.
+CHECK_OUT := out/checks
+check-outputs: $(STAMP)
+	$(BIN)/dse reproduce --quick --out $(CHECK_OUT)
+	$(BIN)/dse run --quick dse/families/compare/scenarios/noisy_ring.toml --out $(CHECK_OUT)
+	$(BIN)/dse sweep dse/families/sweeps/compare_links_noise_size.toml --out $(CHECK_OUT)
 
-# Loads every page of a quick reproduction's site in headless Chromium (Debian's chromium package, driven by
-# Playwright with that executable: no browser download): no console error, no failed request, every image
-# loaded, a table sorts, the claim filter filters, and a recording of every family renders in the web viewer.
-# The screenshots it takes are the README's.
-check-site: $(STAMP)
+# Opens every recording of those outputs in Rerun's own viewer (headless, software Vulkan from Debian's
+# mesa-vulkan-drivers, three viewers at a time) and checks the views render without errors; the screenshots it takes
+# are the README's.
+check-viewer: check-outputs
+	@dpkg -s mesa-vulkan-drivers >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq mesa-vulkan-drivers; }
+	rm -rf $(CHECK_OUT)/viewer-screenshots
+	$(BIN)/python -m dse.outputs.viewer_check $(CHECK_OUT) --screenshots $(CHECK_OUT)/viewer-screenshots
+
+# Loads every page of those outputs' report site in headless Chromium (Debian's chromium package, driven by
+# Playwright with that executable: no browser download): no console error, no failed request, every image loaded, a
+# table sorts, the claim filter filters, and a recording of every family renders in the web viewer. The screenshots it
+# takes are the README's.
+check-site: check-outputs
 	@command -v chromium >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq chromium; }
 	$(BIN)/pip install --quiet 'playwright==1.65.2'
-	rm -rf out/site-check
-	$(BIN)/dse reproduce --quick --out out/site-check
-	$(BIN)/dse run --quick dse/families/compare/scenarios/noisy_ring.toml --out out/site-check
-	$(BIN)/dse sweep dse/families/sweeps/compare_links_noise_size.toml --out out/site-check
-	$(BIN)/dse site out/site-check
-	$(BIN)/python -m dse.site.browser_check out/site-check/site --screenshots out/site-check/screenshots
+	rm -rf $(CHECK_OUT)/site-screenshots
+	$(BIN)/dse site $(CHECK_OUT)
+	$(BIN)/python -m dse.site.browser_check $(CHECK_OUT)/site --screenshots $(CHECK_OUT)/site-screenshots
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run --out out

@@ -142,7 +142,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--screenshots", default=None, help="directory for one PNG per recording")
     parser.add_argument("--jobs", type=int, default=3, help="viewers open at once (default 3)")
     args = parser.parse_args(argv)
-    recordings = sorted(p for p in Path(args.out_dir).rglob("*.rrd") if ".cache" not in p.parts)
+    root = Path(args.out_dir)
+    # the stage cache and the report site's copies are not recordings of their own
+    recordings = sorted(p for p in root.rglob("*.rrd") if p.relative_to(root).parts[0] not in (".cache", "site"))
     if not recordings:
         print(f"no recordings under {args.out_dir}", file=sys.stderr)
         return 1
