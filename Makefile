@@ -4,13 +4,17 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+EXAMPLE := examples/dse-consensus-measurements
 
 .PHONY: reproduce sweeps site test bench check-outputs check-viewer check-site clean
 
-$(STAMP): pyproject.toml
+# The example plug-in package ($(EXAMPLE), docs/plugins.md) is installed too: its entry point `cm` is what the
+# README's `dse arena cm` and tests/test_example_plugin.py find.
+$(STAMP): pyproject.toml $(EXAMPLE)/pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet --no-deps -e $(EXAMPLE)
 	$(BIN)/pip install --quiet --no-deps 'rerun-notebook==0.41.0'   # the [site] extra: the web viewer's files only
 	$(BIN)/python -m compileall -q dse benchmarks
 	-$(BIN)/rerun analytics disable >/dev/null 2>&1
