@@ -19,7 +19,14 @@ NOT_RUN = {
     "OPENBLAS_NUM_THREADS=1 .venv/bin/dask scheduler": "needs machines of one's own (tests/test_sweep.py runs a "
                                                        "loopback scheduler)",
     "dse/ ": "the package layout, not a command",
+    "pip install -e examples/dse-consensus-measurements": "installs the example package into the environment (make's "
+                                                          "set-up does; tests/test_example_plugin.py runs its tests); "
+                                                          "`dse arena cm` is run by tests/test_arena.py",
 }
+
+
+#: the plug-in example ("Bring your own estimator"): its filter, its scenario and the command running them
+PLUGIN_FILE, PLUGIN_SCENARIO, PLUGIN_RUN = "import numpy as np", 'family = "compare"', "PYTHONPATH=. dse run"
 
 
 def blocks() -> list[tuple[str, str]]:
@@ -37,7 +44,8 @@ def scenario_file() -> str:
 
 
 def test_every_block_is_run_here_or_said_why_not():
-    run_here = {("toml", 'family = "noisy-consensus-filter"'), ("toml", 'name = "my-sweep"'), ("python", "import dse")}
+    run_here = {("toml", 'family = "noisy-consensus-filter"'), ("toml", 'name = "my-sweep"'), ("python", "import dse"),
+                ("python", PLUGIN_FILE), ("toml", PLUGIN_SCENARIO), ("", PLUGIN_RUN)}
     for kind, body in blocks():
         if any((kind, body.startswith(first)) == (k, True) for k, first in run_here):
             continue
@@ -83,3 +91,27 @@ def test_sweep_file_runs_and_draws_the_metrics_it_names(readme_dir, capsys):
     for metric in re.search(r"^metrics = (\[.*\])", text, re.M).group(1).strip("[]").replace('"', "").split(", "):
         assert results[f"metric:{metric}"].notna().all()
     assert (readme_dir / "out" / "sweep" / "my-sweep" / "sweep.png").stat().st_size > 0
+
+
+def test_plugin_filter_runs_in_its_scenario_as_shown(tmp_path, monkeypatch, capsys):
+    """The README's filter file and compare scenario, run by its command: the plug-in runs, sends what it
+    declares, and its claims hold (orthogonality to the centralized error, the centralized lower bound)."""
+    import json
+    import sys
+
+    (tmp_path / "my_filter.py").write_text(block("python", PLUGIN_FILE))
+    (tmp_path / "ring_mine.toml").write_text(block("toml", PLUGIN_SCENARIO))
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path))                   # what PYTHONPATH=. does
+    monkeypatch.delitem(sys.modules, "my_filter", raising=False)
+    command = block("", PLUGIN_RUN).split("#")[0].split()
+    assert command[:3] == ["PYTHONPATH=.", "dse", "run"]
+    assert main(command[2:]) == 0, capsys.readouterr().err
+    report = json.loads((tmp_path / "out" / "run" / "ring_mine" / "report.json").read_text())
+    verdicts = {c["id"]: c["verdict"] for c in report["claims"] if c["id"].startswith("compare.plugin.mine.")}
+    assert verdicts["compare.plugin.mine.orthogonality"] == "pass", verdicts
+    assert verdicts["compare.plugin.mine.lower_bound"] == "pass", verdicts
+    import pandas as pd
+
+    table = pd.read_parquet(tmp_path / "out" / "run" / "ring_mine" / "tables" / "estimators.parquet")
+    assert table.set_index("estimator").loc["mine", "scalars_per_step"] == 2.0     # n = 1 number to 2 neighbours
