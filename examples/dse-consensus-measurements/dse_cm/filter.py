@@ -99,6 +99,9 @@ class ConsensusOnMeasurements(NetworkFilter):
               P_i⁻¹ = P̄_i⁻¹ + N δΩ_iᴸ,   x̂_i = P_i (P̄_i⁻¹ x̄_i + N δq_iᴸ);
     (CM4) prediction: x̄_i ← F x̂_i, P̄_i ← F P_i Fᵀ + Q.
 
+    The correction has no step size to tune: the paper's scalar weight ω_i of the averaged information is
+    fixed at N (its CM choice), and L is the only parameter (`Parameters`).
+
     No state estimate travels: nodes exchange the pair (δq_i, δΩ_i), n + n(n+1)/2 numbers (δΩ_i symmetric),
     in every round. With every link working δΩ_iᴸ = Σ_j (Πᴸ)_ij U_j and δq_iᴸ = Σ_j (Πᴸ)_ij u_j; Π is doubly
     stochastic on a connected graph, so N Πᴸ → 1 1ᵀ and (CM3) becomes the centralized Kalman correction as

@@ -135,6 +135,15 @@ def test_consensus_matrix_is_doubly_stochastic():
     assert (W >= 0).all()
 
 
+def test_rounds_default_to_the_links_rounds_and_are_unused_under_poisson():
+    import dataclasses
+
+    p = ring_problem(rounds=3)
+    assert ConsensusOnMeasurements(p, Parameters(), 1).rounds == 3
+    assert ConsensusOnMeasurements(p, Parameters(rounds=2), 1).rounds == 2
+    assert ConsensusOnMeasurements(dataclasses.replace(p, link_model="poisson"), Parameters(rounds=5), 1).rounds == 0
+
+
 def test_parameters_are_declared_and_validated():
     field = Parameters.model_fields["rounds"]
     assert field.default is None and field.description
