@@ -19,14 +19,13 @@ NOT_RUN = {
     "OPENBLAS_NUM_THREADS=1 .venv/bin/dask scheduler": "needs machines of one's own (tests/test_sweep.py runs a "
                                                        "loopback scheduler)",
     "dse/ ": "the package layout, not a command",
-    "pip install -e examples/dse-consensus-measurements": "installs the example package into the environment (make's "
-                                                          "set-up does; tests/test_example_plugin.py runs its tests); "
-                                                          "`dse arena cm` is run by tests/test_arena.py",
 }
 
 
 #: the plug-in example ("Bring your own estimator"): its filter, its scenario and the command running them
 PLUGIN_FILE, PLUGIN_SCENARIO, PLUGIN_RUN = "import numpy as np", 'family = "compare"', "PYTHONPATH=. dse run"
+#: the example package's leaderboard: its install line (make's set-up runs it) and `dse arena` commands
+ARENA = "pip install -e examples/dse-consensus-measurements"
 
 
 def blocks() -> list[tuple[str, str]]:
@@ -45,7 +44,7 @@ def scenario_file() -> str:
 
 def test_every_block_is_run_here_or_said_why_not():
     run_here = {("toml", 'family = "noisy-consensus-filter"'), ("toml", 'name = "my-sweep"'), ("python", "import dse"),
-                ("python", PLUGIN_FILE), ("toml", PLUGIN_SCENARIO), ("", PLUGIN_RUN)}
+                ("python", PLUGIN_FILE), ("toml", PLUGIN_SCENARIO), ("", PLUGIN_RUN), ("", ARENA)}
     for kind, body in blocks():
         if any((kind, body.startswith(first)) == (k, True) for k, first in run_here):
             continue
@@ -115,3 +114,33 @@ def test_plugin_filter_runs_in_its_scenario_as_shown(tmp_path, monkeypatch, caps
 
     table = pd.read_parquet(tmp_path / "out" / "run" / "ring_mine" / "tables" / "estimators.parquet")
     assert table.set_index("estimator").loc["mine", "scalars_per_step"] == 2.0     # n = 1 number to 2 neighbours
+
+
+def test_example_package_arena_commands_run_as_shown(tmp_path, monkeypatch, capsys):
+    """The README's arena block: the package its first line installs is installed (make's set-up), `--keys`
+    prints its parameter, and `dse arena cm --quick` writes the leaderboard, on a suite cut to two small
+    generated scenarios and in process (the standard suite takes about a minute; tests/test_arena.py tests the
+    command itself)."""
+    from importlib.metadata import entry_points
+
+    from dse import registry
+    from dse.arena import suite
+
+    lines = [line.split("#")[0].split() for line in block("", ARENA).splitlines()]
+    assert lines[0] == ["pip", "install", "-e", "examples/dse-consensus-measurements"]
+    assert "cm" in {ep.name for ep in entry_points(group="dse.estimators")}, "make's set-up installs the example"
+    compare = registry.family("compare")
+    picked = [suite.Entry(f"s{i}", "test", compare.generate(seed, edge))
+              for i, (seed, edge) in enumerate([(0, "matchings"), (1, "reliable_noisy_scalar")])]
+    monkeypatch.setattr(suite, "entries", lambda quick: picked)
+    monkeypatch.chdir(tmp_path)
+    commands = lines[1:]
+    assert [c[:3] for c in commands] == [["dse", "arena", "cm"]] * 2
+    assert main(commands[0][1:]) == 0 and "rounds (int | None" in capsys.readouterr().out
+    assert main(commands[1][1:] + ["--scheduler", "inline"]) == 0, capsys.readouterr().err
+    import pandas as pd
+
+    board = pd.read_csv(tmp_path / "out" / "arena" / "cm" / "tables" / "leaderboard.csv")
+    mine = board[board.estimator == "cm"]
+    assert len(mine) == 2 and not mine.filter(like="verdict_").isin(["fail", "error"]).any().any()
+    assert (mine.verdict_orthogonality == "pass").all()
