@@ -219,9 +219,10 @@ def test_dse_run_with_an_estimators_table(tmp_path, capsys):
     assert table.loc["cm", "scalars_per_step"] == table.loc["ci", "scalars_per_step"] == 4 * 2 * (2 + 3)
 
 
-def test_rounds_beyond_the_links_name_the_table():
+def test_a_factory_table_loads_it_and_rounds_beyond_the_links_name_the_table():
     import dse
 
+    dse.check(_toml(small_scenario(4, 'factory = "dse_cm.filter:ConsensusOnMeasurements"\nrounds = 4')))
     with pytest.raises(dse.ScenarioError, match=r"estimators\.cm.*rounds = 5 is more than the 4"):
         dse.check(_toml(small_scenario(4, "rounds = 5")))
 
@@ -267,7 +268,8 @@ def generated() -> list[tuple[str, dict]]:
     from dse.registry import family
 
     compare = family("compare")
-    edges = ("failures", "matchings", "poisson_noisy", "reliable_noisy_scalar", "two_row_sensors")
+    edges = ("failures", "matchings", "poisson_noisy", "reliable_noisy_scalar", "two_row_sensors", "unstable_plant",
+             "weak_detectability")
     return [(f"generated-{e}", compare.generate(7, e)) for e in edges]
 
 
