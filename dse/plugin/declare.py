@@ -41,8 +41,8 @@ SENT = Communication("sent")
 class PluginTable(Section):
     """A plug-in filter, `[estimators.<name>]` (<name>: its id in tables and figures): the class from `factory`
     or, without it, the filter installed under <name> (entry point group `dse.estimators`); every other key of
-    the table is one of the filter's parameters, validated by its own `Parameters` model (`dse arena --keys
-    NAME` lists them)."""
+    the table is one of the filter's parameters, validated by its own `Parameters` model (`dse arena NAME
+    --keys` lists them)."""
 
     model_config = ConfigDict(extra="allow", strict=True, frozen=True, arbitrary_types_allowed=True)
 
@@ -207,5 +207,6 @@ def estimator(name: str, cls: type[NetworkFilter], params: BaseModel, time_limit
         name=name, title=cls.title or cls.__name__, rank=RANK + order, build=build, applies=applies, design=design,
         exact=exact.moments if cls.linear else None, communication=lambda links, n: SENT,
         cost_weight=float(cls.cost_weight),
-        trialwise_covariance=lambda links: cls.covariance_law is not None, joint_moments=bool(cls.linear),
+        trialwise_covariance=lambda links: bool(cls.per_trial_matrices or (cls.covariance_law and links.random)),
+        joint_moments=bool(cls.linear),
         covariance_law=cls.covariance_law, plugin=True, true_coordinates=not cls.equivariant, module=cls.__module__, code=code_of(cls))

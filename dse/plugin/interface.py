@@ -183,7 +183,10 @@ class NetworkFilter(ABC):
       `covariance_law`: "conditional" when `covariance()` is its error's covariance given the link draws
       (Kalman-like), "bound" when it bounds it (covariance intersection), None when it reports none;
     - `cost_weight`: its CPU time per step relative to a local Kalman filter on every node (to balance the
-      workers and estimate the run's time).
+      workers and estimate the run's time); `per_trial_matrices`: it keeps n x n matrices per node and trial
+      (gains that depend on the link draws), which the memory estimate then counts;
+    - `link_models` (optional): the link models it runs on (by default all four); on another it is reported
+      as not applicable.
 
     Implement `__init__(problem, params, trials)` and `step(k, y, network)`; and, as declared,
 
@@ -197,6 +200,7 @@ class NetworkFilter(ABC):
     equivariant: ClassVar[bool] = False
     covariance_law: ClassVar[str | None] = None
     cost_weight: ClassVar[float] = 5.0
+    per_trial_matrices: ClassVar[bool] = False
 
     def __init__(self, problem: Problem, params: BaseModel, trials: int):
         self.problem, self.params, self.trials = problem, params, trials

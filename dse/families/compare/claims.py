@@ -472,7 +472,7 @@ def plugin_lower_bound(res, name: str) -> Verdict:
     idx = res.check_indices()
     mean, se = mean_and_se(res.mc[name]["gap"][idx], res.mc[name]["gap2"][idx], res.trials)
     allowance = 2 * _roundoff_allowance(res, idx)
-    z = np.minimum(mean + allowance, 0.0) / np.maximum(se, 1e-300)
+    z = (mean + allowance) / np.maximum(se, 1e-300)           # p = P(a gap this low | true gap 0)
     if not _finite(z):
         return not_checkable("its errors are not finite")
     k = int(np.argmin(np.ravel(mean)))

@@ -149,6 +149,7 @@ class ConsensusOnMeasurements(NetworkFilter):
     #: CPU time per step relative to the built-in local Kalman filters (process_time in dse's harness, one worker,
     #: 1,000 trials: 58x on tracking.toml, 35x on noisy_ring.toml, 37x on gossip_weak.toml; the package README)
     cost_weight = 60.0
+    per_trial_matrices = True       # on random links its gains depend on the links that worked
 
     @classmethod
     def sends(cls, problem: Problem, params: Parameters) -> Messages:
