@@ -41,13 +41,14 @@ test: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -n $$(( 2 * $$(nproc) )) --dist loadfile
 
 # The outputs both checks below look at, computed once into out/checks (the second target finds them done: the run
-# memos, stored sweep points and reused figures make its commands take seconds): a quick reproduction, a compare run
-# and one example sweep.
+# memos, stored sweep points and reused figures make its commands take seconds): a quick reproduction, a compare run,
+# one example sweep and the example plug-in's quick arena.
 CHECK_OUT := out/checks
 check-outputs: $(STAMP)
 	$(BIN)/dse reproduce --quick --out $(CHECK_OUT)
 	$(BIN)/dse run --quick dse/families/compare/scenarios/noisy_ring.toml --out $(CHECK_OUT)
 	$(BIN)/dse sweep dse/families/sweeps/compare_links_noise_size.toml --out $(CHECK_OUT)
+	$(BIN)/dse arena cm --quick --out $(CHECK_OUT)
 
 # Opens every recording of those outputs in Rerun's own viewer (headless, software Vulkan from Debian's
 # mesa-vulkan-drivers, three viewers at a time) and checks the views render without errors; the screenshots it takes
