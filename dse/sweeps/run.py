@@ -12,7 +12,10 @@ replaced and its tasks rescheduled by the Dask scheduler.
 """
 from __future__ import annotations
 
+import collections
 import contextlib
+import dataclasses
+import fnmatch
 import hashlib
 import json
 import logging
@@ -27,7 +30,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from dse.engine.atomic import atomic_write_text
-from dse.engine.cache import StageCache, canonical_json, project_fingerprint
+from dse.engine.cache import MemoryCache, canonical_json, project_fingerprint
 from dse.errors import NumericalError, ScenarioError
 from dse.engine.progress import progress_enabled
 from dse.sweeps.spec import Point, SweepSpec
@@ -49,10 +52,12 @@ class Task:
     trials: int | None
     key: str
     tables: tuple[str, ...] | None = None
+    claims: tuple[str, ...] | None = None
+    metrics: tuple[str, ...] | None = None
 
     def payload(self) -> dict[str, Any]:
         return {"scenario": self.scenario, "seed": self.point.seed, "quick": self.quick, "trials": self.trials,
-                "tables": self.tables}
+                "tables": self.tables, "claims": self.claims, "metrics": self.metrics}
 
 
 def _registry():
@@ -63,7 +68,8 @@ def _registry():
 
 def build_tasks(spec: SweepSpec, log: Callable[[str], None] | None = None) -> list[Task]:
     """Every point's task, each scenario validated by its family before anything runs (with a
-    progress line every few seconds for large sweeps)."""
+    progress line every few seconds for large sweeps); a `claims` pattern that matches no claim of
+    the first point is refused."""
     reg = _registry()
     fingerprint = project_fingerprint()
     tasks = []
@@ -78,43 +84,156 @@ def build_tasks(spec: SweepSpec, log: Callable[[str], None] | None = None) -> li
             last = now
         scenario = spec.scenario(point)
         try:
-            external = reg.from_dict(scenario).external_code()
+            repro = reg.from_dict(scenario)
+            external = repro.external_code()
         except ScenarioError as exc:
             where = ", ".join(f"{k} = {json.dumps(v)}" for k, v in point.values.items()) or "the base scenario"
             raise ScenarioError(exc.field, f"{exc.reason} (at the point {where})") from None
-        payload = {"scenario": scenario, "seed": point.seed, "quick": spec.quick, "trials": spec.trials,
-                   "tables": spec.tables}
-        key = hashlib.sha256((canonical_json(payload) + fingerprint + external).encode()).hexdigest()[:24]
-        tasks.append(Task(point, scenario, spec.quick, spec.trials, key, spec.tables))
+        if not tasks and spec.claims:
+            _check_claim_patterns(repro, spec.claims)
+        task = Task(point, scenario, spec.quick, spec.trials, "", spec.tables, spec.claims, spec.metrics)
+        key = hashlib.sha256((canonical_json(task.payload()) + fingerprint + external).encode()).hexdigest()[:24]
+        tasks.append(dataclasses.replace(task, key=key))
     return tasks
 
 
+def _claim_name(repro, claim_id: str) -> str:
+    """A claim's id without the run's name (what a sweep's `claims` patterns match)."""
+    return claim_id.removeprefix(f"{repro.paper_id}.")
+
+
+def _check_claim_patterns(repro, patterns: tuple[str, ...]) -> None:
+    names = [_claim_name(repro, c.id) for c in repro.claims()]
+    unmatched = [p for p in patterns if not fnmatch.filter(names, p)]
+    if unmatched:
+        raise ScenarioError("claims", f"{', '.join(unmatched)}: no claim of the points matches (their claims are "
+                                      f"{', '.join(names)})")
+
+
+#: design work shared by the points a process runs (a stage's key says what it depends on, so points
+#: that share a design, say every m of one (σ_c, N), compute it once): stage results kept up to this size
+SHARED_STAGES_MIB = 256
+
+
+class SharedStages(MemoryCache):
+    """Stage results kept in this process across sweep points, least recently used dropped first
+    beyond `limit_mib`. Entries are copied in and out, so a point that modifies an array it was given
+    cannot change what the next point reads."""
+
+    def __init__(self, limit_mib: float = SHARED_STAGES_MIB) -> None:
+        super().__init__()
+        self._entries: collections.OrderedDict[str, dict[str, Any]] = collections.OrderedDict()
+        self.limit = limit_mib * 2**20
+        self.size = 0
+        self.hits = 0
+
+    def load(self, stage: str, params: dict[str, Any]) -> dict[str, Any] | None:
+        key = self.key(stage, params)
+        entry = self._entries.get(key)
+        if entry is None:
+            return None
+        self._entries.move_to_end(key)
+        self.hits += 1
+        return _copied(entry)
+
+    def save(self, stage: str, params: dict[str, Any], arrays: dict[str, Any]) -> None:
+        key = self.key(stage, params)
+        entry = _copied(arrays)
+        size = sum(getattr(a, "nbytes", 0) for a in entry.values())
+        if key in self._entries or size > self.limit:
+            return
+        self._entries[key] = entry
+        self.size += size
+        while self.size > self.limit:
+            _, dropped = self._entries.popitem(last=False)
+            self.size -= sum(getattr(a, "nbytes", 0) for a in dropped.values())
+
+
+def _copied(arrays: dict[str, Any]) -> dict[str, Any]:
+    return {k: v.copy() if hasattr(v, "copy") else v for k, v in arrays.items()}
+
+
+_SHARED: SharedStages | None = None
+
+
+def shared_stages() -> SharedStages:
+    """This process's `SharedStages` (one per Dask worker process, one for an in-process sweep)."""
+    global _SHARED
+    if _SHARED is None:
+        _SHARED = SharedStages()
+    return _SHARED
+
+
 def run_point(payload: dict[str, Any]) -> dict[str, Any]:
-    """One point: compute in a throw-away stage cache, check every claim, tabulate, summarise.
+    """One point: compute (design shared with the other points of this process), check the claims the
+    sweep asks for, build the tables and metrics it asks for.
 
     A numerical failure (a NaN or inf where the family needs a finite number) is a result of
     the point, not an error of the task: it is reported in the row and not retried.
     """
-    from dse.api import execute
     from dse.contract.options import RunOptions
 
-    reg = _registry()
     start = time.perf_counter()
-    repro = reg.from_dict(payload["scenario"])
+    repro = _registry().from_dict(payload["scenario"])
     opts = RunOptions(seed=payload["seed"], trials=payload["trials"], quick=payload["quick"], workers=1)
     where = {"host": socket.gethostname(), "pid": os.getpid()}
     try:
-        run = execute(repro, opts)
+        computed = _compute(repro, opts)
     except NumericalError as exc:
         return {"status": "numerical-error", "error": str(exc), "claims": [], "metrics": {}, "tables": {},
                 "wall_s": time.perf_counter() - start, **where}
-    metrics = network_metrics(run.tables["metrics"]) if "metrics" in run.tables else {}
-    wanted = payload.get("tables")
-    tables = {name: run.tables[name] for name in run.tables if wanted is None or name in wanted}
+    ev = _evaluate(repro, computed, payload)
+    tables = _point_tables(repro, computed, ev, payload.get("tables"), payload.get("metrics"))
+    metrics = network_metrics(tables["metrics"]) if "metrics" in tables else {}
+    if payload.get("metrics") is not None:
+        metrics = {k: v for k, v in metrics.items() if k in payload["metrics"]}
+    kept = [name for name in tables if payload.get("tables") is None or name in payload["tables"]]
     return {"status": "ok", "error": "", "metrics": {k: float(v) for k, v in metrics.items()},
-            "claims": [{k: r.get(k) for k in POINT_CLAIM_FIELDS} for r in run.evaluation.claims],
-            "tables": tables, "table_docs": {name: run.tables.specs[name] for name in tables},
+            "claims": [{k: r.get(k) for k in POINT_CLAIM_FIELDS} for r in ev.claims],
+            "tables": {name: tables[name] for name in kept}, "table_docs": {name: tables.specs[name] for name in kept},
             "wall_s": time.perf_counter() - start, **where}
+
+
+def _compute(repro, opts):
+    """The point's design and simulation, refused as `dse run` refuses them (options, memory, time)."""
+    from dse.api import trials_field
+    from dse.contract.context import StageContext
+    from dse.contract.cost import refuse_if_too_large, refuse_if_too_long, refuse_options
+
+    refuse_options(repro, opts)
+    estimate = repro.cost(opts)
+    refuse_if_too_large(estimate, opts)
+    refuse_if_too_long(estimate, opts, trials_field(repro, opts))
+    return repro.compute(opts, StageContext(shared_stages()))
+
+
+def _evaluate(repro, computed, payload: dict[str, Any]):
+    """The claims the sweep asks for (all without `claims`), and the hypotheses they rest on (all of
+    them when the sweep keeps the `hypotheses` table)."""
+    from dse.verify.rules import evaluate
+
+    claims, hypotheses = repro.claims(), repro.hypotheses()
+    patterns = payload.get("claims")
+    if patterns is not None:
+        claims = [c for c in claims if any(fnmatch.fnmatchcase(_claim_name(repro, c.id), p) for p in patterns)]
+        tables = payload.get("tables")
+        if tables is not None and "hypotheses" not in tables:
+            needed = {h for c in claims for h in c.hypotheses}
+            hypotheses = [h for h in hypotheses if h.id in needed]
+    return evaluate(claims, hypotheses, computed.results, paper_run=repro.is_paper, design=computed.design)
+
+
+def _point_tables(repro, computed, ev, wanted, metrics):
+    """The point's `Tables`: the evaluation's when asked for, and the family's when a family table or a
+    metric is asked for (`wanted`/`metrics` None: every one)."""
+    from dse.api import evaluation_tables
+    from dse.outputs.tables import Tables
+
+    tables = evaluation_tables(ev) if wanted is None or {"claims", "hypotheses"} & set(wanted) else Tables()
+    if wanted is None or set(wanted) - {"claims", "hypotheses"} or metrics is None or len(metrics) > 0:
+        for table_spec, frame in repro.tables(computed.results):
+            tables.add(table_spec, frame)
+    return tables
 
 
 def network_metrics(frame) -> dict[str, float]:

@@ -10,6 +10,10 @@ A sweep file (TOML) names a base scenario of any family and the scenario fields 
     trials = 5000                      # optional RunOptions.trials of every point
     tables = ["nodes", "claims"]       # optional: the point tables gathered in OUT/sweep/<name>/tables/
                                        # (default: every table of every point; [] for none)
+    claims = ["mc.trace", "thm1.*"]    # optional: the claims each point checks, by id without the run's
+                                       # name (shell patterns; default: every claim; [] for none)
+    metrics = ["carli_trP_mc"]         # optional: the family metrics kept per point (default: every one;
+                                       # [] for none: the family's tables are then built only for `tables`)
 
     [set]                              # fixed overrides applied to every point
     "monte_carlo.trials" = 5000
@@ -26,6 +30,10 @@ A sweep file (TOML) names a base scenario of any family and the scenario fields 
     x = "graph.n"                      # default: the first numeric grid field
     log_x = false
     metrics = ["tr_P"]                 # default: every metric of the family (a name no point has is refused)
+
+A point computes only what the sweep asks for: the claims `claims` names (and the hypotheses they rest
+on; the family-wise confidence is shared among the statistical claims checked), the tables `tables` names
+and the metrics `metrics` names (the family's tables are not built at all when neither needs them).
 
 A field is a dotted path into the scenario (``sensors.0.V`` indexes a list). Its parent must
 exist in the base scenario; the leaf may be new (an optional field left at its default).
@@ -54,7 +62,7 @@ from dse.scenario.fields import as_float, as_int, as_list, as_str, load_toml, re
 MAX_POINTS = 100_000
 DISTRIBUTIONS = ("uniform", "log_uniform", "integers", "choice")
 TOP_LEVEL = ("name", "description", "base", "scenario", "seed", "replicates", "quick", "trials", "tables",
-             "set", "grid", "random", "plot")
+             "claims", "metrics", "set", "grid", "random", "plot")
 
 
 @dataclass(frozen=True)
@@ -86,6 +94,8 @@ class SweepSpec:
     log_x: bool
     plot_metrics: tuple[str, ...] | None
     tables: tuple[str, ...] | None = None
+    claims: tuple[str, ...] | None = None
+    metrics: tuple[str, ...] | None = None
     source: dict[str, Any] = field(repr=False, compare=False, default_factory=dict)
 
     @property
@@ -222,8 +232,7 @@ def parse_sweep(data: Mapping[str, Any], *, base_dir: Path) -> SweepSpec:
     if not isinstance(quick, bool):
         raise ScenarioError("quick", f"must be true or false, got {quick!r}")
     trials = None if data.get("trials") is None else as_int(data["trials"], "trials", low=1, high=10**9)
-    tables = None if "tables" not in data else tuple(
-        as_str(t, f"tables[{i}]") for i, t in enumerate(as_list(data["tables"], "tables", min_len=0)))
+    tables, claims, metrics = (_names(data, key) for key in ("tables", "claims", "metrics"))
     fixed = _flatten(section(data["set"], "set") if "set" in data else {}, "", lambda v: False)
     grid = _grid(data)
     random, samples = _random(data)
@@ -239,15 +248,25 @@ def parse_sweep(data: Mapping[str, Any], *, base_dir: Path) -> SweepSpec:
     log_x = plot.get("log_x", False)
     if not isinstance(log_x, bool):
         raise ScenarioError("plot.log_x", f"must be true or false, got {log_x!r}")
-    metrics = None if plot.get("metrics") is None else tuple(
+    plot_metrics = None if plot.get("metrics") is None else tuple(
         as_str(m, f"plot.metrics[{i}]") for i, m in enumerate(as_list(plot["metrics"], "plot.metrics")))
+    if metrics is not None and plot_metrics is not None and set(plot_metrics) - set(metrics):
+        raise ScenarioError("plot.metrics", f"{', '.join(sorted(set(plot_metrics) - set(metrics)))}: not among the "
+                                            f"metrics the points keep (metrics = {list(metrics)})")
     spec = SweepSpec(name=name, description=str(data.get("description", "")), base=base, seed=seed,
                      replicates=replicates, quick=quick, trials=trials, fixed=fixed, grid=grid, random=random,
-                     samples=samples, plot_x=plot_x, log_x=log_x, plot_metrics=metrics, tables=tables,
-                     source=dict(data))
+                     samples=samples, plot_x=plot_x, log_x=log_x, plot_metrics=plot_metrics, tables=tables,
+                     claims=claims, metrics=metrics, source=dict(data))
     for path, value in fixed.items():  # check the overrides' paths once, before any point runs
         set_field(copy.deepcopy(base), path, value)
     return spec
+
+
+def _names(data: Mapping[str, Any], key: str) -> tuple[str, ...] | None:
+    """A list of names (`tables`, `claims`, `metrics`): None when the key is absent (everything)."""
+    if key not in data:
+        return None
+    return tuple(as_str(t, f"{key}[{i}]") for i, t in enumerate(as_list(data[key], key, min_len=0)))
 
 
 def _base(data: Mapping[str, Any], base_dir: Path) -> dict[str, Any]:
