@@ -23,6 +23,7 @@ from dse.outputs import record
 from dse.engine.atomic import atomic_path
 from dse.outputs.figures import new_figure, save_figure, sequential_colors
 from dse.sweeps.spec import SweepSpec
+from dse.errors import ScenarioError
 from dse.verify.rules import STATUSES
 
 STATUS_COUNTS = STATUSES
@@ -57,7 +58,7 @@ def plot_value(value: Any) -> float | None:
     """The number a varied value is plotted at: a number, or a list holding one number."""
     while isinstance(value, list) and len(value) == 1:
         value = value[0]
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
+    if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_)):
         return float(value)
     return None
 
@@ -83,6 +84,37 @@ def results_frame(spec: SweepSpec, points: Sequence, results: Sequence[dict[str,
         if str in kinds and len(kinds) > 1:
             frame[col] = frame[col].map(lambda v: None if v is None else str(v))
     return frame
+
+
+def cell_frame(spec: SweepSpec, frame: pd.DataFrame, results: Sequence[dict[str, Any]]) -> pd.DataFrame:
+    """With `plot.cells`, the figure's rows: one per (point, cell), the point's columns (varied values,
+    verdict counts) followed by each network-wide metric of the cell as ``metric:<name>``; a metric without
+    cell values is the point's and is repeated for each of its cells. Without `plot.cells`, `frame` itself."""
+    from dse.outputs.tables import read_arrow_file
+
+    if not spec.plot_cells:
+        return frame
+    cells, parts = list(spec.plot_cells), []
+    for (_, row), res in zip(frame.iterrows(), results):
+        path = res.get("table_files", {}).get("metrics")
+        if path is None:
+            continue
+        t = read_arrow_file(path).to_pandas()
+        t = t[t["node"].isna()] if "node" in t else t
+        missing = [c for c in cells if c not in t.columns]
+        if missing:
+            raise ScenarioError("plot.cells", f"{', '.join(missing)}: not a column of the points' metrics table "
+                                              f"(its columns are {', '.join(map(str, t.columns))})")
+        own = t[cells].isna().all(axis=1)
+        wide = t[~own].pivot_table(index=cells, columns="metric", values="value", aggfunc="first").reset_index()
+        for m, v in zip(t.loc[own, "metric"], t.loc[own, "value"]):
+            wide[m] = v
+        wide = wide.rename(columns={m: f"metric:{m}" for m in wide.columns if m not in cells})
+        keep = row.drop([c for c in row.index if str(c).startswith(("metric:", "claim:"))])
+        parts.append(wide.assign(**{str(k): v for k, v in keep.items()}))
+    if not parts:
+        return frame.iloc[0:0]
+    return pd.concat(parts, ignore_index=True)
 
 
 def claims_frame(points: Sequence, results: Sequence[dict[str, Any]]) -> pd.DataFrame:
@@ -148,11 +180,14 @@ class PlotPlan:
 
 
 def plot_plan(spec: SweepSpec, frame: pd.DataFrame) -> PlotPlan:
-    numeric = [f for f in spec.fields if all(plot_value(v) is not None for v in _raw(spec, frame, f))]
+    """What `frame` (the results, or with `plot.cells` the cell frame) is drawn as."""
+    axes = spec.fields + list(spec.plot_cells)
+    numeric = [f for f in axes if all(plot_value(v) is not None for v in _raw(spec, frame, f))]
     x = spec.plot_x or next((f for f in spec.grid if f in numeric), None) or (numeric[0] if numeric else None)
     if x is not None and x not in numeric:
         x = None
-    others = [f for f in spec.grid if f != x and len(spec.grid[f]) > 1]
+    others = [c for c in spec.plot_cells if c != x and c in frame and frame[c].nunique(dropna=False) > 1]
+    others += [f for f in spec.grid if f != x and len(spec.grid[f]) > 1]
     groups = []
     if others:
         first = (others[0] + "=" + frame[others[0]].astype(str)).to_numpy()
@@ -188,15 +223,41 @@ def metric_values(frame: pd.DataFrame, metric: str) -> np.ndarray:
     return frame[metric].to_numpy(float)
 
 
-def summarise(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Median, min and max of y over the points that share an x (replicates, random samples)."""
+#: the two-sided level of the figures' confidence bands
+BAND_LEVEL = 0.95
+
+
+def summarise(x: np.ndarray, y: np.ndarray, se: np.ndarray | None = None, *, spread: bool = False
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Centre and 95 % confidence band of y at each x: over replicates, their mean and Student's t interval
+    of it; for one value with a standard error `se` (a Monte Carlo mean), y ± z·se; else y, no band.
+    `spread`: the values at an x are different random draws of other fields: their median, min and max."""
+    from scipy import stats
+
     xs = np.unique(x[np.isfinite(x)])
-    med, lo, hi = (np.full(len(xs), np.nan) for _ in range(3))
+    mid, lo, hi = (np.full(len(xs), np.nan) for _ in range(3))
     for i, v in enumerate(xs):
-        ys = y[(x == v) & np.isfinite(y)]
-        if ys.size:
-            med[i], lo[i], hi[i] = np.median(ys), ys.min(), ys.max()
-    return xs, med, lo, hi
+        at = (x == v) & np.isfinite(y)
+        ys = y[at]
+        if spread and ys.size:
+            mid[i], lo[i], hi[i] = np.median(ys), ys.min(), ys.max()
+            continue
+        if ys.size > 1:
+            half = stats.t.ppf(0.5 + BAND_LEVEL / 2, ys.size - 1) * ys.std(ddof=1) / np.sqrt(ys.size)
+            mid[i] = ys.mean()
+        elif ys.size == 1:
+            mid[i] = ys[0]
+            half = stats.norm.ppf(0.5 + BAND_LEVEL / 2) * se[at][0] if se is not None else 0.0
+        else:
+            continue
+        lo[i], hi[i] = mid[i] - half, mid[i] + half
+    return xs, mid, lo, hi
+
+
+def standard_errors(frame: pd.DataFrame, metric: str) -> np.ndarray | None:
+    """The standard error a metric's point carries (the metric ``<name>_se``), if any."""
+    column = f"{metric}_se"
+    return frame[column].to_numpy(float) if metric.startswith("metric:") and column in frame else None
 
 
 def write_figure(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan, path: Path) -> None:
@@ -206,16 +267,17 @@ def write_figure(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan, path: Pat
     colors = sequential_colors(max(g.colour for g in plan.groups) + 1)
     x = x_values(spec, frame, plan)
     for ax, metric in zip(axes.flat, plan.metrics):
-        y = metric_values(frame, metric)
+        y, se = metric_values(frame, metric), standard_errors(frame, metric)
         for g in plan.groups:
             colour, style = colors[g.colour], LINE_STYLES[g.style % len(LINE_STYLES)]
             if plan.scatter:
                 ax.plot(x[g.mask], y[g.mask], "o", ms=3, color=colour)
                 continue
-            xs, med, lo, hi = summarise(x[g.mask], y[g.mask])
-            ax.plot(xs, med, marker="o", ls=style, ms=3, color=colour)
-            if spec.replicates > 1 or spec.random:
-                ax.fill_between(xs, lo, hi, color=colour, alpha=0.2, lw=0)
+            xs, mid, lo, hi = summarise(x[g.mask], y[g.mask], None if se is None else se[g.mask],
+                                        spread=bool(spec.random))
+            ax.plot(xs, mid, marker="o", ls=style, ms=3, color=colour)
+            if np.any(hi > lo):
+                ax.fill_between(xs, lo, hi, color=colour, alpha=0.25, lw=0)
         ax.set_xlabel(plan.x_label)
         ax.set_ylabel(metric.removeprefix("metric:"))
         if spec.log_x:
@@ -225,9 +287,22 @@ def write_figure(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan, path: Pat
     for ax in list(axes.flat)[n:]:
         ax.set_visible(False)
     _legends(plan, axes, colors)
-    band = " (lines: median over replicates, band: min to max)" if (spec.replicates > 1 or spec.random) and not plan.scatter else ""
-    fig.suptitle(f"sweep {spec.name}: {spec.family}, {len(frame)} points{band}", fontsize=10)
+    band = "" if plan.scatter else band_note(spec, frame, plan)
+    rows = f"{frame['point'].nunique()} points, {len(frame)} cells" if spec.plot_cells else f"{len(frame)} points"
+    fig.suptitle(f"sweep {spec.name}: {spec.family}, {rows}{band}", fontsize=10)
     save_figure(fig, path)
+
+
+def band_note(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan) -> str:
+    """The figure title's words for its bands (none when no metric has one)."""
+    if spec.random:
+        return " (lines: median over the random samples, band: min to max)"
+    kinds = []
+    if any(standard_errors(frame, m) is not None for m in plan.metrics):
+        kinds.append("±1.96 SE of a Monte Carlo mean")
+    if spec.replicates > 1:
+        kinds.append(f"Student t over {spec.replicates} replicates (lines: their mean)")
+    return f"\nbands: {BAND_LEVEL:.0%} confidence, " + "; ".join(kinds) if kinds else ""
 
 
 def _legends(plan: PlotPlan, axes, colors) -> None:
@@ -295,7 +370,7 @@ def write_recording(spec: SweepSpec, frame: pd.DataFrame, plan: PlotPlan, summar
                     order = np.argsort(xs, kind="stable")
                     xs, ys = xs[order], ys[order]
                 else:
-                    xs, ys, _, _ = summarise(x[mask], y[mask])
+                    xs, ys, _, _ = summarise(x[mask], y[mask], spread=bool(spec.random))
                 keep = np.isfinite(xs) & np.isfinite(ys)
                 if not keep.any():
                     continue

@@ -494,12 +494,13 @@ def write_sweep_outputs(spec: SweepSpec, out_dir: Path, done: list[Task], result
     so.write_parquet(claims, out_dir / "claims.parquet")
     so.write_point_tables(spec, [t.point for t in done], [results[t.key] for t in done], out_dir / "tables")
     summary_md = so.summary_markdown(spec, frame, claims, failures)
-    if len(frame):
-        plan = so.plot_plan(spec, frame)
+    drawn = so.cell_frame(spec, frame, [results[t.key] for t in done])
+    if len(drawn):
+        plan = so.plot_plan(spec, drawn)
         if plan.unknown_metrics:
-            _unknown_metrics(spec, frame, plan, log)
-        so.write_figure(spec, frame, plan, out_dir / "sweep.png")
-        so.write_recording(spec, frame, plan, summary_md, out_dir / "sweep.rrd")
+            _unknown_metrics(spec, drawn, plan, log)
+        so.write_figure(spec, drawn, plan, out_dir / "sweep.png")
+        so.write_recording(spec, drawn, plan, summary_md, out_dir / "sweep.rrd")
     atomic_write_text(out_dir / "summary.md", summary_md + "\n")
     return {"numerical_errors": int((frame["status"] != "ok").sum()) if len(frame) else 0,
             "claims_failed": int(claims["verdict"].isin(["fail", "error"]).sum()) if len(claims) else 0}

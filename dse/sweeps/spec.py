@@ -30,6 +30,13 @@ A sweep file (TOML) names a base scenario of any family and the scenario fields 
     x = "graph.n"                      # default: the first numeric grid field
     log_x = false
     metrics = ["tr_P"]                 # default: every metric of the family (a name no point has is refused)
+    cells = ["m", "sigma_c"]           # optional: columns of the points' `metrics` table that index cells of
+                                       # one point (a scenario that computes several m, say); x may be one
+
+With `plot.cells`, one point holds several cells (savas's `sweep.rounds` list, tanwani's `communication.rates`,
+computed on one shared design) and the figure has a row per (point, cell): the network-wide rows of each
+point's `metrics` table, by metric, a row without cell values (the centralized filter's, say) repeated
+for every cell of its point; one curve per value of the other cells and grid fields.
 
 A point computes only what the sweep asks for: the claims `claims` names (and the hypotheses they rest
 on; the family-wise confidence is shared among the statistical claims checked), the tables `tables` names
@@ -94,6 +101,7 @@ class SweepSpec:
     log_x: bool
     plot_metrics: tuple[str, ...] | None
     tables: tuple[str, ...] | None = None
+    plot_cells: tuple[str, ...] = ()
     claims: tuple[str, ...] | None = None
     metrics: tuple[str, ...] | None = None
     source: dict[str, Any] = field(repr=False, compare=False, default_factory=dict)
@@ -243,8 +251,12 @@ def parse_sweep(data: Mapping[str, Any], *, base_dir: Path) -> SweepSpec:
     if n_points > MAX_POINTS:
         raise ScenarioError("grid", f"the sweep has {n_points:,} points; at most {MAX_POINTS:,} are allowed")
     plot = section(data["plot"], "plot") if "plot" in data else {}
-    reject_unknown(plot, ("x", "log_x", "metrics"), "plot")
-    plot_x = None if plot.get("x") is None else as_str(plot["x"], "plot.x", list(grid) + list(random))
+    reject_unknown(plot, ("x", "log_x", "metrics", "cells"), "plot")
+    cells = _names(plot, "cells", "plot.") or ()
+    if cells and tables is not None and "metrics" not in tables:
+        raise ScenarioError("plot.cells", "the cells are read from the points' `metrics` table: add \"metrics\" to "
+                                          "`tables`")
+    plot_x = None if plot.get("x") is None else as_str(plot["x"], "plot.x", list(grid) + list(random) + list(cells))
     log_x = plot.get("log_x", False)
     if not isinstance(log_x, bool):
         raise ScenarioError("plot.log_x", f"must be true or false, got {log_x!r}")
@@ -256,17 +268,18 @@ def parse_sweep(data: Mapping[str, Any], *, base_dir: Path) -> SweepSpec:
     spec = SweepSpec(name=name, description=str(data.get("description", "")), base=base, seed=seed,
                      replicates=replicates, quick=quick, trials=trials, fixed=fixed, grid=grid, random=random,
                      samples=samples, plot_x=plot_x, log_x=log_x, plot_metrics=plot_metrics, tables=tables,
-                     claims=claims, metrics=metrics, source=dict(data))
+                     plot_cells=cells, claims=claims, metrics=metrics, source=dict(data))
     for path, value in fixed.items():  # check the overrides' paths once, before any point runs
         set_field(copy.deepcopy(base), path, value)
     return spec
 
 
-def _names(data: Mapping[str, Any], key: str) -> tuple[str, ...] | None:
-    """A list of names (`tables`, `claims`, `metrics`): None when the key is absent (everything)."""
+def _names(data: Mapping[str, Any], key: str, where: str = "") -> tuple[str, ...] | None:
+    """A list of names (`tables`, `claims`, `metrics`, `plot.cells`): None when the key is absent (everything)."""
     if key not in data:
         return None
-    return tuple(as_str(t, f"{key}[{i}]") for i, t in enumerate(as_list(data[key], key, min_len=0)))
+    name = f"{where}{key}"
+    return tuple(as_str(t, f"{name}[{i}]") for i, t in enumerate(as_list(data[key], name, min_len=0)))
 
 
 def _base(data: Mapping[str, Any], base_dir: Path) -> dict[str, Any]:
