@@ -86,6 +86,27 @@ def results_frame(spec: SweepSpec, points: Sequence, results: Sequence[dict[str,
     return frame
 
 
+def table_metrics(spec: SweepSpec, frame: pd.DataFrame, results: Sequence[dict[str, Any]]) -> pd.DataFrame:
+    """With `plot.table` and `plot.rows`, `frame` with each point's rows of that table as metrics
+    ``metric:<row>.<column>`` (its numeric columns); else `frame` itself."""
+    from dse.outputs.tables import read_arrow_file
+
+    if spec.plot_table is None:
+        return frame
+    name, rows = spec.plot_table
+    extra = []
+    for res in results:
+        path = res.get("table_files", {}).get(name)
+        t = read_arrow_file(path).to_pandas() if path is not None else pd.DataFrame()
+        if len(t) and rows not in t:
+            raise ScenarioError("plot.rows", f"{rows!r} is not a column of the points' {name} table (its columns "
+                                             f"are {', '.join(map(str, t.columns))})")
+        numeric = [c for c in t.columns if c != rows and pd.api.types.is_numeric_dtype(t[c])
+                   and not pd.api.types.is_bool_dtype(t[c])]
+        extra.append({f"metric:{r[rows]}.{c}": float(r[c]) for _, r in t.iterrows() for c in numeric})
+    return pd.concat([frame.reset_index(drop=True), pd.DataFrame(extra, index=range(len(frame)))], axis=1)
+
+
 def cell_frame(spec: SweepSpec, frame: pd.DataFrame, results: Sequence[dict[str, Any]]) -> pd.DataFrame:
     """With `plot.cells`, the figure's rows: one per (point, cell), the point's columns (varied values,
     verdict counts) followed by each network-wide metric of the cell as ``metric:<name>``; a metric without

@@ -494,7 +494,8 @@ def write_sweep_outputs(spec: SweepSpec, out_dir: Path, done: list[Task], result
     so.write_parquet(claims, out_dir / "claims.parquet")
     so.write_point_tables(spec, [t.point for t in done], [results[t.key] for t in done], out_dir / "tables")
     summary_md = so.summary_markdown(spec, frame, claims, failures)
-    drawn = so.cell_frame(spec, frame, [results[t.key] for t in done])
+    point_results = [results[t.key] for t in done]
+    drawn = so.cell_frame(spec, so.table_metrics(spec, frame, point_results), point_results)
     if len(drawn):
         plan = so.plot_plan(spec, drawn)
         if plan.unknown_metrics:

@@ -32,11 +32,15 @@ A sweep file (TOML) names a base scenario of any family and the scenario fields 
     metrics = ["tr_P"]                 # default: every metric of the family (a name no point has is refused)
     cells = ["m", "sigma_c"]           # optional: columns of the points' `metrics` table that index cells of
                                        # one point (a scenario that computes several m, say); x may be one
+    table = "estimators"               # optional, with `rows`: the metrics of a point are also read from this
+    rows = "estimator"                 # table of it, one row per value of `rows`: `<row>.<column>`
 
 With `plot.cells`, one point holds several cells (savas's `sweep.rounds` list, tanwani's `communication.rates`,
 computed on one shared design) and the figure has a row per (point, cell): the network-wide rows of each
 point's `metrics` table, by metric, a row without cell values (the centralized filter's, say) repeated
-for every cell of its point; one curve per value of the other cells and grid fields.
+for every cell of its point; one curve per value of the other cells and grid fields. With `plot.table`
+and `plot.rows`, each row of that table of a point adds its numeric columns to the point's metrics, named
+`<value of rows>.<column>` (compare's `estimators` table: `gikf.network_mse_mc` and its `_se`).
 
 A point computes only what the sweep asks for: the claims `claims` names (and the hypotheses they rest
 on; the family-wise confidence is shared among the statistical claims checked), the tables `tables` names
@@ -102,6 +106,7 @@ class SweepSpec:
     plot_metrics: tuple[str, ...] | None
     tables: tuple[str, ...] | None = None
     plot_cells: tuple[str, ...] = ()
+    plot_table: tuple[str, str] | None = None
     claims: tuple[str, ...] | None = None
     metrics: tuple[str, ...] | None = None
     source: dict[str, Any] = field(repr=False, compare=False, default_factory=dict)
@@ -251,7 +256,8 @@ def parse_sweep(data: Mapping[str, Any], *, base_dir: Path) -> SweepSpec:
     if n_points > MAX_POINTS:
         raise ScenarioError("grid", f"the sweep has {n_points:,} points; at most {MAX_POINTS:,} are allowed")
     plot = section(data["plot"], "plot") if "plot" in data else {}
-    reject_unknown(plot, ("x", "log_x", "metrics", "cells"), "plot")
+    reject_unknown(plot, ("x", "log_x", "metrics", "cells", "table", "rows"), "plot")
+    plot_table = _plot_table(plot, tables)
     cells = _names(plot, "cells", "plot.") or ()
     if cells and tables is not None and "metrics" not in tables:
         raise ScenarioError("plot.cells", "the cells are read from the points' `metrics` table: add \"metrics\" to "
@@ -268,7 +274,7 @@ def parse_sweep(data: Mapping[str, Any], *, base_dir: Path) -> SweepSpec:
     spec = SweepSpec(name=name, description=str(data.get("description", "")), base=base, seed=seed,
                      replicates=replicates, quick=quick, trials=trials, fixed=fixed, grid=grid, random=random,
                      samples=samples, plot_x=plot_x, log_x=log_x, plot_metrics=plot_metrics, tables=tables,
-                     plot_cells=cells, claims=claims, metrics=metrics, source=dict(data))
+                     plot_cells=cells, plot_table=plot_table, claims=claims, metrics=metrics, source=dict(data))
     for path, value in fixed.items():  # check the overrides' paths once, before any point runs
         set_field(copy.deepcopy(base), path, value)
     return spec
@@ -280,6 +286,19 @@ def _names(data: Mapping[str, Any], key: str, where: str = "") -> tuple[str, ...
         return None
     name = f"{where}{key}"
     return tuple(as_str(t, f"{name}[{i}]") for i, t in enumerate(as_list(data[key], name, min_len=0)))
+
+
+def _plot_table(plot: Mapping[str, Any], tables: tuple[str, ...] | None) -> tuple[str, str] | None:
+    """`plot.table` and `plot.rows` (both or neither); the table must be one the points keep."""
+    if "table" not in plot and "rows" not in plot:
+        return None
+    if "table" not in plot or "rows" not in plot:
+        raise ScenarioError("plot.table", "give both `table` (a table of the points) and `rows` (its column whose "
+                                          "values name the metrics), or neither")
+    table, rows = as_str(plot["table"], "plot.table"), as_str(plot["rows"], "plot.rows")
+    if tables is not None and table not in tables:
+        raise ScenarioError("plot.table", f"{table!r} is not among the tables the points keep: add it to `tables`")
+    return table, rows
 
 
 def _base(data: Mapping[str, Any], base_dir: Path) -> dict[str, Any]:
