@@ -1,14 +1,13 @@
 """The commands people wait on, for every family: `dse list`, `dse check` on every shipped scenario
 file (target 0.5 s each), `dse run --quick` on each family's first example cold and as an identical
-re-run (target 3 s cold), the per-point overhead of `dse sweep` (target 10 ms beyond the point's own
-Monte Carlo), and the test suite (target 150 s).
+re-run (target 3 s cold), and the test suite (target 150 s). (The per-point overhead of `dse sweep` is
+in benchmarks/bench_sweep.py.)
 
 Each command runs in a fresh interpreter (`python -m dse.cli`, as the `dse` script does), so
 its time includes the imports; CPU time is the process and its workers (RUSAGE_CHILDREN), which
 shows how much of a wall time on a loaded machine was waiting."""
 from __future__ import annotations
 
-import json
 import os
 import resource
 import shutil
@@ -81,7 +80,6 @@ def bench_commands(repeats: int = 3, quick: bool = False) -> list[dict]:
                 shutil.rmtree(out, ignore_errors=True)
             rows.append(_row(f"dse run --quick {name}", cold, 3.0))
             rows.append(_row(f"dse run --quick {name} (an identical re-run: memo)", memo, None))
-    rows += bench_sweep_overhead(points=50 if quick else 200)
     if not quick:
         rows.append(bench_test_suite())
     return rows
@@ -95,30 +93,6 @@ def users_small_scenarios() -> dict[str, str]:
     from .common import toml_text
 
     return {"ring4.toml": SMALL_TOML, "agents4.toml": toml_text(agents_scenario(4, intervals=15, trials=64, name="agents4"))}
-
-
-def bench_sweep_overhead(points: int) -> list[dict]:
-    """The scaling sweep (savas, one cell per point) in process at 100 trials per point, where the
-    point's own Monte Carlo is a few hundred microseconds: the wall time per point beyond the sweep's
-    start and finish (the same sweep at 1 point, subtracted) bounds the per-point overhead from above."""
-    src = (Path(__file__).with_name("sweep_scaling.toml")).read_text()
-    src = src.replace('base = "../dse/families/', f'base = "{REPRO}/').replace("trials = 2000", "trials = 100")
-    walls = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        for n in (1, points):
-            sweep = Path(tmp) / f"s{n}.toml"
-            sweep.write_text(src.replace("samples = 1000", f"samples = {n}"))
-            wall, cpu, rc = timed_command(_dse("sweep", str(sweep), "--out", str(Path(tmp) / f"o{n}"),
-                                               "--scheduler", "inline"))
-            walls[n] = (wall, rc)
-            if n == points and rc == 0:
-                meta = json.loads((Path(tmp) / f"o{n}" / "sweep" / "bench-scaling" / "sweep.json").read_text())
-                task = statistics.median(p["wall_s"] for p in meta["points"])
-    per_point = (walls[points][0] - walls[1][0]) / (points - 1)
-    ok = walls[1][1] == 0 and walls[points][1] == 0
-    return [{"command": f"dse sweep, {points} points in process (100 trials each): wall per point",
-             "wall_s": per_point, "task_median_s": task if ok else float("nan"), "ok": ok,
-             "target": "<= 0.01 s per point", "met": ok and per_point <= 0.01}]
 
 
 def bench_test_suite() -> dict:

@@ -101,6 +101,10 @@ def table_metrics(spec: SweepSpec, frame: pd.DataFrame, results: Sequence[dict[s
         if len(t) and rows not in t:
             raise ScenarioError("plot.rows", f"{rows!r} is not a column of the points' {name} table (its columns "
                                              f"are {', '.join(map(str, t.columns))})")
+        repeated = t[rows].duplicated() if len(t) else pd.Series(dtype=bool)
+        if repeated.any():
+            raise ScenarioError("plot.rows", f"{rows} = {t.loc[repeated, rows].iloc[0]!r} names several rows of a "
+                                             f"point's {name} table: choose a column with one row per value")
         numeric = [c for c in t.columns if c != rows and pd.api.types.is_numeric_dtype(t[c])
                    and not pd.api.types.is_bool_dtype(t[c])]
         extra.append({f"metric:{r[rows]}.{c}": float(r[c]) for _, r in t.iterrows() for c in numeric})
