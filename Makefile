@@ -30,9 +30,10 @@ reproduce: $(STAMP)
 site: $(STAMP)
 	$(BIN)/dse site out
 
-# The shipped example sweeps (dse/families/sweeps/*.toml), each on a local Dask cluster.
+# The shipped example sweeps (dse/families/sweeps/*.toml), one after the other on one local Dask cluster
+# (about a minute of CPU together; `make bench`, section sweep, times them).
 sweeps: $(STAMP)
-	for f in dse/families/sweeps/*.toml; do $(BIN)/dse sweep $$f --out out || exit 1; done
+	$(BIN)/dse sweep dse/families/sweeps/*.toml --out out
 
 # Two test processes per core (pytest-xdist: many tests wait on subprocesses, signals or a Dask cluster, and
 # the second process fills those waits; 184 s instead of 213 s with one per core on 2 cores); each test file

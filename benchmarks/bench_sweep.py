@@ -144,6 +144,28 @@ def bench_sweep_scaling(points: int = 1000) -> list[dict]:
     return rows
 
 
+#: the example sweeps' share of `make reproduce`'s 6 minutes on 2 cores (beside about 1 min of environment,
+#: at most 1 min of papers at default quality, and the site)
+EXAMPLES_TARGET_S = 90.0
+
+
+def bench_example_sweeps() -> list[dict]:
+    """`make sweeps` cold: every shipped sweep (dse/families/sweeps/*.toml) into a fresh output directory, as
+    the Makefile runs them (default scheduler), wall and CPU time (children included: the Dask workers)."""
+    from .bench_commands import _dse, timed_command
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for f in sorted((SWEEP.parent.parent / "dse" / "families" / "sweeps").glob("*.toml")):
+            wall, cpu, rc = timed_command(_dse("sweep", str(f), "--out", tmp))
+            rows.append({"what": f"example sweep {f.stem}, cold", "wall_s": wall, "cpu_s": cpu, "ok": rc == 0})
+    total = {"what": "the example sweeps together (make sweeps), cold", "wall_s": sum(r["wall_s"] for r in rows),
+             "cpu_s": sum(r["cpu_s"] for r in rows), "ok": all(r["ok"] for r in rows),
+             "target": f"<= {EXAMPLES_TARGET_S:g} s wall"}
+    total["met"] = total["ok"] and total["wall_s"] <= EXAMPLES_TARGET_S
+    return rows + [total]
+
+
 if __name__ == "__main__":
     for row in bench_sweep_overhead() + (bench_sweep_scaling() if "--scaling" in sys.argv else []):
         print(row)

@@ -11,8 +11,8 @@ peak memory of `dse reproduce` per paper, cold and warm cache), ``startup`` (`im
 on every shipped scenario, `dse run --quick` per family, the test
 suite), ``estimates`` (`dse check`'s estimated time of `dse run --quick` against the measured one, for
 every shipped scenario and scenarios of every family's generator: target within 2x), ``sweep`` (the per-point CPU overhead of
-`dse sweep` beyond the points' stages, with a cProfile breakdown; a 1,000-point `dse sweep` in process and on
-a local Dask cluster with 1 and 2 workers), ``calibration`` (every statistical
+`dse sweep` beyond the points' stages, with a cProfile breakdown; the example sweeps cold, as `make sweeps`
+runs them; a 1,000-point `dse sweep` in process and on a local Dask cluster with 1 and 2 workers), ``calibration`` (every statistical
 claim on 200 random valid scenarios per family: observed false-fail rate at α = 0.05 with its
 exact interval, and fails at the report's own confidence). ``--quick``: fewer repeats and
 sizes, quick reproductions only (a smoke test of the whole harness, a few minutes).
@@ -46,7 +46,7 @@ from .bench_calibration import bench_calibration  # noqa: E402
 from .bench_commands import bench_commands  # noqa: E402
 from .bench_estimates import TARGET_FACTOR, bench_estimates  # noqa: E402
 from .bench_startup import bench_startup  # noqa: E402
-from .bench_sweep import bench_sweep_overhead, bench_sweep_scaling  # noqa: E402
+from .bench_sweep import bench_example_sweeps, bench_sweep_overhead, bench_sweep_scaling  # noqa: E402
 from .common import bound_row, estimator_row, spread, timed  # noqa: E402
 
 SECTIONS = ("floor", "estimators", "bounds", "scale", "record", "reproduce", "startup", "commands", "estimates",
@@ -62,8 +62,8 @@ TITLES = {
     "commands": "The commands people wait on: `dse list`, `dse check`, `dse run --quick`, the tests",
     "estimates": "`dse check`'s estimate against the measured `dse run --quick` (one worker; CPU and wall time), "
                  "every shipped scenario and generated ones",
-    "sweep": "`dse sweep`: per-point overhead (CPU beyond the points' stages), and the same 1,000-point sweep in "
-             "process and on 1 and 2 Dask workers",
+    "sweep": "`dse sweep`: per-point overhead (CPU beyond the points' stages), the example sweeps cold, and the "
+             "same 1,000-point sweep in process and on 1 and 2 Dask workers",
     "calibration": "Statistical claims on random valid scenarios (quick sample sizes): false-fail rate at α = 0.05",
 }
 
@@ -289,6 +289,7 @@ def main(argv: list[str] | None = None) -> int:
                    "commands": lambda: bench_commands(repeats, args.quick),
                    "estimates": lambda: bench_estimates(repeats=1, quick=args.quick),
                    "sweep": lambda: bench_sweep_overhead(points=50 if args.quick else 200)
+                   + ([] if args.quick else bench_example_sweeps())
                    + bench_sweep_scaling(points=100 if args.quick else 1000),
                    "calibration": lambda: bench_calibration(seeds=20 if args.quick else 200)}
         # reproduce before record: the recording replay uses the reproductions' recordings
@@ -375,6 +376,9 @@ def _targets(results: dict[str, list[dict]]) -> list[str]:
         if "overhead_ms_per_point" in r and r.get("target"):
             lines.append(f"| {r['what']}: overhead {r['target']} (CPU beyond the points' stages) | "
                          f"{_fmt(r['overhead_ms_per_point'])} ms per point | {_fmt(r['met'])} |")
+        elif r.get("target") and "wall_s" in r:
+            lines.append(f"| {r['what']}: {r['target']} | {_fmt(r['wall_s'])} s wall, {_fmt(r['cpu_s'])} s CPU | "
+                         f"{_fmt(r['met'])} |")
         if "speedup_vs_1_worker" in r:
             lines.append(f"| dse sweep, {r['points']} points: 2 workers >= 1.9x one | "
                          f"speed-up {_fmt(r['speedup_vs_1_worker'])} | {'yes' if r['speedup_vs_1_worker'] >= 1.9 else '**no**'} |")

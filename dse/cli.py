@@ -229,18 +229,22 @@ def _verify_run(args, d: Path) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from dse.sweeps.run import run_sweep
+    from dse.sweeps.run import LocalClusters, run_sweep
     from dse.sweeps.spec import load_sweep, with_options
 
-    spec = with_options(load_sweep(args.file), seed=args.seed, trials=args.trials, quick=args.quick)
-    with output_lock(Path(args.out)):
-        r = run_sweep(spec, Path(args.out), scheduler=args.scheduler, workers=args.workers, retries=args.retries,
-                      fresh=args.fresh)
-    print(f"sweep {r['name']}: {r['points']} points ({r['ran']} run, {r['reused']} reused, {r['failed']} failed, "
-          f"{r['numerical_errors']} numerical failures) in {r['wall_s']:.1f} s -> {r['out_dir']}")
-    if args.strict and r["claims_failed"]:
-        print(f"sweep {r['name']}: {r['claims_failed']} (point, claim) verdicts are fail or error (--strict)")
-    return 1 if r["failed"] or (args.strict and r["claims_failed"]) else 0
+    # every file is read before any runs; several sweeps share one local Dask cluster
+    specs = [with_options(load_sweep(f), seed=args.seed, trials=args.trials, quick=args.quick) for f in args.file]
+    status = 0
+    with output_lock(Path(args.out)), LocalClusters() as clusters:
+        for spec in specs:
+            r = run_sweep(spec, Path(args.out), scheduler=args.scheduler, workers=args.workers, retries=args.retries,
+                          fresh=args.fresh, clusters=clusters)
+            print(f"sweep {r['name']}: {r['points']} points ({r['ran']} run, {r['reused']} reused, {r['failed']} "
+                  f"failed, {r['numerical_errors']} numerical failures) in {r['wall_s']:.1f} s -> {r['out_dir']}")
+            if args.strict and r["claims_failed"]:
+                print(f"sweep {r['name']}: {r['claims_failed']} (point, claim) verdicts are fail or error (--strict)")
+            status |= 1 if r["failed"] or (args.strict and r["claims_failed"]) else 0
+    return status
 
 
 def cmd_site(args) -> int:
@@ -370,8 +374,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _sweep_parser(p: argparse.ArgumentParser) -> None:
-    p.add_argument("file", metavar="SWEEP.toml", help="a sweep file (TOML): a base scenario and the fields to vary "
-                                                     "(README, 'Sweeps'; examples in dse/families/sweeps/)")
+    p.add_argument("file", metavar="SWEEP.toml", nargs="+",
+                   help="a sweep file (TOML): a base scenario and the fields to vary (README, 'Sweeps'; examples in "
+                        "dse/families/sweeps/); several run one after the other on one local Dask cluster")
     p.add_argument("--out", default="out", help="output root directory; results go to OUT/sweep/NAME/ (default out/)")
     p.add_argument("--scheduler", default="auto",
                    help="auto (default: in process for a tiny sweep, else a local Dask cluster), inline, local, "

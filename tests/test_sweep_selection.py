@@ -147,3 +147,22 @@ def test_tables_of_a_point_become_metrics_named_by_their_rows(tmp_path):
     with pytest.raises(ScenarioError, match="names several rows") as err:
         so.table_metrics(spec, frame, results)
     assert err.value.field == "plot.rows"
+
+
+def test_several_sweep_files_run_in_one_command_on_one_local_cluster(tmp_path, monkeypatch, capsys):
+    from dse.cli import main as cli_main
+
+    started = []
+    real = sw._start_local
+    monkeypatch.setattr(sw, "_start_local", lambda workers: started.append(workers) or real(workers))
+    files = []
+    for name in ("one", "two"):
+        f = tmp_path / f"{name}.toml"
+        f.write_text(f'name = "{name}"\nbase = "{SAVAS}"\nquick = true\ntrials = 100\nclaims = []\ntables = []\n'
+                     'metrics = []\n[set]\n"sweep.rounds" = [1]\n"sweep.sigma_c" = [1.0]\n"gains.rounds_max" = 1\n'
+                     '[grid]\n"graph.n" = [3, 4]\n')
+        files.append(str(f))
+    assert cli_main(["sweep", *files, "--out", str(tmp_path / "out"), "--scheduler", "local", "--workers", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "sweep one: 2 points" in out and "sweep two: 2 points" in out
+    assert started == [1]                                     # one cluster for both sweeps

@@ -329,14 +329,16 @@ def choose_scheduler(scheduler: str, pending: int, workers: int) -> str:
 
 def execute(tasks: list[Task], *, scheduler: str, workers: int, retries: int,
             on_result: Callable[[Task, dict[str, Any]], None], log: Callable[[str], None] = print,
-            fn: Callable[[dict[str, Any]], dict[str, Any]] = run_point, worker_timeout: float = 60.0) -> dict[str, str]:
+            fn: Callable[[dict[str, Any]], dict[str, Any]] = run_point, worker_timeout: float = 60.0,
+            clusters: LocalClusters | None = None) -> dict[str, str]:
     """Run `fn` (default `run_point`) on every task's payload; hand each result to `on_result`
-    as it arrives. Returns {key: error} of the tasks that still failed after `retries` retries."""
+    as it arrives. Returns {key: error} of the tasks that still failed after `retries` retries.
+    `clusters`: where a local cluster is taken from (shared by several sweeps), else one is started."""
     if not tasks:
         return {}
     if scheduler == "inline":
         return _execute_inline(tasks, retries, on_result, fn)
-    return _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn, worker_timeout)
+    return _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn, worker_timeout, clusters)
 
 
 def _bar(total: int):
@@ -377,22 +379,59 @@ def _execute_inline(tasks, retries, on_result, fn) -> dict[str, str]:
     return failures
 
 
-def _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn, worker_timeout) -> dict[str, str]:
-    from dask.distributed import Client, LocalCluster, as_completed
+class LocalClusters:
+    """One local Dask cluster shared by the sweeps run inside this context (`dse sweep A.toml B.toml`):
+    started when a sweep first needs it, its workers' imports and shared stages kept for the next sweep,
+    closed on leaving the context."""
 
+    def __init__(self) -> None:
+        self._open: dict[int, tuple[Any, Any]] = {}
+
+    def client(self, workers: int):
+        if workers not in self._open:
+            self._open[workers] = _start_local(workers)
+        return self._open[workers][1]
+
+    def __enter__(self) -> "LocalClusters":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for cluster, client in self._open.values():
+            client.close()
+            cluster.close()
+        self._open.clear()
+
+
+def _start_local(workers: int):
+    from dask.distributed import Client, LocalCluster
+
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL, env=WORKER_ENV)
+    return cluster, Client(cluster)
+
+
+def _connect(scheduler: str, workers: int, clusters: LocalClusters | None):
+    """(client, whether this sweep closes it, where): a shared local cluster, a new one, or a scheduler's address."""
+    from dask.distributed import Client
+
+    if scheduler == "local" and clusters is not None:
+        return clusters.client(workers), None, "local cluster"
     if scheduler == "local":
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL, env=WORKER_ENV)
-        client = Client(cluster)
-    else:
-        cluster = None
-        try:
-            client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise ScenarioError("--scheduler", f"cannot reach the Dask scheduler at {scheduler} ({exc})") from None
+        return _start_local(workers)[::-1] + ("local cluster",)
+    try:
+        return Client(scheduler, timeout="20s"), None, scheduler
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise ScenarioError("--scheduler", f"cannot reach the Dask scheduler at {scheduler} ({exc})") from None
+
+
+def _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn, worker_timeout,
+                  clusters: LocalClusters | None = None) -> dict[str, str]:
+    from dask.distributed import as_completed
+
+    client, cluster, where = _connect(scheduler, workers, clusters)
+    shared = scheduler == "local" and clusters is not None
     failures = {}
     try:
-        where = "local cluster" if cluster else scheduler
         n_workers = len(client.scheduler_info().get("workers", {}))
         if n_workers == 0:
             log(f"dask: {where} has no worker yet; waiting up to {worker_timeout:g} s for one")
@@ -418,7 +457,8 @@ def _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn, worker
                 fut.release()
                 bar.update()
     finally:
-        client.close()
+        if not shared:
+            client.close()
         if cluster is not None:
             cluster.close()
     return failures
@@ -439,10 +479,12 @@ def points_dir(out_root: Path, name: str) -> Path:
 
 
 def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", workers: int = 2, retries: int = 2,
-              fresh: bool = False, log: Callable[[str], None] = print, worker_timeout: float = 60.0) -> dict[str, Any]:
+              fresh: bool = False, log: Callable[[str], None] = print, worker_timeout: float = 60.0,
+              clusters: LocalClusters | None = None) -> dict[str, Any]:
     """Run the points not yet done, then write results.parquet, claims.parquet, tables/, the figure,
     the recording, summary.md and sweep.json as one set: built beside OUT/sweep/<name>/ and renamed
-    into place, so the directory never mixes two runs and an invalid sweep leaves nothing."""
+    into place, so the directory never mixes two runs and an invalid sweep leaves nothing. `clusters`:
+    the local Dask cluster is taken from there (several sweeps in one command share one)."""
     from dse.api import _replace_dir, _staging_dir
     from dse.engine.driver import check_output_dir
     from dse.engine.memo import manifest
@@ -463,7 +505,7 @@ def run_sweep(spec: SweepSpec, out_root: Path, *, scheduler: str = "auto", worke
         results[task.key] = store.save(task.key, result)
 
     failures = execute(pending, scheduler=mode, workers=workers, retries=retries, on_result=keep, log=log,
-                       worker_timeout=worker_timeout)
+                       worker_timeout=worker_timeout, clusters=clusters)
     done = [t for t in tasks if t.key in results]
     staging = _staging_dir(out_dir)
     try:
