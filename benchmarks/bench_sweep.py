@@ -150,20 +150,21 @@ EXAMPLES_TARGET_S = 90.0
 
 
 def bench_example_sweeps() -> list[dict]:
-    """`make sweeps` cold: every shipped sweep (dse/families/sweeps/*.toml) into a fresh output directory, as
-    the Makefile runs them (default scheduler), wall and CPU time (children included: the Dask workers)."""
+    """`make sweeps` cold: every shipped sweep (dse/families/sweeps/*.toml) into a fresh output directory in one
+    command, as the Makefile runs them (one local Dask cluster); wall and CPU time (children included: the Dask
+    workers), and each sweep's own wall time from its sweep.json."""
     from .bench_commands import _dse, timed_command
 
-    rows = []
+    files = sorted((SWEEP.parent.parent / "dse" / "families" / "sweeps").glob("*.toml"))
     with tempfile.TemporaryDirectory() as tmp:
-        for f in sorted((SWEEP.parent.parent / "dse" / "families" / "sweeps").glob("*.toml")):
-            wall, cpu, rc = timed_command(_dse("sweep", str(f), "--out", tmp))
-            rows.append({"what": f"example sweep {f.stem}, cold", "wall_s": wall, "cpu_s": cpu, "ok": rc == 0})
-    total = {"what": "the example sweeps together (make sweeps), cold", "wall_s": sum(r["wall_s"] for r in rows),
-             "cpu_s": sum(r["cpu_s"] for r in rows), "ok": all(r["ok"] for r in rows),
+        wall, cpu, rc = timed_command(_dse("sweep", *map(str, files), "--out", tmp))
+        rows = [{"what": f"  example sweep {meta['name']} ({len(meta['points'])} points, {meta['scheduler']})",
+                 "wall_s": meta["wall_s"]}
+                for meta in (json.loads(p.read_text()) for p in sorted(Path(tmp).glob("sweep/*/sweep.json")))]
+    total = {"what": "the example sweeps (make sweeps), cold", "wall_s": wall, "cpu_s": cpu, "ok": rc == 0,
              "target": f"<= {EXAMPLES_TARGET_S:g} s wall"}
-    total["met"] = total["ok"] and total["wall_s"] <= EXAMPLES_TARGET_S
-    return rows + [total]
+    total["met"] = total["ok"] and wall <= EXAMPLES_TARGET_S
+    return [total] + rows
 
 
 if __name__ == "__main__":
