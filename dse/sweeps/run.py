@@ -138,11 +138,10 @@ class SharedStages(MemoryCache):
 
     def save(self, stage: str, params: dict[str, Any], arrays: dict[str, Any]) -> None:
         key = self.key(stage, params)
-        entry = _copied(arrays)
-        size = sum(getattr(a, "nbytes", 0) for a in entry.values())
+        size = sum(getattr(a, "nbytes", 0) for a in arrays.values())
         if key in self._entries or size > self.limit:
             return
-        self._entries[key] = entry
+        self._entries[key] = _copied(arrays)
         self.size += size
         while self.size > self.limit:
             _, dropped = self._entries.popitem(last=False)
