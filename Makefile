@@ -31,7 +31,7 @@ site: $(STAMP)
 	$(BIN)/dse site out
 
 # The shipped example sweeps (dse/families/sweeps/*.toml), one after the other on one local Dask cluster
-# (about a minute of CPU together; `make bench`, section sweep, times them).
+# (about a minute and a half of CPU together; `make bench`, section sweep, times them).
 sweeps: $(STAMP)
 	$(BIN)/dse sweep dse/families/sweeps/*.toml --out out
 
