@@ -166,3 +166,11 @@ def test_several_sweep_files_run_in_one_command_on_one_local_cluster(tmp_path, m
     out = capsys.readouterr().out
     assert "sweep one: 2 points" in out and "sweep two: 2 points" in out
     assert started == [1]                                     # one cluster for both sweeps
+
+
+def test_a_cluster_gets_the_longest_points_first():
+    from dse.sweeps.spec import load_sweep
+
+    tasks = sw.build_tasks(load_sweep(ROOT / "dse" / "families" / "sweeps" / "kar_moura_network_size.toml"))
+    order = [t.point.values["graph.n"] for t in sw.heaviest_first(tasks)]
+    assert order == sorted(order, reverse=True) and sorted(order) == sorted(t.point.values["graph.n"] for t in tasks)
