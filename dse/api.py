@@ -497,11 +497,13 @@ class Check:
     tables: Tables
     estimate: dict[str, Any]
     refusal: str = ""
+    stages: list[dict[str, Any]] = field(default_factory=list)
 
 
 def check(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,
           quick: bool = False, workers: int = DEFAULT_WORKERS, max_memory: int | float | str | None = None,
-          max_time_s: float | None = None, max_design_s: float = CHECK_DESIGN_BUDGET_S) -> Check:
+          max_time_s: float | None = None, max_design_s: float = CHECK_DESIGN_BUDGET_S,
+          cache_dir: str | os.PathLike | None = None) -> Check:
     """Validate a scenario and compute only its deterministic design stage (no Monte Carlo):
     the hypotheses are evaluated on the design, the design tables built, and the run's cost estimated.
     The arguments and the errors raised are those of `run` (`max_memory`, `max_time_s`: the budgets
@@ -510,11 +512,16 @@ def check(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed:
     Args:
         max_design_s: a design estimated above this many seconds is refused (ScenarioError naming the
             key that sizes it) before it is computed; one that takes longer than a second is announced
-            on stderr."""
+            on stderr.
+        cache_dir: the stage cache's directory, or None (in memory). `run` with the same `cache_dir`
+            computes the same design stages under the same keys: a check after a run reads the design
+            back, and a run after a check starts from the design the check stored. The result's
+            `stages` lists the stages with their keys and whether they were read back."""
     opts = run_options(seed=seed, trials=trials, quick=quick, workers=workers, max_memory=max_memory,
                        max_time_s=max_time_s)
     max_design_s = _seconds(max_design_s, "max_design_s")
     _check_source(source)
+    _check_dir(cache_dir, "cache_dir")
     repro = load(source) if isinstance(source, (str, os.PathLike, Mapping)) else source
     refuse_options(repro, opts)
     estimate = repro.cost(opts)
@@ -522,10 +529,11 @@ def check(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed:
     design_s = estimate.design_s if estimate.design_s is not None else estimate.stages.get("design")
     guess = f" (estimated about {human_seconds(design_s)})" if design_s is not None else ""
     with note_if_slow(CHECK_NOTE_AFTER_S, f"dse check: computing the design of '{repro.paper_id}'{guess} ..."):
-        design = repro.design(opts, StageContext(MemoryCache()))
+        ctx = StageContext(MemoryCache() if cache_dir is None else StageCache(Path(cache_dir)))
+        design = repro.design(opts, ctx)
     hyps = [h.evaluate(design) for h in repro.hypotheses()]
     tables = Tables()
     for table_spec, frame in repro.design_tables(design):
         tables.add(table_spec, frame)
     return Check(repro, opts, hyps, tables, estimate.as_dict(),
-                 run_refusal(estimate, opts, trials_field(repro, opts)))
+                 run_refusal(estimate, opts, trials_field(repro, opts)), ctx.ran)

@@ -99,10 +99,16 @@ def _print_claims(header: str, repro) -> None:
 def cmd_check(args) -> int:
     from dse import api
 
-    result = api.check(args.file, seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers,
-                       max_memory=args.max_memory, max_time_s=args.max_time, max_design_s=args.max_design_time)
-    repro = result.reproduction
+    repro = api.load(args.file)
+    cache = _check_cache(Path(args.out), repro.paper_id)
+    result = api.check(repro, seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers,
+                       max_memory=args.max_memory, max_time_s=args.max_time, max_design_s=args.max_design_time,
+                       cache_dir=cache)
     print(f"{args.file}: valid scenario '{repro.paper_id}' ({repro.title})")
+    if cache is not None and result.stages:
+        read = all(s["cached"] for s in result.stages)
+        print(f"design: {'read back from' if read else 'computed and stored in'} the stage cache {cache} "
+              f"(`dse run --out {args.out}` {'computed it' if read else 'starts from it'})")
     print("hypotheses:")
     for h in result.hypotheses:
         mark = "error" if h["error"] else hypothesis_status(h, {True: "holds", False: "does not hold", None: "undecided"})
@@ -146,6 +152,21 @@ def cmd_reproduce(args) -> int:
             print(f"{pid}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_root / pid}")
         print(f"summary: {write_summary(out_root)}")
     return _strict_status(args, rows)
+
+
+def _check_cache(out_root: Path, run_id: str) -> Path | None:
+    """The stage cache `dse check` shares with `dse run --out OUT_ROOT` (OUT_ROOT/.cache/RUN_ID), or None
+    (the design is kept in memory) when that directory cannot be created."""
+    from dse.engine.driver import cache_for
+
+    root = cache_for(out_root, run_id).root
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f"dse: note: the stage cache {root} is not usable ({exc.strerror or exc}); the design is kept in memory",
+              file=sys.stderr)
+        return None
+    return root
 
 
 def cmd_run(args) -> int:
@@ -353,6 +374,9 @@ def build_parser() -> argparse.ArgumentParser:
     chk.add_argument("--trials", type=_positive_int, default=None,
                      help="estimate for this many trials per cell (within the bounds of the file's trials key)")
     chk.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
+    chk.add_argument("--out", default="out", help="output root whose stage cache (OUT/.cache/NAME/) the design is "
+                                                  "read from or stored in, shared with `dse run --out OUT` "
+                                                  "(default out/)")
     _budget_flags(chk)
     chk.add_argument("--max-design-time", type=_duration, default=CHECK_DESIGN_BUDGET_S, metavar="DURATION",
                      help="the most design work check computes: a design estimated longer is refused before it "

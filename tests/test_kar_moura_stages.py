@@ -7,13 +7,13 @@ import pytest
 
 from dse.contract import stages
 from dse.contract.stages import StageResult, code_closure
-from dse.families.kar_moura.bounds import bounds
+from dse.families.kar_moura.bounds import bound_checks, bounds
 from dse.families.kar_moura.eq74 import eq74
 from dse.families.kar_moura.gikf import gikf
 from dse.families.kar_moura.scenario import load_scenario
 from dse.families.kar_moura.theorem8 import aux, pullback_divergent, theorem8
 
-STAGES = (bounds, gikf, theorem8, aux, pullback_divergent, eq74)
+STAGES = (bounds, bound_checks, gikf, theorem8, aux, pullback_divergent, eq74)
 PACKAGE = "dse.families.kar_moura"
 
 
@@ -97,7 +97,7 @@ def test_centralized_reference_and_class_floors_start_from_the_declared_prior(ed
     assert np.any(np.array(data["model"]["x0"]) != 0) and not np.allclose(P0, np.eye(len(P0)))
     sc = registry.from_dict(data).scenarios[0]
     T = 12
-    b = bounds.__wrapped__(sc, T, False)
+    b = bounds.__wrapped__(sc, T)
     sys_ = sc.system
 
     def filterpy_priors(C, R):

@@ -3,8 +3,9 @@ tables read, without Monte Carlo. Ā (closed form, exact recursion or estimate) 
 structure, D.1's decision with the witness walk, Lemma 14's constant along every witness window and
 Lemma 15's tail bounds, the centralized filter (same P0) with its round-off bound and its limit (DARE),
 the centralized filter of every class of Ā (a pathwise lower bound of its sensors), the Lyapunov
-envelope f_0^t(P0) (eq (73)) carried rescaled, and with `checks` the independent computations only
-claims use (filterpy's centralized filter, the lifted window chain's stationary law).
+envelope f_0^t(P0) (eq (73)) carried rescaled; and a stage of its own (`bound_checks`, on top of it) for
+the independent computations only claims use (filterpy's centralized filter, the lifted window chain's
+stationary law), so that `dse check` and `dse run` compute the same `bounds` stage under one key.
 """
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily
 
 import dse.estimators.kalman as kal
 import dse.estimators.walk_detectability as wd
-from dse.contract.stages import stage
+from dse.contract.stages import StageResult, stage
 from dse.estimators.gikf_maps import GossipSystem
 from dse.estimators.gikf_roundoff import centralized_filter, lyapunov_envelope
 
@@ -28,14 +29,13 @@ J_GRID = np.logspace(0, 12, 49)
 #: recursions, and filterpy inverts an N m x N m innovation covariance per step
 FILTERPY_STEPS = 300
 #: arrays that may hold NaN (not computed) or inf (beyond float64)
-PARTIAL = ("beta_multi", "beta_single", "lifted_printed", "alpha0_multi", "envelope", "envelope_err", "P_floor",
-           "P_floor_err", "P_central", "P_central_err", "P_central_filterpy")
+PARTIAL = ("beta_multi", "beta_single", "alpha0_multi", "envelope", "envelope_err", "P_floor",
+           "P_floor_err", "P_central", "P_central_err")
 
 
 @stage(allow_nonfinite=PARTIAL)
-def bounds(sc: GossipKalmanFile, slots: int, checks: bool) -> dict[str, np.ndarray]:
-    """The design quantities of a scenario over `slots` slots; with `checks`, also the independent computations
-    that only claims use (filterpy's centralized filter, the lifted chain's stationary law)."""
+def bounds(sc: GossipKalmanFile, slots: int) -> dict[str, np.ndarray]:
+    """The design quantities of a scenario over `slots` slots (what `dse check` computes)."""
     sys_, assume = sc.system, sc.assumptions
     Abar, Abar_se, Abar_exact, Abar_draws = mean_adjacency(sc)
     chk = wd.check_chain(Abar)
@@ -78,12 +78,10 @@ def bounds(sc: GossipKalmanFile, slots: int, checks: bool) -> dict[str, np.ndarr
     out["qnorm"] = float(np.linalg.norm(sc.Q, 2))
     out["accurate_range"] = accurate_range(sc)
     if search.witness is not None:
-        _witness_bounds(out, sys_, search, Abar, Abar_exact, slots, checks)
+        _witness_bounds(out, sys_, search, Abar, Abar_exact, slots)
     # centralized reference (same P0): our recursion with its round-off bound, filterpy, and the DARE
     P_c, K_c, err_c = centralized_filter(F, sys_.C_all, sc.Q, sys_.R_all, sc.P0, slots + 1)
     out["P_central"], out["K_central"], out["P_central_err"] = P_c, K_c, err_c
-    if checks:
-        out["P_central_filterpy"] = _filterpy_prior(sc, sys_, min(slots, FILTERPY_STEPS) + 1)
     if assume.central_detectable:
         out["P_central_inf"] = kal.steady_state_prior_covariance(F, sys_.C_all, sc.Q, sys_.R_all)
     # the lower bound of each sensor: the centralized filter of its class (tokens never leave a class), one per class
@@ -114,7 +112,7 @@ def envelope_error(bounds: dict, t: int) -> float:
 
 
 def _witness_bounds(out: dict, sys_: GossipSystem, search: wd.WitnessSearch, Abar: np.ndarray, Abar_exact: bool,
-                    slots: int, checks: bool) -> None:
+                    slots: int) -> None:
     """Lemma 14's constant along the witness and every witness window, and Lemma 15's tail bounds."""
     w = search.witness
     out["gramian"] = search.gramian
@@ -145,10 +143,20 @@ def _witness_bounds(out: dict, sys_: GossipSystem, search: wd.WitnessSearch, Aba
     support = (Abar > 1e-12).astype(float)
     n_windows = float(np.linalg.matrix_power(support, ell - 1).sum())
     out["n_walks_length_ell"] = n_windows
-    if checks and n_windows <= 5000 and Abar_exact:
-        Z, pi, corr, printed = wd.lifted_chain_stationary(Abar, ell)
+
+
+@stage(allow_nonfinite=("lifted_printed", "P_central_filterpy"))
+def bound_checks(sc: GossipKalmanFile, slots: int, design: StageResult) -> dict[str, np.ndarray]:
+    """The independent computations only claims use, on top of the `bounds` stage `design`: filterpy's
+    centralized filter over the first slots, and the lifted window chain's stationary law (dense solve, when Ā
+    is exact and the witness has at most 5000 windows)."""
+    out = {"P_central_filterpy": _filterpy_prior(sc, sc.system, min(slots, FILTERPY_STEPS) + 1)}
+    ell = len(design["witness"])
+    if ell and bool(design["Abar_exact"]) and float(design["n_walks_length_ell"]) <= 5000:
+        Z, pi, corr, printed = wd.lifted_chain_stationary(design["Abar"], ell)
         out["lifted_pi"], out["lifted_corrected"], out["lifted_printed"] = pi, corr, printed
         out["lifted_states"] = len(Z)
+    return {k: np.asarray(v) for k, v in out.items()}
 
 
 def _filterpy_prior(sc: GossipKalmanFile, sys_: GossipSystem, steps: int) -> np.ndarray:

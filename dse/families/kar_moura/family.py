@@ -105,8 +105,11 @@ docs/papers/kar-moura.md."""
         return Computed(design, self.simulate(run, opts, ctx, design))
 
     def _designs(self, run, opts, ctx, *, checks: bool):
+        """The `bounds` stage of every scenario (the same stage and key in `dse check` and `dse run`); with `checks`,
+        the `bound_checks` stage on top of each, its arrays added to the design (which keeps the key of `bounds`: the
+        Monte Carlo stages read only the bounds)."""
         from .assumptions import horizon
-        from .bounds import bounds
+        from .bounds import bound_checks, bounds
         from .cost import scenario_cost
         from .results import Design, ScenarioDesign, sizes
 
@@ -114,8 +117,13 @@ docs/papers/kar-moura.md."""
         for sc in run.scenarios:
             runs, ref_runs, slots = sizes(sc, opts)
             shapes.append((sc, horizon(sc, slots), runs, ref_runs))
-        outs = ctx.run_many([(bounds, (sc, slots, checks), {}) for sc, slots, _, _ in shapes], workers=opts.workers,
+        outs = ctx.run_many([(bounds, (sc, slots), {}) for sc, slots, _, _ in shapes], workers=opts.workers,
                             desc="gossip-kalman designs", weights=[scenario_cost(sc, opts)["design_s"] for sc in run.scenarios])
+        if checks:
+            extra = ctx.run_many([(bound_checks, (sc, slots, b), {}) for (sc, slots, _, _), b in zip(shapes, outs)],
+                                 workers=opts.workers, desc="gossip-kalman design checks")
+            for b, more in zip(outs, extra):
+                b.update(more)
         return Design(opts.quick, {sc.name: ScenarioDesign(sc, slots, runs, ref_runs, opts.quick, b)
                                    for (sc, slots, runs, ref_runs), b in zip(shapes, outs)})
 

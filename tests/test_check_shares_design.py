@@ -1,0 +1,53 @@
+"""`dse check` and `dse run` share the design: with one stage cache, both compute the same design stages under the
+same keys, so a run after a check reads the check's design back, and a check after a run computes nothing.
+Every registered family whose design is a stage (the template's is a plain function, computed anew each time), on a
+small generated scenario (`--quick`)."""
+from __future__ import annotations
+
+import pytest
+
+from dse import api, registry
+from dse.cli import main
+
+#: a small edge case of each family's generator (two nodes where the generator has one)
+SMALL = {"coestimation": "two_nodes", "compare": "two_nodes", "gossip-kalman": "periodic",
+         "hybrid-observer": "two_agents", "noisy-consensus-filter": "two_agents",
+         "random-comm-filter": "two-nodes", "template": "two_nodes"}
+
+
+def _small(family_id: str) -> dict:
+    return registry.families()[family_id].generate(0, SMALL[family_id])
+
+
+def test_every_family_has_a_small_scenario():
+    assert set(registry.families()) <= set(SMALL)
+
+
+@pytest.mark.parametrize("family_id", sorted(set(registry.families()) - {"template"}))
+def test_a_run_after_a_check_reads_the_checks_design(family_id, tmp_path):
+    data = _small(family_id)
+    checked = api.check(data, quick=True, cache_dir=tmp_path)
+    assert checked.stages and not any(s["cached"] for s in checked.stages)
+    ran = {s["key"]: s["cached"] for s in api.run(data, quick=True, cache_dir=tmp_path).provenance["stages"]}
+    assert all(ran.get(s["key"]) is True for s in checked.stages), (checked.stages, ran)
+
+
+@pytest.mark.parametrize("family_id", ["noisy-consensus-filter", "gossip-kalman"])
+def test_a_check_after_a_run_computes_nothing(family_id, tmp_path):
+    data = _small(family_id)
+    api.run(data, quick=True, cache_dir=tmp_path)
+    checked = api.check(data, quick=True, cache_dir=tmp_path)
+    assert checked.stages and all(s["cached"] for s in checked.stages)
+
+
+def test_the_command_line_check_stores_the_design_under_the_output_root(tmp_path, capsys):
+    from benchmarks.common import toml_text
+
+    path = tmp_path / "small.toml"
+    path.write_text(toml_text(_small("noisy-consensus-filter")))
+    out = tmp_path / "out"
+    assert main(["check", str(path), "--out", str(out)]) == 0
+    assert "computed and stored in the stage cache" in capsys.readouterr().out
+    assert any((out / ".cache").rglob("*.npz"))
+    assert main(["check", str(path), "--out", str(out)]) == 0
+    assert "read back from the stage cache" in capsys.readouterr().out
