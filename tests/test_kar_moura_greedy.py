@@ -34,18 +34,22 @@ def sequential_greedy(priority: np.ndarray, edges, n: int) -> np.ndarray:
     return out
 
 
-def test_batched_scan_equals_sequential_definition_and_is_maximal():
+@pytest.mark.parametrize("n, radius", [(12, 0.45), (64, 0.2), (80, 0.18)])
+def test_batched_scan_equals_sequential_definition_and_is_maximal(n, radius):
+    """Up to 64 nodes the scan keeps each row's free nodes as the bits of one word (64: the top bit is a node),
+    beyond as one flag per node; both against the definition."""
     rng = np.random.default_rng(0)
-    G = nx.random_geometric_graph(12, 0.45, seed=3)
+    G = nx.random_geometric_graph(n, radius, seed=3)
     edges = tuple(sorted(G.edges()))
-    prot = gk.GreedyMatchingGossip(12, edges, 1.0)
+    prot = gk.GreedyMatchingGossip(n, edges, 1.0)
     pr = rng.random((400, len(edges)))
     got = prot.greedy_chosen(pr)
     for b in range(len(pr)):
-        np.testing.assert_array_equal(got[b], sequential_greedy(pr[b], edges, 12))
+        np.testing.assert_array_equal(got[b], sequential_greedy(pr[b], edges, n))
     # maximal: after removing matched nodes no edge is left with both endpoints free
     u, v = np.array(edges).T
-    deg = np.zeros((len(pr), 12), int)
+    assert max(u.max(), v.max()) == n - 1
+    deg = np.zeros((len(pr), n), int)
     np.add.at(deg, (np.nonzero(got)[0], u[np.nonzero(got)[1]]), 1)
     np.add.at(deg, (np.nonzero(got)[0], v[np.nonzero(got)[1]]), 1)
     assert deg.max() == 1  # a matching

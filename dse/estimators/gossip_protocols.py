@@ -219,19 +219,46 @@ class GreedyMatchingGossip:
         """(B, E) bool: the greedy maximal matching for each row of priorities (B, E): the edges
         are scanned in increasing priority and added when both endpoints are free.
 
-        The scan is a loop over the E positions of the order, vectorised over the batch: the flat
-        indices of both endpoints of the k-th edge of every row are precomputed, so each position
-        costs two gathers and two scatters of the free flags (the indices of one position are
-        distinct, so the scatters need no masking: an endpoint that was free stays free iff the other
-        endpoint was already taken)."""
-        B, E = priority.shape
-        N = self.n_nodes
+        The scan is a loop over the E positions of the order, vectorised over the batch. With at most 64
+        nodes the free nodes of a row are the bits of one word, and each position costs four elementwise
+        operations on contiguous words (`_scan_words`); else the free flags are gathered and scattered by
+        flat (row, node) indices (`_scan_flags`). Both give the same matching."""
+        order = np.argsort(priority, axis=1)                      # (B, E): the k-th edge of every row
+        scan = self._scan_words if self.n_nodes <= 64 else self._scan_flags
+        taken = scan(np.ascontiguousarray(order.T))               # (E, B): the k-th edge of the row is taken
+        chosen = np.empty(priority.shape, bool)
+        np.put_along_axis(chosen, order, taken.T, axis=1)
+        return chosen
+
+    def _scan_words(self, order: np.ndarray) -> np.ndarray:
+        """The greedy scan on (E, B) edge orders with each row's free nodes as the bits of a uint64: the k-th
+        edge is taken iff both its endpoint bits are still set, and taking it clears them."""
         u, v = self._ends
-        order = np.ascontiguousarray(np.argsort(priority, axis=1).T)   # (E, B): k-th edge of every row
-        base = np.arange(B) * N
+        one = np.uint64(1)
+        masks = ((one << u.astype(np.uint64)) | (one << v.astype(np.uint64)))[order]     # (E, B) endpoint bits
+        E, B = order.shape
+        free = np.full(B, np.iinfo(np.uint64).max, np.uint64)
+        both = np.empty(B, np.uint64)
+        taken = np.empty((E, B), bool)
+        for k in range(E):
+            mk = masks[k]
+            np.bitwise_and(free, mk, out=both)
+            np.equal(both, mk, out=taken[k])
+            np.multiply(mk, taken[k], out=both)                   # the endpoint bits of a taken edge, else 0
+            np.bitwise_xor(free, both, out=free)
+        return taken
+
+    def _scan_flags(self, order: np.ndarray) -> np.ndarray:
+        """The greedy scan on (E, B) edge orders with one free flag per (row, node): the flat indices of both
+        endpoints of the k-th edge of every row are precomputed, so each position costs two gathers and two
+        scatters (the indices of one position are distinct, so the scatters need no masking: an endpoint that
+        was free stays free iff the other endpoint was already taken)."""
+        u, v = self._ends
+        E, B = order.shape
+        base = np.arange(B) * self.n_nodes
         fa = u[order] + base                                       # flat (row, endpoint) indices
         fb = v[order] + base
-        free = np.ones(B * N, bool)
+        free = np.ones(B * self.n_nodes, bool)
         taken = np.empty((E, B), bool)
         for k in range(E):
             a, b = fa[k], fb[k]
@@ -240,9 +267,7 @@ class GreedyMatchingGossip:
             free[a] = ga & ~gb
             free[b] = gb & ~ga
             taken[k] = ok
-        chosen = np.empty((B, E), bool)
-        chosen[np.arange(B)[None, :], order] = taken
-        return chosen
+        return taken
 
     def sample(self, size: int, rng: np.random.Generator) -> np.ndarray:
         """(size, N) partner arrays of i.i.d. matchings."""
