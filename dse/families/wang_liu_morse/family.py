@@ -98,13 +98,14 @@ condition numbers, stated in the claim's detail. Reconstruction notes: docs/pape
         """Every scenario's design stage (and, in the paper's reproduction, its model-mismatch demonstration)."""
         stages, cost = self.module("stages"), self.module("cost")
         scenarios = run.scenarios
-        for sc in scenarios:                  # the gains are placed once, before the workers fork
-            sc.observer, sc.central_gain
         calls = [(stages.design_stage, (sc, opts.seed, run.is_paper), {}) for sc in scenarios]
         weights = [cost.design_seconds(sc, run.is_paper) for sc in scenarios]
         if run.is_paper:
             calls += [(stages.mismatch_stage, (sc, opts.seed), {}) for sc in scenarios]
             weights += [cost.MISMATCH_S] * len(scenarios)
+        if len(calls) > 1 and opts.workers > 1:
+            for sc in scenarios:              # the gains are placed once, before the workers fork
+                sc.observer, sc.central_gain
         outs = ctx.run_many(calls, workers=opts.workers, weights=weights, desc="hybrid observer: design")
         parts = {}
         for i, sc in enumerate(scenarios):
