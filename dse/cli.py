@@ -369,19 +369,7 @@ def build_parser() -> argparse.ArgumentParser:
     user.set_defaults(func=cmd_run)
     chk = sub_parser("check", help="validate a scenario; print its hypotheses, design quantities and the run's "
                                    "estimated time and memory, without simulating")
-    chk.add_argument("file", metavar="FILE.toml", help=FILE_HELP)
-    chk.add_argument("--quick", action="store_true", help="estimate for a --quick run")
-    chk.add_argument("--trials", type=_positive_int, default=None,
-                     help="estimate for this many trials per cell (within the bounds of the file's trials key)")
-    chk.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
-    chk.add_argument("--out", default="out", help="output root whose stage cache (OUT/.cache/NAME/) the design is "
-                                                  "read from or stored in, shared with `dse run --out OUT` "
-                                                  "(default out/)")
-    _budget_flags(chk)
-    chk.add_argument("--max-design-time", type=_duration, default=CHECK_DESIGN_BUDGET_S, metavar="DURATION",
-                     help="the most design work check computes: a design estimated longer is refused before it "
-                          f"starts (default {CHECK_DESIGN_BUDGET_S:g}s; `dse run` computes it as its first stage)")
-    chk.set_defaults(func=cmd_check)
+    _check_parser(chk)
     ver = sub_parser("verify", help="check a run's files against the checksums in its run.json, recompute its tables "
                                     "and re-check its claims from cached results (or re-assemble a sweep's), "
                                     "without simulating; exit 1 on any difference")
@@ -417,6 +405,23 @@ def _sweep_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--strict", action="store_true",
                    help="exit 1 when any claim of any point is fail or error (for CI)")
     p.set_defaults(func=cmd_sweep)
+
+
+def _check_parser(chk: argparse.ArgumentParser) -> None:
+    """The arguments of `dse check`."""
+    chk.add_argument("file", metavar="FILE.toml", help=FILE_HELP)
+    chk.add_argument("--quick", action="store_true", help="estimate for a --quick run")
+    chk.add_argument("--trials", type=_positive_int, default=None,
+                     help="estimate for this many trials per cell (within the bounds of the file's trials key)")
+    chk.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
+    chk.add_argument("--out", default="out", help="output root whose stage cache (OUT/.cache/NAME/) the design is "
+                                                  "read from or stored in, shared with `dse run --out OUT` "
+                                                  "(default out/)")
+    _budget_flags(chk)
+    chk.add_argument("--max-design-time", type=_duration, default=CHECK_DESIGN_BUDGET_S, metavar="DURATION",
+                     help="the most design work check computes: a design estimated longer is refused before it "
+                          f"starts (default {CHECK_DESIGN_BUDGET_S:g}s; `dse run` computes it as its first stage)")
+    chk.set_defaults(func=cmd_check)
 
 
 def _site_parser(p: argparse.ArgumentParser) -> None:

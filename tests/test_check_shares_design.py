@@ -6,21 +6,17 @@ from __future__ import annotations
 
 import pytest
 
+from benchmarks.small_scenarios import SMALL_EDGES, small_scenario
 from dse import api, registry
 from dse.cli import main
 
-#: a small edge case of each family's generator (two nodes where the generator has one)
-SMALL = {"coestimation": "two_nodes", "compare": "two_nodes", "gossip-kalman": "periodic",
-         "hybrid-observer": "two_agents", "noisy-consensus-filter": "two_agents",
-         "random-comm-filter": "two-nodes", "template": "two_nodes"}
-
 
 def _small(family_id: str) -> dict:
-    return registry.families()[family_id].generate(0, SMALL[family_id])
+    return small_scenario(family_id)
 
 
 def test_every_family_has_a_small_scenario():
-    assert set(registry.families()) <= set(SMALL)
+    assert set(registry.families()) <= set(SMALL_EDGES)
 
 
 @pytest.mark.parametrize("family_id", sorted(set(registry.families()) - {"template"}))
