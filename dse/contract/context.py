@@ -11,7 +11,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from dse.contract.stages import Stage, StageResult
+from dse.contract.stages import Stage, StageResult, code_hash
 from dse.errors import NumericalLimit
 
 #: what LAPACK says when a matrix is singular, indefinite or ill-conditioned at working precision
@@ -80,6 +80,9 @@ class StageContext:
             return go
 
         weights = list(weights) if weights is not None else [1.0] * len(calls)
+        if workers > 1 and len(calls) > 1:
+            for st in {c[0] for c in calls}:     # each stage's code hash once, here, inherited by the forked workers
+                code_hash(st.module)
         results = []
         for arrays, key, ran in run_jobs([(w, job(*c)) for w, c in zip(weights, calls)], workers, desc=desc):
             self.ran.extend(ran)

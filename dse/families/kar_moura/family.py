@@ -91,25 +91,9 @@ docs/papers/kar-moura.md."""
         return self.module("claims").claims
 
     def design(self, run, opts, ctx):
-        """Every scenario's design without the claims' own reference computations (`dse check`)."""
-        return self._designs(run, opts, ctx, checks=False)
-
-    def compute(self, run, opts, ctx):
-        """The designs with the claims' reference computations, then every Monte Carlo stage."""
-        # imported once here and inherited by every forked worker (about 1 s each): the designs' filterpy reference,
-        # the Wishart starts of the auxiliary stage and the claims' exact KS tests all need scipy.stats
-        import filterpy.kalman  # noqa: F401
-        import scipy.stats  # noqa: F401
-
-        design = self._designs(run, opts, ctx, checks=True)
-        return Computed(design, self.simulate(run, opts, ctx, design))
-
-    def _designs(self, run, opts, ctx, *, checks: bool):
-        """The `bounds` stage of every scenario (the same stage and key in `dse check` and `dse run`); with `checks`,
-        the `bound_checks` stage on top of each, its arrays added to the design (which keeps the key of `bounds`: the
-        Monte Carlo stages read only the bounds)."""
+        """The `bounds` stage of every scenario (`dse check`; `compute` runs the same stages under the same keys)."""
         from .assumptions import horizon
-        from .bounds import bound_checks, bounds
+        from .bounds import bounds
         from .cost import scenario_cost
         from .results import Design, ScenarioDesign, sizes
 
@@ -119,17 +103,24 @@ docs/papers/kar-moura.md."""
             shapes.append((sc, horizon(sc, slots), runs, ref_runs))
         outs = ctx.run_many([(bounds, (sc, slots), {}) for sc, slots, _, _ in shapes], workers=opts.workers,
                             desc="gossip-kalman designs", weights=[scenario_cost(sc, opts)["design_s"] for sc in run.scenarios])
-        if checks:
-            extra = ctx.run_many([(bound_checks, (sc, slots, b), {}) for (sc, slots, _, _), b in zip(shapes, outs)],
-                                 workers=opts.workers, desc="gossip-kalman design checks")
-            for b, more in zip(outs, extra):
-                b.update(more)
         return Design(opts.quick, {sc.name: ScenarioDesign(sc, slots, runs, ref_runs, opts.quick, b)
                                    for (sc, slots, runs, ref_runs), b in zip(shapes, outs)})
 
+    def compute(self, run, opts, ctx):
+        """The designs with the claims' reference computations, then every Monte Carlo stage."""
+        # imported once here and inherited by every forked worker (about 1 s each): the designs' filterpy reference,
+        # the Wishart starts of the auxiliary stage and the claims' exact KS tests all need scipy.stats
+        import filterpy.kalman  # noqa: F401
+        import scipy.stats  # noqa: F401
+
+        design = self.design(run, opts, ctx)
+        return Computed(design, self.simulate(run, opts, ctx, design))
+
     def simulate(self, run, opts, ctx, design):
         """Every Monte Carlo stage of every scenario, each a job of `opts.workers` forked processes, the heaviest
-        first (by the cost model): the light ones fill in around them, and a scenario's stages run side by side."""
+        first (by the cost model): the light ones fill in around them, and a scenario's stages run side by side.
+        Among them the `bound_checks` of each scenario (the computations only claims use), whose arrays are added
+        to the scenario's design (which keeps the key of `bounds`: no Monte Carlo stage reads them)."""
         from .results import Results, ScenarioResults
 
         jobs = [(d, *job) for d in design.scenarios.values()
@@ -142,6 +133,7 @@ docs/papers/kar-moura.md."""
         results = {}
         for d in design.scenarios.values():
             out = done[d.name]
+            d.bounds.update(out["checks"])
             results[d.name] = ScenarioResults(
                 d.scenario, d.slots, d.runs, d.reference_runs, opts.quick, d.bounds, seed=opts.seed, gikf=out["gikf"],
                 reference=out["reference"], aux={**out.get("aux", {}), **out.get("pullback_divergent", {})},
@@ -153,6 +145,7 @@ docs/papers/kar-moura.md."""
         """(name, estimated seconds, call) of the Monte Carlo stages of one scenario: independent of each other (each
         has its own random stream), run where a claim needs them: the auxiliary samples where C.1 and D.1 hold,
         Theorem 26(a)'s pull-backs where C.1 holds and a mode is unseen, the eq74 sequences with the structural checks."""
+        from .bounds import bound_checks
         from .cost import gikf_bytes_per_run, scenario_cost
         from .eq74 import eq74
         from .gikf import gikf
@@ -167,6 +160,7 @@ docs/papers/kar-moura.md."""
                 (gikf, (sc, b, opts.seed, d.runs, d.slots, which, budget, gikf_bytes_per_run(sc, d.slots, spec)), {}))
                for name, which, spec in protocols]
         out.append(("reference", cost["ref_s"], (theorem8, (sc, b, opts.seed, d.reference_runs, d.slots), {})))
+        out.append(("checks", cost["design_s"], (bound_checks, (sc, d.slots, b), {})))
         if assume.theorem:
             out.append(("aux", cost["aux_s"], (aux, (sc, b, opts.seed, d.reference_runs, d.slots), {})))
         if assume.c1 and assume.undetectable is True:
