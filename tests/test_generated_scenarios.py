@@ -8,36 +8,28 @@ say so) and an `error` is a defect of ours. Each family's generator lists its ed
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from dse import registry
-from dse.contract.options import RunOptions
 from dse.contract.context import StageContext
+from dse.contract.options import RunOptions
 from dse.engine.cache import StageCache
 from dse.engine.driver import evaluate_claims
-
-RANDOM_DRAWS = 2
-
-
-def _cases():
-    out = []
-    for family, fam in registry.families().items():
-        out += [pytest.param(family, seed, edge, id=f"{family}-{edge}") for seed, edge in enumerate(fam.edges)]
-        out += [pytest.param(family, 1000 + s, None, id=f"{family}-random{s}") for s in range(RANDOM_DRAWS)]
-    return out
+from generated_runs import SPLIT_FAMILIES, cases, check_generated, unsplit_families
 
 
-@pytest.mark.parametrize("family,seed,edge", _cases())
+@pytest.mark.parametrize("family,seed,edge", cases(unsplit_families()))
 def test_generated_scenario_has_no_fail_and_no_error(family, seed, edge, tmp_path):
-    data = registry.family(family).generate(seed, edge)
-    assert data["family"] == family
-    repro = registry.from_dict(data)
-    computed = repro.compute(RunOptions(seed=seed, quick=True, workers=1), StageContext(StageCache(tmp_path / "cache")))
-    ev = evaluate_claims(repro, computed)
-    bad = [f"{r['id']}: {r['verdict']}: {str(r.get('detail'))[:400]}" for r in ev.claims if r["verdict"] in ("fail", "error")]
-    bad += [f"hypothesis {h['id']}: {h['error'][:400]}" for h in ev.hypotheses if h["error"]]
-    assert not bad, f"{family} edge={edge} seed={seed}:\n" + "\n".join(bad)
-    assert ev.claims, "no claim was evaluated"
+    check_generated(family, seed, edge, tmp_path)
+
+
+def test_the_split_files_exist_and_name_registered_families():
+    """The families run by the other generated-scenario files are registered, and those files exist."""
+    for name, families in SPLIT_FAMILIES.items():
+        assert (Path(__file__).parent / name).is_file(), name
+        assert set(families) <= set(registry.families()), families
 
 
 def test_every_family_has_a_generator():
