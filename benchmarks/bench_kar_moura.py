@@ -22,6 +22,7 @@ import numpy as np
 import dse.estimators.gossip_kalman as gk
 import dse.estimators.kalman as kal
 import dse.estimators.switched_riccati as sr
+from .common import estimator_row
 from dse.families.kar_moura.bounds import J_GRID
 from dse.families.kar_moura.gikf import STAT_STRIDE
 from dse.families.kar_moura.scenario import load_scenario
@@ -117,6 +118,41 @@ def bench_theorem8(repeats: int = 3, runs: int = 20_000, slots: int = 300) -> di
     wall, spread = _median(walls)
     return {"name": f"Theorem-8 process E1, {runs:,} chains x {slots} slots", "wall_s": wall, "wall_spread": spread,
             "us_per_chain_step": wall / (runs * slots) * 1e6}
+
+
+def _cpu_us(fn, repeats: int, per: float) -> tuple[float, tuple[float, float]]:
+    """Median and (min, max) CPU time of `fn` over `repeats` calls, in µs divided by `per`."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.process_time()
+        fn()
+        times.append((time.process_time() - t0) * 1e6 / per)
+    return _median(times)
+
+
+def bench_greedy_matching(quick: bool = False, repeats: int = 3) -> list[dict]:
+    """The greedy-matching sampler (E9: 30 nodes, 118 edges, p_link = 0.5) as the GIKF calls it, a batch of
+    matchings per slot (600 runs), in CPU µs per matching; against one matching at a time (the definition: scan
+    the edges by priority, keep an edge whose endpoints are free) and against its floor, the E uniform priorities
+    each matching draws (`rng.random`)."""
+    sc, _, prot = _load("e9")
+    E, batch, calls = len(prot.edges), 600, 10 if quick else 40
+    rng = np.random.Generator(np.random.SFC64(0))
+    batched = _cpu_us(lambda: [prot.sample(batch, rng) for _ in range(calls)], repeats, calls * batch)
+    floor = _cpu_us(lambda: [rng.random((batch, E)) for _ in range(calls)], repeats, calls * batch)
+    u, v = np.asarray(prot.edges).T
+
+    def one_at_a_time(draws: int = 200):
+        for _ in range(draws):
+            free = np.ones(prot.n_nodes, bool)
+            for k in np.argsort(rng.random(E)):
+                if free[u[k]] and free[v[k]]:
+                    free[u[k]] = free[v[k]] = False
+    loop = _cpu_us(one_at_a_time, repeats, 200)
+    return [estimator_row("greedy matching sampler (kar-moura P4)", f"E9: N = 30, {E} edges, {batch} matchings a call",
+                          nodes=30, state_dim=0, trials=batch, steps=calls, batched=batched, loop=loop,
+                          loop_what="one matching at a time (the definition)", unit="CPU µs per matching",
+                          note=f"floor (E uniform draws) {floor[0]:.3g} µs: {batched[0] / floor[0]:.3g}x the floor")]
 
 
 def bench_kar_moura(repeats: int = 3) -> list[dict]:

@@ -123,9 +123,11 @@ def bench_estimators(quick: bool, repeats: int) -> list[dict]:
     from .bench_tanwani import bench_event, bench_gridded
     from .bench_tran import bench_stochastic_rows
     from .bench_wang_liu_morse import bench_hybrid_rows
+    from .bench_kar_moura import bench_greedy_matching
 
     parts: list[Callable[[bool, int], list[dict]]] = [bench_kalman_rows, bench_filter, bench_gridded, bench_event,
-                                                      _gikf_rows, bench_hybrid_rows, bench_stochastic_rows]
+                                                      _gikf_rows, bench_greedy_matching, bench_hybrid_rows,
+                                                      bench_stochastic_rows]
     return _collect(parts, quick, repeats)
 
 

@@ -14,10 +14,11 @@ Time: per GIKF run, sensor and slot a Riccati step, an error step and their stat
 per slot a fixed overhead per chunk; per Theorem-8 run and slot a step (a + b·M²) and per slot a
 fixed overhead per chain; the auxiliary samples (where C.1 and D.1 hold) about 3.1 Theorem-8 runs
 and eight more chains; the greedy matching per draw and edge (in the GIKF, in protocol-driven chains
-and in the Monte Carlo Ā); the lifted chain's dense solve; the claims, tables, figures and recording
+and in the Monte Carlo Ā of the design, ABAR_DRAW_S); the lifted chain's dense solve (the `bound_checks` stage,
+beside the Monte Carlo: not in the design's estimate `dse check` shows); the claims, tables, figures and recording
 per scenario and sensor. Fitted on this machine against whole runs (CPU time of `dse run`, estimate
 / measured): E1 1.01 (4,000 runs × 300 slots, 20,000 Theorem-8 runs), E1 quick 1.03, E2 quick 1.02,
-E9 quick 1.43 (greedy, 30 nodes, M = 6), a 200-node greedy ring 1.11, E1 over 2,000 slots 0.91, the
+E9 quick 1.43 (greedy, 30 nodes, M = 6; 1.33 with the faster greedy sampler and GREEDY_S scaled to it), a 200-node greedy ring 1.11, E1 over 2,000 slots 0.91, the
 paper quick 1.3 and default 1.17; peak memory 0.8-1.15. The estimate is meant within a factor 1.5
 (2 for small runs, where the fixed costs dominate).
 """
@@ -31,7 +32,7 @@ from dse.estimators.gikf_maps import FEATURES
 from dse.estimators.gikf_monte_carlo import decimated_slots
 from dse.simulate.units import RNG_UNIT
 
-from .assumptions import horizon
+from .assumptions import ABAR_DRAWS, horizon
 from .gikf import STAT_STRIDE
 from .results import record_times, sizes
 from .scenario import GossipKalmanFile, ProtocolSection
@@ -40,7 +41,11 @@ from .scenario import GossipKalmanFile, ProtocolSection
 #: statistics), per Theorem-8 (run · slot) a + b·M², per (draw · edge) of the greedy matching
 GIKF_S = (3e-8, 8.5e-8)
 CHAIN_S = (2.5e-7, 4.5e-8)
-GREEDY_S = 1.3e-7
+#: (fitted at 1.3e-7 with the earlier sampler, whose draws cost 3.8 µs against 3.0 µs now on E9's 118 edges: scaled)
+GREEDY_S = 1.0e-7
+#: per (draw · edge) of the Monte Carlo Ā of the design (ABAR_DRAWS draws in chunks of up to 50,000: E9's 118 edges
+#: 0.73 s of CPU)
+ABAR_DRAW_S = 3.1e-8
 #: fixed seconds per slot: of a GIKF chunk, and of one chain (the Theorem-8 run; the auxiliary samples are AUX_CHAINS)
 GIKF_SLOT_S = 6e-4
 CHAIN_STEP_S = 2e-4
@@ -128,11 +133,13 @@ def scenario_cost(sc: GossipKalmanFile, opts: RunOptions) -> dict[str, float]:
     ref_s = ref_runs * slots * step + slots * CHAIN_STEP_S
     aux_s = (AUX_FACTOR * ref_s + PULLBACK_S * M * M + AUX_CHAINS * slots * CHAIN_STEP_S) if sc.assumptions.theorem else 0.0
     m_all = sum(sc.C_types[k].shape[0] for k in sc.types)
-    design_s = (0.1 + (0.0 if exact else 200_000 * greedy) + (LIFTED_S * _lifted_states(sc) ** 3 if exact else 0.0)
-                + slots * m_all ** 3 * CENTRAL_S + 200 * min(N, 64) * N * N * DENSE_S + 3 * N ** 3 * DENSE_S * 5)
+    design_s = (0.1 + (0.0 if exact else ABAR_DRAWS * ABAR_DRAW_S * E) + slots * m_all ** 3 * CENTRAL_S
+                + 200 * min(N, 64) * N * N * DENSE_S + 3 * N ** 3 * DENSE_S * 5)
+    checks_s = LIFTED_S * _lifted_states(sc) ** 3 if exact else 0.0      # the `bound_checks` stage, beside the Monte Carlo
     gikf_mib, ref_mib, design_mib = _kept_mib(sc, runs, ref_runs, slots)
-    return {"seconds": design_s + gikf_s + ref_s + aux_s + OUTPUT_S + OUTPUT_NODE_S * N, "design_s": design_s,
-            "gikf_s": gikf_s, "chain_s": ref_s + aux_s, "ref_s": ref_s, "aux_s": aux_s, "pullback_s": PULLBACK_S * M * M,
+    return {"seconds": design_s + checks_s + gikf_s + ref_s + aux_s + OUTPUT_S + OUTPUT_NODE_S * N, "design_s": design_s,
+            "checks_s": checks_s, "gikf_s": gikf_s, "chain_s": ref_s + aux_s, "ref_s": ref_s, "aux_s": aux_s,
+            "pullback_s": PULLBACK_S * M * M,
             "eq74_s": EQ74_S_PER_STEP * min(slots, 120) * M ** 2, "chunk_mib": chunk_runs * per_run / 2**20,
             "kept_mib": gikf_mib + ref_mib + design_mib, "gikf_mib": gikf_mib, "runs": runs, "ref_runs": ref_runs,
             "slots": slots, "chunks": chunks, "unit_mib": RNG_UNIT * per_run / 2**20}
@@ -168,7 +175,8 @@ def estimate(scenarios: list[GossipKalmanFile], opts: RunOptions) -> Cost:
     if not sized:
         c = max(costs.values(), key=lambda c: c["kept_mib"] + min(c["chunk_mib"], c["unit_mib"]))
         sized = dict(kept_mib=c["kept_mib"], unit_mib=min(c["chunk_mib"], c["unit_mib"]), sized_by="simulation.runs")
-    return Cost(seconds, mib, "; ".join(parts), chunk_mib=max(c["chunk_mib"] for c in costs.values()),
+    design_s = sum(c["design_s"] for c in costs.values()) / workers
+    return Cost(seconds, mib, "; ".join(parts), design_s=design_s, chunk_mib=max(c["chunk_mib"] for c in costs.values()),
                 kept_what="per-run samples of the law tests, Theorem-8 samples and design arrays", **sized,
                 stages={"designs": sum(c["design_s"] for c in costs.values()),
                         "monte_carlo": sum(c["gikf_s"] + c["chain_s"] for c in costs.values())})

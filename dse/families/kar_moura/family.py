@@ -160,7 +160,7 @@ docs/papers/kar-moura.md."""
                 (gikf, (sc, b, opts.seed, d.runs, d.slots, which, budget, gikf_bytes_per_run(sc, d.slots, spec)), {}))
                for name, which, spec in protocols]
         out.append(("reference", cost["ref_s"], (theorem8, (sc, b, opts.seed, d.reference_runs, d.slots), {})))
-        out.append(("checks", cost["design_s"], (bound_checks, (sc, d.slots, b), {})))
+        out.append(("checks", cost["checks_s"], (bound_checks, (sc, d.slots, b), {})))
         if assume.theorem:
             out.append(("aux", cost["aux_s"], (aux, (sc, b, opts.seed, d.reference_runs, d.slots), {})))
         if assume.c1 and assume.undetectable is True:
