@@ -8,8 +8,8 @@ E5 = Path(__file__).resolve().parents[1] / "dse" / "families" / "kar_moura" / "s
 WORDS = {True: "yes", False: "no", None: "undecided"}
 
 
-def test_check_says_a_negative_controls_hypothesis_does_not_hold_as_expected(capsys):
-    assert main(["check", str(E5), "--quick"]) == 0
+def test_check_says_a_negative_controls_hypothesis_does_not_hold_as_expected(capsys, tmp_path):
+    assert main(["check", str(E5), "--quick", "--out", str(tmp_path / "out")]) == 0
     out = capsys.readouterr().out
     hypotheses = out.split("hypotheses:")[1].split("design quantities:")[0]
     assert "FAILS" not in hypotheses

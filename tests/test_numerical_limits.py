@@ -34,7 +34,7 @@ def test_noisy_consensus_with_r_1e40_is_a_one_line_exit_3(tmp_path, capsys):
     path.write_text(RING5)
     with warnings.catch_warnings():
         warnings.simplefilter("error")          # and no raw numpy warning on the way
-        assert main(["check", str(path), "--quick"]) == 3
+        assert main(["check", str(path), "--quick", "--out", str(tmp_path / "out")]) == 3
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("dse: numerical failure: beyond float64: no steady-state covariance")
 

@@ -72,7 +72,7 @@ def test_check_refusal_on_the_command_line_is_one_line_exit_2(capsys, tmp_path):
     f = tmp_path / "rgg200.toml"
     f.write_text(_toml(compare_rgg(200, 0.17)))
     with cpu_limit(10.0):
-        code, out, err = run_cli(capsys, "check", str(f))
+        code, out, err = run_cli(capsys, "check", str(f), "--out", str(tmp_path / "out"))
     assert code == 2 and out == "" and err.count("\n") == 1 and err.startswith("dse: error: graph.n: ")
 
 
@@ -112,7 +112,7 @@ def test_a_slow_block_is_announced_once_and_a_fast_one_not(capsys):
 
 def test_trials_option_gets_the_declared_bounds_of_the_trials_key(capsys, tmp_path):
     assert declared_bounds(api.load(SAVAS).family.scenario_model, "monte_carlo.trials") == (100, 100_000_000)
-    for command, out_flag in (("run", ["--out", str(tmp_path / "out")]), ("check", [])):
+    for command, out_flag in (("run", ["--out", str(tmp_path / "out")]), ("check", ["--out", str(tmp_path / "out")])):
         with cpu_limit(20.0):
             code, out, err = run_cli(capsys, command, str(SAVAS), "--trials", "1e12", *out_flag)
         assert code == 2 and err.count("\n") == 1, (command, err)
@@ -143,9 +143,10 @@ def test_a_run_estimated_beyond_the_time_limit_is_refused_before_it_starts():
     assert RunOptions().time_limit_s == DEFAULT_MAX_TIME_S == 86400.0
 
 
-def test_check_reports_the_refusal_run_would_give(capsys):
+def test_check_reports_the_refusal_run_would_give(capsys, tmp_path):
     with cpu_limit(30.0):
-        code, out, err = run_cli(capsys, "check", str(SAVAS), "--trials", "1e8", "--max-time", "10m")
+        code, out, err = run_cli(capsys, "check", str(SAVAS), "--trials", "1e8", "--max-time", "10m", "--out",
+                                 str(tmp_path / "out"))
     assert code == 2 and "estimate:" in out
     assert err.strip().splitlines()[-1].startswith("dse: error: `dse run` would refuse this run: --trials: ")
 
@@ -161,8 +162,9 @@ def test_workers_and_memory_beyond_the_machine_are_refused(capsys):
     assert e.value.field == "--workers"
 
 
-def test_check_accepts_the_run_budgets(capsys):
-    code, out, err = run_cli(capsys, "check", str(SAVAS), "--quick", "--max-memory", "2G", "--max-time", "1h")
+def test_check_accepts_the_run_budgets(capsys, tmp_path):
+    code, out, err = run_cli(capsys, "check", str(SAVAS), "--quick", "--max-memory", "2G", "--max-time", "1h", "--out",
+                             str(tmp_path / "out"))
     assert code == 0 and "estimate:" in out
 
 
