@@ -106,9 +106,11 @@ def cmd_check(args) -> int:
                        cache_dir=cache)
     print(f"{args.file}: valid scenario '{repro.paper_id}' ({repro.title})")
     if cache is not None and result.stages:
-        read = all(s["cached"] for s in result.stages)
-        print(f"design: {'read back from' if read else 'computed and stored in'} the stage cache {cache} "
-              f"(`dse run --out {args.out}` {'computed it' if read else 'starts from it'})")
+        if all(s["cached"] for s in result.stages):
+            print(f"design: read back from the stage cache {cache} (stored by an earlier check or `dse run --out "
+                  f"{args.out}`)")
+        else:
+            print(f"design: computed and stored in the stage cache {cache} (`dse run --out {args.out}` starts from it)")
     print("hypotheses:")
     for h in result.hypotheses:
         mark = "error" if h["error"] else hypothesis_status(h, {True: "holds", False: "does not hold", None: "undecided"})
