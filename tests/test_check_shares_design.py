@@ -47,3 +47,16 @@ def test_the_command_line_check_stores_the_design_under_the_output_root(tmp_path
     assert any((out / ".cache").rglob("*.npz"))
     assert main(["check", str(path), "--out", str(out)]) == 0
     assert "read back from the stage cache" in capsys.readouterr().out
+
+
+def test_a_check_whose_output_root_cannot_be_used_keeps_the_design_in_memory(tmp_path, capsys):
+    from benchmarks.common import toml_text
+
+    path = tmp_path / "small.toml"
+    path.write_text(toml_text(_small("noisy-consensus-filter")))
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    assert main(["check", str(path), "--out", str(blocker / "out")]) == 0
+    captured = capsys.readouterr()
+    assert "is not usable" in captured.err and "kept in memory" in captured.err and captured.err.count("\n") == 1
+    assert "valid scenario" in captured.out and "stage cache" not in captured.out
