@@ -8,8 +8,8 @@ bandwidth), ``estimators`` (every estimator, batched vs a per-trial loop, µs pe
 stages at the papers' scale), ``record`` (rerun write throughput), ``reproduce`` (wall time and
 peak memory of `dse reproduce` per paper, cold and warm cache), ``startup`` (`import dse`, `dse --help`,
 `dse list` on a fresh copy of the sources, precompiled or not, with PYTHONDONTWRITEBYTECODE=1 and without), ``commands`` (`dse list`, `dse check`
-on every shipped scenario, `dse run --quick` per family, the test
-suite), ``estimates`` (`dse check`'s estimated time of `dse run --quick` against the measured one, for
+on every shipped scenario with its design computed and with it cached, `dse run --quick` per family
+and on each family's small scenario, the test suite), ``estimates`` (`dse check`'s estimated time of `dse run --quick` against the measured one, for
 every shipped scenario and scenarios of every family's generator: target within 2x), ``sweep`` (the per-point CPU overhead of
 `dse sweep` beyond the points' stages, with a cProfile breakdown; the example sweeps cold, as `make sweeps`
 runs them; a 1,000-point `dse sweep` in process and on a local Dask cluster with 1 and 2 workers), ``calibration`` (every statistical
