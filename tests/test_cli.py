@@ -235,7 +235,7 @@ def _measured(path):
 
 def test_workers_do_not_change_numbers(user_run, tmp_path):
     (tmp_path / "s.toml").write_text(GOOD)
-    proc = dse("run", "s.toml", "--out", "o", "--seed", "3", "--workers", "1", cwd=tmp_path)
+    proc = dse("run", "s.toml", "--out", "o", "--seed", "3", "--workers", "1", "--no-figures", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert _measured(tmp_path / "o/run/ring5/report.json") == _measured(user_run / "run/ring5/report.json")
 
