@@ -58,8 +58,20 @@ class PluginTable(Section):
         return dict(self.model_extra or {})
 
 
+#: names the compare stages and the simulation use for arrays of their own (the true state's sample paths `x`;
+#: `token__<e>`, `path__<e>`, `fault__<e>` and `steps` beside every estimator's `<e>__<sum>`): a filter named so
+#: would overwrite them or be read as them
+RESERVED_NAMES = ("x", "token", "path", "fault", "steps")
+
+
 def from_table(name: str, table: PluginTable, order: int) -> NetworkEstimator:
     """The declaration of table `[estimators.<name>]` (ScenarioErrors name the key)."""
+    if name in RESERVED_NAMES:
+        raise ScenarioError(f"estimators.{name}", f"{name!r} is reserved (the names {', '.join(RESERVED_NAMES)} "
+                                                  "label the simulation's own arrays); give the plug-in another name")
+    if "__" in name:
+        raise ScenarioError(f"estimators.{name}", "a plug-in's name has no '__' (it separates a filter's name from "
+                                                  "its arrays' in the stage results)")
     cls = load_class(name, table.factory)
     return estimator(name, cls, parameters(name, cls, table.parameters), table.time_limit, order)
 

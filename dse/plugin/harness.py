@@ -37,10 +37,10 @@ class PluginFault(RuntimeError):
 
 
 def read_only(a: np.ndarray) -> np.ndarray:
-    """A view of `a` that raises on assignment (what a filter is given may be shared with the others)."""
-    v = a.view()
-    v.flags.writeable = False
-    return v
+    """A view of `a` that raises on assignment (what a filter is given may be shared with the others). It is
+    built over a read-only buffer, so that setting its `writeable` flag back to True raises too (a plain view
+    of a writeable array may be made writeable again, and then writes into the other filters' inputs)."""
+    return np.asarray(memoryview(np.asarray(a)).toreadonly())
 
 
 class Wiring:
@@ -126,7 +126,8 @@ class StepNetwork:
 def _declared(messages: Messages | None) -> str:
     if messages is None:
         return "it declared that it sends nothing"
-    return f"declared: messages of {messages.scalars} numbers, per {messages.per}"
+    return (f"declared: messages of {messages.scalars} number{'s' if messages.scalars > 1 else ''}, "
+            f"{messages.exchanges} per {messages.per}")
 
 
 class PluginRun(BatchedFilter):
@@ -153,7 +154,7 @@ class PluginRun(BatchedFilter):
         except PluginFault:
             raise
         except Exception as exc:                    # noqa: BLE001 (any error of the filter's is its fault)
-            what = ("wrote into its inputs" if isinstance(exc, ValueError) and "read-only" in str(exc)
+            what = ("wrote into its inputs" if isinstance(exc, ValueError) and _is_write_refusal(exc)
                     else f"raised {type(exc).__name__}")
             raise PluginFault(self.name, f"{doing}: {what}: {_one_line(exc)}") from None
         finally:
@@ -210,12 +211,18 @@ class PluginRun(BatchedFilter):
             raise PluginFault(self.name, f"covariance() returned shape {P.shape}; expected (N, n, n) or "
                                          f"(N, n, n, B) = ({p.N}, {p.n}, {p.n}, {self.trials})")
         try:
-            if P.ndim == 3:
-                return np.einsum("inb,inb->ib", err, np.linalg.solve(P, err))
+            if P.ndim == 3:                         # shared by the trials: the built-ins' arithmetic (local)
+                return np.einsum("inb,inm,imb->ib", err, np.linalg.inv(P), err)
             sol = np.linalg.solve(np.moveaxis(P, -1, 1), np.moveaxis(err, -1, 1)[..., None])[..., 0]   # (N, B, n)
         except np.linalg.LinAlgError:
             raise PluginFault(self.name, "returned a singular covariance()") from None
         return np.einsum("inb,ibn->ib", err, sol)
+
+
+def _is_write_refusal(exc: ValueError) -> bool:
+    """Whether numpy refused a write into a read-only input (an assignment, or making it writeable)."""
+    text = str(exc)
+    return "read-only" in text or "WRITEABLE" in text
 
 
 def _one_line(exc: BaseException) -> str:
