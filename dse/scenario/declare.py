@@ -134,6 +134,24 @@ def parse(model: type[Section], data: Any, prefix: str = "") -> Section:
         raise _scenario_error(first, prefix, model, errors) from None
 
 
+def _written(model: Any, loc: tuple) -> tuple:
+    """`loc` as the file spells it: without the names of `inline` fields (their tables are written directly in
+    the enclosing table, `[estimators.<name>]` for the field `estimators.plugins`)."""
+    out, cur = [], model
+    for part in loc:
+        fields = getattr(cur, "model_fields", None) if isinstance(cur, type) else None
+        if fields is not None and part in fields:
+            extra = fields[part].json_schema_extra
+            if not (isinstance(extra, dict) and extra.get("inline")):
+                out.append(part)
+            cur = fields[part].annotation
+        else:
+            out.append(part)
+            args = get_args(cur)
+            cur = next((a for a in args if hasattr(a, "model_fields")), args[-1] if args else None)
+    return tuple(out)
+
+
 def _path(prefix: str, loc: tuple) -> str:
     out = prefix
     for part in loc:
@@ -189,7 +207,7 @@ def _scenario_error(err: dict, prefix: str, model: type[Section], errors: list[d
         if rel and loc[-len(rel):] == rel:
             rel = ()
         return ScenarioError(_path(prefix, loc + rel), inner.reason)
-    field = _path(prefix, tuple(err["loc"]))
+    field = _path(prefix, _written(model, tuple(err["loc"])))
     got = _show(value)
     reasons = {
         "missing": "missing",

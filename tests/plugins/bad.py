@@ -232,3 +232,19 @@ class Tuned(LocalTwin):
     class Parameters(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True)
         gain: float = Field(0.5, gt=0, le=1, description="a gain in (0, 1]")
+
+
+class BadSends(LocalTwin):
+    """Declares messages of zero numbers (`Messages` refuses them)."""
+
+    @classmethod
+    def sends(cls, problem, params):
+        return Messages(0)
+
+
+class SendsNotMessages(LocalTwin):
+    """Declares its messages as a dict."""
+
+    @classmethod
+    def sends(cls, problem, params):
+        return {"scalars": problem.n}

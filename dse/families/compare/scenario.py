@@ -180,10 +180,10 @@ class EstimatorsSection(Section):
     def _plugin_names(self):
         for name in self.plugins:
             if name in registry():
-                raise ScenarioError(f"estimators.{name}", f"{name!r} is a built-in estimator's id; give the plug-in "
+                raise ScenarioError(name, f"{name!r} is a built-in estimator's id; give the plug-in "
                                                           "another name")
             if not re.fullmatch(PLUGIN_NAME, name):
-                raise ScenarioError(f"estimators.{name}", "a plug-in's name has 1 to 40 letters, digits, '-' or '_'")
+                raise ScenarioError(name, "a plug-in's name has 1 to 40 letters, digits, '-' or '_'")
         return self
 
 
