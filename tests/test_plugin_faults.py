@@ -220,3 +220,11 @@ def test_a_bad_plugin_name_is_one_line_naming_it(name, table, what, tmp_path, ca
     message, rc, err = _refusal(data, tmp_path, capsys)
     assert message.startswith(f"estimators.{name}: ") and what in message, message
     assert rc == 2 and err == [f"dse: error: {message}"], err
+
+
+def test_exit_code_4_is_documented():
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "output.md").read_text()
+    assert "| 4 | `dse run`, `dse arena`: the run completed, but a plug-in filter" in doc
+    assert "\n  4    a plug-in filter broke its protocol" in cli.EXIT_CODES
