@@ -19,7 +19,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from dse.errors import ScenarioError
-from dse.estimators.protocol import Communication, NetworkEstimator
+from dse.estimators.protocol import SILENT, Communication, NetworkEstimator
 from dse.scenario.declare import Real, Section, key
 
 from .interface import Messages, NetworkFilter, Problem
@@ -34,8 +34,14 @@ ALL_LINKS = ("reliable", "failures", "matchings", "poisson")
 #: `Network.shared["time_limits"]` by the family), and at least MIN_LIMIT_S
 LIMIT_FACTOR = 10.0
 MIN_LIMIT_S = 60.0
-#: what a plug-in filter sends is counted from its exchanges
+#: what a plug-in filter sends is counted from its exchanges; one that does not override `sends` sends nothing
+#: (it may not call `exchange`), and nothing is counted
 SENT = Communication("sent")
+
+
+def sends_nothing(cls: type[NetworkFilter]) -> bool:
+    """Whether the class keeps `NetworkFilter.sends` (None: it may not exchange anything)."""
+    return getattr(cls.sends, "__func__", None) is NetworkFilter.sends.__func__
 
 
 class PluginTable(Section):
@@ -183,6 +189,9 @@ class PluginConfig:
     params: BaseModel
     problem: Problem
     messages: Messages | None
+    #: the inverse of the last covariance its batches reported (`harness.LastInverse`): the sub-batches of a step
+    #: report the same one
+    inverse: Any = None
 
 
 def estimator(name: str, cls: type[NetworkFilter], params: BaseModel, time_limit: float | None,
@@ -199,7 +208,9 @@ def estimator(name: str, cls: type[NetworkFilter], params: BaseModel, time_limit
             raise ScenarioError(f"estimators.{name}", f"{cls.__name__}.sends raised {type(exc).__name__}: {exc}") from None
         if messages is not None and not isinstance(messages, Messages):
             raise ScenarioError(f"estimators.{name}", f"{cls.__name__}.sends must return Messages or None")
-        est.config = PluginConfig(cls, params, problem, messages)
+        from .harness import LastInverse
+
+        est.config = PluginConfig(cls, params, problem, messages, LastInverse())
         est.exact_reason = exact.reason(est)
 
     def build(est, B: int, peers):
@@ -208,7 +219,7 @@ def estimator(name: str, cls: type[NetworkFilter], params: BaseModel, time_limit
         cfg, net = est.config, est.network
         total = int(net.shared.get("trials", B))
         limit = time_limit if time_limit is not None else net.shared.get("time_limits", {}).get(name, MIN_LIMIT_S)
-        return PluginRun(name, cls, cfg.problem, cfg.params, net.links, cfg.messages, B, total, limit)
+        return PluginRun(name, cls, cfg.problem, cfg.params, net.links, cfg.messages, B, total, limit, cfg.inverse)
 
     def applies(links) -> str:
         allowed = getattr(cls, "link_models", ALL_LINKS)
@@ -217,7 +228,7 @@ def estimator(name: str, cls: type[NetworkFilter], params: BaseModel, time_limit
 
     return NetworkEstimator(
         name=name, title=cls.title or cls.__name__, rank=RANK + order, build=build, applies=applies, design=design,
-        exact=exact.moments if cls.linear else None, communication=lambda links, n: SENT,
+        exact=exact.moments if cls.linear else None, communication=lambda links, n: SILENT if sends_nothing(cls) else SENT,
         cost_weight=float(cls.cost_weight),
         trialwise_covariance=lambda links: bool(cls.per_trial_matrices or (cls.covariance_law and links.random)),
         joint_moments=bool(cls.linear),

@@ -130,13 +130,28 @@ def _declared(messages: Messages | None) -> str:
             f"{messages.exchanges} per {messages.per}")
 
 
+class LastInverse:
+    """P⁻¹ of the last covariance P (N, n, n) it was given, kept while P's numbers stay the same (compared, not
+    trusted): the sub-batches of a step, and the steps of a filter whose covariance has converged, invert once."""
+
+    def __init__(self):
+        self.P: np.ndarray | None = None
+        self.inv: np.ndarray | None = None
+
+    def __call__(self, P: np.ndarray) -> np.ndarray:
+        if self.P is None or self.P.shape != P.shape or not np.array_equal(self.P, P):
+            inv = np.linalg.inv(P)
+            self.P, self.inv = P.copy(), inv
+        return self.inv
+
+
 class PluginRun(BatchedFilter):
     """B trials of a plug-in filter, seen by the simulation as a built-in (module doc). `time_limit`: CPU
     seconds the filter may take over the whole run (`total_trials` trials); it is stopped as soon as its
     pace projects past it."""
 
     def __init__(self, name: str, cls, problem: Problem, params, links, messages: Messages | None, trials: int,
-                 total_trials: int, time_limit: float):
+                 total_trials: int, time_limit: float, inverse: "LastInverse | None" = None):
         self.name, self.problem, self.links, self.messages, self.trials = name, problem, links, messages, trials
         self.error_coordinates = bool(cls.equivariant)
         self.wiring = Wiring(links.topology)
@@ -145,6 +160,7 @@ class PluginRun(BatchedFilter):
         self.sent_messages = np.zeros((problem.N, trials))
         self.sent_scalars = np.zeros((problem.N, trials))
         self.x = None                               # the true state (true coordinates only)
+        self.inverse = inverse or LastInverse()
         self.inner = self._call("failed when constructed", cls, problem, params, trials)
 
     def _call(self, doing: str, fn, *args):
@@ -162,8 +178,9 @@ class PluginRun(BatchedFilter):
 
     def step(self, ctx) -> np.ndarray:
         k, p = ctx.k, self.problem
-        self.sent_messages = np.zeros((p.N, self.trials))
-        self.sent_scalars = np.zeros((p.N, self.trials))
+        if self.messages is not None:               # a filter that sends nothing cannot exchange: its counts stay 0
+            self.sent_messages = np.zeros((p.N, self.trials))
+            self.sent_scalars = np.zeros((p.N, self.trials))
         y = ctx.y if self.error_coordinates else ctx.y + np.einsum("imn,nb->imb", p.H, self.x)
         network = StepNetwork(self, ctx)
         est = self._call(f"failed at step {k}", self.inner.step, k, read_only(y), network)
@@ -180,11 +197,15 @@ class PluginRun(BatchedFilter):
             raise PluginFault(self.name, f"returned {got} at step {k}; expected (N, n, B) = {want}")
         if not np.issubdtype(est.dtype, np.floating):
             raise PluginFault(self.name, f"returned {est.dtype} estimates at step {k}; expected floats")
-        if np.isnan(est).any() and self.scale < DIVERGED:
-            raise PluginFault(self.name, f"returned NaN at step {k} (its estimates were finite before)")
-        with np.errstate(invalid="ignore"):
-            self.scale = float(np.nanmax(np.abs(est), initial=0.0))
-        return est.astype(float, copy=True)
+        est = est.astype(float, copy=False)     # not copied: the simulation concatenates the batches at once
+        lo, hi = float(est.min()), float(est.max())              # NaN when any estimate is NaN (no temporary)
+        scale = max(-lo, hi)
+        if np.isnan(lo) or np.isnan(hi):
+            if self.scale < DIVERGED:
+                raise PluginFault(self.name, f"returned NaN at step {k} (its estimates were finite before)")
+            scale = float(np.nanmax(np.abs(est), initial=0.0))
+        self.scale = scale
+        return est
 
     def _check_pace(self, k: int) -> None:
         projected = self.cpu / self.steps_done * self.problem.steps * self.total_trials / self.trials
@@ -212,7 +233,7 @@ class PluginRun(BatchedFilter):
                                          f"(N, n, n, B) = ({p.N}, {p.n}, {p.n}, {self.trials})")
         try:
             if P.ndim == 3:                         # shared by the trials: the built-ins' arithmetic (local)
-                return np.einsum("inb,inm,imb->ib", err, np.linalg.inv(P), err)
+                return np.einsum("inb,inm,imb->ib", err, self.inverse(P), err)
             sol = np.linalg.solve(np.moveaxis(P, -1, 1), np.moveaxis(err, -1, 1)[..., None])[..., 0]   # (N, B, n)
         except np.linalg.LinAlgError:
             raise PluginFault(self.name, "returned a singular covariance()") from None
