@@ -45,17 +45,21 @@ import numpy as np  # noqa: E402
 from .bench_calibration import bench_calibration  # noqa: E402
 from .bench_commands import bench_commands  # noqa: E402
 from .bench_estimates import TARGET_FACTOR, bench_estimates  # noqa: E402
+from .bench_plugin import bench_plugin  # noqa: E402
 from .bench_startup import bench_startup  # noqa: E402
 from .bench_sweep import bench_example_sweeps, bench_sweep_overhead, bench_sweep_scaling  # noqa: E402
 from .common import bound_row, estimator_row, spread, timed  # noqa: E402
 
-SECTIONS = ("floor", "estimators", "bounds", "scale", "record", "reproduce", "startup", "commands", "estimates",
-            "sweep", "calibration")
+SECTIONS = ("floor", "estimators", "bounds", "scale", "plugin", "record", "reproduce", "startup", "commands",
+            "estimates", "sweep", "calibration")
 TITLES = {
     "floor": "What the machine allows (floors behind the per-step targets)",
     "estimators": "Estimators side by side: batched vs a straightforward per-trial loop",
     "bounds": "Bound computations: closed form / exponential vs a naive version",
     "scale": "Monte Carlo stages at the papers' scale",
+    "plugin": "Plug-in filters (dse.plugin) on the 50-node compare benchmark: the protocol's overhead against the "
+              "built-in dispatch, CPU per step in one process (in the before/after row, plugin = after, builtin = "
+              "before)",
     "record": "Rerun write throughput (project helpers, `dse.outputs.record.send_series`)",
     "reproduce": "`dse reproduce PAPER`: wall time and peak memory, cold and warm cache",
     "startup": "Start-up: `import dse`, `dse --help`, `dse list`, precompiled or not, with PYTHONDONTWRITEBYTECODE=1 and without",
@@ -285,6 +289,7 @@ def main(argv: list[str] | None = None) -> int:
                    "estimators": lambda: bench_estimators(args.quick, repeats),
                    "bounds": lambda: bench_bounds(args.quick, repeats),
                    "scale": lambda: bench_scale(args.quick, repeats),
+                   "plugin": lambda: bench_plugin(args.quick, repeats),
                    "reproduce": lambda: bench_reproductions(args.quick, repeats, replay_dir),
                    "record": lambda: bench_records(args.quick, repeats, replay_dir),
                    "startup": lambda: bench_startup(repeats),
@@ -295,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
                    + bench_sweep_scaling(points=100 if args.quick else 1000),
                    "calibration": lambda: bench_calibration(seeds=20 if args.quick else 200)}
         # reproduce before record: the recording replay uses the reproductions' recordings
-        order = ("floor", "estimators", "bounds", "scale", "reproduce", "record", "startup", "commands", "estimates",
+        order = ("floor", "estimators", "bounds", "scale", "plugin", "reproduce", "record", "startup", "commands", "estimates",
                  "sweep", "calibration")
         for key in sorted(only, key=order.index):
             print(f"[bench] {key} ...", file=sys.stderr, flush=True)
@@ -350,6 +355,10 @@ def _targets(results: dict[str, list[dict]]) -> list[str]:
         if r.get("target") and "mc_s" in r:
             lines.append(f"| {r['name']} ({r['trials']:,} trials, {r['steps']} steps): {r['target']} | "
                          f"{_fmt(r['mc_s'])} s | {_fmt(r['met'])} |")
+    for r in results.get("plugin", []):
+        if r.get("target"):
+            lines.append(f"| {r['name']} ({r['nodes']} nodes, {r['trials']:,} trials, {r['steps']} steps, CPU): "
+                         f"{r['target']} | {_fmt(r['ratio'])}x | {_fmt(r['met'])} |")
     for r in results.get("record", []):
         if r.get("target"):
             lines.append(f"| {r['name']}: {r['target']} | {_fmt(r['M_scalars_per_s'])} M/s | {_fmt(r['met'])} |")

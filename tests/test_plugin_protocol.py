@@ -287,3 +287,13 @@ def test_generated_scenarios_with_twins_have_no_error_and_the_twins_never_fail(s
     bad += [f"hypothesis {h['id']}: {h['error'][:300]}" for h in ev.hypotheses if h["error"]]
     assert not bad, "\n".join(bad)
     assert any(c["id"] == "compare.plugin.twin.lower_bound" for c in ev.claims)
+
+
+def test_the_overhead_benchmark_runs():
+    """`make bench`'s `plugin` rows (a) and (b) exist and are positive (no timing is asserted)."""
+    from benchmarks.bench_plugin import bench_protocol
+
+    dispatch, messages = bench_protocol(steps=5, trials=100, repeats=1)
+    for row in (dispatch, messages):
+        assert np.isfinite(row["ratio"]) and row["ratio"] > 0 and row["plugin_ms_per_step"] > 0
+    assert isinstance(dispatch["met"], bool) and messages["met"] == ""
