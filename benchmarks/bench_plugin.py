@@ -82,20 +82,28 @@ def _timed_simulation(setup, trials: int) -> dict[str, float]:
     return {name: out["seconds"][name] + spent.get(name, 0.0) for name in out["seconds"]}
 
 
+PAIRS = (("twin", "local", "dispatch (read-only inputs, checks, counting)", True),
+         ("dtwin", "diffusion", "messages through the inbox", False))
+
+
 def bench_protocol(links: str = "failures", steps: int = 500, trials: int = 1000, repeats: int = 3) -> list[dict]:
-    """Rows (a) and (b): the twins against their built-ins, CPU per step, median of `repeats` simulations."""
+    """Rows (a) and (b): each twin against its built-in in one simulation (with the centralized reference),
+    CPU per step, median of `repeats` simulations."""
     if str(ROOT) not in sys.path:
         sys.path.insert(0, str(ROOT))            # tests.plugins.twins
-    setup = _setup(links, steps, trials, ["local", "diffusion"], TWINS)
-    runs = [_timed_simulation(setup, trials) for _ in range(repeats)]
+    setups = {plugin: _setup(links, steps, trials, [builtin], {plugin: TWINS[plugin]})
+              for plugin, builtin, _, _ in PAIRS}
+    runs: dict[str, list[dict[str, float]]] = {plugin: [] for plugin in setups}
+    for _ in range(repeats):
+        for plugin, setup in setups.items():
+            runs[plugin].append(_timed_simulation(setup, trials))
     rows = []
-    for plugin, builtin, what, target in (("twin", "local", "dispatch (read-only inputs, checks, counting)", True),
-                                          ("dtwin", "diffusion", "messages through the inbox", False)):
-        ratios = [r[plugin] / r[builtin] for r in runs]
-        ms = {e: [1e3 * r[e] / steps for r in runs] for e in (plugin, builtin)}
+    for plugin, builtin, what, target in PAIRS:
+        ratios = [r[plugin] / r[builtin] for r in runs[plugin]]
+        ms = {e: [1e3 * r[e] / steps for r in runs[plugin]] for e in (plugin, builtin)}
         ratio = float(np.median(ratios))
         rows.append({"name": f"plug-in {TWINS[plugin].split(':')[1]} against the built-in {builtin}: {what}",
-                     "links": links, "nodes": setup.model.N, "trials": trials, "steps": steps,
+                     "links": links, "nodes": setups[plugin].model.N, "trials": trials, "steps": steps,
                      "plugin_ms_per_step": float(np.median(ms[plugin])),
                      "plugin_ms_per_step_spread": (min(ms[plugin]), max(ms[plugin])),
                      "builtin_ms_per_step": float(np.median(ms[builtin])),

@@ -228,3 +228,10 @@ def test_exit_code_4_is_documented():
     doc = (Path(__file__).resolve().parents[1] / "docs" / "output.md").read_text()
     assert "| 4 | `dse run`, `dse arena`: the run completed, but a plug-in filter" in doc
     assert "\n  4    a plug-in filter broke its protocol" in cli.EXIT_CODES
+
+
+def test_a_filter_whose_estimates_overflowed_may_return_nan():
+    repro = registry.from_dict(scenario(model="failures", bad={"factory": f"{BAD}:DivergesThenNaN"}))
+    res = repro.compute(RunOptions(seed=SEED, trials=TRIALS, workers=1), StageContext(MemoryCache())).results
+    assert not res.faults and "bad" in res.mc
+    assert not np.isfinite(res.mc["bad"]["sq"]).all()

@@ -123,6 +123,20 @@ class StepNetwork:
         return delivered, noise
 
 
+def _magnitude(est: np.ndarray) -> float:
+    """max |x| over the estimates, or below DIVERGED an upper bound of it (all `_checked` asks), NaN when one of
+    them is NaN: in one pass without a temporary (√Σ x², NaN exactly when an entry is, since inf² = inf) unless that
+    bound reaches DIVERGED."""
+    if est.flags.c_contiguous:
+        flat = est.reshape(-1)
+        with np.errstate(over="ignore"):
+            bound = float(np.sqrt(flat @ flat))
+        if not bound >= DIVERGED:                    # below it, or NaN
+            return bound                             # (a bound of max |x| is enough below DIVERGED)
+    lo, hi = float(est.min()), float(est.max())
+    return float("nan") if np.isnan(lo) or np.isnan(hi) else max(-lo, hi)
+
+
 def _declared(messages: Messages | None) -> str:
     if messages is None:
         return "it declared that it sends nothing"
@@ -198,12 +212,12 @@ class PluginRun(BatchedFilter):
         if not np.issubdtype(est.dtype, np.floating):
             raise PluginFault(self.name, f"returned {est.dtype} estimates at step {k}; expected floats")
         est = est.astype(float, copy=False)     # not copied: the simulation concatenates the batches at once
-        lo, hi = float(est.min()), float(est.max())              # NaN when any estimate is NaN (no temporary)
-        scale = max(-lo, hi)
-        if np.isnan(lo) or np.isnan(hi):
+        scale = _magnitude(est)
+        if np.isnan(scale):
             if self.scale < DIVERGED:
                 raise PluginFault(self.name, f"returned NaN at step {k} (its estimates were finite before)")
-            scale = float(np.nanmax(np.abs(est), initial=0.0))
+            with np.errstate(invalid="ignore"):      # once diverged it stays so (an all-NaN step has no size)
+                scale = max(self.scale, float(np.nanmax(np.abs(est), initial=0.0)))
         self.scale = scale
         return est
 

@@ -248,3 +248,14 @@ class SendsNotMessages(LocalTwin):
     @classmethod
     def sends(cls, problem, params):
         return {"scalars": problem.n}
+
+
+class DivergesThenNaN(LocalTwin):
+    """Not a fault: its estimates overflow (1e200 at step AT − 1, inf·0 = NaN after): a diverging filter's NaN is a
+    result, reported as not finite, not a protocol violation."""
+
+    def step(self, k, y, network):
+        est = super().step(k, y, network)
+        if k == AT - 1:
+            return est * 1e200
+        return est * np.nan if k >= AT else est
