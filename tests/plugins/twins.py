@@ -36,14 +36,17 @@ class LocalTwin(NetworkFilter):
         self.k = 0
 
     def step(self, k, y, network):
-        p = self.problem
-        r = y - np.einsum("imn,inb->imb", p.H, self.xbar)
-        K = self.gains[k]
-        gain = K[:, :, 0, None] * r[:, 0, None, :] if K.shape[2] == 1 else np.einsum("inm,imb->inb", K, r)
-        est = self.xbar + gain
-        self.xbar = np.matmul(p.F, est)
+        # one expression, as the built-in: each temporary is freed as soon as it is used, so that numpy reuses its
+        # memory (with the innovation, the gain and the estimate all alive at once the step took 50 % longer)
+        est = self.xbar + self.gain(k, y - np.einsum("imn,inb->imb", self.problem.H, self.xbar))
+        self.xbar = np.matmul(self.problem.F, est)
         self.k = k
         return est
+
+    def gain(self, k, r):
+        """K_i(k) r_i for every node: the correction of the innovations r (N, m, B)."""
+        K = self.gains[k]
+        return K[:, :, 0, None] * r[:, 0, None, :] if K.shape[2] == 1 else np.einsum("inm,imb->inb", K, r)
 
     def shift(self, delta):
         self.xbar = self.xbar + delta[None]
