@@ -19,6 +19,7 @@ from dse.contract.context import StageContext
 from dse.contract.options import RunOptions
 from dse.engine.cache import MemoryCache
 from dse.errors import ScenarioError
+from dse.estimators.network_comparison import TRUE_STATE
 
 from test_compare_family import tiny
 from test_plugin_protocol import assert_same_bits, stage_arrays
@@ -84,7 +85,7 @@ def assert_others_unchanged(res, base) -> None:
     """Every estimator of the baseline run has the same stage arrays, to the bit."""
     for name in base.design.running:
         assert_same_bits(stage_arrays(base, name), stage_arrays(res, name), name)
-    assert np.array_equal(base.paths["x"], res.paths["x"])
+    assert np.array_equal(base.paths[TRUE_STATE], res.paths[TRUE_STATE])
 
 
 # (class, what the line says, table keys): every misbehaviour of the issue's list
@@ -210,7 +211,6 @@ def test_a_bad_declaration_is_one_line_naming_the_key(table, key, what, tmp_path
 @pytest.mark.parametrize("name,table,what", [
     ("local", {"factory": "tests.plugins.twins:LocalTwin"}, "'local' is a built-in estimator's id"),
     ("no-such-filter", {}, "no filter named 'no-such-filter' is installed (entry point group dse.estimators"),
-    ("x", {"factory": "tests.plugins.twins:LocalTwin"}, "'x' is reserved"),
     ("token", {"factory": "tests.plugins.twins:LocalTwin"}, "'token' is reserved"),
     ("my__filter", {"factory": "tests.plugins.twins:LocalTwin"}, "has no '__'"),
 ])

@@ -19,6 +19,7 @@ from dse.contract.context import StageContext
 from dse.contract.options import RunOptions
 from dse.engine.cache import MemoryCache
 from dse.engine.driver import evaluate_claims
+from dse.estimators.network_comparison import TRUE_STATE
 
 from test_compare_family import tiny
 
@@ -254,7 +255,7 @@ def test_adding_plugins_changes_no_other_number(model):
     assert not b.results.faults and set(plugins) <= set(b.results.mc)
     for name in a.results.design.running:
         assert_same_bits(stage_arrays(a.results, name), stage_arrays(b.results, name), f"{model}: {name}")
-    assert np.array_equal(a.results.paths["x"], b.results.paths["x"])
+    assert np.array_equal(a.results.paths[TRUE_STATE], b.results.paths[TRUE_STATE])
     # the verdicts and what they measured are the same; the margins of the statistical claims move by the
     # Bonferroni share alone (the plug-ins' claims join the report's family-wise confidence: margin = log10(p / ((1 −
     # confidence) / (cells · K))) for K statistical claims)
@@ -297,3 +298,13 @@ def test_the_overhead_benchmark_runs():
     for row in (dispatch, messages):
         assert np.isfinite(row["ratio"]) and row["ratio"] > 0 and row["plugin_ms_per_step"] > 0
     assert isinstance(dispatch["met"], bool) and messages["met"] == ""
+
+
+def test_a_plugin_may_be_named_x():
+    """The true state's sample paths used to be kept under "x": a plug-in named x overwrote them (and, on two
+    workers, the run failed with a KeyError)."""
+    _, comp = compute(scenario("reliable", plugins={"x": "LocalTwin"}, include=["local"]), BIT_TRIALS, workers=2)
+    res = comp.results
+    assert not res.faults
+    assert np.array_equal(res.mc["x"]["sq"], res.mc["local"]["sq"])
+    assert np.array_equal(res.paths["x"], res.paths["local"]) and TRUE_STATE in res.paths

@@ -50,6 +50,9 @@ from .sensor_network import SensorNetworkModel
 __all__ = ["Setup", "simulate", "simulate_units", "unit_chunks", "worker_groups", "Stats", "stats", "nees_band",
            "ks_test", "effective_sample_size", "STATS", "PER_TRIAL_SUMS", "record_steps"]
 
+#: the key of the true state's sample paths beside the estimators' (a name no estimator can take: a plug-in filter
+#: named "x" used to overwrite it)
+TRUE_STATE = "@x"
 STATS = ("sq", "sq2", "dist", "dist2", "cross", "cross2", "gap", "gap2", "nees", "nees2", "xnees")
 #: the per-trial sums beside `STATS` (a diverging filter may make any of them infinite: a result, not a failure)
 PER_TRIAL_SUMS = ("dis", "dis2", "dis_node", "net", "net2", "msgs", "scalars")
@@ -120,7 +123,7 @@ class Accumulator:
         self.token = {name: np.zeros((len(setup.token_times), B)) for name, est in setup.estimators.items()
                       if est.spec.swaps}
         self.P = min(setup.n_paths, B)
-        self.paths = {"x": np.zeros((K, n, self.P))}
+        self.paths = {TRUE_STATE: np.zeros((K, n, self.P))}
         self.reference_error = None
 
     def per_unit(self, a: np.ndarray) -> np.ndarray:
@@ -139,7 +142,7 @@ class Accumulator:
     def begin(self, k: int, x_true: np.ndarray) -> None:
         self.reference_error = None
         if self.P:
-            self.paths["x"][k] = x_true
+            self.paths[TRUE_STATE][k] = x_true
         self.x_true = x_true
 
     def record_token(self, name: str, parts: list, q_node: np.ndarray, k: int) -> None:

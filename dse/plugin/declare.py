@@ -64,10 +64,9 @@ class PluginTable(Section):
         return dict(self.model_extra or {})
 
 
-#: names the compare stages and the simulation use for arrays of their own (the true state's sample paths `x`;
-#: `token__<e>`, `path__<e>`, `fault__<e>` and `steps` beside every estimator's `<e>__<sum>`): a filter named so
-#: would overwrite them or be read as them
-RESERVED_NAMES = ("x", "token", "path", "fault", "steps")
+#: names the compare stages use for arrays of their own (`token__<e>`, `path__<e>`, `fault__<e>` and `steps` beside
+#: every estimator's `<e>__<sum>`): a filter named so would overwrite them or be read as them
+RESERVED_NAMES = ("token", "path", "fault", "steps")
 
 
 def from_table(name: str, table: PluginTable, order: int) -> NetworkEstimator:

@@ -163,7 +163,7 @@ class EstimatorsSection(Section):
                                        "is the reference)")
     plugins: dict[str, PluginTable] = key(dict, doc="plug-in filters, one table each", inline=True,
                                           constraint="names of 1 to 40 letters, digits, '-' or '_', not a built-in's, "
-                                          "without '__', none of x, token, path, fault, steps")
+                                          "without '__', none of token, path, fault, steps")
 
     @model_validator(mode="before")
     @classmethod

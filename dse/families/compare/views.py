@@ -226,10 +226,13 @@ def _log_series(rec, s, colors: dict, labels: dict) -> None:
 
 def _log_trial(rec, paths: dict, colors: dict, labels: dict) -> None:
     """Trial 0: the first state and node 0's estimate of it by every estimator."""
-    if not (paths and "x" in paths and paths["x"].shape[-1] and np.all(np.isfinite(paths["x"][:, 0, 0]))):
+    from dse.estimators.network_comparison import TRUE_STATE
+
+    x = paths.get(TRUE_STATE) if paths else None
+    if not (x is not None and x.shape[-1] and np.all(np.isfinite(x[:, 0, 0]))):
         return
-    idx = rec_.sequence_index("k", np.arange(paths["x"].shape[0]))
-    rec_.send_series(rec, "trial/truth", idx, paths["x"][:, 0, 0], names="x₁(k)", colors=[(230, 230, 230)], width=2.5)
+    idx = rec_.sequence_index("k", np.arange(x.shape[0]))
+    rec_.send_series(rec, "trial/truth", idx, x[:, 0, 0], names="x₁(k)", colors=[(230, 230, 230)], width=2.5)
     for est in labels:
         p = paths.get(est)
         if p is not None and np.all(np.isfinite(p[:, 0, 0, 0])):
