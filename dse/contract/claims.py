@@ -136,6 +136,7 @@ class ClaimEntry:
     requires: tuple[tuple[Callable[..., bool], str | Callable[..., str]], ...] = ()
     each: Callable[[Where], Iterable[tuple[str, Any]]] | None = None
     module: str = ""          # the module that registered it
+    confidence_group: str = ""
 
     @property
     def per_scenario(self) -> bool:
@@ -164,6 +165,7 @@ class HypothesisEntry:
     args: tuple = ()
     each: Callable[[Where], Iterable[tuple[str, Any]]] | None = None
     module: str = ""          # the module that registered it
+    confidence_group: str = ""
 
     @property
     def per_scenario(self) -> bool:
@@ -209,8 +211,12 @@ class ClaimSet:
     def claim(self, id: str, source: str, statement: str, kind: str, *, hypotheses: Sequence[str] |
               Callable[[Where], tuple[str, ...]] = (), scope: str = "family", when: Gate | None = None,
               args: tuple = (), requires: Sequence[tuple[Callable[..., bool], str | Callable[..., str]]] = (),
-              each: Callable[[Where], Iterable[tuple[str, Any]]] | None = None, _module: str = ""):
-        """Register the decorated function as the check of a claim (see the module docstring)."""
+              each: Callable[[Where], Iterable[tuple[str, Any]]] | None = None, confidence_group: str = "",
+              _module: str = ""):
+        """Register the decorated function as the check of a claim (see the module docstring).
+        `confidence_group` (a template like the id): statistical claims of one group share a family-wise
+        confidence of their own, apart from the report's (a plug-in's claims: adding one changes no other
+        claim's confidence)."""
         if kind not in KINDS:
             raise ValueError(f"claim {id}: unknown kind {kind!r}")
         if scope not in SCOPES:
@@ -221,7 +227,7 @@ class ClaimSet:
         def register(fn: Callable[..., Verdict]):
             hyps = hypotheses if callable(hypotheses) else tuple(hypotheses)
             self.claims.append(ClaimEntry(id, source, statement, kind, fn, hyps, scope, when, tuple(args),
-                                          tuple(requires), each, module))
+                                          tuple(requires), each, module, confidence_group))
             return fn
 
         return register
@@ -269,7 +275,7 @@ class ClaimSet:
             out.append(Claim(_fill_id(entry.id, where), entry.source, _fill(entry.statement, where), entry.kind,
                              self._bind(entry.gated_check(), name, self._args(entry, where), self.select),
                              tuple(dict.fromkeys(hyps)),
-                             entry.scope))
+                             entry.scope, _fill(entry.confidence_group, where)))
         return out
 
     @staticmethod

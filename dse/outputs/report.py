@@ -51,7 +51,11 @@ def report_markdown(doc: dict[str, Any], notes: str = "") -> str:
              f"git `{prov.get('git')}`.", ""]
     if st:
         lines += [f"Statistical claims: {st['statistical_claims']} checked with family-wise confidence "
-                  f"{st['family_confidence']} ({st['method']}: each at {st['per_claim_confidence']:.6g}).", ""]
+                  f"{st['family_confidence']} ({st['method']}: each at {st['per_claim_confidence']:.6g})."
+                  + "".join(f" The {g['statistical_claims']} of {name.replace('plugin:', 'plug-in ')} share the same "
+                            f"family-wise confidence apart (each at {g['per_claim_confidence']:.6g})."
+                            for name, g in st.get("groups", {}).items()),
+                  ""]
     if doc.get("omitted_paper_example_claims"):
         lines += [f"{doc['omitted_paper_example_claims']} claims about the paper's own example are not evaluated on "
                   "this scenario.", ""]

@@ -16,7 +16,9 @@ the verdict words their meaning on any scenario:
 - a `fail` whose compared numbers are not finite is `not-checkable` (a NaN is not a
   counterexample);
 - the statistical claims of one report share one family-wise confidence (Bonferroni):
-  each gets ``1 − (1 − family)/K`` for K statistical claims, read by `claim_confidence()`.
+  each gets ``1 − (1 − family)/K`` for K statistical claims, read by `claim_confidence()`; claims of a
+  `confidence_group` (a plug-in filter's) share the same family-wise confidence among themselves, apart,
+  so that adding them changes no other claim's confidence.
 
 The helpers below build verdicts so that every kind reports the same fields: what was
 measured, against what reference, with which tolerance, how much margin there was, and at
@@ -130,6 +132,8 @@ class Claim:
     check: Callable[[Any], Verdict] = field(repr=False, compare=False)
     hypotheses: tuple[str, ...] = ()
     scope: str = "family"
+    #: statistical claims of one non-empty group share a family-wise confidence apart from the report's
+    confidence_group: str = ""
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -195,19 +199,23 @@ def evaluate(claims: Sequence[Claim], hypotheses: Sequence[Hypothesis], results:
         raise ValueError("duplicate hypothesis ids")
     in_scope = [c for c in claims if paper_run or c.scope == "family"]
     runnable = [c for c in in_scope if c.kind == "statistical" and c._precondition(by_id) is None]
-    k = max(len(runnable), 1)
-    per_claim = 1.0 - (1.0 - family_confidence) / k if per_claim_confidence is None else per_claim_confidence
+    sizes = {g: sum(c.confidence_group == g for c in runnable) for g in dict.fromkeys(c.confidence_group
+                                                                                         for c in in_scope)}
+    share = {g: (1.0 - (1.0 - family_confidence) / max(k, 1) if per_claim_confidence is None
+                 else per_claim_confidence) for g, k in sizes.items()}
     rows = []
     for c in in_scope:
-        token = _confidence.set(per_claim)
+        token = _confidence.set(share[c.confidence_group])
         try:
             rows.append(c.evaluate(results, by_id))
         finally:
             _confidence.reset(token)
+    per_claim = share.get("", 1.0 - (1.0 - family_confidence) if per_claim_confidence is None else per_claim_confidence)
     stats = {"family_confidence": family_confidence if per_claim_confidence is None else None,
-             "statistical_claims": len(runnable), "per_claim_confidence": per_claim,
+             "statistical_claims": sizes.get("", 0), "per_claim_confidence": per_claim,
              "method": "Bonferroni over the report's statistical claims" if per_claim_confidence is None
-             else "one fixed level per claim (calibration)"}
+             else "one fixed level per claim (calibration)",
+             "groups": {g: {"statistical_claims": k, "per_claim_confidence": share[g]} for g, k in sizes.items() if g}}
     return Evaluation(hyp_rows, rows, stats, len(claims) - len(in_scope))
 
 

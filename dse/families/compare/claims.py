@@ -472,14 +472,16 @@ _Z_TRIALS = (lambda res, name: res.trials >= MIN_TRIALS_Z,
 @claims.claim("compare.plugin.{item}.orthogonality", "orthogonality principle", "the centralized filter's error is "
               "orthogonal to the plug-in filter {item}'s distance from it (its estimates use only the measurements and "
               "the links), so its excess mean-square error over the centralized filter is its mean-square distance to "
-              "it", "statistical", each=plugins_of, requires=[_RAN, _CENTRAL, _Z_TRIALS])
+              "it", "statistical", each=plugins_of, confidence_group="plugin:{item}",
+              requires=[_RAN, _CENTRAL, _Z_TRIALS])
 def plugin_orthogonality(res, name: str) -> Verdict:
     return _orthogonality(res, [name])
 
 
 @claims.claim("compare.plugin.{item}.lower_bound", "optimality of the centralized filter", "the plug-in filter "
               "{item} has no smaller mean-square error than the centralized Kalman filter, at any node and step",
-              "statistical", each=plugins_of, requires=[_RAN, _CENTRAL, _Z_TRIALS])
+              "statistical", each=plugins_of, confidence_group="plugin:{item}",
+              requires=[_RAN, _CENTRAL, _Z_TRIALS])
 def plugin_lower_bound(res, name: str) -> Verdict:
     """One-sided z-test, cell by cell, of the mean over trials of the paired gap ‖x − x̂_i‖² − ‖x − x̂_c‖² (≥ 0
     by the optimality of the centralized filter), beyond twice the orthogonality's round-off allowance (the
@@ -505,6 +507,7 @@ def plugin_lower_bound(res, name: str) -> Verdict:
 @claims.claim("compare.plugin.{item}.nees", "consistency of the filter's covariance", "the covariance the plug-in "
               "filter {item} reports is what it declares: its error's covariance given the link draws (two-sided χ² "
               "test of the NEES), or an upper bound of it (one-sided)", "statistical", each=plugins_of,
+              confidence_group="plugin:{item}",
               requires=[_RAN, (lambda res, name: res.design.estimators[name].spec.covariance_law is not None,
                                "it declares no covariance (covariance_law = None)")])
 def plugin_nees(res, name: str) -> Verdict:
@@ -526,7 +529,7 @@ def plugin_nees(res, name: str) -> Verdict:
 
 @claims.claim("compare.plugin.{item}.exact_moments", "exact moment recursion", "the exact second moments of the "
               "plug-in filter {item}, from the matrices it declares (linear filters, reliable links), agree with the "
-              "simulation", "statistical", each=plugins_of,
+              "simulation", "statistical", each=plugins_of, confidence_group="plugin:{item}",
               requires=[_RAN, (lambda res, name: name in res.exact,
                                lambda res, name: res.faults.get(name) or res.design.estimators[name].exact_reason
                                or "no exact moments")])
