@@ -38,7 +38,8 @@ def test_compare_legend_stays_inside_the_figure(tmp_path, monkeypatch):
                                "exact": True, "network_mse_mc_se": 0.0, "scalars_per_step": range(len(names))})
     applicability = pd.DataFrame({"estimator": names, "applies": True, "reason": ""})
     res = SimpleNamespace(scenario=SimpleNamespace(name="x", simulation=SimpleNamespace(eval_step=3),
-                                                   links=SimpleNamespace(model="reliable", noise_std=1.0)))
+                                                   links=SimpleNamespace(model="reliable", noise_std=1.0),
+                                                   estimator_specs=registry()))
     drawn = {}
     monkeypatch.setattr(compare_views, "save_figure", lambda fig, path: drawn.setdefault("fig", fig))
     compare_views.error_vs_communication(res, {"estimators": estimators, "applicability": applicability},
