@@ -63,9 +63,11 @@ class UnitStreams:
     unit order for results that do not depend on the chunking either.
     """
 
-    def __init__(self, seeds: Sequence[np.random.SeedSequence], sizes: Sequence[int]):
+    def __init__(self, seeds: Sequence[np.random.SeedSequence], sizes: Sequence[int], first_unit: int = 0):
         self.generators = [block_generator(s) for s in seeds]
         self.sizes = list(sizes)
+        #: the index of this batch's first unit in its stream (its first trial is first_unit * RNG_UNIT)
+        self.first_unit = first_unit
 
     @property
     def n(self) -> int:
@@ -100,21 +102,79 @@ def units_per_chunk(bytes_per_trial: float, budget_bytes: float) -> int:
 
 def run_units(simulate_chunk: Callable[[UnitStreams], Sequence[T]], fold: Callable[[R | None, T], R],
               n_trials: int, seq: np.random.SeedSequence, *, bytes_per_trial: float,
-              budget_bytes: float = BLOCK_MEMORY_BYTES, desc: str = "") -> R:
+              budget_bytes: float = BLOCK_MEMORY_BYTES, desc: str = "", portable: bool = False) -> R:
     """Simulate `n_trials` trials in RNG units of RNG_UNIT trials, as many units per chunk as
     `budget_bytes` allows; `simulate_chunk` returns one partial result per unit, and `fold`
     accumulates them in unit order (streaming: memory does not grow with the trial count).
-    The result is bit-identical whatever the budget."""
+    The result is bit-identical whatever the budget.
+
+    `portable=True` declares that `simulate_chunk` is a function of its units alone (it keeps no state
+    between chunks and changes nothing outside; `UnitStreams.first_unit` says where the chunk starts): its
+    chunks then go to the run's unit executor (`dse.simulate.executor`: this process, or a Dask cluster),
+    and the finished units are stored while the stage runs, so that an interrupted stage resumes from them
+    (`dse.simulate.checkpoints`). Otherwise the chunks run here, one after the other."""
     n_units = -(-n_trials // RNG_UNIT)
+    per_chunk = units_per_chunk(bytes_per_trial, budget_bytes)
+    if portable:
+        return _run_portable(simulate_chunk, fold, n_trials, seq, per_chunk, desc)
     sizes = [min(RNG_UNIT, n_trials - u * RNG_UNIT) for u in range(n_units)]
     seeds = block_seeds(seq, n_units)
-    per_chunk = units_per_chunk(bytes_per_trial, budget_bytes)
     acc = None
     for start in progress(range(0, n_units, per_chunk), desc=desc) if desc else range(0, n_units, per_chunk):
         stop = min(start + per_chunk, n_units)
-        for part in simulate_chunk(UnitStreams(seeds[start:stop], sizes[start:stop])):
+        for part in simulate_chunk(UnitStreams(seeds[start:stop], sizes[start:stop], first_unit=start)):
             acc = fold(acc, part)
     return acc
+
+
+def _run_portable(simulate_chunk, fold, n_trials: int, seq: np.random.SeedSequence, per_chunk: int, desc: str):
+    """`run_units` of a portable chunk function: the units stored by an earlier attempt of the stage are read
+    back, the others computed by the run's executor, and all folded in unit order."""
+    from dse.simulate import checkpoints, executor
+
+    n_units = -(-n_trials // RNG_UNIT)
+    runner, store = executor.current(), checkpoints.for_call(seq, n_trials)
+    per_task = runner.units_per_task(n_units, per_chunk)
+    segments = _segments(n_units, store.stored() if store is not None else [], per_task)
+    computed = runner.map_units(simulate_chunk, seq, n_trials, per_chunk,
+                                [(a, b) for a, b, path in segments if path is None])
+    acc = None
+    try:
+        for first, stop, path in progress(segments, desc=desc) if desc else segments:
+            parts = store.load(path, stop - first) if path is not None else None
+            if parts is None:
+                parts = next(computed) if path is None else _compute_here(simulate_chunk, seq, n_trials, first,
+                                                                          stop, per_chunk)
+                if store is not None:
+                    store.add(first, parts)
+            for part in parts:
+                acc = fold(acc, part)
+    finally:
+        computed.close()
+        if store is not None:
+            store.flush()
+    return acc
+
+
+def _compute_here(simulate_chunk, seq, n_trials: int, first: int, stop: int, per_chunk: int) -> list:
+    """Units whose stored file turned out damaged: computed again in this process."""
+    from dse.simulate.executor import compute_units
+
+    return compute_units(simulate_chunk, seq, n_trials, first, stop, per_chunk)
+
+
+def _segments(n_units: int, stored: list[tuple[int, int, object]], per_task: int) -> list[tuple[int, int, object]]:
+    """(first, stop, stored file or None) covering units 0..n_units-1 in order: the stored ranges, and the
+    gaps between them in tasks of `per_task` units."""
+    from dse.simulate.executor import task_ranges
+
+    out, at = [], 0
+    for a, b, path in [s for s in stored if s[1] <= n_units] + [(n_units, n_units, None)]:
+        out += [(x, y, None) for x, y in task_ranges(at, a, per_task)]
+        if b > a:
+            out.append((a, b, path))
+        at = b
+    return out
 
 
 def block_generator(seed: np.random.SeedSequence) -> np.random.Generator:
