@@ -95,7 +95,13 @@ def test_the_client_holds_a_bounded_number_of_tasks():
     assert len(held) == 100 and max(held) <= window + 1      # the tasks in flight and the chunk function
 
 
-def test_an_interrupted_stage_resumes_from_the_units_it_stored(tmp_path):
+@pytest.fixture
+def store_at_once(monkeypatch):
+    """Units are kept from a call's start (not after STORE_AFTER_S seconds): the tests' stages are short."""
+    monkeypatch.setattr(checkpoints, "STORE_AFTER_S", 0.0)
+
+
+def test_an_interrupted_stage_resumes_from_the_units_it_stored(tmp_path, store_at_once):
     expected = _sums(_normal_sums)
     computed: list[int] = []
 
@@ -120,7 +126,13 @@ def test_an_interrupted_stage_resumes_from_the_units_it_stored(tmp_path):
     assert sorted(computed) == list(range(24, 40, 2))          # the 16 units not stored, two per chunk
 
 
-def test_an_interrupted_run_resumes_and_gives_the_same_numbers(tmp_path, monkeypatch, in_process):
+def test_a_short_call_keeps_no_units(tmp_path):
+    with checkpoints.stage_scope(tmp_path / "stage"):
+        _sums(_normal_sums)
+    assert checkpoints.checkpoint_summary(tmp_path / "stage") == {"files": 0, "units": 0}
+
+
+def test_an_interrupted_run_resumes_and_gives_the_same_numbers(tmp_path, monkeypatch, in_process, store_at_once):
     """Through the stage cache: Ctrl-C in the middle of the savas groups, then the same run again: only the
     chunks not stored are simulated (10 units each), and the numbers are those of an uninterrupted run."""
     import dse.estimators.consensus_filter as cf

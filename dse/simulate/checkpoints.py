@@ -2,7 +2,8 @@
 
 A stage computed through a persistent stage cache (`dse.contract.context.StageContext.run`) opens a
 directory beside its entry, ``<cache>/units/<stage key>/``; every portable `run_units` call of the stage
-stores there the per-unit partial results of the units it has computed, one file per range of units
+stores there (once it has been computing for STORE_AFTER_S seconds) the per-unit partial results of
+the units it has computed, one file per range of units
 (``<call>-<stream>/<first>-<stop>.pkl``: a SHA-256 line, then the pickled list of partials). A rerun of
 the stage (after Ctrl-C, a lost connection, a crash) reads them back instead of computing those units;
 the partials are folded in unit order either way, so the result is the same bits. The directory is
@@ -24,7 +25,10 @@ import numpy as np
 from dse.engine.atomic import atomic_write_bytes
 from dse.engine.cache import remove_path
 
-#: completed units are written at least this often (seconds of computing between two files) ...
+#: a call keeps its units once it has been computing this long (a shorter one loses little when interrupted, and
+#: pickling the partials of tiny units costs up to a few percent of computing them) ...
+STORE_AFTER_S = 2.0
+#: ... then writes them at least this often (seconds of computing between two files) ...
 FLUSH_EVERY_S = 2.0
 #: ... and at most this many units are held back for the next file
 FLUSH_UNITS = 256
@@ -63,15 +67,16 @@ def for_call(seq: np.random.SeedSequence, n_trials: int) -> "UnitCheckpoints | N
 
 class UnitCheckpoints:
     """The finished units of one `run_units` call: `stored()` lists the ranges kept by an earlier attempt,
-    `load` reads one back, `add` keeps newly computed units (written by `flush`, every FLUSH_EVERY_S
-    seconds or FLUSH_UNITS units, and when the call ends, normally or not)."""
+    `load` reads one back, `add` keeps newly computed units once the call has run STORE_AFTER_S seconds
+    (written by `flush`, every FLUSH_EVERY_S seconds or FLUSH_UNITS units, and when the call ends,
+    normally or not)."""
 
     def __init__(self, directory: Path, *, fresh: bool = False):
         self.directory, self.fresh = directory, fresh
         #: consecutive (first unit, number of units, their partials pickled) not yet written: pickled when they
         #: arrive, before the fold sees them (a fold may update a partial in place)
         self._held: list[tuple[int, int, bytes]] = []
-        self._last_flush = time.perf_counter()
+        self._started = self._last_flush = time.perf_counter()
 
     def stored(self) -> list[tuple[int, int, Path]]:
         """(first unit, stop, file) of the stored ranges, in unit order, none overlapping (a range that
@@ -108,7 +113,10 @@ class UnitCheckpoints:
             return None
 
     def add(self, first: int, parts: list) -> None:
-        """Units `first`, `first + 1`, ... computed: written now or with the next ones."""
+        """Units `first`, `first + 1`, ... computed: written now or with the next ones (or not kept, in the
+        call's first STORE_AFTER_S seconds)."""
+        if time.perf_counter() - self._started < STORE_AFTER_S:
+            return
         if self._held and self._held[-1][0] + self._held[-1][1] != first:
             self.flush()
         self._held.append((first, len(parts), pickle.dumps(list(parts), protocol=pickle.HIGHEST_PROTOCOL)))

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import pickle
 from collections import deque
 from typing import Callable, Iterable, Iterator, Sequence
 
@@ -101,6 +102,12 @@ def _identity(x):
     return x
 
 
+def _pickled_units(*args) -> bytes:
+    """`compute_units` on a worker, its partials sent back as one pickle: Dask serializes every small array of a
+    result apart, which costs far more than computing a unit."""
+    return pickle.dumps(compute_units(*args), protocol=pickle.HIGHEST_PROTOCOL)
+
+
 class DaskExecutor(UnitExecutor):
     """Units on a Dask cluster (`--scheduler local` or ``tcp://HOST:PORT``); stages in this process. The
     client (and a local cluster) starts with the first portable stage and stops with `close`."""
@@ -136,11 +143,11 @@ class DaskExecutor(UnitExecutor):
         try:
             while True:
                 while len(pending) < window and (r := next(ranges, None)) is not None:
-                    pending.append(client.submit(compute_units, fn, seq, n_trials, *r, per_chunk, pure=False))
+                    pending.append(client.submit(_pickled_units, fn, seq, n_trials, *r, per_chunk, pure=False))
                 if not pending:
                     return
                 head = pending.popleft()
-                parts = head.result()
+                parts = pickle.loads(head.result())
                 head.release()
                 yield parts
         finally:
