@@ -95,6 +95,21 @@ class UnitStreams:
         return [array[a:b] for a, b in zip(edges[:-1], edges[1:])]
 
 
+class LocalProgress:
+    """A progress bar (`dse.engine.progress.counter`) a portable chunk function may advance: the bar in the
+    process that made it; a copy sent elsewhere (to a Dask worker) advances nothing."""
+
+    def __init__(self, bar=None):
+        self.bar = bar
+
+    def update(self, n: int) -> None:
+        if self.bar is not None:
+            self.bar.update(n)
+
+    def __reduce__(self):
+        return (LocalProgress, ())
+
+
 def units_per_chunk(bytes_per_trial: float, budget_bytes: float) -> int:
     """How many RNG units one chunk may hold within `budget_bytes` (at least one)."""
     return max(1, int(budget_bytes // max(bytes_per_trial * RNG_UNIT, 1.0)))
