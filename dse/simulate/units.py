@@ -95,6 +95,28 @@ class UnitStreams:
         return [array[a:b] for a, b in zip(edges[:-1], edges[1:])]
 
 
+def kept_rows(streams: UnitStreams, keep: int) -> int:
+    """How many of a chunk's trials are among the first `keep` trials of its stream (the trials a stage keeps
+    whole: sample paths), counted from the chunk's first trial."""
+    return max(0, min(keep - streams.first_unit * RNG_UNIT, streams.n))
+
+
+def rows_by_unit(streams: UnitStreams, **arrays) -> list[dict]:
+    """The rows of `arrays` (leading axis: the chunk's first trials, as many of them as each keeps: `kept_rows`)
+    split by the unit they belong to: one dict per unit of the chunk, without the arrays none of whose rows
+    is the unit's. A portable
+    chunk function returns them in its partials, and the stage stacks them (`stack_rows`) in unit order."""
+    edges = np.cumsum([0, *streams.sizes])
+    return [{k: a[lo:min(hi, len(a))] for k, a in arrays.items() if lo < len(a)}
+            for lo, hi in zip(edges[:-1], edges[1:])]
+
+
+def stack_rows(parts: Sequence[dict], name: str, empty: np.ndarray) -> np.ndarray:
+    """The kept rows `name` of every unit, in unit order (`empty`, the array of no row, when none is kept)."""
+    rows = [p[name] for p in parts if name in p]
+    return np.concatenate(rows) if rows else empty
+
+
 class LocalProgress:
     """A progress bar (`dse.engine.progress.counter`) a portable chunk function may advance: the bar in the
     process that made it; a copy sent elsewhere (to a Dask worker) advances nothing."""
