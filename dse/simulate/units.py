@@ -104,8 +104,8 @@ def kept_rows(streams: UnitStreams, keep: int) -> int:
 def rows_by_unit(streams: UnitStreams, **arrays) -> list[dict]:
     """The rows of `arrays` (leading axis: the chunk's first trials, as many of them as each keeps: `kept_rows`)
     split by the unit they belong to: one dict per unit of the chunk, without the arrays none of whose rows
-    is the unit's. A portable
-    chunk function returns them in its partials, and the stage stacks them (`stack_rows`) in unit order."""
+    is the unit's. A portable chunk function returns them in its partials, and the stage stacks them
+    (`stack_rows`) in unit order."""
     edges = np.cumsum([0, *streams.sizes])
     return [{k: a[lo:min(hi, len(a))] for k, a in arrays.items() if lo < len(a)}
             for lo, hi in zip(edges[:-1], edges[1:])]
