@@ -17,7 +17,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from .common import toml_text
+from dse.scenario.fields import toml_text
 
 MICRO = {"family": "noisy-consensus-filter", "name": "micro", "graph": {"kind": "line", "n": 2},
          "model": {"q": 1.0, "r": 1.0}, "sweep": {"rounds": [0], "sigma_c": [0.5], "n_steps": 1},

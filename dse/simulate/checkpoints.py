@@ -112,14 +112,14 @@ class UnitCheckpoints:
             remove_path(path)
             return None
 
-    def add(self, first: int, parts: list) -> None:
-        """Units `first`, `first + 1`, ... computed: written now or with the next ones (or not kept, in the
-        call's first STORE_AFTER_S seconds)."""
+    def add(self, first: int, parts: list, pickled: bytes | None = None) -> None:
+        """Units `first`, `first + 1`, ... computed (`pickled`: the list `parts` pickled, when it came so):
+        written now or with the next ones (or not kept, in the call's first STORE_AFTER_S seconds)."""
         if time.perf_counter() - self._started < STORE_AFTER_S:
             return
         if self._held and self._held[-1][0] + self._held[-1][1] != first:
             self.flush()
-        self._held.append((first, len(parts), pickle.dumps(list(parts), protocol=pickle.HIGHEST_PROTOCOL)))
+        self._held.append((first, len(parts), pickled or pickle.dumps(list(parts), protocol=pickle.HIGHEST_PROTOCOL)))
         if sum(n for _, n, _ in self._held) >= FLUSH_UNITS or time.perf_counter() - self._last_flush >= FLUSH_EVERY_S:
             self.flush()
 

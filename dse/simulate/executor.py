@@ -80,10 +80,11 @@ class UnitExecutor:
         return per_chunk
 
     def map_units(self, simulate_chunk: Callable, seq: np.random.SeedSequence, n_trials: int, per_chunk: int,
-                  ranges: Iterable[tuple[int, int]]) -> Iterator[list]:
-        """The partials of every (first, stop) range of units, in the order given."""
+                  ranges: Iterable[tuple[int, int]]) -> Iterator[tuple[list, bytes | None]]:
+        """The partials of every (first, stop) range of units, in the order given, each with its pickle when it
+        came as one (from another process: what the stored units are written from), else None."""
         for first, stop in ranges:
-            yield compute_units(simulate_chunk, seq, n_trials, first, stop, per_chunk)
+            yield compute_units(simulate_chunk, seq, n_trials, first, stop, per_chunk), None
 
     def close(self) -> None:
         """Release what the executor started (a cluster, a connection)."""
@@ -134,7 +135,7 @@ class DaskExecutor(UnitExecutor):
         wanted = min(MAX_TASK_UNITS, math.ceil(n_units / (TASKS_PER_WORKER * self.n_workers())))
         return per_chunk * max(1, math.ceil(wanted / per_chunk))
 
-    def map_units(self, simulate_chunk, seq, n_trials, per_chunk, ranges) -> Iterator[list]:
+    def map_units(self, simulate_chunk, seq, n_trials, per_chunk, ranges) -> Iterator[tuple[list, bytes | None]]:
         client = self.client()
         # the chunk function travels once, as the result of a task: a worker that dies with it is recomputed
         fn = client.submit(_identity, simulate_chunk, pure=False)
@@ -147,9 +148,9 @@ class DaskExecutor(UnitExecutor):
                 if not pending:
                     return
                 head = pending.popleft()
-                parts = pickle.loads(head.result())
+                blob = head.result()
                 head.release()
-                yield parts
+                yield pickle.loads(blob), blob
         finally:
             for f in pending:
                 f.cancel()

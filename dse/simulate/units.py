@@ -180,10 +180,10 @@ def _run_portable(simulate_chunk, fold, n_trials: int, seq: np.random.SeedSequen
         for first, stop, path in progress(segments, desc=desc) if desc else segments:
             parts = store.load(path, stop - first) if path is not None else None
             if parts is None:
-                parts = next(computed) if path is None else _compute_here(simulate_chunk, seq, n_trials, first,
-                                                                          stop, per_chunk)
+                parts, pickled = next(computed) if path is None else (
+                    _compute_here(simulate_chunk, seq, n_trials, first, stop, per_chunk), None)
                 if store is not None:
-                    store.add(first, parts)
+                    store.add(first, parts, pickled)
             for part in parts:
                 acc = fold(acc, part)
     finally:
