@@ -76,22 +76,20 @@ def _sums(chunk, trials: int = 40_000, budget: float = 2 * 8 * 3 * 1000):
                      portable=True)
 
 
-def test_a_worker_that_dies_has_its_units_recomputed(tmp_path):
-    expected = _sums(_normal_sums)
-    with executor.using(executor.DaskExecutor("local", 2)):
-        got = _sums(functools.partial(_normal_sums, die_at=13, marker=str(tmp_path / "died")))
-    assert (tmp_path / "died").exists()          # a worker did die
-    assert got.tobytes() == expected.tobytes()
-
-
-def test_the_client_holds_a_bounded_number_of_tasks():
+@pytest.fixture(scope="module")
+def two_workers():
+    """One local cluster of two workers for the tests below."""
     dask = executor.DaskExecutor("local", 2)
-    with executor.using(dask):
-        window = executor.IN_FLIGHT_PER_WORKER * dask.n_workers()
-        ranges = executor.task_ranges(0, 200, 2)
-        held = []
-        for _ in dask.map_units(_normal_sums, stream_seed(1, "bounded"), 200_000, 2, ranges):
-            held.append(len(dask.client().futures))
+    yield dask
+    dask.close()
+
+
+def test_the_client_holds_a_bounded_number_of_tasks(two_workers):
+    window = executor.IN_FLIGHT_PER_WORKER * two_workers.workers       # the most the executor sends at once
+    held = []
+    for _ in two_workers.map_units(_normal_sums, stream_seed(1, "bounded"), 200_000, 2,
+                                   executor.task_ranges(0, 200, 2)):
+        held.append(len(two_workers.client().futures))
     assert len(held) == 100 and max(held) <= window + 1      # the tasks in flight and the chunk function
 
 
@@ -99,6 +97,14 @@ def test_the_client_holds_a_bounded_number_of_tasks():
 def store_at_once(monkeypatch):
     """Units are kept from a call's start (not after STORE_AFTER_S seconds): the tests' stages are short."""
     monkeypatch.setattr(checkpoints, "STORE_AFTER_S", 0.0)
+
+
+def test_a_worker_that_dies_has_its_units_recomputed(tmp_path, two_workers):
+    expected = _sums(_normal_sums)
+    with executor.using(two_workers, close=False):
+        got = _sums(functools.partial(_normal_sums, die_at=13, marker=str(tmp_path / "died")))
+    assert (tmp_path / "died").exists()          # a worker did die
+    assert got.tobytes() == expected.tobytes()
 
 
 def test_an_interrupted_stage_resumes_from_the_units_it_stored(tmp_path, store_at_once):

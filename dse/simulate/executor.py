@@ -180,14 +180,16 @@ def executor_for(scheduler: str, workers: int, log: Callable[[str], None] | None
 
 
 @contextlib.contextmanager
-def using(executor: UnitExecutor) -> Iterator[UnitExecutor]:
-    """Run the block's stages and units on `executor`; it is closed when the block ends."""
+def using(executor: UnitExecutor, *, close: bool = True) -> Iterator[UnitExecutor]:
+    """Run the block's stages and units on `executor`; it is closed when the block ends (unless `close` is
+    False: the caller closes it, after other blocks)."""
     _CURRENT.append(executor)
     try:
         yield executor
     finally:
         _CURRENT.pop()
-        executor.close()
+        if close:
+            executor.close()
 
 
 def task_ranges(first: int, stop: int, per_task: int) -> list[tuple[int, int]]:
