@@ -163,7 +163,7 @@ def test_an_interrupted_run_resumes_and_gives_the_same_numbers(tmp_path, monkeyp
     calls.clear()
     again = dse.run(MICRO, trials=30_000, scheduler="inline", workers=1, cache_dir=tmp_path / "run")
     _same_run(in_process, again)
-    assert checkpoints.checkpoint_summary(tmp_path / "run" / "units") == {"files": 0, "units": 0}
+    assert not (tmp_path / "run" / "units").exists()            # removed once the stages' entries are stored
     finished_groups = 5 - stored["units"] // 10                # chunks of the groups stored whole before Ctrl-C
     assert len(calls) == fresh_calls - finished_groups - stored["units"] // 10
 

@@ -49,9 +49,13 @@ def stage_scope(directory: Path | None, *, fresh: bool = False) -> Iterator[None
 
 
 def finish_stage(directory: Path | None) -> None:
-    """The stage's entry is stored: its finished units are no longer needed."""
+    """The stage's entry is stored: its finished units are no longer needed (nor `units/`, once empty)."""
     if directory is not None:
         remove_path(directory)
+        try:
+            directory.parent.rmdir()
+        except OSError:                 # another stage's units are there, or there was never any
+            pass
 
 
 def for_call(seq: np.random.SeedSequence, n_trials: int) -> "UnitCheckpoints | None":
@@ -132,7 +136,10 @@ class UnitCheckpoints:
         body = pickle.dumps([group for _, _, group in self._held], protocol=pickle.HIGHEST_PROTOCOL)
         self._held = []
         data = hashlib.sha256(body).hexdigest().encode() + b"\n" + body
-        atomic_write_bytes(self.directory / f"{first}-{first + n}.pkl", data)
+        try:
+            atomic_write_bytes(self.directory / f"{first}-{first + n}.pkl", data)
+        except FileNotFoundError:       # `units/` was removed (emptied by a stage that finished) while made: again
+            atomic_write_bytes(self.directory / f"{first}-{first + n}.pkl", data)
 
 
 def checkpoint_summary(directory: Path) -> dict[str, Any]:
