@@ -21,8 +21,9 @@ from __future__ import annotations
 import contextlib
 import math
 import pickle
+import warnings
 from collections import deque
-from typing import Callable, Iterable, Iterator, Sequence
+from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
@@ -54,15 +55,12 @@ def compute_units(simulate_chunk: Callable, seq: np.random.SeedSequence, n_trial
     from dse.simulate.units import UnitStreams
 
     parts: list = []
-    start = first
-    while start < stop:
-        end = min(stop, (start // per_chunk + 1) * per_chunk)
+    for start, end in task_ranges(first, stop, per_chunk):
         out = list(simulate_chunk(UnitStreams(unit_seeds(seq, start, end), unit_sizes(n_trials, start, end),
                                               first_unit=start)))
         if len(out) != end - start:
             raise ValueError(f"the chunk of units {start}..{end - 1} returned {len(out)} partial results")
         parts.extend(out)
-        start = end
     return parts
 
 
@@ -137,8 +135,11 @@ class DaskExecutor(UnitExecutor):
 
     def map_units(self, simulate_chunk, seq, n_trials, per_chunk, ranges) -> Iterator[tuple[list, bytes | None]]:
         client = self.client()
-        # the chunk function travels once, as the result of a task: a worker that dies with it is recomputed
-        fn = client.submit(_identity, simulate_chunk, pure=False)
+        # the chunk function travels once, as the result of a task: a worker that dies with it is recomputed;
+        # a large one (a scenario's design, say) is expected here, not a mistake Dask should warn about
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Sending large graph")
+            fn = client.submit(_identity, simulate_chunk, pure=False)
         window, pending = IN_FLIGHT_PER_WORKER * self.n_workers(), deque()
         ranges = iter(ranges)
         try:
@@ -209,5 +210,5 @@ def stderr_log(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
-__all__: Sequence[str] = ("UnitExecutor", "ForkedExecutor", "DaskExecutor", "current", "executor_for", "using",
-                          "compute_units", "task_ranges")
+__all__ = ["UnitExecutor", "ForkedExecutor", "DaskExecutor", "current", "executor_for", "using", "compute_units",
+           "task_ranges"]
