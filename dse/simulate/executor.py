@@ -172,12 +172,16 @@ def current() -> UnitExecutor:
 
 
 def executor_for(scheduler: str, workers: int, log: Callable[[str], None] | None = None) -> UnitExecutor:
-    """The executor `scheduler` names (see the module's docstring)."""
+    """The executor `scheduler` names (see the module's docstring). A scheduler's address is connected to at
+    once (a wrong one fails before any stage runs); a local cluster starts with the first portable stage."""
     if scheduler == "auto":
         return ForkedExecutor()
     if scheduler == "inline":
         return UnitExecutor()
-    return DaskExecutor(scheduler, workers, log)
+    dask = DaskExecutor(scheduler, workers, log)
+    if scheduler != "local":
+        dask.client()
+    return dask
 
 
 @contextlib.contextmanager
