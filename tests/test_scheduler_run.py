@@ -1,8 +1,9 @@
 """One run's Monte Carlo on a Dask cluster (`dse run --scheduler`, `dse.run(scheduler=...)`): the same bits as
 in process whatever the number of workers, a bounded number of partial results on the client, a worker that
 dies replaced and its units recomputed, an interrupted stage resumed from the units it had stored, and the
-option checked in one line. The 10^7-trial comparison is marked `large` (skipped unless DSE_LARGE_TESTS=1;
-`make bench` runs it, section `scheduler`)."""
+option checked in one line. The 10^7-trial comparison and the random-comm-filter and coestimation examples on a
+cluster are marked `large` (minutes: skipped unless DSE_LARGE_TESTS=1; `make bench`, section `scheduler`, runs
+the 10^7-trial comparison)."""
 from __future__ import annotations
 
 import functools
@@ -193,3 +194,30 @@ def test_the_flag_is_documented(capsys, command):
         main([command, "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "--scheduler" in text and "tcp://HOST:8786" in text and "same bits" in text
+
+
+def _stage_bytes(family: str, trials: int) -> dict[str, bytes]:
+    """Every stage array of a quick run of the family's example scenario (computed by the executor in use)."""
+    from dse import registry
+    from dse.contract.context import StageContext
+    from dse.contract.options import RunOptions
+    from dse.engine.cache import MemoryCache
+    from dse.scenario.fields import load_toml
+
+    repro = registry.from_dict(load_toml(registry.families()[family].example_file()))
+    cache = MemoryCache()
+    repro.compute(RunOptions(quick=True, trials=trials, workers=1), StageContext(cache))
+    return {f"{key}/{name}": np.ascontiguousarray(a).tobytes() + str(a.dtype).encode() + str(a.shape).encode()
+            for key, arrays in cache._entries.items() for name, a in arrays.items()}
+
+
+@pytest.mark.parametrize("family, trials", [pytest.param("random-comm-filter", 1500, marks=large),
+                                            pytest.param("coestimation", 1200, marks=large),
+                                            ("gossip-kalman", 1500), ("template", 2500)])
+def test_every_portable_family_gives_the_same_bits_on_a_cluster(family, trials, two_workers):
+    """The families whose Monte Carlo is portable (their chunk functions keep nothing between chunks): every
+    stage array is the same on the cluster as in process (noisy-consensus-filter: the tests above)."""
+    with executor.using(executor.UnitExecutor()):
+        expected = _stage_bytes(family, trials)
+    with executor.using(two_workers, close=False):
+        assert _stage_bytes(family, trials) == expected
