@@ -402,7 +402,7 @@ def _targets(results: dict[str, list[dict]]) -> list[str]:
         if "speedup_vs_1_worker" in r:
             lines.append(f"| dse run --scheduler local, {r['trials']:,} trials: {r['target']}, numbers identical to in "
                          f"process | speed-up {_fmt(r['speedup_vs_1_worker'])} ({_fmt(r['speedup_vs_in_process'])} over "
-                         f"in process); differences: {', '.join(r['differences']) or 'none'} | {_fmt(r['met'])} |")
+                         f"in process); differences: {r['differences']} | {_fmt(r['met'])} |")
     calib = [r for r in results.get("calibration", []) if "tested" in r]
     if calib:
         bad = [r for r in calib if not r["calibrated"]]
