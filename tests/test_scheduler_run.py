@@ -169,6 +169,18 @@ def test_an_interrupted_run_resumes_and_gives_the_same_numbers(tmp_path, monkeyp
     assert len(calls) == fresh_calls - finished_groups - stored["units"] // 10
 
 
+def test_the_machinery_is_in_no_stage_key():
+    """How units are run and stored cannot change them: editing the executor, the stored units or the cluster
+    code invalidates no stage (they are not in the portable stages' code closures)."""
+    from dse.contract.stages import code_closure
+
+    for module in ("dse.families.savas.monte_carlo", "dse.families.tanwani.monte_carlo", "dse.families.tran.runs",
+                   "dse.families.kar_moura.gikf", "dse.families.template.stages"):
+        closure = code_closure(module)
+        assert "dse.simulate.units" in closure, module
+        assert not closure & {"dse.simulate.executor", "dse.simulate.checkpoints", "dse.simulate.cluster"}, module
+
+
 def test_the_scheduler_is_in_no_key(tmp_path, in_process):
     first = dse.run(MICRO, trials=30_000, scheduler="inline", workers=1, cache_dir=tmp_path)
     again = dse.run(MICRO, trials=30_000, scheduler="local", workers=2, cache_dir=tmp_path)

@@ -13,7 +13,7 @@ import numpy as np
 
 from dse.contract.stages import Stage, StageResult, code_hash
 from dse.errors import NumericalLimit
-from dse.simulate import checkpoints
+from dse.simulate import checkpoints, executor  # executor: registers how portable Monte Carlo runs (run_units)
 
 #: what LAPACK says when a matrix is singular, indefinite or ill-conditioned at working precision
 #: (other LinAlgErrors, such as a non-square argument, are defects and propagate as they are)
@@ -77,7 +77,6 @@ class StageContext:
         (by `weights`) first; results in the order of `calls`, and the stages the workers ran recorded
         here. Each call stores its own cache entry, so an interrupted run resumes call by call. The run's unit
         executor may ask for fewer processes (`dse.simulate.executor`: none when the units go to a cluster)."""
-        from dse.simulate.executor import current
         from dse.simulate.units import run_jobs
 
         def job(st: Stage, args: tuple, kwargs: dict):
@@ -93,7 +92,7 @@ class StageContext:
                 code_hash(st.module)
         results = []
         jobs = [(w, job(*c)) for w, c in zip(weights, calls)]
-        for arrays, key, ran in run_jobs(jobs, current().stage_workers(workers), desc=desc):
+        for arrays, key, ran in run_jobs(jobs, executor.current().stage_workers(workers), desc=desc):
             self.ran.extend(ran)
             out = StageResult(arrays)
             out.key = key

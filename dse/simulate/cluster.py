@@ -27,8 +27,13 @@ def start_local(workers: int):
     """(cluster, client): a local cluster of `workers` single-thread worker processes on loopback."""
     from dask.distributed import Client, LocalCluster
 
+    from distributed.gc import disable_gc_diagnosis
+
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                            dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL, env=WORKER_ENV)
+    # the cluster's scheduler runs in this process and hooks a diagnosis into every garbage collection: a Ctrl-C
+    # that lands in that hook is swallowed (the run goes on) and prints two tracebacks; it only measures GC time
+    disable_gc_diagnosis(force=True)
     return cluster, Client(cluster)
 
 

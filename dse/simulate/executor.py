@@ -27,6 +27,10 @@ from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
+from dse.engine.progress import progress
+from dse.simulate import checkpoints, units
+from dse.simulate.units import RNG_UNIT
+
 #: Dask tasks per worker a stage's units are split into (at least: a task never holds fewer units than one
 #: in-process chunk) and at most this many units per task, so that the last tasks balance the workers and a
 #: stored range of finished units is never far behind
@@ -43,8 +47,6 @@ def unit_seeds(seq: np.random.SeedSequence, first: int, stop: int) -> list[np.ra
 
 def unit_sizes(n_trials: int, first: int, stop: int) -> list[int]:
     """Trials of units first..stop-1 of a stream of `n_trials` trials (the last unit may be short)."""
-    from dse.simulate.units import RNG_UNIT
-
     return [min(RNG_UNIT, n_trials - u * RNG_UNIT) for u in range(first, stop)]
 
 
@@ -52,11 +54,9 @@ def compute_units(simulate_chunk: Callable, seq: np.random.SeedSequence, n_trial
                   per_chunk: int) -> list:
     """The partial results of units first..stop-1, computed in chunks of `per_chunk` units (aligned on
     multiples of `per_chunk`, as one process would chunk them): one partial per unit, in unit order."""
-    from dse.simulate.units import UnitStreams
-
     parts: list = []
     for start, end in task_ranges(first, stop, per_chunk):
-        out = list(simulate_chunk(UnitStreams(unit_seeds(seq, start, end), unit_sizes(n_trials, start, end),
+        out = list(simulate_chunk(units.UnitStreams(unit_seeds(seq, start, end), unit_sizes(n_trials, start, end),
                                               first_unit=start)))
         if len(out) != end - start:
             raise ValueError(f"the chunk of units {start}..{end - 1} returned {len(out)} partial results")
@@ -207,12 +207,58 @@ def task_ranges(first: int, stop: int, per_task: int) -> list[tuple[int, int]]:
     return out
 
 
+def run_portable(simulate_chunk, fold, n_trials: int, seq: np.random.SeedSequence, per_chunk: int, desc: str):
+    """`run_units` of a portable chunk function: the units stored by an earlier attempt of the stage are read
+    back, the others computed by the run's executor, and all folded in unit order."""
+    n_units = -(-n_trials // RNG_UNIT)
+    runner, store = current(), checkpoints.for_call(seq, n_trials)
+    per_task = runner.units_per_task(n_units, per_chunk)
+    segments = _segments(n_units, store.stored() if store is not None else [], per_task)
+    computed = runner.map_units(simulate_chunk, seq, n_trials, per_chunk,
+                                [(a, b) for a, b, path in segments if path is None])
+    acc = None
+    try:
+        for first, stop, path in progress(segments, desc=desc) if desc else segments:
+            parts = store.load(path, stop - first) if path is not None else None
+            if parts is None:
+                parts, pickled = next(computed) if path is None else (
+                    _compute_here(simulate_chunk, seq, n_trials, first, stop, per_chunk), None)
+                if store is not None:
+                    store.add(first, parts, pickled)
+            for part in parts:
+                acc = fold(acc, part)
+    finally:
+        computed.close()
+        if store is not None:
+            store.flush()
+    return acc
+
+
+def _compute_here(simulate_chunk, seq, n_trials: int, first: int, stop: int, per_chunk: int) -> list:
+    """Units whose stored file turned out damaged: computed again in this process."""
+    return compute_units(simulate_chunk, seq, n_trials, first, stop, per_chunk)
+
+
+def _segments(n_units: int, stored: list[tuple[int, int, object]], per_task: int) -> list[tuple[int, int, object]]:
+    """(first, stop, stored file or None) covering units 0..n_units-1 in order: the stored ranges, and the
+    gaps between them in tasks of `per_task` units."""
+    out, at = [], 0
+    for a, b, path in [s for s in stored if s[1] <= n_units] + [(n_units, n_units, None)]:
+        out += [(x, y, None) for x, y in task_ranges(at, a, per_task)]
+        if b > a:
+            out.append((a, b, path))
+        at = b
+    return out
+
+
 def stderr_log(line: str) -> None:
     """Where the executor says what it connected to (one line on stderr: stdout is the command's result)."""
     import sys
 
     print(line, file=sys.stderr, flush=True)
 
+
+units._PORTABLE_RUNNER[:] = [run_portable]
 
 __all__ = ["UnitExecutor", "ForkedExecutor", "DaskExecutor", "current", "executor_for", "using", "compute_units",
            "task_ranges"]

@@ -132,6 +132,12 @@ class LocalProgress:
         return (LocalProgress, ())
 
 
+#: how portable chunks are run: `dse.simulate.executor.run_portable`, registered when that module is imported (by
+#: the driver and the stage context), so that the machinery that runs a stage stays out of its code closure and
+#: its cache key (`dse.contract.stages.code_closure`); without it they run here like any other
+_PORTABLE_RUNNER: list[Callable] = []
+
+
 def units_per_chunk(bytes_per_trial: float, budget_bytes: float) -> int:
     """How many RNG units one chunk may hold within `budget_bytes` (at least one)."""
     return max(1, int(budget_bytes // max(bytes_per_trial * RNG_UNIT, 1.0)))
@@ -152,8 +158,8 @@ def run_units(simulate_chunk: Callable[[UnitStreams], Sequence[T]], fold: Callab
     (`dse.simulate.checkpoints`). Otherwise the chunks run here, one after the other."""
     n_units = -(-n_trials // RNG_UNIT)
     per_chunk = units_per_chunk(bytes_per_trial, budget_bytes)
-    if portable:
-        return _run_portable(simulate_chunk, fold, n_trials, seq, per_chunk, desc)
+    if portable and _PORTABLE_RUNNER:
+        return _PORTABLE_RUNNER[0](simulate_chunk, fold, n_trials, seq, per_chunk, desc)
     sizes = [min(RNG_UNIT, n_trials - u * RNG_UNIT) for u in range(n_units)]
     seeds = block_seeds(seq, n_units)
     acc = None
@@ -162,56 +168,6 @@ def run_units(simulate_chunk: Callable[[UnitStreams], Sequence[T]], fold: Callab
         for part in simulate_chunk(UnitStreams(seeds[start:stop], sizes[start:stop], first_unit=start)):
             acc = fold(acc, part)
     return acc
-
-
-def _run_portable(simulate_chunk, fold, n_trials: int, seq: np.random.SeedSequence, per_chunk: int, desc: str):
-    """`run_units` of a portable chunk function: the units stored by an earlier attempt of the stage are read
-    back, the others computed by the run's executor, and all folded in unit order."""
-    from dse.simulate import checkpoints, executor
-
-    n_units = -(-n_trials // RNG_UNIT)
-    runner, store = executor.current(), checkpoints.for_call(seq, n_trials)
-    per_task = runner.units_per_task(n_units, per_chunk)
-    segments = _segments(n_units, store.stored() if store is not None else [], per_task)
-    computed = runner.map_units(simulate_chunk, seq, n_trials, per_chunk,
-                                [(a, b) for a, b, path in segments if path is None])
-    acc = None
-    try:
-        for first, stop, path in progress(segments, desc=desc) if desc else segments:
-            parts = store.load(path, stop - first) if path is not None else None
-            if parts is None:
-                parts, pickled = next(computed) if path is None else (
-                    _compute_here(simulate_chunk, seq, n_trials, first, stop, per_chunk), None)
-                if store is not None:
-                    store.add(first, parts, pickled)
-            for part in parts:
-                acc = fold(acc, part)
-    finally:
-        computed.close()
-        if store is not None:
-            store.flush()
-    return acc
-
-
-def _compute_here(simulate_chunk, seq, n_trials: int, first: int, stop: int, per_chunk: int) -> list:
-    """Units whose stored file turned out damaged: computed again in this process."""
-    from dse.simulate.executor import compute_units
-
-    return compute_units(simulate_chunk, seq, n_trials, first, stop, per_chunk)
-
-
-def _segments(n_units: int, stored: list[tuple[int, int, object]], per_task: int) -> list[tuple[int, int, object]]:
-    """(first, stop, stored file or None) covering units 0..n_units-1 in order: the stored ranges, and the
-    gaps between them in tasks of `per_task` units."""
-    from dse.simulate.executor import task_ranges
-
-    out, at = [], 0
-    for a, b, path in [s for s in stored if s[1] <= n_units] + [(n_units, n_units, None)]:
-        out += [(x, y, None) for x, y in task_ranges(at, a, per_task)]
-        if b > a:
-            out.append((a, b, path))
-        at = b
-    return out
 
 
 def block_generator(seed: np.random.SeedSequence) -> np.random.Generator:
