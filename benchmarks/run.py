@@ -12,7 +12,9 @@ on every shipped scenario with its design computed and with it cached, `dse run 
 and on each family's small scenario, the test suite), ``estimates`` (`dse check`'s estimated time of `dse run --quick` against the measured one, for
 every shipped scenario and scenarios of every family's generator: target within 2x), ``sweep`` (the per-point CPU overhead of
 `dse sweep` beyond the points' stages, with a cProfile breakdown; the example sweeps cold, as `make sweeps`
-runs them; a 1,000-point `dse sweep` in process and on a local Dask cluster with 1 and 2 workers), ``calibration`` (every statistical
+runs them; a 1,000-point `dse sweep` in process and on a local Dask cluster with 1 and 2 workers), ``scheduler`` (one `dse run` of 10^7 trials
+in process and with its Monte Carlo units on a local Dask cluster of 1 and 2 workers: the same bits, and the
+speed-up), ``calibration`` (every statistical
 claim on 200 random valid scenarios per family: observed false-fail rate at α = 0.05 with its
 exact interval, and fails at the report's own confidence). ``--quick``: fewer repeats and
 sizes, quick reproductions only (a smoke test of the whole harness, a few minutes).
@@ -46,12 +48,13 @@ from .bench_calibration import bench_calibration  # noqa: E402
 from .bench_commands import bench_commands  # noqa: E402
 from .bench_estimates import TARGET_FACTOR, bench_estimates  # noqa: E402
 from .bench_plugin import bench_plugin  # noqa: E402
+from .bench_scheduler import bench_scheduler  # noqa: E402
 from .bench_startup import bench_startup  # noqa: E402
 from .bench_sweep import bench_example_sweeps, bench_sweep_overhead, bench_sweep_scaling  # noqa: E402
 from .common import bound_row, estimator_row, spread, timed  # noqa: E402
 
 SECTIONS = ("floor", "estimators", "bounds", "scale", "plugin", "record", "reproduce", "startup", "commands",
-            "estimates", "sweep", "calibration")
+            "estimates", "sweep", "scheduler", "calibration")
 TITLES = {
     "floor": "What the machine allows (floors behind the per-step targets)",
     "estimators": "Estimators side by side: batched vs a straightforward per-trial loop",
@@ -68,6 +71,7 @@ TITLES = {
                  "every shipped scenario and generated ones",
     "sweep": "`dse sweep`: per-point overhead (CPU beyond the points' stages), the example sweeps cold, and the "
              "same 1,000-point sweep in process and on 1 and 2 Dask workers",
+    "scheduler": "One run on a Dask cluster (`dse run --scheduler`): 10^7 trials in process and on 1 and 2 local workers",
     "calibration": "Statistical claims on random valid scenarios (quick sample sizes): false-fail rate at α = 0.05",
 }
 
@@ -298,10 +302,11 @@ def main(argv: list[str] | None = None) -> int:
                    "sweep": lambda: bench_sweep_overhead(points=50 if args.quick else 200)
                    + ([] if args.quick else bench_example_sweeps())
                    + bench_sweep_scaling(points=100 if args.quick else 1000),
+                   "scheduler": lambda: bench_scheduler(trials=10**6 if args.quick else 10**7),
                    "calibration": lambda: bench_calibration(seeds=20 if args.quick else 200)}
         # reproduce before record: the recording replay uses the reproductions' recordings
         order = ("floor", "estimators", "bounds", "scale", "plugin", "reproduce", "record", "startup", "commands", "estimates",
-                 "sweep", "calibration")
+                 "sweep", "scheduler", "calibration")
         for key in sorted(only, key=order.index):
             print(f"[bench] {key} ...", file=sys.stderr, flush=True)
             t0 = time.perf_counter()
@@ -393,6 +398,11 @@ def _targets(results: dict[str, list[dict]]) -> list[str]:
         if "speedup_vs_1_worker" in r:
             lines.append(f"| dse sweep, {r['points']} points: 2 workers >= 1.9x one | "
                          f"speed-up {_fmt(r['speedup_vs_1_worker'])} | {'yes' if r['speedup_vs_1_worker'] >= 1.9 else '**no**'} |")
+    for r in results.get("scheduler", []):
+        if "speedup_vs_1_worker" in r:
+            lines.append(f"| dse run --scheduler local, {r['trials']:,} trials: {r['target']}, numbers identical to in "
+                         f"process | speed-up {_fmt(r['speedup_vs_1_worker'])} ({_fmt(r['speedup_vs_in_process'])} over "
+                         f"in process); differences: {r['differences']} | {_fmt(r['met'])} |")
     calib = [r for r in results.get("calibration", []) if "tested" in r]
     if calib:
         bad = [r for r in calib if not r["calibrated"]]

@@ -41,6 +41,7 @@ from dse.engine.provenance import provenance
 from dse.errors import OutputError, UsageError
 from dse.outputs.report import verdict_counts, write_report
 from dse.outputs.tables import Tables, spec
+from dse.simulate.executor import executor_for, stderr_log, using
 from dse.simulate.units import peak_memory_mib
 from dse.verify.rules import Evaluation
 
@@ -231,7 +232,8 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
         refuse_if_too_large(estimate, opts)
         refuse_if_too_long(estimate, opts, trials_field(repro, opts))
         ctx = StageContext(MemoryCache() if cache_dir is None else StageCache(Path(cache_dir), fresh=fresh))
-        computed = repro.compute(opts, ctx)
+        with using(executor_for(opts.scheduler, opts.workers, log=stderr_log)):
+            computed = repro.compute(opts, ctx)
         ev = evaluate_claims(repro, computed)
         tables = evaluation_tables(ev)
         for table_spec, frame in repro.tables(computed.results):
@@ -290,7 +292,7 @@ def _reuse_outputs(out_dir: Path, staging: Path, key: str | None) -> dict[str, s
 
 def run(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,
         quick: bool = False, workers: int = DEFAULT_WORKERS, max_memory: int | float | str | None = None,
-        cache_dir: str | os.PathLike | None = None, max_time_s: float | None = None) -> Run:
+        cache_dir: str | os.PathLike | None = None, max_time_s: float | None = None, scheduler: str = "auto") -> Run:
     """Load (unless given a reproduction), compute, verify and tabulate one scenario; nothing is written.
 
     Args:
@@ -305,12 +307,16 @@ def run(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: i
             everything in memory.
         max_time_s: a run estimated to take longer than this many seconds is refused before it starts,
             like `--max-time` (None: a day; `math.inf`: no limit).
+        scheduler: where the Monte Carlo runs, like `--scheduler`: "auto" (the stages in `workers` forked
+            processes), "inline" (all in this process), "local" (the units on a local Dask cluster of
+            `workers` processes) or the address of a running Dask scheduler ("tcp://HOST:8786"). Results do
+            not depend on it.
 
     Raises `UsageError` for an invalid argument and `ScenarioError` for an invalid scenario or a refused
     run (both one line, as the command line prints them), `NumericalError` (and its `NumericalLimit`)
     for a run whose numbers are not finite or beyond float64."""
     opts = run_options(seed=seed, trials=trials, quick=quick, workers=workers, max_memory=max_memory,
-                       max_time_s=max_time_s)
+                       max_time_s=max_time_s, scheduler=scheduler)
     _check_source(source)
     _check_dir(cache_dir, "cache_dir")
     if isinstance(source, (str, os.PathLike, Mapping)):
@@ -332,13 +338,16 @@ MAX_COUNT = 10**12
 
 
 def run_options(*, seed: Any = 0, trials: Any = None, quick: Any = False, workers: Any = DEFAULT_WORKERS,
-                max_memory: Any = None, max_time_s: Any = None) -> RunOptions:
+                max_memory: Any = None, max_time_s: Any = None, scheduler: Any = "auto") -> RunOptions:
     """`RunOptions` from the arguments of `run` and `check` (see `run`); `UsageError` naming the first bad one."""
+    from dse.simulate.cluster import check_scheduler
+
     if not isinstance(quick, bool):
         raise UsageError("quick", f"must be True or False, got {quick!r}")
     return RunOptions(seed=_count(seed, "seed", 0), trials=None if trials is None else _count(trials, "trials", 1),
                       quick=quick, workers=_count(workers, "workers", 1), max_memory_mib=_memory_mib(max_memory),
-                      max_time_s=_seconds(max_time_s, "max_time_s"))
+                      max_time_s=_seconds(max_time_s, "max_time_s"),
+                      scheduler=check_scheduler(scheduler, "scheduler", UsageError))
 
 
 def _seconds(value: Any, name: str) -> float | None:

@@ -135,7 +135,8 @@ def cmd_check(args) -> int:
 
 def _options(args) -> RunOptions:
     return RunOptions(seed=args.seed, trials=args.trials, quick=args.quick, workers=args.workers,
-                      max_memory_mib=getattr(args, "max_memory", None), max_time_s=getattr(args, "max_time", None))
+                      max_memory_mib=getattr(args, "max_memory", None), max_time_s=getattr(args, "max_time", None),
+                      scheduler=getattr(args, "scheduler", "auto"))
 
 
 def cmd_reproduce(args) -> int:
@@ -327,6 +328,10 @@ def _version() -> str:
 QUICK_HELP = ("a smaller, faster run: each family's quick_* keys (fewer Monte Carlo trials, shorter horizons, "
               "coarser grids; see docs/scenarios.md); tolerances are unchanged, so statistical claims have less "
               "power and some may be not-checkable")
+RUN_SCHEDULER_HELP = ("where the Monte Carlo runs: auto (default: the stages in --workers forked processes), inline "
+                      "(everything in this process), local (the Monte Carlo units on a local Dask cluster of --workers "
+                      "processes) or the address of a running Dask scheduler, e.g. tcp://HOST:8786; results are the "
+                      "same bits whatever it is (README, 'One run on a cluster')")
 FILE_HELP = "a scenario file (TOML) of a supported family: `family = \"...\"` and its keys (docs/scenarios.md)"
 
 
@@ -347,6 +352,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--seed", type=_nonnegative_int, default=0, help="root random seed (default 0)")
         p.add_argument("--out", default="out", help="output root directory (default out/)")
         _budget_flags(p)
+        p.add_argument("--scheduler", type=_scheduler, default="auto", help=RUN_SCHEDULER_HELP)
         p.add_argument("--no-figures", action="store_true",
                        help="write the report and the tables only (no figures, no recordings): for fast iteration")
         p.add_argument("--fresh", action="store_true",
@@ -464,6 +470,16 @@ def _count(text: str, low: int) -> int:
     if value > MAX_COUNT:
         raise argparse.ArgumentTypeError(f"must be at most {MAX_COUNT:.0e}, got {text}")
     return value
+
+
+def _scheduler(text: str) -> str:
+    """auto, inline, local or a Dask scheduler's address."""
+    from dse.simulate.cluster import SCHEDULER_HELP, check_scheduler
+
+    try:
+        return check_scheduler(text)
+    except ScenarioError:
+        raise argparse.ArgumentTypeError(f"must be {SCHEDULER_HELP}, got {text!r}") from None
 
 
 def _positive_int(text: str) -> int:

@@ -13,6 +13,7 @@ import numpy as np
 
 from dse.contract.stages import Stage, StageResult, code_hash
 from dse.errors import NumericalLimit
+from dse.simulate import checkpoints, executor  # executor: registers how portable Monte Carlo runs (run_units)
 
 #: what LAPACK says when a matrix is singular, indefinite or ill-conditioned at working precision
 #: (other LinAlgErrors, such as a non-square argument, are defects and propagate as they are)
@@ -47,19 +48,24 @@ class StageContext:
         scenario = next((str(getattr(v, "name", "")) for v in arguments.values() if callable(getattr(v, "key", None))
                          and not isinstance(v, StageResult)), "")
         computed = []
+        units_dir = self.cache.units_dir(key)
 
         def compute():
             computed.append(True)
             try:
                 # an overflow or a NaN inside a stage is not printed: the stage's arrays are checked
-                # finite when stored (NumericalError naming the array) unless it declares them allowed
-                with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                # finite when stored (NumericalError naming the array) unless it declares them allowed;
+                # its finished Monte Carlo units are kept in `units_dir` until its entry is stored
+                with np.errstate(over="ignore", invalid="ignore", divide="ignore"), \
+                        checkpoints.stage_scope(units_dir, fresh=self.cache.fresh):
                     return st.fn(**arguments)
             except np.linalg.LinAlgError as exc:
                 raise beyond_float64(exc, st.name, scenario) from exc
 
         arrays = self.cache.get_or_compute(st.name, params, compute, scenario=scenario,
                                            allow_nonfinite=st.nonfinite_allowed(arguments))
+        if computed:
+            checkpoints.finish_stage(units_dir)
         self.ran.append({"name": st.name, "key": key, "cached": not computed})
         out = StageResult(arrays)
         out.key = key
@@ -69,7 +75,8 @@ class StageContext:
                  weights: Sequence[float] | None = None) -> list[StageResult]:
         """`run` for several (stage, args, kwargs) calls, in `workers` forked processes, the heaviest
         (by `weights`) first; results in the order of `calls`, and the stages the workers ran recorded
-        here. Each call stores its own cache entry, so an interrupted run resumes call by call."""
+        here. Each call stores its own cache entry, so an interrupted run resumes call by call. The run's unit
+        executor may ask for fewer processes (`dse.simulate.executor`: none when the units go to a cluster)."""
         from dse.simulate.units import run_jobs
 
         def job(st: Stage, args: tuple, kwargs: dict):
@@ -84,7 +91,8 @@ class StageContext:
             for st in {c[0] for c in calls}:     # each stage's code hash once, here, inherited by the forked workers
                 code_hash(st.module)
         results = []
-        for arrays, key, ran in run_jobs([(w, job(*c)) for w, c in zip(weights, calls)], workers, desc=desc):
+        jobs = [(w, job(*c)) for w, c in zip(weights, calls)]
+        for arrays, key, ran in run_jobs(jobs, executor.current().stage_workers(workers), desc=desc):
             self.ran.extend(ran)
             out = StageResult(arrays)
             out.key = key

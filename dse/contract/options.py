@@ -35,8 +35,11 @@ INTERPRETER_MIB = 200.0
 class RunOptions:
     """User-level knobs of a run. `trials=None` keeps the scenario's own count;
     `max_memory_mib=None` is DEFAULT_MEMORY_FRACTION of the machine's memory; `max_time_s=None` is
-    DEFAULT_MAX_TIME_S (`math.inf`: no limit). Only `seed`, `trials` and `quick` can change a result;
-    `workers`, the memory budget and the time limit never do."""
+    DEFAULT_MAX_TIME_S (`math.inf`: no limit). `scheduler`: where the Monte Carlo units run (auto: stages
+    in `workers` forked processes; inline: all in this process; local: a local Dask cluster of `workers`
+    processes; ``tcp://HOST:PORT``: a running Dask scheduler; see `dse.simulate.executor`). Only `seed`,
+    `trials` and `quick` can change a result; `workers`, `scheduler`, the memory budget and the time limit
+    never do (none of them is part of a cache key)."""
 
     seed: int = 0
     trials: int | None = None
@@ -44,6 +47,7 @@ class RunOptions:
     workers: int = 1
     max_memory_mib: float | None = None
     max_time_s: float | None = None
+    scheduler: str = "auto"
 
     @property
     def time_limit_s(self) -> float:

@@ -77,6 +77,11 @@ class StageCache:
     def key(self, stage: str, params: dict[str, Any]) -> str:
         return f"{stage}-{hashlib.sha256(canonical_json(params).encode()).hexdigest()[:24]}"
 
+    def units_dir(self, key: str) -> Path | None:
+        """Where the stage `key` keeps its finished Monte Carlo units while it computes
+        (`dse.simulate.checkpoints`); None for a read-only cache."""
+        return None if self.read_only else self.root / "units" / key
+
     def _paths(self, key: str) -> tuple[Path, Path]:
         return self.root / f"{key}.npz", self.root / f"{key}.json"
 
@@ -150,6 +155,9 @@ class MemoryCache(StageCache):
 
     def load(self, stage: str, params: dict[str, Any]) -> dict[str, np.ndarray] | None:
         return self._entries.get(self.key(stage, params))
+
+    def units_dir(self, key: str) -> Path | None:
+        return None         # nothing on disk: an interrupted run in memory has nothing to resume from
 
     def save(self, stage: str, params: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
         self._entries[self.key(stage, params)] = arrays

@@ -63,9 +63,11 @@ class UnitStreams:
     unit order for results that do not depend on the chunking either.
     """
 
-    def __init__(self, seeds: Sequence[np.random.SeedSequence], sizes: Sequence[int]):
+    def __init__(self, seeds: Sequence[np.random.SeedSequence], sizes: Sequence[int], first_unit: int = 0):
         self.generators = [block_generator(s) for s in seeds]
         self.sizes = list(sizes)
+        #: the index of this batch's first unit in its stream (its first trial is first_unit * RNG_UNIT)
+        self.first_unit = first_unit
 
     @property
     def n(self) -> int:
@@ -93,6 +95,49 @@ class UnitStreams:
         return [array[a:b] for a, b in zip(edges[:-1], edges[1:])]
 
 
+def kept_rows(streams: UnitStreams, keep: int) -> int:
+    """How many of a chunk's trials are among the first `keep` trials of its stream (the trials a stage keeps
+    whole: sample paths), counted from the chunk's first trial."""
+    return max(0, min(keep - streams.first_unit * RNG_UNIT, streams.n))
+
+
+def rows_by_unit(streams: UnitStreams, **arrays) -> list[dict]:
+    """The rows of `arrays` (leading axis: the chunk's first trials, as many of them as each keeps: `kept_rows`)
+    split by the unit they belong to: one dict per unit of the chunk, without the arrays none of whose rows
+    is the unit's. A portable chunk function returns them in its partials, and the stage stacks them
+    (`stack_rows`) in unit order."""
+    edges = np.cumsum([0, *streams.sizes])
+    return [{k: a[lo:min(hi, len(a))] for k, a in arrays.items() if lo < len(a)}
+            for lo, hi in zip(edges[:-1], edges[1:])]
+
+
+def stack_rows(parts: Sequence[dict], name: str, empty: np.ndarray) -> np.ndarray:
+    """The kept rows `name` of every unit, in unit order (`empty`, the array of no row, when none is kept)."""
+    rows = [p[name] for p in parts if name in p]
+    return np.concatenate(rows) if rows else empty
+
+
+class LocalProgress:
+    """A progress bar (`dse.engine.progress.counter`) a portable chunk function may advance: the bar in the
+    process that made it; a copy sent elsewhere (to a Dask worker) advances nothing."""
+
+    def __init__(self, bar=None):
+        self.bar = bar
+
+    def update(self, n: int) -> None:
+        if self.bar is not None:
+            self.bar.update(n)
+
+    def __reduce__(self):
+        return (LocalProgress, ())
+
+
+#: how portable chunks are run: `dse.simulate.executor.run_portable`, registered when that module is imported (by
+#: the driver and the stage context), so that the machinery that runs a stage stays out of its code closure and
+#: its cache key (`dse.contract.stages.code_closure`); without it they run here like any other
+_PORTABLE_RUNNER: list[Callable] = []
+
+
 def units_per_chunk(bytes_per_trial: float, budget_bytes: float) -> int:
     """How many RNG units one chunk may hold within `budget_bytes` (at least one)."""
     return max(1, int(budget_bytes // max(bytes_per_trial * RNG_UNIT, 1.0)))
@@ -100,19 +145,27 @@ def units_per_chunk(bytes_per_trial: float, budget_bytes: float) -> int:
 
 def run_units(simulate_chunk: Callable[[UnitStreams], Sequence[T]], fold: Callable[[R | None, T], R],
               n_trials: int, seq: np.random.SeedSequence, *, bytes_per_trial: float,
-              budget_bytes: float = BLOCK_MEMORY_BYTES, desc: str = "") -> R:
+              budget_bytes: float = BLOCK_MEMORY_BYTES, desc: str = "", portable: bool = False) -> R:
     """Simulate `n_trials` trials in RNG units of RNG_UNIT trials, as many units per chunk as
     `budget_bytes` allows; `simulate_chunk` returns one partial result per unit, and `fold`
     accumulates them in unit order (streaming: memory does not grow with the trial count).
-    The result is bit-identical whatever the budget."""
+    The result is bit-identical whatever the budget.
+
+    `portable=True` declares that `simulate_chunk` is a function of its units alone (it keeps no state
+    between chunks and changes nothing outside; `UnitStreams.first_unit` says where the chunk starts): its
+    chunks then go to the run's unit executor (`dse.simulate.executor`: this process, or a Dask cluster),
+    and the finished units are stored while the stage runs, so that an interrupted stage resumes from them
+    (`dse.simulate.checkpoints`). Otherwise the chunks run here, one after the other."""
     n_units = -(-n_trials // RNG_UNIT)
+    per_chunk = units_per_chunk(bytes_per_trial, budget_bytes)
+    if portable and _PORTABLE_RUNNER:
+        return _PORTABLE_RUNNER[0](simulate_chunk, fold, n_trials, seq, per_chunk, desc)
     sizes = [min(RNG_UNIT, n_trials - u * RNG_UNIT) for u in range(n_units)]
     seeds = block_seeds(seq, n_units)
-    per_chunk = units_per_chunk(bytes_per_trial, budget_bytes)
     acc = None
     for start in progress(range(0, n_units, per_chunk), desc=desc) if desc else range(0, n_units, per_chunk):
         stop = min(start + per_chunk, n_units)
-        for part in simulate_chunk(UnitStreams(seeds[start:stop], sizes[start:stop])):
+        for part in simulate_chunk(UnitStreams(seeds[start:stop], sizes[start:stop], first_unit=start)):
             acc = fold(acc, part)
     return acc
 

@@ -18,7 +18,6 @@ import dataclasses
 import fnmatch
 import hashlib
 import json
-import logging
 import os
 import shutil
 import socket
@@ -33,10 +32,9 @@ from dse.engine.atomic import atomic_write_text
 from dse.engine.cache import MemoryCache, canonical_json, project_fingerprint
 from dse.errors import NumericalError, ScenarioError
 from dse.engine.progress import progress_enabled
+from dse.simulate.cluster import SCHEDULERS, WORKER_ENV, check_scheduler, connect, start_local, wait_for_a_worker  # noqa: F401
 from dse.sweeps.spec import Point, SweepSpec
 
-#: environment of every worker: one BLAS thread (the tasks are the parallelism), no inner bars
-WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "DSE_PROGRESS": "0"}
 #: the fields of a claim's row kept per point (all of them but none of the report's layout)
 POINT_CLAIM_FIELDS = ("id", "source", "statement", "kind", "verdict", "measured", "reference", "tolerance", "margin",
                       "confidence", "trials", "printed", "corrected", "detail")
@@ -312,16 +310,10 @@ def _mkdir(path: Path) -> Path:
     return path
 
 
-SCHEDULERS = ("auto", "inline", "local")
-
-
 def choose_scheduler(scheduler: str, pending: int, workers: int) -> str:
     """`auto`: in process for tiny sweeps (at most one pending point, or one worker), else a
     local Dask cluster; `inline`, `local` or a scheduler address (``tcp://HOST:PORT``) as given."""
-    if scheduler not in SCHEDULERS and "://" not in scheduler:
-        raise ScenarioError("--scheduler", "must be auto, inline, local or an address such as tcp://HOST:8786, "
-                                           f"got {scheduler!r}")
-    if scheduler != "auto":
+    if check_scheduler(scheduler) != "auto":
         return scheduler
     return "inline" if pending <= 1 or workers <= 1 else "local"
 
@@ -402,25 +394,16 @@ class LocalClusters:
 
 
 def _start_local(workers: int):
-    from dask.distributed import Client, LocalCluster
-
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL, env=WORKER_ENV)
-    return cluster, Client(cluster)
+    return start_local(workers)
 
 
 def _connect(scheduler: str, workers: int, clusters: LocalClusters | None):
     """(client, whether this sweep closes it, where): a shared local cluster, a new one, or a scheduler's address."""
-    from dask.distributed import Client
-
     if scheduler == "local" and clusters is not None:
         return clusters.client(workers), None, "local cluster"
     if scheduler == "local":
         return _start_local(workers)[::-1] + ("local cluster",)
-    try:
-        return Client(scheduler, timeout="20s"), None, scheduler
-    except (OSError, TimeoutError, ValueError) as exc:
-        raise ScenarioError("--scheduler", f"cannot reach the Dask scheduler at {scheduler} ({exc})") from None
+    return connect(scheduler), None, scheduler
 
 
 def _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn, worker_timeout,
@@ -431,16 +414,7 @@ def _execute_dask(tasks, scheduler, workers, retries, on_result, log, fn, worker
     shared = scheduler == "local" and clusters is not None
     failures = {}
     try:
-        n_workers = len(client.scheduler_info().get("workers", {}))
-        if n_workers == 0:
-            log(f"dask: {where} has no worker yet; waiting up to {worker_timeout:g} s for one")
-            try:
-                client.wait_for_workers(1, timeout=worker_timeout)
-            except (TimeoutError, OSError):
-                raise ScenarioError("--scheduler", f"no worker joined the Dask scheduler at {scheduler} within "
-                                                   f"{worker_timeout:g} s (start workers with `dask worker {scheduler}`)") from None
-            n_workers = len(client.scheduler_info().get("workers", {}))
-        log(f"dask: {where} with {n_workers} worker(s); dashboard {client.dashboard_link}")
+        wait_for_a_worker(client, scheduler, where, log, worker_timeout)
         owner, futures = {}, []
         for task in heaviest_first(tasks):      # submitted first, run first: the long points do not come last
             futures.append(client.submit(fn, task.payload(), key=f"dse-point-{task.key}", retries=retries))

@@ -38,16 +38,14 @@ def gikf(sc: GossipKalmanFile, bounds: dict, seed: int, runs: int, slots: int, w
          bytes_per_run: float) -> dict[str, np.ndarray]:
     """The GIKF runs under `which` ("protocol" or "comparison"), as many units per chunk as `budget_bytes`
     allows (`bytes_per_run`: the cost model's): every statistic is made per unit and folded in unit order, so
-    the numbers do not depend on the budget. The first unit carries the Loewner margins (with their round-off
-    bounds) and the sample runs."""
+    the numbers do not depend on the budget; the chunks are portable (they go to the run's unit executor).
+    The first unit carries the Loewner margins (with their round-off bounds) and the sample runs."""
     spec = sc.protocol if which == "protocol" else sc.comparison_protocol
     protocol = spec.build(sc.network)
     sys_, b = sc.system, bounds
-    done = [0]
 
     def chunk(streams):
-        first = done[0] == 0
-        done[0] += len(streams.sizes)
+        first = streams.first_unit == 0
         acc = standard_accumulators(sys_, slots, record_times=record_times(sc, slots), P_central=b["P_central"],
                                     envelope=b["envelope"], envelope_log=b["envelope_log"],
                                     envelope_err=b["envelope_err"], j_grid=J_GRID, n_paths=sc.simulation.sample_paths,
@@ -58,7 +56,7 @@ def gikf(sc: GossipKalmanFile, bounds: dict, seed: int, runs: int, slots: int, w
                           K_central=b["K_central"], accumulators=acc)
 
     out = finish_gikf(run_units(chunk, fold_gikf, runs, stream_seed(seed, sc.name, "gikf", which),
-                                bytes_per_trial=bytes_per_run, budget_bytes=budget_bytes))
+                                bytes_per_trial=bytes_per_run, budget_bytes=budget_bytes, portable=True))
     if int(out["overflow"]) < 0:
         check_finite({k: v for k, v in out.items() if k not in UNEVALUATED}, stage="gikf", scenario=sc.name)
     return out

@@ -3,8 +3,9 @@
 Cells (algorithm, m, σ_c) are simulated in groups that share (algorithm, m, horizon): one run
 drives every σ_c with the same random draws (common random numbers), and each group is one
 stage result (one cache entry), so an interrupted run resumes group by group. Within a group
-the trials stream in units of 1,000 with their own random streams (`dse.simulate.units.run_units`),
-as many units at a time as the memory budget allows, and time streams step by step: only the
+the trials stream in units of 1,000 with their own random streams (`dse.simulate.units.run_units`,
+portable: on the run's unit executor, a Dask cluster with `--scheduler local`), as many units at a time
+as the memory budget allows, and time streams step by step: only the
 sums of the errors' powers at the recorded steps are kept. Results do not depend on the budget.
 """
 from __future__ import annotations
@@ -78,8 +79,7 @@ def simulate_group(sc: NoisyConsensusFile, seed: int, trials: int, steps: np.nda
     path_steps = min(first.n_steps, mc.sample_steps)
 
     def chunk(streams):
-        paths = mc.sample_paths if streams is not None and chunk.first else 0
-        chunk.first = False
+        paths = mc.sample_paths if streams.first_unit == 0 else 0      # the sample paths are the first trials'
         run = cf.consensus_filter_moments(
             sc.Q, ell=[c.ell for c in cells], sigma_c=[c.sigma_c for c in cells], zeta=[c.zeta for c in cells],
             m=first.m, q=model.q, r=model.r, sigma0=model.sigma0, x0_mean=model.x0_mean, n_steps=first.n_steps,
@@ -91,8 +91,6 @@ def simulate_group(sc: NoisyConsensusFile, seed: int, trials: int, steps: np.nda
             parts[0]["paths"] = run.paths
         return parts
 
-    chunk.first = True
-
     def fold(acc, part):
         if acc is None:
             return dict(part)
@@ -103,7 +101,7 @@ def simulate_group(sc: NoisyConsensusFile, seed: int, trials: int, steps: np.nda
 
     per_trial = bytes_per_trial(len(cells), sc.n, len(steps))
     total = run_units(chunk, fold, trials, group_streams(seed, cells), bytes_per_trial=per_trial,
-                      budget_bytes=min(budget_bytes, CHUNK_BYTES, CHUNK_TRIALS * per_trial), desc=desc)
+                      budget_bytes=min(budget_bytes, CHUNK_BYTES, CHUNK_TRIALS * per_trial), desc=desc, portable=True)
     return _group_arrays(sc, cells, total, reference)
 
 

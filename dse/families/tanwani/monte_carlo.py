@@ -19,7 +19,8 @@ import dse.estimators.gossip_filter as gf
 from dse.contract.stages import stage
 from dse.simulate.matrix_moments import MatrixMoments
 from dse.simulate.seeding import stream_seed
-from dse.simulate.units import BLOCK_MEMORY_BYTES, block_generator, run_units
+from dse.simulate.units import (BLOCK_MEMORY_BYTES, block_generator, kept_rows, rows_by_unit, run_units,
+                                stack_rows)
 
 from .references import directions, quadratic_forms, test_times
 from .scenario import RandomCommFile
@@ -46,6 +47,13 @@ def _moments(acc, part):
     return part if acc is None else MatrixMoments.combine([acc, part])
 
 
+def _fold_kept(acc: dict | None, part: dict) -> dict:
+    """Moments folded in unit order, beside the rows of the trials kept whole (`kept`, a list per unit)."""
+    if acc is None:
+        return part
+    return {"mom": MatrixMoments.combine([acc["mom"], part["mom"]]), "kept": acc["kept"] + part["kept"]}
+
+
 def gridded_bytes_per_trial(sc: RandomCommFile) -> float:
     """Memory of one gridded trial in a chunk: the state and its copies, the noise draws, the ring counts."""
     s = sc.gossip
@@ -65,32 +73,32 @@ def simulate_gridded_rate(sc: RandomCommFile, seed: int, trials: int, rate: floa
     every = int(round(sc.output_step / sc.grid_step))
     U, cells = directions(n), test_times(sc)
     cell_at = {int(k): c for c, k in enumerate(cells)}
-    samples = np.zeros((min(sc.simulation.sample_trials, trials), T, (N + 1) * n))
-    pairs = np.zeros((min(pair, trials), len(cells), N, len(U)))
-    start = [0]                                            # first trial of the chunk
+    n_samples, n_pairs, D = min(sc.simulation.sample_trials, trials), min(pair, trials), (N + 1) * n
 
     def chunk(streams):
-        spans, first = _spans(streams), start[0]
+        spans = _spans(streams)
         parts = [MatrixMoments.zeros(b - a, T, N, n) for a, b in spans]
+        samples = np.zeros((kept_rows(streams, n_samples), T, D))
+        pairs = np.zeros((kept_rows(streams, n_pairs), len(cells), N, len(U)))
 
         def record(k, z):
             e = _errors(z, N, n)
             for part, (a, b) in zip(parts, spans):
                 part.add([k], e[a:b, None])
-            rows = min(len(samples) - first, len(z))
-            if rows > 0:
-                samples[first:first + rows, k] = z[:rows]
-            rows = min(len(pairs) - first, len(z))
-            if rows > 0 and k in cell_at:
-                pairs[first:first + rows, cell_at[k]] = np.square(e[:rows] @ U.T)
+            samples[:, k] = z[:len(samples)]
+            if len(pairs) and k in cell_at:
+                pairs[:, cell_at[k]] = np.square(e[:len(pairs)] @ U.T)
 
         gf.simulate_gridded(s, rate, sc.grid_step, sc.grid_steps, every, streams.n, streams, on_record=record)
-        start[0] += streams.n
-        return parts
+        return [{"mom": m, "kept": [rows] if rows else []} for m, rows in
+                zip(parts, rows_by_unit(streams, sample_z=samples, pair_values=pairs))]
 
-    mom = run_units(chunk, _moments, trials, stream_seed(seed, "gridded", sc.name, rate),
-                    bytes_per_trial=gridded_bytes_per_trial(sc), budget_bytes=budget_bytes)
-    return {**mom.arrays("e_"), "sample_z": samples, **({"pair_values": pairs} if pair else {})}
+    total = run_units(chunk, _fold_kept, trials, stream_seed(seed, "gridded", sc.name, rate),
+                      bytes_per_trial=gridded_bytes_per_trial(sc), budget_bytes=budget_bytes, portable=True)
+    kept = {"sample_z": stack_rows(total["kept"], "sample_z", np.zeros((0, T, D)))}
+    if pair:
+        kept["pair_values"] = stack_rows(total["kept"], "pair_values", np.zeros((0, len(cells), N, len(U))))
+    return {**total["mom"].arrays("e_"), **kept}
 
 
 def event_bytes_per_trial(sc: RandomCommFile, *, sample: bool = True) -> float:
@@ -140,16 +148,22 @@ class EventStatistics:
         self.pairs = gc.vech_pairs(s.n)
         self.cell_of = np.full(self.T, -1)
         self.cell_of[cells] = np.arange(len(cells))
-        keep, shape = min(sc.simulation.sample_trials, trials), (len(cells), s.N, len(self.U))
+        self.n_keep, self.n_pairs = min(sc.simulation.sample_trials, trials), min(PAIR_MAX, trials)
+        self.shape = (len(cells), s.N, len(self.U))
+
+    def _start(self, streams) -> None:
+        """This chunk's rows of the trials kept whole and of the paired values (the stream's first ones)."""
+        s, keep = self.s, kept_rows(streams, self.n_keep)
         self.kept = {"z": np.zeros((keep, self.T, (s.N + 1) * s.n)), "sigma": np.zeros((keep, self.T, s.N, s.n, s.n)),
                      "pbound": np.zeros((keep, self.T, s.N, s.n, s.n)), "t": [[] for _ in range(keep)],
                      "c": [[] for _ in range(keep)]}
-        self.pair_values = np.zeros((min(PAIR_MAX, trials), *shape))
-        self.first, self.shape = 0, shape
+        self.pair_values = np.zeros((kept_rows(streams, self.n_pairs), *self.shape))
 
     def chunk(self, streams) -> list[dict]:
-        """`run_units`' chunk: simulate these units, one partial result per unit."""
+        """`run_units`' chunk: simulate these units, one partial result per unit (a function of the units alone:
+        every attribute it sets is set again by the next chunk)."""
         s, K = self.s, streams.n
+        self._start(streams)
         self.spans = _spans(streams)
         self.parts = [{"mom": MatrixMoments.zeros(b - a, self.T, s.N, s.n), **{k: np.zeros(self.shape) for k in
                        CELL_SUMS}} for a, b in self.spans]
@@ -157,8 +171,9 @@ class EventStatistics:
         self.last, self.spacing = np.full(K, -np.inf), np.full(K, np.inf)
         run = gf.simulate_event_driven(s, self.sc.main_rate, self.sc.output_times, K, streams,
                                        window=event_window(self.sc), on_window=self.on_window)
-        self.first += K
-        for part, (a, b) in zip(self.parts, self.spans):
+        kept = rows_by_unit(streams, pair_values=self.pair_values, **self.kept)
+        for part, (a, b), rows in zip(self.parts, self.spans, kept):
+            part["kept"] = [rows] if rows else []
             part.update(c1=self.counts[a:b].sum(0), c0=(self.counts[a:b] == 0).sum(0),
                         spacing=float(self.spacing[a:b].min()), min_gap=float(run.min_gap[a:b].min()),
                         min_rel_gap=float((run.min_gap[a:b] / np.maximum(1.0, run.scale[a:b])).min()),
@@ -174,9 +189,9 @@ class EventStatistics:
             part["mom"].add(w.index, e[a:b])
             if ci.size:
                 self._cells(part, ci, w.pbound[a:b, wi], w.sigma[a:b, wi], e[a:b, wi])
-        rows = min(len(self.pair_values) - self.first, len(e))
+        rows = len(self.pair_values)
         if ci.size and rows > 0:
-            self.pair_values[self.first:self.first + rows, ci] = np.square(e[:rows, wi] @ self.U.T)
+            self.pair_values[:, ci] = np.square(e[:rows, wi] @ self.U.T)
         valid = w.event_clocks >= 0
         if valid.size:
             self._count(w, valid)
@@ -204,16 +219,15 @@ class EventStatistics:
         self.last[has] = np.max(np.where(valid, w.event_times, -np.inf), axis=1)[has]
 
     def _keep(self, w: gf.EventWindow, valid: np.ndarray) -> None:
-        kept, first = self.kept, self.first
-        rows = min(len(kept["t"]) - first, len(w.z))
+        kept = self.kept
+        rows = len(kept["t"])
         if rows > 0:
-            g = slice(first, first + rows)
-            kept["z"][g, w.index], kept["sigma"][g, w.index] = w.z[:rows], w.sigma[:rows]
-            kept["pbound"][g, w.index] = w.pbound[:rows]
+            kept["z"][:, w.index], kept["sigma"][:, w.index] = w.z[:rows], w.sigma[:rows]
+            kept["pbound"][:, w.index] = w.pbound[:rows]
             for r in range(rows):
                 ok = valid[r] if valid.size else np.zeros(0, bool)
-                kept["t"][first + r].append(w.event_times[r][ok])
-                kept["c"][first + r].append(w.event_clocks[r][ok])
+                kept["t"][r].append(w.event_times[r][ok])
+                kept["c"][r].append(w.event_clocks[r][ok])
 
     @staticmethod
     def fold(acc: dict | None, part: dict) -> dict:
@@ -226,21 +240,27 @@ class EventStatistics:
             out[key] = min(acc[key], part[key])
         for key in ("max_scale", "max_events", "condition"):
             out[key] = max(acc[key], part[key])
+        out["kept"] = acc["kept"] + part["kept"]
         return out
 
     def arrays(self, total: dict) -> dict[str, np.ndarray]:
         """The stage's arrays: the folded sums, then the sample paths (rings inf / −1 padded) and paired values."""
-        arrays = total.pop("mom").arrays("e_")
+        arrays, units = total.pop("mom").arrays("e_"), total.pop("kept")
         arrays.update({k: np.asarray(v) for k, v in total.items()})
-        keep = len(self.kept["t"])
-        width = max([1] + [sum(len(x) for x in ts) for ts in self.kept["t"]])
-        ev_t, ev_c = np.full((keep, width), np.inf), np.full((keep, width), -1, dtype=np.int64)
-        for r in range(keep):
-            t = np.concatenate(self.kept["t"][r] or [np.zeros(0)])
-            c = np.concatenate(self.kept["c"][r] or [np.zeros(0, int)])
+        s, T = self.s, self.T
+        times = [ts for u in units for ts in u.get("t", [])]
+        clocks = [cs for u in units for cs in u.get("c", [])]
+        width = max([1] + [sum(len(x) for x in ts) for ts in times])
+        ev_t, ev_c = np.full((len(times), width), np.inf), np.full((len(times), width), -1, dtype=np.int64)
+        for r in range(len(times)):
+            t = np.concatenate(times[r] or [np.zeros(0)])
+            c = np.concatenate(clocks[r] or [np.zeros(0, int)])
             ev_t[r, :len(t)], ev_c[r, :len(c)] = t, c
-        arrays.update(sample_z=self.kept["z"], sample_sigma=self.kept["sigma"], sample_pbound=self.kept["pbound"],
-                      sample_event_times=ev_t, sample_event_clocks=ev_c, pair_values=self.pair_values)
+        matrices = np.zeros((0, T, s.N, s.n, s.n))
+        arrays.update(sample_z=stack_rows(units, "z", np.zeros((0, T, (s.N + 1) * s.n))),
+                      sample_sigma=stack_rows(units, "sigma", matrices), sample_pbound=stack_rows(units, "pbound", matrices),
+                      sample_event_times=ev_t, sample_event_clocks=ev_c,
+                      pair_values=stack_rows(units, "pair_values", np.zeros((0, *self.shape))))
         return arrays
 
 
@@ -252,7 +272,7 @@ def simulate_event_rate(sc: RandomCommFile, seed: int, trials: int,
     """The exact event-driven simulator at the main rate, with the statistics of `EventStatistics`."""
     stats = EventStatistics(sc, trials)
     total = run_units(stats.chunk, stats.fold, trials, stream_seed(seed, "event", sc.name, sc.main_rate),
-                      bytes_per_trial=event_bytes_per_trial(sc), budget_bytes=budget_bytes)
+                      bytes_per_trial=event_bytes_per_trial(sc), budget_bytes=budget_bytes, portable=True)
     return stats.arrays(total)
 
 
@@ -270,27 +290,25 @@ def simulate_frozen(sc: RandomCommFile, seed: int, trials: int,
     s = sc.gossip
     n, N, T = s.n, s.N, sc.n_outputs + 1
     path = frozen_path(sc, seed)
-    keep = {"path_sigma": np.zeros((T, N, n, n)), "path_pbound": np.zeros((T, N, n, n))}
-    start = [0]
 
     def chunk(streams):
-        spans, first = _spans(streams), start[0]
+        spans, first = _spans(streams), streams.first_unit == 0
         parts = [MatrixMoments.zeros(b - a, T, N, n) for a, b in spans]
+        keep = {"path_sigma": np.zeros((T, N, n, n)), "path_pbound": np.zeros((T, N, n, n))}
 
         def on_window(w: gf.EventWindow):
             e = _errors(w.z, N, n)
             for part, (a, b) in zip(parts, spans):
                 part.add(w.index, e[a:b])
-            if first == 0:
+            if first:
                 keep["path_sigma"][w.index], keep["path_pbound"][w.index] = w.sigma[0], w.pbound[0]
 
         run = gf.simulate_event_driven(s, sc.main_rate, sc.output_times, streams.n, streams, clock_path=path,
                                        window=event_window(sc), on_window=on_window)
-        if first == 0:
-            keep["path_min_gap"] = run.min_gap.min(axis=0)
-        start[0] += streams.n
-        return parts
+        keep["path_min_gap"] = run.min_gap.min(axis=0)
+        # the path's covariances are those of the first chunk (trial 0's; the same for every trial)
+        return [{"mom": m, "kept": [keep] if first and u == 0 else []} for u, m in enumerate(parts)]
 
-    mom = run_units(chunk, _moments, trials, stream_seed(seed, "frozen", sc.name),
-                    bytes_per_trial=event_bytes_per_trial(sc), budget_bytes=budget_bytes)
-    return {**mom.arrays("e_"), **keep, "path_times": path[0], "path_clocks": path[1]}
+    total = run_units(chunk, _fold_kept, trials, stream_seed(seed, "frozen", sc.name),
+                      bytes_per_trial=event_bytes_per_trial(sc), budget_bytes=budget_bytes, portable=True)
+    return {**total["mom"].arrays("e_"), **total["kept"][0], "path_times": path[0], "path_clocks": path[1]}

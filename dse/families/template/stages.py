@@ -67,5 +67,5 @@ def monte_carlo(sc: ConsensusFile, seed: int, trials: int, budget_bytes: float) 
 
     total = run_units(chunk, lambda acc, part: part if acc is None else acc + part, trials,
                       stream_seed(seed, "template", "v"), bytes_per_trial=8.0 * 3 * (sc.model.rounds + 2) * sc.n,
-                      budget_bytes=budget_bytes)
+                      budget_bytes=budget_bytes, portable=True)
     return {"sq": total}

@@ -4,7 +4,8 @@ stochastic Monte Carlo (time-varying roles, fixed roles, fixed roles at half the
 
 Runs stream over time: the integrator evaluates the input a chunk of steps at a time and keeps only
 the recorded samples (`simulation.record_dt`). The Monte Carlo streams over trials in RNG units of
-1,000 (`dse.simulate.units.run_units`, as many units at a time as the memory budget allows) and
+1,000 (`dse.simulate.units.run_units`, as many units at a time as the memory budget allows; portable: on
+the run's unit executor, a Dask cluster with `--scheduler local`) and
 keeps, per recorded time, the moments of V = zᵀPz over the trials (merged unit by unit), the
 per-trial late-window mean of ‖z‖, the projections on the exact law's principal directions at the
 check times, the final-time moments of every node's error, and the first `stochastic.runs` trials
@@ -22,7 +23,7 @@ from dse.contract.stages import stage
 from dse.engine.progress import counter
 from dse.simulate.seeding import stream_seed
 from dse.simulate.stats import Moments
-from dse.simulate.units import run_units
+from dse.simulate.units import RNG_UNIT, LocalProgress, run_units
 
 from .design import Design, coestimation, gains, input_signal, noise_of
 from .law import step_operators
@@ -185,7 +186,8 @@ def _fold(total: dict | None, part: dict) -> dict:
     return {"V": total["V"].merge(part["V"]), "V_max": max(total["V_max"], part["V_max"]),
             "err_sums": total["err_sums"] + part["err_sums"], "late": total["late"].merge(part["late"]),
             "proj": {k: total["proj"][k].merge(part["proj"][k]) for k in total["proj"]},
-            "final": total["final"].merge(part["final"]), "final_sq": total["final_sq"].merge(part["final_sq"])}
+            "final": total["final"].merge(part["final"]), "final_sq": total["final_sq"].merge(part["final_sq"]),
+            "kept": total["kept"] + part["kept"]}
 
 
 def run_stochastic(sc: CoestimationFile, P: np.ndarray, noise: sim.NoiseModel, *, fixed: bool, trials: int, seed: int,
@@ -201,15 +203,13 @@ def run_stochastic(sc: CoestimationFile, P: np.ndarray, noise: sim.NoiseModel, *
     t = np.arange(n_rec) * dt
     late = t >= min(sc.simulation.tail_start, t[-1] / 2)
     Pbig, probes = ce.block_diag(list(P)), probes or {}
-    kept: dict[str, list] = {"x": [], "e": [], "g": []}
-    done = [0]
     roles, signal = role_law(sc, fixed), input_signal(sc)
-    bar = counter(int(round(t_end / h)) * trials, desc=f"{sc.name}: {'fixed' if fixed else 'time-varying'} roles, "
-                  f"Monte Carlo at h = {h:g}", unit="trial-step")
+    bar = LocalProgress(counter(int(round(t_end / h)) * trials, desc=f"{sc.name}: {'fixed' if fixed else 'time-varying'} "
+                                f"roles, Monte Carlo at h = {h:g}", unit="trial-step"))
 
     def chunk(streams):
         stats = _ChunkStatistics(sc, streams, Pbig, late, probes)
-        k_keep, last = max(0, min(keep - done[0], streams.n)), [0]
+        k_keep, last = max(0, min(keep - streams.first_unit * RNG_UNIT, streams.n)), [0]
 
         def advanced(steps_done):
             bar.update(streams.n * (steps_done - last[0]))
@@ -217,16 +217,17 @@ def run_stochastic(sc: CoestimationFile, P: np.ndarray, noise: sim.NoiseModel, *
         tr = sim.simulate(net, roles, signal, sc.process.x0, sc.e0, t_end=t_end, h=h, record_every=every,
                           n_trials=streams.n, noise=noise, rng=streams, keep=k_keep, reducer=stats, prepared=prepared,
                           allow_nonfinite=True, progress=advanced)
-        for name in ("x", "e", "g") if k_keep else ():
-            kept[name].append(getattr(tr, name))
-        done[0] += streams.n
-        return stats.parts()
+        parts, edges = stats.parts(), stats.edges
+        for u, part in enumerate(parts):         # the kept trials, with the unit they belong to
+            a, b = int(edges[u]), int(min(edges[u + 1], k_keep))
+            part["kept"] = [{name: getattr(tr, name)[a:b] for name in ("x", "e", "g")}] if a < b else []
+        return parts
 
     n_noise = 0 if prepared.factors is None else len(prepared.factors)
-    with bar:
+    with bar.bar:
         acc = run_units(chunk, _fold, trials, stream_seed(seed, "tran", "sde", ("fixed" if fixed else "roles", h)),
-                        bytes_per_trial=sde_bytes_per_trial(sc, n_noise), budget_bytes=budget_bytes)
-    return _summary(acc, t, late, trials, signal, kept)
+                        bytes_per_trial=sde_bytes_per_trial(sc, n_noise), budget_bytes=budget_bytes, portable=True)
+    return _summary(acc, t, late, trials, signal, {name: [k[name] for k in acc["kept"]] for name in ("x", "e", "g")})
 
 
 def _summary(acc: dict, t: np.ndarray, late: np.ndarray, trials: int, signal, kept: dict) -> dict[str, np.ndarray]:

@@ -1,0 +1,264 @@
+"""Where a run's Monte Carlo is computed: the unit executor, chosen by the run's `scheduler` option.
+
+A stage's trials are RNG units of 1,000 (`dse.simulate.units.run_units`); the stage hands chunks of
+consecutive units to the executor of the run and folds what comes back in unit order, so the numbers are
+the same bits wherever the units ran. The executors (`executor_for`):
+
+- `auto` (`ForkedExecutor`, what dse always did): the stages of a family in `workers` forked processes
+  (`StageContext.run_many`), each stage's units in its own process, one chunk after the other;
+- `inline` (`UnitExecutor`): every stage and every unit in this process;
+- `local` or an address ``tcp://HOST:PORT`` (`DaskExecutor`): the units of every portable stage (one whose
+  chunk function keeps no state between chunks: `run_units(..., portable=True)`) as tasks of a Dask cluster
+  (a local one of `workers` processes, started when the first such stage runs, or a running scheduler),
+  the stages one after the other in this process. A few tasks per worker are in flight at a time and their
+  results are taken in unit order, so the client holds a bounded number of partial results whatever the
+  trial count; a worker that dies has its tasks rescheduled by the Dask scheduler.
+
+The executor never enters a cache key: it cannot change a result.
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+import pickle
+import warnings
+from collections import deque
+from typing import Callable, Iterable, Iterator
+
+import numpy as np
+
+from dse.engine.progress import progress
+from dse.simulate import checkpoints, units
+from dse.simulate.units import RNG_UNIT
+
+#: Dask tasks per worker a stage's units are split into (at least: a task never holds fewer units than one
+#: in-process chunk) and at most this many units per task, so that the last tasks balance the workers and a
+#: stored range of finished units is never far behind
+TASKS_PER_WORKER = 16
+MAX_TASK_UNITS = 1000
+#: tasks in flight per worker: one running, the next ones queued so that a worker never waits for the client
+IN_FLIGHT_PER_WORKER = 3
+
+
+def unit_seeds(seq: np.random.SeedSequence, first: int, stop: int) -> list[np.random.SeedSequence]:
+    """The seeds of units first..stop-1 of the stream `seq` (`dse.simulate.seeding.block_seeds`, by range)."""
+    return [np.random.SeedSequence(entropy=seq.entropy, spawn_key=seq.spawn_key + (u,)) for u in range(first, stop)]
+
+
+def unit_sizes(n_trials: int, first: int, stop: int) -> list[int]:
+    """Trials of units first..stop-1 of a stream of `n_trials` trials (the last unit may be short)."""
+    return [min(RNG_UNIT, n_trials - u * RNG_UNIT) for u in range(first, stop)]
+
+
+def compute_units(simulate_chunk: Callable, seq: np.random.SeedSequence, n_trials: int, first: int, stop: int,
+                  per_chunk: int) -> list:
+    """The partial results of units first..stop-1, computed in chunks of `per_chunk` units (aligned on
+    multiples of `per_chunk`, as one process would chunk them): one partial per unit, in unit order."""
+    parts: list = []
+    for start, end in task_ranges(first, stop, per_chunk):
+        out = list(simulate_chunk(units.UnitStreams(unit_seeds(seq, start, end), unit_sizes(n_trials, start, end),
+                                              first_unit=start)))
+        if len(out) != end - start:
+            raise ValueError(f"the chunk of units {start}..{end - 1} returned {len(out)} partial results")
+        parts.extend(out)
+    return parts
+
+
+class UnitExecutor:
+    """Units in this process, chunk after chunk; the stages in this process too (`--scheduler inline`)."""
+
+    name = "inline"
+
+    def stage_workers(self, workers: int) -> int:
+        """How many forked processes `StageContext.run_many` may run stages in, of the `workers` a family asks for."""
+        return 1
+
+    def units_per_task(self, n_units: int, per_chunk: int) -> int:
+        """Units per task handed to `map_units` (a multiple of `per_chunk`)."""
+        return per_chunk
+
+    def map_units(self, simulate_chunk: Callable, seq: np.random.SeedSequence, n_trials: int, per_chunk: int,
+                  ranges: Iterable[tuple[int, int]]) -> Iterator[tuple[list, bytes | None]]:
+        """The partials of every (first, stop) range of units, in the order given, each with its pickle when it
+        came as one (from another process: what the stored units are written from), else None."""
+        for first, stop in ranges:
+            yield compute_units(simulate_chunk, seq, n_trials, first, stop, per_chunk), None
+
+    def close(self) -> None:
+        """Release what the executor started (a cluster, a connection)."""
+
+
+class ForkedExecutor(UnitExecutor):
+    """Units in the process of their stage; stages in `workers` forked processes (`--scheduler auto`)."""
+
+    name = "auto"
+
+    def stage_workers(self, workers: int) -> int:
+        return workers
+
+
+def _identity(x):
+    return x
+
+
+def _pickled_units(*args) -> bytes:
+    """`compute_units` on a worker, its partials sent back as one pickle: Dask serializes every small array of a
+    result apart, which costs far more than computing a unit."""
+    return pickle.dumps(compute_units(*args), protocol=pickle.HIGHEST_PROTOCOL)
+
+
+class DaskExecutor(UnitExecutor):
+    """Units on a Dask cluster (`--scheduler local` or ``tcp://HOST:PORT``); stages in this process. The
+    client (and a local cluster) starts with the first portable stage and stops with `close`."""
+
+    def __init__(self, scheduler: str, workers: int, log: Callable[[str], None] | None = None):
+        self.name, self.workers = scheduler, workers
+        self.log = log or (lambda line: None)
+        self._stack: contextlib.ExitStack | None = None
+        self._client = None
+
+    def client(self):
+        if self._client is None:
+            from dse.simulate.cluster import dask_client
+
+            stack = contextlib.ExitStack()
+            self._client = stack.enter_context(dask_client(self.name, self.workers, log=self.log))
+            self._stack = stack
+        return self._client
+
+    def n_workers(self) -> int:
+        return max(1, len(self.client().scheduler_info().get("workers", {})))
+
+    def units_per_task(self, n_units: int, per_chunk: int) -> int:
+        wanted = min(MAX_TASK_UNITS, math.ceil(n_units / (TASKS_PER_WORKER * self.n_workers())))
+        return per_chunk * max(1, math.ceil(wanted / per_chunk))
+
+    def map_units(self, simulate_chunk, seq, n_trials, per_chunk, ranges) -> Iterator[tuple[list, bytes | None]]:
+        client = self.client()
+        # the chunk function travels once, as the result of a task: a worker that dies with it is recomputed;
+        # a large one (a scenario's design, say) is expected here, not a mistake Dask should warn about
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Sending large graph")
+            fn = client.submit(_identity, simulate_chunk, pure=False)
+        window, pending = IN_FLIGHT_PER_WORKER * self.n_workers(), deque()
+        ranges = iter(ranges)
+        try:
+            while True:
+                while len(pending) < window and (r := next(ranges, None)) is not None:
+                    pending.append(client.submit(_pickled_units, fn, seq, n_trials, *r, per_chunk, pure=False))
+                if not pending:
+                    return
+                head = pending.popleft()
+                blob = head.result()
+                head.release()
+                yield pickle.loads(blob), blob
+        finally:
+            for f in pending:
+                f.cancel()
+            fn.release()
+
+    def close(self) -> None:
+        if self._stack is not None:
+            self._stack.close()
+            self._stack = self._client = None
+
+
+#: the executor of the run being computed (`using`); outside a run, what dse always did
+_CURRENT: list[UnitExecutor] = [ForkedExecutor()]
+
+
+def current() -> UnitExecutor:
+    return _CURRENT[-1]
+
+
+def executor_for(scheduler: str, workers: int, log: Callable[[str], None] | None = None) -> UnitExecutor:
+    """The executor `scheduler` names (see the module's docstring). A scheduler's address is connected to at
+    once (a wrong one fails before any stage runs); a local cluster starts with the first portable stage."""
+    if scheduler == "auto":
+        return ForkedExecutor()
+    if scheduler == "inline":
+        return UnitExecutor()
+    dask = DaskExecutor(scheduler, workers, log)
+    if scheduler != "local":
+        dask.client()
+    return dask
+
+
+@contextlib.contextmanager
+def using(executor: UnitExecutor, *, close: bool = True) -> Iterator[UnitExecutor]:
+    """Run the block's stages and units on `executor`; it is closed when the block ends (unless `close` is
+    False: the caller closes it, after other blocks)."""
+    _CURRENT.append(executor)
+    try:
+        yield executor
+    finally:
+        _CURRENT.pop()
+        if close:
+            executor.close()
+
+
+def task_ranges(first: int, stop: int, per_task: int) -> list[tuple[int, int]]:
+    """Ranges of at most `per_task` units covering first..stop-1, cut at multiples of `per_task`."""
+    out, start = [], first
+    while start < stop:
+        end = min(stop, (start // per_task + 1) * per_task)
+        out.append((start, end))
+        start = end
+    return out
+
+
+def run_portable(simulate_chunk, fold, n_trials: int, seq: np.random.SeedSequence, per_chunk: int, desc: str):
+    """`run_units` of a portable chunk function: the units stored by an earlier attempt of the stage are read
+    back, the others computed by the run's executor, and all folded in unit order."""
+    n_units = -(-n_trials // RNG_UNIT)
+    runner, store = current(), checkpoints.for_call(seq, n_trials)
+    per_task = runner.units_per_task(n_units, per_chunk)
+    segments = _segments(n_units, store.stored() if store is not None else [], per_task)
+    computed = runner.map_units(simulate_chunk, seq, n_trials, per_chunk,
+                                [(a, b) for a, b, path in segments if path is None])
+    acc = None
+    try:
+        for first, stop, path in progress(segments, desc=desc) if desc else segments:
+            parts = store.load(path, stop - first) if path is not None else None
+            if parts is None:
+                parts, pickled = next(computed) if path is None else (
+                    _compute_here(simulate_chunk, seq, n_trials, first, stop, per_chunk), None)
+                if store is not None:
+                    store.add(first, parts, pickled)
+            for part in parts:
+                acc = fold(acc, part)
+    finally:
+        computed.close()
+        if store is not None:
+            store.flush()
+    return acc
+
+
+def _compute_here(simulate_chunk, seq, n_trials: int, first: int, stop: int, per_chunk: int) -> list:
+    """Units whose stored file turned out damaged: computed again in this process."""
+    return compute_units(simulate_chunk, seq, n_trials, first, stop, per_chunk)
+
+
+def _segments(n_units: int, stored: list[tuple[int, int, object]], per_task: int) -> list[tuple[int, int, object]]:
+    """(first, stop, stored file or None) covering units 0..n_units-1 in order: the stored ranges, and the
+    gaps between them in tasks of `per_task` units."""
+    out, at = [], 0
+    for a, b, path in [s for s in stored if s[1] <= n_units] + [(n_units, n_units, None)]:
+        out += [(x, y, None) for x, y in task_ranges(at, a, per_task)]
+        if b > a:
+            out.append((a, b, path))
+        at = b
+    return out
+
+
+def stderr_log(line: str) -> None:
+    """Where the executor says what it connected to (one line on stderr: stdout is the command's result)."""
+    import sys
+
+    print(line, file=sys.stderr, flush=True)
+
+
+units._PORTABLE_RUNNER[:] = [run_portable]
+
+__all__ = ["UnitExecutor", "ForkedExecutor", "DaskExecutor", "current", "executor_for", "using", "compute_units",
+           "task_ranges"]
