@@ -38,6 +38,7 @@ from dse.outputs.report import counts_line, hypothesis_status, verdict_counts, w
 EXIT_CODES = """exit codes:
   0    done (with --strict: and no claim is fail or error)
   1    --strict and some claim is fail or error; dse verify found differences; a sweep has failed points
+       (an arena: a scenario that failed to run)
   2    invalid input or unusable output (one line naming the field or path; nothing written:
        an OUT the command created is removed; the lock file OUT/.dse.lock is removed after every command)
   3    numerical failure of the run (a NaN or inf where a finite number is required, or a number
@@ -387,10 +388,19 @@ def build_parser() -> argparse.ArgumentParser:
     _sweep_parser(sub_parser("sweep", help="run a scenario family over a grid or random sample of fields, on Dask"))
     from dse.arena.command import add_parser as arena_parser
 
-    arena_parser(sub_parser, _positive_int, _nonnegative_int)
+    arena_parser(sub_parser, _nonnegative_int, _task_flags)
     _site_parser(sub_parser("site", help="build (or bring up to date) the static report site of an output root: "
                                          "every paper, run and sweep, browsable offline (docs/site.md)"))
     return parser
+
+
+def _task_flags(p: argparse.ArgumentParser, tiny: str) -> None:
+    """Where the tasks of a sweep or an arena run: --scheduler and --workers."""
+    p.add_argument("--scheduler", default="auto",
+                   help=f"auto (default: in process for {tiny}, else a local Dask cluster), inline, local, "
+                        "or the address of a running Dask scheduler, e.g. tcp://HOST:8786")
+    p.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1,
+                   help="worker processes of the local cluster (default: one per core)")
 
 
 def _sweep_parser(p: argparse.ArgumentParser) -> None:
@@ -398,11 +408,7 @@ def _sweep_parser(p: argparse.ArgumentParser) -> None:
                    help="a sweep file (TOML): a base scenario and the fields to vary (README, 'Sweeps'; examples in "
                         "dse/families/sweeps/); several run one after the other on one local Dask cluster")
     p.add_argument("--out", default="out", help="output root directory; results go to OUT/sweep/NAME/ (default out/)")
-    p.add_argument("--scheduler", default="auto",
-                   help="auto (default: in process for a tiny sweep, else a local Dask cluster), inline, local, "
-                        "or the address of a running Dask scheduler, e.g. tcp://HOST:8786")
-    p.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1,
-                   help="worker processes of the local cluster (default: one per core)")
+    _task_flags(p, "a tiny sweep")
     p.add_argument("--retries", type=_nonnegative_int, default=2, help="retries of a failed task (default 2)")
     p.add_argument("--fresh", action="store_true", help="recompute every point, ignoring points already done")
     p.add_argument("--seed", type=_nonnegative_int, default=None,

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -14,7 +13,7 @@ HELP = ("score a distributed filter (an installed `dse.estimators` entry point N
         "(docs/plugins.md)")
 
 
-def add_parser(sub_parser, positive_int, nonnegative_int) -> None:
+def add_parser(sub_parser, nonnegative_int, task_flags) -> None:
     p = sub_parser("arena", help=HELP)
     p.add_argument("name", metavar="NAME", help="the filter's name: an installed one (entry point group "
                                                  "dse.estimators), or any name with --factory")
@@ -28,11 +27,7 @@ def add_parser(sub_parser, positive_int, nonnegative_int) -> None:
                                                         "scenario with its quick trial count")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="root random seed of every run (default 0)")
     p.add_argument("--out", default="out", help="output root; results go to OUT/arena/NAME/ (default out/)")
-    p.add_argument("--scheduler", default="auto",
-                   help="auto (default: in process for one worker, else a local Dask cluster), inline, local, or the "
-                        "address of a running Dask scheduler, e.g. tcp://HOST:8786")
-    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
-                   help="worker processes of the local cluster (default: one per core)")
+    task_flags(p, "one worker")
     p.add_argument("--fresh", action="store_true", help="recompute every scenario, ignoring those already done")
     p.set_defaults(func=cmd_arena)
 
