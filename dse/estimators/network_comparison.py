@@ -16,12 +16,13 @@ An `Accumulator` beside the filters' steps keeps what the claims and tables read
 trials, each (U, S, W) at the S recorded steps unless stated (W = the filter's number of estimates):
 ``sq`` Σ‖e_i‖², ``sq2`` Σ‖e_i‖⁴, ``dist`` Σ‖x̂_i − x̂_c‖² and ``dist2`` (x̂_c the reference estimator's),
 ``cross`` Σ (x − x̂_c)ᵀ(x̂_c − x̂_i) and ``cross2`` (the orthogonality of the reference error to every other
-estimate), ``gap`` Σ (‖e_i‖² − ‖e_c‖²) and ``gap2`` (the paired excess over the reference), ``nees`` Σ e_iᵀP_i⁻¹e_i with the filter's own covariance and ``nees2``, ``xnees`` the same with a
-given exact covariance, ``dis`` and ``dis2`` (U, S) the per-trial disagreement (1/N) Σ_i ‖x̂_i − mean_j x̂_j‖²,
-``dis_node`` (U, S, W) its terms ‖x̂_i − mean_j x̂_j‖² per node, ``net`` and ``net2`` (U, S) the per-trial
-node average of ‖e_i‖², ``msgs`` and ``scalars`` (U, N) messages and real numbers sent over the whole run
-(every step, counted from the links and the filter's `Communication`); ``token`` (times, B): tr P̄_q at a
-uniformly random node q of the filters that swap states; ``paths``: sample trials kept whole.
+estimate), ``gap`` Σ (‖e_i‖² − ‖e_c‖²) and ``gap2`` (the paired excess over the reference), ``nees``
+Σ e_iᵀP_i⁻¹e_i with the filter's own covariance and ``nees2``, ``xnees`` the same with a given exact covariance,
+``dis`` and ``dis2`` (U, S) the per-trial disagreement (1/N) Σ_i ‖x̂_i − mean_j x̂_j‖², ``dis_node`` (U, S, W)
+its terms ‖x̂_i − mean_j x̂_j‖² per node, ``net`` and ``net2`` (U, S) the per-trial node average of ‖e_i‖²,
+``msgs`` and ``scalars`` (U, N) messages and real numbers sent over the whole run (every step, counted from the
+links and the filter's `Communication`); ``token`` (times, B): tr P̄_q at a uniformly random node q of the
+filters that swap states; ``paths``: sample trials kept whole.
 
 A plug-in filter (`dse.plugin`) that does something the protocol forbids raises a `PluginFault`: it is
 dropped from the simulation at once (and from every later chunk), its sums are discarded, and ``faults``
@@ -170,8 +171,8 @@ class Accumulator:
         a = self.sums.get(name) or self._allocate(name, est.shape[0])
         comm = self.comm[name]
         if comm.pattern == "sent":                          # counted by the harness from what it sent
-            a["msgs"] += self.per_unit(np.concatenate([r.sent_messages for r in parts], axis=-1)).reshape(a["msgs"].shape)
-            a["scalars"] += self.per_unit(np.concatenate([r.sent_scalars for r in parts], axis=-1)).reshape(a["msgs"].shape)
+            a["msgs"] += self.per_unit(np.concatenate([r.sent_messages for r in parts], axis=-1))
+            a["scalars"] += self.per_unit(np.concatenate([r.sent_scalars for r in parts], axis=-1))
         elif comm.pattern != "none":
             c = (self.per_unit(np.concatenate([(r.hops > 0) for r in parts], axis=-1).astype(float))
                  if (comm.pattern == "swap" and self.setup.links.synchronous)
