@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 EXAMPLE := examples/dse-consensus-measurements
 
-.PHONY: reproduce sweeps site test bench check-outputs check-viewer check-site clean
+.PHONY: reproduce sweeps arena site test bench check-outputs check-viewer check-site clean
 
 # The example plug-in package ($(EXAMPLE), docs/plugins.md) is installed too: its entry point `cm` is what the
 # README's `dse arena cm` and tests/test_example_plugin.py find.
@@ -23,7 +23,13 @@ $(STAMP): pyproject.toml $(EXAMPLE)/pyproject.toml
 reproduce: $(STAMP)
 	$(BIN)/dse reproduce --out out
 	$(MAKE) --no-print-directory sweeps
+	$(MAKE) --no-print-directory arena
 	$(MAKE) --no-print-directory site
+
+# The example plug-in filter (examples/dse-consensus-measurements, installed by the set-up) against every built-in
+# estimator on the quick suite (out/arena/cm/: leaderboard, frontier figure, recording; docs/plugins.md).
+arena: $(STAMP)
+	$(BIN)/dse arena cm --quick --out out
 
 # The report site of out/ (out/site/index.html; docs/site.md): browse it with
 #   python -m http.server -d out/site
