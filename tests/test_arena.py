@@ -57,6 +57,21 @@ def test_a_biased_filter_gets_fail_and_a_raising_one_is_left_out_in_one_line(sma
     builtin = board[board.estimator == "local"]
     assert (builtin.verdict_orthogonality == "pass").all()      # a plug-in's failure is not the built-ins'
 
+    r = run_arena("bad", factory="tests.plugins.bad:RaisesInStep", out_root=tmp_path, quick=True,
+                  scheduler="inline", log=lambda m: None)
+    board = _board(tmp_path, "bad")
+    mine = board[board.estimator == "bad"]
+    assert len(mine) == 2 and not mine.ran.any() and mine.mse_ratio.isna().all()
+    assert all("estimator 'bad' failed at step 3: raised RuntimeError: boom" in f for f in mine.fault) and len(r["faults"]) == 2 and r["ran"] == 0
+    assert (board[board.estimator == "local"].ran).all()       # the others ran, with their numbers
+
+    # matrices that are not its own: its exact moments are left out, it still ran and has numbers
+    run_arena("lying", factory="tests.plugins.bad:NotUnbiased", out_root=tmp_path, quick=True, scheduler="inline",
+              log=lambda m: None)
+    mine = _board(tmp_path, "lying").query("estimator == 'lying'")
+    reliable = mine[mine.scenario == "s1"]                       # the exact moments exist on reliable links only
+    assert mine.ran.all() and mine.mse_ratio.notna().all() and "not unbiased" in reliable.fault.iloc[0]
+
 
 def test_cli_keys_bad_factory_and_params(tmp_path):
     def dse(*args):

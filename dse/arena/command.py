@@ -1,7 +1,6 @@
 """`dse arena NAME`: the command line of the arena (`run.run_arena`)."""
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path

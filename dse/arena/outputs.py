@@ -41,7 +41,9 @@ LEADERBOARD = spec("leaderboard", "estimator on a suite scenario, at its evaluat
     ("frontier", "", "no network estimator of the scenario has both a smaller MSE and sends no more (the "
                      "centralized filter, which gathers every measurement, is the reference, not a competitor)"),
     *[(f"verdict_{c}", "", f"verdict of the {c.replace('_', ' ')} claim (module doc)") for c in CHECKS],
-    ("fault", "", "what the filter did wrong, when it was left out (its numbers are then empty)")],
+    ("ran", "", "true when it ran on the scenario (false: left out for breaking the protocol; its numbers empty)"),
+    ("fault", "", "what the filter did wrong (left out, or its exact moments left out when only its matrices were "
+                  "wrong)")],
     "Every estimator on every suite scenario: error against communication, consistency and verdicts.")
 
 SUMMARY = spec("summary", "estimator over the suite", [
@@ -52,7 +54,7 @@ SUMMARY = spec("summary", "estimator over the suite", [
     ("on_frontier", "", "scenarios where it is on the error-communication frontier"),
     ("diverged", "", "scenarios where it diverged"),
     ("fails", "", "its verdict cells that are fail"),
-    ("faults", "", "scenarios where it was left out for breaking the protocol")],
+    ("faults", "", "scenarios where it broke the protocol (the leaderboard's fault column)")],
     "The leaderboard, one row per estimator, the filter under test first.")
 
 
@@ -87,6 +89,7 @@ def scenario_rows(name: str, scenario: str, result: dict[str, Any]) -> list[dict
     central = est.loc[est["estimator"] == "central", "network_mse_mc"]
     c = float(central.iloc[0]) if len(central) else np.nan
     rows = []
+    what = dict(zip(faults["estimator"], faults["what"])) if len(faults) else {}
     for r in est.itertuples():
         plugin = r.estimator == name
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -95,12 +98,12 @@ def scenario_rows(name: str, scenario: str, result: dict[str, Any]) -> list[dict
                      "mse_ratio": ratio, "network_mse": float(r.network_mse_mc),
                      "scalars_per_step": float(r.scalars_per_step), "messages_per_step": float(r.messages_per_step),
                      "nees": float(r.nees), "diverged": bool(not np.isfinite(ratio) or ratio > DIVERGED_RATIO),
-                     **_verdicts(name, r.estimator, plugin, claims), "fault": ""})
-    for f in faults.itertuples():
-        rows.append({"scenario": scenario, "estimator": f.estimator, "label": f.estimator, "plugin": True,
+                     **_verdicts(name, r.estimator, plugin, claims), "ran": True, "fault": what.pop(r.estimator, "")})
+    for estimator, fault in what.items():             # left out of the simulation: no numbers
+        rows.append({"scenario": scenario, "estimator": estimator, "label": estimator, "plugin": True,
                      "mse_ratio": np.nan, "network_mse": np.nan, "scalars_per_step": np.nan,
                      "messages_per_step": np.nan, "nees": np.nan, "diverged": False,
-                     **_verdicts(name, f.estimator, True, claims), "fault": f.what})
+                     **_verdicts(name, estimator, True, claims), "ran": False, "fault": fault})
     mse = np.array([r["mse_ratio"] for r in rows])
     out = np.array([r["diverged"] or r["estimator"] == "central" for r in rows])
     on = frontier(np.where(out, np.nan, mse), np.array([r["scalars_per_step"] for r in rows]))
@@ -112,7 +115,7 @@ def scenario_rows(name: str, scenario: str, result: dict[str, Any]) -> list[dict
 def summary_rows(board: pd.DataFrame, name: str) -> list[dict[str, Any]]:
     rows = []
     for est, g in board.groupby("estimator", sort=False):
-        ran = g[g["fault"] == ""]
+        ran = g[g["ran"]]
         ok = ran[~ran["diverged"]]
         verdicts = g[[f"verdict_{c}" for c in CHECKS]].to_numpy().ravel()
         rows.append({"estimator": est, "label": g["label"].iloc[0], "plugin": est == name, "scenarios": len(ran),
@@ -152,4 +155,4 @@ def write_arena(name: str, table: dict[str, Any], tasks: list, results: dict[str
     mine = board[board["estimator"] == name]
     return {"filter": name, "rows": len(board), "fails": int((mine[[f"verdict_{c}" for c in CHECKS]] == "fail").sum().sum()),
             "faults": [f"{r.scenario}: {r.fault}" for r in mine.itertuples() if r.fault],
-            "on_frontier": int(mine["frontier"].sum()), "ran": int((mine["fault"] == "").sum())}
+            "on_frontier": int(mine["frontier"].sum()), "ran": int(mine["ran"].sum())}

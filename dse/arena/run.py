@@ -6,20 +6,19 @@ cluster.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import shutil
 import time
 from pathlib import Path
 from typing import Any, Callable
 
-from dse.engine.cache import canonical_json, project_fingerprint
+from dse.engine.cache import project_fingerprint
 from dse.errors import ScenarioError
 
 from . import suite
 
 #: the tables each scenario's run keeps for the leaderboard
-TABLES = ("estimators", "faults", "applicability")
+TABLES = ("estimators", "faults")
 
 
 def filter_table(name: str, factory: str | None, params: dict[str, Any]) -> dict[str, Any]:
@@ -38,9 +37,8 @@ def tasks_of(name: str, table: dict[str, Any], quick: bool, seed: int) -> list:
     for i, entry in enumerate(suite.entries(quick)):
         scenario = suite.with_filter(entry.scenario, name, table)
         external = registry.from_dict(scenario).external_code()     # a bad filter: a ScenarioError naming the key
-        payload = {"scenario": scenario, "seed": seed, "quick": quick, "trials": None, "tables": TABLES}
-        key = hashlib.sha256((canonical_json(payload) + fingerprint + external).encode()).hexdigest()[:24]
-        out.append(Task(Point(i, {"scenario": entry.name}, 0, seed), scenario, quick, None, key, TABLES))
+        out.append(Task(Point(i, {"scenario": entry.name}, 0, seed), scenario, quick, None, "", TABLES)
+                   .keyed(fingerprint, external))
     return out
 
 

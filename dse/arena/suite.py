@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 #: the shipped compare scenarios (dse/families/compare/scenarios/<name>.toml)

@@ -70,7 +70,7 @@ def frontier_figure(name: str, board: pd.DataFrame, path: Path) -> None:
     colours = _colours(board, name)
     for k, sc in enumerate(scenarios):
         ax = axes[k // cols, k % cols]
-        g = board[(board["scenario"] == sc) & (board["fault"] == "") & ~board["diverged"]]
+        g = board[(board["scenario"] == sc) & board["ran"] & ~board["diverged"]]
         for r in g.itertuples():
             mine = r.estimator == name
             ax.scatter(r.scalars_per_step, r.mse_ratio, s=130 if mine else 28, marker="*" if mine else "o",
@@ -123,7 +123,7 @@ def recording(name: str, board: pd.DataFrame, text: str, path: Path, *, seed: in
 
     scenarios = list(dict.fromkeys(board["scenario"]))
     colours = _colours(board, name)
-    ran = board[(board["fault"] == "") & ~board["diverged"]]
+    ran = board[board["ran"] & ~board["diverged"]]
     whole = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(),
                                                   end=rrb.TimeRangeBoundary.infinite()))
     blueprint = rrb.Blueprint(
@@ -160,7 +160,7 @@ def recording(name: str, board: pd.DataFrame, text: str, path: Path, *, seed: in
                                                          colors=[(160, 160, 160)]))
             else:
                 rec.log("frontier/line", rr.Clear(recursive=False))
-        for est, g in board[board["fault"] == ""].groupby("estimator", sort=False):
+        for est, g in board[board["ran"]].groupby("estimator", sort=False):
             idx = rec_.sequence_index("scenario", [scenarios.index(s) for s in g["scenario"]])
             with np.errstate(divide="ignore", invalid="ignore"):
                 ratio = np.log10(g["mse_ratio"].to_numpy(float))

@@ -57,6 +57,12 @@ class Task:
         return {"scenario": self.scenario, "seed": self.point.seed, "quick": self.quick, "trials": self.trials,
                 "tables": self.tables, "claims": self.claims, "metrics": self.metrics}
 
+    def keyed(self, fingerprint: str, external: str = "") -> "Task":
+        """The task with its key: a hash of its payload, the project's code (`fingerprint`) and the code outside
+        the project its scenario runs (`external`, a plug-in filter's)."""
+        key = hashlib.sha256((canonical_json(self.payload()) + fingerprint + external).encode()).hexdigest()[:24]
+        return dataclasses.replace(self, key=key)
+
 
 def _registry():
     from dse import registry
@@ -89,9 +95,8 @@ def build_tasks(spec: SweepSpec, log: Callable[[str], None] | None = None) -> li
             raise ScenarioError(exc.field, f"{exc.reason} (at the point {where})") from None
         if not tasks and spec.claims:
             _check_claim_patterns(repro, spec.claims)
-        task = Task(point, scenario, spec.quick, spec.trials, "", spec.tables, spec.claims, spec.metrics)
-        key = hashlib.sha256((canonical_json(task.payload()) + fingerprint + external).encode()).hexdigest()[:24]
-        tasks.append(dataclasses.replace(task, key=key))
+        tasks.append(Task(point, scenario, spec.quick, spec.trials, "", spec.tables, spec.claims,
+                          spec.metrics).keyed(fingerprint, external))
     return tasks
 
 
