@@ -463,7 +463,7 @@ def _failed(res, name: str) -> str:
     return f"it failed: {res.faults[name]}" if name in res.faults else "it does not apply to this scenario"
 
 
-_RAN = (lambda res, name: _ran(res, name), _failed)
+_RAN = (_ran, _failed)
 _CENTRAL = (lambda res, name: "central" in res.mc, "the centralized filter does not run")
 _Z_TRIALS = (lambda res, name: res.trials >= MIN_TRIALS_Z,
              lambda res, name: f"needs ≥ {MIN_TRIALS_Z} trials for the normal z-test; ran {res.trials}")
