@@ -39,7 +39,7 @@ from typing import Any, Iterator, Protocol
 import numpy as np
 
 from dse.simulate.seeding import block_seeds, stream_seed
-from dse.simulate.units import RNG_UNIT, UnitStreams, run_jobs, units_per_chunk
+from dse.simulate.units import RNG_UNIT, UnitStreams, run_jobs, run_units, units_per_chunk
 
 from . import small_matrix as sm
 from .link_models import LinkModel, StepLinks, step_permutation
@@ -359,30 +359,88 @@ def bytes_per_trial(setup: Setup) -> float:
     return 8.0 * (8 * per + N * n * 4 + lm.topology.E * 4 + events)
 
 
-def simulate_group(setup: Setup, seed: int, trials: int, budget_bytes: float, label: str) -> dict[str, Any]:
-    """Every estimator of `setup` on `trials` trials, chunk by chunk, folded in unit order."""
-    sums: dict[str, dict[str, list]] = {}
-    token: dict[str, list] = {}
-    paths, seconds, cpu0 = None, {}, time.process_time()
-    faults: dict[str, str] = {}
-    for streams in unit_chunks(seed, label, STREAMS, trials, bytes_per_trial(setup), budget_bytes):
-        alive = dataclasses.replace(setup, estimators={e: d for e, d in setup.estimators.items() if e not in faults})
-        out = simulate_units(alive, *streams)
-        faults.update(out["faults"])
-        for est, acc in out["sums"].items():
-            for name, arr in acc.items():
-                sums.setdefault(est, {}).setdefault(name, []).append(arr)
-        for est, arr in out["token"].items():
-            token.setdefault(est, []).append(arr)
-        for est, t in out["seconds"].items():
-            seconds[est] = seconds.get(est, 0.0) + t
-        paths = out["paths"] if paths is None else paths
-    return {"mc": {est: {name: np.concatenate(parts).sum(axis=0) for name, parts in acc.items()}
-                   for est, acc in sums.items() if est not in faults},
-            "token": {e: np.concatenate(v, axis=1) for e, v in token.items() if e not in faults},
-            "paths": {e: v for e, v in paths.items() if e not in faults}, "steps": out["steps"],
-            "seconds": {e: t for e, t in seconds.items() if e not in faults}, "faults": faults,
-            "cpu_s": time.process_time() - cpu0}
+def simulate_chunk(setup: Setup, seed: int, label: str, plant: UnitStreams,
+                   skip: frozenset[str] = frozenset()) -> list[dict[str, Any]]:
+    """`run_units`' chunk function: every estimator of `setup` (but those in `skip`) on the units of `plant`, the
+    plant stream of `label`; the link, noise and gossip streams of the same units are derived here from the seed,
+    so the result is a function of the units alone (portable: it may run on a Dask worker). One partial per
+    unit, in unit order: its sums ``sums`` and token draws ``token``; the first partial also carries what the chunk
+    says as a whole (``paths`` when the chunk starts at unit 0, CPU ``seconds`` per estimator, ``faults``,
+    ``steps``, the chunk's CPU ``cpu_s``)."""
+    cpu0 = time.process_time()
+    first, stop = plant.first_unit, plant.first_unit + len(plant.sizes)
+    others = [UnitStreams(block_seeds(stream_seed(seed, label, s), stop, first), plant.sizes, first_unit=first)
+              for s in STREAMS[1:]]
+    alive = dataclasses.replace(setup, estimators={e: d for e, d in setup.estimators.items() if e not in skip})
+    out = simulate_units(alive, plant, *others)
+    edges = np.cumsum([0, *plant.sizes])
+    parts = [{"sums": {e: {k: v[u] for k, v in acc.items()} for e, acc in out["sums"].items()},
+              "token": {e: v[:, edges[u]:edges[u + 1]] for e, v in out["token"].items()}} for u in range(len(edges) - 1)]
+    parts[0].update(paths=out["paths"] if first == 0 else None, seconds=out["seconds"], faults=out["faults"],
+                    steps=out["steps"], cpu_s=time.process_time() - cpu0)
+    return parts
+
+
+class _Gathered:
+    """The per-unit partials of `simulate_chunk`, gathered in unit order (`fold`) and summed over the units at the
+    end (`result`: the sums of every unit stacked and reduced along the unit axis at once, which numpy does unit
+    after unit, so the numbers do not depend on how the units were chunked or where they ran)."""
+
+    def __init__(self):
+        self.sums: dict[str, dict[str, list]] = {}
+        self.token: dict[str, list] = {}
+        self.paths, self.steps, self.cpu_s = None, None, 0.0
+        self.seconds: dict[str, float] = {}
+        #: estimator -> what it did wrong, the first fault in unit order
+        self.faults: dict[str, str] = {}
+
+    @classmethod
+    def fold(cls, acc: "_Gathered | None", part: dict[str, Any]) -> "_Gathered":
+        acc = acc if acc is not None else cls()
+        for est, sums in part["sums"].items():
+            for name, arr in sums.items():
+                acc.sums.setdefault(est, {}).setdefault(name, []).append(arr)
+        for est, arr in part["token"].items():
+            acc.token.setdefault(est, []).append(arr)
+        if "steps" in part:
+            for est, what in part["faults"].items():
+                acc.faults.setdefault(est, what)
+            for est, t in part["seconds"].items():
+                acc.seconds[est] = acc.seconds.get(est, 0.0) + t
+            acc.paths = part["paths"] if part["paths"] is not None else acc.paths
+            acc.steps, acc.cpu_s = part["steps"], acc.cpu_s + part["cpu_s"]
+        return acc
+
+    def result(self) -> dict[str, Any]:
+        ok = [e for e in self.sums if e not in self.faults]
+        return {"mc": {e: {name: np.stack(parts).sum(axis=0) for name, parts in self.sums[e].items()} for e in ok},
+                "token": {e: np.concatenate(v, axis=1) for e, v in self.token.items() if e not in self.faults},
+                "paths": {e: v for e, v in self.paths.items() if e not in self.faults}, "steps": self.steps,
+                "seconds": {e: t for e, t in self.seconds.items() if e not in self.faults}, "faults": self.faults,
+                "cpu_s": self.cpu_s}
+
+
+def simulate_group(setup: Setup, seed: int, trials: int, budget_bytes: float, label: str,
+                   portable: bool = False) -> dict[str, Any]:
+    """Every estimator of `setup` on `trials` trials, chunk by chunk (`run_units`), folded in unit order.
+
+    `portable=True` hands the chunks to the run's unit executor (this process or a Dask cluster; finished units
+    are stored while the stage runs); each chunk then runs every estimator, and a plug-in that failed in one is
+    dropped at the end. Otherwise the chunks run here, and a plug-in that failed is left out of the next ones."""
+    gathered: list[_Gathered] = []
+
+    def fold(acc, part):
+        gathered[:] = [_Gathered.fold(acc, part)]
+        return gathered[0]
+
+    if portable:
+        chunk = functools.partial(simulate_chunk, setup, seed, label)
+    else:
+        def chunk(plant: UnitStreams) -> list[dict[str, Any]]:
+            return simulate_chunk(setup, seed, label, plant, frozenset(gathered[0].faults) if gathered else frozenset())
+    run_units(chunk, fold, trials, stream_seed(seed, label, STREAMS[0]), bytes_per_trial=bytes_per_trial(setup),
+              budget_bytes=budget_bytes, portable=portable)
+    return gathered[0].result()
 
 
 def worker_groups(estimators: dict[str, DesignedEstimator], workers: int) -> list[list[str]]:
@@ -415,12 +473,13 @@ def simulate(setup: Setup, seed: int, trials: int, budget_bytes: float, workers:
              label: str = "compare") -> dict[str, Any]:
     """Every estimator on `trials` trials (module doc): ``mc`` the folded sums per estimator, ``token``,
     ``paths``, the recorded ``steps``, CPU ``seconds`` per estimator, ``faults`` (name -> what a plug-in
-    filter did wrong) and ``group_cpu_s`` per worker. The
-    workers are forked: the estimators' declarations are inherited, not pickled."""
+    filter did wrong) and ``group_cpu_s`` per worker. The workers are forked: the estimators' declarations are
+    inherited, not pickled. With one worker, the chunks are portable (`simulate_group`): they go to the run's unit
+    executor, a Dask cluster with ``--scheduler local``."""
     groups = worker_groups(setup.estimators, workers)
     jobs = [(sum(setup.estimators[e].spec.cost_weight for e in g), functools.partial(
         simulate_group, dataclasses.replace(setup, estimators={e: setup.estimators[e] for e in g}), seed, trials,
-        budget_bytes, label)) for g in groups]
+        budget_bytes, label, portable=len(groups) == 1)) for g in groups]
     parts = run_jobs(jobs, workers=len(groups))
     out = {"mc": {}, "token": {}, "paths": {}, "seconds": {}, "faults": {}, "steps": parts[0]["steps"],
            "group_cpu_s": [p["cpu_s"] for p in parts]}

@@ -22,6 +22,6 @@ def stream_seed(seed: int, *labels: Hashable) -> np.random.SeedSequence:
     return np.random.SeedSequence(entropy=seed, spawn_key=tuple(_label_word(x) for x in labels))
 
 
-def block_seeds(seq: np.random.SeedSequence, n_blocks: int) -> list[np.random.SeedSequence]:
-    """Child sequences, one per block of trials: block b is always seeded the same."""
-    return [np.random.SeedSequence(entropy=seq.entropy, spawn_key=seq.spawn_key + (b,)) for b in range(n_blocks)]
+def block_seeds(seq: np.random.SeedSequence, n_blocks: int, first: int = 0) -> list[np.random.SeedSequence]:
+    """Child sequences, one per block of trials, of blocks first..n_blocks-1: block b is always seeded the same."""
+    return [np.random.SeedSequence(entropy=seq.entropy, spawn_key=seq.spawn_key + (b,)) for b in range(first, n_blocks)]

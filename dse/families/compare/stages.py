@@ -6,8 +6,9 @@ The estimators' declarations are stage arguments: each is keyed by its name and 
 Random streams (`dse.simulate.seeding`), under ``compare``: ``plant`` (x(0), w, v), ``links`` (the link
 draws), ``noise`` (communication noise), ``gossip`` (the swap matchings' priorities and the random node q of
 the token law); under ``compare-token``: an independent copy of the communication driving the token chain.
-A trial's numbers depend only on the seed and its index, never on the memory chunk or on how the
-estimators are split over workers.
+A trial's numbers depend only on the seed and its index, never on the memory chunk, on how the
+estimators are split over workers, or on where the units ran (with one worker, or ``--scheduler inline``,
+``local`` or a cluster's address, the Monte Carlo's units go to the run's unit executor).
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import numpy as np
 from dse.contract.stages import StageResult, stage
 from dse.estimators.network_comparison import PER_TRIAL_SUMS, STATS, Setup, record_steps, unit_chunks
 from dse.estimators.network_comparison import simulate as simulate_trials
+from dse.simulate import executor
 
 from .design import Design, design_of
 from .scenario import CompareFile
@@ -89,9 +91,10 @@ def _mc_nonfinite(estimators, **_) -> tuple[str, ...]:
 def monte_carlo(sc: CompareFile, quick: bool, tuned: StageResult, exact: StageResult, seed: int, trials: int,
                 estimators: tuple, workers: int, budget_bytes: float) -> dict[str, np.ndarray]:
     """Every running estimator on `trials` trials (`network_comparison.simulate`, the estimators split over
-    `workers` processes): '<estimator>__<sum>', the token law 'token__<estimator>', the sample paths
-    'path__<estimator>', what a failed plug-in did 'fault__<estimator>' and the recorded 'steps'. The joint-moment filters' exact covariances give the
-    NEES of their exact law."""
+    `workers` forked processes, or with one worker, the units on the run's unit executor): '<estimator>__<sum>',
+    the token law 'token__<estimator>', the sample paths 'path__<estimator>', what a failed plug-in did
+    'fault__<estimator>' and the recorded 'steps'. The joint-moment filters' exact covariances give the NEES of
+    their exact law."""
     from .cost import time_limits
 
     d = rebuilt(sc, quick, tuned, estimators)
@@ -101,7 +104,8 @@ def monte_carlo(sc: CompareFile, quick: bool, tuned: StageResult, exact: StageRe
     setup = Setup(d.model, d.links, sc.simulation.steps, d.running, exact_cov=exact_cov, token_times=token_times(sc),
                   n_paths=sc.simulation.paths, record_steps=recorded(sc))
     with np.errstate(over="ignore", invalid="ignore"):     # a diverging filter's errors may overflow
-        out = simulate_trials(setup, seed, trials, budget_bytes, workers, label="compare")
+        out = simulate_trials(setup, seed, trials, budget_bytes, executor.current().stage_workers(workers),
+                              label="compare")
     arrays = {f"{e}__{k}": v for e, sums in out["mc"].items() for k, v in sums.items()}
     arrays.update({f"token__{e}": v for e, v in out["token"].items()})
     arrays.update({f"path__{e}": v for e, v in out["paths"].items()})
