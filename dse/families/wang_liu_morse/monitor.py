@@ -4,9 +4,12 @@ The simulator hands every sample, event index and interval of a chunk of trials 
 `ChunkMonitor`, which evaluates the bounds on the spot (the recursion (41), (51) and its
 restarts, the continuous bound, (20), (54), (63), the decay-rate fits) and keeps per trial only
 the worst case of each, plus statistics over trials per event index and per stored sample.
-Everything is merged into the run's `RunAccumulator` unit by unit in unit order, so the result
-is the same whatever the memory chunk; trial 0 is kept whole, at every event and at
-`sampling.stored` samples.
+A chunk's monitor keeps what depends on the order of the units apart for each unit (`UnitPart`: its sums,
+its moments, its worst cases and per-trial values) and the rest (maxima, counts, trial 0) in a
+`RunAccumulator` of its own; the run's `RunAccumulator` absorbs the parts unit by unit in unit order, as if
+one process had merged every unit in turn, so the result is the same bits whatever the memory chunk and
+wherever the chunk ran (a chunk is a function of its units: it may run on a Dask worker). Trial 0 is kept
+whole, at every event and at `sampling.stored` samples.
 """
 from __future__ import annotations
 
@@ -120,7 +123,10 @@ class RunAccumulator:
                        "err": np.full((G, m), nan), "cerr": np.full(G, nan), "xnorm": np.full(G, nan),
                        "kf": np.full(G, nan)}
         self.z0 = None
-        self.iter_hash = hashlib.blake2b(digest_size=16)
+        #: whether trial 0 (the scenario's initial conditions) is among this accumulator's trials
+        self.has_trial0 = False
+        #: the hash of trial 0's consensus iterates, every interval in turn (written by the chunk that holds trial 0)
+        self.iterate_hash = hashlib.blake2b(digest_size=16).hexdigest()
         # per event index: count, mean, M2 of ||e_i(t_is)|| and of the centralized error; maxima
         self.ev_count = np.zeros(S + 1, dtype=np.int64)
         self.ev_mean, self.ev_m2 = np.zeros((S + 1, m)), np.zeros((S + 1, m))
@@ -151,6 +157,33 @@ class RunAccumulator:
             m2[s] = m2[s] + m2u + delta ** 2 * n0 * n_u / tot
         self.ev_count[s] = tot
 
+    def absorb(self, part: "UnitPart") -> "RunAccumulator":
+        """Merge the next unit (in unit order), and with the first unit of a chunk, what the chunk kept as a whole:
+        the same operations, in the same order for each statistic, as merging every unit in one process."""
+        self.g_sum += part.g_sum            # a unit adds its sum at every stored sample (0.0 elsewhere: exact)
+        self.g_csum += part.g_csum
+        for moments in part.moments:
+            self.merge_moments(*moments)
+        for k, w in part.worst.items():
+            self.worst[k].merge(w)
+        for k, v in part.per_trial.items():
+            self.per_trial[k].append(v)
+        chunk = part.chunk
+        if chunk is not None:
+            if chunk.has_trial0:
+                self.trial0, self.z0, self.iterate_hash = chunk.trial0, chunk.z0, chunk.iterate_hash
+            self.g_max = np.maximum(self.g_max, chunk.g_max)
+            self.ev_max = np.maximum(self.ev_max, chunk.ev_max)
+            self.net_max = np.maximum(self.net_max, chunk.net_max)          # never NaN (see ChunkMonitor.event)
+            self.bound51_max = np.fmax(self.bound51_max, chunk.bound51_max)
+            self.ratio51_s = np.fmax(self.ratio51_s, chunk.ratio51_s)
+            for k, v in chunk.maxima.items():
+                self.maxima[k] = _nanmax(self.maxima[k], np.array(v))
+            for k, v in chunk.counts.items():
+                self.counts[k] += v
+            self.g_count += chunk.g_count
+        return self
+
     def arrays(self) -> dict[str, np.ndarray]:
         out = {f"t0_{k}": v for k, v in self.trial0.items()}
         if self.z0 is not None:
@@ -163,7 +196,7 @@ class RunAccumulator:
                     "net_max": self.net_max, "bound51_max": self.bound51_max, "ratio51_s": self.ratio51_s,
                     "g_t_ns": self.t_ns, "g_mean": self.g_sum / max(self.g_count, 1), "g_max": self.g_max,
                     "g_central_mean": self.g_csum / max(self.g_count, 1), "g_stride": np.array(self.stride),
-                    "g_total": np.array(self.samples_total), "iterate_hash": np.array(self.iter_hash.hexdigest())})
+                    "g_total": np.array(self.samples_total), "iterate_hash": np.array(self.iterate_hash)})
         for k, w in self.worst.items():
             out.update(w.arrays(f"w_{k}"))
         out.update({f"max_{k}": np.array(v) for k, v in self.maxima.items()})
@@ -172,14 +205,33 @@ class RunAccumulator:
         return out
 
 
+class UnitPart:
+    """What one RNG unit of a chunk adds to the run, where the order of the units matters: its sums at the stored
+    samples, its moments per event index (count, means, M2, for `RunAccumulator.merge_moments`), its worst cases
+    and its per-trial values; the first unit of a chunk also carries the chunk's own `RunAccumulator` (`chunk`:
+    maxima, counts, trial 0)."""
+
+    def __init__(self, acc: RunAccumulator):
+        self.g_sum, self.g_csum = np.zeros_like(acc.g_sum), np.zeros_like(acc.g_csum)
+        self.moments: list[tuple] = []
+        self.worst: dict[str, Worst] = {}
+        self.per_trial: dict[str, np.ndarray] = {}
+        self.chunk: RunAccumulator | None = None
+
+
 class ChunkMonitor(ho.Monitor):
     """Evaluates the bounds of one chunk of trials as the simulator hands over its samples,
-    intervals and events (see the module docstring)."""
+    intervals and events (see the module docstring). `acc` is the chunk's own accumulator (fresh); `finish`
+    returns one `UnitPart` per unit, for the run's accumulator to absorb in unit order."""
 
     def __init__(self, ctx: dict, acc: RunAccumulator, sizes: list[int], first: int):
         self.ctx, self.acc = ctx, acc
         self.edges = np.cumsum([0, *sizes])
         self.has0 = first == 0
+        acc.has_trial0 = self.has0
+        self.parts = [UnitPart(acc) for _ in sizes]
+        self.parts[0].chunk = acc
+        self.iter_hash = hashlib.blake2b(digest_size=16)
 
     # -- set-up ----------------------------------------------------------------------------------
     def start(self, L: ho.RunLayout) -> None:
@@ -259,9 +311,9 @@ class ChunkMonitor(ho.Monitor):
             if kf_err is not None:
                 t0["kf"][j] = kf_err
         cerr = rownorm(xc - x)
-        for a, b in self.units():
-            acc.g_sum[j] += err[a:b].sum(axis=0)
-            acc.g_csum[j] += cerr[a:b].sum()
+        for part, (a, b) in zip(self.parts, self.units()):
+            part.g_sum[j] = err[a:b].sum(axis=0)
+            part.g_csum[j] = cerr[a:b].sum()
         acc.g_max[j] = np.maximum(acc.g_max[j], err.max(axis=0))
 
     def ef_at(self, s: int) -> np.ndarray:
@@ -276,7 +328,7 @@ class ChunkMonitor(ho.Monitor):
         self.intervals[data.s] = (data.W, data.pi0_max, data.piq_max)
         if self.has0:
             acc = self.acc
-            acc.iter_hash.update(np.ascontiguousarray(data.traj0).tobytes())
+            self.iter_hash.update(np.ascontiguousarray(data.traj0).tobytes())
             if data.s <= self.z_keep:
                 if acc.z0 is None:
                     acc.z0 = np.full((self.z_keep, *data.traj0.shape), np.nan)
@@ -322,8 +374,8 @@ class ChunkMonitor(ho.Monitor):
         cen = ev.central
         means, m2s = self.unit_moments(np.concatenate([e_i, cen, e_mix[:, None]], axis=1))
         for u, (a, b) in enumerate(self.units()):
-            acc.merge_moments(s, b - a, means[u, :m], m2s[u, :m], means[u, m:2 * m], m2s[u, m:2 * m], means[u, -1],
-                              m2s[u, -1])
+            self.parts[u].moments.append((s, b - a, means[u, :m], m2s[u, :m], means[u, m:2 * m], m2s[u, m:2 * m],
+                                          means[u, -1], m2s[u, -1]))
         acc.ev_max[s] = np.maximum(acc.ev_max[s], e_i.max(axis=0))
         acc.net_max[s] = max(acc.net_max[s], float(e_mix.max()))
         # per-trial fingerprint of e(s), for the bitwise comparison of Theorem 2
@@ -448,17 +500,16 @@ class ChunkMonitor(ho.Monitor):
         self.fit_stop = np.where(self.fit_stop < 0, self.L.S + 1, self.fit_stop)
 
     # -- the end of the chunk -----------------------------------------------------------------------
-    def finish(self):
+    def finish(self) -> list[UnitPart]:
         acc = self.acc
-        for a, b in self.units():
-            for k, w in self.worst.items():
-                acc.worst[k].merge(w.part(a, b))
-            acc.per_trial["fit_rate"].append(getattr(self, "fit_rate", np.full(self.L.B, np.nan))[a:b])
-            acc.per_trial["fit_first"].append(np.full(b - a, FIT_SKIP, dtype=np.int64))
-            acc.per_trial["fit_stop"].append(self.fit_stop[a:b])
-            acc.per_trial["fingerprint"].append(self.fp[a:b])
-            acc.per_trial["e0"].append(self.per_trial_start[0][a:b])
-            acc.per_trial["eb0"].append(self.per_trial_start[1][a:b])
+        fit_rate = getattr(self, "fit_rate", np.full(self.L.B, np.nan))
+        for part, (a, b) in zip(self.parts, self.units()):
+            part.worst = {k: w.part(a, b) for k, w in self.worst.items()}
+            part.per_trial = {"fit_rate": fit_rate[a:b], "fit_first": np.full(b - a, FIT_SKIP, dtype=np.int64),
+                              "fit_stop": self.fit_stop[a:b], "fingerprint": self.fp[a:b],
+                              "e0": self.per_trial_start[0][a:b], "eb0": self.per_trial_start[1][a:b]}
+        if self.has0:
+            acc.iterate_hash = self.iter_hash.hexdigest()
         for k, v in self.maxima.items():
             acc.maxima[k] = _nanmax(acc.maxima[k], v)
         acc.maxima["cont_printed"] = _nanmax(acc.maxima["cont_printed"], self.cont[0])
@@ -468,7 +519,7 @@ class ChunkMonitor(ho.Monitor):
         for k, v in self.counts.items():
             acc.counts[k] += v
         acc.g_count += self.L.B
-        return acc
+        return self.parts
 
 
 def _nanmax(current: float, values: np.ndarray) -> float:

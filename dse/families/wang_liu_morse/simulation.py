@@ -6,7 +6,9 @@
    computed once per distinct weight sequence;
 2. the trials, in fixed RNG units of 1,000 (dse.simulate.units.run_units), each chunk's bounds
    evaluated while it is simulated (`monitor.ChunkMonitor`): memory grows with neither the
-   horizon nor the trial count.
+   horizon nor the trial count. A chunk is a function of its units (portable: it goes to the run's
+   unit executor, a Dask cluster with `--scheduler local`), and the run's accumulator absorbs its
+   units' parts in unit order.
 """
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ import scipy  # scipy.linalg loads on first use (scipy imports submodules lazily
 import dse.estimators.hybrid_observer as ho
 import dse.estimators.jointly_observable_design as jd
 from dse.simulate.seeding import stream_seed
-from dse.simulate.units import block_generator, run_units
+from dse.simulate.units import RNG_UNIT, block_generator, run_units
 from dse.verify.rules import roundoff_tolerance
 
 from .design import alpha_power, constants
@@ -251,15 +253,14 @@ def simulate_run(sc: HybridFile, design: dict, run: RunSection, trials: int, see
            "Cs": Cs, "make_kf": make_kf,
            "matrices": MatrixCache(sc, d, eAT, offset_exponentials(sc, ev)), "iter_keep": plan["sources0"].shape[0]}
     _, _, grid0, dt_ns, samples = ho.sample_grid(ev[:, 0], ho.to_ns(sc.T), run.intervals, sc.sampling.step)
-    acc = RunAccumulator(sc, run, samples, grid0, dt_ns, nw)
     Kc = sc.central_gain
-    done = [0]
 
     def chunk(streams):
+        """The units of `streams`, a function of them alone (portable): one `UnitPart` per unit."""
         x0 = sc.monte_carlo.scale * streams.standard_normal((n,))
         w0 = sc.monte_carlo.scale * streams.standard_normal((nw,))
         xh = sc.monte_carlo.scale * streams.standard_normal((m, n))
-        if done[0] == 0:                                   # trial 0: the scenario's initial conditions
+        if streams.first_unit == 0:                        # trial 0: the scenario's initial conditions
             x0[0], xh[0] = sc.x0, sc.xhat0
             w0[0] = sc.w0 if sc.w0 is not None else 0.0
         if run.ideal:
@@ -268,16 +269,16 @@ def simulate_run(sc: HybridFile, design: dict, run: RunSection, trials: int, see
         if run.leave is not None:
             ag = run.leave.index
             members = memberships(run, xh[:, ag], w0[:, d.w_slices[ag]])
-        monitor = ChunkMonitor(ctx, acc, streams.sizes, done[0])
-        ho.simulate(d, timing_for(sc, run, seed), schedule_for(sc, run), x0=x0, w0=w0, xhat0=xh,
-                    intervals=run.intervals, dt_plot=sc.sampling.step, rule=run.rule,
-                    noise_b=sc.noise_b if run.noise else None, noise_omega=sc.noise.omega, membership=members,
-                    central_gain=Kc, xc0=xh.mean(axis=1), monitor=monitor)
-        done[0] += streams.n
-        return [acc] * len(streams.sizes)          # every unit is already merged into acc, in unit order
+        monitor = ChunkMonitor(ctx, RunAccumulator(sc, run, samples, grid0, dt_ns, nw), streams.sizes,
+                               streams.first_unit * RNG_UNIT)
+        return ho.simulate(d, timing_for(sc, run, seed), schedule_for(sc, run), x0=x0, w0=w0, xhat0=xh,
+                           intervals=run.intervals, dt_plot=sc.sampling.step, rule=run.rule,
+                           noise_b=sc.noise_b if run.noise else None, noise_omega=sc.noise.omega, membership=members,
+                           central_gain=Kc, xc0=xh.mean(axis=1), monitor=monitor)
 
-    run_units(chunk, lambda _, part: part, B_total, stream_seed(seed, "initial-conditions"),
-              bytes_per_trial=bytes_per_trial(sc, d.n_i), budget_bytes=budget_bytes)
+    acc = run_units(chunk, lambda acc, part: (acc or RunAccumulator(sc, run, samples, grid0, dt_ns, nw)).absorb(part),
+                    B_total, stream_seed(seed, "initial-conditions"), bytes_per_trial=bytes_per_trial(sc, d.n_i),
+                    budget_bytes=budget_bytes, portable=True)
     out = dict(plan)
     out.update(acc.arrays())
     out["trials"] = np.array(B_total)
