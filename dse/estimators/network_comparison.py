@@ -382,34 +382,35 @@ def simulate_chunk(setup: Setup, seed: int, label: str, plant: UnitStreams,
 
 
 class _Gathered:
-    """The per-unit partials of `simulate_chunk`, gathered in unit order (`fold`) and summed over the units at the
+    """The per-unit partials of `simulate_chunk`, gathered in unit order (`add`) and summed over the units at the
     end (`result`: the sums of every unit stacked and reduced along the unit axis at once, which numpy does unit
     after unit, so the numbers do not depend on how the units were chunked or where they ran)."""
 
     def __init__(self):
         self.sums: dict[str, dict[str, list]] = {}
         self.token: dict[str, list] = {}
-        self.paths, self.steps, self.cpu_s = None, None, 0.0
+        self.paths: dict[str, np.ndarray] = {}
+        self.steps, self.cpu_s = None, 0.0
         self.seconds: dict[str, float] = {}
         #: estimator -> what it did wrong, the first fault in unit order
         self.faults: dict[str, str] = {}
 
-    @classmethod
-    def fold(cls, acc: "_Gathered | None", part: dict[str, Any]) -> "_Gathered":
-        acc = acc if acc is not None else cls()
+    def add(self, part: dict[str, Any]) -> "_Gathered":
+        """The next unit's partial (`simulate_chunk`), in unit order."""
         for est, sums in part["sums"].items():
             for name, arr in sums.items():
-                acc.sums.setdefault(est, {}).setdefault(name, []).append(arr)
+                self.sums.setdefault(est, {}).setdefault(name, []).append(arr)
         for est, arr in part["token"].items():
-            acc.token.setdefault(est, []).append(arr)
-        if "steps" in part:
+            self.token.setdefault(est, []).append(arr)
+        if "steps" in part:                         # the first unit of a chunk: what the chunk says as a whole
             for est, what in part["faults"].items():
-                acc.faults.setdefault(est, what)
+                self.faults.setdefault(est, what)
             for est, t in part["seconds"].items():
-                acc.seconds[est] = acc.seconds.get(est, 0.0) + t
-            acc.paths = part["paths"] if part["paths"] is not None else acc.paths
-            acc.steps, acc.cpu_s = part["steps"], acc.cpu_s + part["cpu_s"]
-        return acc
+                self.seconds[est] = self.seconds.get(est, 0.0) + t
+            if part["paths"] is not None:
+                self.paths = part["paths"]
+            self.steps, self.cpu_s = part["steps"], self.cpu_s + part["cpu_s"]
+        return self
 
     def result(self) -> dict[str, Any]:
         ok = [e for e in self.sums if e not in self.faults]
@@ -427,20 +428,15 @@ def simulate_group(setup: Setup, seed: int, trials: int, budget_bytes: float, la
     `portable=True` hands the chunks to the run's unit executor (this process or a Dask cluster; finished units
     are stored while the stage runs); each chunk then runs every estimator, and a plug-in that failed in one is
     dropped at the end. Otherwise the chunks run here, and a plug-in that failed is left out of the next ones."""
-    gathered: list[_Gathered] = []
-
-    def fold(acc, part):
-        gathered[:] = [_Gathered.fold(acc, part)]
-        return gathered[0]
-
+    gathered = _Gathered()
     if portable:
         chunk = functools.partial(simulate_chunk, setup, seed, label)
     else:
         def chunk(plant: UnitStreams) -> list[dict[str, Any]]:
-            return simulate_chunk(setup, seed, label, plant, frozenset(gathered[0].faults) if gathered else frozenset())
-    run_units(chunk, fold, trials, stream_seed(seed, label, STREAMS[0]), bytes_per_trial=bytes_per_trial(setup),
-              budget_bytes=budget_bytes, portable=portable)
-    return gathered[0].result()
+            return simulate_chunk(setup, seed, label, plant, frozenset(gathered.faults))
+    run_units(chunk, lambda _, part: gathered.add(part), trials, stream_seed(seed, label, STREAMS[0]),
+              bytes_per_trial=bytes_per_trial(setup), budget_bytes=budget_bytes, portable=portable)
+    return gathered.result()
 
 
 def worker_groups(estimators: dict[str, DesignedEstimator], workers: int) -> list[list[str]]:
