@@ -30,8 +30,9 @@ with contextlib.redirect_stdout(io.StringIO()):
 print(json.dumps({"code": code, "modules": sorted(sys.modules)}))
 """
 #: what a check whose design is cached never needs: figures, recordings, graphs (tran's Laplacian is computed from
-#: its edges), clusters, the reference filters and scipy.stats (about a second each to import)
-NOT_FOR_CHECK = {"matplotlib", "rerun", "networkx", "dask", "distributed", "filterpy", "scipy.stats"}
+#: its edges), clusters, the reference filters and scipy.stats (about a second each to import), and, without
+#: progress bars, tqdm
+NOT_FOR_CHECK = {"matplotlib", "rerun", "networkx", "dask", "distributed", "filterpy", "scipy.stats", "tqdm"}
 
 
 def test_a_check_with_its_design_cached_imports_no_drawing_graph_or_cluster_library(tmp_path):
