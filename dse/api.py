@@ -175,8 +175,9 @@ class Run:
 
         views = self.reproduction.views(Outputs(self.reproduction, self.results, self.tables, self.evaluation.claims,
                                                 self.provenance))
-        draw_all([lambda g=g: [v.draw(staging / v.file) for v in g] for g in view_jobs(views, self.options.workers)],
-                 workers=self.options.workers)
+        jobs = view_jobs(views, self.options.workers)
+        draw_all([lambda g=g: [v.draw(staging / v.file) for v in g] for g in jobs], workers=self.options.workers,
+                 shared_pyplot=sum(any(Path(v.file).suffix == ".png" for v in g) for g in jobs) > 1)
 
 
 def view_jobs(views: list, workers: int) -> list[list]:

@@ -71,12 +71,26 @@ class StageContext:
         out.key = key
         return out
 
+    def is_stored(self, st: Stage, *args, **kwargs) -> bool:
+        """Whether `run` would read this call's result back from the cache (nothing to compute)."""
+        return self.cache.has(st.name, st.params(st.bound(args, kwargs)))
+
     def run_many(self, calls: Sequence[tuple[Stage, tuple, dict]], *, workers: int = 1, desc: str = "",
-                 weights: Sequence[float] | None = None) -> list[StageResult]:
+                 weights: Sequence[float] | None = None, seconds: bool = False,
+                 preload: Sequence[str] = ()) -> list[StageResult]:
         """`run` for several (stage, args, kwargs) calls, in `workers` forked processes, the heaviest
         (by `weights`) first; results in the order of `calls`, and the stages the workers ran recorded
         here. Each call stores its own cache entry, so an interrupted run resumes call by call. The run's unit
-        executor may ask for fewer processes (`dse.simulate.executor`: none when the units go to a cluster)."""
+        executor may ask for fewer processes (`dse.simulate.executor`: none when the units go to a cluster).
+
+        Workers are started only for what is left to compute: calls already in the cache are read back here,
+        and when `seconds` says the weights are the cost model's estimates in seconds, calls whose work in
+        parallel would save less than starting the workers costs (`worth_forking`) run here too. `preload`
+        names modules the stages import on first use (a library that takes a second to import): they are
+        imported here before the workers fork, once, instead of once per worker. Where the calls run never
+        changes their results (each is a seeded stage)."""
+        import importlib
+
         from dse.simulate.units import run_jobs
 
         def job(st: Stage, args: tuple, kwargs: dict):
@@ -87,14 +101,39 @@ class StageContext:
             return go
 
         weights = list(weights) if weights is not None else [1.0] * len(calls)
+        workers = executor.current().stage_workers(workers)
+        if workers > 1 and len(calls) > 1:
+            left = [w for w, (st, args, kwargs) in zip(weights, calls) if not self.is_stored(st, *args, **kwargs)]
+            if not worth_forking(left, workers, seconds=seconds):
+                workers = 1
         if workers > 1 and len(calls) > 1:
             for st in {c[0] for c in calls}:     # each stage's code hash once, here, inherited by the forked workers
                 code_hash(st.module)
+            for name in preload:
+                importlib.import_module(name)
         results = []
         jobs = [(w, job(*c)) for w, c in zip(weights, calls)]
-        for arrays, key, ran in run_jobs(jobs, executor.current().stage_workers(workers), desc=desc):
+        for arrays, key, ran in run_jobs(jobs, workers, desc=desc):
             self.ran.extend(ran)
             out = StageResult(arrays)
             out.key = key
             results.append(out)
         return results
+
+
+#: what starting forked workers costs a run beyond its work, in seconds of the reference machine (the cost model's
+#: unit): the fork of a process holding numpy, pandas and the scenario, the pool's pipes, the results pickled back
+#: (measured about 0.15 s on a loaded 2-core machine three times slower than the reference one)
+WORKER_START_S = 0.1
+
+
+def worth_forking(left: Sequence[float], workers: int, *, seconds: bool) -> bool:
+    """Whether running the calls still to compute (their weights `left`) in `workers` processes saves more than the
+    workers cost to start. Without estimates in seconds (`seconds` False) any two calls are worth it."""
+    if len(left) <= 1:
+        return False
+    if not seconds:
+        return True
+    serial = sum(left)
+    parallel = max(max(left), serial / min(workers, len(left)))
+    return serial - parallel > WORKER_START_S

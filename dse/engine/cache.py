@@ -107,6 +107,12 @@ class StageCache:
                 remove_path(p)
             return None
 
+    def has(self, stage: str, params: dict[str, Any]) -> bool:
+        """Whether an entry is stored for these parameters (`load` would read it back unless it is damaged)."""
+        if self.fresh and self.key(stage, params) not in self._written:
+            return False
+        return all(p.is_file() for p in self._paths(self.key(stage, params)))
+
     def remove_entry(self, key: str) -> None:
         """Delete the files of the entry `key` (a damaged one: nobody can use it)."""
         for p in self._paths(key):
@@ -155,6 +161,9 @@ class MemoryCache(StageCache):
 
     def load(self, stage: str, params: dict[str, Any]) -> dict[str, np.ndarray] | None:
         return self._entries.get(self.key(stage, params))
+
+    def has(self, stage: str, params: dict[str, Any]) -> bool:
+        return self.key(stage, params) in self._entries
 
     def units_dir(self, key: str) -> Path | None:
         return None         # nothing on disk: an interrupted run in memory has nothing to resume from

@@ -1,11 +1,13 @@
-"""Progress bars on stderr (tqdm), silent when stderr is not a terminal unless forced."""
+"""Progress bars on stderr (tqdm), silent when stderr is not a terminal unless forced. tqdm is imported only
+when a bar is shown: a command without bars (`dse check`, a run in a script or CI) does not load it."""
 from __future__ import annotations
 
 import os
 import sys
-from typing import Iterable, TypeVar
+from typing import TYPE_CHECKING, Iterable, TypeVar
 
-from tqdm import tqdm
+if TYPE_CHECKING:
+    from tqdm import tqdm
 
 T = TypeVar("T")
 
@@ -18,12 +20,18 @@ def progress_enabled() -> bool:
 
 
 def progress(iterable: Iterable[T], *, desc: str = "", total: int | None = None) -> Iterable[T]:
-    return tqdm(iterable, desc=desc, total=total, disable=not progress_enabled(), leave=False,
-                dynamic_ncols=True, file=sys.stderr)
+    """`iterable` with a bar when bars are shown, else `iterable` itself."""
+    if not progress_enabled():
+        return iterable
+    from tqdm import tqdm
+
+    return tqdm(iterable, desc=desc, total=total, leave=False, dynamic_ncols=True, file=sys.stderr)
 
 
 def counter(total: int, *, desc: str = "", unit: str = "it") -> tqdm:
     """A progress bar advanced by hand (`bar.update(k)`), with the time left; use as a context manager."""
+    from tqdm import tqdm
+
     return tqdm(total=total, desc=desc, unit=unit, unit_scale=True, disable=not progress_enabled(), leave=False,
                 dynamic_ncols=True, file=sys.stderr)
 

@@ -91,10 +91,11 @@ def _draw(index: int) -> None:
     _JOBS[index]()
 
 
-def draw_all(jobs, workers: int = 1) -> None:
+def draw_all(jobs, workers: int = 1, *, shared_pyplot: bool = False) -> None:
     """Run figure-drawing callables (each draws and saves one or more figures), in `workers`
     forked processes when there are several: the callables need not be picklable (workers
-    inherit them through fork and receive only their index)."""
+    inherit them through fork and receive only their index). `shared_pyplot`: several jobs draw
+    with matplotlib, which is then imported here before the workers fork (once, not once per worker)."""
     global _JOBS
     jobs = list(jobs)
     if workers <= 1 or len(jobs) <= 1:
@@ -102,6 +103,9 @@ def draw_all(jobs, workers: int = 1) -> None:
             job()
         return
     from dse.simulate.units import parallel_map
+
+    if shared_pyplot:
+        _pyplot()
 
     _JOBS = jobs
     try:

@@ -102,7 +102,8 @@ docs/papers/kar-moura.md."""
             runs, ref_runs, slots = sizes(sc, opts)
             shapes.append((sc, horizon(sc, slots), runs, ref_runs))
         outs = ctx.run_many([(bounds, (sc, slots), {}) for sc, slots, _, _ in shapes], workers=opts.workers,
-                            desc="gossip-kalman designs", weights=[scenario_cost(sc, opts)["design_s"] for sc in run.scenarios])
+                            desc="gossip-kalman designs", seconds=True,
+                            weights=[scenario_cost(sc, opts)["design_s"] for sc in run.scenarios])
         return Design(opts.quick, {sc.name: ScenarioDesign(sc, slots, runs, ref_runs, opts.quick, b)
                                    for (sc, slots, runs, ref_runs), b in zip(shapes, outs)})
 
@@ -126,7 +127,7 @@ docs/papers/kar-moura.md."""
         jobs = [(d, *job) for d in design.scenarios.values()
                 for job in self._stages(d, opts, "full" in self.roles(d.scenario, run.is_paper))]
         outs = ctx.run_many([call for *_, call in jobs], workers=opts.workers, desc="gossip-kalman Monte Carlo",
-                            weights=[weight for _, _, weight, _ in jobs])
+                            seconds=True, weights=[weight for _, _, weight, _ in jobs])
         done: dict[str, dict] = {name: {} for name in design.scenarios}
         for (d, name, _, _), out in zip(jobs, outs):
             done[d.name][name] = out

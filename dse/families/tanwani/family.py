@@ -84,14 +84,14 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
         """Every scenario's design stage (the hypotheses are decided on it)."""
         calls, weights = self._design_calls(run, opts)
         return self._design(run, ctx.run_many(calls, workers=opts.workers, weights=weights,
-                                              desc="random-comm-filter design"))
+                                              seconds=True, desc="random-comm-filter design"))
 
     def simulate(self, run, opts, ctx, design):
         """The references and the Monte Carlo of every scenario, and (paper) the topology sweep on the main one;
         the heaviest stages first (by the cost model), in `opts.workers` processes."""
         calls, weights = self._simulate_calls(run, opts)
         return self._results(run, opts, design, ctx.run_many(calls, workers=opts.workers, weights=weights,
-                                                             desc="random-comm-filter stages"))
+                                                             seconds=True, desc="random-comm-filter stages"))
 
     def compute(self, run, opts, ctx):
         """The design and every other stage in one pool of workers, heaviest first (no stage of the simulation
@@ -99,7 +99,8 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
         from dse.contract.family import Computed
 
         (dc, dw), (sc, sw) = self._design_calls(run, opts), self._simulate_calls(run, opts)
-        out = ctx.run_many(dc + sc, workers=opts.workers, weights=dw + sw, desc="random-comm-filter stages")
+        out = ctx.run_many(dc + sc, workers=opts.workers, weights=dw + sw, seconds=True,
+                           desc="random-comm-filter stages")
         design = self._design(run, out[:len(dc)])
         return Computed(design, self._results(run, opts, design, out[len(dc):]))
 

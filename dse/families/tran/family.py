@@ -127,9 +127,9 @@ one-sided t tests for the mean-square bounds, under the report's family-wise con
         return parts + ([(cost.EXTRAS_TYPE_S * len(sc.types), design.paper_extras, (sc, opts.quick))] if run.is_paper
                         else [])
 
-    def _run_many(self, ctx, calls, opts, desc):
+    def _run_many(self, ctx, calls, opts, desc, preload=()):
         return ctx.run_many([(st, args, {}) for _, st, args in calls], workers=opts.workers,
-                            weights=[w for w, _, _ in calls], desc=desc)
+                            weights=[w for w, _, _ in calls], seconds=True, desc=desc, preload=preload)
 
     def design(self, run, opts, ctx):
         core, law = self._seeded(run, opts, ctx)
@@ -164,7 +164,7 @@ one-sided t tests for the mean-square bounds, under the report's family-wise con
         kf = cost.KF_STEP_S * sc.simulation.t_end / sc.reference.dt
         central = self._run_many(ctx, [(2 * kf, reference.central_deterministic, (sc, results.runs["coest"])),
                                        (kf, reference.central_stochastic, (sc, results.runs["sde_roles"], law))],
-                                 opts, f"{sc.name}: centralized filters")
+                                 opts, f"{sc.name}: centralized filters", preload=("filterpy.kalman",))
         if d is None:
             d = design.Design(sc, opts.quick, opts.seed, design.merge_design(core, done[len(calls):]), law)
         results.design = d

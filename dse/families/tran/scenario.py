@@ -495,7 +495,7 @@ class CoestimationFile(ScenarioFile):
 
     @cached_property
     def lap(self) -> np.ndarray:
-        return laplacian(self.network.build())
+        return laplacian(self.network)          # the same matrix as of the networkx graph, without importing networkx
 
     @cached_property
     def types(self) -> tuple[NodeTypeSection, ...]:

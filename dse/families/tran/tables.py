@@ -21,6 +21,7 @@ import pandas as pd
 import dse.estimators.input_state_coestimation as ce
 import dse.estimators.lyapunov_bounds as lb
 from dse.outputs.tables import TableSpec, spec
+from dse.scenario.graphs import degrees
 
 from .design import Design
 from .law import mean_square_constants
@@ -197,12 +198,12 @@ def design_tables(d: Design) -> list[tuple[TableSpec, pd.DataFrame]]:
                      "rank_obsv": int(a["rank_obsv_local"][t]), "rank_obsv_augmented": int(a["rank_obsv_augmented"][t]),
                      "fn3_max_real": float(a["fn3_max_real"][t])})
     out = [(NODE_TYPES, pd.DataFrame(rows, columns=NODE_TYPES.column_names))]
-    G = sc.network.build()
+    degree = degrees(sc.network)
     P = a["P"]
     lamP = [np.linalg.eigvalsh(Pi) for Pi in P]
     out.append((NODE_DESIGN, pd.DataFrame({
         "scenario": name, "node": np.arange(sc.N), "type": [names[t] for t in sc.type_of], "x": sc.nodes.positions[:, 0],
-        "y": sc.nodes.positions[:, 1], "degree": [G.degree(i) for i in range(sc.N)], "fixed_role": np.asarray(sc.fixed_roles.active),
+        "y": sc.nodes.positions[:, 1], "degree": degree, "fixed_role": np.asarray(sc.fixed_roles.active),
         "P_source": a["P_source"].astype(str), "P_eig_min": [w[0] for w in lamP], "P_eig_max": [w[-1] for w in lamP],
         "P_cond": [w[-1] / w[0] for w in lamP], "certified_eps": a["certified_eps"], "certified_tol": a["certified_tol"],
         "eps_required": a["eps_nodes"], "lemma_max_eig": a["lemma_sweep"].max(axis=1), "fixed_Q_min_eig": a["fixed_Qi_min"],

@@ -106,7 +106,8 @@ condition numbers, stated in the claim's detail. Reconstruction notes: docs/pape
         if len(calls) > 1 and opts.workers > 1:
             for sc in scenarios:              # the gains are placed once, before the workers fork
                 sc.observer, sc.central_gain
-        outs = ctx.run_many(calls, workers=opts.workers, weights=weights, desc="hybrid observer: design")
+        outs = ctx.run_many(calls, workers=opts.workers, weights=weights, seconds=True,
+                            desc="hybrid observer: design")
         parts = {}
         for i, sc in enumerate(scenarios):
             label = sc.name if run.is_paper else "scenario"
@@ -132,7 +133,7 @@ condition numbers, stated in the claim's detail. Reconstruction notes: docs/pape
                 weights.append(cost.run_cost(sc, r, trials, n_i, budget)["seconds"])
                 owners.append((part.label, r.name))
         runs = sum(len(p.scenario.runs) for p in design.parts.values())
-        outs = ctx.run_many(calls, workers=opts.workers, weights=weights,
+        outs = ctx.run_many(calls, workers=opts.workers, weights=weights, seconds=True,
                             desc=f"hybrid observer: {runs} runs, lemma samples")
         done = dict(zip(owners, outs))
         return stages.Parts({label: replace(part, seed=opts.seed, trials=part.scenario.trials_for(opts),
