@@ -94,10 +94,45 @@ def test_the_client_holds_a_bounded_number_of_tasks(two_workers):
     assert len(held) == 100 and max(held) <= window + 1      # the tasks in flight and the chunk function
 
 
+def test_a_local_cluster_keeps_its_housekeeping_quiet(two_workers):
+    """The dashboard's profiler is off and the event-loop health checks are sparse on the scheduler and on every
+    worker (`cluster.QUIET_CONFIG`): with Dask's defaults they took a fifth of a core from the tasks on 2 cores."""
+    def worker_settings(dask_worker):
+        return "profile" in dask_worker.periodic_callbacks, dask_worker._tick_interval
+
+    client = two_workers.client()
+    assert set(client.run(worker_settings).values()) == {(False, 0.5)}
+    assert client.run_on_scheduler(lambda dask_scheduler: dask_scheduler._tick_interval) == 0.5
+
+
 @pytest.fixture
 def store_at_once(monkeypatch):
     """Units are kept from a call's start (not after STORE_AFTER_S seconds): the tests' stages are short."""
     monkeypatch.setattr(checkpoints, "STORE_AFTER_S", 0.0)
+
+
+def test_units_travel_packed_and_unpickle_as_they_were(tmp_path, store_at_once):
+    """A task's partials are sent as one stacked array per key (`executor.PackedUnits`) and unpickle to the same
+    list (also when stored from that pickle and read back): same keys, types, dtypes, shapes and bits; partials
+    that do not share them travel as the list."""
+    import pickle
+
+    parts = [{"s": np.arange(6.0).reshape(2, 3) * (i + 0.1), "n": np.int64(i), "z": np.array(1.5 * i)} for i in range(4)]
+    blob = pickle.dumps(executor.PackedUnits(parts), protocol=pickle.HIGHEST_PROTOCOL)
+    assert b"_unstack_units" in blob
+    store = checkpoints.UnitCheckpoints(tmp_path / "call")
+    store.add(0, parts, blob)
+    store.flush()
+    back = pickle.loads(blob)
+    stored = store.load(store.stored()[0][2], len(parts))
+    assert [list(p) for p in back] == [list(p) for p in stored] == [list(p) for p in parts]
+    for p, q in [*zip(parts, back), *zip(parts, stored)]:
+        for k in p:
+            assert type(q[k]) is type(p[k]) and q[k].dtype == p[k].dtype and q[k].shape == p[k].shape
+            assert np.asarray(q[k]).tobytes() == np.asarray(p[k]).tobytes()
+    for odd in (parts[:2] + [{**parts[2], "s": np.zeros(3)}], [*parts[:3], {"n": np.int64(3)}], [1.0, 2.0]):
+        blob = pickle.dumps(executor.PackedUnits(odd), protocol=pickle.HIGHEST_PROTOCOL)
+        assert b"_unstack_units" not in blob and repr(pickle.loads(blob)) == repr(odd)
 
 
 def test_a_worker_that_dies_has_its_units_recomputed(tmp_path, two_workers):

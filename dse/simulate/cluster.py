@@ -11,6 +11,12 @@ from dse.errors import ScenarioError
 
 #: environment of every worker: one BLAS thread (the tasks are the parallelism), no inner bars
 WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "DSE_PROGRESS": "0"}
+#: Dask settings of a local cluster (its scheduler, nannies and workers): the periodic housekeeping that serves the
+#: dashboard's profile and event-loop-health pages, sampled less often (the defaults cost each idle worker 4-5 % of a
+#: core, and the client as much: on 2 cores, a fifth of one taken from the workers' tasks); work stealing, memory
+#: limits and heartbeats keep their defaults
+QUIET_CONFIG = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.interval": "500ms",
+                "distributed.admin.system-monitor.interval": "2s"}
 #: the names `--scheduler` accepts besides a scheduler's address
 SCHEDULERS = ("auto", "inline", "local")
 SCHEDULER_HELP = "auto, inline, local or an address such as tcp://HOST:8786"
@@ -25,12 +31,15 @@ def check_scheduler(scheduler: object, field: str = "--scheduler", error: type[S
 
 def start_local(workers: int):
     """(cluster, client): a local cluster of `workers` single-thread worker processes on loopback."""
+    import dask
     from dask.distributed import Client, LocalCluster
 
     from distributed.gc import disable_gc_diagnosis
 
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL, env=WORKER_ENV)
+    # the settings are read when the scheduler and the nannies are made; a nanny hands its own to its worker
+    with dask.config.set(QUIET_CONFIG):
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL, env=WORKER_ENV)
     # the cluster's scheduler runs in this process and hooks a diagnosis into every garbage collection: a Ctrl-C
     # that lands in that hook is swallowed (the run goes on) and prints two tracebacks; it only measures GC time
     disable_gc_diagnosis(force=True)
