@@ -43,9 +43,10 @@ sweeps: $(STAMP)
 
 # Two test processes per core (pytest-xdist: many tests wait on subprocesses, signals or a Dask cluster, and
 # the second process fills those waits; 184 s instead of 213 s with one per core on 2 cores); each test file
-# stays in one process, so that a module's fixtures (a paper's quick reproduction, say) are computed once.
+# stays in one process, so that a module's fixtures (a paper's quick reproduction, say) are computed once; the
+# files go out longest first, in the order tests/conftest.py collects them (LONGEST_FILES).
 test: $(STAMP)
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -n $$(( 2 * $$(nproc) )) --dist loadfile
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -n $$(( 2 * $$(nproc) )) --dist loadfile --no-loadscope-reorder
 
 # The outputs both checks below look at, computed once into out/checks (the second target finds them done: the run
 # memos, stored sweep points and reused figures make its commands take seconds): a quick reproduction, a compare run,

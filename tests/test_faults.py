@@ -47,6 +47,23 @@ def scenario(tmp_path_factory):
     return d
 
 
+@pytest.fixture(scope="module")
+def quick_out(tmp_path_factory):
+    """`dse run s.toml --out o --quick` of GOOD, run once: the tests that damage a finished run's files start from a
+    copy of it (the same files a run of their own would write, without computing them again)."""
+    d = tmp_path_factory.mktemp("quick")
+    (d / "s.toml").write_text(GOOD)
+    proc = dse("run", "s.toml", "--out", "o", "--quick", cwd=d)
+    assert proc.returncode == 0, proc.stderr
+    return d / "o"
+
+
+def finished_run(quick_out: Path, tmp_path: Path) -> None:
+    """tmp_path as `dse run s.toml --out o --quick` of GOOD leaves it: the scenario and a copy of the outputs."""
+    (tmp_path / "s.toml").write_text(GOOD)
+    shutil.copytree(quick_out, tmp_path / "o", symlinks=True)
+
+
 @pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
 def test_a_signal_at_a_random_moment_stops_cleanly(scenario, tmp_path, sig, code):
     shutil.copy(scenario / "s.toml", tmp_path / "s.toml")
@@ -106,9 +123,8 @@ def test_a_full_disk_is_one_line_and_leaves_the_previous_outputs(scenario, tmp_p
         subprocess.run(["umount", str(disk)], capture_output=True)
 
 
-def test_damaged_and_tampered_cache_entries_are_recomputed(scenario, tmp_path):
-    (tmp_path / "s.toml").write_text(GOOD)
-    assert dse("run", "s.toml", "--out", "o", "--quick", cwd=tmp_path).returncode == 0
+def test_damaged_and_tampered_cache_entries_are_recomputed(quick_out, tmp_path):
+    finished_run(quick_out, tmp_path)
     report = json.loads((tmp_path / "o/run/ring5/report.json").read_text())
     for memo in (tmp_path / "o/.cache").glob("*/runs"):
         shutil.rmtree(memo)  # the run memo would answer without loading the stage entries
@@ -136,9 +152,8 @@ def test_odd_files_as_scenario_are_refused_before_reading(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
-def test_damaged_run_json_in_verify_is_one_line(tmp_path):
-    (tmp_path / "s.toml").write_text(GOOD)
-    assert dse("run", "s.toml", "--out", "o", "--quick", cwd=tmp_path).returncode == 0
+def test_damaged_run_json_in_verify_is_one_line(quick_out, tmp_path):
+    finished_run(quick_out, tmp_path)
     (tmp_path / "o/run/ring5/run.json").write_text("{")
     r = dse("verify", "o", cwd=tmp_path)
     assert r.returncode == 2 and one_line(r.stderr) and "damaged" in r.stderr, r.stderr

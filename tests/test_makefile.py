@@ -1,4 +1,5 @@
-"""`make clean` removes what the project writes, and nothing that nothing creates."""
+"""`make clean` removes what the project writes, and nothing that nothing creates; `make test` hands out the
+longest test files first."""
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -17,3 +18,16 @@ def test_make_clean_removes_only_generated_paths():
     assert "out" in paths
     for path in paths:
         assert path in ignored, f"make clean removes {path}, which no target writes (it is not in .gitignore)"
+
+
+def test_make_test_hands_out_the_longest_files_first(request):
+    """`make test` keeps the collected order of files (xdist's default would reorder them by number of tests),
+    every file tests/conftest.py names as longest exists, and this session collected them first, in that order."""
+    from conftest import LONGEST_FILES
+
+    recipe = (ROOT / "Makefile").read_text().split("\ntest:", 1)[1].split("\n\n", 1)[0]
+    assert "--dist loadfile" in recipe and "--no-loadscope-reorder" in recipe
+    assert all((ROOT / "tests" / name).is_file() for name in LONGEST_FILES), LONGEST_FILES
+    files = list(dict.fromkeys(item.path.name for item in request.session.items))
+    present = [name for name in LONGEST_FILES if name in files]
+    assert files[:len(present)] == present
