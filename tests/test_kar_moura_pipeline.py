@@ -133,9 +133,9 @@ def test_design_is_the_runs_design_and_hypotheses_are_decided_on_it(small_run):
 
 
 def test_check_is_fast_on_the_paper_example():
-    start = time.perf_counter()
+    start = time.process_time()          # CPU time: not the machine's load (make test runs 2 processes per core)
     c = check(str(SCENARIO_DIR / "e1.toml"))
-    assert time.process_time() >= 0 and time.perf_counter() - start < 10
+    assert time.process_time() - start < 10
     assert {"design", "f_eigenvalues", "abar", "witness_walks", "tail_bounds", "reference_series"} <= set(c.tables)
     d = c.tables["design"].set_index("quantity")["value"]
     assert d["witness_length"] == 2 and d["witness_walks"] == 20 and d["observability_rank"] == 2
