@@ -29,6 +29,7 @@ import numpy as np
 
 from dse.engine.progress import progress
 from dse.simulate import checkpoints, units
+from dse.simulate.seeding import block_seeds
 from dse.simulate.units import RNG_UNIT
 
 #: Dask tasks per worker a stage's units are split into (at least: a task never holds fewer units than one
@@ -38,11 +39,6 @@ TASKS_PER_WORKER = 16
 MAX_TASK_UNITS = 1000
 #: tasks in flight per worker: one running, the next ones queued so that a worker never waits for the client
 IN_FLIGHT_PER_WORKER = 3
-
-
-def unit_seeds(seq: np.random.SeedSequence, first: int, stop: int) -> list[np.random.SeedSequence]:
-    """The seeds of units first..stop-1 of the stream `seq` (`dse.simulate.seeding.block_seeds`, by range)."""
-    return [np.random.SeedSequence(entropy=seq.entropy, spawn_key=seq.spawn_key + (u,)) for u in range(first, stop)]
 
 
 def unit_sizes(n_trials: int, first: int, stop: int) -> list[int]:
@@ -56,7 +52,7 @@ def compute_units(simulate_chunk: Callable, seq: np.random.SeedSequence, n_trial
     multiples of `per_chunk`, as one process would chunk them): one partial per unit, in unit order."""
     parts: list = []
     for start, end in task_ranges(first, stop, per_chunk):
-        out = list(simulate_chunk(units.UnitStreams(unit_seeds(seq, start, end), unit_sizes(n_trials, start, end),
+        out = list(simulate_chunk(units.UnitStreams(block_seeds(seq, end, start), unit_sizes(n_trials, start, end),
                                               first_unit=start)))
         if len(out) != end - start:
             raise ValueError(f"the chunk of units {start}..{end - 1} returned {len(out)} partial results")

@@ -276,9 +276,9 @@ def simulate_run(sc: HybridFile, design: dict, run: RunSection, trials: int, see
                            noise_b=sc.noise_b if run.noise else None, noise_omega=sc.noise.omega, membership=members,
                            central_gain=Kc, xc0=xh.mean(axis=1), monitor=monitor)
 
-    acc = run_units(chunk, lambda acc, part: (acc or RunAccumulator(sc, run, samples, grid0, dt_ns, nw)).absorb(part),
-                    B_total, stream_seed(seed, "initial-conditions"), bytes_per_trial=bytes_per_trial(sc, d.n_i),
-                    budget_bytes=budget_bytes, portable=True)
+    acc = RunAccumulator(sc, run, samples, grid0, dt_ns, nw)
+    run_units(chunk, lambda _, part: acc.absorb(part), B_total, stream_seed(seed, "initial-conditions"),
+              bytes_per_trial=bytes_per_trial(sc, d.n_i), budget_bytes=budget_bytes, portable=True)
     out = dict(plan)
     out.update(acc.arrays())
     out["trials"] = np.array(B_total)
