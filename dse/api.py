@@ -17,6 +17,7 @@ bad scenario (naming the field), `OutputError` for an unusable directory, `Numer
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -504,10 +505,76 @@ class Check:
     reproduction: Reproduction
     options: RunOptions
     hypotheses: list[dict[str, Any]]
-    tables: Tables
+    design: Any = field(repr=False)
     estimate: dict[str, Any]
     refusal: str = ""
     stages: list[dict[str, Any]] = field(default_factory=list)
+
+    @functools.cached_property
+    def tables(self) -> Tables:
+        """The design tables (DataFrames), built on first use: `dse check` prints them from the text it
+        stored beside a cached design (`design_text`) without building them, or importing pandas."""
+        tables = Tables()
+        for table_spec, frame in self.reproduction.design_tables(self.design):
+            tables.add(table_spec, frame)
+        return tables
+
+    def design_text(self, cache_dir: str | os.PathLike | None = None) -> str:
+        """The design tables as `dse check` prints them (each table's row count, and the table itself when it
+        has at most 40 rows). With `cache_dir` (the stage cache the design came from), the text is kept there
+        under a key derived from everything the text depends on (`_text_key`), and read back the next time."""
+        key = self._text_key() if cache_dir is not None else None
+        path = Path(cache_dir) / f"check-text-{key}.txt" if key else None
+        if path is not None and path.is_file():
+            return path.read_text()
+        text = render_design_tables(self.tables)
+        if path is not None:
+            try:
+                atomic_write_text(path, text)
+            except OSError:
+                pass                    # a read-only cache: the text is rendered again next time
+        return text
+
+    def _text_key(self) -> str | None:
+        """The key of `design_text`'s stored text: the design stages' keys, the scenarios, the options, the source
+        of every module of the family's package and of the project modules they import (whatever code builds
+        the design object and its tables), and pandas's version (the rendering); None for a family outside the
+        project, whose code these do not follow."""
+        from importlib.metadata import version
+
+        from dse.contract.stages import code_closure, module_file
+
+        family_module = type(self.reproduction.family).__module__
+        family_file = module_file(family_module)
+        if family_file is None:
+            return None
+        package = family_module.rpartition(".")[0]
+        modules = {f"{package}." + ".".join(p.relative_to(family_file.parent).with_suffix("").parts)
+                   for p in family_file.parent.rglob("*.py")}
+        code = sorted(set().union(*(code_closure(m.removesuffix(".__init__")) for m in modules)))
+        h = hashlib.sha256()
+        for part in ([s["key"] for s in self.stages], [sc.key() for sc in self.reproduction.scenarios],
+                     asdict(self.options), version("pandas")):
+            h.update(json.dumps(part, sort_keys=True, default=str).encode())
+        for m in code:
+            h.update(m.encode())
+            h.update(module_file(m).read_bytes())
+        return h.hexdigest()[:24]
+
+
+def render_design_tables(tables: Tables, max_rows: int = 40) -> str:
+    """Each design table's name, row count and what a row is, then the table itself when it has at most
+    `max_rows` rows (10 significant digits), indented for `dse check`."""
+    import pandas as pd
+
+    lines = []
+    with pd.option_context("display.max_rows", max_rows, "display.width", 160, "display.precision", 10):
+        for name in tables:
+            frame = tables[name]
+            lines.append(f"  [{name}] {len(frame)} rows: one per {tables.specs[name].row}")
+            if len(frame) <= max_rows:
+                lines.append("    " + frame.to_string(index=False).replace("\n", "\n    "))
+    return "".join(line + "\n" for line in lines)
 
 
 def check(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed: int = 0, trials: int | None = None,
@@ -542,8 +609,5 @@ def check(source: str | os.PathLike | Mapping[str, Any] | Reproduction, *, seed:
         ctx = StageContext(MemoryCache() if cache_dir is None else StageCache(Path(cache_dir)))
         design = repro.design(opts, ctx)
     hyps = [h.evaluate(design) for h in repro.hypotheses()]
-    tables = Tables()
-    for table_spec, frame in repro.design_tables(design):
-        tables.add(table_spec, frame)
-    return Check(repro, opts, hyps, tables, estimate.as_dict(),
+    return Check(repro, opts, hyps, design, estimate.as_dict(),
                  run_refusal(estimate, opts, trials_field(repro, opts)), ctx.ran)

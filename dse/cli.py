@@ -117,14 +117,7 @@ def cmd_check(args) -> int:
         mark = "error" if h["error"] else hypothesis_status(h, {True: "holds", False: "does not hold", None: "undecided"})
         print(f"  {mark:<13} {h['id']}: {h['statement']}; value {h['value']}, threshold {h['threshold']}. {h['detail']}")
     print("design quantities:")
-    import pandas as pd
-
-    with pd.option_context("display.max_rows", 40, "display.width", 160, "display.precision", 10):
-        for name in result.tables:
-            frame = result.tables[name]
-            print(f"  [{name}] {len(frame)} rows: one per {result.tables.specs[name].row}")
-            if len(frame) <= 40:
-                print("    " + frame.to_string(index=False).replace("\n", "\n    "))
+    print(result.design_text(cache), end="")
     est = result.estimate
     print(f"estimate: about {est['seconds']:.3g} s and {est['peak_memory_mib']:.0f} MiB peak memory "
           f"({est.get('detail', '')})")

@@ -60,3 +60,48 @@ def test_a_check_whose_output_root_cannot_be_used_keeps_the_design_in_memory(tmp
     captured = capsys.readouterr()
     assert "is not usable" in captured.err and "kept in memory" in captured.err and captured.err.count("\n") == 1
     assert "valid scenario" in captured.out and "stage cache" not in captured.out
+
+
+@pytest.mark.parametrize("family_id", sorted(registry.families()))
+def test_the_design_text_read_back_is_the_one_rendered_from_the_tables(family_id, tmp_path):
+    """`dse check` prints the design tables from the text an earlier check stored beside the design: the same text
+    as rendered from the tables, under a key that follows the scenario and the options."""
+    from dse.api import render_design_tables
+
+    data = _small(family_id)
+    first = api.check(data, quick=True, cache_dir=tmp_path)
+    stored = first.design_text(tmp_path)
+    assert list(tmp_path.glob("check-text-*.txt"))
+    again = api.check(data, quick=True, cache_dir=tmp_path)
+    assert "tables" not in again.__dict__          # not built: the text is read back
+    assert again.design_text(tmp_path) == stored == render_design_tables(again.tables)
+    other_seed = api.check(data, quick=True, seed=1, cache_dir=tmp_path)
+    assert other_seed._text_key() != first._text_key()
+
+
+def test_an_edit_of_the_familys_code_changes_the_design_texts_key(tmp_path, monkeypatch):
+    """The key of the stored text follows every module of the family's package (a table's code lives there) and
+    the modules they import."""
+    from dse.contract import stages
+
+    data = _small("noisy-consensus-filter")
+    checked = api.check(data, quick=True, cache_dir=tmp_path)
+    before = checked._text_key()
+    real = stages.module_file
+
+    def edited(name):
+        path = real(name)
+        if name == "dse.families.savas.tables":
+            copy = tmp_path / "tables.py"
+            copy.write_bytes(path.read_bytes() + b"\n# an edit\n")
+            return copy
+        return path
+
+    monkeypatch.setattr(stages, "module_file", edited)
+    for f in (stages.direct_imports, stages.code_closure, stages.code_hash):
+        f.cache_clear()
+    try:
+        assert checked._text_key() != before
+    finally:
+        for f in (stages.direct_imports, stages.code_closure, stages.code_hash):
+            f.cache_clear()

@@ -193,3 +193,26 @@ def test_a_family_that_declares_a_paper_must_give_its_scenarios():
     with pytest.raises(TypeError, match="paper_scenarios"):
         type("WithPaper", (Template,), {"paper": Paper("p", "A paper", ("s",))})
     assert Template().paper_scenarios() == ()       # no paper: no paper scenarios
+
+
+def test_the_import_scan_finds_every_import_statement_of_every_project_module():
+    """The line scan behind the stage keys (`code_closure`) finds every import statement a full parse finds, in every
+    module of the package (nested in functions, parenthesized over several lines, relative), and adds only
+    statements written inside strings (a docstring's `import dse`); a line of prose that only starts like an import
+    adds nothing."""
+    import ast
+
+    for path in sorted((ROOT / "dse").rglob("*.py")):
+        source = path.read_bytes()
+        tree = ast.parse(source)
+        parsed = {ast.dump(n) for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom))}
+        scanned = {ast.dump(n): n for n in stage_mod._import_statements(source)}
+        assert parsed <= set(scanned), (path, parsed - set(scanned))
+        strings = [n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)]
+        for extra in set(scanned) - parsed:
+            assert any(ast.unparse(scanned[extra]) in s for s in strings), (path, ast.unparse(scanned[extra]))
+    tricky = (b'"""Doc.\n\nfrom the paper import nothing here\nimport numbers as they are\n"""\n'
+              b"def f():\n    from .a import (b,\n        c)  # (\n    import d.e \\\n        as g\n"
+              b"from .h import i  # see (1\n")
+    assert [ast.dump(n) for n in stage_mod._import_statements(tricky)] == [
+        ast.dump(n) for n in ast.parse(b"from .a import (b,\n c)\nimport d.e as g\nfrom .h import i\n").body]

@@ -369,7 +369,9 @@ class CompareFile(ScenarioFile):
         from dse.estimators.link_models import LinkModel, Topology
 
         lk = self.links
-        topo = Topology.from_edges(self.N, list(self.network.build().edges()))
+        # the graph's edge list without networkx for the deterministic kinds (the same sorted edges as
+        # `build().edges()`: tests/test_graph_edges.py)
+        topo = Topology.from_edges(self.N, self.network.edge_array().tolist())
         return LinkModel(topo, lk.model, rounds=lk.rounds, p_fail=float(lk.p_fail), rate=float(lk.rate or 0.0),
                          noise_std=float(lk.noise_std))
 
