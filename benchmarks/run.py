@@ -16,8 +16,9 @@ runs them; a 1,000-point `dse sweep` in process and on a local Dask cluster with
 in process and with its Monte Carlo units on a local Dask cluster of 1 and 2 workers: the same bits, and the
 speed-up), ``calibration`` (every statistical
 claim on 200 random valid scenarios per family: observed false-fail rate at α = 0.05 with its
-exact interval, and fails at the report's own confidence). ``--quick``: fewer repeats and
-sizes, quick reproductions only (a smoke test of the whole harness, a few minutes).
+exact interval, and fails at the report's own confidence), ``fresh`` (`make reproduce` on a fresh clone of HEAD,
+step by step, the environment included: target 6 min). ``--quick``: fewer repeats and
+sizes, quick reproductions only, no fresh clone (a smoke test of the whole harness, a few minutes).
 
 Every figure is a median over repeats with its (min, max). Benchmarks are measurements, not
 tests: nothing here fails the build; a target that is missed is reported as missed.
@@ -47,6 +48,7 @@ import numpy as np  # noqa: E402
 from .bench_calibration import bench_calibration  # noqa: E402
 from .bench_commands import bench_commands  # noqa: E402
 from .bench_estimates import TARGET_FACTOR, bench_estimates  # noqa: E402
+from .bench_fresh_clone import bench_fresh_clone  # noqa: E402
 from .bench_plugin import bench_plugin  # noqa: E402
 from .bench_scheduler import bench_scheduler  # noqa: E402
 from .bench_startup import bench_startup  # noqa: E402
@@ -54,7 +56,7 @@ from .bench_sweep import bench_example_sweeps, bench_sweep_overhead, bench_sweep
 from .common import bound_row, estimator_row, spread, timed  # noqa: E402
 
 SECTIONS = ("floor", "estimators", "bounds", "scale", "plugin", "record", "reproduce", "startup", "commands",
-            "estimates", "sweep", "scheduler", "calibration")
+            "estimates", "sweep", "scheduler", "calibration", "fresh")
 TITLES = {
     "floor": "What the machine allows (floors behind the per-step targets)",
     "estimators": "Estimators side by side: batched vs a straightforward per-trial loop",
@@ -73,6 +75,7 @@ TITLES = {
              "same 1,000-point sweep in process and on 1 and 2 Dask workers",
     "scheduler": "One run on a Dask cluster (`dse run --scheduler`): 10^7 trials in process and on 1 and 2 local workers",
     "calibration": "Statistical claims on random valid scenarios (quick sample sizes): false-fail rate at α = 0.05",
+    "fresh": "`make reproduce` on a fresh clone of HEAD, step by step (the environment included)",
 }
 
 
@@ -303,10 +306,11 @@ def main(argv: list[str] | None = None) -> int:
                    + ([] if args.quick else bench_example_sweeps())
                    + bench_sweep_scaling(points=100 if args.quick else 1000),
                    "scheduler": lambda: bench_scheduler(trials=10**6 if args.quick else 10**7),
-                   "calibration": lambda: bench_calibration(seeds=20 if args.quick else 200)}
+                   "calibration": lambda: bench_calibration(seeds=20 if args.quick else 200),
+                   "fresh": lambda: [] if args.quick else bench_fresh_clone()}
         # reproduce before record: the recording replay uses the reproductions' recordings
         order = ("floor", "estimators", "bounds", "scale", "plugin", "reproduce", "record", "startup", "commands", "estimates",
-                 "sweep", "scheduler", "calibration")
+                 "sweep", "scheduler", "calibration", "fresh")
         for key in sorted(only, key=order.index):
             print(f"[bench] {key} ...", file=sys.stderr, flush=True)
             t0 = time.perf_counter()
@@ -398,6 +402,10 @@ def _targets(results: dict[str, list[dict]]) -> list[str]:
         if "speedup_vs_1_worker" in r:
             lines.append(f"| dse sweep, {r['points']} points: 2 workers >= 1.9x one | "
                          f"speed-up {_fmt(r['speedup_vs_1_worker'])} | {'yes' if r['speedup_vs_1_worker'] >= 1.9 else '**no**'} |")
+    for r in results.get("fresh", []):
+        if r.get("target"):
+            lines.append(f"| {r['what']}: {r['target']} | {_fmt(r['wall_s'] / 60)} min wall ({_fmt(r['cpu_s'])} s CPU) | "
+                         f"{_fmt(r['met'])} |")
     for r in results.get("scheduler", []):
         if "speedup_vs_1_worker" in r:
             lines.append(f"| dse run --scheduler local, {r['trials']:,} trials: {r['target']}, numbers identical to in "
