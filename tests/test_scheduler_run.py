@@ -268,3 +268,58 @@ def test_every_portable_family_gives_the_same_bits_on_a_cluster(family, trials, 
         expected = _stage_bytes(family, trials)
     with executor.using(two_workers, close=False):
         assert _stage_bytes(family, trials) == expected
+
+
+def test_stages_in_threads_give_their_results_in_order_and_fail_at_once():
+    """`run_threads` (a family's stages on a cluster, a few at a time): results in the order given, the heaviest
+    started first; an error is raised as soon as it happens, not after a job still waiting has ended."""
+    import threading
+    import time
+
+    from dse.simulate.units import run_threads
+
+    started = []
+
+    def job(i):
+        def go():
+            started.append(i)
+            time.sleep(0.01)
+            return i * i
+        return go
+
+    assert run_threads([(w, job(i)) for i, w in enumerate([1.0, 5.0, 3.0, 2.0])], 1) == [0, 1, 4, 9]
+    assert started == [1, 2, 3, 0]
+    release = threading.Event()
+
+    def waits():
+        release.wait(30)
+        return "late"
+
+    def fails():
+        raise RuntimeError("stage failed")
+
+    t0 = time.perf_counter()
+    with pytest.raises(RuntimeError, match="stage failed"):
+        run_threads([(2.0, waits), (1.0, fails)], 2)
+    assert time.perf_counter() - t0 < 10
+    release.set()
+
+
+def test_the_units_a_stage_stores_are_its_own_in_each_thread(tmp_path):
+    """The stored units' scope is per thread: two stages computing at once keep their units in their own directories."""
+    import threading
+
+    seen = {}
+
+    def stage(name):
+        with checkpoints.stage_scope(tmp_path / name):
+            barrier.wait(10)
+            seen[name] = checkpoints.for_call(np.random.SeedSequence(1), 10).directory.parent.name
+
+    barrier = threading.Barrier(2)
+    threads = [threading.Thread(target=stage, args=(n,)) for n in ("a", "b")]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert seen == {"a": "a", "b": "b"}

@@ -81,7 +81,8 @@ class StageContext:
         """`run` for several (stage, args, kwargs) calls, in `workers` forked processes, the heaviest
         (by `weights`) first; results in the order of `calls`, and the stages the workers ran recorded
         here. Each call stores its own cache entry, so an interrupted run resumes call by call. The run's unit
-        executor may ask for fewer processes (`dse.simulate.executor`: none when the units go to a cluster).
+        executor may ask for fewer processes (`dse.simulate.executor`: none when the units go to a cluster, whose
+        stages then compute a few at a time in threads of this process, `stage_threads`).
 
         Workers are started only for what is left to compute: calls already in the cache are read back here,
         and when `seconds` says the weights are the cost model's estimates in seconds, calls whose work in
@@ -91,7 +92,7 @@ class StageContext:
         changes their results (each is a seeded stage)."""
         import importlib
 
-        from dse.simulate.units import run_jobs
+        from dse.simulate.units import run_jobs, run_threads
 
         def job(st: Stage, args: tuple, kwargs: dict):
             def go():
@@ -101,11 +102,14 @@ class StageContext:
             return go
 
         weights = list(weights) if weights is not None else [1.0] * len(calls)
-        workers = executor.current().stage_workers(workers)
-        if workers > 1 and len(calls) > 1:
+        runner = executor.current()
+        workers, threads = runner.stage_workers(workers), runner.stage_threads()
+        if (workers > 1 or threads > 1) and len(calls) > 1:
             left = [w for w, (st, args, kwargs) in zip(weights, calls) if not self.is_stored(st, *args, **kwargs)]
             if not worth_forking(left, workers, seconds=seconds):
                 workers = 1
+            if len(left) <= 1:
+                threads = 1
         if workers > 1 and len(calls) > 1:
             for st in {c[0] for c in calls}:     # each stage's code hash once, here, inherited by the forked workers
                 code_hash(st.module)
@@ -113,7 +117,8 @@ class StageContext:
                 importlib.import_module(name)
         results = []
         jobs = [(w, job(*c)) for w, c in zip(weights, calls)]
-        for arrays, key, ran in run_jobs(jobs, workers, desc=desc):
+        done = run_threads(jobs, threads) if workers <= 1 and threads > 1 else run_jobs(jobs, workers, desc=desc)
+        for arrays, key, ran in done:
             self.ran.extend(ran)
             out = StageResult(arrays)
             out.key = key

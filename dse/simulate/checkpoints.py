@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import pickle
+import threading
 import time
 from pathlib import Path
 from typing import Any, Iterator
@@ -33,19 +34,26 @@ FLUSH_EVERY_S = 2.0
 #: ... and at most this many units are held back for the next file
 FLUSH_UNITS = 256
 
-#: the stage being computed with a persistent cache: [units directory, fresh, run_units calls so far]
-_SCOPE: list = []
+#: per thread (a run on a Dask cluster computes several stages at once, one per thread), the stages being computed
+#: with a persistent cache: [units directory, fresh, run_units calls so far]
+_LOCAL = threading.local()
+
+
+def _scopes() -> list:
+    if not hasattr(_LOCAL, "scopes"):
+        _LOCAL.scopes = []
+    return _LOCAL.scopes
 
 
 @contextlib.contextmanager
 def stage_scope(directory: Path | None, *, fresh: bool = False) -> Iterator[None]:
     """While a stage computes: where its `run_units` calls keep their finished units (None: nowhere, e.g.
     a stage cache kept in memory); `fresh`: ignore units stored by an earlier attempt."""
-    _SCOPE.append([directory, fresh, 0])
+    _scopes().append([directory, fresh, 0])
     try:
         yield
     finally:
-        _SCOPE.pop()
+        _scopes().pop()
 
 
 def finish_stage(directory: Path | None) -> None:
@@ -61,9 +69,10 @@ def finish_stage(directory: Path | None) -> None:
 def for_call(seq: np.random.SeedSequence, n_trials: int) -> "UnitCheckpoints | None":
     """The store of the current stage's next `run_units` call (by its rank in the stage and its stream), or
     None outside a stage with a persistent cache."""
-    if not _SCOPE or _SCOPE[-1][0] is None:
+    scopes = _scopes()
+    if not scopes or scopes[-1][0] is None:
         return None
-    scope = _SCOPE[-1]
+    scope = scopes[-1]
     scope[2] += 1
     stream = hashlib.sha256(repr((seq.entropy, seq.spawn_key, n_trials)).encode()).hexdigest()[:16]
     return UnitCheckpoints(scope[0] / f"{scope[2]}-{stream}", fresh=scope[1])

@@ -10,8 +10,8 @@ the same bits wherever the units ran. The executors (`executor_for`):
 - `local` or an address ``tcp://HOST:PORT`` (`DaskExecutor`): the units of every portable stage (one whose
   chunk function keeps no state between chunks: `run_units(..., portable=True)`) as tasks of a Dask cluster
   (a local one of `workers` processes, started when the first such stage runs, or a running scheduler),
-  the stages one after the other in this process. A few tasks per worker are in flight at a time and their
-  results are taken in unit order, so the client holds a bounded number of partial results whatever the
+  the stages in this process, two at a time (in threads: `STAGE_THREADS`). A few tasks per worker are in
+  flight at a time and their results are taken in unit order, so the client holds a bounded number of partial results whatever the
   trial count; a worker that dies has its tasks rescheduled by the Dask scheduler.
 
 The executor never enters a cache key: it cannot change a result.
@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import math
 import pickle
+import threading
 import warnings
 from collections import deque
 from typing import Callable, Iterable, Iterator
@@ -39,6 +40,9 @@ TASKS_PER_WORKER = 16
 MAX_TASK_UNITS = 1000
 #: tasks in flight per worker: one running, the next ones queued so that a worker never waits for the client
 IN_FLIGHT_PER_WORKER = 3
+#: stages of a family computing at once on a cluster (threads of the client, each with its tasks in flight): while
+#: one stage's last tasks run and it is folded and finished here, the next one's tasks keep the workers busy
+STAGE_THREADS = 2
 
 
 def unit_sizes(n_trials: int, first: int, stop: int) -> list[int]:
@@ -67,6 +71,12 @@ class UnitExecutor:
 
     def stage_workers(self, workers: int) -> int:
         """How many forked processes `StageContext.run_many` may run stages in, of the `workers` a family asks for."""
+        return 1
+
+    def stage_threads(self) -> int:
+        """How many of `StageContext.run_many`'s stages may compute at once in threads of this process (stages
+        whose units go elsewhere, so that one stage's last tasks and the work between two stages leave no worker
+        idle)."""
         return 1
 
     def units_per_task(self, n_units: int, per_chunk: int) -> int:
@@ -157,15 +167,20 @@ class DaskExecutor(UnitExecutor):
         self.log = log or (lambda line: None)
         self._stack: contextlib.ExitStack | None = None
         self._client = None
+        self._starting = threading.Lock()      # stages in threads (`stage_threads`) start one client between them
 
     def client(self):
-        if self._client is None:
-            from dse.simulate.cluster import dask_client
+        with self._starting:
+            if self._client is None:
+                from dse.simulate.cluster import dask_client
 
-            stack = contextlib.ExitStack()
-            self._client = stack.enter_context(dask_client(self.name, self.workers, log=self.log))
-            self._stack = stack
+                stack = contextlib.ExitStack()
+                self._client = stack.enter_context(dask_client(self.name, self.workers, log=self.log))
+                self._stack = stack
         return self._client
+
+    def stage_threads(self) -> int:
+        return STAGE_THREADS
 
     def n_workers(self) -> int:
         return max(1, len(self.client().scheduler_info().get("workers", {})))

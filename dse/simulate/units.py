@@ -247,6 +247,31 @@ def run_jobs(jobs: Sequence[tuple[float, Callable[[], R]]], workers: int = 1, *,
     return results
 
 
+def run_threads(jobs: Sequence[tuple[float, Callable[[], R]]], threads: int) -> list[R]:
+    """Run (weight, callable) jobs in up to `threads` threads of this process, the heaviest first, and return
+    their results in the order given: for jobs that mostly wait (on a Dask cluster's tasks). The first error,
+    or an interrupt, cancels the jobs not yet started and is raised once the running ones are left to end
+    (they end when the run's executor closes its client)."""
+    from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
+
+    order = sorted(range(len(jobs)), key=lambda i: -jobs[i][0])
+    pool = ThreadPoolExecutor(max_workers=max(1, min(threads, len(jobs))), thread_name_prefix="dse-stage")
+    futures = {}
+    try:
+        for i in order:
+            futures[i] = pool.submit(jobs[i][1])
+        done, _ = wait(futures.values(), return_when=FIRST_EXCEPTION)
+        failed = [f for f in done if f.exception() is not None]
+        if failed:
+            raise failed[0].exception()
+        results = [futures[i].result() for i in range(len(jobs))]
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+    return results
+
+
 def peak_memory_mib() -> float:
     """Peak resident memory of this process and its finished children, in MiB."""
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
