@@ -7,6 +7,10 @@ import os
 
 from dse.engine.atomic import atomic_path
 
+#: zlib level of the PNGs: level 1 encodes about a third faster than Pillow's default 6 for files 10-20% larger
+#: (the same pixels; Pillow's per-row filter choice, the rest of the encoder's time, is the same at every level)
+PNG_COMPRESS_LEVEL = 1
+
 STYLE = {"figure.dpi": 110, "savefig.dpi": 150, "axes.grid": True, "grid.alpha": 0.3, "font.size": 10,
          "legend.fontsize": 8, "axes.spines.top": False, "axes.spines.right": False}
 
@@ -39,7 +43,7 @@ def save_figure(fig, path: str | os.PathLike, *, tight: bool = True) -> None:
         if tight:
             fig.tight_layout()
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, format="png")
+            fig.savefig(tmp, format="png", pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
     plt.close(fig)
 
 
