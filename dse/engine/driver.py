@@ -44,7 +44,8 @@ def run(repro, out_root: Path, opts: RunOptions, *, out_dir: Path | None = None,
 
     out_dir = out_dir or out_root / repro.paper_id
     check_output_dir(out_root)
-    result = execute(repro, opts, cache_dir=cache_for(out_root, repro.paper_id).root, source=source, fresh=fresh)
+    result = execute(repro, opts, cache_dir=cache_for(out_root, repro.paper_id).root, source=source, fresh=fresh,
+                     defer_memo=True)
     result.source_file = scenario_file
     start = time.perf_counter()
     result.write(out_dir, out_root=out_root, figures=figures)

@@ -1,9 +1,11 @@
 """Matplotlib figures written atomically as PNG, one consistent style."""
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import os
+from typing import Iterator
 
 from dse.engine.atomic import atomic_path
 
@@ -97,22 +99,30 @@ def _draw(index: int) -> None:
 
 def draw_all(jobs, workers: int = 1, *, shared_pyplot: bool = False) -> None:
     """Run figure-drawing callables (each draws and saves one or more figures), in `workers`
-    forked processes when there are several: the callables need not be picklable (workers
-    inherit them through fork and receive only their index). `shared_pyplot`: several jobs draw
-    with matplotlib, which is then imported here before the workers fork (once, not once per worker)."""
+    forked processes when there are several (see `drawing`)."""
+    with drawing(jobs, workers, shared_pyplot=shared_pyplot):
+        pass
+
+
+@contextlib.contextmanager
+def drawing(jobs, workers: int = 1, *, shared_pyplot: bool = False) -> Iterator[None]:
+    """Run figure-drawing callables while the body of the `with` block runs (the tables and the
+    report are written meanwhile): in `workers` forked processes when there are several, which the
+    block's end waits for; else here, at the block's end. The callables need not be picklable
+    (workers inherit them through fork and receive only their index). `shared_pyplot`: several
+    jobs draw with matplotlib, which is then imported here before the workers fork (once, not once
+    per worker)."""
     global _JOBS
     jobs = list(jobs)
-    if workers <= 1 or len(jobs) <= 1:
-        for job in jobs:
-            job()
-        return
-    from dse.simulate.units import parallel_map
-
-    if shared_pyplot:
+    if workers > 1 and len(jobs) > 1 and shared_pyplot:
         _pyplot()
+    from dse.simulate.units import forked_map
 
     _JOBS = jobs
     try:
-        parallel_map(_draw, range(len(jobs)), workers=min(workers, len(jobs)), desc="figures")
+        with forked_map(_draw, range(len(jobs)), workers=min(workers, len(jobs)), desc="figures") as done:
+            yield
+            for _ in done:
+                pass
     finally:
         _JOBS = []
