@@ -62,3 +62,21 @@ def test_the_run_does_not_import_filterpy():
             "print(sorted(m for m in ('filterpy', 'scipy.stats') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_graph_edges_in_networkx_order():
+    """The views' edge list (figures, recording) is networkx's, in networkx's order, without building the graph."""
+    from dse.families.tran.views import graph_edges
+    from dse.scenario.graphs import GraphSpec
+
+    rng = np.random.default_rng(0)
+    specs = [GraphSpec(kind=k, n=n) for k in ("line", "ring", "complete") for n in range(2, 9)]
+    specs += [GraphSpec(kind="grid", n=12, rows=3, cols=4), GraphSpec(kind="random_geometric", n=10, radius=0.5, seed=1)]
+    for n in range(3, 9):
+        pairs = [(u, v) for u in range(n) for v in range(u + 1, n)]
+        for _ in range(30):
+            chosen = rng.permutation(len(pairs))[:rng.integers(1, len(pairs) + 1)]
+            edges = tuple(pairs[i][::-1] if rng.random() < 0.5 else pairs[i] for i in chosen)
+            specs.append(GraphSpec(kind="edges", n=n, edges=edges))
+    for spec in specs:
+        assert graph_edges(spec) == [(int(u), int(v)) for u, v in spec.build().edges()], spec
