@@ -29,6 +29,11 @@ def _pyplot():
     return plt
 
 
+def import_pyplot() -> None:
+    """Import matplotlib.pyplot ahead of the first figure (see `dse.simulate.units.idle_work`)."""
+    _pyplot()
+
+
 def new_figure(ncols: int = 1, nrows: int = 1, width: float = 6.4, height: float = 4.2):
     plt = _pyplot()
     with plt.rc_context(STYLE):

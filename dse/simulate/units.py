@@ -220,7 +220,9 @@ def forked_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, de
     try:
         pool = multiprocessing.get_context("fork").Pool(processes=min(workers, len(items)), initializer=_ignore_sigint)
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-        yield iter(progress(pool.imap(fn, items), total=len(items), desc=desc))
+        results = pool.imap(fn, items)
+        _do_idle_work()
+        yield iter(progress(results, total=len(items), desc=desc))
     except BaseException:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
         if pool is not None:
@@ -229,6 +231,32 @@ def forked_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, de
         raise
     pool.close()
     pool.join()
+
+
+#: work for this process while its forked workers run (`forked_map`), each done once, by the first such wait: the
+#: driver imports matplotlib there when the run will draw figures (`dse.engine.driver.run`), on a core the Monte
+#: Carlo's workers may leave idle, instead of after the run, before the figure workers fork
+_IDLE_WORK: list[Callable[[], object]] = []
+
+
+@contextlib.contextmanager
+def idle_work(fn: Callable[[], object]) -> Iterator[None]:
+    """Have `fn` done (once) while forked workers run, if any run within the block."""
+    _IDLE_WORK.append(fn)
+    try:
+        yield
+    finally:
+        if fn in _IDLE_WORK:
+            _IDLE_WORK.remove(fn)
+
+
+def _do_idle_work() -> None:
+    while _IDLE_WORK:
+        fn = _IDLE_WORK.pop(0)
+        try:
+            fn()
+        except Exception:   # only a head start: what needs it does it again, and fails there if it must
+            pass
 
 
 #: the jobs of the current `run_jobs`, run by index in forked workers (closures are inherited, not pickled)
