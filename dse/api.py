@@ -17,6 +17,7 @@ bad scenario (naming the field), `OutputError` for an unusable directory, `Numer
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import json
@@ -96,6 +97,8 @@ class Run:
     reuse_outputs: bool = field(default=True, repr=False)
     #: the file the scenario was read from, if any (run.json keeps it for `dse verify`'s advice)
     source_file: str | None = field(default=None, repr=False)
+    #: the memo's saving, left by `execute(..., defer_memo=True)` to `write`, which does it while the figures draw
+    _pending_memo: Any = field(default=None, repr=False)
 
     @property
     def computed(self) -> Any:
@@ -148,10 +151,13 @@ class Run:
         staging = _staging_dir(out_dir)
         try:
             start = time.perf_counter()
-            self.tables.write(staging / "tables")
             outputs = _reuse_outputs(out_dir, staging, self.run_key if self.reuse_outputs else None) if figures else {}
+            with self._drawing(staging) if outputs is None else contextlib.nullcontext():
+                if self._pending_memo is not None:   # while the figures draw
+                    self._pending_memo()
+                    self._pending_memo = None
+                self.tables.write(staging / "tables")
             if outputs is None:
-                self._draw(staging)
                 outputs = manifest(staging)
             write_s = time.perf_counter() - start
             prov = {**self.provenance, "write_s": write_s, "wall_s": self.provenance["compute_s"] + write_s,
@@ -169,24 +175,27 @@ class Run:
             shutil.rmtree(staging, ignore_errors=True)
         return out_dir
 
-    def _draw(self, staging: Path) -> None:
-        """The family's views (figures and recordings), in forked workers when there are several."""
+    def _drawing(self, staging: Path):
+        """The family's views (figures and recordings) drawn while the `with` block runs, in forked workers
+        when there are several (`dse.outputs.figures.drawing`)."""
         from dse.contract.views import Outputs
-        from dse.outputs.figures import draw_all
+        from dse.outputs.figures import drawing
 
         views = self.reproduction.views(Outputs(self.reproduction, self.results, self.tables, self.evaluation.claims,
                                                 self.provenance))
         jobs = view_jobs(views, self.options.workers)
-        draw_all([lambda g=g: [v.draw(staging / v.file) for v in g] for g in jobs], workers=self.options.workers,
-                 shared_pyplot=sum(any(Path(v.file).suffix == ".png" for v in g) for g in jobs) > 1)
+        return drawing([lambda g=g: [v.draw(staging / v.file) for v in g] for g in jobs], workers=self.options.workers,
+                       shared_pyplot=sum(any(Path(v.file).suffix == ".png" for v in g) for g in jobs) > 1)
 
 
 def view_jobs(views: list, workers: int) -> list[list]:
     """The views in jobs for `workers` forked processes: views of one kind (file suffix: a PNG needs
     matplotlib, a recording rerun) together, so that a worker imports one drawing library; with many
-    views, each kind in chunks of about a 2·workers-th of them (a worker that is done takes the next)."""
+    views, each kind in chunks of about a 2·workers-th of them (a worker that is done takes the next).
+    Recordings first: a worker starting on them imports rerun (a quarter of a second), and the figures,
+    lighter jobs, then fill in around them instead of leaving one worker on a recording at the end."""
     kinds: dict[str, list] = {}
-    for v in views:
+    for v in sorted(views, key=lambda v: Path(v.file).suffix != ".rrd"):
         kinds.setdefault(Path(v.file).suffix, []).append(v)
     if len(views) >= 4 * workers:
         size = -(-len(views) // (2 * workers))
@@ -200,7 +209,7 @@ def view_jobs(views: list, workers: int) -> list[list]:
 
 
 def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLike | None = None,
-            source: dict[str, Any] | None = None, fresh: bool = False) -> Run:
+            source: dict[str, Any] | None = None, fresh: bool = False, defer_memo: bool = False) -> Run:
     """Compute (through the stage cache when `cache_dir` is given), verify and tabulate.
 
     With a `cache_dir`, the evaluation and the tables are also kept as a memo keyed by
@@ -215,7 +224,9 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
         opts: the run's options (`run_options` checks them as `run` does).
         cache_dir: the stage cache's directory, or None (in memory).
         source: the scenario as given (a parsed file), kept in run.json; None for a paper.
-        fresh: recompute every stage and ignore the memo (like `--fresh`)."""
+        fresh: recompute every stage and ignore the memo (like `--fresh`).
+        defer_memo: leave saving the memo to the run's `write` (which the caller then calls), where it
+            overlaps the drawing of the figures."""
     if not isinstance(repro, Reproduction) or not isinstance(opts, RunOptions):
         raise UsageError("repro" if not isinstance(repro, Reproduction) else "opts",
                          "must be a Reproduction (dse.load, dse.paper) and a RunOptions (dse.api.run_options)")
@@ -225,6 +236,7 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
     refuse_options(repro, opts)
     key = run_key(repro, opts, source)
     memo = load_memo(Path(cache_dir), key) if cache_dir is not None and not fresh else None
+    pending = None
     if memo is not None:
         ev, tables, stages = memo
         computed: Any = lambda: repro.compute(opts, StageContext(StageCache(Path(cache_dir))))  # noqa: E731 - when needed
@@ -242,14 +254,17 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
             tables.add(table_spec, frame)
         stages = ctx.ran
         if cache_dir is not None:
-            save_memo(Path(cache_dir), key, ev, tables, stages)
+            pending = functools.partial(save_memo, Path(cache_dir), key, ev, tables, stages)
+            if not defer_memo:
+                pending()
+                pending = None
     prov = provenance(seed=opts.seed, trials=repro.trials(opts), quick=opts.quick, workers=opts.workers)
     prov["compute_s"] = time.perf_counter() - start
     prov["wall_s"] = prov["compute_s"]
     prov["peak_memory_mib"] = peak_memory_mib()
     prov["memo"] = memo is not None
     prov["stages"] = stages
-    return Run(repro, opts, computed, ev, tables, prov, source, key, reuse_outputs=not fresh)
+    return Run(repro, opts, computed, ev, tables, prov, source, key, reuse_outputs=not fresh, _pending_memo=pending)
 
 
 def trials_field(repro: Reproduction, opts: RunOptions) -> str:

@@ -19,11 +19,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from dse.engine.atomic import atomic_path
+from dse.outputs.palette import PALETTE, color  # noqa: F401 (re-exported)
 from dse.outputs.viewer_glyphs import viewer_text
-
-PALETTE = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-           (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
-
 
 def on_dark(rgb) -> tuple[int, int, int]:
     """The viewer draws on a dark background: near-black series (the usual colour of a
@@ -34,10 +31,6 @@ def on_dark(rgb) -> tuple[int, int, int]:
 
 def _texts(values):
     return None if values is None else [viewer_text(str(v)) for v in values]
-
-
-def color(i: int) -> tuple[int, int, int]:
-    return PALETTE[i % len(PALETTE)]
 
 
 @contextlib.contextmanager

@@ -7,9 +7,10 @@ at a time in a worker, which bounds memory.
 """
 from __future__ import annotations
 
+import contextlib
 import resource
 import signal
-from typing import Callable, Iterable, Sequence, TypeVar
+from typing import Callable, Iterable, Iterator, Sequence, TypeVar
 
 import numpy as np
 
@@ -196,9 +197,21 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, 
     On Ctrl-C or a failed task the workers are terminated at once; tasks already finished
     have stored their results in the stage cache, so a re-run resumes from there.
     """
+    with forked_map(fn, items, workers=workers, desc=desc) as results:
+        return list(results)
+
+
+@contextlib.contextmanager
+def forked_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, desc: str = "") -> Iterator[Iterator[R]]:
+    """`parallel_map` in the background: the workers start on every item at once, the body of the
+    `with` block runs meanwhile in this process, and the iterator it is given yields the results in
+    order (with a progress bar); the body consumes it. Leaving the block waits for the workers, or
+    terminates them at once when the body raised (Ctrl-C included). With one worker or one item,
+    the items are mapped here, as the iterator is consumed."""
     items = list(items)
     if workers <= 1 or len(items) <= 1:
-        return [fn(x) for x in progress(items, desc=desc)]
+        yield (fn(x) for x in progress(items, desc=desc))
+        return
     import multiprocessing
 
     # fork with SIGINT and SIGTERM blocked: a worker sets its own handlers before it can receive them; the
@@ -207,7 +220,9 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, 
     try:
         pool = multiprocessing.get_context("fork").Pool(processes=min(workers, len(items)), initializer=_ignore_sigint)
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-        results = list(progress(pool.imap(fn, items), total=len(items), desc=desc))
+        results = pool.imap(fn, items)
+        _do_idle_work()
+        yield iter(progress(results, total=len(items), desc=desc))
     except BaseException:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
         if pool is not None:
@@ -216,7 +231,32 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, 
         raise
     pool.close()
     pool.join()
-    return results
+
+
+#: work for this process while its forked workers run (`forked_map`), each done once, by the first such wait: the
+#: driver imports matplotlib there when the run will draw figures (`dse.engine.driver.run`), on a core the Monte
+#: Carlo's workers may leave idle, instead of after the run, before the figure workers fork
+_IDLE_WORK: list[Callable[[], object]] = []
+
+
+@contextlib.contextmanager
+def idle_work(fn: Callable[[], object]) -> Iterator[None]:
+    """Have `fn` done (once) while forked workers run, if any run within the block."""
+    _IDLE_WORK.append(fn)
+    try:
+        yield
+    finally:
+        if fn in _IDLE_WORK:
+            _IDLE_WORK.remove(fn)
+
+
+def _do_idle_work() -> None:
+    while _IDLE_WORK:
+        fn = _IDLE_WORK.pop(0)
+        try:
+            fn()
+        except Exception:   # only a head start: what needs it does it again, and fails there if it must
+            pass
 
 
 #: the jobs of the current `run_jobs`, run by index in forked workers (closures are inherited, not pickled)

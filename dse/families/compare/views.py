@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from dse.contract.views import Outputs, View, recording
-from dse.outputs import record as rec_
 from dse.outputs.figures import new_figure, save_figure
+from dse.outputs.palette import color
 from dse.simulate.stats import z_for_confidence
 
 BAND = 0.95
@@ -23,7 +23,7 @@ def _styles(res) -> tuple[dict, dict, dict]:
     """(colour, marker, label) of every estimator of the run (built-ins in the registry's order, then the
     plug-ins); the reference in black."""
     reg = res.scenario.estimator_specs
-    colors = {e: (0, 0, 0) if est.reference else rec_.color(i) for i, (e, est) in enumerate(reg.items())}
+    colors = {e: (0, 0, 0) if est.reference else color(i) for i, (e, est) in enumerate(reg.items())}
     markers = {e: "*ovs^D<>p"[i % 9] for i, e in enumerate(reg)}
     return colors, markers, {e: est.title for e, est in reg.items()}
 
@@ -205,6 +205,8 @@ def _tabs():
 
 
 def _log_series(rec, s, colors: dict, labels: dict) -> None:
+    from dse.outputs import record as rec_
+
     for est in labels:
         r = s[s["estimator"] == est]
         if not len(r):
@@ -225,6 +227,7 @@ def _log_series(rec, s, colors: dict, labels: dict) -> None:
 
 
 def _log_trial(rec, paths: dict, colors: dict, labels: dict) -> None:
+    from dse.outputs import record as rec_
     """Trial 0: the first state and node 0's estimate of it by every estimator."""
     from dse.estimators.network_comparison import TRUE_STATE
 
@@ -245,6 +248,8 @@ def _recording(out: Outputs, path: Path) -> None:
     colors, _, labels = _styles(res)
 
     def log(rec):
+        from dse.outputs import record as rec_
+
         edges = res.design.links.topology.edges.tolist()
         rec_.log_graph(rec, "graph", sc.network.positions(), [tuple(e) for e in edges])
         rec_.log_markdown(rec, "comparison", _comparison_markdown(tables))

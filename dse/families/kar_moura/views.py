@@ -217,7 +217,7 @@ def fig_matchings(v: ScenarioTables, path: Path) -> None:
     N = v.sc.N
     T = min(int(m["t"].max()), 120)
     partners = m[m["t"] < T].sort_values(["t", "node"])["partner"].to_numpy().reshape(T, N)
-    edges = sorted({(min(u, w), max(u, w)) for u, w in v.sc.network.build().edges()})
+    edges = _edges(v.sc)
     if len(edges) <= 40:
         grid = np.zeros((len(edges), T))
         for k, (u, w) in enumerate(edges):
@@ -303,7 +303,7 @@ def _log_matchings(rec, v: ScenarioTables) -> None:
 
     sc, N = v.sc, v.sc.N
     pos = sc.network.positions()
-    edges = sorted({(min(u, w), max(u, w)) for u, w in sc.network.build().edges()})
+    edges = _edges(sc)
     ids = [str(n) for n in range(N)]
     labels = [f"s{n} (type {sc.types[n]})" for n in range(N)]
     colors = [record.color(t) for t in sc.types]
@@ -403,3 +403,9 @@ def views(out: Outputs) -> list[View]:
         found.append(View(f"{v.name}.rrd", functools.partial(write_recording, v, out=out)))
         found += figures(v)
     return found
+
+
+def _edges(sc) -> list[tuple[int, int]]:
+    """The graph's edges (u < v), sorted: from `edge_array`, which needs networkx only for the random kinds (the
+    drawing workers then do not import it, about 0.07 s each)."""
+    return sorted({(int(u), int(w)) for u, w in sc.network.edge_array()})

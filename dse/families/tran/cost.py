@@ -62,7 +62,7 @@ FIXED_TRIAL_D2_S = 0.6e-10
 FACTORS_PER_COLUMN = 4.0
 #: CPU seconds per recorded sample and error dimension: the claims' checks along the deterministic runs
 CLAIM_SAMPLE_S = 2.0e-7
-#: CPU seconds per step of the central Kalman filter (filterpy, Python loop)
+#: CPU seconds per step of the central Kalman filter (a Python loop)
 KF_STEP_S = 5e-5
 #: CPU seconds: figures, recording and report; per table row (building, Parquet, CSV, the figures' reading)
 OUTPUTS_S = 2.0

@@ -164,7 +164,7 @@ one-sided t tests for the mean-square bounds, under the report's family-wise con
         kf = cost.KF_STEP_S * sc.simulation.t_end / sc.reference.dt
         central = self._run_many(ctx, [(2 * kf, reference.central_deterministic, (sc, results.runs["coest"])),
                                        (kf, reference.central_stochastic, (sc, results.runs["sde_roles"], law))],
-                                 opts, f"{sc.name}: centralized filters", preload=("filterpy.kalman",))
+                                 opts, f"{sc.name}: centralized filters")
         if d is None:
             d = design.Design(sc, opts.quick, opts.seed, design.merge_design(core, done[len(calls):]), law)
         results.design = d
