@@ -63,6 +63,16 @@ def dse_here(*args, cwd) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(["dse", *args], code, out.getvalue(), err.getvalue())
 
 
+def sigint_as_from_a_terminal() -> None:
+    """`preexec_fn` of a `dse` that a test interrupts with SIGINT: the signal's default action, as under a terminal.
+    A shell that starts `make test` in the background (no job control) ignores SIGINT, its children inherit that,
+    and Python then installs no KeyboardInterrupt handler: the Ctrl-C test waited for its 2,000,000 trials and
+    failed, and test_faults' SIGINT case passed as 'finished before the signal'."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def edit(text, old, new):
     assert old in text, old
     return text.replace(old, new, 1)
@@ -301,7 +311,8 @@ def test_ctrl_c_stops_cleanly_with_130(tmp_path):
     (tmp_path / "s.toml").write_text(GOOD.replace("trials = 4000", "trials = 2000000"))
     env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "1"}
     proc = subprocess.Popen([*DSE, "run", "s.toml", "--out", "o"], cwd=tmp_path, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=sigint_as_from_a_terminal)
     err, started = bytearray(), threading.Event()
 
     def read_stderr():

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from test_cli import GOOD, dse_here
+from test_cli import GOOD, dse_here, sigint_as_from_a_terminal
 
 DSE = [sys.executable, "-m", "dse.cli"]
 ROOT = Path(__file__).resolve().parent.parent
@@ -70,7 +70,8 @@ def test_a_signal_at_a_random_moment_stops_cleanly(scenario, tmp_path, sig, code
     shutil.copy(scenario / "s.toml", tmp_path / "s.toml")
     rng = random.Random(int(sig))
     proc = subprocess.Popen([*DSE, "run", "s.toml", "--out", "o"], cwd=tmp_path, env=ENV, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=sigint_as_from_a_terminal)
     lock = tmp_path / "o/.dse.lock"
     while not (lock.exists() and lock.read_text().startswith("pid")):  # started: past the imports, holding OUT
         assert proc.poll() is None, proc.communicate()
