@@ -3,7 +3,6 @@ cut to two small generated scenarios here (the standard one runs in `make reprod
 from __future__ import annotations
 
 import subprocess
-import sys
 
 import pandas as pd
 import pytest
@@ -73,10 +72,16 @@ def test_a_biased_filter_gets_fail_and_a_raising_one_is_left_out_in_one_line(sma
     assert mine.ran.all() and mine.mse_ratio.notna().all() and "not unbiased" in reliable.fault.iloc[0]
 
 
-def test_cli_keys_bad_factory_and_params(tmp_path):
+def test_cli_keys_bad_factory_and_params(tmp_path, capsys):
+    """`dse arena` by the command's entry point in this process (`cli.main`, what `python -m dse.cli` exits with;
+    a fresh interpreter per command would only repeat the imports)."""
+    from dse import cli
+
     def dse(*args):
-        return subprocess.run([sys.executable, "-m", "dse.cli", "arena", *args, "--out", str(tmp_path)],
-                              capture_output=True, text=True, timeout=120)
+        capsys.readouterr()
+        code = cli.main(["arena", *args, "--out", str(tmp_path)])   # an exception escaping main fails the test too
+        out, err = capsys.readouterr()
+        return subprocess.CompletedProcess(args, code, out, err)
 
     r = dse("twin", "--factory", "tests.plugins.twins:LocalTwin", "--keys")
     assert r.returncode == 0 and "no parameters" in r.stdout

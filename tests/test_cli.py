@@ -1,4 +1,6 @@
 """The command line end to end: bad input, a user's scenario, verify from the cache, the paper in quick mode."""
+import contextlib
+import io
 import json
 import subprocess
 import sys
@@ -46,6 +48,29 @@ sample_paths = 2
 def dse(*args, cwd):
     return subprocess.run([*DSE, *args], cwd=cwd, capture_output=True, text=True, timeout=600,
                           env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "0"})
+
+
+def dse_here(*args, cwd) -> subprocess.CompletedProcess:
+    """`dse ARGS` run in `cwd` by the command's entry point in this process (`cli.main`, which `python -m dse.cli`
+    exits with), its output captured: for the tests about what a command computes and writes. A fresh interpreter
+    per command would only repeat the imports (about 1 s of CPU a run); what reaches a shell through a real process
+    (exit codes, one line, signals, a killed run's files) is tested with `dse`."""
+    out, err = io.StringIO(), io.StringIO()
+    with pytest.MonkeyPatch.context() as patch, contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        patch.chdir(cwd)
+        patch.setenv("DSE_PROGRESS", "0")
+        code = cli.main([str(a) for a in args])   # an exception escaping main fails the test too
+    return subprocess.CompletedProcess(["dse", *args], code, out.getvalue(), err.getvalue())
+
+
+def sigint_as_from_a_terminal() -> None:
+    """`preexec_fn` of a `dse` that a test interrupts with SIGINT: the signal's default action, as under a terminal.
+    A shell that starts `make test` in the background (no job control) ignores SIGINT, its children inherit that,
+    and Python then installs no KeyboardInterrupt handler: the Ctrl-C test waited for its 2,000,000 trials and
+    failed, and test_faults' SIGINT case passed as 'finished before the signal'."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def edit(text, old, new):
@@ -108,7 +133,7 @@ def test_binary_garbage_is_rejected(tmp_path):
 
 
 def test_list(tmp_path):
-    proc = dse("list", cwd=tmp_path)
+    proc = dse_here("list", cwd=tmp_path)
     assert proc.returncode == 0 and "savas" in proc.stdout and "savas.thm1.ii" in proc.stdout
 
 
@@ -116,7 +141,7 @@ def test_list(tmp_path):
 def user_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("user")
     (tmp / "s.toml").write_text(GOOD)
-    proc = dse("run", "s.toml", "--out", "out", "--seed", "3", cwd=tmp)
+    proc = dse_here("run", "s.toml", "--out", "out", "--seed", "3", cwd=tmp)
     assert proc.returncode == 0, proc.stderr
     return tmp / "out"
 
@@ -154,7 +179,7 @@ def test_user_scenario_recordings(user_run):
 
 
 def test_verify_from_cache_matches(user_run, tmp_path):
-    proc = dse("verify", str(user_run / "run" / "ring5"), cwd=tmp_path)
+    proc = dse_here("verify", str(user_run / "run" / "ring5"), cwd=tmp_path)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "differs" not in proc.stdout
 
@@ -162,8 +187,8 @@ def test_verify_from_cache_matches(user_run, tmp_path):
 def test_same_seed_same_numbers_different_seed_different(user_run, tmp_path):
     (tmp_path / "s.toml").write_text(GOOD)
     # the numbers only (figures and recordings are drawn from them, and the fixture's run drew them)
-    same = dse("run", "s.toml", "--out", "o1", "--seed", "3", "--no-figures", cwd=tmp_path)
-    other = dse("run", "s.toml", "--out", "o2", "--seed", "4", "--no-figures", cwd=tmp_path)
+    same = dse_here("run", "s.toml", "--out", "o1", "--seed", "3", "--no-figures", cwd=tmp_path)
+    other = dse_here("run", "s.toml", "--out", "o2", "--seed", "4", "--no-figures", cwd=tmp_path)
     assert same.returncode == 0 and other.returncode == 0
 
     def numbers(path):
@@ -185,7 +210,7 @@ def test_unwritable_output_fails_before_computing(tmp_path):
 
 
 def test_paper_quick(tmp_path):
-    proc = dse("reproduce", "savas", "--quick", "--trials", "4000", "--out", "out", cwd=tmp_path)
+    proc = dse_here("reproduce", "savas", "--quick", "--trials", "4000", "--out", "out", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     d = tmp_path / "out" / "savas"
     report = json.loads((d / "report.json").read_text())
@@ -230,7 +255,7 @@ trials = 3000
 
 def test_nonsymmetric_consensus_matrix_runs_with_modal_claims_not_checkable(tmp_path):
     (tmp_path / "s.toml").write_text(NONSYMMETRIC)
-    proc = dse("run", "s.toml", "--out", "out", cwd=tmp_path)
+    proc = dse_here("run", "s.toml", "--out", "out", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     claims = {c["id"]: c for c in json.loads((tmp_path / "out/run/nonsym4/report.json").read_text())["claims"]}
     assert claims["nonsym4.thm1.ii"]["verdict"] == "not-checkable" and "symmetric" in claims["nonsym4.thm1.ii"]["detail"]
@@ -245,7 +270,7 @@ def _measured(path):
 
 def test_workers_do_not_change_numbers(user_run, tmp_path):
     (tmp_path / "s.toml").write_text(GOOD)
-    proc = dse("run", "s.toml", "--out", "o", "--seed", "3", "--workers", "1", "--no-figures", cwd=tmp_path)
+    proc = dse_here("run", "s.toml", "--out", "o", "--seed", "3", "--workers", "1", "--no-figures", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert _measured(tmp_path / "o/run/ring5/report.json") == _measured(user_run / "run/ring5/report.json")
 
@@ -271,7 +296,7 @@ def test_sigkill_then_resume_gives_the_same_numbers(user_run, tmp_path, delay):
         json.loads(path.read_text())
     for path in out.glob("*.rrd"):
         assert subprocess.run([str(RERUN), "rrd", "verify", str(path)], capture_output=True).returncode == 0
-    again = dse("run", "s.toml", "--out", "o", "--seed", "3", cwd=tmp_path)
+    again = dse_here("run", "s.toml", "--out", "o", "--seed", "3", cwd=tmp_path)   # resumed by another process
     assert again.returncode == 0, again.stderr
     assert _measured(out / "report.json") == _measured(user_run / "run/ring5/report.json")
 
@@ -286,7 +311,8 @@ def test_ctrl_c_stops_cleanly_with_130(tmp_path):
     (tmp_path / "s.toml").write_text(GOOD.replace("trials = 4000", "trials = 2000000"))
     env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "DSE_PROGRESS": "1"}
     proc = subprocess.Popen([*DSE, "run", "s.toml", "--out", "o"], cwd=tmp_path, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=sigint_as_from_a_terminal)
     err, started = bytearray(), threading.Event()
 
     def read_stderr():

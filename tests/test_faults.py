@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from test_cli import GOOD
+from test_cli import GOOD, dse_here, sigint_as_from_a_terminal
 
 DSE = [sys.executable, "-m", "dse.cli"]
 ROOT = Path(__file__).resolve().parent.parent
@@ -49,11 +49,12 @@ def scenario(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def quick_out(tmp_path_factory):
-    """`dse run s.toml --out o --quick` of GOOD, run once: the tests that damage a finished run's files start from a
-    copy of it (the same files a run of their own would write, without computing them again)."""
+    """`dse run s.toml --out o --quick` of GOOD, run once (in process: the faults are in what it leaves): the tests
+    that damage a finished run's files start from a copy of it (the same files a run of their own would write,
+    without computing them again)."""
     d = tmp_path_factory.mktemp("quick")
     (d / "s.toml").write_text(GOOD)
-    proc = dse("run", "s.toml", "--out", "o", "--quick", cwd=d)
+    proc = dse_here("run", "s.toml", "--out", "o", "--quick", cwd=d)
     assert proc.returncode == 0, proc.stderr
     return d / "o"
 
@@ -69,7 +70,8 @@ def test_a_signal_at_a_random_moment_stops_cleanly(scenario, tmp_path, sig, code
     shutil.copy(scenario / "s.toml", tmp_path / "s.toml")
     rng = random.Random(int(sig))
     proc = subprocess.Popen([*DSE, "run", "s.toml", "--out", "o"], cwd=tmp_path, env=ENV, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=sigint_as_from_a_terminal)
     lock = tmp_path / "o/.dse.lock"
     while not (lock.exists() and lock.read_text().startswith("pid")):  # started: past the imports, holding OUT
         assert proc.poll() is None, proc.communicate()
@@ -102,7 +104,7 @@ def test_a_full_disk_is_one_line_and_leaves_the_previous_outputs(scenario, tmp_p
         shutil.copy(scenario / "s.toml", tmp_path / "s.toml")
         small = (tmp_path / "s.toml").read_text().replace("trials = 400000", "trials = 4000")
         (tmp_path / "small.toml").write_text(small)
-        first = dse("run", "small.toml", "--out", str(disk), "--quick", cwd=tmp_path)
+        first = dse_here("run", "small.toml", "--out", str(disk), "--quick", cwd=tmp_path)   # the previous outputs
         if first.returncode == 0:
             before = (disk / "run/ring5/report.json").read_bytes()
         filler = disk / "filler"

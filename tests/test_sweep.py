@@ -241,21 +241,27 @@ def test_inline_retries_a_failed_task_then_reports_it(tmp_path):
 
 
 def test_local_cluster_matches_inline_and_survives_failures_and_lost_workers(inline_run, tmp_path):
+    """The sweep and the two faulty task sets run on one local cluster, as `dse sweep` shares one between its sweeps
+    (`LocalClusters`; a sweep that starts and closes its own cluster is tests/test_arena.py's): starting a cluster
+    is most of the test's CPU."""
     out = tmp_path / "local"
-    summary = sw.run_sweep(spec_of(tiny()), out, scheduler="local", workers=2, log=lambda s: None)
-    assert summary["scheduler"] == "local" and summary["ran"] == 4
-    assert _read(out) == _read(inline_run[0])
-    meta = json.loads((out / "sweep" / "tiny" / "sweep.json").read_text())
-    assert all(p["pid"] != os.getpid() for p in meta["points"])  # the points ran in the cluster's workers
-    # a task that raises once is retried; a worker that dies is replaced and its task rescheduled
-    got = {}
-    failures = sw.execute(_fake_tasks(4, tmp_path), scheduler="local", workers=2, retries=1, fn=fail_first_attempt,
-                          on_result=lambda t, r: got.__setitem__(t.key, r), log=lambda s: None)
-    assert failures == {} and len(got) == 4
-    got.clear()
-    failures = sw.execute(_fake_tasks(2, tmp_path), scheduler="local", workers=2, retries=1, fn=die_on_first_attempt,
-                          on_result=lambda t, r: got.__setitem__(t.key, r), log=lambda s: None)
-    assert failures == {} and len(got) == 2
+    with sw.LocalClusters() as clusters:
+        summary = sw.run_sweep(spec_of(tiny()), out, scheduler="local", workers=2, log=lambda s: None,
+                               clusters=clusters)
+        assert summary["scheduler"] == "local" and summary["ran"] == 4
+        assert _read(out) == _read(inline_run[0])
+        meta = json.loads((out / "sweep" / "tiny" / "sweep.json").read_text())
+        assert all(p["pid"] != os.getpid() for p in meta["points"])  # the points ran in the cluster's workers
+        # a task that raises once is retried; a worker that dies is replaced and its task rescheduled
+        got = {}
+        failures = sw.execute(_fake_tasks(4, tmp_path), scheduler="local", workers=2, retries=1, fn=fail_first_attempt,
+                              on_result=lambda t, r: got.__setitem__(t.key, r), log=lambda s: None, clusters=clusters)
+        assert failures == {} and len(got) == 4
+        got.clear()
+        failures = sw.execute(_fake_tasks(2, tmp_path), scheduler="local", workers=2, retries=1,
+                              fn=die_on_first_attempt, on_result=lambda t, r: got.__setitem__(t.key, r),
+                              log=lambda s: None, clusters=clusters)
+        assert failures == {} and len(got) == 2
 
 
 def _free_port() -> int:
