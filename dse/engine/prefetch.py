@@ -35,6 +35,19 @@ def _unwind(signum, frame):
     raise SystemExit(1)
 
 
+def _die_with(parent: int) -> None:
+    """Have this process stopped (SIGTERM) when the run's process dies, even by SIGKILL (Linux): an orphan would
+    keep writing the stage cache under a later run's feet, holding the inherited lock on OUT."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)      # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != parent:      # the run died before that was set
+        raise SystemExit(1)
+
+
 class Prefetcher:
     """The run's side of the prefetcher: `reach(i)` before the run computes paper i."""
 
@@ -42,7 +55,7 @@ class Prefetcher:
         import multiprocessing
 
         mp = multiprocessing.get_context("fork")
-        self.n = n
+        self.n, self.parent = n, os.getpid()
         self.lock = mp.Lock()
         self.reached = mp.Value("i", 0, lock=False)     # the run has reached every paper up to this one
         self.current = mp.Value("i", -1, lock=False)    # the paper the prefetcher is computing (-1: none)
@@ -66,6 +79,7 @@ class Prefetcher:
         os.dup2(devnull, 2)
         status = 0
         try:
+            _die_with(self.parent)
             os.nice(19)
             for i in range(self.n - 1, 0, -1):
                 with self.lock:
