@@ -1,5 +1,6 @@
 """The prefetcher of a multi-paper `dse reproduce` (dse.engine.prefetch): it computes the last papers ahead, never
 one the run has reached, and the run waits for the paper it is computing; a failure there is the run's to meet."""
+import json
 import os
 import time
 
@@ -84,3 +85,23 @@ def test_only_where_it_pays():
     assert not worth_prefetching(["a", "b"], opts, fresh=True)            # --fresh recomputes what it did not write
     assert not worth_prefetching(["a", "b"], RunOptions(quick=True, workers=1), fresh=False)
     assert not worth_prefetching(["a", "b"], RunOptions(quick=True, workers=2, scheduler="inline"), fresh=False)
+
+
+def test_what_the_prefetcher_computes_is_what_the_run_reads(tmp_path):
+    """A paper's stages computed ahead (`paper_stages`, with its own share of the memory) are the run's very cache
+    entries: the run computes none, and writes the same report and tables as a run without them."""
+    from dse import registry
+    from dse.engine.driver import cache_for, run
+    from dse.engine.prefetch import paper_stages
+
+    opts = RunOptions(quick=True, trials=4000, workers=2)
+    paper_stages(registry.paper("savas"), opts, cache_for(tmp_path / "a", "savas").root)
+    run(registry.paper("savas"), tmp_path / "a", opts, figures=False)
+    run(registry.paper("savas"), tmp_path / "b", opts, figures=False)
+    report = {k: json.loads((tmp_path / k / "savas" / "report.json").read_text()) for k in "ab"}
+    assert all(s["cached"] for s in report["a"]["provenance"]["stages"])
+    assert not any(s["cached"] for s in report["b"]["provenance"]["stages"])
+    assert report["a"]["claims"] == report["b"]["claims"]
+    tables = sorted(p.name for p in (tmp_path / "a" / "savas" / "tables").iterdir())
+    assert tables and all((tmp_path / "a" / "savas" / "tables" / t).read_bytes()
+                          == (tmp_path / "b" / "savas" / "tables" / t).read_bytes() for t in tables if t.endswith(".csv"))
