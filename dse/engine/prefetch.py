@@ -116,10 +116,15 @@ class Prefetcher:
 def prefetching(n: int, compute: Callable[[int], None], enabled: bool) -> Iterator[Callable[[int], None]]:
     """`reach(i)`, to call before the run computes paper i of n; with `enabled` and n > 1, papers are computed
     ahead by `compute(i)` (their stages only) in a forked process, which is stopped when the block ends."""
-    if not enabled or n <= 1:
+    pre = None
+    if enabled and n > 1:
+        try:
+            pre = Prefetcher(n, compute)
+        except OSError:         # no shared semaphores or no process to spare here: the run computes every paper
+            pre = None
+    if pre is None:
         yield lambda i: None
         return
-    pre = Prefetcher(n, compute)
     try:
         yield pre.reach
     finally:
