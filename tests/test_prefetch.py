@@ -105,3 +105,15 @@ def test_what_the_prefetcher_computes_is_what_the_run_reads(tmp_path):
     tables = sorted(p.name for p in (tmp_path / "a" / "savas" / "tables").iterdir())
     assert tables and all((tmp_path / "a" / "savas" / "tables" / t).read_bytes()
                           == (tmp_path / "b" / "savas" / "tables" / t).read_bytes() for t in tables if t.endswith(".csv"))
+
+
+def test_a_prefetcher_killed_holding_its_lock_does_not_block_the_run():
+    """Killed from outside (SIGKILL) at the worst moment: the run goes on and computes the papers itself."""
+    with prefetching(4, lambda i: time.sleep(30), True) as reach:
+        pre = reach.__self__
+        pre.lock.acquire()                      # as if the prefetcher held it when it was killed
+        os.kill(pre.proc.pid, 9)
+        started = time.time()
+        for i in range(4):
+            reach(i)
+        assert time.time() - started < 10 and pre.stopped

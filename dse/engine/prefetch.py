@@ -27,6 +27,8 @@ from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+#: how long the run waits for the lock at a time before it checks that the prefetcher is alive (s)
+POLL_S = 0.5
 #: how long a stopped prefetcher has to unwind (remove the temporary file of an entry it was writing) (s)
 STOP_S = 5.0
 
@@ -55,7 +57,7 @@ class Prefetcher:
         import multiprocessing
 
         mp = multiprocessing.get_context("fork")
-        self.n, self.parent = n, os.getpid()
+        self.n, self.parent, self.stopped = n, os.getpid(), False
         self.lock = mp.Lock()
         self.reached = mp.Value("i", 0, lock=False)     # the run has reached every paper up to this one
         self.current = mp.Value("i", -1, lock=False)    # the paper the prefetcher is computing (-1: none)
@@ -97,13 +99,22 @@ class Prefetcher:
     def reach(self, i: int) -> None:
         """The run is about to compute paper i: the prefetcher will not start it (or any before it); if it is
         computing it now, it is stopped (the run resumes from what it stored)."""
-        with self.lock:
+        if self.stopped:
+            return
+        while not self.lock.acquire(timeout=POLL_S):
+            if not self.proc.is_alive():        # it died holding the lock (killed from outside): it is done
+                self.stop()
+                return
+        try:
             self.reached.value = max(self.reached.value, i)
             busy = self.current.value == i
+        finally:
+            self.lock.release()
         if busy:
             self.stop()
 
     def stop(self) -> None:
+        self.stopped = True
         if self.proc.is_alive():
             self.proc.terminate()
             self.proc.join(STOP_S)
