@@ -77,7 +77,7 @@ def test_the_prefetcher_runs_at_the_lowest_priority(tmp_path):
     assert int(_lines(nice)[0]) == min(19, os.getpriority(os.PRIO_PROCESS, 0) + 19)
 
 
-def test_only_where_it_pays():
+def test_only_where_it_pays(monkeypatch):
     opts = RunOptions(quick=True, workers=2)
     assert worth_prefetching(["a", "b"], opts, fresh=False)
     assert not worth_prefetching(["a"], opts, fresh=False)
@@ -85,6 +85,8 @@ def test_only_where_it_pays():
     assert not worth_prefetching(["a", "b"], opts, fresh=True)            # --fresh recomputes what it did not write
     assert not worth_prefetching(["a", "b"], RunOptions(quick=True, workers=1), fresh=False)
     assert not worth_prefetching(["a", "b"], RunOptions(quick=True, workers=2, scheduler="inline"), fresh=False)
+    monkeypatch.setenv("DSE_PREFETCH", "0")
+    assert not worth_prefetching(["a", "b"], opts, fresh=False)
 
 
 def test_what_the_prefetcher_computes_is_what_the_run_reads(tmp_path):

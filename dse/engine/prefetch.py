@@ -169,6 +169,9 @@ def worth_prefetching(papers: Sequence[str], opts, fresh: bool) -> bool:
     """Whether to compute papers ahead: several papers, each once (a paper's stage cache is one directory, not to be
     written by two processes at once), two processes or more, stages in forked processes of this machine
     (`--scheduler auto`: a cluster's units do not use this machine's cores), and no `--fresh` (whose run recomputes
-    every stage it has not itself written)."""
+    every stage it has not itself written). DSE_PREFETCH=0 in the environment turns it off (to measure what it
+    saves)."""
+    if os.environ.get("DSE_PREFETCH", "1") in ("0", "", "false", "no"):
+        return False
     return (len(papers) > 1 and len(set(papers)) == len(papers) and opts.workers > 1 and opts.scheduler == "auto"
             and not fresh)
