@@ -141,9 +141,17 @@ def cmd_reproduce(args) -> int:
         raise ScenarioError("PAPER", f"unknown paper {', '.join(unknown)} (known: {', '.join(papers)})")
     out_root = Path(args.out)
     rows = []
-    with output_lock(out_root) as guard:
-        for pid in args.papers or list(papers):
-            rows.append(run(reg.paper(pid), out_root, _options(args), figures=not args.no_figures, fresh=args.fresh))
+    ids, opts = list(args.papers or papers), _options(args)
+    from dse.engine.driver import cache_for
+    from dse.engine.prefetch import paper_stages, prefetching, worth_prefetching
+
+    def ahead(i: int) -> None:      # in the prefetcher: paper i's stages only
+        paper_stages(reg.paper(ids[i]), opts, cache_for(out_root, ids[i]).root)
+
+    with output_lock(out_root) as guard, prefetching(len(ids), ahead, worth_prefetching(ids, opts, args.fresh)) as reach:
+        for i, pid in enumerate(ids):
+            reach(i)
+            rows.append(run(reg.paper(pid), out_root, opts, figures=not args.no_figures, fresh=args.fresh))
             guard.wrote_results()   # a later paper's failure leaves this one's outputs
             r = rows[-1]
             print(f"{pid}: {counts_line(r)} ({r['wall_s']:.1f} s) -> {out_root / pid}")
