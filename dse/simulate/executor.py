@@ -9,7 +9,7 @@ the same bits wherever the units ran. The executors (`executor_for`):
 - `inline` (`UnitExecutor`): every stage and every unit in this process;
 - `local` or an address ``tcp://HOST:PORT`` (`DaskExecutor`): the units of every portable stage (one whose
   chunk function keeps no state between chunks: `run_units(..., portable=True)`) as tasks of a Dask cluster
-  (a local one of `workers` processes, started when the first such stage runs, or a running scheduler),
+  (a local one of `workers` processes, started in the background when the run starts, or a running scheduler),
   the stages in this process, two at a time (in threads: `STAGE_THREADS`). A few tasks per worker are in
   flight at a time and their results are taken in unit order, so the client holds a bounded number of partial results whatever the
   trial count; a worker that dies has its tasks rescheduled by the Dask scheduler.
@@ -160,7 +160,8 @@ def _unstack_units(keys: list, scalar: list, arrays: list) -> list[dict]:
 
 class DaskExecutor(UnitExecutor):
     """Units on a Dask cluster (`--scheduler local` or ``tcp://HOST:PORT``); stages in this process. The
-    client (and a local cluster) starts with the first portable stage and stops with `close`."""
+    client (and a local cluster) starts with the first portable stage, or earlier (`start_early`), and stops
+    with `close`."""
 
     def __init__(self, scheduler: str, workers: int, log: Callable[[str], None] | None = None):
         self.name, self.workers = scheduler, workers
@@ -168,6 +169,7 @@ class DaskExecutor(UnitExecutor):
         self._stack: contextlib.ExitStack | None = None
         self._client = None
         self._starting = threading.Lock()      # stages in threads (`stage_threads`) start one client between them
+        self._early: threading.Thread | None = None
 
     def client(self):
         with self._starting:
@@ -178,6 +180,19 @@ class DaskExecutor(UnitExecutor):
                 self._client = stack.enter_context(dask_client(self.name, self.workers, log=self.log))
                 self._stack = stack
         return self._client
+
+    def start_early(self) -> None:
+        """Start the client (a local cluster: its worker processes, about 2 s) in a background thread, while the
+        run computes its design; the first portable stage then finds it ready. A start that fails here is tried
+        again, and fails in one line, when a stage asks for the client."""
+        def start():
+            try:
+                self.client()
+            except BaseException:      # noqa: BLE001 - said by the stage's own `client()` call
+                pass
+
+        self._early = threading.Thread(target=start, name="dse-dask-start", daemon=True)
+        self._early.start()
 
     def stage_threads(self) -> int:
         return STAGE_THREADS
@@ -214,6 +229,8 @@ class DaskExecutor(UnitExecutor):
             fn.release()
 
     def close(self) -> None:
+        if self._early is not None:
+            self._early.join()
         if self._stack is not None:
             self._stack.close()
             self._stack = self._client = None
@@ -229,7 +246,8 @@ def current() -> UnitExecutor:
 
 def executor_for(scheduler: str, workers: int, log: Callable[[str], None] | None = None) -> UnitExecutor:
     """The executor `scheduler` names (see the module's docstring). A scheduler's address is connected to at
-    once (a wrong one fails before any stage runs); a local cluster starts with the first portable stage."""
+    once (a wrong one fails before any stage runs); a local cluster starts at once in the background
+    (`DaskExecutor.start_early`), while the run computes what comes before its first portable stage."""
     if scheduler == "auto":
         return ForkedExecutor()
     if scheduler == "inline":
@@ -237,6 +255,8 @@ def executor_for(scheduler: str, workers: int, log: Callable[[str], None] | None
     dask = DaskExecutor(scheduler, workers, log)
     if scheduler != "local":
         dask.client()
+    else:
+        dask.start_early()
     return dask
 
 
