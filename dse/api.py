@@ -557,24 +557,18 @@ class Check:
         project, whose code these do not follow."""
         from importlib.metadata import version
 
-        from dse.contract.stages import code_closure, module_file
+        from dse.contract.stages import code_hash, module_file
 
         family_module = type(self.reproduction.family).__module__
         family_file = module_file(family_module)
         if family_file is None:
             return None
         package = family_module.rpartition(".")[0]
-        modules = {f"{package}." + ".".join(p.relative_to(family_file.parent).with_suffix("").parts)
-                   for p in family_file.parent.rglob("*.py")}
-        code = sorted(set().union(*(code_closure(m.removesuffix(".__init__")) for m in modules)))
-        h = hashlib.sha256()
-        for part in ([s["key"] for s in self.stages], [sc.key() for sc in self.reproduction.scenarios],
-                     asdict(self.options), version("pandas")):
-            h.update(json.dumps(part, sort_keys=True, default=str).encode())
-        for m in code:
-            h.update(m.encode())
-            h.update(module_file(m).read_bytes())
-        return h.hexdigest()[:24]
+        modules = sorted({f"{package}." + ".".join(p.relative_to(family_file.parent).with_suffix("").parts)
+                          for p in family_file.parent.rglob("*.py")})
+        parts = ([s["key"] for s in self.stages], [sc.key() for sc in self.reproduction.scenarios],
+                 asdict(self.options), version("pandas"), [code_hash(m.removesuffix(".__init__")) for m in modules])
+        return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:24]
 
 
 def render_design_tables(tables: Tables, max_rows: int = 40) -> str:

@@ -22,6 +22,7 @@ from dse.engine.atomic import atomic_path
 from dse.outputs.palette import PALETTE, color  # noqa: F401 (re-exported)
 from dse.outputs.viewer_glyphs import viewer_text
 
+
 def on_dark(rgb) -> tuple[int, int, int]:
     """The viewer draws on a dark background: near-black series (the usual colour of a
     reference curve in a matplotlib figure) become light grey instead of invisible."""

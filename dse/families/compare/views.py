@@ -227,9 +227,9 @@ def _log_series(rec, s, colors: dict, labels: dict) -> None:
 
 
 def _log_trial(rec, paths: dict, colors: dict, labels: dict) -> None:
-    from dse.outputs import record as rec_
     """Trial 0: the first state and node 0's estimate of it by every estimator."""
     from dse.estimators.network_comparison import TRUE_STATE
+    from dse.outputs import record as rec_
 
     x = paths.get(TRUE_STATE) if paths else None
     if not (x is not None and x.shape[-1] and np.all(np.isfinite(x[:, 0, 0]))):
