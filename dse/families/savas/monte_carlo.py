@@ -21,6 +21,8 @@ from .cells import Cell
 from .scenario import NoisyConsensusFile
 
 STATS = ("s1", "s2", "s4", "t1", "t2")
+#: parts of the first unit's result that are not sums over trials: the sample paths and filterpy's reference on them
+FIRST_UNIT_ONLY = ("paths", "filterpy")
 #: a chunk holds at most this many trials and bytes (measured fastest here: larger arrays leave the
 #: processor's caches); the memory budget may make it smaller, never larger
 CHUNK_TRIALS = 10_000
@@ -63,7 +65,7 @@ def _group_arrays(sc: NoisyConsensusFile, cells: tuple[Cell, ...], total: dict, 
             for name in ("xhat_pred", "xhat_filt", "z_rounds"):
                 arrays[f"{c.label}__path_{name}"] = np.asarray(getattr(paths, name)[:, j])
     if reference and paths is not None:
-        arrays[f"{cells[0].label}__filterpy_x"], arrays[f"{cells[0].label}__filterpy_P"] = filterpy_priors(sc, paths.y)
+        arrays[f"{cells[0].label}__filterpy_x"], arrays[f"{cells[0].label}__filterpy_P"] = total.pop("filterpy")
     return arrays
 
 
@@ -89,13 +91,15 @@ def simulate_group(sc: NoisyConsensusFile, seed: int, trials: int, steps: np.nda
                  | {"count": run.pred.count[u]} for u in range(len(streams.sizes))]
         if paths:
             parts[0]["paths"] = run.paths
+            if reference:
+                parts[0]["filterpy"] = filterpy_priors(sc, run.paths.y)
         return parts
 
     def fold(acc, part):
         if acc is None:
             return dict(part)
         for k, v in part.items():
-            if k != "paths":
+            if k not in FIRST_UNIT_ONLY:
                 acc[k] = acc[k] + v
         return acc
 
@@ -108,8 +112,9 @@ def simulate_group(sc: NoisyConsensusFile, seed: int, trials: int, steps: np.nda
 def filterpy_priors(sc: NoisyConsensusFile, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """x̂(k|k-1) and P(k|k-1) (P, K) of filterpy's KalmanFilter (update, then predict) on the stacked
     measurements y (P, K, N) of each sample trial: the independent reference of the claim
-    savas.reference.filterpy, computed with the sample paths (in a Monte Carlo worker, where importing
-    filterpy, and with it scipy.stats, overlaps the other workers' trials)."""
+    savas.reference.filterpy, computed by the chunk that draws the sample paths: in a Monte Carlo worker
+    (a forked process, or a Dask worker on a cluster), where importing filterpy, and with it scipy.stats,
+    overlaps the other workers' trials instead of following them all."""
     from filterpy.kalman import KalmanFilter
 
     model = sc.model
