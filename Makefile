@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 EXAMPLE := examples/dse-consensus-measurements
 
-.PHONY: reproduce sweeps arena site test bench check-outputs check-viewer check-site clean
+.PHONY: reproduce sweeps arena site test bench check-outputs check-tools check-pages check-viewer check-site clean
 
 # The example plug-in package ($(EXAMPLE), docs/plugins.md) is installed too: its entry point `cm` is what the
 # README's `dse arena cm` and tests/test_example_plugin.py find.
@@ -60,11 +60,24 @@ check-outputs: $(STAMP)
 	$(BIN)/dse sweep dse/families/sweeps/compare_links_noise_size.toml --out $(CHECK_OUT)
 	$(BIN)/dse arena cm --quick --out $(CHECK_OUT)
 
-# Opens every recording of those outputs in Rerun's own viewer (headless, software Vulkan from Debian's
-# mesa-vulkan-drivers, three viewers at a time) and checks the views render without errors; the screenshots it takes
-# are the README's.
-check-viewer: check-outputs
-	@dpkg -s mesa-vulkan-drivers >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq mesa-vulkan-drivers; }
+# What the two checks below need besides the project's environment, installed once before either starts (they may run
+# at once, as .ci/run has them, and two apt-get at a time would contend for dpkg's lock): software Vulkan for Rerun's
+# viewer (Debian's mesa-vulkan-drivers), Debian's chromium and Playwright to drive it (new packages in the venv only,
+# none that check-outputs' commands import).
+check-tools: $(STAMP)
+	@{ dpkg -s mesa-vulkan-drivers >/dev/null 2>&1 && command -v chromium >/dev/null 2>&1; } || \
+		{ apt-get update -qq && apt-get install -y -qq mesa-vulkan-drivers chromium; }
+	$(BIN)/pip install --quiet 'playwright==1.65.2'
+
+# The report site of those outputs (out/checks/site), built before either check starts: the viewer check opens every
+# recording under out/checks but the site's copies, and a site being built (out/checks/site.staging-PID) would be
+# among them.
+check-pages: check-outputs
+	$(BIN)/dse site $(CHECK_OUT)
+
+# Opens every recording of those outputs in Rerun's own viewer (headless, software Vulkan, three viewers at a time)
+# and checks the views render without errors; the screenshots it takes are the README's.
+check-viewer: check-tools check-pages
 	rm -rf $(CHECK_OUT)/viewer-screenshots
 	$(BIN)/python -m dse.outputs.viewer_check $(CHECK_OUT) --screenshots $(CHECK_OUT)/viewer-screenshots
 
@@ -72,11 +85,8 @@ check-viewer: check-outputs
 # Playwright with that executable: no browser download): no console error, no failed request, every image loaded, a
 # table sorts, the claim filter filters, and a recording of every family renders in the web viewer. The screenshots it
 # takes are the README's.
-check-site: check-outputs
-	@command -v chromium >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq chromium; }
-	$(BIN)/pip install --quiet 'playwright==1.65.2'
+check-site: check-tools check-pages
 	rm -rf $(CHECK_OUT)/site-screenshots
-	$(BIN)/dse site $(CHECK_OUT)
 	$(BIN)/python -m dse.site.browser_check $(CHECK_OUT)/site --screenshots $(CHECK_OUT)/site-screenshots
 
 bench: $(STAMP)

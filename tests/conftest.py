@@ -18,16 +18,19 @@ settings.load_profile(os.environ.get("DSE_HYPOTHESIS", "repeatable"))
 # The longest test files first. `make test` hands whole files to its workers (`--dist loadfile`) in the order
 # collected (`--no-loadscope-reorder`; pytest-xdist's own order is by number of tests, which put the longest file,
 # with a handful of tests, at the end, where it ran alone on one core while the other workers had finished). Longest
-# first is the classic greedy balance: the short files fill the gaps at the end. The list is from
-# `make test`'s command with `--durations=0`, summed per file (the eighteen longest, longest first; the ranks checked
-# against each file's CPU time run alone, as durations move with the load of a shared machine); a file missing from
-# it only starts later, and the order of tests inside a file is kept.
+# first is the classic greedy balance: the short files fill the gaps at the end. The list is the twenty longest, longest
+# first, ranked by twice a file's CPU time (its share of 2 cores among `make test`'s 4 workers) plus the time it only
+# waits (sleeps, timeouts: test_faults.py about 9 s, test_scheduler_run.py about 7 s). The CPU times are per test, the
+# test's own and that of the processes it started, summed per file over a run of the whole suite (the load of a shared
+# machine moves durations, not CPU times). A file missing from the list only starts later, and the order of tests
+# inside a file is kept.
 LONGEST_FILES = (
-    "test_generated_scenarios.py", "test_generated_gossip_coestimation.py", "test_kar_moura_reproduction.py",
-    "test_sweep.py", "test_faults.py", "test_generated_random_comm.py", "test_tran_reproduction.py", "test_cli.py",
-    "test_tanwani_cli.py", "test_tran_pipeline.py", "test_scheduler_run.py", "test_tanwani_pipeline.py",
-    "test_arena.py", "test_wang_liu_morse_repro.py", "test_kar_moura_pipeline.py", "test_scheduler_families.py",
-    "test_readme_examples.py", "test_plugin_protocol.py",
+    "test_kar_moura_reproduction.py", "test_sweep.py", "test_faults.py", "test_generated_scenarios.py",
+    "test_tanwani_cli.py", "test_generated_gossip_coestimation.py", "test_generated_random_comm.py",
+    "test_tran_reproduction.py", "test_scheduler_run.py", "test_cli.py", "test_wang_liu_morse_repro.py",
+    "test_tanwani_pipeline.py", "test_scheduler_families.py", "test_tran_pipeline.py", "test_arena.py",
+    "test_plugin_protocol.py", "test_kar_moura_pipeline.py", "test_readme_examples.py", "test_plugin_faults.py",
+    "test_output_truth.py",
 )
 
 

@@ -169,9 +169,11 @@ def test_a_second_run_into_the_same_out_waits_for_the_first(tmp_path):
     while not (lock.exists() and lock.read_text().startswith("pid")):  # the first run holds the lock
         assert first.poll() is None, first.communicate()
         time.sleep(0.05)
-    second = dse("run", "s.toml", "--out", "o", "--quick", "--seed", "1", cwd=tmp_path)
+    # the second run in this process (the lock is between processes all the same), without figures (not read here)
+    second = dse_here("run", "s.toml", "--out", "o", "--quick", "--seed", "1", "--no-figures", cwd=tmp_path)
     out, err = first.communicate(timeout=300)
     assert first.returncode == 0 and second.returncode == 0, (err, second.stderr)
+    assert "waiting for the other dse run" in second.stderr, second.stderr
     complete_outputs(tmp_path / "o")
     report = json.loads((tmp_path / "o/run/ring5/report.json").read_text())
     assert report["provenance"]["seed"] == 1  # the second run replaced the first as a whole

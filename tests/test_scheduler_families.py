@@ -62,14 +62,29 @@ def _run(scheduler: str, workers: int):
 
 
 @pytest.fixture(scope="module")
+def cluster():
+    """The address of one local cluster of two workers, which the module's runs on a cluster are given (as
+    `--scheduler tcp://...`): a run with `scheduler="local"` starts a cluster of its own, and its workers import
+    the scenario's code anew (tests/test_scheduler_run.py runs one)."""
+    from dse.simulate.cluster import start_local
+
+    local, client = start_local(2)
+    try:
+        yield local.scheduler_address
+    finally:
+        client.close()
+        local.close()
+
+
+@pytest.fixture(scope="module")
 def in_process():
     return _run("inline", 1)
 
 
 @pytest.mark.parametrize("scheduler,workers", [("local", 2), ("auto", 2), ("auto", 1)])
-def test_the_monte_carlo_is_the_same_bits_wherever_its_units_ran(in_process, scheduler, workers, monkeypatch):
+def test_the_monte_carlo_is_the_same_bits_wherever_its_units_ran(in_process, scheduler, workers, monkeypatch, request):
     tasks = _Tasks(monkeypatch)
-    other = _run(scheduler, workers)
+    other = _run(request.getfixturevalue("cluster") if scheduler == "local" else scheduler, workers)
     if scheduler == "local":            # the units went to the cluster, every one of them
         assert tasks.units() == [list(range(-(-TRIALS // 1000)))]
     a, b = in_process.results, other.results
@@ -84,11 +99,11 @@ def test_the_monte_carlo_is_the_same_bits_wherever_its_units_ran(in_process, sch
     _same_tables(in_process, other)
 
 
-def test_hybrid_observer_runs_on_a_local_cluster_with_the_same_bits(monkeypatch):
+def test_hybrid_observer_runs_on_a_local_cluster_with_the_same_bits(cluster, monkeypatch):
     scenario = registry.families()["hybrid-observer"].generate(0, "two_agents")
     in_process = dse.run(scenario, trials=2100, scheduler="inline", workers=1)
     tasks = _Tasks(monkeypatch)
-    on_cluster = dse.run(scenario, trials=2100, scheduler="local", workers=2)
+    on_cluster = dse.run(scenario, trials=2100, scheduler=cluster, workers=2)
     assert tasks.units() == [[0, 1, 2]] * len(scenario["runs"])
     _same_tables(in_process, on_cluster)
     assert in_process.evaluation.claims == on_cluster.evaluation.claims
