@@ -131,6 +131,8 @@ def riccati_step(X: np.ndarray, C: np.ndarray, R: np.ndarray, F: np.ndarray, Q: 
     """
     M = X.shape[-1]
     if C.shape[-2] == 1:
+        if _use_compiled(X.shape[:-2], C.shape[:-2], R.shape[:-2], arrays=(X, C, R, F, Q)):
+            return _riccati_scalar_compiled(X, C, R, F, Q, return_gain)
         return _riccati_scalar_obs(X, C, R, F, Q, return_gain)
     K = _gain(X, C, R)
     A = np.eye(M) - K @ C
@@ -168,6 +170,38 @@ def _riccati_scalar_obs(X, C, R, F, Q, return_gain):
     return out, K
 
 
+#: batches of at least this many matrices go to the compiled kernels of `gikf_compiled` (the same bits; numba
+#: costs ~0.2 s to import, which only the Monte Carlo repays, not a design computed for `dse check`)
+COMPILED_MIN_BATCH = 64
+
+
+def _use_compiled(*batch_shapes, arrays) -> bool:
+    """Whether a call whose batch axes broadcast from `batch_shapes` goes to the compiled kernels: a large
+    enough batch, all float64 (the kernels are compiled for float64 only)."""
+    if any(np.asarray(a).dtype != np.float64 for a in arrays):
+        return False
+    return math.prod(np.broadcast_shapes(*batch_shapes)) >= COMPILED_MIN_BATCH
+
+
+def _flat(a: np.ndarray, batch: tuple, tail: tuple) -> np.ndarray:
+    """`a` broadcast to batch + tail as a C-contiguous (n, *tail) array (a copy only when it must be)."""
+    return np.ascontiguousarray(np.broadcast_to(a, batch + tail)).reshape((-1,) + tail)
+
+
+def _riccati_scalar_compiled(X, C, R, F, Q, return_gain):
+    """`_riccati_scalar_obs` by the compiled kernel (the same bits)."""
+    from . import gikf_compiled
+
+    M = X.shape[-1]
+    batch = np.broadcast_shapes(X.shape[:-2], C.shape[:-2], R.shape[:-2])
+    out = np.empty(batch + (M, M))
+    K = np.empty(batch + (M, 1))
+    gikf_compiled.riccati_scalar_obs(_flat(X, batch, (M, M)), _flat(C[..., 0, :], batch, (M,)),
+                                     _flat(R[..., 0, 0], batch, ()), np.ascontiguousarray(F),
+                                     np.ascontiguousarray(Q), out.reshape(-1, M, M), K.reshape(-1, M))
+    return (out, K) if return_gain else out
+
+
 EPS = float(np.finfo(float).eps)
 
 
@@ -203,6 +237,9 @@ def riccati_roundoff(X: np.ndarray, K: np.ndarray, C: np.ndarray, R: np.ndarray,
     s_min = np.maximum(_lambda_min_psd(R) if r_min is None else r_min, np.finfo(float).tiny)
     fF, fQ = float(_fro2(F)), math.sqrt(float(_fro2(Q)))
     if M <= ENTRYWISE_MAX_M and m <= M:
+        if _use_compiled(X.shape[:-2], K.shape[:-2], C.shape[:-2], R.shape[:-2], np.shape(s_min),
+                         arrays=(X, K, C, R, F, s_min)):
+            return _roundoff_entries_compiled(X, K, C, R, F, gamma, s_min, fF, fQ)
         return _roundoff_entries(X, K, C, R, F, gamma, s_min, fF, fQ)
     A = np.eye(M) - K @ C
     k2 = _fro2(K)
@@ -260,6 +297,21 @@ def _roundoff_entries(X, K, C, R, F, gamma, s_min, fF, fQ):
     for i in np.flatnonzero(np.abs(F).sum(axis=1)):           # G = F A (a zero row of F: a zero row of G)
         for j in range(M):
             G[..., i, j] = _sum(F[i, l] * A[l][j] for l in range(M) if F[i, l] != 0)
+    return delta, G
+
+
+def _roundoff_entries_compiled(X, K, C, R, F, gamma, s_min, fF, fQ):
+    """`_roundoff_entries` by the compiled kernel (the same bits)."""
+    from . import gikf_compiled
+
+    M, m = F.shape[0], C.shape[-2]
+    batch = np.broadcast_shapes(X.shape[:-2], K.shape[:-2], C.shape[:-2], R.shape[:-2], np.shape(s_min))
+    delta = np.empty(batch)
+    G = np.zeros(batch + (M, M))
+    gikf_compiled.roundoff_entries(_flat(X, batch, (M, M)), _flat(K, batch, (M, m)), _flat(C, batch, (m, M)),
+                                   _flat(R, batch, (m, m)), np.ascontiguousarray(F), np.abs(F).sum(axis=1) != 0,
+                                   gamma, _flat(np.asarray(s_min, float), batch, ()), float(fF), float(fQ),
+                                   delta.reshape(-1), G.reshape(-1, M, M))
     return delta, G
 
 
@@ -322,6 +374,14 @@ def propagate_error(E: np.ndarray, G: np.ndarray, delta) -> np.ndarray:
     delta = np.asarray(delta)
     if M > ENTRYWISE_MAX_M:
         return G @ E @ np.swapaxes(G, -1, -2) + delta[..., None, None] * np.eye(M)
+    if _use_compiled(E.shape[:-2], G.shape[:-2], delta.shape, arrays=(E, G, delta)):
+        from . import gikf_compiled
+
+        out = np.empty(np.broadcast_shapes(E.shape, G.shape, delta.shape + (1, 1)))
+        batch = out.shape[:-2]
+        gikf_compiled.propagate_error(_flat(E, batch, (M, M)), _flat(G, batch, (M, M)), _flat(delta, batch, ()),
+                                      out.reshape(-1, M, M))
+        return out
     e, g = _entries(E), _entries(G)
     ge = [[_sum(g[i][j] * e[j][l] for j in range(M)) for l in range(M)] for i in range(M)]
     out = np.empty(np.broadcast_shapes(E.shape, G.shape, delta.shape + (1, 1)))

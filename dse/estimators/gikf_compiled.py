@@ -1,0 +1,180 @@
+"""Compiled (numba) kernels of the GIKF hot loops, each the same scalar operations in the same order as its
+numpy reference in `gikf_maps` / `gossip_protocols`, so the results are the same IEEE doubles bit for bit.
+
+Why compiled: the numpy references work entry by entry, each entry a vector over the batch, so a slot of a
+2 × 2 Riccati map is ~100 numpy calls, each a pass over memory (Python overhead at small batches, memory
+traffic at large ones). Here one loop over the batch keeps every matrix in registers. No fastmath (numba's
+default): LLVM neither reassociates nor contracts a*b + c into a fused multiply-add, and sums keep the order
+of the reference (Python `sum` starts from 0, `_sum` from the first term; both are reproduced as written).
+
+Imported only by the functions that call these kernels (numba costs ~0.2 s to import), so that `dse list`,
+`dse check` and the other families never load it. `cache=True` stores the machine code beside this file in
+__pycache__ (NUMBA_CACHE_DIR moves it): the first run compiles (a few seconds), later processes, forked
+workers and test workers load it.
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True)
+def riccati_scalar_obs(X, c, r, F, Q, out, K):
+    """f(X) of eq (11) in Joseph form for one observation row (m = 1), `gikf_maps._riccati_scalar_obs`:
+    X (n, M, M), c (n, M) the rows C, r (n,) the variances R; writes out (n, M, M) and the gains K (n, M)."""
+    n, M = X.shape[0], X.shape[1]
+    u = np.empty(M)
+    A = np.empty((M, M))
+    AX = np.empty((M, M))
+    Pf = np.empty((M, M))
+    G = np.empty((M, M))
+    for b in range(n):
+        rb = r[b]
+        for i in range(M):
+            acc = 0.0
+            for j in range(M):
+                acc += X[b, i, j] * c[b, j]
+            u[i] = acc
+        s = 0.0
+        for i in range(M):
+            s += c[b, i] * u[i]
+        s = s + rb
+        for i in range(M):
+            K[b, i] = u[i] / s
+        for i in range(M):
+            for j in range(M):
+                A[i, j] = (1.0 if i == j else 0.0) - K[b, i] * c[b, j]
+        for i in range(M):
+            for j in range(M):
+                acc = 0.0
+                for l in range(M):
+                    acc += A[i, l] * X[b, l, j]
+                AX[i, j] = acc
+        for i in range(M):
+            for j in range(i + 1):
+                acc = 0.0
+                for l in range(M):
+                    acc += AX[i, l] * A[j, l]
+                Pf[i, j] = Pf[j, i] = acc + rb * K[b, i] * K[b, j]
+        for i in range(M):
+            for j in range(M):
+                acc = 0.0
+                for l in range(M):
+                    if F[i, l] != 0:
+                        acc += F[i, l] * Pf[l, j]
+                G[i, j] = acc
+        for i in range(M):
+            for j in range(i + 1):
+                acc = 0.0
+                for l in range(M):
+                    if F[j, l] != 0:
+                        acc += G[i, l] * F[j, l]
+                out[b, i, j] = out[b, j, i] = acc + Q[i, j]
+
+
+@numba.njit(cache=True)
+def roundoff_entries(X, K, C, R, F, rows, gamma, s_min, fF, fQ, delta, G):
+    """`gikf_maps._roundoff_entries`, the first-order round-off bound of one Joseph-form step (delta, n) and its
+    closed loop G = F (I − K C) (n, M, M), for X (n, M, M), K (n, M, m), C (n, m, M), R (n, m, m), s_min (n,);
+    rows[i]: row i of F is not zero (G's row i is zero otherwise, as G is pre-filled)."""
+    n, M, m = X.shape[0], X.shape[1], C.shape[1]
+    A = np.empty((M, M))
+    axc = np.empty((M, m))
+    for b in range(n):
+        for i in range(M):
+            for j in range(M):
+                acc = K[b, i, 0] * C[b, 0, j]
+                for l in range(1, m):
+                    acc = acc + K[b, i, l] * C[b, l, j]
+                A[i, j] = (1.0 if i == j else 0.0) - acc
+        k2 = 0.0
+        first = True
+        for i in range(M):
+            for a in range(m):
+                v = K[b, i, a] * K[b, i, a]
+                k2 = v if first else k2 + v
+                first = False
+        a2 = A[0, 0] * A[0, 0]
+        for i in range(M):
+            for j in range(M):
+                if i + j > 0:
+                    a2 = a2 + A[i, j] * A[i, j]
+        x2 = X[b, 0, 0] * X[b, 0, 0]
+        for i in range(M):
+            for j in range(M):
+                if i + j > 0:
+                    x2 = x2 + X[b, i, j] * X[b, i, j]
+        r2 = R[b, 0, 0] * R[b, 0, 0]
+        for a in range(m):
+            for c_ in range(m):
+                if a + c_ > 0:
+                    r2 = r2 + R[b, a, c_] * R[b, a, c_]
+        scale = fF * (a2 * np.sqrt(x2) + k2 * np.sqrt(r2)) + fQ
+        for i in range(M):
+            for a in range(m):
+                acc = abs(X[b, i, 0]) * abs(C[b, a, 0])
+                for j in range(1, M):
+                    acc = acc + abs(X[b, i, j]) * abs(C[b, a, j])
+                axc[i, a] = acc
+        axc2 = axc[0, 0] * axc[0, 0]
+        for i in range(M):
+            for a in range(m):
+                if i + a > 0:
+                    axc2 = axc2 + axc[i, a] * axc[i, a]
+        e22 = 0.0
+        for a in range(m):
+            for c_ in range(m):
+                acc = abs(C[b, a, 0]) * axc[0, c_]
+                for i in range(1, M):
+                    acc = acc + abs(C[b, a, i]) * axc[i, c_]
+                v = acc + abs(R[b, a, c_])
+                e22 = v * v if a + c_ == 0 else e22 + v * v
+        s_max = 0.0
+        for a in range(m):
+            acc = 0.0
+            for i in range(M):
+                xc = X[b, i, 0] * C[b, a, 0]
+                for j in range(1, M):
+                    xc = xc + X[b, i, j] * C[b, a, j]
+                acc = C[b, a, i] * xc if i == 0 else acc + C[b, a, i] * xc
+            v = acc + R[b, a, a]
+            s_max = v if a == 0 else s_max + v
+        E1 = gamma * np.sqrt(axc2)
+        E2 = gamma * np.sqrt(e22)
+        k = np.sqrt(k2)
+        sm = s_min[b]
+        dK = (E1 + k * E2) / np.sqrt(sm) + k * gamma * (s_max / sm) * np.sqrt(s_max)
+        delta[b] = gamma * scale + fF * dK * dK
+        for i in range(M):
+            if not rows[i]:
+                continue
+            for j in range(M):
+                acc = 0.0
+                first = True
+                for l in range(M):
+                    if F[i, l] != 0:
+                        v = F[i, l] * A[l, j]
+                        acc = v if first else acc + v
+                        first = False
+                G[b, i, j] = acc
+
+
+@numba.njit(cache=True)
+def propagate_error(E, G, delta, out):
+    """G E Gᵀ + delta·I entry by entry, `gikf_maps.propagate_error` for M ≤ ENTRYWISE_MAX_M: E, G (n, M, M),
+    delta (n,); lower triangle computed, mirrored."""
+    n, M = E.shape[0], E.shape[1]
+    ge = np.empty((M, M))
+    for b in range(n):
+        for i in range(M):
+            for l in range(M):
+                acc = G[b, i, 0] * E[b, 0, l]
+                for j in range(1, M):
+                    acc = acc + G[b, i, j] * E[b, j, l]
+                ge[i, l] = acc
+        for i in range(M):
+            for j in range(i + 1):
+                v = ge[i, 0] * G[b, j, 0]
+                for l in range(1, M):
+                    v = v + ge[i, l] * G[b, j, l]
+                out[b, i, j] = out[b, j, i] = v + delta[b] if i == j else v

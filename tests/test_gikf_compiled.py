@@ -1,0 +1,93 @@
+"""The compiled kernels (`dse.estimators.gikf_compiled`) give the same doubles, bit for bit, as their numpy
+references, on seeded random batches with zero, tiny, huge, infinite and NaN entries, M = 1..3, m = 1..2, and
+batches of one matrix (the dispatch threshold is lowered so that every batch goes to the kernels)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dse.estimators import gikf_maps as gm
+from dse.estimators.gossip_protocols import GreedyMatchingGossip
+
+
+@pytest.fixture
+def always_compiled(monkeypatch):
+    monkeypatch.setattr(gm, "COMPILED_MIN_BATCH", 1)
+
+
+def _psd(rng, shape, M, special):
+    """Random symmetric PSD matrices, some scaled to extreme magnitudes or with special entries."""
+    L = rng.standard_normal(shape + (M, M))
+    X = L @ np.swapaxes(L, -1, -2)
+    scale = 10.0 ** rng.choice([-300, -150, -8, 0, 0, 0, 8, 150, 300], size=shape)
+    X = X * scale[..., None, None]
+    if special:
+        flat = X.reshape(-1, M, M)
+        k = rng.integers(0, len(flat), size=max(1, len(flat) // 5))
+        flat[k, rng.integers(0, M, len(k)), rng.integers(0, M, len(k))] = rng.choice([0.0, -0.0, np.inf, -np.inf, np.nan,
+                                                                                     1e308], size=len(k))
+    return X
+
+
+def _system(rng, M, m, zero_rows):
+    F = rng.standard_normal((M, M))
+    if zero_rows and M > 1:
+        F[0] = 0.0          # a zero row of F, and zero entries skipped by the sums
+        F[-1, 0] = -0.0
+    Q = np.eye(M) * rng.uniform(0.01, 1.0)
+    Q[0, 0] = -0.0 if zero_rows else Q[0, 0]
+    return F, Q
+
+
+CASES = [(M, m, B, special) for M in (1, 2, 3) for m in (1, 2) for B in (1, 7, 200) for special in (False, True)]
+
+
+@pytest.mark.parametrize("M, m, B, special", CASES)
+def test_riccati_roundoff_and_propagation_match_the_numpy_reference_bit_for_bit(M, m, B, special, monkeypatch):
+    rng = np.random.default_rng(1000 * M + 100 * m + B + special)
+    F, Q = _system(rng, M, m, special)
+    N = 3
+    X = _psd(rng, (B, N), M, special)
+    C = rng.standard_normal((N, m, M)) * rng.choice([0.0, 1.0, 1e-200, 1e200], size=(N, m, 1))
+    Rl = rng.standard_normal((N, m, m))
+    R = Rl @ np.swapaxes(Rl, -1, -2) + 0.1 * np.eye(m)
+    E = _psd(rng, (B, N), M, special)
+    with np.errstate(all="ignore"):
+        for compiled in (False, True):
+            monkeypatch.setattr(gm, "COMPILED_MIN_BATCH", 1 if compiled else 10**18)
+            if m == 1:
+                step = gm.riccati_step(X, C, R, F, Q, return_gain=True)
+                if compiled:
+                    np.testing.assert_array_equal(step[0], ref_step[0])
+                    np.testing.assert_array_equal(step[1], ref_step[1])
+                    assert np.signbit(step[0]).tolist() == np.signbit(ref_step[0]).tolist()
+                ref_step = step
+            K = rng.standard_normal((B, N, M, m)) if not compiled else K
+            got = gm.riccati_roundoff(X, K, C, R, F, Q)
+            prop = gm.propagate_error(E, got[1], got[0])
+            if compiled:
+                np.testing.assert_array_equal(got[0], ref[0])
+                np.testing.assert_array_equal(got[1], ref[1])
+                np.testing.assert_array_equal(prop, ref_prop)
+            ref, ref_prop = got, prop
+
+
+@pytest.mark.parametrize("M", [1, 2, 3])
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+def test_switched_batches_with_per_run_sensors_and_a_scalar_r_min(M, always_compiled):
+    """The shapes of switched_riccati (C[nodes], R[nodes] per run) and of gikf_roundoff (r_min given)."""
+    rng = np.random.default_rng(M)
+    F, Q = _system(rng, M, 1, True)
+    B = 50
+    X = _psd(rng, (B,), M, False)
+    C = rng.standard_normal((B, 1, M))
+    R = rng.uniform(0.1, 2.0, (B, 1, 1))
+    for r_min in (None, 0.05):
+        got = gm.riccati_step(X, C, R, F, Q, return_gain=True)
+        d, G = gm.riccati_roundoff(X, got[1], C, R, F, Q, r_min=r_min)
+        gm.COMPILED_MIN_BATCH = 10**18
+        ref = gm.riccati_step(X, C, R, F, Q, return_gain=True)
+        rd, rG = gm.riccati_roundoff(X, ref[1], C, R, F, Q, r_min=r_min)
+        gm.COMPILED_MIN_BATCH = 1
+        for a, b in zip((*got, d, G), (*ref, rd, rG)):
+            np.testing.assert_array_equal(a, b)
