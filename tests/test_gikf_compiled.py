@@ -39,6 +39,14 @@ def _system(rng, M, m, zero_rows):
     return F, Q
 
 
+def _same_zero_signs(a, b):
+    """-0.0 where the reference has -0.0 (assert_array_equal takes -0.0 == 0.0). Not for NaN: which NaN an
+    operation on two NaNs returns depends on its operand order, which the compiler may swap (a + b = b + a);
+    a NaN is a NaN in both, which assert_array_equal checks."""
+    finite = ~np.isnan(b)
+    np.testing.assert_array_equal(np.signbit(a)[finite], np.signbit(b)[finite])
+
+
 CASES = [(M, m, B, special) for M in (1, 2, 3) for m in (1, 2) for B in (1, 7, 200) for special in (False, True)]
 
 
@@ -60,7 +68,7 @@ def test_riccati_roundoff_and_propagation_match_the_numpy_reference_bit_for_bit(
                 if compiled:
                     np.testing.assert_array_equal(step[0], ref_step[0])
                     np.testing.assert_array_equal(step[1], ref_step[1])
-                    assert np.signbit(step[0]).tolist() == np.signbit(ref_step[0]).tolist()
+                    _same_zero_signs(step[0], ref_step[0])
                 ref_step = step
             K = rng.standard_normal((B, N, M, m)) if not compiled else K
             got = gm.riccati_roundoff(X, K, C, R, F, Q)
@@ -69,6 +77,8 @@ def test_riccati_roundoff_and_propagation_match_the_numpy_reference_bit_for_bit(
                 np.testing.assert_array_equal(got[0], ref[0])
                 np.testing.assert_array_equal(got[1], ref[1])
                 np.testing.assert_array_equal(prop, ref_prop)
+                for a, b in ((got[0], ref[0]), (got[1], ref[1]), (prop, ref_prop)):
+                    _same_zero_signs(a, b)
             ref, ref_prop = got, prop
 
 
@@ -91,3 +101,56 @@ def test_switched_batches_with_per_run_sensors_and_a_scalar_r_min(M, always_comp
         gm.COMPILED_MIN_BATCH = 1
         for a, b in zip((*got, d, G), (*ref, rd, rG)):
             np.testing.assert_array_equal(a, b)
+
+
+def _random_graph(rng, n, n_edges):
+    edges = set()
+    while len(edges) < n_edges:
+        a, b = sorted(rng.choice(n, 2, replace=False).tolist())
+        edges.add((a, b))
+    return tuple(sorted(edges))
+
+
+@pytest.mark.parametrize("n, n_edges, p_link", [(2, 1, 1.0), (4, 5, 0.5), (30, 118, 0.5), (30, 118, 1.0), (80, 200, 0.7)])
+@pytest.mark.parametrize("size", [1, 64, 300])
+def test_the_greedy_matching_sampler_draws_the_same_partners_and_leaves_the_generator_in_the_same_state(
+        n, n_edges, p_link, size, monkeypatch):
+    from dse.estimators import gossip_protocols as gp
+
+    protocol = GreedyMatchingGossip(n, _random_graph(np.random.default_rng(n), n, n_edges), p_link)
+    got = []
+    for threshold in (10**18, 1):
+        monkeypatch.setattr(gp, "COMPILED_MIN_BATCH", threshold)
+        rng = np.random.default_rng(size + n)
+        got.append((protocol.sample(size, rng), protocol.sample(size, rng), rng.random()))
+    for a, b in zip(*got):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_the_compiled_greedy_scan_follows_numpy_s_order_also_for_tied_priorities():
+    from dse.estimators import gikf_compiled
+
+    u, v = np.array([0, 1, 0, 2]), np.array([1, 2, 2, 3])
+    priority = np.array([[0.3, 0.1, 0.2, 0.4], [0.5, 0.5, 0.5, 0.5], [0.0, 0.0, 0.9, 0.0]])
+    protocol = GreedyMatchingGossip(4, tuple(zip(u.tolist(), v.tolist())), 1.0)
+    order, words, flags = np.argsort(priority, axis=1), np.zeros(priority.shape, bool), np.zeros(priority.shape, bool)
+    gikf_compiled.greedy_chosen_words(order, (1 << u | 1 << v).astype(np.uint64), words)
+    gikf_compiled.greedy_chosen_flags(order, u, v, 4, flags)
+    np.testing.assert_array_equal(words, protocol.greedy_chosen(priority))
+    np.testing.assert_array_equal(flags, protocol.greedy_chosen(priority))
+
+
+@pytest.mark.parametrize("n", [1, 3, 30])
+def test_the_compiled_chain_step_draws_the_same_abar_chain(n, monkeypatch):
+    from dse.estimators import switched_riccati as sr
+
+    rng = np.random.default_rng(n)
+    A = rng.random((n, n)) ** 3
+    A[rng.random((n, n)) < 0.5] = 0.0
+    A += np.eye(n)
+    A /= A.sum(axis=1, keepdims=True)
+    paths = []
+    for threshold in (10**18, 1):
+        monkeypatch.setattr(sr, "COMPILED_MIN_BATCH", threshold)
+        paths.append(sr.sample_chain(A, 200, 30, np.random.default_rng(7)))
+    np.testing.assert_array_equal(*paths)

@@ -18,11 +18,19 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True)
-def riccati_scalar_obs(X, c, r, F, Q, out, K):
+def dims(n: int) -> tuple:
+    """A tuple of n zeros, passed to the matrix kernels for their size: numba compiles one version per tuple
+    type, in which the size is a constant, so LLVM unrolls the loops over the entries and keeps the small
+    matrices in registers (3-5x faster than the same loops over a run-time size)."""
+    return (0,) * n
+
+
+@numba.njit(cache=True, error_model="numpy")
+def riccati_scalar_obs(X, c, r, F, Q, out, K, dims):
     """f(X) of eq (11) in Joseph form for one observation row (m = 1), `gikf_maps._riccati_scalar_obs`:
-    X (n, M, M), c (n, M) the rows C, r (n,) the variances R; writes out (n, M, M) and the gains K (n, M)."""
-    n, M = X.shape[0], X.shape[1]
+    X (n, M, M), c (n, M) the rows C, r (n,) the variances R; writes out (n, M, M) and the gains K (n, M).
+    dims: a tuple of M entries (see `dims`)."""
+    n, M = X.shape[0], len(dims)
     u = np.empty(M)
     A = np.empty((M, M))
     AX = np.empty((M, M))
@@ -72,12 +80,13 @@ def riccati_scalar_obs(X, c, r, F, Q, out, K):
                 out[b, i, j] = out[b, j, i] = acc + Q[i, j]
 
 
-@numba.njit(cache=True)
-def roundoff_entries(X, K, C, R, F, rows, gamma, s_min, fF, fQ, delta, G):
+@numba.njit(cache=True, error_model="numpy")
+def roundoff_entries(X, K, C, R, F, rows, gamma, s_min, fF, fQ, delta, G, dims, obs_dims):
     """`gikf_maps._roundoff_entries`, the first-order round-off bound of one Joseph-form step (delta, n) and its
     closed loop G = F (I − K C) (n, M, M), for X (n, M, M), K (n, M, m), C (n, m, M), R (n, m, m), s_min (n,);
-    rows[i]: row i of F is not zero (G's row i is zero otherwise, as G is pre-filled)."""
-    n, M, m = X.shape[0], X.shape[1], C.shape[1]
+    rows[i]: row i of F is not zero (G's row i is zero otherwise, as G is pre-filled). dims, obs_dims: tuples of
+    M and m entries (see `dims`)."""
+    n, M, m = X.shape[0], len(dims), len(obs_dims)
     A = np.empty((M, M))
     axc = np.empty((M, m))
     for b in range(n):
@@ -159,11 +168,11 @@ def roundoff_entries(X, K, C, R, F, rows, gamma, s_min, fF, fQ, delta, G):
                 G[b, i, j] = acc
 
 
-@numba.njit(cache=True)
-def propagate_error(E, G, delta, out):
+@numba.njit(cache=True, error_model="numpy")
+def propagate_error(E, G, delta, out, dims):
     """G E Gᵀ + delta·I entry by entry, `gikf_maps.propagate_error` for M ≤ ENTRYWISE_MAX_M: E, G (n, M, M),
-    delta (n,); lower triangle computed, mirrored."""
-    n, M = E.shape[0], E.shape[1]
+    delta (n,); lower triangle computed, mirrored. dims: a tuple of M entries (see `dims`)."""
+    n, M = E.shape[0], len(dims)
     ge = np.empty((M, M))
     for b in range(n):
         for i in range(M):
@@ -178,3 +187,67 @@ def propagate_error(E, G, delta, out):
                 for l in range(1, M):
                     v = v + ge[i, l] * G[b, j, l]
                 out[b, i, j] = out[b, j, i] = v + delta[b] if i == j else v
+
+
+@numba.njit(cache=True, error_model="numpy")
+def greedy_chosen_words(order, masks, chosen):
+    """The greedy scan of `GreedyMatchingGossip.greedy_chosen` for at most 64 nodes: for each row of edge orders
+    (B, E) (numpy's argsort of the priorities: its SIMD sort is ~8x faster than numba's, and the order is then
+    numpy's even for ties), the k-th edge is taken iff both its endpoint bits (masks[e]) are still set in the
+    row's word of free nodes, and taking it clears them (branch-free: ~1 ns per edge, against ~4 ns with a
+    branch that the random order mispredicts). Writes the (B, E) bool `chosen`."""
+    B, E = order.shape
+    for b in range(B):
+        free = np.uint64(0xFFFFFFFFFFFFFFFF)
+        for i in range(E):
+            e = order[b, i]
+            m = masks[e]
+            taken = (free & m) == m
+            chosen[b, e] = taken
+            free ^= m * np.uint64(taken)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def greedy_chosen_flags(order, u, v, n_nodes, chosen):
+    """`greedy_chosen_words` for any number of nodes, with one free flag per node: the edge order[b, i] is taken
+    when both its endpoints u[e], v[e] are still free. Writes `chosen` (pre-filled False)."""
+    B, E = order.shape
+    free = np.empty(n_nodes, np.bool_)
+    for b in range(B):
+        free[:] = True
+        for i in range(E):
+            e = order[b, i]
+            a, c = u[e], v[e]
+            if free[a] and free[c]:
+                chosen[b, e] = True
+                free[a] = False
+                free[c] = False
+
+
+@numba.njit(cache=True, error_model="numpy")
+def matching_partners(chosen, works, u, v, out):
+    """Partner arrays from the chosen edges, `GreedyMatchingGossip.sample`: out (B, N) pre-filled with n, and
+    for the k-th chosen edge in row-major order (np.nonzero's) whose link works (works[k]), its endpoints swap."""
+    B, E = chosen.shape
+    k = 0
+    for b in range(B):
+        for e in range(E):
+            if chosen[b, e]:
+                if works[k]:
+                    out[b, u[e]] = v[e]
+                    out[b, v[e]] = u[e]
+                k += 1
+
+
+@numba.njit(cache=True, error_model="numpy")
+def chain_step(cum, p, x, out):
+    """One step of the Ā-chain by inversion, `switched_riccati.sample_chain`: out[b] = #{j : cum[p[b], j] <= x[b]}
+    (cum: the rows of Ā cumulated, last entry 1)."""
+    n = cum.shape[1]
+    for b in range(p.shape[0]):
+        row = cum[p[b]]
+        count = 0
+        for j in range(n):
+            if row[j] <= x[b]:
+                count += 1
+        out[b] = count

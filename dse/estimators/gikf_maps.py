@@ -198,7 +198,8 @@ def _riccati_scalar_compiled(X, C, R, F, Q, return_gain):
     K = np.empty(batch + (M, 1))
     gikf_compiled.riccati_scalar_obs(_flat(X, batch, (M, M)), _flat(C[..., 0, :], batch, (M,)),
                                      _flat(R[..., 0, 0], batch, ()), np.ascontiguousarray(F),
-                                     np.ascontiguousarray(Q), out.reshape(-1, M, M), K.reshape(-1, M))
+                                     np.ascontiguousarray(Q), out.reshape(-1, M, M), K.reshape(-1, M),
+                                     gikf_compiled.dims(M))
     return (out, K) if return_gain else out
 
 
@@ -311,7 +312,8 @@ def _roundoff_entries_compiled(X, K, C, R, F, gamma, s_min, fF, fQ):
     gikf_compiled.roundoff_entries(_flat(X, batch, (M, M)), _flat(K, batch, (M, m)), _flat(C, batch, (m, M)),
                                    _flat(R, batch, (m, m)), np.ascontiguousarray(F), np.abs(F).sum(axis=1) != 0,
                                    gamma, _flat(np.asarray(s_min, float), batch, ()), float(fF), float(fQ),
-                                   delta.reshape(-1), G.reshape(-1, M, M))
+                                   delta.reshape(-1), G.reshape(-1, M, M), gikf_compiled.dims(M),
+                                   gikf_compiled.dims(m))
     return delta, G
 
 
@@ -380,7 +382,7 @@ def propagate_error(E: np.ndarray, G: np.ndarray, delta) -> np.ndarray:
         out = np.empty(np.broadcast_shapes(E.shape, G.shape, delta.shape + (1, 1)))
         batch = out.shape[:-2]
         gikf_compiled.propagate_error(_flat(E, batch, (M, M)), _flat(G, batch, (M, M)), _flat(delta, batch, ()),
-                                      out.reshape(-1, M, M))
+                                      out.reshape(-1, M, M), gikf_compiled.dims(M))
         return out
     e, g = _entries(E), _entries(G)
     ge = [[_sum(g[i][j] * e[j][l] for j in range(M)) for l in range(M)] for i in range(M)]
