@@ -154,3 +154,23 @@ def test_the_compiled_chain_step_draws_the_same_abar_chain(n, monkeypatch):
         monkeypatch.setattr(sr, "COMPILED_MIN_BATCH", threshold)
         paths.append(sr.sample_chain(A, 200, 30, np.random.default_rng(7)))
     np.testing.assert_array_equal(*paths)
+
+
+def test_the_compiled_2x2_eigenvalues_match_the_numpy_closed_form(monkeypatch):
+    """On the closed form's whole input range and beyond (its comparison with LAPACK is in test_kar_moura_*)."""
+    rng = np.random.default_rng(5)
+    n = 20000
+    X = rng.standard_normal((n, 2, 2)) * 10.0 ** rng.integers(-130, 150, (n, 1, 1))
+    X[:, 0, 1] = X[:, 1, 0]
+    pick = rng.random((n, 2, 2)) < 0.15                  # exact zeros of either sign, equal diagonals, inf, NaN
+    X[pick] = rng.choice([0.0, -0.0, 1.0, -1.0, np.inf, np.nan], size=pick.sum())
+    X[::7, 1, 1] = X[::7, 0, 0]
+    X[::11, 1, 0] = X[::11, 0, 1] = 0.0
+    X[::13] = rng.choice([0.0, -0.0], size=(len(X[::13]), 2, 2))
+    X[::17, 1, 0] *= 1e-9
+    with np.errstate(all="ignore"):
+        got = gm.eigvalsh(X)
+        monkeypatch.setattr(gm, "COMPILED_MIN_BATCH", 10**18)
+        ref = gm.eigvalsh(X)
+    np.testing.assert_array_equal(got, ref)
+    _same_zero_signs(got, ref)

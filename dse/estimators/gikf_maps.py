@@ -341,6 +341,15 @@ def eigvalsh(X: np.ndarray) -> np.ndarray:
     X = np.asarray(X, float)
     if X.shape[-1] != 2 or X.ndim < 3:
         return np.linalg.eigvalsh(X)
+    if math.prod(X.shape[:-2]) >= COMPILED_MIN_BATCH:
+        from . import gikf_compiled
+
+        batch = X.shape[:-2]
+        out, far = np.empty(batch + (2,)), np.zeros(batch, bool)
+        gikf_compiled.eigvalsh2(_flat(X, batch, (2, 2)), out.reshape(-1, 2), far.reshape(-1), *_EIG2_RANGE)
+        if far.any():
+            out[far] = np.linalg.eigvalsh(X[far])
+        return out
     a, b, c = X[..., 0, 0], X[..., 1, 0], X[..., 1, 1]
     eps = 0.5 * EPS                                                   # LAPACK's dlamch('E')
     with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
