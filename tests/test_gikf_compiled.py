@@ -10,9 +10,16 @@ from dse.estimators import gikf_maps as gm
 from dse.estimators.gossip_protocols import GreedyMatchingGossip
 
 
+def _compiled(monkeypatch, on: bool):
+    """Every batch to the compiled kernels (on), or none."""
+    monkeypatch.setattr(gm, "COMPILED_MIN_BATCH", 1 if on else 10**18)
+    monkeypatch.setattr(gm, "COMPILE_AFTER_S", 0.0)
+    monkeypatch.setattr(gm, "compiled_allowed", True)
+
+
 @pytest.fixture
 def always_compiled(monkeypatch):
-    monkeypatch.setattr(gm, "COMPILED_MIN_BATCH", 1)
+    _compiled(monkeypatch, True)
 
 
 def _psd(rng, shape, M, special):
@@ -62,7 +69,7 @@ def test_riccati_roundoff_and_propagation_match_the_numpy_reference_bit_for_bit(
     E = _psd(rng, (B, N), M, special)
     with np.errstate(all="ignore"):
         for compiled in (False, True):
-            monkeypatch.setattr(gm, "COMPILED_MIN_BATCH", 1 if compiled else 10**18)
+            _compiled(monkeypatch, compiled)
             if m == 1:
                 step = gm.riccati_step(X, C, R, F, Q, return_gain=True)
                 if compiled:
@@ -115,12 +122,11 @@ def _random_graph(rng, n, n_edges):
 @pytest.mark.parametrize("size", [1, 64, 300])
 def test_the_greedy_matching_sampler_draws_the_same_partners_and_leaves_the_generator_in_the_same_state(
         n, n_edges, p_link, size, monkeypatch):
-    from dse.estimators import gossip_protocols as gp
 
     protocol = GreedyMatchingGossip(n, _random_graph(np.random.default_rng(n), n, n_edges), p_link)
     got = []
-    for threshold in (10**18, 1):
-        monkeypatch.setattr(gp, "COMPILED_MIN_BATCH", threshold)
+    for compiled in (False, True):
+        _compiled(monkeypatch, compiled)
         rng = np.random.default_rng(size + n)
         got.append((protocol.sample(size, rng), protocol.sample(size, rng), rng.random()))
     for a, b in zip(*got):
@@ -150,13 +156,13 @@ def test_the_compiled_chain_step_draws_the_same_abar_chain(n, monkeypatch):
     A += np.eye(n)
     A /= A.sum(axis=1, keepdims=True)
     paths = []
-    for threshold in (10**18, 1):
-        monkeypatch.setattr(sr, "COMPILED_MIN_BATCH", threshold)
+    for compiled in (False, True):
+        _compiled(monkeypatch, compiled)
         paths.append(sr.sample_chain(A, 200, 30, np.random.default_rng(7)))
     np.testing.assert_array_equal(*paths)
 
 
-def test_the_compiled_2x2_eigenvalues_match_the_numpy_closed_form(monkeypatch):
+def test_the_compiled_2x2_eigenvalues_match_the_numpy_closed_form(always_compiled, monkeypatch):
     """On the closed form's whole input range and beyond (its comparison with LAPACK is in test_kar_moura_*)."""
     rng = np.random.default_rng(5)
     n = 20000
@@ -170,7 +176,40 @@ def test_the_compiled_2x2_eigenvalues_match_the_numpy_closed_form(monkeypatch):
     X[::17, 1, 0] *= 1e-9
     with np.errstate(all="ignore"):
         got = gm.eigvalsh(X)
-        monkeypatch.setattr(gm, "COMPILED_MIN_BATCH", 10**18)
+        _compiled(monkeypatch, False)
         ref = gm.eigvalsh(X)
     np.testing.assert_array_equal(got, ref)
     _same_zero_signs(got, ref)
+
+
+def test_a_process_uses_the_kernels_once_its_numpy_work_would_have_repaid_loading_numba(monkeypatch):
+    monkeypatch.setattr(gm, "_numpy_s", 0.0)
+    monkeypatch.setattr(gm, "COMPILE_AFTER_S", 1.0)
+    monkeypatch.setattr(gm, "compiled_allowed", True)
+    calls = 0
+    while not gm.use_compiled(10_000):
+        calls += 1
+    assert 800 < calls < 1000                                    # ~1.1 ms of numpy per call of 10,000 matrices
+    assert gm.use_compiled(gm.COMPILED_MIN_BATCH) and not gm.use_compiled(gm.COMPILED_MIN_BATCH - 1)
+    assert not gm.use_compiled(10_000, np.zeros((2, 2), np.float32))
+    monkeypatch.setattr(gm, "compiled_allowed", False)        # a run whose memory budget has no room for numba
+    assert not gm.use_compiled(10_000)
+
+
+def test_listing_and_checking_a_scenario_do_not_import_numba(tmp_path):
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    env = {"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin", "OPENBLAS_NUM_THREADS": "1", "DSE_PROGRESS": "0"}
+    code = ("import contextlib, io, json, sys; from dse.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()): code = main(sys.argv[1:])\n"
+            "print(json.dumps({'code': code, 'numba': 'numba' in sys.modules}))")
+    scenario = root / "dse" / "families" / "kar_moura" / "scenarios" / "e9.toml"
+    for args in (["list"], ["check", str(scenario), "--out", str(tmp_path / "out")]):
+        proc = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, env=env, cwd=root,
+                              timeout=600)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert json.loads(proc.stdout.splitlines()[-1]) == {"code": 0, "numba": False}, args

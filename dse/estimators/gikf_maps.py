@@ -131,7 +131,7 @@ def riccati_step(X: np.ndarray, C: np.ndarray, R: np.ndarray, F: np.ndarray, Q: 
     """
     M = X.shape[-1]
     if C.shape[-2] == 1:
-        if _use_compiled(X.shape[:-2], C.shape[:-2], R.shape[:-2], arrays=(X, C, R, F, Q)):
+        if use_compiled(math.prod(np.broadcast_shapes(X.shape[:-2], C.shape[:-2], R.shape[:-2])), X, C, R, F, Q):
             return _riccati_scalar_compiled(X, C, R, F, Q, return_gain)
         return _riccati_scalar_obs(X, C, R, F, Q, return_gain)
     K = _gain(X, C, R)
@@ -170,17 +170,31 @@ def _riccati_scalar_obs(X, C, R, F, Q, return_gain):
     return out, K
 
 
-#: batches of at least this many matrices go to the compiled kernels of `gikf_compiled` (the same bits; numba
-#: costs ~0.2 s to import, which only the Monte Carlo repays, not a design computed for `dse check`)
+#: batches of at least this many matrices go to the compiled kernels of `gikf_compiled` (the same bits), once the
+#: numpy versions have spent about COMPILE_AFTER_S seconds of CPU in the process: numba costs ~0.5 s of CPU and
+#: ~130 MiB of memory to import and load the kernels, which a long Monte Carlo repays in its first seconds, and a
+#: small run (`dse run --quick` of a small scenario, a design for `dse check`, a test) never does
 COMPILED_MIN_BATCH = 64
+COMPILE_AFTER_S = 1.0
+_numpy_s = 0.0                      # the estimated CPU seconds the numpy versions have spent in this process
+#: what numba and the loaded kernels add to a process's memory (measured: ~100 MiB to import, ~50 MiB to load);
+#: a run whose memory budget has no room for it sets `compiled_allowed` to False (kar-moura's `compute`)
+COMPILED_MIB = 150.0
+compiled_allowed = True
 
 
-def _use_compiled(*batch_shapes, arrays) -> bool:
-    """Whether a call whose batch axes broadcast from `batch_shapes` goes to the compiled kernels: a large
-    enough batch, all float64 (the kernels are compiled for float64 only)."""
-    if any(np.asarray(a).dtype != np.float64 for a in arrays):
+def use_compiled(n: int, *arrays) -> bool:
+    """Whether a call on a batch of n matrices (or rows of draws) goes to the compiled kernels: `compiled_allowed`,
+    n ≥ COMPILED_MIN_BATCH, all `arrays` float64 (the kernels are compiled for float64 only), and the numpy versions
+    have spent COMPILE_AFTER_S in this process (estimated at ~100 µs per call of some 100 numpy passes over the
+    batch, plus ~0.1 µs per matrix)."""
+    global _numpy_s
+    if not compiled_allowed or n < COMPILED_MIN_BATCH or any(np.asarray(a).dtype != np.float64 for a in arrays):
         return False
-    return math.prod(np.broadcast_shapes(*batch_shapes)) >= COMPILED_MIN_BATCH
+    if _numpy_s >= COMPILE_AFTER_S:
+        return True
+    _numpy_s += 1e-4 + 1e-7 * n
+    return False
 
 
 def _flat(a: np.ndarray, batch: tuple, tail: tuple) -> np.ndarray:
@@ -238,8 +252,8 @@ def riccati_roundoff(X: np.ndarray, K: np.ndarray, C: np.ndarray, R: np.ndarray,
     s_min = np.maximum(_lambda_min_psd(R) if r_min is None else r_min, np.finfo(float).tiny)
     fF, fQ = float(_fro2(F)), math.sqrt(float(_fro2(Q)))
     if M <= ENTRYWISE_MAX_M and m <= M:
-        if _use_compiled(X.shape[:-2], K.shape[:-2], C.shape[:-2], R.shape[:-2], np.shape(s_min),
-                         arrays=(X, K, C, R, F, s_min)):
+        batch = np.broadcast_shapes(X.shape[:-2], K.shape[:-2], C.shape[:-2], R.shape[:-2], np.shape(s_min))
+        if use_compiled(math.prod(batch), X, K, C, R, F, s_min):
             return _roundoff_entries_compiled(X, K, C, R, F, gamma, s_min, fF, fQ)
         return _roundoff_entries(X, K, C, R, F, gamma, s_min, fF, fQ)
     A = np.eye(M) - K @ C
@@ -341,7 +355,7 @@ def eigvalsh(X: np.ndarray) -> np.ndarray:
     X = np.asarray(X, float)
     if X.shape[-1] != 2 or X.ndim < 3:
         return np.linalg.eigvalsh(X)
-    if math.prod(X.shape[:-2]) >= COMPILED_MIN_BATCH:
+    if use_compiled(math.prod(X.shape[:-2])):
         from . import gikf_compiled
 
         batch = X.shape[:-2]
@@ -385,7 +399,7 @@ def propagate_error(E: np.ndarray, G: np.ndarray, delta) -> np.ndarray:
     delta = np.asarray(delta)
     if M > ENTRYWISE_MAX_M:
         return G @ E @ np.swapaxes(G, -1, -2) + delta[..., None, None] * np.eye(M)
-    if _use_compiled(E.shape[:-2], G.shape[:-2], delta.shape, arrays=(E, G, delta)):
+    if use_compiled(math.prod(np.broadcast_shapes(E.shape[:-2], G.shape[:-2], delta.shape)), E, G, delta):
         from . import gikf_compiled
 
         out = np.empty(np.broadcast_shapes(E.shape, G.shape, delta.shape + (1, 1)))

@@ -13,7 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .gikf_maps import COMPILED_MIN_BATCH
+from .gikf_maps import use_compiled
 
 __all__ = ["MatchingDistribution", "SingleEdgeGossip", "MatchingSequence", "NodeInitiatedGossip",
            "GreedyMatchingGossip", "matching_at"]
@@ -272,11 +272,11 @@ class GreedyMatchingGossip:
         return taken
 
     def sample(self, size: int, rng: np.random.Generator) -> np.ndarray:
-        """(size, N) partner arrays of i.i.d. matchings. From COMPILED_MIN_BATCH rows on, the greedy scan and the
-        partner arrays are compiled (`gikf_compiled`): the same draws from `rng`, the same partners."""
+        """(size, N) partner arrays of i.i.d. matchings. The greedy scan and the partner arrays are compiled
+        (`gikf_compiled`) when `use_compiled`: the same draws from `rng`, the same partners."""
         E = len(self.edges)
         priority = rng.random((size, E))
-        if size >= COMPILED_MIN_BATCH:
+        if use_compiled(size):
             from . import gikf_compiled
 
             u, v = self._ends

@@ -113,7 +113,12 @@ docs/papers/kar-moura.md."""
         # the Wishart starts of the auxiliary stage and the claims' exact KS tests all need scipy.stats
         import filterpy.kalman  # noqa: F401
         import scipy.stats  # noqa: F401
+        from dse.estimators import gikf_maps
 
+        # the compiled kernels (numba, the same results) in the processes of this run where its budget has room for them
+        workers = max(1, min(opts.workers, len(run.scenarios)))
+        gikf_maps.compiled_allowed = (self.cost(run, opts).peak_mib + gikf_maps.COMPILED_MIB * workers
+                                      <= opts.memory_budget_mib)
         design = self.design(run, opts, ctx)
         return Computed(design, self.simulate(run, opts, ctx, design))
 
