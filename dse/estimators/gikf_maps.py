@@ -183,23 +183,27 @@ COMPILED_MIB = 150.0
 compiled_allowed = True
 
 
-def use_compiled(n: int, *arrays) -> bool:
+def use_compiled(n: int, *arrays, item_s: float = 1e-7) -> bool:
     """Whether a call on a batch of n matrices (or rows of draws) goes to the compiled kernels: `compiled_allowed`,
     n ≥ COMPILED_MIN_BATCH, all `arrays` float64 (the kernels are compiled for float64 only), and the numpy versions
     have spent COMPILE_AFTER_S in this process (estimated at ~100 µs per call of some 100 numpy passes over the
-    batch, plus ~0.1 µs per matrix)."""
+    batch, plus `item_s` per matrix or row)."""
     global _numpy_s
     if not compiled_allowed or n < COMPILED_MIN_BATCH or any(np.asarray(a).dtype != np.float64 for a in arrays):
         return False
     if _numpy_s >= COMPILE_AFTER_S:
         return True
-    _numpy_s += 1e-4 + 1e-7 * n
+    _numpy_s += 1e-4 + item_s * n
     return False
 
 
 def _flat(a: np.ndarray, batch: tuple, tail: tuple) -> np.ndarray:
-    """`a` broadcast to batch + tail as a C-contiguous (n, *tail) array (a copy only when it must be)."""
-    return np.ascontiguousarray(np.broadcast_to(a, batch + tail)).reshape((-1,) + tail)
+    """`a` broadcast to batch + tail as a C-contiguous (n, *tail) array (a copy only when it must be; not a read-only
+    broadcast view, which numba would compile a kernel version of its own for)."""
+    a = np.asarray(a)
+    if a.shape != batch + tail:
+        a = np.broadcast_to(a, batch + tail)
+    return np.ascontiguousarray(a).reshape((-1,) + tail)
 
 
 def _riccati_scalar_compiled(X, C, R, F, Q, return_gain):
