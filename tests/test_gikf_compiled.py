@@ -1,6 +1,7 @@
 """The compiled kernels (`dse.estimators.gikf_compiled`) give the same doubles, bit for bit, as their numpy
 references, on seeded random batches with zero, tiny, huge, infinite and NaN entries, M = 1..3, m = 1..2, and
-batches of one matrix (the dispatch threshold is lowered so that every batch goes to the kernels)."""
+batches of one matrix (the dispatch threshold is lowered so that every batch goes to the kernels); M = 4: the
+m = 1 Riccati step (the round-off bound is numpy matrix products from M = 4 on)."""
 from __future__ import annotations
 
 import numpy as np
@@ -54,7 +55,7 @@ def _same_zero_signs(a, b):
     np.testing.assert_array_equal(np.signbit(a)[finite], np.signbit(b)[finite])
 
 
-CASES = [(M, m, B, special) for M in (1, 2, 3) for m in (1, 2) for B in (1, 7, 200) for special in (False, True)]
+CASES = [(M, m, B, special) for M in (1, 2, 3, 4) for m in (1, 2) for B in (1, 7, 200) for special in (False, True)]
 
 
 @pytest.mark.parametrize("M, m, B, special", CASES)

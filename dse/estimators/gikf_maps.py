@@ -198,12 +198,12 @@ def use_compiled(n: int, *arrays, item_s: float = 1e-7) -> bool:
 
 
 def _flat(a: np.ndarray, batch: tuple, tail: tuple) -> np.ndarray:
-    """`a` broadcast to batch + tail as a C-contiguous (n, *tail) array (a copy only when it must be; not a read-only
-    broadcast view, which numba would compile a kernel version of its own for)."""
+    """`a` broadcast to batch + tail as a C-contiguous, writable (n, *tail) array (a copy only when it must be; numba
+    would compile a kernel version of its own for a read-only broadcast view)."""
     a = np.asarray(a)
     if a.shape != batch + tail:
         a = np.broadcast_to(a, batch + tail)
-    return np.ascontiguousarray(a).reshape((-1,) + tail)
+    return np.require(a, requirements="CW").reshape((-1,) + tail)
 
 
 def _riccati_scalar_compiled(X, C, R, F, Q, return_gain):
@@ -215,8 +215,8 @@ def _riccati_scalar_compiled(X, C, R, F, Q, return_gain):
     out = np.empty(batch + (M, M))
     K = np.empty(batch + (M, 1))
     gikf_compiled.riccati_scalar_obs(_flat(X, batch, (M, M)), _flat(C[..., 0, :], batch, (M,)),
-                                     _flat(R[..., 0, 0], batch, ()), np.ascontiguousarray(F),
-                                     np.ascontiguousarray(Q), out.reshape(-1, M, M), K.reshape(-1, M),
+                                     _flat(R[..., 0, 0], batch, ()), np.require(F, requirements="CW"),
+                                     np.require(Q, requirements="CW"), out.reshape(-1, M, M), K.reshape(-1, M),
                                      gikf_compiled.dims(M))
     return (out, K) if return_gain else out
 
@@ -328,7 +328,7 @@ def _roundoff_entries_compiled(X, K, C, R, F, gamma, s_min, fF, fQ):
     delta = np.empty(batch)
     G = np.zeros(batch + (M, M))
     gikf_compiled.roundoff_entries(_flat(X, batch, (M, M)), _flat(K, batch, (M, m)), _flat(C, batch, (m, M)),
-                                   _flat(R, batch, (m, m)), np.ascontiguousarray(F), np.abs(F).sum(axis=1) != 0,
+                                   _flat(R, batch, (m, m)), np.require(F, requirements="CW"), np.abs(F).sum(axis=1) != 0,
                                    gamma, _flat(np.asarray(s_min, float), batch, ()), float(fF), float(fQ),
                                    delta.reshape(-1), G.reshape(-1, M, M), gikf_compiled.dims(M),
                                    gikf_compiled.dims(m))

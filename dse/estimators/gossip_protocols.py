@@ -279,7 +279,7 @@ class GreedyMatchingGossip:
         if use_compiled(size, item_s=25e-9 * E):            # numpy: ~25 ns per edge and row
             from . import gikf_compiled
 
-            u, v = self._ends
+            u, v = (np.ascontiguousarray(a) for a in self._ends)
             order, chosen = np.argsort(priority, axis=1), np.zeros(priority.shape, bool)
             if self.n_nodes <= 64:
                 one = np.uint64(1)
