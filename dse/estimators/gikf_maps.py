@@ -197,6 +197,17 @@ def use_compiled(n: int, *arrays, item_s: float = 1e-7) -> bool:
     return False
 
 
+def preload_compiled() -> None:
+    """Import numba and start its code generator now, and let the kernels start at once: for a run whose Monte
+    Carlo repays them anyway, before it forks its workers, which then share them instead of each spending ~0.5 s
+    (and its first second in numpy) on its own."""
+    global _numpy_s
+    from . import gikf_compiled
+
+    gikf_compiled.chain_step(np.ones((1, 1)), np.zeros(1, np.int64), np.zeros(1), np.empty(1, np.int64))
+    _numpy_s = max(_numpy_s, COMPILE_AFTER_S)
+
+
 def _flat(a: np.ndarray, batch: tuple, tail: tuple) -> np.ndarray:
     """`a` broadcast to batch + tail as a C-contiguous, writable (n, *tail) array (a copy only when it must be; numba
     would compile a kernel version of its own for a read-only broadcast view)."""
