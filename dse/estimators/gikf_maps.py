@@ -131,6 +131,8 @@ def riccati_step(X: np.ndarray, C: np.ndarray, R: np.ndarray, F: np.ndarray, Q: 
     """
     M = X.shape[-1]
     if C.shape[-2] == 1:
+        if use_compiled(math.prod(np.broadcast_shapes(X.shape[:-2], C.shape[:-2], R.shape[:-2])), X, C, R, F, Q):
+            return _riccati_scalar_compiled(X, C, R, F, Q, return_gain)
         return _riccati_scalar_obs(X, C, R, F, Q, return_gain)
     K = _gain(X, C, R)
     A = np.eye(M) - K @ C
@@ -168,6 +170,68 @@ def _riccati_scalar_obs(X, C, R, F, Q, return_gain):
     return out, K
 
 
+#: batches of at least this many matrices go to the compiled kernels of `gikf_compiled` (the same bits), once the
+#: numpy versions have spent about COMPILE_AFTER_S seconds of CPU in the process: numba costs ~0.5 s of CPU and
+#: ~130 MiB of memory to import and load the kernels, which a long Monte Carlo repays in its first seconds, and a
+#: small run (`dse run --quick` of a small scenario, a design for `dse check`, a test) never does
+COMPILED_MIN_BATCH = 64
+COMPILE_AFTER_S = 1.0
+_numpy_s = 0.0                      # the estimated CPU seconds the numpy versions have spent in this process
+#: what numba and the loaded kernels add to a process's memory (measured: ~100 MiB to import, ~50 MiB to load);
+#: a run whose memory budget has no room for it sets `compiled_allowed` to False (kar-moura's `compute`)
+COMPILED_MIB = 150.0
+compiled_allowed = True
+
+
+def use_compiled(n: int, *arrays, item_s: float = 1e-7) -> bool:
+    """Whether a call on a batch of n matrices (or rows of draws) goes to the compiled kernels: `compiled_allowed`,
+    n ≥ COMPILED_MIN_BATCH, all `arrays` float64 (the kernels are compiled for float64 only), and the numpy versions
+    have spent COMPILE_AFTER_S in this process (estimated at ~100 µs per call of some 100 numpy passes over the
+    batch, plus `item_s` per matrix or row)."""
+    global _numpy_s
+    if not compiled_allowed or n < COMPILED_MIN_BATCH or any(np.asarray(a).dtype != np.float64 for a in arrays):
+        return False
+    if _numpy_s >= COMPILE_AFTER_S:
+        return True
+    _numpy_s += 1e-4 + item_s * n
+    return False
+
+
+def preload_compiled() -> None:
+    """Import numba and start its code generator now, and let the kernels start at once: for a run whose Monte
+    Carlo repays them anyway, before it forks its workers, which then share them instead of each spending ~0.5 s
+    (and its first second in numpy) on its own."""
+    global _numpy_s
+    from . import gikf_compiled
+
+    gikf_compiled.chain_step(np.ones((1, 1)), np.zeros(1, np.int64), np.zeros(1), np.empty(1, np.int64))
+    _numpy_s = max(_numpy_s, COMPILE_AFTER_S)
+
+
+def _flat(a: np.ndarray, batch: tuple, tail: tuple) -> np.ndarray:
+    """`a` broadcast to batch + tail as a C-contiguous, writable (n, *tail) array (a copy only when it must be; numba
+    would compile a kernel version of its own for a read-only broadcast view)."""
+    a = np.asarray(a)
+    if a.shape != batch + tail:
+        a = np.broadcast_to(a, batch + tail)
+    return np.require(a, requirements="CW").reshape((-1,) + tail)
+
+
+def _riccati_scalar_compiled(X, C, R, F, Q, return_gain):
+    """`_riccati_scalar_obs` by the compiled kernel (the same bits)."""
+    from . import gikf_compiled
+
+    M = X.shape[-1]
+    batch = np.broadcast_shapes(X.shape[:-2], C.shape[:-2], R.shape[:-2])
+    out = np.empty(batch + (M, M))
+    K = np.empty(batch + (M, 1))
+    gikf_compiled.riccati_scalar_obs(_flat(X, batch, (M, M)), _flat(C[..., 0, :], batch, (M,)),
+                                     _flat(R[..., 0, 0], batch, ()), np.require(F, requirements="CW"),
+                                     np.require(Q, requirements="CW"), out.reshape(-1, M, M), K.reshape(-1, M),
+                                     gikf_compiled.dims(M))
+    return (out, K) if return_gain else out
+
+
 EPS = float(np.finfo(float).eps)
 
 
@@ -203,6 +267,9 @@ def riccati_roundoff(X: np.ndarray, K: np.ndarray, C: np.ndarray, R: np.ndarray,
     s_min = np.maximum(_lambda_min_psd(R) if r_min is None else r_min, np.finfo(float).tiny)
     fF, fQ = float(_fro2(F)), math.sqrt(float(_fro2(Q)))
     if M <= ENTRYWISE_MAX_M and m <= M:
+        batch = np.broadcast_shapes(X.shape[:-2], K.shape[:-2], C.shape[:-2], R.shape[:-2], np.shape(s_min))
+        if use_compiled(math.prod(batch), X, K, C, R, F, s_min):
+            return _roundoff_entries_compiled(X, K, C, R, F, gamma, s_min, fF, fQ)
         return _roundoff_entries(X, K, C, R, F, gamma, s_min, fF, fQ)
     A = np.eye(M) - K @ C
     k2 = _fro2(K)
@@ -263,6 +330,22 @@ def _roundoff_entries(X, K, C, R, F, gamma, s_min, fF, fQ):
     return delta, G
 
 
+def _roundoff_entries_compiled(X, K, C, R, F, gamma, s_min, fF, fQ):
+    """`_roundoff_entries` by the compiled kernel (the same bits)."""
+    from . import gikf_compiled
+
+    M, m = F.shape[0], C.shape[-2]
+    batch = np.broadcast_shapes(X.shape[:-2], K.shape[:-2], C.shape[:-2], R.shape[:-2], np.shape(s_min))
+    delta = np.empty(batch)
+    G = np.zeros(batch + (M, M))
+    gikf_compiled.roundoff_entries(_flat(X, batch, (M, M)), _flat(K, batch, (M, m)), _flat(C, batch, (m, M)),
+                                   _flat(R, batch, (m, m)), np.require(F, requirements="CW"), np.abs(F).sum(axis=1) != 0,
+                                   gamma, _flat(np.asarray(s_min, float), batch, ()), float(fF), float(fQ),
+                                   delta.reshape(-1), G.reshape(-1, M, M), gikf_compiled.dims(M),
+                                   gikf_compiled.dims(m))
+    return delta, G
+
+
 def _lambda_min_psd(R: np.ndarray) -> np.ndarray:
     """λ_min of (batched) symmetric matrices: closed form for 1×1 and 2×2 (the usual sensor sizes)."""
     m = R.shape[-1]
@@ -287,6 +370,15 @@ def eigvalsh(X: np.ndarray) -> np.ndarray:
     X = np.asarray(X, float)
     if X.shape[-1] != 2 or X.ndim < 3:
         return np.linalg.eigvalsh(X)
+    if use_compiled(math.prod(X.shape[:-2])):
+        from . import gikf_compiled
+
+        batch = X.shape[:-2]
+        out, far = np.empty(batch + (2,)), np.zeros(batch, bool)
+        gikf_compiled.eigvalsh2(_flat(X, batch, (2, 2)), out.reshape(-1, 2), far.reshape(-1), *_EIG2_RANGE)
+        if far.any():
+            out[far] = np.linalg.eigvalsh(X[far])
+        return out
     a, b, c = X[..., 0, 0], X[..., 1, 0], X[..., 1, 1]
     eps = 0.5 * EPS                                                   # LAPACK's dlamch('E')
     with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
@@ -322,6 +414,14 @@ def propagate_error(E: np.ndarray, G: np.ndarray, delta) -> np.ndarray:
     delta = np.asarray(delta)
     if M > ENTRYWISE_MAX_M:
         return G @ E @ np.swapaxes(G, -1, -2) + delta[..., None, None] * np.eye(M)
+    if use_compiled(math.prod(np.broadcast_shapes(E.shape[:-2], G.shape[:-2], delta.shape)), E, G, delta):
+        from . import gikf_compiled
+
+        out = np.empty(np.broadcast_shapes(E.shape, G.shape, delta.shape + (1, 1)))
+        batch = out.shape[:-2]
+        gikf_compiled.propagate_error(_flat(E, batch, (M, M)), _flat(G, batch, (M, M)), _flat(delta, batch, ()),
+                                      out.reshape(-1, M, M), gikf_compiled.dims(M))
+        return out
     e, g = _entries(E), _entries(G)
     ge = [[_sum(g[i][j] * e[j][l] for j in range(M)) for l in range(M)] for i in range(M)]
     out = np.empty(np.broadcast_shapes(E.shape, G.shape, delta.shape + (1, 1)))

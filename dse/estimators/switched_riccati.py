@@ -26,8 +26,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .gikf_maps import (GossipSystem, covariance_features, error_norm, factor_features, factor_psd,
-                            propagate_error, riccati_roundoff, riccati_sqrt_step, riccati_step)
+from .gikf_maps import (GossipSystem, covariance_features, error_norm, factor_features, factor_psd, propagate_error,
+                        riccati_roundoff, riccati_sqrt_step, riccati_step, use_compiled)
 
 __all__ = ["LazyChain", "sample_chain", "sample_protocol_chain", "switched_riccati", "pullback", "coupling_gap", "exact_small_t_law",
            "trace_law_atoms", "chain_paths"]
@@ -79,6 +79,12 @@ def sample_chain(Abar: np.ndarray, size: int, steps: int, rng: np.random.Generat
 
     def advance(p, rng):
         u = rng.random(size)
+        if use_compiled(size, item_s=2e-9 * n):            # numpy: ~2 ns per state and row
+            from . import gikf_compiled
+
+            out = np.empty(size, np.int64)
+            gikf_compiled.chain_step(cum, p, u, out)
+            return out
         return (cum[p] <= u[:, None]).sum(axis=1)
 
     chain = LazyChain(p, steps, advance, rng, last_draw=True)
