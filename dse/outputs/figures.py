@@ -5,12 +5,13 @@ import contextlib
 import functools
 import math
 import os
+import struct
+import zlib
 from typing import Iterator
 
-from dse.engine.atomic import atomic_path
+from dse.engine.atomic import atomic_write_bytes
 
-#: zlib level of the PNGs: level 1 encodes about a third faster than Pillow's default 6 for files 10-20% larger
-#: (the same pixels; Pillow's per-row filter choice, the rest of the encoder's time, is the same at every level)
+#: zlib level of the PNGs: level 1 encodes about a third faster than level 6 for files 10-20% larger
 PNG_COMPRESS_LEVEL = 1
 
 STYLE = {"figure.dpi": 110, "savefig.dpi": 150, "axes.grid": True, "grid.alpha": 0.3, "font.size": 10,
@@ -49,9 +50,54 @@ def save_figure(fig, path: str | os.PathLike, *, tight: bool = True) -> None:
     with plt.rc_context(STYLE):
         if tight:
             fig.tight_layout()
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, format="png", pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
+        pixels = _Pixels()
+        fig.savefig(pixels, format="rgba")   # drawn as for format="png", at savefig.dpi
+        dpi = STYLE["savefig.dpi"]
     plt.close(fig)
+    import matplotlib
+
+    atomic_write_bytes(path, png_bytes(pixels.rgba, dpi, f"Matplotlib version{matplotlib.__version__}, "
+                                                         "https://matplotlib.org/"))
+
+
+class _Pixels:
+    """A file for `savefig(format="rgba")`, which writes the drawn canvas in one call: keeps it as an
+    (height, width, 4) array."""
+
+    def seek(self, *args) -> None:   # makes matplotlib take it for a file object
+        pass
+
+    def write(self, buffer) -> None:
+        import numpy as np
+
+        self.rgba = np.array(buffer, dtype=np.uint8)
+
+
+def png_bytes(rgba, dpi: float, software: str) -> bytes:
+    """8-bit RGBA pixels (height, width, 4) as a PNG file, with the resolution and the Software text
+    that matplotlib's own PNGs carry. Every row is filtered by its difference from the row above
+    (PNG filter 'Up'; a figure's rows are mostly repeats): half the time of Pillow's encoder, which
+    tries the five filters on every row, for files within about 10% of its size; the decoded pixels
+    are the same."""
+    import numpy as np
+
+    height, width, _ = rgba.shape
+    rows = rgba.reshape(height, 4 * width)
+    data = np.empty((height, 4 * width + 1), dtype=np.uint8)
+    data[:, 0] = 2                                   # filter type 'Up'
+    data[0, 1:] = rows[0]                            # the row above the first is zeros
+    np.subtract(rows[1:], rows[:-1], out=data[1:, 1:])   # modulo 256, as PNG defines it
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    per_metre = int(dpi / 0.0254 + 0.5)
+    return b"".join([b"\x89PNG\r\n\x1a\n",
+                     chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 6, 0, 0, 0)),  # 8-bit RGBA
+                     chunk(b"pHYs", struct.pack(">IIB", per_metre, per_metre, 1)),
+                     chunk(b"tEXt", b"Software\0" + software.encode("latin-1")),
+                     chunk(b"IDAT", zlib.compress(data.tobytes(), PNG_COMPRESS_LEVEL)),
+                     chunk(b"IEND", b"")])
 
 
 def set_margins(fig, *, left: float = 0.7, right: float = 0.15, bottom: float = 0.5, top: float = 0.35,
