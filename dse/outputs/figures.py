@@ -5,6 +5,7 @@ import contextlib
 import functools
 import math
 import os
+import re
 import struct
 import zlib
 from typing import Iterator
@@ -123,14 +124,68 @@ def _decade_label(value: float, _pos=None) -> str:
 
 
 def plain_log_labels(fig) -> None:
-    """Major tick labels of every log-scale axis of `fig` as plain text (10⁻⁵ in superscript
-    digits) instead of mathtext, which matplotlib parses label by label (about 10 ms each)."""
+    """Tick labels of every log-scale and symlog-scale axis of `fig` as plain text (10⁻⁵, 2×10⁻¹ in
+    superscript digits) instead of mathtext, which matplotlib parses label by label (about 10 ms
+    each): log axes' major labels by `_decade_label`; their minor labels (on an axis spanning about
+    a decade or less) and symlog axes' labels are matplotlib's own, rewritten (`_plain`)."""
     from matplotlib.ticker import FuncFormatter
 
+    PlainText = _plain_text_formatter()
     for ax in fig.axes:
         for axis in (ax.xaxis, ax.yaxis):
-            if axis.get_scale() == "log":
+            scale = axis.get_scale()
+            if scale == "log":
                 axis.set_major_formatter(FuncFormatter(_decade_label))
+            if scale == "symlog" and not isinstance(axis.get_major_formatter(), PlainText):
+                axis.set_major_formatter(PlainText(axis.get_major_formatter()))
+            if scale in ("log", "symlog") and not isinstance(axis.get_minor_formatter(), PlainText):
+                axis.set_minor_formatter(PlainText(axis.get_minor_formatter()))
+
+
+_MATHTEXT = re.compile(r"\$\\mathdefault\{(.*)\}\$")
+_EXPONENT = re.compile(r"\^\{(-?\d+)\}")
+
+
+def _plain(label: str) -> str:
+    """A log formatter's mathtext label as plain text: $\\mathdefault{2\\times10^{-1}}$ as 2×10⁻¹,
+    a leading minus as matplotlib's − (other labels unchanged)."""
+    body = _MATHTEXT.fullmatch(label)
+    if body is None:
+        return label
+    text = _EXPONENT.sub(lambda m: m.group(1).translate(_SUPERSCRIPT), body.group(1).replace("\\times", "×"))
+    return "−" + text[1:] if text.startswith("-") else text
+
+
+@functools.lru_cache(maxsize=1)
+def _plain_text_formatter():
+    """The formatter class of `plain_log_labels` (defined on first use: matplotlib is imported then)."""
+    from matplotlib.ticker import Formatter
+
+    class PlainText(Formatter):
+        """Another formatter's labels, with their mathtext as plain text (`_plain`): the same ticks
+        labelled, with the same numbers."""
+
+        def __init__(self, inner):
+            self.inner = inner
+
+        def set_axis(self, axis):
+            self.axis = axis
+            self.inner.set_axis(axis)
+
+        def set_locs(self, locs):
+            self.locs = locs
+            self.inner.set_locs(locs)
+
+        def format_ticks(self, values):
+            return [_plain(label) for label in self.inner.format_ticks(values)]
+
+        def __call__(self, x, pos=None):
+            return _plain(self.inner(x, pos))
+
+        def get_offset(self):
+            return _plain(self.inner.get_offset())
+
+    return PlainText
 
 
 def sequential_colors(n: int, cmap: str = "viridis"):
