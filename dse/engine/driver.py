@@ -5,6 +5,7 @@ only the members the contract declares.
 from __future__ import annotations
 
 import contextlib
+import functools
 import time
 from pathlib import Path
 from typing import Any
@@ -45,11 +46,9 @@ def run(repro, out_root: Path, opts: RunOptions, *, out_dir: Path | None = None,
 
     out_dir = out_dir or out_root / repro.paper_id
     check_output_dir(out_root)
-    from dse.outputs.figures import import_pyplot
     from dse.simulate.units import idle_work
 
-    # matplotlib (0.3 s) imported while stage workers run, if any do, rather than after the run
-    with idle_work(import_pyplot) if figures and opts.workers > 1 else contextlib.nullcontext():
+    with idle_work(functools.partial(import_output_libraries, figures)) if opts.workers > 1 else contextlib.nullcontext():
         result = execute(repro, opts, cache_dir=cache_for(out_root, repro.paper_id).root, source=source, fresh=fresh,
                          defer_memo=True)
     result.source_file = scenario_file
@@ -57,6 +56,20 @@ def run(repro, out_root: Path, opts: RunOptions, *, out_dir: Path | None = None,
     result.write(out_dir, out_root=out_root, figures=figures)
     return {"paper": repro.paper_id, **result.counts, "faults": result.faults,
             "wall_s": result.provenance["compute_s"] + time.perf_counter() - start}
+
+
+def import_output_libraries(figures: bool) -> None:
+    """The libraries every run imports after its Monte Carlo, imported while its stage workers compute
+    (`dse.simulate.units.idle_work`), on a core they often leave idle (stages of unequal length), rather
+    than one after the other after the claims: pandas and pyarrow for the tables (0.3 s), matplotlib
+    for the figures (0.3 s; the figure workers fork with it)."""
+    import pandas  # noqa: F401
+    import pyarrow.parquet  # noqa: F401
+
+    if figures:
+        from dse.outputs.figures import import_pyplot
+
+        import_pyplot()
 
 
 def evaluate_claims(repro, computed: Any, **confidence) -> Evaluation:

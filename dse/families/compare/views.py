@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from dse.contract.views import Outputs, View, recording
-from dse.outputs.figures import new_figure, save_figure
+from dse.outputs.figures import new_figure, plain_log_labels, save_figure
 from dse.outputs.palette import color
 from dse.simulate.stats import z_for_confidence
 
@@ -90,6 +90,7 @@ def error_vs_communication(res, tables, path: Path) -> None:
     bx.axvline(1.0, color="k", ls="--", lw=1)
     bx.set_xlabel("network MSE / centralized KF's")
     bx.set_title("ranked (label: error ratio, communication per node and step)")
+    plain_log_labels(fig)   # no mathtext tick labels: matplotlib parses them one by one (about 10 ms each)
     save_figure(fig, path)
 
 
@@ -130,6 +131,7 @@ def _finish(fig, ax, path: Path, ylabel: str, title: str) -> None:
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, borderaxespad=0)
+    plain_log_labels(fig)
     save_figure(fig, path)
 
 

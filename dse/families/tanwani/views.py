@@ -12,21 +12,31 @@ PAPER_NOTE = "(scenario of this reproduction: the paper has no numerical example
 
 
 class ScenarioTables:
-    """One scenario's rows of every table (figures and recordings read only these)."""
+    """One scenario's rows of every table (figures and recordings read only these), each selected once
+    per process (a figure asks for the design's numbers a few times each: selecting the rows every time
+    was a tenth of a figure's time)."""
 
     def __init__(self, tables, name: str, title: str):
         self.name, self.title = name, title
         self._tables = tables
+        self._rows: dict[str, pd.DataFrame] = {}
+        self._design: dict | None = None
 
     def __getitem__(self, table: str) -> pd.DataFrame:
-        if table not in self._tables:
-            return pd.DataFrame()
-        f = self._tables[table]
-        return f[f["scenario"] == self.name] if "scenario" in f.columns else f
+        if table not in self._rows:
+            if table not in self._tables:
+                return pd.DataFrame()
+            f = self._tables[table]
+            self._rows[table] = f[f["scenario"] == self.name] if "scenario" in f.columns else f
+        return self._rows[table]
 
     def design(self, quantity: str) -> float:
-        d = self["design"]
-        return float(d.loc[d["quantity"] == quantity, "value"].iloc[0])
+        if self._design is None:
+            d = self["design"]
+            self._design = {}
+            for q, value in zip(d["quantity"], d["value"]):
+                self._design.setdefault(q, value)   # the first row of a quantity, as before
+        return float(self._design[quantity])
 
     @property
     def rates(self) -> list[float]:

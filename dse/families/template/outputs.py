@@ -34,7 +34,7 @@ def run_tables(res: Results):
 
 
 def _figure(out: Outputs, path: Path) -> None:
-    from dse.outputs.figures import new_figure, save_figure
+    from dse.outputs.figures import new_figure, plain_log_labels, save_figure
 
     sc, mse = out.results.design.scenario, out.tables["mse"]
     fig, axes = new_figure()
@@ -48,6 +48,7 @@ def _figure(out: Outputs, path: Path) -> None:
     ax.set_ylabel("mean-square error of node i")
     ax.set_title(f"lines: exact r(W^2t)_ii; dots: {out.trials:,} Monte Carlo trials", fontsize=9)
     ax.legend(ncol=2)
+    plain_log_labels(fig)   # no mathtext tick labels: matplotlib parses them one by one (about 10 ms each)
     save_figure(fig, path)
 
 

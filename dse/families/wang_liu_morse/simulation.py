@@ -213,8 +213,6 @@ def bytes_per_trial(sc: HybridFile, n_i) -> float:
 def simulate_run(sc: HybridFile, design: dict, run: RunSection, trials: int, seed: int,
                  budget_bytes: float) -> dict[str, np.ndarray]:
     """The interval plan, then every trial in RNG units within `budget_bytes` per chunk."""
-    from filterpy.kalman import KalmanFilter
-
     plan = interval_plan(sc, run, seed)
     d = sc.observer
     m, n = sc.m, sc.n
@@ -229,7 +227,11 @@ def simulate_run(sc: HybridFile, design: dict, run: RunSection, trials: int, see
 
     def make_kf():
         """A centralized Kalman filter (filterpy) on the stacked outputs sampled every sampling
-        step, trial 0; the harmonic input is modelled as white process noise of the same power."""
+        step, trial 0; the harmonic input is modelled as white process noise of the same power. filterpy
+        is imported here, by the runs with an input only: its import (scipy.stats, about 0.4 s) is most of
+        a small run's stage otherwise."""
+        from filterpy.kalman import KalmanFilter
+
         kf = KalmanFilter(dim_x=n, dim_z=Cs.shape[0])
         kf.F, kf.H = scipy.linalg.expm(sc.A * sc.sampling.step), Cs
         b = sc.noise_b if sc.noise_b is not None else np.zeros(n)
