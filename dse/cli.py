@@ -561,6 +561,18 @@ def main(argv: list[str] | None = None) -> int:
         return 143
     finally:
         signal.signal(signal.SIGTERM, previous)
+        if argv is None:      # the `dse` program itself (not a call from Python): what is left is its exit
+            _freeze_for_exit()
+
+
+def _freeze_for_exit() -> None:
+    """Exempt every object alive at the end of the command from the garbage collector's passes at interpreter
+    exit (`gc.freeze`): with pandas, matplotlib and scipy loaded, those passes over their millions of objects took
+    about 0.2 s of every command's exit; the exit itself is unchanged (atexit handlers, worker processes joined,
+    files closed, each object released as its module is cleared; cyclic garbage left is freed with the process)."""
+    import gc
+
+    gc.freeze()
 
 
 if __name__ == "__main__":

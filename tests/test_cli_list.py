@@ -21,3 +21,21 @@ def test_list_without_arguments_includes_families_without_a_paper(capsys):
     for family_id, family in registry.families().items():
         if family.paper is None:
             assert f"\n{family_id} (a family without a paper" in out
+
+
+def test_only_the_program_freezes_its_objects_for_exit(capsys, monkeypatch):
+    """`main` called from Python (here, with arguments) leaves the garbage collector as it was; the program
+    (`dse`, no arguments given to `main`) exempts what is alive at its end from the collector's exit passes."""
+    import gc
+    import sys
+
+    before = gc.get_freeze_count()
+    assert main(["list"]) == 0
+    assert gc.get_freeze_count() == before
+    monkeypatch.setattr(sys, "argv", ["dse", "list"])
+    try:
+        assert main() == 0
+        assert gc.get_freeze_count() > before
+    finally:
+        gc.unfreeze()
+    capsys.readouterr()
