@@ -240,9 +240,7 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
         computed: Any = lambda: repro.compute(opts, StageContext(StageCache(Path(cache_dir))))  # noqa: E731 - when needed
         stages = [{**s, "cached": True} for s in stages]
     else:
-        estimate = repro.cost(opts)
-        refuse_if_too_large(estimate, opts)
-        refuse_if_too_long(estimate, opts, trials_field(repro, opts))
+        refuse_beyond_limits(repro, opts)
         ctx = StageContext(MemoryCache() if cache_dir is None else StageCache(Path(cache_dir), fresh=fresh))
         with using(executor_for(opts.scheduler, opts.workers, log=stderr_log)):
             computed = repro.compute(opts, ctx)
@@ -263,6 +261,14 @@ def execute(repro: Reproduction, opts: RunOptions, *, cache_dir: str | os.PathLi
     prov["memo"] = memo is not None
     prov["stages"] = stages
     return Run(repro, opts, computed, ev, tables, prov, source, key, reuse_outputs=not fresh, _pending_memo=pending)
+
+
+def refuse_beyond_limits(repro: Reproduction, opts: RunOptions) -> None:
+    """Refuse (ScenarioError, one line) a run whose cost estimate is beyond its memory budget or its --max-time,
+    before it computes anything: what `execute`, a sweep's point and the prefetcher of `dse reproduce` all check."""
+    estimate = repro.cost(opts)
+    refuse_if_too_large(estimate, opts)
+    refuse_if_too_long(estimate, opts, trials_field(repro, opts))
 
 
 def trials_field(repro: Reproduction, opts: RunOptions) -> str:

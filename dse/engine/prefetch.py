@@ -145,9 +145,9 @@ def prefetching(n: int, compute: Callable[[int], None], enabled: bool) -> Iterat
 def paper_stages(repro, opts, cache_dir: Path) -> None:
     """The stages of one paper's run computed into its stage cache, in this process, unless the run would not
     compute them (its memo is stored) or would refuse it (`dse.api.execute` makes the same checks first)."""
-    from dse.api import run_key, trials_field
+    from dse.api import refuse_beyond_limits, run_key
     from dse.contract.context import StageContext
-    from dse.contract.cost import refuse_if_too_large, refuse_if_too_long, refuse_options
+    from dse.contract.cost import refuse_options
     from dse.engine.cache import StageCache
     from dse.engine.memo import load_memo
     from dse.simulate.executor import UnitExecutor, using
@@ -155,9 +155,7 @@ def paper_stages(repro, opts, cache_dir: Path) -> None:
     refuse_options(repro, opts)
     if load_memo(cache_dir, run_key(repro, opts, None)) is not None:
         return
-    estimate = repro.cost(opts)
-    refuse_if_too_large(estimate, opts)
-    refuse_if_too_long(estimate, opts, trials_field(repro, opts))
+    refuse_beyond_limits(repro, opts)
     # a process more than the run's workers share the run's memory: this one's chunks get a (workers+1)-th of it
     # (chunk sizes never change a result)
     mine = dataclasses.replace(opts, max_memory_mib=opts.memory_budget_mib * opts.workers / (opts.workers + 1))

@@ -226,8 +226,9 @@ def greedy_chosen_flags(order, u, v, n_nodes, chosen):
 
 @numba.njit(cache=True, error_model="numpy")
 def matching_partners(chosen, works, u, v, out):
-    """Partner arrays from the chosen edges, `GreedyMatchingGossip.sample`: out (B, N) pre-filled with n, and
-    for the k-th chosen edge in row-major order (np.nonzero's) whose link works (works[k]), its endpoints swap."""
+    """Partner arrays from the chosen edges, `GreedyMatchingGossip.sample`: out (B, N) pre-filled with each node's
+    own index, and for the k-th chosen edge in row-major order (np.nonzero's) whose link works (works[k]), its
+    endpoints swap."""
     B, E = chosen.shape
     k = 0
     for b in range(B):

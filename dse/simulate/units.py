@@ -234,8 +234,8 @@ def forked_map(fn: Callable[[T], R], items: Iterable[T], *, workers: int = 1, de
 
 
 #: work for this process while its forked workers run (`forked_map`), each done once, by the first such wait: the
-#: driver imports matplotlib there when the run will draw figures (`dse.engine.driver.run`), on a core the Monte
-#: Carlo's workers may leave idle, instead of after the run, before the figure workers fork
+#: imports of what comes after the Monte Carlo (the driver's pandas and matplotlib, `dse.engine.driver.run`; a
+#: family's claims' libraries), on a core the Monte Carlo's workers may leave idle, instead of after the run
 _IDLE_WORK: list[Callable[[], object]] = []
 
 

@@ -198,14 +198,12 @@ def run_point(payload: dict[str, Any]) -> dict[str, Any]:
 
 def _compute(repro, opts):
     """The point's design and simulation, refused as `dse run` refuses them (options, memory, time)."""
-    from dse.api import trials_field
+    from dse.api import refuse_beyond_limits
     from dse.contract.context import StageContext
-    from dse.contract.cost import refuse_if_too_large, refuse_if_too_long, refuse_options
+    from dse.contract.cost import refuse_options
 
     refuse_options(repro, opts)
-    estimate = repro.cost(opts)
-    refuse_if_too_large(estimate, opts)
-    refuse_if_too_long(estimate, opts, trials_field(repro, opts))
+    refuse_beyond_limits(repro, opts)
     return repro.compute(opts, StageContext(shared_stages()))
 
 
