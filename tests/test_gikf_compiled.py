@@ -214,3 +214,30 @@ def test_listing_and_checking_a_scenario_do_not_import_numba(tmp_path):
                               timeout=600)
         assert proc.returncode == 0, proc.stderr[-2000:]
         assert json.loads(proc.stdout.splitlines()[-1]) == {"code": 0, "numba": False}, args
+
+
+def test_the_set_up_s_warm_up_compiles_the_types_the_estimators_call_the_kernels_with(always_compiled):
+    """`warm_cache` (run by the Makefile's set-up) leaves nothing for a run to compile: after it, the calls the
+    estimators make (every wrapper of gikf_maps, M = 1..3 and m ≤ M; the m = 1 Riccati step up to M = 6; the
+    matching sampler on ≤ 64 and > 64 nodes; the Ā chain) add no signature to any kernel."""
+    from dse.estimators import gikf_compiled
+    from dse.estimators import switched_riccati as sr
+
+    gikf_compiled.warm_cache()
+    kernels = {name: k for name, k in vars(gikf_compiled).items() if hasattr(k, "signatures")}
+    warmed = {name: set(k.signatures) for name, k in kernels.items()}
+    rng = np.random.default_rng(0)
+    psd = lambda shape, M: (lambda L: L @ np.swapaxes(L, -1, -2) + np.eye(M))(rng.standard_normal(shape + (M, M)))
+    for M in range(1, 7):
+        F, Q = _system(rng, M, 1, False)
+        X, C, R = psd((5, 3), M), rng.standard_normal((3, 1, M)), rng.uniform(0.5, 1.0, (3, 1, 1))
+        _, K = gm.riccati_step(X, C, R, F, Q, return_gain=True)
+        for m in range(1, min(M, gm.ENTRYWISE_MAX_M) + 1):
+            Cm, Rm = rng.standard_normal((3, m, M)), np.eye(m) + np.zeros((3, m, m))
+            delta, G = gm.riccati_roundoff(X, rng.standard_normal((5, 3, M, m)), Cm, Rm, F, Q)
+            gm.propagate_error(X, G, delta)
+    gm.eigvalsh(psd((40,), 2))
+    for n, n_edges in ((4, 5), (80, 200)):
+        GreedyMatchingGossip(n, _random_graph(rng, n, n_edges), 0.5).sample(10, rng)
+    sr.sample_chain(np.full((3, 3), 1 / 3), 10, 5, rng)
+    assert {name: set(k.signatures) for name, k in kernels.items()} == warmed

@@ -300,3 +300,33 @@ def eigvalsh2(X, out, far, lo, hi):
         rt1 = 0.5 * (sm - rt) if sm < 0 else 0.5 * (sm + rt)
         rt2 = -0.5 * rt if sm == 0 else (acmx / rt1) * acmn - (b / rt1) * b
         out[i, 0], out[i, 1] = _np_min(rt1, rt2), _np_max(rt1, rt2)
+
+
+#: the state sizes M whose m = 1 Riccati step `warm_cache` compiles (kar-moura's maps have M ≤ 6); the entrywise
+#: kernels are compiled for M ≤ gikf_maps.ENTRYWISE_MAX_M, their only sizes
+WARM_RICCATI_M = range(1, 7)
+
+
+def warm_cache() -> None:
+    """Compile every kernel for the array types and sizes the estimators call it with (float64, int64 and bool
+    arrays, C-contiguous and writable), on empty batches, and store the machine code in numba's cache: done once
+    by the set-up (the Makefile's .venv step, like compileall), so that neither the first runs nor each test
+    process that first meets a kernel compiles it (a few seconds of CPU each). A size not listed here compiles
+    when it is first called, as before."""
+    from .gikf_maps import ENTRYWISE_MAX_M
+
+    i, b = np.int64, np.bool_
+    for M in WARM_RICCATI_M:
+        riccati_scalar_obs(np.empty((0, M, M)), np.empty((0, M)), np.empty(0), np.empty((M, M)), np.empty((M, M)),
+                           np.empty((0, M, M)), np.empty((0, M)), dims(M))
+    for M in range(1, ENTRYWISE_MAX_M + 1):
+        propagate_error(np.empty((0, M, M)), np.empty((0, M, M)), np.empty(0), np.empty((0, M, M)), dims(M))
+        for m in range(1, M + 1):
+            roundoff_entries(np.empty((0, M, M)), np.empty((0, M, m)), np.empty((0, m, M)), np.empty((0, m, m)),
+                             np.empty((M, M)), np.empty(M, b), 0.0, np.empty(0), 0.0, 0.0, np.empty(0),
+                             np.empty((0, M, M)), dims(M), dims(m))
+    greedy_chosen_words(np.empty((0, 1), i), np.empty(1, np.uint64), np.empty((0, 1), b))
+    greedy_chosen_flags(np.empty((0, 1), i), np.empty(1, i), np.empty(1, i), 2, np.empty((0, 1), b))
+    matching_partners(np.empty((0, 1), b), np.empty(0, b), np.empty(1, i), np.empty(1, i), np.empty((0, 2), i))
+    chain_step(np.empty((1, 1)), np.empty(0, i), np.empty(0), np.empty(0, i))
+    eigvalsh2(np.empty((0, 2, 2)), np.empty((0, 2)), np.empty(0, b), 1e-120, 1e145)
