@@ -38,3 +38,13 @@ def pytest_collection_modifyitems(config, items):
     """Orders the collected tests by LONGEST_FILES (a stable sort: every other order is kept)."""
     rank = {name: i for i, name in enumerate(LONGEST_FILES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(LONGEST_FILES)))
+
+
+def pytest_collection_finish(session):
+    """What collection made (every test module, its items and parameters: the session's longest-lived objects) is
+    exempted from the garbage collector's passes over the oldest generation (`gc.freeze`), which otherwise walk it
+    again and again for the whole session in every worker, and in the processes a run forks from it. Nothing is
+    freed any later for it: those objects live until the session ends anyway."""
+    import gc
+
+    gc.freeze()
