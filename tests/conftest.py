@@ -6,6 +6,10 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+import gc  # noqa: E402
+
+import pytest  # noqa: E402
+
 # Property tests: `make test` draws the same examples on every run (a CI verdict must not depend on the
 # luck of the draw); DSE_HYPOTHESIS=explore draws new ones each run, to look for counterexamples.
 from hypothesis import settings  # noqa: E402
@@ -38,3 +42,20 @@ def pytest_collection_modifyitems(config, items):
     """Orders the collected tests by LONGEST_FILES (a stable sort: every other order is kept)."""
     rank = {name: i for i, name in enumerate(LONGEST_FILES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(LONGEST_FILES)))
+
+
+_module_of_last_setup = [None]
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    """At the first test of each module, before its fixtures: the cyclic garbage of the modules before it is collected
+    and what is still alive (the collected tests, the libraries imported so far, session fixtures) is exempted from the
+    garbage collector's later passes (`gc.freeze`), which otherwise walk those millions of objects again and again in
+    every worker and in the processes a run forks from it (0.80 -> 0.45 s of GC in a process running 35 s of tests).
+    A frozen object is still freed when its last reference goes; only a reference cycle among objects that were alive
+    when a module started waits for the end of the session."""
+    if item.path != _module_of_last_setup[0]:
+        _module_of_last_setup[0] = item.path
+        gc.collect()
+        gc.freeze()

@@ -18,6 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from dse.simulate.cluster import QUIET_CONFIG
 from dse.sweeps import run as sw
 from dse.cli import main as cli_main
 from dse.errors import ScenarioError
@@ -272,11 +273,15 @@ def _free_port() -> int:
 
 @pytest.fixture
 def loopback_cluster():
-    """A Dask scheduler and two single-thread workers started as separate processes."""
+    """A Dask scheduler and two single-thread workers started as separate processes, with the settings a local
+    cluster has (`cluster.QUIET_CONFIG`, as environment variables) and no dashboard: the dashboard's web server and
+    the workers' profiler cost CPU that no test here reads."""
     port, bin_dir = _free_port(), Path(sys.executable).parent
-    env = {**os.environ, **sw.WORKER_ENV}
+    quiet = {"DASK_" + key.upper().replace(".", "__").replace("-", "_"): str(value)
+             for key, value in QUIET_CONFIG.items()}
+    env = {**os.environ, **sw.WORKER_ENV, **quiet}
     procs = [subprocess.Popen([str(bin_dir / "dask"), "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                               "--dashboard-address", f"127.0.0.1:{_free_port()}"], env=env,
+                               "--no-dashboard"], env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
     address = f"tcp://127.0.0.1:{port}"
     deadline = time.time() + 30
