@@ -190,8 +190,9 @@ class Run:
 
 def view_jobs(views: list, workers: int) -> list[list]:
     """The views in jobs for `workers` forked processes, which take the next job when done: the recordings
-    first, together (a worker starting on them imports rerun, a quarter of a second; with many views, in
-    chunks of about a 2·workers-th of them), then every figure as a job of its own. Matplotlib is imported
+    first, together (a worker starting on them imports rerun, a quarter of a second, unless this process imported
+    it already: `dse.engine.driver.import_output_libraries`; with many views, in chunks of about a 2·workers-th
+    of them), then every figure as a job of its own. Matplotlib is imported
     before the workers fork (`dse.outputs.figures.drawing`), so any worker draws any figure at no extra
     cost, and the figures fill in around the recordings and each other: grouped by count, a few heavy
     figures left one worker drawing while the other waited (compare's three, a third of its run)."""

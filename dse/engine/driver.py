@@ -62,11 +62,14 @@ def import_output_libraries(figures: bool) -> None:
     """The libraries every run imports after its Monte Carlo, imported while its stage workers compute
     (`dse.simulate.units.idle_work`), on a core they often leave idle (stages of unequal length), rather
     than one after the other after the claims: pandas and pyarrow for the tables (0.3 s), matplotlib
-    for the figures (0.3 s; the figure workers fork with it)."""
+    for the figures (0.3 s) and rerun for the recordings (0.25 s). The view workers fork with them: each
+    worker that wrote a recording imported rerun itself, several per paper (`dse.api.view_jobs`), while this
+    process, which runs every paper of a `dse reproduce`, imports it once."""
     import pandas  # noqa: F401
     import pyarrow.parquet  # noqa: F401
 
     if figures:
+        import dse.outputs.record  # noqa: F401 (rerun)
         from dse.outputs.figures import import_pyplot
 
         import_pyplot()

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import gc
 import os
 import signal
 import sys
@@ -83,6 +84,7 @@ class Prefetcher:
         try:
             _die_with(self.parent)
             os.nice(19)
+            gc.freeze()             # its collector passes over its own objects, not the run's (see units._start_worker)
             for i in range(self.n - 1, 0, -1):
                 with self.lock:
                     if i <= self.reached.value:

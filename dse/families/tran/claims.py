@@ -42,11 +42,17 @@ def lyapunov_values(res: Results, z: np.ndarray) -> np.ndarray:
 
 
 def error_derivative(res: Results, run: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """ż from the error system (26)/(33) along a run: (z, ż, |ż|-scale), all (T, N, q) (`ce.error_rate`)."""
-    sc, G, r, z = res.scenario, gains(res.scenario), res.runs[run], res.errors(run)
-    zdot, scale = ce.error_rate(sc.A, sc.B, G["C"], G["L"], G["J"], G["K"], G["sigma"], res.P, sc.lap,
-                                sc.coupling.alpha, z, r["g"], r["w"], res.signal().rate(r["t"]))
-    return z, zdot, scale
+    """ż from the error system (26)/(33) along a run: (z, ż, |ż|-scale), all (T, N, q) (`ce.error_rate`).
+    Kept on `res` (read-only) for the run's other claims: two read the time-varying-role run's."""
+    kept = res.__dict__.setdefault("_error_derivative", {})
+    if run not in kept:
+        sc, G, r, z = res.scenario, gains(res.scenario), res.runs[run], res.errors(run)
+        zdot, scale = ce.error_rate(sc.A, sc.B, G["C"], G["L"], G["J"], G["K"], G["sigma"], res.P, sc.lap,
+                                    sc.coupling.alpha, z, r["g"], r["w"], res.signal().rate(r["t"]))
+        for a in (z, zdot, scale):
+            a.flags.writeable = False
+        kept[run] = z, zdot, scale
+    return kept[run]
 
 
 def tail(res: Results, run: str) -> np.ndarray:
