@@ -149,7 +149,7 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
 
 
 def _import_for_claims() -> None:
-    """What the claims import (scipy.stats, python-control: about 0.5 s), imported while the stages' workers
-    run (`dse.simulate.units.idle_work`) instead of between them and the claims."""
-    import control  # noqa: F401
+    """What the claims import (scipy.stats: about 0.3 s), imported while the stages' workers run
+    (`dse.simulate.units.idle_work`) instead of between them and the claims. Their oracles from
+    python-control and scipy.integrate are computed in the references stage."""
     import scipy.stats  # noqa: F401
