@@ -149,7 +149,8 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
 
 
 def _import_for_claims() -> None:
-    """What the claims import (scipy.stats: about 0.3 s), imported while the stages' workers run
-    (`dse.simulate.units.idle_work`) instead of between them and the claims. Their oracles from
-    python-control and scipy.integrate are computed in the references stage."""
-    import scipy.stats  # noqa: F401
+    """What the claims import (scipy.special for the laws of their tests), imported while the stages' workers
+    run (`dse.simulate.units.idle_work`) instead of between them and the claims. They import neither
+    scipy.stats (0.3 s; see `claims_common`) nor python-control and scipy.integrate (their oracles are
+    computed in the references stage)."""
+    import scipy.special  # noqa: F401
