@@ -152,8 +152,8 @@ def _import_for_claims() -> None:
     """What comes after the stages imports, done while their workers run (`dse.simulate.units.idle_work`)
     instead of between them and the claims: scipy.special for the laws of the claims' tests (they import
     neither scipy.stats, 0.3 s, see `claims_common`, nor python-control and scipy.integrate, whose
-    oracles are computed in the references stage), and rerun for the recordings (0.2 s), which the
-    figure workers then inherit instead of each importing it."""
+    oracles are computed in the references stage), the claims and tables modules, and rerun for the
+    recordings (0.2 s), which the figure workers then inherit instead of importing it."""
     import scipy.special  # noqa: F401
 
-    from . import figures, recording  # noqa: F401
+    from . import claims, figures, recording, tables  # noqa: F401
