@@ -6,6 +6,7 @@ cannot be streamed)."""
 from __future__ import annotations
 
 import copy
+import dataclasses
 import re
 import subprocess
 import sys
@@ -325,3 +326,16 @@ def test_listing_the_papers_claims_parses_no_scenario_file(monkeypatch):
     run = registry.paper("tanwani")
     assert len(run.claims()) == 133 and len(run.hypotheses()) == 45
     assert run.claims()[-4].id == "tanwani.errata.inverse_transform"
+
+
+def test_claims_on_oracles_computed_in_the_stage_or_by_themselves_agree(small_run):
+    """python-control's care/lqe/lyap and the Radau integration are computed in the references stage; a claim
+    without them (the oracle raised there) calls the same function: both give the same verdict, to the bit."""
+    from dse.families.tanwani import claims_references, claims_theorem, references
+
+    run, _ = small_run
+    r = next(iter(run.results.scenarios.values()))
+    assert all(k in r.bounds for k in references.KB_ORACLES + references.LYAPUNOV_ORACLES)
+    stripped = dataclasses.replace(r, bounds={k: v for k, v in r.bounds.items() if not k.startswith("oracle_")})
+    for check in (claims_references.check_kb_reference, claims_theorem.check_lyapunov):
+        assert check(stripped) == check(r), check.__name__

@@ -149,7 +149,11 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
 
 
 def _import_for_claims() -> None:
-    """What the claims import (scipy.stats, python-control: about 0.5 s), imported while the stages' workers
-    run (`dse.simulate.units.idle_work`) instead of between them and the claims."""
-    import control  # noqa: F401
-    import scipy.stats  # noqa: F401
+    """What comes after the stages imports, done while their workers run (`dse.simulate.units.idle_work`)
+    instead of between them and the claims: scipy.special for the laws of the claims' tests (they import
+    neither scipy.stats, 0.3 s, see `claims_common`, nor python-control and scipy.integrate, whose
+    oracles are computed in the references stage), the claims and tables modules, and rerun for the
+    recordings (0.2 s), which the figure workers then inherit instead of importing it."""
+    import scipy.special  # noqa: F401
+
+    from . import claims, figures, recording, tables  # noqa: F401

@@ -3,7 +3,9 @@ Carlo checks are compared with, beyond the design. At the test cells (`test_time
 `directions`, main rate): the bound (9), the exact mean covariance, P_KB(t) and the mean and second
 moment over clock paths of the per-path bound (14); the gridded simulator's own exact mean covariance
 against the model's (its discretisation bias, at h and h/2); filterpy's discrete filter on the sampled
-model at four sampling steps, with scipy's DARE solution and the difference their residuals allow.
+model at four sampling steps, with scipy's DARE solution and the difference their residuals allow; and
+the independent oracles of the claims on the Kalman–Bucy covariance and on (10)-(11) (python-control's
+care, lqe and lyap, scipy's Radau integration of the Riccati ODE: `oracles`).
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ MAX_TEST_TIMES = 10        # output times at which the Monte Carlo means are tes
 MAX_SCHEME_DIM = 20        # N·n above which the gridded scheme's own mean covariance is not formed
 FILTERPY_FRACTIONS = (1.0, 0.5, 0.25, 0.125)
 FILTERPY_MAX_STEPS = 6000
+RADAU_RTOL = 1e-11         # local tolerance of the reference Riccati integration
 
 
 def directions(n: int) -> np.ndarray:
@@ -69,7 +72,74 @@ def compute_references(sc: RandomCommFile) -> dict[str, np.ndarray]:
         stable = False
     if stable:
         out.update(kb.sampled_filter_reference(s.A, s.B, Hs, Vs, s.P0, P_kb, FILTERPY_FRACTIONS, FILTERPY_MAX_STEPS))
+        out.update(_stored(kalman_bucy_oracles, sc, P_kb))
+    out.update(_stored(lyapunov_oracles, s))
     return out
+
+
+# -- the claims' independent oracles -----------------------------------------------------------------------
+# Computed here, in the stage's worker (which imports scipy.stats for filterpy already), rather than in the
+# claims: python-control and scipy.integrate then stay out of the main process, which imports its output
+# libraries meanwhile. A claim whose oracle arrays are missing (the oracle raised, or did not succeed, here)
+# calls the same function itself, so that it reports what it reported before.
+
+def kalman_bucy_oracles(sc: RandomCommFile, P_kb: np.ndarray) -> tuple[dict[str, np.ndarray] | None, str]:
+    """python-control's care and lqe (gain and covariance) of the filter CARE, and scipy's Radau
+    integration of the Riccati ODE from P0 on the output grid (local tolerances rtol = RADAU_RTOL,
+    atol = rtol·max(1, |P_KB|)); None with Radau's message when the integration failed."""
+    import control as ct
+    from scipy.integrate import solve_ivp
+
+    s = sc.gossip
+    Hs, Vs = np.vstack(s.H), scipy.linalg.block_diag(*s.V)
+    Sinv = Hs.T @ np.linalg.solve(Vs, Hs)
+    X, _, _ = ct.care(s.A.T, Hs.T, s.B @ s.B.T, Vs, method="scipy")
+    Lq, Pq, _ = ct.lqe(s.A, s.B, Hs, np.eye(s.B.shape[1]), Vs, method="scipy")
+
+    def rhs(t, p):
+        Pt = p.reshape(s.n, s.n)
+        return (s.A @ Pt + Pt @ s.A.T + s.B @ s.B.T - Pt @ Sinv @ Pt).ravel()
+
+    ts = sc.output_times
+    atol = RADAU_RTOL * max(1.0, float(np.abs(P_kb).max()))
+    sol = solve_ivp(rhs, (0, ts[-1]), s.P0.ravel(), method="Radau", t_eval=ts, rtol=RADAU_RTOL, atol=atol)
+    if not sol.success:
+        return None, sol.message
+    return {"oracle_care": X, "oracle_lqe_gain": Lq, "oracle_lqe": Pq,
+            "oracle_riccati_ode": sol.y.T.reshape(-1, s.n, s.n)}, ""
+
+
+def lyapunov_oracles(s) -> tuple[dict[str, np.ndarray], str]:
+    """python-control's lyap of (11) (S) and of (10) (R), for the check of scipy's solutions."""
+    import control as ct
+
+    Gbar = (s.Gbar + s.Gbar.T) / 2
+    return {"oracle_lyap_S": ct.lyap(s.Abar, Gbar, method="scipy"),
+            "oracle_lyap_R": ct.lyap(s.Abar.T, np.eye(s.n), method="scipy")}, ""
+
+
+def _stored(oracle, *args) -> dict[str, np.ndarray]:
+    """An oracle's arrays for the stage's result, or none if it raised, did not succeed or gave non-finite
+    values (the claim then calls it again, and reports that)."""
+    try:
+        arrays, _ = oracle(*args)
+    except Exception:
+        return {}
+    if arrays is None or not all(np.all(np.isfinite(a)) for a in arrays.values()):
+        return {}
+    return arrays
+
+
+def oracle_arrays(bounds: dict[str, np.ndarray], oracle, *args) -> tuple[dict[str, np.ndarray] | None, str]:
+    """The arrays of `oracle` stored by the references stage, else the oracle called here (see `_stored`)."""
+    names = {kalman_bucy_oracles: KB_ORACLES, lyapunov_oracles: LYAPUNOV_ORACLES}[oracle]
+    if all(k in bounds for k in names):
+        return {k: bounds[k] for k in names}, ""
+    return oracle(*args)
+
+
+KB_ORACLES = ("oracle_care", "oracle_lqe_gain", "oracle_lqe", "oracle_riccati_ode")
+LYAPUNOV_ORACLES = ("oracle_lyap_S", "oracle_lyap_R")
 
 
 def test_cell_references(sc: RandomCommFile, b: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

@@ -71,7 +71,7 @@ class ScenarioTables:
 
 def _recording(out: Outputs, v: ScenarioTables):
     def draw(path):
-        from . import recording     # rerun: imported by the worker that writes a recording only
+        from . import recording     # rerun (a run imports it while its stages compute: `family._import_for_claims`)
 
         recording.write(out, v, path)
     return draw
