@@ -116,6 +116,10 @@ class Family(ABC):
     #: a family without a paper: its example as a user's run of it reads it (`Declared`: the file's name, and
     #: what the claims' gates read), so that `dse list` shows its claims without reading the file
     example_declared: ClassVar[Declared | None] = None
+    #: modules that what follows the Monte Carlo imports (claims' libraries, a late reference stage's oracle),
+    #: imported while the Monte Carlo's forked workers run (`dse.simulate.units.idle_work`), on a core they may
+    #: leave idle, instead of between them and the claims; ".name" is a module of the family's own package
+    idle_imports: ClassVar[tuple[str, ...]] = ()
 
     # -- scenarios ---------------------------------------------------------------------------------------
 
@@ -255,6 +259,11 @@ class Family(ABC):
         """A module of the family's package, imported on first use (so that `dse list` loads only what it prints)."""
         return importlib.import_module(f"{type(self).__module__.rpartition('.')[0]}.{name}")
 
+    def import_idle_imports(self) -> None:
+        """Import `idle_imports` (a head start only: a module that fails to import here fails where it is used)."""
+        for name in self.idle_imports:
+            self.module(name[1:]) if name.startswith(".") else importlib.import_module(name)
+
 
 @dataclass(frozen=True)
 class Computed:
@@ -325,7 +334,10 @@ class Reproduction:
         return self.family.design(self, opts, ctx)
 
     def compute(self, opts: RunOptions, ctx: StageContext) -> Computed:
-        return self.family.compute(self, opts, ctx)
+        from dse.simulate.units import idle_work
+
+        with idle_work(self.family.import_idle_imports):
+            return self.family.compute(self, opts, ctx)
 
     def trials(self, opts: RunOptions) -> int:
         return self.family.trials(self, opts)

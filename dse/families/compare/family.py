@@ -5,8 +5,6 @@ cost (the cost model) and this one.
 """
 from __future__ import annotations
 
-import contextlib
-
 from dse.contract.family import Declared, Family
 from dse.contract.options import RunOptions
 
@@ -45,6 +43,9 @@ its generalisation to this setting and what it sends."""
     example_declared = Declared("tracking", plugin_names=())   # the example has no plug-in filter
     trials_key = "simulation.trials"
     edges = generator.EDGES
+    #: filterpy (0.4 s with scipy.stats), for the centralized filter's reference stage after the Monte Carlo (whether
+    #: or not the scenario runs it: on a core the workers leave idle)
+    idle_imports = ("filterpy.kalman",)
     run_title = "one network, every estimator"
 
     def generate(self, seed, edge=None):
@@ -57,13 +58,8 @@ its generalisation to this setting and what it sends."""
         return self.module("results").design(run.scenario, opts.quick, ctx, tuple(run.scenario.estimator_specs.values()))
 
     def simulate(self, run, opts, ctx, design):
-        from dse.simulate.units import idle_work
-
-        # filterpy (0.4 s with scipy.stats), for the centralized filter's reference stage after the Monte Carlo:
-        # imported while the Monte Carlo's workers run, instead of between them and the claims
-        with idle_work(_import_filterpy) if "central" in design.running else contextlib.nullcontext():
-            return self.module("results").simulate(run.scenario, design, opts.seed, self.trials(run, opts),
-                                                  opts.quick, opts.workers, opts.chunk_budget_bytes(), ctx)
+        return self.module("results").simulate(run.scenario, design, opts.seed, self.trials(run, opts),
+                                              opts.quick, opts.workers, opts.chunk_budget_bytes(), ctx)
 
     def external_code(self, scenario) -> str:
         """The plug-in filters' code (`dse.plugin.declare.code_of`)."""
@@ -75,7 +71,3 @@ its generalisation to this setting and what it sends."""
 
     def cost(self, run, opts):
         return estimate(run.scenario, opts, self.trials(run, opts))
-
-
-def _import_filterpy() -> None:
-    import filterpy.kalman  # noqa: F401

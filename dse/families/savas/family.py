@@ -40,6 +40,8 @@ family-wise confidence."""
     example = "paper.toml"
     trials_key = "monte_carlo.trials"
     edges = EDGES
+    #: the scipy modules the claims import (linalg, special, optimize: about 0.4 s)
+    idle_imports = ("scipy.linalg", "scipy.optimize", "scipy.special")
 
     def paper_scenarios(self):
         from dse.scenario.fields import load_toml
@@ -59,11 +61,8 @@ family-wise confidence."""
         return design.Design.of(sc, ctx.run(design.design_arrays, sc, self.module("cells").gain_grid(sc, opts.quick)))
 
     def simulate(self, run, opts, ctx, design):
-        from dse.simulate.units import idle_work
-
-        with idle_work(_import_for_claims):
-            return self.module("results").simulate(ctx, run.scenario, design, opts.seed, self.trials(run, opts),
-                                                   workers=opts.workers, budget_bytes=opts.chunk_budget_bytes())
+        return self.module("results").simulate(ctx, run.scenario, design, opts.seed, self.trials(run, opts),
+                                               workers=opts.workers, budget_bytes=opts.chunk_budget_bytes())
 
     def trials(self, run, opts: RunOptions) -> int:
         mc = run.scenario.monte_carlo
@@ -74,11 +73,3 @@ family-wise confidence."""
 
     def views(self, outputs):
         return self.module("figures").views(outputs) + self.module("recordings").views(outputs)
-
-
-def _import_for_claims() -> None:
-    """The scipy modules the claims import (linalg, special, optimize: about 0.4 s), imported while the Monte
-    Carlo's workers run (`dse.simulate.units.idle_work`) instead of between them and the claims."""
-    import scipy.linalg  # noqa: F401
-    import scipy.optimize  # noqa: F401
-    import scipy.special  # noqa: F401

@@ -59,6 +59,10 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
     example = "example.toml"
     trials_key = "simulation.trials"
     edges = generator.EDGES
+    #: scipy.special for the laws of the claims' tests (the claims import neither scipy.stats, 0.3 s, see
+    #: `claims_common`, nor python-control and scipy.integrate: their oracles are computed in the references
+    #: stage), and the claims and tables modules
+    idle_imports = ("scipy.special", ".claims", ".tables")
 
     # -- scenarios -----------------------------------------------------------------------------------------
 
@@ -97,12 +101,10 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
         """The design and every other stage in one pool of workers, heaviest first (no stage of the simulation
         reads the design, so none waits for it)."""
         from dse.contract.family import Computed
-        from dse.simulate.units import idle_work
 
         (dc, dw), (sc, sw) = self._design_calls(run, opts), self._simulate_calls(run, opts)
-        with idle_work(_import_for_claims):
-            out = ctx.run_many(dc + sc, workers=opts.workers, weights=dw + sw, seconds=True,
-                               desc="random-comm-filter stages")
+        out = ctx.run_many(dc + sc, workers=opts.workers, weights=dw + sw, seconds=True,
+                           desc="random-comm-filter stages")
         design = self._design(run, out[:len(dc)])
         return Computed(design, self._results(run, opts, design, out[len(dc):]))
 
@@ -147,13 +149,3 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
     def cost(self, run, opts):
         return self.module("cost").estimate(run.scenarios, opts, paper=run.is_paper)
 
-
-def _import_for_claims() -> None:
-    """What comes after the stages imports, done while their workers run (`dse.simulate.units.idle_work`)
-    instead of between them and the claims: scipy.special for the laws of the claims' tests (they import
-    neither scipy.stats, 0.3 s, see `claims_common`, nor python-control and scipy.integrate, whose
-    oracles are computed in the references stage), the claims and tables modules, and rerun for the
-    recordings (0.2 s), which the figure workers then inherit instead of importing it."""
-    import scipy.special  # noqa: F401
-
-    from . import claims, figures, recording, tables  # noqa: F401
