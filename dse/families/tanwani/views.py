@@ -71,7 +71,8 @@ class ScenarioTables:
 
 def _recording(out: Outputs, v: ScenarioTables):
     def draw(path):
-        from . import recording     # rerun (a run imports it while its stages compute: `family._import_for_claims`)
+        # rerun: a run imports it while its stages compute (`dse.engine.driver.import_output_libraries`)
+        from . import recording
 
         recording.write(out, v, path)
     return draw
