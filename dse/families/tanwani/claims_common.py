@@ -35,104 +35,11 @@ def hyp(*names: str) -> tuple[str, ...]:
     return tuple(HYP + n for n in names)
 
 
-# -- the laws of the tests: scipy.stats' values to the bit, without importing scipy.stats -----------------------
-# scipy.stats takes 0.3 s to import, more than all the claims of a small run. Its distributions evaluate these
-# scipy.special functions inside a generic wrapper that decides the edge cases (arguments out of range: nan;
-# points outside the support: 0 or 1); `_continuous` and `_discrete` are that wrapper, for the few laws used here
-# (tests/test_tanwani_laws.py compares them with scipy.stats bit for bit).
+def sps():
+    """scipy.stats, imported when a claim first needs it (it takes a second to import; `dse check` does not)."""
+    from scipy import stats
 
-def _continuous(f, x, args, valid, support, side):
-    """`rv_continuous.cdf` (side "cdf") or `.sf` of a law with density on `support` = (a, b): f(x, *args)
-    inside, 0 or 1 outside, nan for invalid arguments or x."""
-    x, *args = np.broadcast_arrays(np.asarray(x, float), *(np.asarray(a, float) for a in args))
-    a, b = support
-    ok = valid(*args) if args else np.ones(x.shape, bool)
-    out = np.zeros(x.shape)
-    out[~ok | np.isnan(x)] = np.nan
-    out[ok & ((x >= b) if side == "cdf" else (x <= a))] = 1.0
-    with np.errstate(invalid="ignore"):
-        inside = ok & (a < x) & (x < b)
-    out[inside] = f(x[inside], *(v[inside] for v in args))
-    return out[()] if out.ndim == 0 else out
-
-
-def _discrete(f, k, args, valid, support, side):
-    """`rv_discrete.cdf` (side "cdf") or `.sf` of a law on the integers of `support` = [a, b): f(⌊k⌋, *args)
-    (clipped to [0, 1]) inside, 0 or 1 outside, nan for invalid arguments or k."""
-    k, *args = np.broadcast_arrays(np.asarray(k, float), *(np.asarray(a, float) for a in args))
-    ok = valid(*args)
-    a, b = (np.broadcast_to(np.asarray(e, float), k.shape) for e in support(*args))
-    inside = ok & (k >= a) & (k < b) & np.isfinite(k)
-    out = np.zeros(k.shape)
-    if side == "cdf":
-        out[k >= b] = 1.0
-        out[np.isneginf(k)] = 0.0
-        out[~ok | np.isnan(k)] = np.nan
-    else:
-        out[~ok | np.isnan(k)] = np.nan
-        out[((k < a) | np.isneginf(k)) & ok] = 1.0
-    out[inside] = np.clip(f(np.floor(k[inside]), *(v[inside] for v in args)), 0, 1)
-    return out[()] if out.ndim == 0 else out
-
-
-def t_sf(x, df):
-    """scipy.stats.t.sf(x, df)."""
-    from scipy.special import stdtr
-
-    return _continuous(lambda x, df: stdtr(df, -x), x, (df,), lambda df: df > 0, (-np.inf, np.inf), "sf")
-
-
-def norm_sf(x):
-    """scipy.stats.norm.sf(x)."""
-    from scipy.special import ndtr
-
-    return _continuous(lambda x: ndtr(-x), x, (), None, (-np.inf, np.inf), "sf")
-
-
-def chi2_cdf(x, df):
-    """scipy.stats.chi2.cdf(x, df)."""
-    from scipy.special import chdtr
-
-    return _continuous(lambda x, df: chdtr(df, x), x, (df,), lambda df: df > 0, (0.0, np.inf), "cdf")
-
-
-def chi2_sf(x, df):
-    """scipy.stats.chi2.sf(x, df)."""
-    from scipy.special import chdtrc
-
-    return _continuous(lambda x, df: chdtrc(df, x), x, (df,), lambda df: df > 0, (0.0, np.inf), "sf")
-
-
-def poisson_cdf(k, mu):
-    """scipy.stats.poisson.cdf(k, mu)."""
-    from scipy.special import pdtr
-
-    return _discrete(pdtr, k, (mu,), lambda mu: mu >= 0, lambda mu: (0.0, np.inf), "cdf")
-
-
-def poisson_sf(k, mu):
-    """scipy.stats.poisson.sf(k, mu)."""
-    from scipy.special import pdtrc
-
-    return _discrete(pdtrc, k, (mu,), lambda mu: mu >= 0, lambda mu: (0.0, np.inf), "sf")
-
-
-def _binom_valid(n, p):
-    return (n >= 0) & (n == np.round(n)) & (p >= 0) & (p <= 1)
-
-
-def binom_cdf(k, n, p):
-    """scipy.stats.binom.cdf(k, n, p) (the Boost function scipy.stats calls, in scipy.special._ufuncs)."""
-    from scipy.special import _ufuncs
-
-    return _discrete(_ufuncs._binom_cdf, k, (n, p), _binom_valid, lambda n, p: (0.0, n), "cdf")
-
-
-def binom_sf(k, n, p):
-    """scipy.stats.binom.sf(k, n, p)."""
-    from scipy.special import _ufuncs
-
-    return _discrete(_ufuncs._binom_sf, k, (n, p), _binom_valid, lambda n, p: (0.0, n), "sf")
+    return stats
 
 
 def min_eig(X: np.ndarray) -> np.ndarray:
@@ -224,8 +131,8 @@ def path_mean_pvalues(s1, s2, n: int, mu, var, *, side: str = "two") -> np.ndarr
         p_lo = np.where(eps > 0, np.exp(-n * eps ** 2 / (2 * v + 2 * np.abs(mu) * eps / 3)), 1.0)
         t = np.where(sample_var > 0, (xbar - mu) / np.sqrt(sample_var / n),
                      np.where(xbar == mu, 0.0, np.sign(xbar - mu) * np.inf))
-        p_t = t_sf(t, n - 1)
-        p_z = norm_sf((xbar - mu) / np.sqrt(v / n))
+        p_t = sps().t.sf(t, n - 1)
+        p_z = sps().norm.sf((xbar - mu) / np.sqrt(v / n))
     p_up = np.maximum(p_t, p_z)
     if side == "upper":
         return p_up
@@ -249,11 +156,11 @@ def worst_cell(p, est, refv):
 
 
 def chi2_lower_p(stat, dof) -> np.ndarray:
-    return chi2_cdf(np.asarray(stat, float), np.asarray(dof, float))
+    return sps().chi2.cdf(np.asarray(stat, float), np.asarray(dof, float))
 
 
 def chi2_upper_p(stat, dof) -> np.ndarray:
-    return chi2_sf(np.asarray(stat, float), np.asarray(dof, float))
+    return sps().chi2.sf(np.asarray(stat, float), np.asarray(dof, float))
 
 
 def second_variance(b, var) -> np.ndarray:

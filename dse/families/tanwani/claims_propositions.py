@@ -16,9 +16,8 @@ import dse.estimators.gossip_covariance as gc
 from dse.simulate.stats import chi2_two_sided_p
 from dse.verify.rules import FAIL, PASS, Verdict, identity, inequality, p_value_test, roundoff_tolerance
 
-from .claims_common import (MIN_TRIALS, SECOND, binom_cdf, binom_sf, cell_var_note, chi2_upper_p, claims, hyp, min_eig,
-                            path_mean_pvalues, path_test, path_tolerance, poisson_cdf, poisson_sf, second_variance,
-                            worst_cell)
+from .claims_common import (MIN_TRIALS, SECOND, cell_var_note, chi2_upper_p, claims, hyp, min_eig, path_mean_pvalues,
+                            path_test, path_tolerance, second_variance, sps, worst_cell)
 from .references import directions
 from .results import ScenarioResults
 
@@ -76,9 +75,9 @@ def check_poisson(r: ScenarioResults) -> Verdict:
     n = int(ev["n"])
     mu = s.degrees * sc.main_rate * sc.horizon
     total, zeros = np.asarray(ev["c1"], float), np.asarray(ev["c0"], float)
-    p_sum = _two_sided_discrete(poisson_cdf(total, n * mu), poisson_sf(total - 1, n * mu))
+    p_sum = _two_sided_discrete(sps().poisson.cdf(total, n * mu), sps().poisson.sf(total - 1, n * mu))
     p0 = np.exp(-mu)
-    p_zero = _two_sided_discrete(binom_cdf(zeros, n, p0), binom_sf(zeros - 1, n, p0))
+    p_zero = _two_sided_discrete(sps().binom.cdf(zeros, n, p0), sps().binom.sf(zeros - 1, n, p0))
     spacing = float(ev["spacing"])
     v = p_value_test(np.concatenate([p_sum, p_zero]), trials=n, min_trials=MIN_TRIALS,
                      measured=float((total / n)[np.argmin(p_sum)]), reference=float(mu[np.argmin(p_sum)]),

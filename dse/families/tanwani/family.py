@@ -59,10 +59,9 @@ covariance V_i; Lemma III.3's garbled text; Ũ† = Ũ. Reconstruction notes: do
     example = "example.toml"
     trials_key = "simulation.trials"
     edges = generator.EDGES
-    #: scipy.special for the laws of the claims' tests (the claims import neither scipy.stats, 0.3 s, see
-    #: `claims_common`, nor python-control and scipy.integrate: their oracles are computed in the references
-    #: stage), and the claims and tables modules
-    idle_imports = ("scipy.special", ".claims", ".tables")
+    #: scipy.stats for the laws of the claims' tests (0.3 s; python-control and scipy.integrate, the claims' oracles,
+    #: are imported by the references stage's worker, which computes them), and the claims and tables modules
+    idle_imports = ("scipy.stats", ".claims", ".tables")
 
     # -- scenarios -----------------------------------------------------------------------------------------
 
