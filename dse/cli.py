@@ -561,8 +561,18 @@ def main(argv: list[str] | None = None) -> int:
         return 143
     finally:
         signal.signal(signal.SIGTERM, previous)
+        _forget_interrupts_inside_exec()
         if argv is None:      # the `dse` program itself (not a call from Python): what is left is its exit
             _freeze_for_exit()
+
+
+def _forget_interrupts_inside_exec() -> None:
+    """CPython (3.11) marks a KeyboardInterrupt that leaves code run by `exec` of a string (dataclasses and
+    namedtuple build their methods so, as a library is imported, say) as unhandled, even when `main` catches it
+    later; under `python -m dse.cli` the interpreter then ends by killing itself with SIGINT (exit status -2)
+    instead of exiting with main's code (130 after Ctrl-C). Each `exec` of a string clears that mark before it runs
+    its code: this one runs nothing else."""
+    exec("pass")
 
 
 def _freeze_for_exit() -> None:
