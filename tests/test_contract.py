@@ -50,6 +50,19 @@ def test_family_implements_the_whole_contract(family_id):
 
 
 @pytest.mark.parametrize("family_id", IDS)
+def test_every_idle_import_names_a_module_that_imports(family_id):
+    """A run imports `idle_imports` as a head start and ignores a failure there (what needs the module imports it
+    again): a misspelt name would be skipped silently, so each one is imported here, and must be."""
+    import sys
+
+    family = FAMILIES[family_id]
+    family.import_idle_imports()
+    package = type(family).__module__.rpartition(".")[0]
+    for name in family.idle_imports:
+        assert (package + name if name.startswith(".") else name) in sys.modules, name
+
+
+@pytest.mark.parametrize("family_id", IDS)
 def test_every_key_is_documented_and_the_example_parses(family_id):
     family = FAMILIES[family_id]
     for path, rows, _ in reference_rows(family.scenario_model):
